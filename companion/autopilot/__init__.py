@@ -1,0 +1,35 @@
+"""Autopilot interface, telemetry types and (later) the MAVSDK and pymavlink backends."""
+
+from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    StatusText,
+    TelemetrySample,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+
+__all__ = [
+    "Attitude",
+    "Autopilot",
+    "AutopilotError",
+    "FlightMode",
+    "GlobalPosition",
+    "GpsRaw",
+    "HomePosition",
+    "Imu",
+    "LandedState",
+    "PositionNed",
+    "StatusText",
+    "TelemetryCache",
+    "TelemetrySample",
+    "VehicleStatus",
+    "VelocitySetpoint",
+]

@@ -1,0 +1,266 @@
+"""Typed, validated configuration loaded from TOML parameter sets in ``params/``.
+
+Every parameter is declared once, here, with its unit, limits and description (``Field``).
+An unknown key, a wrong type or an out-of-range value fails at load time with a
+:class:`ConfigError` naming the file, the dotted key, the offending value and the rule.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class ConfigError(ValueError):
+    """A parameter file is unreadable or a value in it breaks a rule."""
+
+    def __init__(self, source: str, problems: list[str]):
+        self.source = source
+        self.problems = problems
+        super().__init__(f"{source}: " + "; ".join(problems))
+
+
+def _f(default: Any, unit: str, description: str, **limits: Any) -> Any:
+    return Field(default, description=description, json_schema_extra={"unit": unit}, **limits)
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class GeoConfig(_Section):
+    lat_deg: float = _f(..., "deg", "latitude (WGS-84)", ge=-90.0, le=90.0)
+    lon_deg: float = _f(..., "deg", "longitude (WGS-84)", ge=-180.0, le=180.0)
+    alt_amsl_m: float = _f(0.0, "m", "altitude above mean sea level", ge=-500.0, le=9000.0)
+
+
+class PadConfig(_Section):
+    """Where the delivery pad is: geodetic (as a customer's surveyed pad is) or local offsets."""
+
+    lat_deg: float | None = _f(None, "deg", "pad latitude (give lat/lon, or north/east)", ge=-90, le=90)
+    lon_deg: float | None = _f(None, "deg", "pad longitude", ge=-180, le=180)
+    alt_amsl_m: float | None = _f(None, "m", "pad ground altitude AMSL (default: home altitude)")
+    north_m: float | None = _f(None, "m", "pad north of home (local alternative to lat/lon)")
+    east_m: float | None = _f(None, "m", "pad east of home (local alternative to lat/lon)")
+    up_m: float = _f(0.0, "m", "pad height above home ground (with north/east)", ge=-100, le=100)
+    size_m: float = _f(1.0, "m", "side of the square landing pad", gt=0.1, le=10.0)
+
+    @model_validator(mode="after")
+    def _one_form(self) -> PadConfig:
+        geo = self.lat_deg is not None or self.lon_deg is not None
+        local = self.north_m is not None or self.east_m is not None
+        if geo == local:
+            raise ValueError("give the pad either as lat_deg+lon_deg or as north_m+east_m (one form)")
+        if geo and (self.lat_deg is None or self.lon_deg is None):
+            raise ValueError("pad lat_deg and lon_deg go together")
+        if local and (self.north_m is None or self.east_m is None):
+            raise ValueError("pad north_m and east_m go together")
+        return self
+
+
+class MissionConfig(_Section):
+    """Delivery path (delivery section 4.1) and vector field (delivery eqs 16-19)."""
+
+    height_m: float = _f(45.0, "m", "cruise height h above the pad (F_I z)", gt=2.0, le=120.0)
+    arc_radius_m: float = _f(6.0, "m", "radius r of the two transition arcs", gt=0.0, le=50.0)
+    sector_speed_m_s: tuple[float, float, float, float, float] = _f(
+        (2.0, 3.0, 5.0, 3.0, 1.5), "m/s", "reference speed v_i in sectors S1..S5", min_length=5
+    )
+    convergence_gain: float = _f(1.0, "1/m", "k_f: vector field convergence weight", gt=0.0, le=20.0)
+    takeoff_alt_m: float = _f(3.0, "m", "autopilot takeoff height before the field takes over", gt=0.5, le=20.0)
+    final_descent_alt_m: float = _f(3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0)
+    land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
+    release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
+    abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
+    ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
+    takeoff_timeout_s: float = _f(60.0, "s", "takeoff must reach its height within this time", gt=0.0, le=600.0)
+    touchdown_timeout_s: float = _f(30.0, "s", "landing: fall back to the autopilot's LAND after this long below final descent height", gt=0.0, le=600.0)
+    estimate_timeout_s: float = _f(1.0, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
+    return_home: bool = _f(True, "-", "take off again after the release and fly home")
+    pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
+
+    @model_validator(mode="after")
+    def _geometry(self) -> MissionConfig:
+        if self.arc_radius_m >= self.height_m:
+            raise ValueError(
+                f"arc_radius_m ({self.arc_radius_m}) must be < height_m ({self.height_m}): "
+                "the arcs must fit below the cruise height"
+            )
+        for i, v in enumerate(self.sector_speed_m_s, start=1):
+            if not (math.isfinite(v) and 0.0 < v <= 20.0):
+                raise ValueError(f"sector_speed_m_s[{i - 1}] (v{i}) = {v}: must be in (0, 20] m/s")
+        if self.takeoff_alt_m >= self.height_m - self.arc_radius_m:
+            raise ValueError(
+                f"takeoff_alt_m ({self.takeoff_alt_m}) must be below height_m - arc_radius_m "
+                f"({self.height_m - self.arc_radius_m}), the top of the vertical section"
+            )
+        return self
+
+
+class LimitsConfig(_Section):
+    """Clamps applied to every setpoint before it leaves (DESIGN safety contract)."""
+
+    max_horizontal_speed_m_s: float = _f(8.0, "m/s", "horizontal speed limit", gt=0.0, le=30.0)
+    max_climb_m_s: float = _f(3.0, "m/s", "climb rate limit", gt=0.0, le=10.0)
+    max_descent_m_s: float = _f(2.0, "m/s", "descent rate limit", gt=0.0, le=10.0)
+    max_yaw_rate_deg_s: float = _f(60.0, "deg/s", "yaw rate limit", gt=0.0, le=360.0)
+    geofence_radius_m: float = _f(500.0, "m", "max horizontal distance from home", gt=10.0, le=20000.0)
+    geofence_max_alt_m: float = _f(120.0, "m", "max height above home", gt=5.0, le=1000.0)
+
+
+class RuntimeConfig(_Section):
+    """Task rates (DESIGN: floors, not ceilings) and watchdogs."""
+
+    guidance_rate_hz: float = _f(20.0, "Hz", "guidance and mission rate", ge=20.0, le=200.0)
+    setpoint_rate_hz: float = _f(20.0, "Hz", "setpoint stream rate (PX4 needs > 2 Hz)", ge=5.0, le=200.0)
+    setpoint_stale_s: float = _f(0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0)
+    link_timeout_s: float = _f(1.0, "s", "no heartbeat for this long is a lost link", gt=0.1, le=30.0)
+    log_rate_hz: float = _f(20.0, "Hz", "flight-log sampling rate of the shell state", gt=0.0, le=200.0)
+
+
+class VehicleSimConfig(_Section):
+    """Embedded multicopter model (sitl/): inner loops that behave like PX4's."""
+
+    mass_kg: float = _f(2.4, "kg", "vehicle mass with parcel", gt=0.1, le=50.0)
+    parcel_mass_kg: float = _f(0.4, "kg", "parcel mass (released on the pad)", ge=0.0, le=20.0)
+    max_tilt_deg: float = _f(35.0, "deg", "tilt limit of the attitude loop", gt=5.0, le=70.0)
+    max_horizontal_accel_m_s2: float = _f(5.0, "m/s^2", "horizontal acceleration limit", gt=0.1, le=20.0)
+    max_up_accel_m_s2: float = _f(4.0, "m/s^2", "upward acceleration limit", gt=0.1, le=20.0)
+    max_down_accel_m_s2: float = _f(3.0, "m/s^2", "downward acceleration limit", gt=0.1, le=9.8)
+    attitude_time_constant_s: float = _f(0.12, "s", "first-order tilt response", gt=0.005, le=2.0)
+    velocity_p_gain: float = _f(1.8, "1/s", "velocity loop P (MPC_XY_VEL_P_ACC-like)", gt=0.0, le=20.0)
+    velocity_i_gain: float = _f(0.4, "1/s^2", "velocity loop I", ge=0.0, le=20.0)
+    position_p_gain: float = _f(0.95, "1/s", "position loop P for hold/land (MPC_XY_P-like)", gt=0.0, le=10.0)
+    drag_coefficient_1_s: float = _f(0.35, "1/s", "linear drag per unit air-relative speed", ge=0.0, le=5.0)
+    takeoff_speed_m_s: float = _f(1.5, "m/s", "autopilot takeoff climb rate", gt=0.1, le=5.0)
+    land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
+    offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
+    physics_rate_hz: float = _f(200.0, "Hz", "integration rate", ge=50.0, le=2000.0)
+
+
+class SimConfig(_Section):
+    """A simulated scenario: seed, home, wind, sensors."""
+
+    seed: int = _f(1, "-", "random seed (every noise source derives from it)", ge=0)
+    home: GeoConfig = Field(
+        default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0)
+    )
+    wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
+    wind_from_deg: float = _f(270.0, "deg", "direction the wind blows from (0 = north)", ge=0.0, lt=360.0)
+    gust_std_m_s: float = _f(-1.0, "m/s", "gust intensity (std); -1 = 20 % of wind speed", ge=-1.0, le=10.0)
+    gust_time_constant_s: float = _f(3.0, "s", "gust correlation time", gt=0.0, le=60.0)
+    gps_bias_m: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m", "constant GPS error (N, E, D)")
+    gps_noise_m: float = _f(0.05, "m", "white GPS noise (std, horizontal)", ge=0.0, le=10.0)
+    gps_walk_m: float = _f(0.15, "m", "slow GPS error wander (std, horizontal, Gauss-Markov)", ge=0.0, le=10.0)
+    gps_walk_time_constant_s: float = _f(20.0, "s", "correlation time of the GPS wander", gt=0.0, le=3600.0)
+    gps_rate_hz: float = _f(8.0, "Hz", "GPS fix rate", gt=0.5, le=50.0)
+    position_rate_hz: float = _f(30.0, "Hz", "LOCAL/GLOBAL_POSITION stream rate", gt=1.0, le=200.0)
+    attitude_rate_hz: float = _f(50.0, "Hz", "ATTITUDE stream rate", gt=1.0, le=500.0)
+    imu_rate_hz: float = _f(50.0, "Hz", "IMU stream rate", gt=1.0, le=1000.0)
+    status_rate_hz: float = _f(5.0, "Hz", "status/heartbeat rate", gt=0.5, le=50.0)
+    gyro_noise_rad_s: float = _f(0.003, "rad/s", "gyro white noise", ge=0.0, le=1.0)
+    accel_noise_m_s2: float = _f(0.05, "m/s^2", "accelerometer white noise", ge=0.0, le=10.0)
+    baro_noise_m: float = _f(0.1, "m", "barometer white noise", ge=0.0, le=10.0)
+    ready_delay_s: float = _f(2.0, "s", "time after boot until the vehicle is healthy (GPS, EKF)", ge=0.0, le=120.0)
+    pad_offset_m: tuple[float, float] = _f((0.0, 0.0), "m", "true pad displacement from its configured position (N, E)")
+    vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
+
+    @model_validator(mode="after")
+    def _finite(self) -> SimConfig:
+        for name in ("gps_bias_m", "pad_offset_m"):
+            for v in getattr(self, name):
+                if not math.isfinite(v) or abs(v) > 1000.0:
+                    raise ValueError(f"{name} component {v} must be finite and within +-1000 m")
+        return self
+
+    @property
+    def gust_std_effective_m_s(self) -> float:
+        return 0.2 * self.wind_speed_m_s if self.gust_std_m_s < 0 else self.gust_std_m_s
+
+
+class CompanionConfig(_Section):
+    vehicle_id: str = _f("drone1", "-", "name of this vehicle (telemetry key space)", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_\-]+$")
+    autopilot: Literal["sim", "px4", "ardupilot"] = _f("sim", "-", "which autopilot backend to use")
+    connection: str = _f("udpin://0.0.0.0:14540", "-", "MAVLink connection URL for px4/ardupilot")
+    mission: MissionConfig = Field(default_factory=MissionConfig)
+    limits: LimitsConfig = Field(default_factory=LimitsConfig)
+    runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
+    sim: SimConfig = Field(default_factory=SimConfig)
+
+
+DEFAULT_PARAMS = "delivery_paper.toml"
+
+
+def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
+    problems = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"])
+        if e["type"] == "extra_forbidden":
+            problems.append(f"{loc}: unknown key (value {e['input']!r}); allowed keys are listed by `companion params show`")
+            continue
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "missing":
+            problems.append(f"{loc}: required key is missing")
+        elif loc:
+            problems.append(f"{loc} = {e['input']!r}: {msg}")
+        else:
+            problems.append(msg)
+    return problems
+
+
+def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CompanionConfig:
+    try:
+        return CompanionConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(source, _format_errors(err, data)) from None
+
+
+def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in override.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(str(p), ["file not found"]) from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(str(p), [f"not valid TOML: {err}"]) from None
+    except OSError as err:
+        raise ConfigError(str(p), [f"cannot read: {err.strerror}"]) from None
+
+
+def shipped_params_path(name: str) -> Path:
+    """A parameter set shipped in ``params/`` (installed as ``companion_params``)."""
+    ref = resources.files("companion_params").joinpath(name)
+    path = Path(str(ref))
+    if not path.is_file():
+        available = sorted(p.name for p in Path(str(resources.files("companion_params"))).glob("*.toml"))
+        raise ConfigError(name, [f"no shipped parameter set of that name; shipped: {available}"])
+    return path
+
+
+def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> CompanionConfig:
+    """Load and validate one or more TOML files (later ones override earlier ones)."""
+    data: dict[str, Any] = {}
+    sources = []
+    for p in paths:
+        data = _merge(data, read_toml(p))
+        sources.append(str(p))
+    if overrides:
+        data = _merge(data, overrides)
+        sources.append("<command line>")
+    return config_from_dict(data, " + ".join(sources) or "<defaults>")

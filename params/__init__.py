@@ -1,0 +1,1 @@
+"""Shipped parameter sets (installed as ``companion_params``)."""

@@ -1,0 +1,1 @@
+"""Hardware and payload drivers (installed as ``companion_plugins``), found through entry points."""

@@ -1,0 +1,1 @@
+"""Simulation (installed as ``companion_sitl``): vehicle dynamics, sensors, the embedded autopilot."""
