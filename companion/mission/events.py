@@ -1,0 +1,51 @@
+"""Typed mission phases and events (timestamped on the shell's clock)."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class Phase(enum.Enum):
+    PREFLIGHT = "preflight"  # waiting for a healthy vehicle, computing the path
+    ARMING = "arming"
+    TAKEOFF = "takeoff"  # autopilot takeoff to takeoff_alt_m
+    OUTBOUND = "outbound"  # vector field, s = +1, sectors S1..S5
+    LANDING_PAD = "landing_pad"  # final descent on the pad
+    RELEASE = "release"  # parcel release on the ground
+    TAKEOFF_RETURN = "takeoff_return"
+    INBOUND = "inbound"  # vector field, s = -1, back along the path
+    LANDING_HOME = "landing_home"
+    DONE = "done"
+    ABORT_HOLD = "abort_hold"
+    ABORT_LAND = "abort_land"
+    PILOT = "pilot"  # the pilot took over; autonomy ended
+    FAILED = "failed"
+
+    @property
+    def terminal(self) -> bool:
+        return self in (Phase.DONE, Phase.FAILED, Phase.PILOT)
+
+
+class EventKind(enum.Enum):
+    PHASE = "phase"  # entered a new phase
+    SECTOR = "sector"  # entered a new path sector
+    ARMED = "armed"
+    TOUCHDOWN = "touchdown"
+    RELEASED = "released"
+    DELIVERED = "delivered"
+    RETURNED = "returned"
+    ABORT = "abort"
+    PILOT_TAKEOVER = "pilot_takeover"
+    LINK_LOST = "link_lost"
+    LINK_RESTORED = "link_restored"
+    REQUEST_FAILED = "request_failed"
+    WARNING = "warning"
+
+
+@dataclass(frozen=True, slots=True)
+class MissionEvent:
+    time_s: float
+    kind: EventKind
+    phase: Phase
+    detail: str = ""
