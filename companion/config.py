@@ -69,7 +69,7 @@ class MissionConfig(_Section):
     height_m: float = _f(45.0, "m", "cruise height h above the pad (F_I z)", gt=2.0, le=120.0)
     arc_radius_m: float = _f(6.0, "m", "radius r of the two transition arcs", gt=0.0, le=50.0)
     sector_speed_m_s: tuple[float, float, float, float, float] = _f(
-        (2.0, 3.0, 5.0, 3.0, 1.5), "m/s", "reference speed v_i in sectors S1..S5", min_length=5
+        (2.0, 3.0, 5.0, 2.0, 1.5), "m/s", "reference speed v_i in sectors S1..S5", min_length=5
     )
     convergence_gain: float = _f(1.0, "1/m", "k_f: vector field convergence weight", gt=0.0, le=20.0)
     takeoff_alt_m: float = _f(3.0, "m", "autopilot takeoff height before the field takes over", gt=0.5, le=20.0)
@@ -126,8 +126,6 @@ class RuntimeConfig(_Section):
 class VehicleSimConfig(_Section):
     """Embedded multicopter model (sitl/): inner loops that behave like PX4's."""
 
-    mass_kg: float = _f(2.4, "kg", "vehicle mass with parcel", gt=0.1, le=50.0)
-    parcel_mass_kg: float = _f(0.4, "kg", "parcel mass (released on the pad)", ge=0.0, le=20.0)
     max_tilt_deg: float = _f(35.0, "deg", "tilt limit of the attitude loop", gt=5.0, le=70.0)
     max_horizontal_accel_m_s2: float = _f(5.0, "m/s^2", "horizontal acceleration limit", gt=0.1, le=20.0)
     max_up_accel_m_s2: float = _f(4.0, "m/s^2", "upward acceleration limit", gt=0.1, le=20.0)
@@ -141,6 +139,9 @@ class VehicleSimConfig(_Section):
     land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
     offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
     physics_rate_hz: float = _f(200.0, "Hz", "integration rate", ge=50.0, le=2000.0)
+    release_delay_s: float = _f(0.5, "s", "payload actuator travel time", ge=0.0, le=10.0)
+    command_latency_s: float = _f(0.02, "s", "time for a command to be acknowledged", ge=0.0, le=5.0)
+    battery_endurance_s: float = _f(1500.0, "s", "flight time from 100 % to 0 % battery", gt=10.0, le=36000.0)
 
 
 class SimConfig(_Section):
@@ -264,3 +265,27 @@ def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> 
         data = _merge(data, overrides)
         sources.append("<command line>")
     return config_from_dict(data, " + ".join(sources) or "<defaults>")
+
+
+def describe_parameters(cfg: BaseModel, prefix: str = "") -> list[str]:
+    """One line per parameter: dotted key = value [unit] (limits) description."""
+    lines = []
+    for name, f in type(cfg).model_fields.items():
+        value = getattr(cfg, name)
+        key = f"{prefix}{name}"
+        if isinstance(value, BaseModel):
+            lines.append(f"[{key}]")
+            lines.extend(describe_parameters(value, key + "."))
+            continue
+        extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
+        unit = extra.get("unit", "")
+        limits = []
+        for m in f.metadata:
+            for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+                v = getattr(m, attr, None)
+                if v is not None:
+                    limits.append(f"{sym} {v}")
+        lim = f" ({', '.join(limits)})" if limits else ""
+        val = list(value) if isinstance(value, tuple) else value
+        lines.append(f"{key} = {val!r} [{unit}]{lim}  {f.description or ''}")
+    return lines

@@ -18,11 +18,11 @@ from companion.geometry.rotations import (
     quat_rotate,
     quat_to_euler,
     quat_to_rotmat,
-    rotmat_to_euler,
-    rotmat_to_quat,
     rot_x,
     rot_y,
     rot_z,
+    rotmat_to_euler,
+    rotmat_to_quat,
     wrap_angle,
 )
 from companion.geometry.se3 import Transform

@@ -1,1 +1,14 @@
-"""companion.guidance"""
+"""Guidance: the delivery path and sectors, the vector field, setpoint limits."""
+
+from companion.guidance.limits import ClampResult, clamp_velocity
+from companion.guidance.path import DeliveryPath, PathGeometryError
+from companion.guidance.vector_field import FieldSample, VectorField
+
+__all__ = [
+    "ClampResult",
+    "DeliveryPath",
+    "FieldSample",
+    "PathGeometryError",
+    "VectorField",
+    "clamp_velocity",
+]

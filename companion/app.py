@@ -1,0 +1,209 @@
+"""The asyncio shell: schedules the synchronous core against an :class:`Autopilot`.
+
+Tasks: the guidance/mission loop (>= 20 Hz) and the setpoint stream (>= 20 Hz), both on
+absolute deadlines of the running loop's clock (real, or virtual under the simulator). Autopilot
+requests run as their own tasks so a slow acknowledgement never stalls guidance. The setpoint
+stream is a watchdog too: if the guidance task stops refreshing the setpoint, streaming stops,
+so the autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent
+forever, cf. MAVSDK-Python issue 374).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.autopilot.types import VelocitySetpoint
+from companion.config import CompanionConfig
+from companion.estimation.passthrough import AutopilotPoseEstimator
+from companion.estimation.types import StateEstimate
+from companion.flightlog.csvlog import CsvLog
+from companion.guidance.limits import clamp_velocity
+from companion.mission.delivery import (
+    DeliveryMission,
+    MissionInputs,
+    MissionOutput,
+    MissionSummary,
+    Request,
+    RequestKind,
+    RequestResult,
+)
+from companion.mission.events import MissionEvent
+from companion.scheduling import LoopClock, RateLoop
+
+log = logging.getLogger(__name__)
+
+FLIGHT_LOG_COLUMNS = (
+    "time_s", "phase", "sector", "lyapunov_m2", "est_north_m", "est_east_m", "est_down_m",
+    "est_north_m_s", "est_east_m_s", "est_down_m_s", "est_yaw_rad",
+    "sp_north_m_s", "sp_east_m_s", "sp_down_m_s", "sp_yaw_rad", "clamped",
+    "mission_x_m", "mission_y_m", "mission_z_m", "mode", "armed",
+)
+
+
+@dataclass
+class ShellStats:
+    guidance_overruns: int = 0
+    setpoint_overruns: int = 0
+    setpoints_sent: int = 0
+    setpoints_clamped: int = 0
+    stream_stops: int = 0
+    requests: int = 0
+    requests_failed: int = 0
+
+
+class DeliveryShell:
+    def __init__(
+        self,
+        config: CompanionConfig,
+        autopilot: Autopilot,
+        flight_log: CsvLog | None = None,
+        on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+    ):
+        self.config = config
+        self.autopilot = autopilot
+        self.mission = DeliveryMission(config.mission)
+        self.estimator = AutopilotPoseEstimator()
+        self.flight_log = flight_log
+        self.on_tick = on_tick
+        self.stats = ShellStats()
+        self.estimate: StateEstimate | None = None
+        self.events: list[MissionEvent] = []
+        self._clock = LoopClock()
+        self._setpoint: tuple[float, VelocitySetpoint] | None = None
+        self._request_task: asyncio.Task[None] | None = None
+        self._streaming = False
+        self._abort_reason: str | None = None
+
+    def abort(self, reason: str) -> None:
+        """Ask the mission to abort (hold, then land) at its next tick."""
+        self._abort_reason = reason
+
+    async def run(self, timeout_s: float | None = None) -> MissionSummary:
+        await self.autopilot.connect()
+        loop = asyncio.get_running_loop()
+        stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
+        try:
+            if timeout_s is None:
+                await self._guidance_loop()
+            else:
+                try:
+                    await asyncio.wait_for(self._guidance_loop(), timeout_s)
+                except TimeoutError:
+                    self.mission.summary.failure = f"mission did not finish within {timeout_s} s"
+                    log.error(self.mission.summary.failure)
+        finally:
+            stream.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await stream
+            if self._request_task is not None:
+                self._request_task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._request_task
+        return self.mission.summary
+
+    # ------------------------------------------------------------------ tasks
+    async def _guidance_loop(self) -> None:
+        rate = RateLoop(self._clock, self.config.runtime.guidance_rate_hz)
+        tc = self.autopilot.telemetry
+        mission = self.mission
+        while not mission.phase.terminal:
+            now = await rate.tick()
+            self.stats.guidance_overruns = rate.overruns
+            if self._abort_reason is not None:
+                mission.abort(now, self._abort_reason)
+                self._abort_reason = None
+            self.estimate = self.estimator.update(tc.position_ned, tc.attitude)
+            out = mission.step(MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok))
+            for ev in out.events:
+                self.events.append(ev)
+                level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
+                log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
+            clamped = False
+            if out.setpoint is not None:
+                pos = self.estimate.position_ned if self.estimate else None
+                res = clamp_velocity(out.setpoint, self.config.limits, pos)
+                clamped = res.clamped
+                if res.clamped:
+                    self.stats.setpoints_clamped += 1
+                self._setpoint = (now, res.setpoint)
+            else:
+                self._setpoint = None
+            if out.request is not None:
+                self._request_task = asyncio.get_running_loop().create_task(self._execute(out.request))
+            self._record(now, out, clamped)
+            if self.on_tick is not None:
+                self.on_tick(self, out)
+
+    async def _setpoint_stream(self) -> None:
+        rt = self.config.runtime
+        rate = RateLoop(self._clock, rt.setpoint_rate_hz)
+        while True:
+            now = await rate.tick()
+            self.stats.setpoint_overruns = rate.overruns
+            sp = self._setpoint
+            if sp is not None and now - sp[0] <= rt.setpoint_stale_s:
+                self.autopilot.set_velocity_ned(sp[1])
+                self.stats.setpoints_sent += 1
+                self._streaming = True
+            elif self._streaming:
+                self._streaming = False
+                if sp is not None:  # stale, not merely finished
+                    self.stats.stream_stops += 1
+                    log.error(
+                        "setpoint is %.2f s old: control task stalled, setpoint stream stopped "
+                        "so the autopilot's failsafe acts", now - sp[0]
+                    )
+
+    async def _execute(self, req: Request) -> None:
+        ap = self.autopilot
+        self.stats.requests += 1
+        calls = {
+            RequestKind.ARM: ap.arm,
+            RequestKind.DISARM: ap.disarm,
+            RequestKind.START_OFFBOARD: ap.start_offboard,
+            RequestKind.HOLD: ap.hold,
+            RequestKind.LAND: ap.land,
+            RequestKind.RELEASE: ap.release_payload,
+        }
+        try:
+            if req.kind is RequestKind.TAKEOFF:
+                await asyncio.wait_for(ap.takeoff(req.alt_rel_m), 10.0)
+            else:
+                await asyncio.wait_for(calls[req.kind](), 10.0)
+        except (AutopilotError, TimeoutError) as err:
+            self.stats.requests_failed += 1
+            msg = str(err) or type(err).__name__
+            log.warning("%s failed: %s", req.kind.value, msg)
+            self.mission.on_result(RequestResult(req.id, False, msg))
+            return
+        self.mission.on_result(RequestResult(req.id, True))
+
+    def _record(self, now: float, out: MissionOutput, clamped: bool) -> None:
+        if self.flight_log is None:
+            return
+        e = self.estimate
+        sp = self._setpoint[1] if self._setpoint is not None else None
+        st = self.autopilot.telemetry.status
+        nan = math.nan
+        if e is not None and self.mission.frame is not None:
+            pm = self.mission.frame.point_from_ned(e.position_ned)
+            mx, my, mz = float(pm[0]), float(pm[1]), float(pm[2])
+        else:
+            mx = my = mz = nan
+        self.flight_log.write(
+            (
+                now, out.phase.value, out.sector, out.lyapunov,
+                *(e.position_ned if e else (nan, nan, nan)),
+                *(e.velocity_ned if e else (nan, nan, nan)),
+                e.yaw_rad if e else nan,
+                *((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan)),
+                int(clamped), mx, my, mz,
+                st.mode.value if st else "", int(st.armed) if st else 0,
+            )
+        )

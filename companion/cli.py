@@ -1,0 +1,223 @@
+"""The ``companion`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import math
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from companion import __version__
+from companion.config import (
+    DEFAULT_PARAMS,
+    CompanionConfig,
+    ConfigError,
+    load_config,
+    shipped_params_path,
+)
+
+log = logging.getLogger(__name__)
+
+# Capability modules that add their own sub-commands: module path -> what it provides.
+COMMAND_MODULES: tuple[str, ...] = ()
+
+
+def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
+    paths = [Path(p) for p in args.params] if args.params else [shipped_params_path(DEFAULT_PARAMS)]
+    sim: dict[str, Any] = {}
+    if args.seed is not None:
+        sim["seed"] = args.seed
+    if args.wind is not None:
+        sim["wind_speed_m_s"] = args.wind
+    if args.wind_from is not None:
+        sim["wind_from_deg"] = args.wind_from
+    if args.gps_bias is not None:
+        sim["gps_bias_m"] = _parse_vec(args.gps_bias, "--gps-bias")
+    overrides = {"sim": sim} if sim else None
+    return load_config(*paths, overrides=overrides)
+
+
+def _parse_vec(text: str, opt: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ConfigError(opt, [f"{text!r}: expected numbers separated by commas, e.g. 2,0 or 1.5,-1,0"]) from None
+    if len(vals) == 1:
+        vals = [vals[0], 0.0, 0.0]
+    elif len(vals) == 2:
+        vals.append(0.0)
+    if len(vals) != 3:
+        raise ConfigError(opt, [f"{text!r}: expected 1 to 3 components (north[,east[,down]]) in metres"])
+    return vals
+
+
+def _fmt_m(v: float) -> str:
+    return "n/a" if not math.isfinite(v) else f"{v:.2f} m"
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from companion.flightlog.plots import plot_run
+    from companion_sitl.demo import run_demo
+
+    cfg = _load_demo_config(args)
+    console = Console()
+    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
+    m = cfg.mission
+    console.print(
+        f"[bold]companion demo[/]: h = {m.height_m} m, r = {m.arc_radius_m} m, v = {list(m.sector_speed_m_s)} m/s, "
+        f"k_f = {m.convergence_gain}; wind {cfg.sim.wind_speed_m_s} m/s, GPS bias {list(cfg.sim.gps_bias_m)} m, "
+        f"seed {cfg.sim.seed}{' (real time)' if args.realtime else ''}"
+    )
+    phases = ["preflight", "arming", "takeoff", "outbound", "landing_pad", "release", "takeoff_return",
+              "inbound", "landing_home", "done"]
+    with Progress(
+        TextColumn("{task.description:<16}"), BarColumn(), TextColumn("sim t = {task.fields[t]:6.1f} s"),
+        TextColumn("{task.fields[where]}"), TimeElapsedColumn(), console=console, disable=args.quiet,
+    ) as progress:
+        task = progress.add_task("preflight", total=len(phases) - 1, t=0.0, where="")
+
+        def on_tick(shell: Any, out: Any) -> None:
+            ph = out.phase.value
+            done = phases.index(ph) if ph in phases else progress.tasks[0].completed
+            e = shell.estimate
+            where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
+            progress.update(task, description=ph, completed=done, t=shell._clock.now(), where=where)
+
+        result = run_demo(cfg, run_dir, realtime=args.realtime, on_tick=on_tick)
+    plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
+    ok = result.delivered and (result.returned or not m.return_home)
+    console.print()
+    console.print(f"[bold]{'DELIVERED' if result.delivered else 'NOT DELIVERED'}[/]"
+                  f"{', returned home' if result.returned else ''}"
+                  + (f"  [red]{result.failure}[/]" if result.failure else ""))
+    rows = [
+        ("flight time", f"{result.flight_time_s:.1f} s"),
+        ("path RMS distance (truth, while following the field)", _fmt_m(result.path_rms_truth_m)),
+        ("path max distance (truth)", _fmt_m(result.path_max_truth_m)),
+        ("path RMS distance (estimate, sqrt(2V), delivery Fig. 9)", _fmt_m(result.path_rms_estimate_m)),
+        ("landing error on the pad (truth)", _fmt_m(result.pad_landing_error_m)),
+        ("landing error at home (truth)", _fmt_m(result.home_landing_error_m)),
+        ("setpoints sent / clamped", f"{result.setpoints_sent} / {result.setpoints_clamped}"),
+        ("simulated / wall time", f"{result.sim_time_s:.1f} s / {result.wall_time_s:.2f} s "
+                                  f"({result.speedup:.0f}x real time)"),
+        ("run folder", f"{run_dir}  (flight.csv, truth.csv, events.csv, summary.json"
+                       f"{', ' + ', '.join(p.name for p in plots) if plots else ''})"),
+    ]
+    for k, v in rows:
+        console.print(f"  {k:<58} {v}")
+    return 0 if ok else 1
+
+
+def cmd_bench_sim(args: argparse.Namespace) -> int:
+    from companion_sitl.demo import run_demo
+
+    cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
+    speedups = []
+    for i in range(args.repeat):
+        r = run_demo(cfg)
+        speedups.append(r.speedup)
+        print(f"run {i + 1}: {r.sim_time_s:.1f} s simulated in {r.wall_time_s:.2f} s wall = {r.speedup:.1f}x real time"
+              f" (delivered={r.delivered}, returned={r.returned})")
+    best = max(speedups)
+    print(f"bench sim: demo flight runs {best:.1f}x faster than real time (best of {args.repeat}; target >= 50x)")
+    return 0
+
+
+def cmd_params_show(args: argparse.Namespace) -> int:
+    from companion.config import describe_parameters
+
+    cfg = load_config(args.file) if args.file else CompanionConfig()
+    for line in describe_parameters(cfg):
+        print(line)
+    return 0
+
+
+def cmd_params_check(args: argparse.Namespace) -> int:
+    bad = 0
+    for f in args.files:
+        try:
+            load_config(f)
+            print(f"{f}: OK")
+        except ConfigError as err:
+            bad += 1
+            print(f"{err.source}:", file=sys.stderr)
+            for p in err.problems:
+                print(f"  {p}", file=sys.stderr)
+    return 1 if bad else 0
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    parser = argparse.ArgumentParser(prog="companion", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"companion {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    demo = sub.add_parser("demo", help="fly the delivery paper's experiment on the embedded simulator")
+    demo.add_argument("--params", action="append", help="parameter file(s) (default: the shipped delivery_paper.toml)")
+    demo.add_argument("--seed", type=int, help="random seed of the scenario")
+    demo.add_argument("--wind", type=float, help="mean wind speed, m/s")
+    demo.add_argument("--wind-from", type=float, help="direction the wind blows from, deg (0 = north)")
+    demo.add_argument("--gps-bias", help="constant GPS error in metres: north[,east[,down]]")
+    demo.add_argument("--realtime", action="store_true", help="run in real time instead of lock-step")
+    demo.add_argument("--out", help="run folder (default: runs/demo-<time>)")
+    demo.add_argument("--quiet", action="store_true", help="no progress bar")
+    demo.set_defaults(func=cmd_demo)
+
+    bench = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
+    bsub = bench.add_subparsers(dest="bench", metavar="WHAT", required=True)
+    bs = bsub.add_parser("sim", help="how many times faster than real time the demo flight runs")
+    bs.add_argument("--repeat", type=int, default=3)
+    bs.add_argument("--seed", type=int, default=1)
+    bs.set_defaults(func=cmd_bench_sim)
+
+    params = sub.add_parser("params", help="show or check parameter files")
+    psub = params.add_subparsers(dest="params_cmd", metavar="ACTION", required=True)
+    ps = psub.add_parser("show", help="every parameter with its unit, limits, description and value")
+    ps.add_argument("file", nargs="?")
+    ps.set_defaults(func=cmd_params_show)
+    pc = psub.add_parser("check", help="validate parameter files")
+    pc.add_argument("files", nargs="+")
+    pc.set_defaults(func=cmd_params_check)
+
+    failed = []
+    for mod in COMMAND_MODULES:
+        try:
+            register: Callable[[Any], None] = importlib.import_module(mod).register
+            register(sub)
+        except Exception as err:  # a broken capability must not take the CLI down
+            failed.append(f"{mod}: {type(err).__name__}: {err}")
+    return parser, failed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, failed = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    for f in failed:
+        log.error("command module failed to load: %s", f)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args))
+    except ConfigError as err:
+        print(f"companion: bad configuration: {err.source}", file=sys.stderr)
+        for p in err.problems:
+            print(f"  {p}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("companion: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""Turn the configured pad and the vehicle's home/start into a mission frame and a path."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from companion.config import MissionConfig
+from companion.geometry.earth import GeoPoint, geo_to_ned
+from companion.geometry.mission_frame import MissionFrame
+from companion.guidance.path import DeliveryPath, PathGeometryError
+
+
+def pad_position_ned(cfg: MissionConfig, home: GeoPoint) -> np.ndarray:
+    """The configured pad centre (ground level) in the local NED frame whose origin is home.
+
+    A pad given as lat/lon goes through the flat-earth model (delivery 4.1) from the home the
+    autopilot reports, so a GPS bias in that home shifts the pad exactly as it does in flight.
+    """
+    pad = cfg.pad
+    if pad.lat_deg is not None and pad.lon_deg is not None:
+        alt = pad.alt_amsl_m if pad.alt_amsl_m is not None else home.alt_amsl_m
+        return np.array(geo_to_ned(home, GeoPoint(pad.lat_deg, pad.lon_deg, alt)))
+    assert pad.north_m is not None and pad.east_m is not None
+    return np.array([pad.north_m, pad.east_m, -pad.up_m])
+
+
+def plan_delivery(
+    cfg: MissionConfig, home: GeoPoint, start_ned: np.ndarray
+) -> tuple[MissionFrame, DeliveryPath, float]:
+    """Mission frame F_I, the path, and the start's height z_s in F_I."""
+    pad_ned = pad_position_ned(cfg, home)
+    start = np.asarray(start_ned, dtype=float)
+    d = math.hypot(pad_ned[0] - start[0], pad_ned[1] - start[1])
+    if d < 1e-3:
+        raise PathGeometryError("the pad is where the vehicle stands: nothing to fly")
+    frame = MissionFrame.from_start_and_pad(start, pad_ned)
+    path = DeliveryPath(h=cfg.height_m, r=cfg.arc_radius_m, d=d)
+    z_start = float(frame.point_from_ned(start)[2])
+    if z_start >= cfg.height_m - cfg.arc_radius_m:
+        raise PathGeometryError(
+            f"the start is {z_start:.1f} m above the pad, at or above the arcs (h - r = "
+            f"{cfg.height_m - cfg.arc_radius_m:.1f} m): raise height_m"
+        )
+    return frame, path, z_start

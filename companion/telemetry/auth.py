@@ -1,0 +1,263 @@
+"""Ground commands: wire format, application-level authentication and replay protection.
+
+Commands (hold, return, land, abort) reach a vehicle as the payload of a Zenoh query on
+``companion/<vehicle_id>/command``. They are **off by default**; enabling them requires a
+shared secret (>= 16 bytes). Two independent layers authenticate them:
+
+1. Zenoh transport authentication (``transport.auth.usrpwd``, see :mod:`.session`): a session
+   without valid credentials never connects, so it cannot even send the query.
+2. This module: every command carries an HMAC-SHA256 over a canonical byte string, made with
+   the shared secret, plus the time it was issued and a random nonce. The vehicle refuses a
+   command whose MAC is wrong, whose ``issued_unix_ms`` is outside +-``window_s`` of its own
+   clock (stale or from the future), or whose nonce it has already seen inside the window
+   (replay).
+
+Wire format (UTF-8 JSON object, schema ``companion.command/1``)::
+
+    {"schema": "companion.command/1", "vehicle_id": "drone1", "command": "land",
+     "issued_unix_ms": 1763750000123, "nonce": "<16-64 hex chars>", "sender": "ground",
+     "note": "", "hmac_sha256": "<64 hex chars>"}
+
+The MAC input is the newline-joined fields, in this order, as text (integers in decimal)::
+
+    companion.command/1\\n<vehicle_id>\\n<command>\\n<issued_unix_ms>\\n<nonce>\\n<sender>\\n<note>
+
+An accepted command becomes a :class:`GroundCommand` handed to the mission. **A ground command
+never bypasses the safety contract**: it is a *request* to the mission state machine, which
+decides whether and how to act on it in its current phase, and every setpoint it then produces
+still goes through the same clamps (speed, climb, tilt, geofence); the pilot's RC override
+still ends autonomy within one control period, whatever the ground asked for.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import hmac
+import json
+import logging
+import re
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.telemetry.schema import SchemaError, check_vehicle_id, parse_json
+
+log = logging.getLogger(__name__)
+
+COMMAND_SCHEMA = "companion.command/1"
+MIN_SECRET_BYTES = 16
+_NONCE = re.compile(r"^[0-9a-f]{16,64}$")
+_SENDER = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
+MAX_NOTE_CHARS = 256
+
+
+class CommandKind(enum.Enum):
+    HOLD = "hold"  # stop and hold position
+    RETURN = "return"  # fly back home along the path
+    LAND = "land"  # land where the vehicle is
+    ABORT = "abort"  # the mission's abort procedure (hold, then land)
+
+
+class CommandRefused(Exception):
+    """A command was refused; ``reason`` says why (it is sent back to the ground)."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class CommandSettings:
+    """Ground command access. ``enabled`` is False by default; when True ``secret`` is required.
+
+    ``window_s``: how far ``issued_unix_ms`` may be from the vehicle clock (both directions);
+    vehicle and ground clocks must agree within this (GPS time or NTP).
+    ``max_nonces``: replay cache size; when full of unexpired nonces, commands are refused.
+    """
+
+    enabled: bool = False
+    secret: bytes | None = field(default=None, repr=False)
+    window_s: float = 5.0
+    max_nonces: int = 4096
+
+    def __post_init__(self) -> None:
+        if self.secret is not None and not isinstance(self.secret, bytes):
+            raise ValueError("commands.secret must be bytes")
+        if self.enabled and (self.secret is None or len(self.secret) < MIN_SECRET_BYTES):
+            raise ValueError(
+                f"commands.enabled needs a shared secret of at least {MIN_SECRET_BYTES} bytes"
+            )
+        if not 0.1 <= self.window_s <= 300.0:
+            raise ValueError(f"commands.window_s {self.window_s} outside [0.1, 300] s")
+        if not 16 <= self.max_nonces <= 1_000_000:
+            raise ValueError(f"commands.max_nonces {self.max_nonces} outside [16, 1e6]")
+
+    @staticmethod
+    def read_secret(path: str | Path) -> bytes:
+        """A secret from a file (surrounding whitespace stripped), so it stays out of params."""
+        secret = Path(path).read_bytes().strip()
+        if len(secret) < MIN_SECRET_BYTES:
+            raise ValueError(f"{path}: secret shorter than {MIN_SECRET_BYTES} bytes")
+        return secret
+
+
+@dataclass(frozen=True, slots=True)
+class GroundCommand:
+    """An authenticated request from the ground, for the mission to decide on."""
+
+    vehicle_id: str
+    kind: CommandKind
+    issued_unix_s: float
+    received_unix_s: float
+    nonce: str
+    sender: str
+    note: str = ""
+
+
+def mac_input(
+    vehicle_id: str, command: str, issued_unix_ms: int, nonce: str, sender: str, note: str
+) -> bytes:
+    return "\n".join(
+        (COMMAND_SCHEMA, vehicle_id, command, str(issued_unix_ms), nonce, sender, note)
+    ).encode("utf-8")
+
+
+def compute_mac(secret: bytes, data: bytes) -> str:
+    return hmac.new(secret, data, hashlib.sha256).hexdigest()
+
+
+def sign_command(
+    vehicle_id: str,
+    kind: CommandKind,
+    secret: bytes,
+    *,
+    sender: str = "ground",
+    note: str = "",
+    issued_unix_s: float | None = None,
+    nonce: str | None = None,
+) -> bytes:
+    """The signed wire payload of one command (used by the ground station)."""
+    issued_ms = int(round((time.time() if issued_unix_s is None else issued_unix_s) * 1000.0))
+    nonce = secrets.token_hex(16) if nonce is None else nonce
+    doc = {
+        "schema": COMMAND_SCHEMA,
+        "vehicle_id": vehicle_id,
+        "command": kind.value,
+        "issued_unix_ms": issued_ms,
+        "nonce": nonce,
+        "sender": sender,
+        "note": note,
+        "hmac_sha256": compute_mac(
+            secret, mac_input(vehicle_id, kind.value, issued_ms, nonce, sender, note)
+        ),
+    }
+    return json.dumps(doc, separators=(",", ":")).encode()
+
+
+class CommandVerifier:
+    """Checks command payloads for one vehicle: format, MAC, time window, nonce replay.
+
+    Thread-safe (Zenoh calls queryables from its own threads). ``clock`` returns Unix seconds.
+    """
+
+    def __init__(
+        self,
+        vehicle_id: str,
+        settings: CommandSettings,
+        clock: Callable[[], float] = time.time,
+    ):
+        self.vehicle_id = check_vehicle_id(vehicle_id)
+        self.settings = settings
+        self._clock = clock
+        self._seen: OrderedDict[str, float] = OrderedDict()  # nonce -> expiry (unix s)
+        self._lock = threading.Lock()
+
+    def verify(self, payload: bytes | bytearray | memoryview | None) -> GroundCommand:
+        """The command in ``payload``, or :class:`CommandRefused` with the reason."""
+        s = self.settings
+        if not s.enabled or s.secret is None:
+            raise CommandRefused("commands are disabled on this vehicle")
+        if payload is None or len(payload) == 0:
+            raise CommandRefused("malformed command: empty payload")
+        try:
+            doc = parse_json(payload)
+        except SchemaError as e:
+            raise CommandRefused(f"malformed command: {e}") from None
+        fields_ = _parse_fields(doc)
+        vehicle_id, command, issued_ms, nonce, sender, note, mac = fields_
+        expected = compute_mac(s.secret, mac_input(vehicle_id, command, issued_ms, nonce, sender, note))
+        if not hmac.compare_digest(expected, mac):
+            raise CommandRefused("authentication failed: bad HMAC")
+        if vehicle_id != self.vehicle_id:
+            raise CommandRefused(f"command is for vehicle {vehicle_id!r}, this is {self.vehicle_id!r}")
+        try:
+            kind = CommandKind(command)
+        except ValueError:
+            allowed = ", ".join(k.value for k in CommandKind)
+            raise CommandRefused(f"unknown command {command!r} (allowed: {allowed})") from None
+        now = self._clock()
+        issued = issued_ms / 1000.0
+        if abs(now - issued) > s.window_s:
+            raise CommandRefused(
+                f"stale command: issued {now - issued:+.1f} s from the vehicle clock "
+                f"(window +-{s.window_s:g} s)"
+            )
+        with self._lock:
+            while self._seen and next(iter(self._seen.values())) < now:
+                self._seen.popitem(last=False)
+            # Expiries are issued + window, so the dict is close to time-ordered; purge fully
+            # when the front is not yet expired but the cache is full.
+            if nonce in self._seen:
+                raise CommandRefused("replayed command: nonce already used")
+            if len(self._seen) >= s.max_nonces:
+                for n in [n for n, exp in self._seen.items() if exp < now]:
+                    del self._seen[n]
+                if len(self._seen) >= s.max_nonces:
+                    raise CommandRefused("too many commands in the replay window; try later")
+            self._seen[nonce] = issued + s.window_s
+        return GroundCommand(
+            vehicle_id=vehicle_id,
+            kind=kind,
+            issued_unix_s=issued,
+            received_unix_s=now,
+            nonce=nonce,
+            sender=sender,
+            note=note,
+        )
+
+
+def _parse_fields(doc: Any) -> tuple[str, str, int, str, str, str, str]:
+    if not isinstance(doc, dict):
+        raise CommandRefused("malformed command: not a JSON object")
+    if doc.get("schema") != COMMAND_SCHEMA:
+        raise CommandRefused(f"malformed command: schema is not {COMMAND_SCHEMA!r}")
+    if "hmac_sha256" not in doc:
+        raise CommandRefused("authentication failed: no hmac_sha256")
+    for name in ("vehicle_id", "command", "issued_unix_ms", "nonce", "sender"):
+        if name not in doc:
+            raise CommandRefused(f"malformed command: missing {name!r}")
+    vehicle_id, command, issued_ms = doc["vehicle_id"], doc["command"], doc["issued_unix_ms"]
+    nonce, sender, note, mac = doc["nonce"], doc["sender"], doc.get("note", ""), doc["hmac_sha256"]
+    if not isinstance(vehicle_id, str) or not isinstance(command, str) or len(command) > 32:
+        raise CommandRefused("malformed command: vehicle_id and command must be short strings")
+    try:
+        check_vehicle_id(vehicle_id)
+    except SchemaError as e:
+        raise CommandRefused(f"malformed command: {e}") from None
+    if isinstance(issued_ms, bool) or not isinstance(issued_ms, int):
+        raise CommandRefused("malformed command: issued_unix_ms must be an integer")
+    if not isinstance(nonce, str) or not _NONCE.match(nonce):
+        raise CommandRefused("malformed command: nonce must be 16-64 lowercase hex characters")
+    if not isinstance(sender, str) or not _SENDER.match(sender):
+        raise CommandRefused("malformed command: bad sender")
+    if not isinstance(note, str) or len(note) > MAX_NOTE_CHARS:
+        raise CommandRefused(f"malformed command: note must be a string <= {MAX_NOTE_CHARS} chars")
+    if not isinstance(mac, str) or not re.fullmatch(r"[0-9a-f]{64}", mac):
+        raise CommandRefused("authentication failed: hmac_sha256 must be 64 lowercase hex chars")
+    return vehicle_id, command, issued_ms, nonce, sender, note, mac

@@ -1,0 +1,543 @@
+"""UWB multilateration: TDoA (delivery eqs 2-4) and two-way ranging (DWM1001 PANS), robust.
+
+Both problems are solved as nonlinear least squares (Levenberg-Marquardt, hand-written: three or
+four unknowns, a few iterations, ~10x cheaper than ``scipy.optimize.least_squares`` per call)
+seeded by a linearised closed-form solution:
+
+* TWR, ranges d_i: residual r_i = ||x - a_i|| - d_i; seed: subtract the squared-range equation
+  of a reference anchor from the others -> linear in x.
+* TDoA, range differences d_i1 = (t_i - t_1) c to the base anchor (delivery eq 2): written as
+  pseudo-ranges rho_i = d_i1 (rho_base = 0) with the unknown base range c = d_1 (delivery eq 4,
+  unknown here because the tag's transmit time t_0 is not known): r_i = ||x - a_i|| - c - rho_i.
+  Every anchor (the base too) then has one residual, so the base anchor can be judged and dropped
+  like any other. Seed: delivery eq 3 with the reference anchor moved to the origin,
+  (d_i1 + d_1)^2 = K_i - 2 J_i + d_1^2 -> d_i1^2 + 2 d_i1 d_1 = K_i - 2 J_i, linear in
+  (x_T, y_T, z_T, d_1); with exactly four anchors the 3x4 system is closed with d_1 = ||x||
+  (a quadratic: up to two exact solutions).
+
+Robustness (beyond the paper): non-finite inputs and unknown anchors are dropped and counted;
+TWR ranges beyond the 10 m DWM1001 limit (delivery 4.2.2) are dropped, and after solving any
+anchor farther than the limit is dropped and the fix re-solved; when a residual exceeds the
+threshold and the problem has at least two redundant anchors, a consensus search over all (or a
+seeded sample of) 4-anchor subsets finds the largest consistent set, it is re-fitted and the
+worst anchor is dropped while residuals still exceed the threshold. With fewer than two
+redundant anchors an inconsistency can be detected but not attributed, so the sample is refused.
+Fewer than 4 usable anchors, degenerate geometry or PDOP above the limit: a typed
+:class:`UwbRejection`, never a guess.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from companion.uwb.anchors import MIN_ANCHORS, AnchorLayout
+
+log = logging.getLogger(__name__)
+
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+
+
+@dataclass(frozen=True)
+class TwrMeasurement:
+    """Two-way-ranging distances from the tag to anchors (what a DWM1001 in PANS mode reports)."""
+
+    time_s: float
+    anchor_ids: tuple[str, ...]
+    ranges_m: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class TdoaMeasurement:
+    """Range differences d_i1 = d_i - d_1 to the base anchor (delivery eq 2), one per other anchor."""
+
+    time_s: float
+    base_anchor_id: str
+    anchor_ids: tuple[str, ...]
+    range_differences_m: tuple[float, ...]
+
+    @staticmethod
+    def from_arrival_times(
+        time_s: float, base_anchor_id: str, arrival_times_s: Mapping[str, float]
+    ) -> TdoaMeasurement:
+        """Delivery eq 2: d_i1 = (t_i - t_1) c from the arrival times at each anchor."""
+        t1 = arrival_times_s[base_anchor_id]
+        ids = tuple(a for a in arrival_times_s if a != base_anchor_id)
+        diffs = tuple((arrival_times_s[a] - t1) * SPEED_OF_LIGHT_M_S for a in ids)
+        return TdoaMeasurement(time_s, base_anchor_id, ids, diffs)
+
+
+@dataclass(frozen=True)
+class UwbFix:
+    """A tag position in the anchor frame ``frame`` (metres) with its quality figures."""
+
+    time_s: float
+    x_m: float
+    y_m: float
+    z_m: float
+    pdop: float
+    residual_rms_m: float
+    anchors_used: tuple[str, ...]
+    frame: str
+
+    @property
+    def position_m(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m, self.z_m])
+
+
+class RejectReason(Enum):
+    TOO_FEW_ANCHORS = "too_few_anchors"
+    NO_BASE_ANCHOR = "no_base_anchor"
+    BAD_GEOMETRY = "bad_geometry"
+    INCONSISTENT = "inconsistent"
+
+
+@dataclass(frozen=True)
+class UwbRejection:
+    """Why no fix was produced for the sample taken at ``time_s``."""
+
+    time_s: float
+    reason: RejectReason
+    detail: str
+    anchors_usable: int
+
+
+@dataclass(frozen=True)
+class MultilaterationConfig:
+    """Solver settings. ``max_range_m`` None: use the layout's (10 m for the DWM1001)."""
+
+    max_range_m: float | None = None
+    residual_threshold_m: float = 0.30
+    max_pdop: float = 20.0
+    max_iterations: int = 30
+    step_tolerance_m: float = 1e-10
+    max_subsets: int = 100
+    #: two equally good solutions (exactly determined TDoA, mirror images): without a prior,
+    #: take the one with the larger z (the tag flies above the anchors).
+    prefer_high_solution: bool = True
+    seed: int = 0
+
+
+@dataclass
+class MultilaterationCounters:
+    fixes: int = 0
+    nonfinite_inputs: int = 0
+    unknown_anchors: int = 0
+    out_of_range: int = 0
+    outliers_dropped: int = 0
+    rejections: dict[str, int] = field(default_factory=lambda: {r.value: 0 for r in RejectReason})
+
+
+# --------------------------------------------------------------------------------------------
+# pure numerical helpers
+
+
+def model_residuals(theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdoa: bool) -> np.ndarray:
+    """TWR: ||x - a_i|| - d_i.  TDoA (pseudo-range form of eqs 2-4): ||x - a_i|| - c - rho_i."""
+    dist = np.sqrt(np.sum((theta[:3] - anchors) ** 2, axis=1))
+    r = dist - obs
+    if tdoa:
+        r = r - theta[3]
+    return r
+
+
+def model_jacobian(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> np.ndarray:
+    diff = theta[:3] - anchors
+    dist = np.maximum(np.sqrt(np.sum(diff**2, axis=1)), 1e-9)
+    u = diff / dist[:, None]
+    if not tdoa:
+        return u
+    return np.hstack([u, -np.ones((len(anchors), 1))])
+
+
+def linear_twr_seed(anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
+    """Closed form: ||x||^2 - 2 a_i.x + ||a_i||^2 = d_i^2 minus the same for anchor 0."""
+    centre = anchors.mean(axis=0)
+    a = anchors - centre
+    k2 = np.sum(a**2, axis=1)
+    A = 2.0 * (a[1:] - a[0])
+    b = (ranges[0] ** 2 - ranges[1:] ** 2) + (k2[1:] - k2[0])
+    sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+    if rank < 3:
+        return None
+    return sol + centre
+
+
+def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0) -> list[np.ndarray]:
+    """Delivery eq 3 with the reference anchor at the origin: unknowns (x', d_ref).
+
+    Returns candidate theta = (x, y, z, c) with c the pseudo-range offset (c = d_ref - rho_ref).
+    Four anchors: the 3x4 system plus d_ref = ||x'|| gives up to two exact solutions.
+    """
+    a = anchors - anchors[ref]
+    others = [i for i in range(len(anchors)) if i != ref]
+    ai = a[others]
+    rik = rho[others] - rho[ref]  # d_i1 relative to the reference (eq 2)
+    K = np.sum(ai**2, axis=1)  # K_i
+    # d_i1^2 + 2 d_i1 d_1 = K_i - 2 J_i,  J_i = a_i . x   (eq 3, base at the origin)
+    M = np.hstack([2.0 * ai, 2.0 * rik[:, None]])
+    b = K - rik**2
+    thetas: list[np.ndarray] = []
+    if len(others) >= 4:
+        sol, _, rank, _ = np.linalg.lstsq(M, b, rcond=None)
+        if rank < 4:
+            return []
+        cands = [sol]
+    else:
+        U, s, Vt = np.linalg.svd(M)
+        if len(s) < 3 or s[2] < 1e-9 * max(s[0], 1e-12):
+            return []
+        p = Vt[:3].T @ ((U.T @ b)[:3] / s[:3])
+        q = Vt[3]
+        px, pd, qx, qd = p[:3], p[3], q[:3], q[3]
+        # (p_d + s q_d)^2 = ||p_x + s q_x||^2  (the constraint d_1 = ||x|| of eq 3 / eq 4)
+        A2 = qd * qd - qx @ qx
+        B2 = 2.0 * (pd * qd - px @ qx)
+        C2 = pd * pd - px @ px
+        roots: list[float] = []
+        if abs(A2) < 1e-12:
+            if abs(B2) > 1e-12:
+                roots = [-C2 / B2]
+        else:
+            disc = B2 * B2 - 4 * A2 * C2
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                roots = [(-B2 + sq) / (2 * A2), (-B2 - sq) / (2 * A2)]
+            else:  # noise made it slightly complex: take the real part
+                roots = [-B2 / (2 * A2)]
+        cands = [p + t * q for t in roots]
+    for c in cands:
+        d_ref = c[3]
+        if d_ref < -1e-6:
+            continue
+        x = c[:3] + anchors[ref]
+        thetas.append(np.array([x[0], x[1], x[2], d_ref - rho[ref]]))
+    return thetas
+
+
+def levenberg_marquardt(
+    theta0: np.ndarray,
+    anchors: np.ndarray,
+    obs: np.ndarray,
+    tdoa: bool,
+    max_iterations: int = 30,
+    step_tolerance: float = 1e-10,
+) -> tuple[np.ndarray, float]:
+    """Minimise sum r_i^2 from ``theta0``; returns (theta, cost)."""
+    theta = theta0.astype(float).copy()
+    r = model_residuals(theta, anchors, obs, tdoa)
+    cost = float(r @ r)
+    lam = 1e-3
+    n = theta.size
+    for _ in range(max_iterations):
+        J = model_jacobian(theta, anchors, tdoa)
+        A = J.T @ J
+        g = J.T @ r
+        accepted = False
+        while lam < 1e10:
+            try:
+                step = np.linalg.solve(A + lam * (np.diag(np.diag(A)) + 1e-12 * np.eye(n)), -g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            cand = theta + step
+            r_new = model_residuals(cand, anchors, obs, tdoa)
+            c_new = float(r_new @ r_new)
+            if c_new <= cost:
+                theta, r, cost = cand, r_new, c_new
+                lam = max(lam * 0.1, 1e-12)
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted or float(np.max(np.abs(step))) < step_tolerance or cost < 1e-26:
+            break
+    return theta, cost
+
+
+def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> float:
+    """PDOP = sqrt(trace of the position block of (J^T J)^-1), J the range Jacobian at the fix.
+
+    For TDoA the pseudo-range offset is the fourth unknown (as the clock in GNSS), so this is
+    the PDOP of independent per-anchor timing errors, in units of that range error.
+    """
+    J = model_jacobian(theta, anchors, tdoa)
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return math.inf
+    tr = float(np.trace(cov[:3, :3]))
+    return math.sqrt(tr) if tr > 0 and math.isfinite(tr) else math.inf
+
+
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Solution:
+    theta: np.ndarray
+    cost: float
+    residuals: np.ndarray
+
+
+class Multilaterator:
+    """Robust TWR and TDoA multilateration for one :class:`AnchorLayout`.
+
+    Synchronous and deterministic (subset sampling uses a seeded numpy Generator). Counters in
+    ``counters``.
+    """
+
+    def __init__(self, layout: AnchorLayout, config: MultilaterationConfig | None = None) -> None:
+        self.layout = layout
+        self.config = config or MultilaterationConfig()
+        self.max_range_m = (
+            self.config.max_range_m if self.config.max_range_m is not None else layout.max_range_m
+        )
+        self.counters = MultilaterationCounters()
+        self._rng = np.random.default_rng(self.config.seed)
+        self._positions = layout.positions_array()
+
+    # public API ---------------------------------------------------------------------------
+
+    def solve_twr(self, m: TwrMeasurement, prior_m: ArrayLike | None = None) -> UwbFix | UwbRejection:
+        """A fix from two-way-ranging distances; ``prior_m`` (anchor frame) helps pick a solution."""
+        ids: list[str] = []
+        ranges: list[float] = []
+        for aid, d in zip(m.anchor_ids, m.ranges_m, strict=True):
+            if not _finite(d):
+                self.counters.nonfinite_inputs += 1
+                continue
+            if aid not in self.layout:
+                self.counters.unknown_anchors += 1
+                continue
+            if d < 0.0 or d > self.max_range_m:
+                self.counters.out_of_range += 1
+                continue
+            if aid in ids:  # a duplicate report: keep the first
+                continue
+            ids.append(aid)
+            ranges.append(float(d))
+        return self._solve(m.time_s, ids, np.array(ranges), tdoa=False, prior=prior_m)
+
+    def solve_tdoa(self, m: TdoaMeasurement, prior_m: ArrayLike | None = None) -> UwbFix | UwbRejection:
+        """A fix from range differences to the base anchor (delivery eqs 2-4)."""
+        if m.base_anchor_id not in self.layout:
+            self.counters.unknown_anchors += 1
+            return self._reject(m.time_s, RejectReason.NO_BASE_ANCHOR, f"base {m.base_anchor_id!r} unknown", 0)
+        ids = [m.base_anchor_id]
+        rho = [0.0]
+        for aid, d in zip(m.anchor_ids, m.range_differences_m, strict=True):
+            if not _finite(d):
+                self.counters.nonfinite_inputs += 1
+                continue
+            if aid not in self.layout:
+                self.counters.unknown_anchors += 1
+                continue
+            # |d_i - d_1| <= ||a_i - a_1|| (triangle inequality) and both ranges <= the limit
+            if abs(d) > self.max_range_m:
+                self.counters.out_of_range += 1
+                continue
+            if aid in ids:
+                continue
+            ids.append(aid)
+            rho.append(float(d))
+        return self._solve(m.time_s, ids, np.array(rho), tdoa=True, prior=prior_m)
+
+    # internals ----------------------------------------------------------------------------
+
+    def _reject(self, time_s: float, reason: RejectReason, detail: str, usable: int) -> UwbRejection:
+        self.counters.rejections[reason.value] += 1
+        log.debug("uwb fix rejected at %.3f: %s (%s)", time_s, reason.value, detail)
+        return UwbRejection(time_s, reason, detail, usable)
+
+    def _solve(
+        self, time_s: float, ids: list[str], obs: np.ndarray, tdoa: bool, prior: ArrayLike | None
+    ) -> UwbFix | UwbRejection:
+        cfg = self.config
+        if len(ids) < MIN_ANCHORS:
+            return self._reject(
+                time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(ids)} usable anchors, need {MIN_ANCHORS}", len(ids)
+            )
+        prior_arr = None
+        if prior is not None:
+            p = np.asarray(prior, dtype=float).reshape(3)
+            prior_arr = p if np.all(np.isfinite(p)) else None
+        anchors = self._positions[[self.layout.index_of(a) for a in ids]]
+        n_unknowns = 4 if tdoa else 3
+        thr = cfg.residual_threshold_m
+
+        sol = self._fit(anchors, obs, tdoa, prior_arr)
+        if sol is None:
+            return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate anchor geometry", len(ids))
+        keep = np.arange(len(ids))
+        if float(np.max(np.abs(sol.residuals))) > thr:
+            if len(ids) - n_unknowns < 2:
+                return self._reject(
+                    time_s,
+                    RejectReason.INCONSISTENT,
+                    f"max residual {np.max(np.abs(sol.residuals)):.3f} m > {thr} m and too few anchors "
+                    "to tell which one is wrong",
+                    len(ids),
+                )
+            robust = self._consensus(anchors, obs, tdoa, prior_arr)
+            if robust is None:
+                return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
+            keep, sol = robust
+        # the range limit (delivery 4.2.2): anchors too far from the fix are not trusted
+        dist = np.sqrt(np.sum((sol.theta[:3] - anchors[keep]) ** 2, axis=1))
+        far = dist > self.max_range_m
+        if np.any(far):
+            self.counters.out_of_range += int(np.sum(far))
+            keep = keep[~far]
+            if len(keep) < MIN_ANCHORS:
+                return self._reject(
+                    time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
+                )
+            sol = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
+            if sol is None:
+                return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
+            if float(np.max(np.abs(sol.residuals))) > thr:
+                return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
+        pdop = dilution_of_precision(sol.theta, anchors[keep], tdoa)
+        if not pdop <= cfg.max_pdop:
+            return self._reject(time_s, RejectReason.BAD_GEOMETRY, f"PDOP {pdop:.1f} > {cfg.max_pdop}", len(keep))
+        self.counters.fixes += 1
+        rms = float(np.sqrt(np.mean(sol.residuals**2)))
+        x = sol.theta
+        return UwbFix(
+            time_s, float(x[0]), float(x[1]), float(x[2]), pdop, rms, tuple(ids[i] for i in keep), self.layout.frame
+        )
+
+    def _fit(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None) -> _Solution | None:
+        sols = self._fit_all(anchors, obs, tdoa, prior)
+        if not sols:
+            return None
+        best_cost = min(s.cost for s in sols)
+        near = [s for s in sols if s.cost <= best_cost + 1e-6]
+        if len(near) > 1:
+            if prior is not None:
+                return min(near, key=lambda s: float(np.sum((s.theta[:3] - prior) ** 2)))
+            if self.config.prefer_high_solution:
+                return max(near, key=lambda s: float(s.theta[2]))
+        return min(sols, key=lambda s: s.cost)
+
+    def _fit_all(
+        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None
+    ) -> list[_Solution]:
+        cfg = self.config
+        seeds: list[np.ndarray] = []
+        if tdoa:
+            seeds.extend(linear_tdoa_seeds(anchors, obs, ref=0))
+            if prior is not None:
+                c = float(np.mean(np.sqrt(np.sum((prior - anchors) ** 2, axis=1)) - obs))
+                seeds.append(np.array([prior[0], prior[1], prior[2], c]))
+        else:
+            s = linear_twr_seed(anchors, obs)
+            if s is not None:
+                seeds.append(s)
+            if prior is not None:
+                seeds.append(prior.copy())
+        out: list[_Solution] = []
+        for seed in seeds:
+            if not np.all(np.isfinite(seed)):
+                continue
+            theta, cost = levenberg_marquardt(seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m)
+            if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
+                continue
+            J = model_jacobian(theta, anchors, tdoa)
+            if np.linalg.matrix_rank(J) < theta.size:
+                continue
+            out.append(_Solution(theta, cost, model_residuals(theta, anchors, obs, tdoa)))
+        return out
+
+    def _subsets(self, n: int) -> list[tuple[int, ...]]:
+        total = math.comb(n, MIN_ANCHORS)
+        if total <= self.config.max_subsets:
+            return list(itertools.combinations(range(n), MIN_ANCHORS))
+        picked: set[tuple[int, ...]] = set()
+        while len(picked) < self.config.max_subsets:
+            picked.add(tuple(sorted(self._rng.choice(n, MIN_ANCHORS, replace=False).tolist())))
+        return sorted(picked)
+
+    def _consensus(
+        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None
+    ) -> tuple[np.ndarray, _Solution] | None:
+        """RANSAC-like: every 4-anchor subset proposes fixes; keep the one most anchors agree
+        with (MSAC score), re-fit its inliers, then drop the worst anchor while needed."""
+        thr = self.config.residual_threshold_m
+        n = len(anchors)
+        n_unknowns = 4 if tdoa else 3
+        best: tuple[int, float, np.ndarray] | None = None
+        for subset in self._subsets(n):
+            idx = list(subset)
+            for s in self._fit_all(anchors[idx], obs[idx], tdoa, prior):
+                theta = s.theta
+                if tdoa:
+                    # re-centre the offset on the whole set's median so subsets compete fairly
+                    dist = np.sqrt(np.sum((theta[:3] - anchors) ** 2, axis=1))
+                    theta = theta.copy()
+                    r_sub = dist[idx] - obs[idx] - theta[3]
+                    theta[3] += float(np.median(r_sub))
+                r_all = model_residuals(theta, anchors, obs, tdoa)
+                inl = np.abs(r_all) <= thr
+                score = float(np.sum(np.minimum(r_all**2, thr * thr)))
+                cnt = int(np.sum(inl))
+                if best is None or cnt > best[0] or (cnt == best[0] and score < best[1]):
+                    best = (cnt, score, theta)
+        if best is None or best[0] < MIN_ANCHORS:
+            return None
+        theta = best[2]
+        keep = np.flatnonzero(np.abs(model_residuals(theta, anchors, obs, tdoa)) <= thr)
+        sol = self._fit(anchors[keep], obs[keep], tdoa, theta[:3])
+        if sol is None:
+            return None
+        # drop the worst anchor and re-solve while residuals exceed the threshold
+        while float(np.max(np.abs(sol.residuals))) > thr and len(keep) - 1 - n_unknowns >= 1:
+            keep = np.delete(keep, int(np.argmax(np.abs(sol.residuals))))
+            nxt = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
+            if nxt is None:
+                return None
+            sol = nxt
+        if float(np.max(np.abs(sol.residuals))) > thr:
+            return None
+        self.counters.outliers_dropped += n - len(keep)
+        return keep, sol
+
+
+def _finite(v: object) -> bool:
+    try:
+        return math.isfinite(float(v))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+def solve_twr(
+    layout: AnchorLayout, time_s: float, ranges_m: Mapping[str, float], config: MultilaterationConfig | None = None
+) -> UwbFix | UwbRejection:
+    """One-shot TWR solve (a fresh :class:`Multilaterator`; keep one for counters)."""
+    ids = tuple(ranges_m)
+    return Multilaterator(layout, config).solve_twr(TwrMeasurement(time_s, ids, tuple(ranges_m[a] for a in ids)))
+
+
+def solve_tdoa(
+    layout: AnchorLayout,
+    time_s: float,
+    range_differences_m: Mapping[str, float],
+    base_anchor_id: str | None = None,
+    config: MultilaterationConfig | None = None,
+) -> UwbFix | UwbRejection:
+    """One-shot TDoA solve; ``range_differences_m`` maps anchor id -> d_i1 (delivery eq 2)."""
+    base = base_anchor_id or layout.base_anchor_id
+    ids = tuple(a for a in range_differences_m if a != base)
+    m = TdoaMeasurement(time_s, base, ids, tuple(range_differences_m[a] for a in ids))
+    return Multilaterator(layout, config).solve_tdoa(m)
+
+
+def stack_ids(values: Sequence[str]) -> tuple[str, ...]:
+    return tuple(values)

@@ -1,0 +1,372 @@
+"""Simulated downward camera that renders real greyscale images of the landing pad.
+
+Import as ``from companion_sitl.camera import SimulatedCamera``.
+
+Rendering, per frame:
+
+1. The ground (a seeded procedural texture with clutter) and the pad texture lie on the plane
+   z = 0 of the pad frame. Each is mapped into an *undistorted* canvas by the plane homography
+   ``H = K [r1 r2 t] A`` (``cv2.warpPerspective``), where ``[r1 r2 t]`` comes from
+   ``T_camera_pad`` and ``A`` maps texture pixels to pad-plane metres. Textures are kept at
+   several resolutions (INTER_AREA pyramids) and the level is chosen so a texel covers about
+   one image pixel, which avoids aliasing at altitude.
+2. Lens distortion is applied with ``cv2.remap`` through maps computed once per camera: every
+   distorted output pixel looks up its ideal (pinhole) position, ``CameraModel.undistort_pixels``
+   on the pixel grid (OpenCV model or dart eqs 2-4). The canvas is larger than the image when
+   barrel distortion pulls the view outwards.
+3. Optional motion blur (a line kernel), lighting (gain / offset, with optional per-frame
+   jitter) and exposure noise (Gaussian, from a seeded noise bank).
+
+Frames: world NED; body FRD; camera OpenCV (x right, y down, z optical axis); pad = ArUco marker
+frame (x right, y up, z up out of the pad). The default mount looks straight down with the
+image top towards the vehicle's front: camera x -> body y, camera y -> body -x, camera z -> body
+z, i.e. ``R_body_camera = rot_z(pi/2)``. The default pad pose has pad x = east, pad y = north,
+so a vehicle heading north sees the printed pad upright.
+
+Time: the caller passes the exposure time; the frame carries it and the time it becomes
+available (exposure + ``latency_s``). Nothing here reads a clock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.geometry import Transform, rot_x, rot_z
+from companion.vision.camera import CameraModel
+from companion.vision.pad import PadLayout, render_pad_px
+
+log = logging.getLogger(__name__)
+
+U8Image = NDArray[np.uint8]
+
+#: Downward camera, image top towards the vehicle front (camera x -> body y, y -> -x, z -> z).
+R_BODY_CAMERA_DOWN = rot_z(math.pi / 2.0)
+
+
+def downward_mount(offset_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Transform:
+    """``T_body_camera`` for the downward camera at ``offset_body_m`` (FRD) from the body origin."""
+    return Transform(R_BODY_CAMERA_DOWN.copy(), np.asarray(offset_body_m, dtype=float))
+
+
+def pad_pose_ned(north_m: float = 0.0, east_m: float = 0.0, down_m: float = 0.0,
+                 yaw_rad: float = 0.0) -> Transform:
+    """``T_world_pad`` for a pad lying flat at (north, east, down); yaw turns the pad's y axis
+    from north towards east. Pad x = east, y = north, z = up when yaw = 0."""
+    R0 = rot_z(math.pi / 2.0) @ rot_x(math.pi)  # columns: pad x = E, pad y = N, pad z = up
+    return Transform(rot_z(yaw_rad) @ R0, np.array([north_m, east_m, down_m], dtype=float))
+
+
+def check_pose(T: Transform, name: str = "pose") -> None:
+    """Reject non-finite or non-rotation poses with a ValueError naming the pose."""
+    R = np.asarray(T.R, dtype=float)
+    t = np.asarray(T.t, dtype=float)
+    if R.shape != (3, 3) or t.shape != (3,):
+        raise ValueError(f"{name}: R must be 3x3 and t 3-vector, got {R.shape} and {t.shape}")
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise ValueError(f"{name}: contains NaN or inf (R={R.tolist()}, t={t.tolist()})")
+    if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-6 or abs(np.linalg.det(R) - 1.0) > 1e-6:
+        raise ValueError(f"{name}: R is not a rotation matrix")
+
+
+@dataclass(frozen=True)
+class SimCameraConfig:
+    """Image formation settings of the simulated camera (all deterministic given the seed)."""
+
+    latency_s: float = 0.03  # exposure -> frame available to the application
+    noise_std: float = 2.0  # grey levels, Gaussian exposure noise
+    blur_px: float = 0.0  # motion blur length (0 = off)
+    blur_angle_rad: float = 0.0  # direction of the blur in the image (0 = along +x)
+    gain: float = 1.0
+    offset: float = 0.0
+    gain_jitter: float = 0.0  # per-frame std of the gain
+    offset_jitter: float = 0.0  # per-frame std of the offset (grey levels)
+    ground_size_m: float = 60.0
+    ground_texel_m: float = 0.02
+    pad_texel_m: float = 0.001
+    clutter: int = 120  # shapes on the ground around the pad
+    clutter_radius_m: float = 12.0
+    sky_level: int = 230
+
+    def __post_init__(self) -> None:
+        for name in ("latency_s", "noise_std", "blur_px", "gain_jitter", "offset_jitter"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"SimCameraConfig.{name} = {v!r}: must be finite and >= 0")
+        for name in ("gain", "ground_size_m", "ground_texel_m", "pad_texel_m", "clutter_radius_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"SimCameraConfig.{name} = {v!r}: must be finite and > 0")
+        if not math.isfinite(self.offset) or not math.isfinite(self.blur_angle_rad):
+            raise ValueError("SimCameraConfig.offset / blur_angle_rad must be finite")
+        if self.clutter < 0:
+            raise ValueError(f"SimCameraConfig.clutter = {self.clutter!r}: must be >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class SimFrame:
+    """One rendered frame with its ground truth."""
+
+    image: U8Image
+    exposure_time_s: float
+    available_time_s: float  # exposure + latency: when the application may see it
+    T_camera_pad: Transform  # truth
+    T_world_camera: Transform | None = None
+
+
+@dataclass
+class _Texture:
+    """A texture on the pad plane, centred on the pad origin, with a resolution pyramid."""
+
+    base: U8Image
+    extent_m: float  # side length in metres (square textures)
+    levels: dict[int, U8Image] = field(default_factory=dict)
+
+    def level(self, n: int) -> U8Image:
+        if n <= 0:
+            return self.base
+        if n not in self.levels:
+            side = max(8, round(self.base.shape[0] / 2**n))
+            self.levels[n] = cv2.resize(self.base, (side, side), interpolation=cv2.INTER_AREA)
+        return self.levels[n]
+
+    def texel_to_plane(self, img: U8Image) -> NDArray[np.float64]:
+        """A: texture pixel (c, r, 1) -> pad-plane (X, Y, 1) in metres; pixel centres at integers."""
+        s = self.extent_m / img.shape[0]
+        h = self.extent_m / 2.0
+        return np.array([[s, 0.0, 0.5 * s - h], [0.0, -s, h - 0.5 * s], [0.0, 0.0, 1.0]])
+
+
+def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
+    n = round(cfg.ground_size_m / cfg.ground_texel_m)
+    coarse = rng.normal(0.0, 1.0, (24, 24)).astype(np.float32)
+    low = cv2.resize(coarse, (n, n), interpolation=cv2.INTER_CUBIC)
+    mid = cv2.resize(rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n),
+                     interpolation=cv2.INTER_LINEAR)
+    img = 105.0 + 22.0 * low + 10.0 * mid + rng.normal(0.0, 6.0, (n, n)).astype(np.float32)
+    ground = np.clip(img, 0, 255).astype(np.uint8)
+    px_per_m = n / cfg.ground_size_m
+    c0 = n / 2.0
+
+    def to_px(x: float, y: float) -> tuple[int, int]:
+        return round(c0 + x * px_per_m), round(c0 - y * px_per_m)
+
+    keep_out = 1.2  # metres around the pad centre left free (the pad is 1 m)
+    for _ in range(cfg.clutter):
+        r = cfg.clutter_radius_m * math.sqrt(rng.uniform(0.0, 1.0))
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        x, y = r * math.cos(a), r * math.sin(a)
+        if math.hypot(x, y) < keep_out + 0.6:
+            continue
+        kind = int(rng.integers(0, 5))
+        grey = int(rng.integers(0, 256))
+        size = rng.uniform(0.15, 1.2)
+        if kind in (0, 1):  # rotated rectangle or square tile (quad candidates for the detector)
+            w = size
+            h = size if kind == 1 else size * rng.uniform(0.3, 1.0)
+            ang = rng.uniform(0.0, 180.0)
+            box = cv2.boxPoints(((c0 + x * px_per_m, c0 - y * px_per_m),
+                                 (w * px_per_m, h * px_per_m), ang))
+            if kind == 1:  # dark tile on a light border, like a marker without a valid code
+                border = cv2.boxPoints(((c0 + x * px_per_m, c0 - y * px_per_m),
+                                        (1.4 * w * px_per_m, 1.4 * h * px_per_m), ang))
+                cv2.fillPoly(ground, [np.round(border).astype(np.int32)], 235)
+                grey = int(rng.integers(0, 60))
+            cv2.fillPoly(ground, [np.round(box).astype(np.int32)], grey)
+        elif kind == 2:
+            cv2.circle(ground, to_px(x, y), max(1, round(size / 2 * px_per_m)), grey, -1)
+        elif kind == 3:
+            a2 = rng.uniform(0.0, 2.0 * math.pi)
+            p2 = (x + 2.0 * size * math.cos(a2), y + 2.0 * size * math.sin(a2))
+            cv2.line(ground, to_px(x, y), to_px(*p2), grey, max(1, round(0.05 * px_per_m)))
+        else:  # grid of small squares (a paving / checker patch)
+            k = int(rng.integers(2, 5))
+            cell = size / k
+            for i in range(k):
+                for j in range(k):
+                    if (i + j) % 2:
+                        p0 = to_px(x + i * cell, y + j * cell)
+                        p1 = to_px(x + (i + 1) * cell, y + (j + 1) * cell)
+                        cv2.rectangle(ground, p0, p1, 30, -1)
+    return ground
+
+
+class SimulatedCamera:
+    """A downward camera over the pad; deterministic for a given ``seed``.
+
+    ``capture(T_world_body, exposure_time_s)`` renders what the camera mounted at
+    ``T_body_camera`` sees; ``render(T_camera_pad)`` renders from a relative pose directly.
+    """
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        layout: PadLayout | None = None,
+        config: SimCameraConfig | None = None,
+        *,
+        T_body_camera: Transform | None = None,
+        T_world_pad: Transform | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.camera = camera
+        self.layout = layout if layout is not None else PadLayout()
+        self.config = config if config is not None else SimCameraConfig()
+        self.T_body_camera = T_body_camera if T_body_camera is not None else downward_mount()
+        self.T_world_pad = T_world_pad if T_world_pad is not None else pad_pose_ned()
+        check_pose(self.T_body_camera, "T_body_camera")
+        check_pose(self.T_world_pad, "T_world_pad")
+        self._rng = np.random.default_rng(seed)
+        cfg = self.config
+        pad_px = round(self.layout.pad_size_m / cfg.pad_texel_m)
+        self._pad = _Texture(render_pad_px(self.layout, pad_px), self.layout.pad_size_m)
+        self._ground = _Texture(_ground_texture(cfg, self._rng), cfg.ground_size_m)
+        self._ground_mean = int(np.mean(self._ground.base[::8, ::8]))
+        self._setup_distortion()
+        w, h = camera.size
+        self._noise_margin = 64
+        self._noise = (
+            self._rng.standard_normal((h + self._noise_margin, w + self._noise_margin))
+            .astype(np.float32) * np.float32(cfg.noise_std)
+        )
+        self._blur_kernel = self._make_blur_kernel()
+        self.frames_rendered = 0
+
+    # ------------------------------------------------------------------ setup
+    def _setup_distortion(self) -> None:
+        cam = self.camera
+        w, h = cam.size
+        if not cam.is_distorted:
+            self._offset = (0.0, 0.0)
+            self._canvas_size = (w, h)
+            self._maps: tuple[NDArray, NDArray] | None = None
+            return
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        ideal = cam.undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1))
+        if not np.all(np.isfinite(ideal)):
+            raise ValueError("camera distortion is not invertible over the whole image")
+        mx = ideal[:, 0].reshape(h, w)
+        my = ideal[:, 1].reshape(h, w)
+        ox = max(0.0, math.ceil(-mx.min()) + 2.0)
+        oy = max(0.0, math.ceil(-my.min()) + 2.0)
+        cw = int(math.ceil(mx.max() + ox)) + 3
+        ch = int(math.ceil(my.max() + oy)) + 3
+        self._offset = (ox, oy)
+        self._canvas_size = (cw, ch)
+        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32),
+                                 cv2.CV_16SC2)
+        self._maps = (m1, m2)
+
+    def _make_blur_kernel(self) -> NDArray[np.float32] | None:
+        L = self.config.blur_px
+        if L < 1.0:
+            return None
+        n = int(math.ceil(L)) | 1
+        k = np.zeros((n, n), np.float32)
+        c = n // 2
+        dx, dy = math.cos(self.config.blur_angle_rad), math.sin(self.config.blur_angle_rad)
+        for s in np.linspace(-L / 2.0, L / 2.0, 4 * n):
+            k[round(c + s * dy), round(c + s * dx)] = 1.0
+        return k / k.sum()
+
+    # ------------------------------------------------------------------ poses
+    def T_world_camera(self, T_world_body: Transform) -> Transform:
+        check_pose(T_world_body, "T_world_body")
+        return T_world_body @ self.T_body_camera
+
+    def T_camera_pad(self, T_world_body: Transform) -> Transform:
+        """Truth: pose of the pad in the camera frame for a vehicle pose."""
+        return self.T_world_camera(T_world_body).inverse() @ self.T_world_pad
+
+    def capture(self, T_world_body: Transform, exposure_time_s: float) -> SimFrame:
+        """Render the frame exposed at ``exposure_time_s`` with the vehicle at ``T_world_body``."""
+        if not math.isfinite(exposure_time_s):
+            raise ValueError(f"exposure_time_s = {exposure_time_s!r}: must be finite")
+        T_wc = self.T_world_camera(T_world_body)
+        T_cp = T_wc.inverse() @ self.T_world_pad
+        image = self.render(T_cp)
+        return SimFrame(image, float(exposure_time_s),
+                        float(exposure_time_s) + self.config.latency_s, T_cp, T_wc)
+
+    # ------------------------------------------------------------------ rendering
+    def _level_for(self, tex: _Texture, px_per_texel: float) -> int:
+        if px_per_texel >= 1.0:
+            return 0
+        return max(0, round(math.log2(1.0 / px_per_texel)))
+
+    def render(self, T_camera_pad: Transform) -> U8Image:
+        """Greyscale uint8 image (height_px, width_px) of the scene seen from ``T_camera_pad``."""
+        check_pose(T_camera_pad, "T_camera_pad")
+        R = np.asarray(T_camera_pad.R, dtype=float)
+        t = np.asarray(T_camera_pad.t, dtype=float)
+        cam_in_pad = -R.T @ t
+        if cam_in_pad[2] <= 1e-3:
+            raise ValueError(
+                f"T_camera_pad: camera is {cam_in_pad[2]:.3f} m above the pad plane; must be above it"
+            )
+        cfg = self.config
+        ox, oy = self._offset
+        cw, ch = self._canvas_size
+        Kc = self.camera.K.copy()
+        Kc[0, 2] += ox
+        Kc[1, 2] += oy
+        P = Kc @ np.column_stack([R[:, 0], R[:, 1], t])  # pad plane (X, Y, 1) -> canvas pixels
+
+        # depth of the ground under the optical axis, for the ground's texture level
+        ray_pad = R.T @ np.array([0.0, 0.0, 1.0])
+        depth = cam_in_pad[2] / max(-ray_pad[2], 0.1)
+        f = 0.5 * (self.camera.fx + self.camera.fy)
+        lg = self._level_for(self._ground, f * cfg.ground_texel_m / depth)
+        gimg = self._ground.level(lg)
+        canvas = cv2.warpPerspective(
+            gimg, P @ self._ground.texel_to_plane(gimg), (cw, ch), flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=self._ground_mean,
+        )
+        z_pad = max(float(t[2]), 1e-3)  # depth of the pad centre
+        lp = self._level_for(self._pad, f * cfg.pad_texel_m / z_pad)
+        pimg = self._pad.level(lp)
+        cv2.warpPerspective(
+            pimg, P @ self._pad.texel_to_plane(pimg), (cw, ch), dst=canvas,
+            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT,
+        )
+        self._paint_sky(canvas, R, Kc)
+        img = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR) if self._maps is not None else canvas
+        if self._blur_kernel is not None:
+            img = cv2.filter2D(img, -1, self._blur_kernel, borderType=cv2.BORDER_REPLICATE)
+        img = self._expose(img)
+        self.frames_rendered += 1
+        return img
+
+    def _paint_sky(self, canvas: U8Image, R: NDArray, Kc: NDArray) -> None:
+        """Pixels whose ray does not reach the ground (above the horizon) get the sky level."""
+        ch, cw = canvas.shape
+        # ray direction z in the pad frame is linear in the pixel: n . [u, v, 1]
+        n = (R.T @ np.linalg.inv(Kc))[2]
+        corners = np.array([[0, 0, 1], [cw - 1, 0, 1], [0, ch - 1, 1], [cw - 1, ch - 1, 1]], float)
+        if np.all(corners @ n < -1e-3):
+            return
+        u, v = np.meshgrid(np.arange(cw, dtype=np.float32), np.arange(ch, dtype=np.float32))
+        sky = (n[0] * u + n[1] * v + n[2]) >= -1e-3
+        canvas[sky] = self.config.sky_level
+
+    def _expose(self, img: U8Image) -> U8Image:
+        cfg = self.config
+        gain = cfg.gain
+        offset = cfg.offset
+        if cfg.gain_jitter > 0:
+            gain = max(0.05, gain + float(self._rng.normal(0.0, cfg.gain_jitter)))
+        if cfg.offset_jitter > 0:
+            offset = offset + float(self._rng.normal(0.0, cfg.offset_jitter))
+        h, w = img.shape
+        out = img.astype(np.float32)
+        if gain != 1.0 or offset != 0.0:
+            out *= np.float32(gain)
+            out += np.float32(offset)
+        if cfg.noise_std > 0:
+            dy, dx = (int(x) for x in self._rng.integers(0, self._noise_margin, 2))
+            out += self._noise[dy : dy + h, dx : dx + w]
+        return np.clip(out, 0, 255).astype(np.uint8)

@@ -1,0 +1,204 @@
+"""Fly the delivery mission on the embedded simulator and score it against simulator truth.
+
+The application cannot tell the simulator from a vehicle: :class:`companion.app.DeliveryShell`
+runs unchanged against :class:`SimAutopilot`. Truth (what the vehicle really did) is read from
+the simulator only here, for scoring: path distance, landing error on the true pad.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell
+from companion.config import CompanionConfig
+from companion.flightlog.csvlog import CsvLog
+from companion.geometry.earth import GeoPoint
+from companion.mission.delivery import MissionOutput
+from companion.mission.events import Phase
+from companion.mission.planning import pad_position_ned
+from companion_sitl.autopilot import SimAutopilot
+from companion_sitl.clock import run_virtual
+from companion_sitl.vehicle import SimVehicle
+
+log = logging.getLogger(__name__)
+
+TRUTH_COLUMNS = (
+    "time_s", "phase", "true_north_m", "true_east_m", "true_down_m",
+    "true_mission_x_m", "true_mission_y_m", "true_mission_z_m", "true_path_distance_m", "est_lyapunov_m2",
+)
+EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
+
+
+@dataclass
+class DemoResult:
+    delivered: bool
+    returned: bool
+    phase: str
+    failure: str
+    flight_time_s: float
+    sim_time_s: float
+    wall_time_s: float
+    path_rms_truth_m: float
+    path_max_truth_m: float
+    path_rms_estimate_m: float
+    pad_landing_error_m: float
+    pad_landing_error_ne_m: tuple[float, float]
+    home_landing_error_m: float
+    setpoints_sent: int
+    setpoints_clamped: int
+    guidance_overruns: int
+    run_dir: str = ""
+    events: list[tuple[float, str, str, str]] = field(default_factory=list)
+
+    @property
+    def speedup(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+class _Scorer:
+    """Samples truth at each guidance tick while the vector field is being followed."""
+
+    FOLLOW = (Phase.OUTBOUND, Phase.INBOUND)
+
+    def __init__(self, vehicle: SimVehicle, truth_log: CsvLog | None):
+        self.vehicle = vehicle
+        self.truth_log = truth_log
+        self.truth_d: list[float] = []
+        self.est_d: list[float] = []
+
+    def __call__(self, shell: DeliveryShell, out: MissionOutput) -> None:
+        m = shell.mission
+        v = self.vehicle
+        if m.frame is None or m.path is None:
+            return
+        off = getattr(v, "_home_offset", (0.0, 0.0, 0.0))
+        # the plan lives in the autopilot's local frame, whose origin is the home estimate
+        p_local_truth = np.array([v.pn - off[0], v.pe - off[1], v.pd - off[2]])
+        p_i = m.frame.point_from_ned(p_local_truth)
+        d_truth = m.path.distance_to_path(p_i)
+        if out.phase in self.FOLLOW:
+            self.truth_d.append(d_truth)
+            if math.isfinite(out.lyapunov):
+                self.est_d.append(math.sqrt(2.0 * out.lyapunov))
+        if self.truth_log is not None:
+            self.truth_log.write(
+                (v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov)
+            )
+
+
+def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
+    """Where the pad really is in the simulator's truth frame (true home at the origin)."""
+    h = config.sim.home
+    pad = pad_position_ned(config.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
+
+
+def _rms(xs: list[float]) -> float:
+    return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
+
+
+async def fly(
+    config: CompanionConfig,
+    run_dir: Path | None = None,
+    on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+    timeout_s: float = 1800.0,
+) -> DemoResult:
+    """Fly one delivery on the simulator (on whatever loop is running) and score it."""
+    vehicle = SimVehicle(config.sim)
+    pad_n, pad_e = true_pad_ned(config)
+    vehicle.set_pad_truth(pad_n, pad_e)
+    ap = SimAutopilot(config.sim, vehicle)
+    flight_log = truth_log = None
+    if run_dir is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
+        truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
+    scorer = _Scorer(vehicle, truth_log)
+
+    def tick(shell: DeliveryShell, out: MissionOutput) -> None:
+        scorer(shell, out)
+        if on_tick is not None:
+            on_tick(shell, out)
+
+    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick)
+    wall0 = time.perf_counter()
+    try:
+        summary = await shell.run(timeout_s=timeout_s)
+    finally:
+        await ap.close()
+        for lg in (flight_log, truth_log):
+            if lg is not None:
+                lg.close()
+    wall = time.perf_counter() - wall0
+
+    pad_td = [t for t in vehicle.touchdowns if not t.payload_released]
+    home_td = [t for t in vehicle.touchdowns if t.payload_released]
+    pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
+    home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
+    flight_time = (
+        summary.end_time_s - summary.takeoff_time_s
+        if summary.end_time_s is not None and summary.takeoff_time_s is not None
+        else math.nan
+    )
+    result = DemoResult(
+        delivered=summary.delivered,
+        returned=summary.returned,
+        phase=shell.mission.phase.value,
+        failure=summary.failure,
+        flight_time_s=flight_time,
+        sim_time_s=vehicle.time_s,
+        wall_time_s=wall,
+        path_rms_truth_m=_rms(scorer.truth_d),
+        path_max_truth_m=max(scorer.truth_d) if scorer.truth_d else math.nan,
+        path_rms_estimate_m=_rms(scorer.est_d),
+        pad_landing_error_m=math.hypot(*pad_err_ne),
+        pad_landing_error_ne_m=pad_err_ne,
+        home_landing_error_m=home_err,
+        setpoints_sent=shell.stats.setpoints_sent,
+        setpoints_clamped=shell.stats.setpoints_clamped,
+        guidance_overruns=shell.stats.guidance_overruns,
+        run_dir=str(run_dir or ""),
+        events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
+    )
+    if run_dir is not None:
+        with CsvLog(run_dir / "events.csv", EVENT_COLUMNS) as ev_log:
+            for row in result.events:
+                ev_log.write(row)
+        summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
+        summary_json["speedup"] = result.speedup
+        summary_json["true_pad_ned_m"] = [pad_n, pad_e]
+        summary_json["path"] = (
+            {"h_m": shell.mission.path.h, "r_m": shell.mission.path.r, "d_m": shell.mission.path.d,
+             "z_start_m": shell.mission.z_start, "heading_rad": shell.mission.frame.heading_rad}
+            if shell.mission.path is not None and shell.mission.frame is not None else None
+        )
+        (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
+    return result
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return str(o)
+
+
+def run_demo(
+    config: CompanionConfig,
+    run_dir: Path | None = None,
+    realtime: bool = False,
+    on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+) -> DemoResult:
+    """Fly the demo: lock-step virtual time (default) or real time."""
+    coro = fly(config, run_dir, on_tick)
+    if realtime:
+        return asyncio.run(coro)
+    return run_virtual(coro)

@@ -1,0 +1,491 @@
+"""Embedded multicopter: translational rigid-body dynamics with PX4-like inner loops.
+
+Synchronous and deterministic by seed. The model is what a PX4 SIH quad looks like to a
+companion computer: an attitude-limited velocity loop (P + I, accel and tilt limits, first-order
+tilt response), modes (HOLD, TAKEOFF, LAND, OFFBOARD with its setpoint rules and loss failsafe),
+a land detector, and the autopilot's own GPS-based estimate (truth + wander + bias), which is
+what it reports and what its own position loops use.
+
+Frames: world NED at the (true) home position, metres; ground is flat at down = 0.
+Plain floats in the hot path: numpy on 3-vectors costs more than the arithmetic.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+from companion.config import SimConfig
+from companion.geometry.earth import GeoPoint, LocalTangentPlane
+from companion.geometry.rotations import wrap_angle
+
+log = logging.getLogger(__name__)
+
+G = 9.80665
+HOLD_MAX_H_SPEED = 5.0
+HOLD_MAX_V_SPEED = 1.5
+OFFBOARD_MIN_SETPOINT_RATE_HZ = 2.0
+LAND_DETECT_S = 0.6
+AUTO_DISARM_AFTER_LAND_S = 2.0
+YAW_RATE_MAX = math.radians(60.0)
+
+
+class SimCommandError(RuntimeError):
+    """The simulated autopilot refused a command (as PX4 would, with its reason)."""
+
+
+@dataclass
+class Touchdown:
+    time_s: float
+    north_m: float
+    east_m: float
+    payload_released: bool
+
+
+@dataclass
+class TruthSample:
+    time_s: float
+    north_m: float
+    east_m: float
+    down_m: float
+    north_m_s: float
+    east_m_s: float
+    down_m_s: float
+
+
+@dataclass
+class _GaussMarkov:
+    """First-order Gauss-Markov process x' = -x/tau + w, stationary std ``sigma``."""
+
+    sigma: float
+    tau: float
+    x: float = 0.0
+
+    def step(self, dt: float, n: float) -> float:
+        a = math.exp(-dt / self.tau)
+        self.x = a * self.x + self.sigma * math.sqrt(1.0 - a * a) * n
+        return self.x
+
+
+@dataclass
+class SimVehicle:
+    cfg: SimConfig
+    time_s: float = 0.0
+    # truth
+    pn: float = 0.0
+    pe: float = 0.0
+    pd: float = 0.0
+    vn: float = 0.0
+    ve: float = 0.0
+    vd: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    # autopilot state
+    armed: bool = False
+    mode: FlightMode = FlightMode.HOLD
+    landed: LandedState = LandedState.ON_GROUND
+    payload_released: bool = False
+    battery_pct: float = 100.0
+    truth_log: list[TruthSample] = field(default_factory=list)
+    touchdowns: list[Touchdown] = field(default_factory=list)
+    status_texts: list[tuple[float, str]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        c = self.cfg
+        ss = np.random.SeedSequence(c.seed)
+        self._rng_wind, self._rng_gps, self._rng_imu, self._rng_misc = (
+            np.random.default_rng(s) for s in ss.spawn(4)
+        )
+        self._dt = 1.0 / c.vehicle.physics_rate_hz
+        # wind: mean from "wind_from", gusts as Gauss-Markov per axis
+        wf = math.radians(c.wind_from_deg)
+        self._wind_mean = (-c.wind_speed_m_s * math.cos(wf), -c.wind_speed_m_s * math.sin(wf), 0.0)
+        gs = c.gust_std_effective_m_s
+        tau = c.gust_time_constant_s
+        self._gust = [_GaussMarkov(gs, tau), _GaussMarkov(gs, tau), _GaussMarkov(0.3 * gs, tau)]
+        self._wind = list(self._wind_mean)
+        # autopilot estimate error: slow wander (horizontal/vertical) + constant bias
+        self._walk = [
+            _GaussMarkov(c.gps_walk_m, c.gps_walk_time_constant_s),
+            _GaussMarkov(c.gps_walk_m, c.gps_walk_time_constant_s),
+            _GaussMarkov(1.5 * c.gps_walk_m, c.gps_walk_time_constant_s),
+        ]
+        for w in self._walk:  # start from the stationary distribution
+            w.x = w.sigma * float(self._rng_gps.standard_normal())
+        self._bias = tuple(c.gps_bias_m)
+        self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
+        self._ltp = LocalTangentPlane(self._home_true)
+        self._home_reported: GeoPoint | None = None
+        # velocity loop
+        self._int = [0.0, 0.0, 0.0]
+        self._hold_target: tuple[float, float, float] | None = None
+        self._takeoff_target_d = 0.0
+        self._yaw_sp = 0.0
+        self._sp: VelocitySetpoint | None = None
+        self._sp_times: list[float] = []
+        self._ground_since: float | None = 0.0
+        self._landed_since: float | None = 0.0
+        self._release_at: float | None = None
+        self._rates = (0.0, 0.0, 0.0)
+        self._accel = (0.0, 0.0, 0.0)
+        self._airborne = False
+        self._truth_next = 0.0
+
+    # ------------------------------------------------------------------ commands
+    @property
+    def healthy(self) -> bool:
+        return self.time_s >= self.cfg.ready_delay_s
+
+    def arm(self) -> None:
+        if self.armed:
+            return
+        if not self.healthy:
+            raise SimCommandError("arming denied: estimator/GPS not ready")
+        if self.landed is not LandedState.ON_GROUND:
+            raise SimCommandError("arming denied: not landed")
+        if self.battery_pct < 10.0:
+            raise SimCommandError(f"arming denied: battery {self.battery_pct:.0f} %")
+        self.armed = True
+        self.mode = FlightMode.HOLD
+        self._int = [0.0, 0.0, 0.0]
+        self._yaw_sp = self.yaw
+        self._hold_target = None
+        self._text("armed")
+
+    def disarm(self) -> None:
+        if not self.armed:
+            return
+        if self.landed is not LandedState.ON_GROUND:
+            raise SimCommandError("disarming denied: not landed")
+        self.armed = False
+        self._text("disarmed")
+
+    def takeoff(self, alt_rel_m: float) -> None:
+        if not self.armed:
+            raise SimCommandError("takeoff denied: not armed")
+        if not (math.isfinite(alt_rel_m) and 0.5 <= alt_rel_m <= 100.0):
+            raise SimCommandError(f"takeoff denied: altitude {alt_rel_m} m out of range")
+        est = self._estimate()
+        self._takeoff_target_d = est[2] - alt_rel_m
+        self._hold_target = (est[0], est[1], self._takeoff_target_d)
+        self.mode = FlightMode.TAKEOFF
+        self._yaw_sp = self.yaw
+
+    def set_velocity(self, sp: VelocitySetpoint) -> None:
+        vals = (sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad)
+        if not all(math.isfinite(v) for v in vals):
+            self._text(f"offboard setpoint rejected: not finite {vals}")
+            return
+        self._sp = sp
+        self._sp_times.append(self.time_s)
+        if len(self._sp_times) > 50:
+            del self._sp_times[:-50]
+
+    def start_offboard(self) -> None:
+        if not self.armed:
+            raise SimCommandError("offboard denied: not armed")
+        recent = [t for t in self._sp_times if self.time_s - t <= 1.0]
+        if len(recent) < OFFBOARD_MIN_SETPOINT_RATE_HZ + 1 or self.time_s - recent[-1] > 0.5:
+            raise SimCommandError("offboard denied: no setpoints streamed (need > 2 Hz before switching)")
+        self.mode = FlightMode.OFFBOARD
+
+    def hold(self) -> None:
+        est = self._estimate()
+        self._hold_target = est
+        self.mode = FlightMode.HOLD
+
+    def land(self) -> None:
+        if not self.armed:
+            raise SimCommandError("land denied: not armed")
+        est = self._estimate()
+        self._hold_target = est
+        self.mode = FlightMode.LAND
+
+    def release_payload(self) -> None:
+        if self._release_at is None and not self.payload_released:
+            self._release_at = self.time_s + self.cfg.vehicle.release_delay_s
+
+    def pilot_set_mode(self, mode: FlightMode) -> None:
+        """The pilot flips the RC mode switch (tests and the RC mixer use this)."""
+        if mode in (FlightMode.POSITION, FlightMode.HOLD, FlightMode.LAND):
+            self._hold_target = self._estimate()
+        self.mode = mode
+        self._text(f"pilot switched to {mode.value}")
+
+    # ------------------------------------------------------------------ physics
+    def step_to(self, t_s: float) -> None:
+        while self.time_s + self._dt <= t_s + 1e-9:
+            self._step(self._dt)
+
+    def _estimate(self) -> tuple[float, float, float]:
+        """The autopilot's own local position estimate (truth + GPS wander)."""
+        w = self._walk
+        return (self.pn + w[0].x, self.pe + w[1].x, self.pd + w[2].x)
+
+    def _step(self, dt: float) -> None:
+        c = self.cfg
+        vc = c.vehicle
+        self.time_s += dt
+        t = self.time_s
+        if self._home_reported is None and self.healthy:
+            self._set_home()  # EKF origin and home at the first good GPS fix
+        rn = self._rng_wind.standard_normal(3)
+        for i in range(3):
+            self._wind[i] = self._wind_mean[i] + self._gust[i].step(dt, float(rn[i]))
+        rg = self._rng_gps.standard_normal(3)
+        for i in range(3):
+            self._walk[i].step(dt, float(rg[i]))
+        if self._release_at is not None and t >= self._release_at:
+            self.payload_released = True
+            self._release_at = None
+            self._text("payload released")
+
+        # ---- mode logic -> velocity setpoint (autopilot side, on its estimate)
+        est = self._estimate()
+        sp_n = sp_e = sp_d = 0.0
+        thrust_on = self.armed
+        if self.armed:
+            if self.mode is FlightMode.OFFBOARD:
+                if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
+                    self._text("offboard lost: failsafe hold")
+                    self.hold()
+                else:
+                    sp_n, sp_e, sp_d = self._sp.north_m_s, self._sp.east_m_s, self._sp.down_m_s
+                    self._yaw_sp = self._sp.yaw_rad
+            if self.mode is FlightMode.TAKEOFF:
+                assert self._hold_target is not None
+                sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
+                sp_d = -vc.takeoff_speed_m_s
+                if est[2] <= self._takeoff_target_d + 0.05:
+                    self.mode = FlightMode.HOLD
+            if self.mode in (FlightMode.HOLD, FlightMode.POSITION, FlightMode.MANUAL,
+                             FlightMode.RTL, FlightMode.MISSION, FlightMode.UNKNOWN):
+                if self._hold_target is None:
+                    self._hold_target = est
+                sp_n, sp_e, sp_d = self._pos_ctrl(est, self._hold_target)
+            if self.mode is FlightMode.LAND:
+                assert self._hold_target is not None
+                sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
+                sp_d = vc.land_speed_m_s
+
+        # ---- velocity loop (P + I) -> acceleration setpoint, limits
+        ve_n = self.vn
+        ve_e = self.ve
+        ve_d = self.vd
+        kp, ki = vc.velocity_p_gain, vc.velocity_i_gain
+        en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
+        an = kp * en + ki * self._int[0]
+        ae = kp * ee + ki * self._int[1]
+        ad = kp * ed + ki * self._int[2]
+        a_h_max = min(vc.max_horizontal_accel_m_s2, G * math.tan(math.radians(vc.max_tilt_deg)))
+        ah = math.hypot(an, ae)
+        sat_h = ah > a_h_max
+        if sat_h:
+            an, ae = an * a_h_max / ah, ae * a_h_max / ah
+        sat_v = not (-vc.max_up_accel_m_s2 <= ad <= vc.max_down_accel_m_s2)
+        ad = min(max(ad, -vc.max_up_accel_m_s2), vc.max_down_accel_m_s2)
+        on_ground = self.pd >= -1e-6
+        if thrust_on and not on_ground:
+            if not sat_h:  # conditional integration (anti-windup)
+                self._int[0] += en * dt
+                self._int[1] += ee * dt
+            if not sat_v:
+                self._int[2] += ed * dt
+
+        # ---- attitude: tilt the thrust towards f_sp = a_sp - g with first-order lag
+        fn, fe, fd = an, ae, ad - G
+        T = math.sqrt(fn * fn + fe * fe + fd * fd)
+        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+        fx = cy * fn + sy * fe
+        fy = -sy * fn + cy * fe
+        roll_d = math.asin(max(-1.0, min(1.0, fy / T)))
+        pitch_d = math.atan2(-fx, -fd)
+        k = min(1.0, dt / vc.attitude_time_constant_s)
+        d_roll = (roll_d - self.roll) * k
+        d_pitch = (pitch_d - self.pitch) * k
+        self.roll += d_roll
+        self.pitch += d_pitch
+        dyaw = wrap_angle(self._yaw_sp - self.yaw) if self.armed else 0.0
+        dyaw = max(-YAW_RATE_MAX * dt, min(YAW_RATE_MAX * dt, dyaw))
+        self.yaw = wrap_angle(self.yaw + dyaw)
+        self._rates = (d_roll / dt, d_pitch / dt, dyaw / dt)
+
+        # ---- translational dynamics: a = f(actual attitude) + g - drag(v - wind)
+        if thrust_on:
+            cr, sr = math.cos(self.roll), math.sin(self.roll)
+            cp, sp_ = math.cos(self.pitch), math.sin(self.pitch)
+            cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+            f_n = -T * (cy * sp_ * cr + sy * sr)
+            f_e = -T * (sy * sp_ * cr - cy * sr)
+            f_d = -T * (cp * cr)
+        else:
+            f_n = f_e = f_d = 0.0
+        kd = vc.drag_coefficient_1_s
+        a_n = f_n - kd * (self.vn - self._wind[0])
+        a_e = f_e - kd * (self.ve - self._wind[1])
+        a_d = f_d + G - kd * (self.vd - self._wind[2])
+        if on_ground and a_d >= 0.0:
+            # resting on the ground: the ground carries the weight, friction stops sliding
+            self.vn = self.ve = self.vd = 0.0
+            self.pd = 0.0
+            a_n = a_e = a_d = 0.0
+            self._int = [0.0, 0.0, self._int[2] if thrust_on else 0.0]
+        else:
+            self.vn += a_n * dt
+            self.ve += a_e * dt
+            self.vd += a_d * dt
+            self.pn += self.vn * dt
+            self.pe += self.ve * dt
+            self.pd += self.vd * dt
+            if self.pd > 0.0:  # touching down this step
+                self.pd = 0.0
+                self.vd = 0.0
+        self._accel = (a_n, a_e, a_d)
+        self._land_detector(t)
+        if self.armed and not on_ground:
+            self.battery_pct = max(0.0, self.battery_pct - 100.0 * dt / vc.battery_endurance_s)
+        if t >= self._truth_next:
+            self._truth_next = t + 0.1
+            self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))
+
+    def _pos_ctrl(self, est: tuple[float, float, float], target: tuple[float, float, float]) -> tuple[float, float, float]:
+        kp = self.cfg.vehicle.position_p_gain
+        vn = kp * (target[0] - est[0])
+        ve = kp * (target[1] - est[1])
+        vd = kp * (target[2] - est[2])
+        h = math.hypot(vn, ve)
+        if h > HOLD_MAX_H_SPEED:
+            vn, ve = vn * HOLD_MAX_H_SPEED / h, ve * HOLD_MAX_H_SPEED / h
+        vd = max(-HOLD_MAX_V_SPEED, min(HOLD_MAX_V_SPEED, vd))
+        return vn, ve, vd
+
+    def _land_detector(self, t: float) -> None:
+        on_ground = self.pd >= -0.01 and abs(self.vd) < 0.05
+        if on_ground:
+            if self._ground_since is None:
+                self._ground_since = t
+            if t - self._ground_since >= LAND_DETECT_S and self.landed is not LandedState.ON_GROUND:
+                self.landed = LandedState.ON_GROUND
+                self._landed_since = t
+                if self._airborne:
+                    self._airborne = False
+                    self.touchdowns.append(Touchdown(t, self.pn, self.pe, self.payload_released))
+                    self._text(f"landed at N {self.pn:.2f} E {self.pe:.2f}")
+            if (
+                self.armed
+                and self.mode is FlightMode.LAND
+                and self.landed is LandedState.ON_GROUND
+                and self._landed_since is not None
+                and t - self._landed_since >= AUTO_DISARM_AFTER_LAND_S
+            ):
+                self.armed = False
+                self._text("auto-disarmed after landing")
+        else:
+            self._ground_since = None
+            self._landed_since = None
+            if self.pd < -0.3:
+                self._airborne = True
+                self.landed = LandedState.IN_AIR
+
+    def _set_home(self) -> None:
+        # The home the autopilot reports is its GPS position at arming: the bias lives in it.
+        est = self._estimate()
+        b = self._bias
+        self._home_reported = self._ltp.to_geo(est[0] + b[0], est[1] + b[1], est[2] + b[2])
+        self._home_offset = est  # local origin at home (estimate at arming)
+
+    def _text(self, msg: str) -> None:
+        log.debug("sim vehicle t=%.2f: %s", self.time_s, msg)
+        self.status_texts.append((self.time_s, msg))
+
+    # ------------------------------------------------------------------ telemetry
+    def _local(self) -> tuple[float, float, float]:
+        est = self._estimate()
+        off = getattr(self, "_home_offset", (0.0, 0.0, 0.0))
+        return (est[0] - off[0], est[1] - off[1], est[2] - off[2])
+
+    def position_ned(self) -> PositionNed:
+        n, e, d = self._local()
+        r = self._rng_misc.standard_normal(3) * 0.03
+        return PositionNed(self.time_s, n, e, d, self.vn + float(r[0]), self.ve + float(r[1]), self.vd + float(r[2]))
+
+    def global_position(self) -> GlobalPosition:
+        est = self._estimate()
+        b = self._bias
+        g = self._ltp.to_geo(est[0] + b[0], est[1] + b[1], est[2] + b[2])
+        home_alt = self._home_reported.alt_amsl_m if self._home_reported else self._home_true.alt_amsl_m
+        return GlobalPosition(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, g.alt_amsl_m - home_alt)
+
+    def gps_raw(self) -> GpsRaw:
+        est = self._estimate()
+        b = self._bias
+        r = self._rng_gps.standard_normal(3) * self.cfg.gps_noise_m
+        g = self._ltp.to_geo(est[0] + b[0] + float(r[0]), est[1] + b[1] + float(r[1]), est[2] + b[2] + float(r[2]))
+        return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, 3 if self.healthy else 1, 14, 0.8)
+
+    def attitude(self) -> Attitude:
+        p, q, r = self._rates
+        return Attitude(self.time_s, self.roll, self.pitch, self.yaw, p, q, r)
+
+    def imu(self) -> Imu:
+        """Specific force and body rates in FRD, with white noise."""
+        a_n, a_e, a_d = self._accel
+        f = (a_n, a_e, a_d - G)
+        cr, sr = math.cos(self.roll), math.sin(self.roll)
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+        # R^T (world->body) rows are R's columns
+        R = (
+            (cy * cp, sy * cp, -sp),
+            (cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr),
+            (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr),
+        )
+        fb = [R[i][0] * f[0] + R[i][1] * f[1] + R[i][2] * f[2] for i in range(3)]
+        na = self._rng_imu.standard_normal(6)
+        sa, sg = self.cfg.accel_noise_m_s2, self.cfg.gyro_noise_rad_s
+        p, q, r = self._rates
+        return Imu(
+            self.time_s,
+            fb[0] + sa * float(na[0]),
+            fb[1] + sa * float(na[1]),
+            fb[2] + sa * float(na[2]),
+            p + sg * float(na[3]),
+            q + sg * float(na[4]),
+            r + sg * float(na[5]),
+        )
+
+    def status(self) -> VehicleStatus:
+        return VehicleStatus(
+            self.time_s, self.armed, self.mode, self.landed, self.healthy, self.battery_pct, self.payload_released
+        )
+
+    def home(self) -> HomePosition | None:
+        h = self._home_reported
+        if h is None:
+            return None
+        return HomePosition(self.time_s, h.lat_deg, h.lon_deg, h.alt_amsl_m)
+
+    # ------------------------------------------------------------------ truth
+    @property
+    def pad_true_ned(self) -> tuple[float, float]:
+        """Not known by the vehicle: filled in by the scenario (configured pad + displacement)."""
+        return getattr(self, "_pad_true", (math.nan, math.nan))
+
+    def set_pad_truth(self, north_m: float, east_m: float) -> None:
+        self._pad_true = (north_m, east_m)
