@@ -39,10 +39,27 @@ from companion.scheduling import LoopClock, RateLoop
 log = logging.getLogger(__name__)
 
 FLIGHT_LOG_COLUMNS = (
-    "time_s", "phase", "sector", "lyapunov_m2", "est_north_m", "est_east_m", "est_down_m",
-    "est_north_m_s", "est_east_m_s", "est_down_m_s", "est_yaw_rad",
-    "sp_north_m_s", "sp_east_m_s", "sp_down_m_s", "sp_yaw_rad", "clamped",
-    "mission_x_m", "mission_y_m", "mission_z_m", "mode", "armed",
+    "time_s",
+    "phase",
+    "sector",
+    "lyapunov_m2",
+    "est_north_m",
+    "est_east_m",
+    "est_down_m",
+    "est_north_m_s",
+    "est_east_m_s",
+    "est_down_m_s",
+    "est_yaw_rad",
+    "sp_north_m_s",
+    "sp_east_m_s",
+    "sp_down_m_s",
+    "sp_yaw_rad",
+    "clamped",
+    "mission_x_m",
+    "mission_y_m",
+    "mission_z_m",
+    "mode",
+    "armed",
 )
 
 
@@ -157,7 +174,8 @@ class DeliveryShell:
                     self.stats.stream_stops += 1
                     log.error(
                         "setpoint is %.2f s old: control task stalled, setpoint stream stopped "
-                        "so the autopilot's failsafe acts", now - sp[0]
+                        "so the autopilot's failsafe acts",
+                        now - sp[0],
                     )
 
     async def _execute(self, req: Request) -> None:
@@ -198,12 +216,19 @@ class DeliveryShell:
             mx = my = mz = nan
         self.flight_log.write(
             (
-                now, out.phase.value, out.sector, out.lyapunov,
+                now,
+                out.phase.value,
+                out.sector,
+                out.lyapunov,
                 *(e.position_ned if e else (nan, nan, nan)),
                 *(e.velocity_ned if e else (nan, nan, nan)),
                 e.yaw_rad if e else nan,
                 *((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan)),
-                int(clamped), mx, my, mz,
-                st.mode.value if st else "", int(st.armed) if st else 0,
+                int(clamped),
+                mx,
+                my,
+                mz,
+                st.mode.value if st else "",
+                int(st.armed) if st else 0,
             )
         )

@@ -61,11 +61,11 @@ def _fmt_m(v: float) -> str:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from companion_sitl.demo import run_demo
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from companion.flightlog.plots import plot_run
-    from companion_sitl.demo import run_demo
 
     cfg = _load_demo_config(args)
     console = Console()
@@ -76,11 +76,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
         f"k_f = {m.convergence_gain}; wind {cfg.sim.wind_speed_m_s} m/s, GPS bias {list(cfg.sim.gps_bias_m)} m, "
         f"seed {cfg.sim.seed}{' (real time)' if args.realtime else ''}"
     )
-    phases = ["preflight", "arming", "takeoff", "outbound", "landing_pad", "release", "takeoff_return",
-              "inbound", "landing_home", "done"]
+    phases = [
+        "preflight",
+        "arming",
+        "takeoff",
+        "outbound",
+        "landing_pad",
+        "release",
+        "takeoff_return",
+        "inbound",
+        "landing_home",
+        "done",
+    ]
     with Progress(
-        TextColumn("{task.description:<16}"), BarColumn(), TextColumn("sim t = {task.fields[t]:6.1f} s"),
-        TextColumn("{task.fields[where]}"), TimeElapsedColumn(), console=console, disable=args.quiet,
+        TextColumn("{task.description:<16}"),
+        BarColumn(),
+        TextColumn("sim t = {task.fields[t]:6.1f} s"),
+        TextColumn("{task.fields[where]}"),
+        TimeElapsedColumn(),
+        console=console,
+        disable=args.quiet,
     ) as progress:
         task = progress.add_task("preflight", total=len(phases) - 1, t=0.0, where="")
 
@@ -95,9 +110,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
-    console.print(f"[bold]{'DELIVERED' if result.delivered else 'NOT DELIVERED'}[/]"
-                  f"{', returned home' if result.returned else ''}"
-                  + (f"  [red]{result.failure}[/]" if result.failure else ""))
+    console.print(
+        f"[bold]{'DELIVERED' if result.delivered else 'NOT DELIVERED'}[/]"
+        f"{', returned home' if result.returned else ''}" + (f"  [red]{result.failure}[/]" if result.failure else "")
+    )
     rows = [
         ("flight time", f"{result.flight_time_s:.1f} s"),
         ("path RMS distance (truth, while following the field)", _fmt_m(result.path_rms_truth_m)),
@@ -106,10 +122,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ("landing error on the pad (truth)", _fmt_m(result.pad_landing_error_m)),
         ("landing error at home (truth)", _fmt_m(result.home_landing_error_m)),
         ("setpoints sent / clamped", f"{result.setpoints_sent} / {result.setpoints_clamped}"),
-        ("simulated / wall time", f"{result.sim_time_s:.1f} s / {result.wall_time_s:.2f} s "
-                                  f"({result.speedup:.0f}x real time)"),
-        ("run folder", f"{run_dir}  (flight.csv, truth.csv, events.csv, summary.json"
-                       f"{', ' + ', '.join(p.name for p in plots) if plots else ''})"),
+        (
+            "simulated / wall time",
+            f"{result.sim_time_s:.1f} s / {result.wall_time_s:.2f} s ({result.speedup:.0f}x real time)",
+        ),
+        (
+            "run folder",
+            f"{run_dir}  (flight.csv, truth.csv, events.csv, summary.json"
+            f"{', ' + ', '.join(p.name for p in plots) if plots else ''})",
+        ),
     ]
     for k, v in rows:
         console.print(f"  {k:<58} {v}")
@@ -124,8 +145,10 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     for i in range(args.repeat):
         r = run_demo(cfg)
         speedups.append(r.speedup)
-        print(f"run {i + 1}: {r.sim_time_s:.1f} s simulated in {r.wall_time_s:.2f} s wall = {r.speedup:.1f}x real time"
-              f" (delivered={r.delivered}, returned={r.returned})")
+        print(
+            f"run {i + 1}: {r.sim_time_s:.1f} s simulated in {r.wall_time_s:.2f} s wall = {r.speedup:.1f}x real time"
+            f" (delivered={r.delivered}, returned={r.returned})"
+        )
     best = max(speedups)
     print(f"bench sim: demo flight runs {best:.1f}x faster than real time (best of {args.repeat}; target >= 50x)")
     return 0

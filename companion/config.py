@@ -73,13 +73,21 @@ class MissionConfig(_Section):
     )
     convergence_gain: float = _f(1.0, "1/m", "k_f: vector field convergence weight", gt=0.0, le=20.0)
     takeoff_alt_m: float = _f(3.0, "m", "autopilot takeoff height before the field takes over", gt=0.5, le=20.0)
-    final_descent_alt_m: float = _f(3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0)
+    final_descent_alt_m: float = _f(
+        3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0
+    )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
     takeoff_timeout_s: float = _f(60.0, "s", "takeoff must reach its height within this time", gt=0.0, le=600.0)
-    touchdown_timeout_s: float = _f(30.0, "s", "landing: fall back to the autopilot's LAND after this long below final descent height", gt=0.0, le=600.0)
+    touchdown_timeout_s: float = _f(
+        30.0,
+        "s",
+        "landing: fall back to the autopilot's LAND after this long below final descent height",
+        gt=0.0,
+        le=600.0,
+    )
     estimate_timeout_s: float = _f(1.0, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
     return_home: bool = _f(True, "-", "take off again after the release and fly home")
     pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
@@ -118,7 +126,9 @@ class RuntimeConfig(_Section):
 
     guidance_rate_hz: float = _f(20.0, "Hz", "guidance and mission rate", ge=20.0, le=200.0)
     setpoint_rate_hz: float = _f(20.0, "Hz", "setpoint stream rate (PX4 needs > 2 Hz)", ge=5.0, le=200.0)
-    setpoint_stale_s: float = _f(0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0)
+    setpoint_stale_s: float = _f(
+        0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
+    )
     link_timeout_s: float = _f(1.0, "s", "no heartbeat for this long is a lost link", gt=0.1, le=30.0)
     log_rate_hz: float = _f(20.0, "Hz", "flight-log sampling rate of the shell state", gt=0.0, le=200.0)
 
@@ -148,9 +158,7 @@ class SimConfig(_Section):
     """A simulated scenario: seed, home, wind, sensors."""
 
     seed: int = _f(1, "-", "random seed (every noise source derives from it)", ge=0)
-    home: GeoConfig = Field(
-        default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0)
-    )
+    home: GeoConfig = Field(default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0))
     wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
     wind_from_deg: float = _f(270.0, "deg", "direction the wind blows from (0 = north)", ge=0.0, lt=360.0)
     gust_std_m_s: float = _f(-1.0, "m/s", "gust intensity (std); -1 = 20 % of wind speed", ge=-1.0, le=10.0)
@@ -185,7 +193,14 @@ class SimConfig(_Section):
 
 
 class CompanionConfig(_Section):
-    vehicle_id: str = _f("drone1", "-", "name of this vehicle (telemetry key space)", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_\-]+$")
+    vehicle_id: str = _f(
+        "drone1",
+        "-",
+        "name of this vehicle (telemetry key space)",
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_\-]+$",
+    )
     autopilot: Literal["sim", "px4", "ardupilot"] = _f("sim", "-", "which autopilot backend to use")
     connection: str = _f("udpin://0.0.0.0:14540", "-", "MAVLink connection URL for px4/ardupilot")
     mission: MissionConfig = Field(default_factory=MissionConfig)
@@ -202,7 +217,9 @@ def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"])
         if e["type"] == "extra_forbidden":
-            problems.append(f"{loc}: unknown key (value {e['input']!r}); allowed keys are listed by `companion params show`")
+            problems.append(
+                f"{loc}: unknown key (value {e['input']!r}); allowed keys are listed by `companion params show`"
+            )
             continue
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "missing":

@@ -17,6 +17,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from companion_sitl.autopilot import SimAutopilot
+from companion_sitl.clock import run_virtual
+from companion_sitl.vehicle import SimVehicle
 
 from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell
 from companion.config import CompanionConfig
@@ -25,15 +28,20 @@ from companion.geometry.earth import GeoPoint
 from companion.mission.delivery import MissionOutput
 from companion.mission.events import Phase
 from companion.mission.planning import pad_position_ned
-from companion_sitl.autopilot import SimAutopilot
-from companion_sitl.clock import run_virtual
-from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
 
 TRUTH_COLUMNS = (
-    "time_s", "phase", "true_north_m", "true_east_m", "true_down_m",
-    "true_mission_x_m", "true_mission_y_m", "true_mission_z_m", "true_path_distance_m", "est_lyapunov_m2",
+    "time_s",
+    "phase",
+    "true_north_m",
+    "true_east_m",
+    "true_down_m",
+    "true_mission_x_m",
+    "true_mission_y_m",
+    "true_mission_z_m",
+    "true_path_distance_m",
+    "est_lyapunov_m2",
 )
 EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
 
@@ -90,9 +98,7 @@ class _Scorer:
             if math.isfinite(out.lyapunov):
                 self.est_d.append(math.sqrt(2.0 * out.lyapunov))
         if self.truth_log is not None:
-            self.truth_log.write(
-                (v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov)
-            )
+            self.truth_log.write((v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov))
 
 
 def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
@@ -177,9 +183,15 @@ async def fly(
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]
         summary_json["path"] = (
-            {"h_m": shell.mission.path.h, "r_m": shell.mission.path.r, "d_m": shell.mission.path.d,
-             "z_start_m": shell.mission.z_start, "heading_rad": shell.mission.frame.heading_rad}
-            if shell.mission.path is not None and shell.mission.frame is not None else None
+            {
+                "h_m": shell.mission.path.h,
+                "r_m": shell.mission.path.r,
+                "d_m": shell.mission.path.d,
+                "z_start_m": shell.mission.z_start,
+                "heading_rad": shell.mission.frame.heading_rad,
+            }
+            if shell.mission.path is not None and shell.mission.frame is not None
+            else None
         )
         (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
     return result

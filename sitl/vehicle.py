@@ -109,9 +109,7 @@ class SimVehicle:
     def __post_init__(self) -> None:
         c = self.cfg
         ss = np.random.SeedSequence(c.seed)
-        self._rng_wind, self._rng_gps, self._rng_imu, self._rng_misc = (
-            np.random.default_rng(s) for s in ss.spawn(4)
-        )
+        self._rng_wind, self._rng_gps, self._rng_imu, self._rng_misc = (np.random.default_rng(s) for s in ss.spawn(4))
         self._dt = 1.0 / c.vehicle.physics_rate_hz
         # wind: mean from "wind_from", gusts as Gauss-Markov per axis
         wf = math.radians(c.wind_from_deg)
@@ -274,8 +272,14 @@ class SimVehicle:
                 sp_d = -vc.takeoff_speed_m_s
                 if est[2] <= self._takeoff_target_d + 0.05:
                     self.mode = FlightMode.HOLD
-            if self.mode in (FlightMode.HOLD, FlightMode.POSITION, FlightMode.MANUAL,
-                             FlightMode.RTL, FlightMode.MISSION, FlightMode.UNKNOWN):
+            if self.mode in (
+                FlightMode.HOLD,
+                FlightMode.POSITION,
+                FlightMode.MANUAL,
+                FlightMode.RTL,
+                FlightMode.MISSION,
+                FlightMode.UNKNOWN,
+            ):
                 if self._hold_target is None:
                     self._hold_target = est
                 sp_n, sp_e, sp_d = self._pos_ctrl(est, self._hold_target)
@@ -364,7 +368,9 @@ class SimVehicle:
             self._truth_next = t + 0.1
             self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))
 
-    def _pos_ctrl(self, est: tuple[float, float, float], target: tuple[float, float, float]) -> tuple[float, float, float]:
+    def _pos_ctrl(
+        self, est: tuple[float, float, float], target: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
         kp = self.cfg.vehicle.position_p_gain
         vn = kp * (target[0] - est[0])
         ve = kp * (target[1] - est[1])

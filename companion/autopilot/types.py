@@ -151,9 +151,7 @@ class StatusText:
     text: str
 
 
-TelemetrySample = (
-    PositionNed | GlobalPosition | Attitude | Imu | GpsRaw | VehicleStatus | HomePosition | StatusText
-)
+TelemetrySample = PositionNed | GlobalPosition | Attitude | Imu | GpsRaw | VehicleStatus | HomePosition | StatusText
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,11 +9,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from companion.flightlog.csvlog import read_csv  # noqa: E402
-from companion.guidance.path import DeliveryPath  # noqa: E402
+from companion.flightlog.csvlog import read_csv
+from companion.guidance.path import DeliveryPath
 
 
 def _floats(col: list[str]) -> np.ndarray:

@@ -15,7 +15,9 @@ FloatArray = NDArray[np.float64]
 
 
 def wrap_angle(angle_rad: float) -> float:
-    """Wrap an angle to [-pi, pi)."""
+    """Wrap an angle to [-pi, pi) (exact for angles already in range)."""
+    if -math.pi <= angle_rad < math.pi:
+        return angle_rad
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 

@@ -167,7 +167,6 @@ class DeliveryMission:
 
     def step(self, inp: MissionInputs) -> MissionOutput:
         self._now = inp.time_s
-        self._events = []
         setpoint: VelocitySetpoint | None = None
         request: Request | None = None
         lyap = math.nan
@@ -389,6 +388,7 @@ class DeliveryMission:
     _takeoff_requested = False
     _touched_down = False
     _reenter = False
+    _link_restored_at = -math.inf
     _retry_tries = 2
 
     def _on_request_ok(self, req: Request) -> None:
@@ -437,7 +437,9 @@ class DeliveryMission:
         self.summary.events.append(ev)
 
     def _out(self, sp: VelocitySetpoint | None, req: Request | None, lyap: float) -> MissionOutput:
-        return MissionOutput(self.phase, sp, req, tuple(self._events), self._sector, lyap)
+        # events raised between ticks (abort, request results) go out with this tick's output
+        events, self._events = tuple(self._events), []
+        return MissionOutput(self.phase, sp, req, events, self._sector, lyap)
 
     def _on_ground_phase(self) -> bool:
         return self.phase in (Phase.PREFLIGHT, Phase.ARMING, Phase.RELEASE)
@@ -478,6 +480,7 @@ class DeliveryMission:
             return False
         if self._link_lost:
             self._link_lost = False
+            self._link_restored_at = inp.time_s
             self._emit(EventKind.LINK_RESTORED, "resuming from where the vehicle is")
             # The autopilot's offboard-loss failsafe will have switched to HOLD: that is not
             # the pilot, so re-enter offboard and let the (path-based) field resume.
@@ -502,6 +505,8 @@ class DeliveryMission:
         est = inp.estimate
         if est is None:
             return
+        if inp.time_s - self._link_restored_at < self.cfg.estimate_timeout_s:
+            return  # fresh telemetry is still arriving after a reconnect
         age = inp.time_s - est.time_s
         if age > self.cfg.estimate_timeout_s:
             self.abort(inp.time_s, f"state estimate is {age:.2f} s old (limit {self.cfg.estimate_timeout_s} s)")

@@ -1,0 +1,37 @@
+import math
+
+from companion.autopilot.types import VelocitySetpoint
+from companion.config import LimitsConfig
+from companion.guidance import clamp_velocity
+
+LIM = LimitsConfig(
+    max_horizontal_speed_m_s=5, max_climb_m_s=2, max_descent_m_s=1, geofence_radius_m=100, geofence_max_alt_m=50
+)
+
+
+def test_within_limits_untouched():
+    r = clamp_velocity(VelocitySetpoint(1, 2, 0.5, 0.3), LIM)
+    assert not r.clamped and r.setpoint == VelocitySetpoint(1, 2, 0.5, 0.3)
+
+
+def test_speed_climb_descent_clamped():
+    r = clamp_velocity(VelocitySetpoint(6, 8, -5, 0.0), LIM)
+    assert math.isclose(math.hypot(r.setpoint.north_m_s, r.setpoint.east_m_s), 5.0)
+    assert math.isclose(r.setpoint.north_m_s / r.setpoint.east_m_s, 6 / 8)  # direction kept
+    assert r.setpoint.down_m_s == -2 and "climb" in r.reason
+    assert clamp_velocity(VelocitySetpoint(0, 0, 3, 0), LIM).setpoint.down_m_s == 1
+
+
+def test_nan_becomes_hover():
+    r = clamp_velocity(VelocitySetpoint(float("nan"), 0, 0, 1.0), LIM)
+    assert r.clamped and "non-finite" in r.reason
+    assert (r.setpoint.north_m_s, r.setpoint.east_m_s, r.setpoint.down_m_s) == (0, 0, 0)
+
+
+def test_geofence_removes_outward_motion_only():
+    out = clamp_velocity(VelocitySetpoint(3, 1, 0, 0), LIM, position_ned=(100.0, 0.0, -10.0)).setpoint
+    assert math.isclose(out.north_m_s, 0.0, abs_tol=1e-12) and out.east_m_s == 1
+    back = clamp_velocity(VelocitySetpoint(-3, 0, 0, 0), LIM, position_ned=(100.0, 0.0, -10.0))
+    assert not back.clamped
+    up = clamp_velocity(VelocitySetpoint(0, 0, -1, 0), LIM, position_ned=(0.0, 0.0, -50.0))
+    assert up.setpoint.down_m_s == 0 and "altitude" in up.reason
