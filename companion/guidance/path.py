@@ -44,8 +44,8 @@ class DeliveryPath:
 
     def sector(self, p: ArrayLike) -> int:
         """Sector index 1..5 of point p (delivery eq 1)."""
-        x, _, z = (float(v) for v in p)  # type: ignore[union-attr]
-        return self._sector(x, z)
+        v = np.asarray(p, dtype=float)
+        return self._sector(float(v[0]), float(v[2]))
 
     def _sector(self, x: float, z: float) -> int:
         h, r, d = self.h, self.r, self.d
@@ -59,7 +59,8 @@ class DeliveryPath:
 
     def alphas(self, p: ArrayLike) -> tuple[float, float, FloatArray, FloatArray, int]:
         """alpha_1, alpha_2 (eqs 16-17), their gradients and the sector of p."""
-        x, y, z = (float(v) for v in p)  # type: ignore[union-attr]
+        v = np.asarray(p, dtype=float)
+        x, y, z = float(v[0]), float(v[1]), float(v[2])
         h, r, d = self.h, self.r, self.d
         k = self._sector(x, z)
         a1 = y  # eq 16
