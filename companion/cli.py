@@ -177,6 +177,23 @@ def cmd_params_check(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
+def cmd_plugins(args: argparse.Namespace) -> int:
+    from companion.plugin_api import API_VERSION, GROUPS, discover
+
+    bad = 0
+    print(f"plugin API version {API_VERSION}")
+    for group in GROUPS:
+        _, report = discover(group)
+        print(f"{group}:")
+        if not report:
+            print("  (none installed)")
+        for r in report:
+            state = "ok" if r.ok else f"FAILED: {r.error}"
+            bad += not r.ok
+            print(f"  {r.name:<14} {r.target:<55} [{r.distribution}] {state}")
+    return 1 if bad and args.strict else 0
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     parser = argparse.ArgumentParser(prog="companion", description=__doc__)
     parser.add_argument("--version", action="version", version=f"companion {__version__}")
@@ -209,6 +226,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     pc = psub.add_parser("check", help="validate parameter files")
     pc.add_argument("files", nargs="+")
     pc.set_defaults(func=cmd_params_check)
+
+    pl = sub.add_parser("plugins", help="list installed driver plugins (cameras, UWB, payloads)")
+    pl.add_argument("--strict", action="store_true", help="exit 1 if any plugin failed to load")
+    pl.set_defaults(func=cmd_plugins)
 
     failed = []
     for mod in COMMAND_MODULES:
