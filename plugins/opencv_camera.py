@@ -50,10 +50,7 @@ class OpenCvCamera:
         src = self.source
         if isinstance(src, str) and src.isdigit():
             src = int(src)
-        if isinstance(src, str) and "!" in src:
-            cap = cv2.VideoCapture(src, cv2.CAP_GSTREAMER)
-        else:
-            cap = cv2.VideoCapture(src)
+        cap = cv2.VideoCapture(src, cv2.CAP_GSTREAMER) if isinstance(src, str) and "!" in src else cv2.VideoCapture(src)
         if not cap.isOpened():
             raise PluginError(f"camera {self.source!r}: cannot open (no such device/file, or no backend for it)")
         if self.width_px:
