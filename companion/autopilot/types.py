@@ -9,6 +9,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, fields
+from typing import Self
 
 
 class FlightMode(enum.Enum):
@@ -31,15 +32,21 @@ class LandedState(enum.Enum):
     LANDING = "landing"
 
 
-def _check_finite(sample: object) -> None:
-    for f in fields(sample):  # type: ignore[arg-type]
-        v = getattr(sample, f.name)
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError(f"{type(sample).__name__}.{f.name} is not finite ({v})")
+class _Finite:
+    """Mixin: ``validate()`` raises ValueError naming the first non-finite float field."""
+
+    __slots__ = ()
+
+    def validate(self) -> Self:
+        for f in fields(self):  # type: ignore[arg-type]
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{type(self).__name__}.{f.name} is not finite ({v})")
+        return self
 
 
 @dataclass(frozen=True, slots=True)
-class PositionNed:
+class PositionNed(_Finite):
     """The autopilot's own local position estimate (MAVLink LOCAL_POSITION_NED)."""
 
     time_s: float
@@ -50,13 +57,9 @@ class PositionNed:
     east_m_s: float
     down_m_s: float
 
-    def validate(self) -> PositionNed:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class GlobalPosition:
+class GlobalPosition(_Finite):
     """The autopilot's fused global position (MAVLink GLOBAL_POSITION_INT)."""
 
     time_s: float
@@ -65,13 +68,9 @@ class GlobalPosition:
     alt_amsl_m: float
     alt_rel_m: float
 
-    def validate(self) -> GlobalPosition:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class Attitude:
+class Attitude(_Finite):
     time_s: float
     roll_rad: float
     pitch_rad: float
@@ -80,13 +79,9 @@ class Attitude:
     pitchspeed_rad_s: float
     yawspeed_rad_s: float
 
-    def validate(self) -> Attitude:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class Imu:
+class Imu(_Finite):
     """Body-frame (FRD) specific force and angular rate (MAVLink HIGHRES_IMU)."""
 
     time_s: float
@@ -97,13 +92,9 @@ class Imu:
     gyro_y_rad_s: float
     gyro_z_rad_s: float
 
-    def validate(self) -> Imu:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class GpsRaw:
+class GpsRaw(_Finite):
     time_s: float
     lat_deg: float
     lon_deg: float
@@ -112,13 +103,9 @@ class GpsRaw:
     satellites: int
     eph_m: float
 
-    def validate(self) -> GpsRaw:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class VehicleStatus:
+class VehicleStatus(_Finite):
     time_s: float
     armed: bool
     mode: FlightMode
@@ -127,21 +114,13 @@ class VehicleStatus:
     battery_pct: float
     payload_released: bool
 
-    def validate(self) -> VehicleStatus:
-        _check_finite(self)
-        return self
-
 
 @dataclass(frozen=True, slots=True)
-class HomePosition:
+class HomePosition(_Finite):
     time_s: float
     lat_deg: float
     lon_deg: float
     alt_amsl_m: float
-
-    def validate(self) -> HomePosition:
-        _check_finite(self)
-        return self
 
 
 @dataclass(frozen=True, slots=True)
