@@ -90,9 +90,7 @@ class ComplementaryFilter:
     def predict(self, time_s: float, rates: Sequence[float]) -> bool:
         """The gyro half of dart eq 14: Phi_hat += T Omega, T from the timestamps."""
         r0, r1, r2 = rates
-        if not (
-            math.isfinite(time_s) and math.isfinite(r0) and math.isfinite(r1) and math.isfinite(r2)
-        ):
+        if not (math.isfinite(time_s) and math.isfinite(r0) and math.isfinite(r1) and math.isfinite(r2)):
             self.rejected += 1
             return False
         t_prev = self._t

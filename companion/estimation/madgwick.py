@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 from companion.geometry import euler_to_quat
 
@@ -198,12 +198,7 @@ class MadgwickFilter:
         gx, gy, gz = gyro_rad_s
         t_prev = self._t
         # NaN-safe checks: every comparison with NaN is False
-        if not (
-            -1e300 < time_s < 1e300
-            and -1e3 < gx < 1e3
-            and -1e3 < gy < 1e3
-            and -1e3 < gz < 1e3
-        ):
+        if not (-1e300 < time_s < 1e300 and -1e3 < gx < 1e3 and -1e3 < gy < 1e3 and -1e3 < gz < 1e3):
             self.rejected += 1
             return False
         if t_prev is None:
