@@ -154,6 +154,20 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_bench(title: str, result: dict[str, Any]) -> None:
+    print(title)
+    width = max(len(k) for k in result) if result else 0
+    for k, v in result.items():
+        print(f"  {k:<{width}}  {v:.2f}" if isinstance(v, float) else f"  {k:<{width}}  {v}")
+
+
+def cmd_bench_estimation(args: argparse.Namespace) -> int:
+    from companion.estimation.dart_bench import bench_estimation
+
+    _print_bench(f"bench estimation (microseconds per call, n = {args.n}):", bench_estimation(args.n))
+    return 0
+
+
 def cmd_params_show(args: argparse.Namespace) -> int:
     from companion.config import describe_parameters
 
@@ -217,6 +231,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     bs.add_argument("--repeat", type=int, default=3)
     bs.add_argument("--seed", type=int, default=1)
     bs.set_defaults(func=cmd_bench_sim)
+    be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
+    be.add_argument("--n", type=int, default=5000)
+    be.set_defaults(func=cmd_bench_estimation)
 
     params = sub.add_parser("params", help="show or check parameter files")
     psub = params.add_subparsers(dest="params_cmd", metavar="ACTION", required=True)

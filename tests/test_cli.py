@@ -46,3 +46,9 @@ def test_params_show_documents_units(capsys):
     assert main(["params", "show"]) == 0
     out = capsys.readouterr().out
     assert "mission.height_m = 45.0 [m]" in out and "sim.wind_speed_m_s" in out
+
+
+def test_bench_estimation_prints_figures(capsys):
+    assert main(["bench", "estimation", "--n", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "madgwick_update_us" in out and "SCF-MF-3DOF.vision_us" in out
