@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -86,7 +87,7 @@ class SimCameraConfig:
     offset: float = 0.0
     gain_jitter: float = 0.0  # per-frame std of the gain
     offset_jitter: float = 0.0  # per-frame std of the offset (grey levels)
-    ground_size_m: float = 60.0
+    ground_size_m: float = 45.0
     ground_texel_m: float = 0.02
     pad_texel_m: float = 0.001
     clutter: int = 120  # shapes on the ground around the pad
@@ -128,11 +129,17 @@ class _Texture:
     levels: dict[int, U8Image] = field(default_factory=dict)
 
     def level(self, n: int) -> U8Image:
+        """Level n: 2^-n of the base resolution (exact 2x box filters while the side is even)."""
         if n <= 0:
             return self.base
         if n not in self.levels:
-            side = max(8, round(self.base.shape[0] / 2**n))
-            self.levels[n] = cv2.resize(self.base, (side, side), interpolation=cv2.INTER_AREA)
+            prev = self.level(n - 1)
+            if prev.shape[0] <= 8 or prev.shape[0] % 2:
+                return prev  # no exact 2x level below this one
+            side = prev.shape[0] // 2
+            self.levels[n] = np.asarray(
+                cv2.resize(prev, (side, side), interpolation=cv2.INTER_AREA), dtype=np.uint8
+            )
         return self.levels[n]
 
     def texel_to_plane(self, img: U8Image) -> NDArray[np.float64]:
@@ -143,14 +150,14 @@ class _Texture:
 
 
 def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
-    n = round(cfg.ground_size_m / cfg.ground_texel_m)
+    n = -(-round(cfg.ground_size_m / cfg.ground_texel_m) // 64) * 64  # exact 2x pyramid levels
     coarse = rng.normal(0.0, 1.0, (24, 24)).astype(np.float32)
     low = cv2.resize(coarse, (n, n), interpolation=cv2.INTER_CUBIC)
     mid = cv2.resize(rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n),
                      interpolation=cv2.INTER_LINEAR)
-    img = 105.0 + 22.0 * low + 10.0 * mid + rng.normal(0.0, 6.0, (n, n)).astype(np.float32)
+    img = 105.0 + 22.0 * low + 10.0 * mid + 6.0 * rng.standard_normal((n, n), dtype=np.float32)
     ground = np.clip(img, 0, 255).astype(np.uint8)
-    px_per_m = n / cfg.ground_size_m
+    px_per_m = 1.0 / cfg.ground_texel_m
     c0 = n / 2.0
 
     def to_px(x: float, y: float) -> tuple[int, int]:
@@ -222,10 +229,17 @@ class SimulatedCamera:
         check_pose(self.T_world_pad, "T_world_pad")
         self._rng = np.random.default_rng(seed)
         cfg = self.config
-        pad_px = round(self.layout.pad_size_m / cfg.pad_texel_m)
-        self._pad = _Texture(render_pad_px(self.layout, pad_px), self.layout.pad_size_m)
-        self._ground = _Texture(_ground_texture(cfg, self._rng), cfg.ground_size_m)
+        gtex = _ground_texture(cfg, self._rng)
+        self._ground = _Texture(gtex, gtex.shape[0] * cfg.ground_texel_m)
         self._ground_mean = int(np.mean(self._ground.base[::8, ::8]))
+        # The pad texture is padded (with the ground's mean grey) to a multiple of 2^6 texels so
+        # that every pyramid level is an exact 2x box filter and keeps marker edges in place.
+        pad_px = round(self.layout.pad_size_m / cfg.pad_texel_m)
+        side = -(-pad_px // 64) * 64
+        tex = np.full((side, side), self._ground_mean, np.uint8)
+        o = (side - pad_px) // 2
+        tex[o : o + pad_px, o : o + pad_px] = render_pad_px(self.layout, pad_px)
+        self._pad = _Texture(tex, side * self.layout.pad_size_m / pad_px)
         self._setup_distortion()
         w, h = camera.size
         self._noise_margin = 64
@@ -253,8 +267,8 @@ class SimulatedCamera:
         my = ideal[:, 1].reshape(h, w)
         ox = max(0.0, math.ceil(-mx.min()) + 2.0)
         oy = max(0.0, math.ceil(-my.min()) + 2.0)
-        cw = int(math.ceil(mx.max() + ox)) + 3
-        ch = int(math.ceil(my.max() + oy)) + 3
+        cw = math.ceil(mx.max() + ox) + 3
+        ch = math.ceil(my.max() + oy) + 3
         self._offset = (ox, oy)
         self._canvas_size = (cw, ch)
         m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32),
@@ -265,7 +279,7 @@ class SimulatedCamera:
         L = self.config.blur_px
         if L < 1.0:
             return None
-        n = int(math.ceil(L)) | 1
+        n = math.ceil(L) | 1
         k = np.zeros((n, n), np.float32)
         c = n // 2
         dx, dy = math.cos(self.config.blur_angle_rad), math.sin(self.config.blur_angle_rad)
@@ -291,6 +305,16 @@ class SimulatedCamera:
         image = self.render(T_cp)
         return SimFrame(image, float(exposure_time_s),
                         float(exposure_time_s) + self.config.latency_s, T_cp, T_wc)
+
+    def capture_camera(self, T_world_camera: Transform, exposure_time_s: float) -> SimFrame:
+        """Render the frame for a camera pose given directly in the world (NED) frame."""
+        if not math.isfinite(exposure_time_s):
+            raise ValueError(f"exposure_time_s = {exposure_time_s!r}: must be finite")
+        check_pose(T_world_camera, "T_world_camera")
+        T_cp = T_world_camera.inverse() @ self.T_world_pad
+        image = self.render(T_cp)
+        return SimFrame(image, float(exposure_time_s),
+                        float(exposure_time_s) + self.config.latency_s, T_cp, T_world_camera)
 
     # ------------------------------------------------------------------ rendering
     def _level_for(self, tex: _Texture, px_per_texel: float) -> int:
@@ -322,10 +346,10 @@ class SimulatedCamera:
         f = 0.5 * (self.camera.fx + self.camera.fy)
         lg = self._level_for(self._ground, f * cfg.ground_texel_m / depth)
         gimg = self._ground.level(lg)
-        canvas = cv2.warpPerspective(
+        canvas: U8Image = np.asarray(cv2.warpPerspective(
             gimg, P @ self._ground.texel_to_plane(gimg), (cw, ch), flags=cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT, borderValue=self._ground_mean,
-        )
+        ), dtype=np.uint8)
         z_pad = max(float(t[2]), 1e-3)  # depth of the pad centre
         lp = self._level_for(self._pad, f * cfg.pad_texel_m / z_pad)
         pimg = self._pad.level(lp)
@@ -334,7 +358,7 @@ class SimulatedCamera:
             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT,
         )
         self._paint_sky(canvas, R, Kc)
-        img = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR) if self._maps is not None else canvas
+        img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR) if self._maps is not None else canvas
         if self._blur_kernel is not None:
             img = cv2.filter2D(img, -1, self._blur_kernel, borderType=cv2.BORDER_REPLICATE)
         img = self._expose(img)

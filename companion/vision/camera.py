@@ -23,9 +23,9 @@ from __future__ import annotations
 import logging
 import math
 import tomllib
-from importlib import resources
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
@@ -425,8 +425,8 @@ class CalibrationPattern:
     def object_points(self) -> FloatArray:
         """Chessboard inner corners in the target plane (z = 0), row-major like OpenCV."""
         gx, gy = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
-        pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
-        return pts * self.square_m
+        pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1).astype(np.float64)
+        return np.asarray(pts * self.square_m, dtype=np.float64)
 
 
 @dataclass
@@ -441,7 +441,7 @@ def _to_gray(image: Any) -> NDArray[np.uint8]:
     if image.dtype != np.uint8:
         raise ValueError(f"calibration image dtype {image.dtype}: must be uint8")
     if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
     if image.ndim == 2:
         return image
     raise ValueError(f"calibration image shape {image.shape}: must be HxW or HxWx3")
@@ -522,8 +522,8 @@ def calibrate(
     d5 = np.zeros(5)
     d5[: min(5, d.size)] = d[:5]
     w, h = size
-    common = dict(width_px=w, height_px=h, fx=float(K[0, 0]), fy=float(K[1, 1]),
-                  cx=float(K[0, 2]), cy=float(K[1, 2]))
+    common: dict[str, Any] = dict(width_px=w, height_px=h, fx=float(K[0, 0]), fy=float(K[1, 1]),
+                                  cx=float(K[0, 2]), cy=float(K[1, 2]))
     if kind == "dart":
         r_max = math.hypot(max(K[0, 2], w - K[0, 2]) / K[0, 0], max(K[1, 2], h - K[1, 2]) / K[1, 1])
         cam = CameraModel(**common, kind="dart", k_ud=_fit_dart_k(d5[0], d5[1], d5[4], r_max))

@@ -143,7 +143,7 @@ def render_pad_px(layout: PadLayout, side_px: int) -> NDArray[np.uint8]:
     px_per_m = side / layout.pad_size_m
     img = np.full((side, side), 255, np.uint8)
 
-    def place(block: NDArray[np.uint8]) -> None:
+    def place(block: Any) -> None:
         n = block.shape[0]
         o = (side - n) // 2
         img[o : o + n, o : o + n] = block
@@ -209,8 +209,9 @@ def pad_from_mapping(data: dict[str, Any], source: Path | str = "<pad>") -> PadL
             isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0
         ):
             raise _pad_error(source, f"pad.{k}", v, "must be a number > 0 (metres)")
+    kwargs: dict[str, Any] = {k: (float(v) if k.endswith("_m") else v) for k, v in data.items()}
     try:
-        return PadLayout(**{k: (float(v) if k.endswith("_m") else v) for k, v in data.items()})
+        return PadLayout(**kwargs)
     except ValueError as exc:
         raise PadConfigError(f"{source}: [pad] {exc}") from exc
 

@@ -1,0 +1,87 @@
+"""CLI subcommands of the vision package: ``companion pad`` and ``companion calibrate``.
+
+``register(subparsers)`` adds them to the application's argparse subparsers; each handler takes
+the parsed args and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from companion.vision.camera import CalibrationPattern, calibrate, save_camera
+from companion.vision.pad import PadLayout, load_pad, pad_side_px, save_pad_png
+
+log = logging.getLogger(__name__)
+
+
+def _cmd_pad(args: argparse.Namespace) -> int:
+    try:
+        layout = load_pad(args.params) if args.params else PadLayout()
+        out = save_pad_png(layout, args.out, args.dpi)
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}")
+        return 2
+    side = pad_side_px(layout, args.dpi)
+    print(
+        f"wrote {out}: {side}x{side} px at {args.dpi:g} dpi = {layout.pad_size_m:g} m; "
+        f"outer {layout.outer_dict} id {layout.outer_id} {layout.outer_size_m:g} m, "
+        f"inner {layout.inner_dict} id {layout.inner_id} {layout.inner_size_m:g} m. "
+        "Print at 100 % scale and check the outer marker measures "
+        f"{layout.outer_size_m * 1000:.0f} mm."
+    )
+    return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    try:
+        pattern = CalibrationPattern.parse(args.pattern)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 2
+    images = []
+    for name in args.images:
+        img = cv2.imread(str(name), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            print(f"error: cannot read image {name}")
+            return 2
+        images.append(img)
+    try:
+        cam, rms = calibrate(images, pattern, kind=args.model, min_views=args.min_views)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 1
+    out = save_camera(cam, args.out, rms_px=rms, n_images=len(images),
+                      note=f"calibrated from {len(images)} images, pattern {args.pattern}")
+    print(f"reprojection error (RMS): {rms:.3f} px")
+    print(f"fx {cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} "
+          f"dist {[round(d, 5) for d in cam.dist]} k_ud {cam.k_ud:.5f} ({cam.kind})")
+    print(f"wrote {out}")
+    if rms > 1.0:
+        print("warning: RMS above 1 px; check the images (focus, motion blur, pattern flatness)")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``pad`` and ``calibrate`` subcommands to an argparse subparsers object."""
+    p = subparsers.add_parser("pad", help="render the nested ArUco landing pad to a PNG at true scale")
+    p.add_argument("--out", type=Path, default=Path("pad.png"), help="output PNG (default pad.png)")
+    p.add_argument("--dpi", type=float, default=150.0, help="print resolution (default 150)")
+    p.add_argument("--params", type=Path, default=None,
+                   help="pad layout TOML with a [pad] table (default: the delivery paper's pad)")
+    p.set_defaults(func=_cmd_pad)
+
+    c = subparsers.add_parser("calibrate", help="calibrate a camera from chessboard/ChArUco images")
+    c.add_argument("images", nargs="+", type=Path, help="image files (>= 5 views)")
+    c.add_argument("--pattern", required=True,
+                   help="chessboard:COLSxROWS:SQUARE_M (inner corners) or "
+                        "charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT] (squares)")
+    c.add_argument("--out", type=Path, required=True, help="output TOML, e.g. params/camera_x.toml")
+    c.add_argument("--model", choices=("opencv", "dart"), default="opencv",
+                   help="distortion model: OpenCV k1,k2,p1,p2,k3 or the Dart single coefficient")
+    c.add_argument("--min-views", type=int, default=5, help="minimum views with the pattern found")
+    c.set_defaults(func=_cmd_calibrate)

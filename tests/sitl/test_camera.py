@@ -1,0 +1,191 @@
+"""Simulated downward camera: frames, geometry of the rendering, determinism, speed, bad poses."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import cv2
+import numpy as np
+import pytest
+from companion_sitl.camera import (
+    R_BODY_CAMERA_DOWN,
+    SimCameraConfig,
+    SimulatedCamera,
+    downward_mount,
+    pad_pose_ned,
+)
+
+from companion.geometry import Transform
+from companion.vision.camera import CameraModel, load_default_camera
+from companion.vision.pad import PadLayout, aruco_dictionary
+
+CAM = load_default_camera()
+LAYOUT = PadLayout()
+
+
+def _vehicle(north: float, east: float, alt: float, roll: float = 0.0, pitch: float = 0.0,
+             yaw: float = 0.0) -> Transform:
+    return Transform.from_euler([north, east, -alt], roll, pitch, yaw)
+
+
+def _outer_corners(img: np.ndarray) -> np.ndarray | None:
+    p = cv2.aruco.DetectorParameters()
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(aruco_dictionary(LAYOUT.outer_dict), p)
+    corners, ids, _ = det.detectMarkers(img)
+    if ids is None:
+        return None
+    for c, i in zip(corners, np.asarray(ids).ravel(), strict=True):
+        if int(i) == LAYOUT.outer_id:
+            return np.asarray(c, float).reshape(4, 2)
+    return None
+
+
+def test_mount_maps_camera_axes_to_body_axes() -> None:
+    R = R_BODY_CAMERA_DOWN
+    assert np.allclose(R @ [1, 0, 0], [0, 1, 0])  # camera x -> body y (right)
+    assert np.allclose(R @ [0, 1, 0], [-1, 0, 0])  # camera y -> body -x (back)
+    assert np.allclose(R @ [0, 0, 1], [0, 0, 1])  # camera z -> body z (down)
+    T = downward_mount((0.1, 0.0, 0.05))
+    assert np.allclose(T.t, [0.1, 0.0, 0.05])
+
+
+def test_pad_pose_axes() -> None:
+    T = pad_pose_ned(3.0, -2.0, 0.0)
+    assert np.allclose(T.R @ [1, 0, 0], [0, 1, 0])  # pad x = east
+    assert np.allclose(T.R @ [0, 1, 0], [1, 0, 0])  # pad y = north
+    assert np.allclose(T.R @ [0, 0, 1], [0, 0, -1])  # pad z = up
+    assert np.allclose(T.t, [3.0, -2.0, 0.0])
+
+
+def test_truth_pose_for_a_level_vehicle_above_the_pad() -> None:
+    sim = SimulatedCamera(CAM, LAYOUT, seed=0)
+    T = sim.T_camera_pad(_vehicle(0.0, 0.0, 4.0))
+    assert np.allclose(T.t, [0.0, 0.0, 4.0])
+    # heading north: pad y (north) appears as image up (-y), pad x (east) as image right (+x)
+    assert np.allclose(T.R @ [0, 1, 0], [0, -1, 0]) and np.allclose(T.R @ [1, 0, 0], [1, 0, 0])
+    # north of the pad, the pad is behind the vehicle: low in the image (+y)
+    T2 = sim.T_camera_pad(_vehicle(1.0, 0.0, 4.0))
+    assert T2.t[1] > 0.9
+
+
+def test_rendered_marker_lands_where_the_camera_model_projects_it() -> None:
+    """Pad corners in the image agree with CameraModel.project of the truth (distortion on)."""
+    sim = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0), seed=1)
+    for pose in (_vehicle(0.0, 0.0, 3.0, 0.0, 0.0, 0.3), _vehicle(1.0, -0.9, 4.0, 0.05, 0.1, 1.1)):
+        f = sim.capture(pose, 0.0)
+        found = _outer_corners(f.image)
+        assert found is not None
+        expect = CAM.project(f.T_camera_pad.apply(LAYOUT.outer_corners))
+        assert np.max(np.linalg.norm(found - expect, axis=1)) < 0.5
+
+
+def test_dart_distortion_is_rendered() -> None:
+    cam = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, kind="dart", k_ud=0.25)
+    sim = SimulatedCamera(cam, LAYOUT, SimCameraConfig(noise_std=0.0), seed=1)
+    f = sim.capture(_vehicle(-0.8, 0.9, 3.0), 0.0)
+    found = _outer_corners(f.image)
+    assert found is not None
+    expect = cam.project(f.T_camera_pad.apply(LAYOUT.outer_corners))
+    assert np.max(np.linalg.norm(found - expect, axis=1)) < 0.5
+    pinhole = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0).project(
+        f.T_camera_pad.apply(LAYOUT.outer_corners))
+    assert np.max(np.linalg.norm(found - pinhole, axis=1)) > 5.0  # barrel pulls corners in
+
+
+def test_deterministic_for_a_seed() -> None:
+    pose = _vehicle(0.3, 0.2, 5.0, 0.02, -0.01, 0.4)
+    cfg = SimCameraConfig(gain_jitter=0.05, offset_jitter=4.0)
+    a = SimulatedCamera(CAM, LAYOUT, cfg, seed=5)
+    b = SimulatedCamera(CAM, LAYOUT, cfg, seed=5)
+    c = SimulatedCamera(CAM, LAYOUT, cfg, seed=6)
+    fa = [a.capture(pose, k * 0.1).image for k in range(3)]
+    fb = [b.capture(pose, k * 0.1).image for k in range(3)]
+    assert all(np.array_equal(x, y) for x, y in zip(fa, fb, strict=True))
+    assert not np.array_equal(fa[0], fa[1])  # noise differs frame to frame
+    assert not np.array_equal(fa[0], c.capture(pose, 0.0).image)
+
+
+def test_capture_from_world_camera_pose_matches_vehicle_pose() -> None:
+    sim_a = SimulatedCamera(CAM, LAYOUT, seed=4)
+    sim_b = SimulatedCamera(CAM, LAYOUT, seed=4)
+    T_wb = _vehicle(0.4, -0.3, 3.0, 0.05, -0.04, 0.7)
+    fa = sim_a.capture(T_wb, 1.0)
+    fb = sim_b.capture_camera(T_wb @ sim_b.T_body_camera, 1.0)
+    assert np.array_equal(fa.image, fb.image)
+    assert np.allclose(fa.T_camera_pad.matrix(), fb.T_camera_pad.matrix())
+    with pytest.raises(ValueError, match="T_world_camera"):
+        sim_b.capture_camera(Transform(np.eye(3), np.array([0.0, np.inf, -3.0])), 0.0)
+
+
+def test_frame_times_and_latency() -> None:
+    sim = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(latency_s=0.045), seed=0)
+    f = sim.capture(_vehicle(0, 0, 3.0), 12.5)
+    assert f.exposure_time_s == 12.5 and f.available_time_s == pytest.approx(12.545)
+    assert f.image.shape == (480, 640) and f.image.dtype == np.uint8
+    with pytest.raises(ValueError, match="exposure_time_s"):
+        sim.capture(_vehicle(0, 0, 3.0), float("nan"))
+
+
+def test_lighting_and_blur_change_the_image() -> None:
+    pose = _vehicle(0.0, 0.0, 3.0)
+    base = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0), seed=3).capture(pose, 0).image
+    dim = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, gain=0.5, offset=10.0),
+                          seed=3).capture(pose, 0).image
+    assert np.allclose(dim.astype(float), np.clip(base * 0.5 + 10.0, 0, 255), atol=1.0)
+    blur = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, blur_px=9.0), seed=3)
+    b = blur.capture(pose, 0).image
+    # motion blur along x smooths horizontal gradients more than vertical ones
+    gx = np.abs(np.diff(b.astype(float), axis=1)).mean() / np.abs(np.diff(base.astype(float), axis=1)).mean()
+    gy = np.abs(np.diff(b.astype(float), axis=0)).mean() / np.abs(np.diff(base.astype(float), axis=0)).mean()
+    assert gx < 0.7 and gx < 0.8 * gy
+
+
+def test_noise_level() -> None:
+    pose = _vehicle(0.0, 0.0, 3.0)
+    a = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0), seed=3).capture(pose, 0).image
+    b = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=4.0), seed=3).capture(pose, 0).image
+    d = b.astype(float) - a.astype(float)
+    mid = (a > 20) & (a < 235)  # away from clipping
+    assert 3.0 < d[mid].std() < 5.0
+
+
+def test_tilted_view_shows_sky_above_the_horizon() -> None:
+    sim = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, sky_level=240), seed=0)
+    img = sim.capture(_vehicle(0.0, 0.0, 5.0, 0.0, math.radians(70.0), 0.0), 0.0).image
+    # pitch up 70 deg: the camera looks 20 deg below the horizon, which crosses the image top
+    assert np.all(img[0] == 240) and not np.all(img[-1] == 240)
+
+
+@pytest.mark.parametrize(
+    "pose, word",
+    [
+        (Transform(np.eye(3), np.array([0.0, float("nan"), -3.0])), "NaN"),
+        (Transform(np.full((3, 3), np.nan), np.zeros(3)), "NaN"),
+        (Transform(2 * np.eye(3), np.array([0.0, 0.0, -3.0])), "rotation"),
+        (_vehicle(0.0, 0.0, -1.0), "above"),  # below the ground
+    ],
+)
+def test_bad_poses_rejected(pose: Transform, word: str) -> None:
+    sim = SimulatedCamera(CAM, LAYOUT, seed=0)
+    with pytest.raises(ValueError, match=word):
+        sim.capture(pose, 0.0)
+
+
+def test_bad_config_rejected() -> None:
+    with pytest.raises(ValueError, match="noise_std"):
+        SimCameraConfig(noise_std=-1.0)
+    with pytest.raises(ValueError, match="gain"):
+        SimCameraConfig(gain=float("nan"))
+
+
+def test_render_speed() -> None:
+    sim = SimulatedCamera(CAM, LAYOUT, seed=0)
+    poses = [_vehicle(0.1 * k, -0.05 * k, 10.0 - 0.4 * k, 0.02, -0.02, 0.1 * k) for k in range(20)]
+    sim.capture(poses[0], 0.0)  # warm the texture pyramid
+    t0 = time.perf_counter()
+    for k, p in enumerate(poses):
+        sim.capture(p, k / 30)
+    ms = (time.perf_counter() - t0) / len(poses) * 1000.0
+    assert ms < 15.0, f"{ms:.1f} ms per 640x480 frame"
