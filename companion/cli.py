@@ -24,7 +24,7 @@ from companion.config import (
 log = logging.getLogger(__name__)
 
 # Capability modules that add their own sub-commands: module path -> what it provides.
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("companion.vision.commands",)
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -168,6 +168,14 @@ def cmd_bench_estimation(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_vision(args: argparse.Namespace) -> int:
+    from companion.vision.detector import bench_vision
+
+    r = bench_vision(args.frames, args.seed)
+    _print_bench(f"bench vision ({args.frames} rendered 640x480 frames of a descent, same frames in one run):", r)
+    return 0
+
+
 def cmd_params_show(args: argparse.Namespace) -> int:
     from companion.config import describe_parameters
 
@@ -234,6 +242,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000)
     be.set_defaults(func=cmd_bench_estimation)
+    bv = bsub.add_parser("vision", help="raw full-frame ArUco detection vs our ROI pipeline on the same frames")
+    bv.add_argument("--frames", type=int, default=120)
+    bv.add_argument("--seed", type=int, default=0)
+    bv.set_defaults(func=cmd_bench_vision)
 
     params = sub.add_parser("params", help="show or check parameter files")
     psub = params.add_subparsers(dest="params_cmd", metavar="ACTION", required=True)

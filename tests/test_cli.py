@@ -52,3 +52,11 @@ def test_bench_estimation_prints_figures(capsys):
     assert main(["bench", "estimation", "--n", "200"]) == 0
     out = capsys.readouterr().out
     assert "madgwick_update_us" in out and "SCF-MF-3DOF.vision_us" in out
+
+
+def test_vision_commands_are_wired(tmp_path, capsys):
+    out = tmp_path / "pad.png"
+    assert main(["pad", "--out", str(out), "--dpi", "30"]) == 0
+    assert out.stat().st_size > 1000
+    assert main(["bench", "vision", "--frames", "12"]) == 0
+    assert "ratio" in capsys.readouterr().out
