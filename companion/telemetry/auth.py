@@ -90,9 +90,7 @@ class CommandSettings:
         if self.secret is not None and not isinstance(self.secret, bytes):
             raise ValueError("commands.secret must be bytes")
         if self.enabled and (self.secret is None or len(self.secret) < MIN_SECRET_BYTES):
-            raise ValueError(
-                f"commands.enabled needs a shared secret of at least {MIN_SECRET_BYTES} bytes"
-            )
+            raise ValueError(f"commands.enabled needs a shared secret of at least {MIN_SECRET_BYTES} bytes")
         if not 0.1 <= self.window_s <= 300.0:
             raise ValueError(f"commands.window_s {self.window_s} outside [0.1, 300] s")
         if not 16 <= self.max_nonces <= 1_000_000:
@@ -120,12 +118,8 @@ class GroundCommand:
     note: str = ""
 
 
-def mac_input(
-    vehicle_id: str, command: str, issued_unix_ms: int, nonce: str, sender: str, note: str
-) -> bytes:
-    return "\n".join(
-        (COMMAND_SCHEMA, vehicle_id, command, str(issued_unix_ms), nonce, sender, note)
-    ).encode("utf-8")
+def mac_input(vehicle_id: str, command: str, issued_unix_ms: int, nonce: str, sender: str, note: str) -> bytes:
+    return "\n".join((COMMAND_SCHEMA, vehicle_id, command, str(issued_unix_ms), nonce, sender, note)).encode("utf-8")
 
 
 def compute_mac(secret: bytes, data: bytes) -> str:
@@ -143,7 +137,7 @@ def sign_command(
     nonce: str | None = None,
 ) -> bytes:
     """The signed wire payload of one command (used by the ground station)."""
-    issued_ms = int(round((time.time() if issued_unix_s is None else issued_unix_s) * 1000.0))
+    issued_ms = round((time.time() if issued_unix_s is None else issued_unix_s) * 1000.0)
     nonce = secrets.token_hex(16) if nonce is None else nonce
     doc = {
         "schema": COMMAND_SCHEMA,
@@ -153,9 +147,7 @@ def sign_command(
         "nonce": nonce,
         "sender": sender,
         "note": note,
-        "hmac_sha256": compute_mac(
-            secret, mac_input(vehicle_id, kind.value, issued_ms, nonce, sender, note)
-        ),
+        "hmac_sha256": compute_mac(secret, mac_input(vehicle_id, kind.value, issued_ms, nonce, sender, note)),
     }
     return json.dumps(doc, separators=(",", ":")).encode()
 
@@ -205,14 +197,14 @@ class CommandVerifier:
         issued = issued_ms / 1000.0
         if abs(now - issued) > s.window_s:
             raise CommandRefused(
-                f"stale command: issued {now - issued:+.1f} s from the vehicle clock "
-                f"(window +-{s.window_s:g} s)"
+                f"stale command: issued {now - issued:+.1f} s from the vehicle clock (window +-{s.window_s:g} s)"
             )
         with self._lock:
+            # A nonce may be forgotten once issued + window has passed: from then on the time
+            # check above refuses its command anyway. Entries are in arrival order, which is
+            # nearly expiry order; the full sweep below catches the rest when the cache fills.
             while self._seen and next(iter(self._seen.values())) < now:
                 self._seen.popitem(last=False)
-            # Expiries are issued + window, so the dict is close to time-ordered; purge fully
-            # when the front is not yet expired but the cache is full.
             if nonce in self._seen:
                 raise CommandRefused("replayed command: nonce already used")
             if len(self._seen) >= s.max_nonces:

@@ -24,7 +24,11 @@ microseconds); encoding and ``put`` happen on the worker. Two lanes:
   if it ever fills, the event is counted in ``fifo_overflow`` and logged as an error rather
   than blocking the control loop.
 
-All publishers are declared reliable. Presence: a liveliness token ``companion/<id>/alive``
+All publishers are declared reliable and use Zenoh's batching (``express=False``): with
+``express=True`` every sample takes a transmit-queue slot of its own, and on a loaded 2-core
+board back-to-back DROP samples were then occasionally dropped on loopback; batching costs
+under a millisecond (measured: 20 vehicles x 50 Hz, p99 ~1 ms, none lost). ``publish`` costs
+~2 us; encoding ~35 us per message, on the worker. Presence: a liveliness token ``companion/<id>/alive``
 exists while the publisher runs. A queryable ``companion/<id>/info`` answers identity, versions
 and the params given at construction. A queryable ``companion/<id>/command`` refuses every
 command unless command access is enabled with a secret (see :mod:`.auth`); accepted commands
@@ -52,7 +56,6 @@ from companion.telemetry.auth import CommandRefused, CommandSettings, CommandVer
 from companion.telemetry.schema import (
     SCHEMA,
     Message,
-    MissionMessage,
     SchemaError,
     Topic,
     alive_key,
@@ -84,7 +87,7 @@ class TelemetrySettings:
     landing_rate_hz: float = 10.0
     health_rate_hz: float = 1.0
     event_queue_size: int = 1024
-    express: bool = True  # send samples at once instead of batching (lower latency)
+    express: bool = False  # True: bypass batching (lower latency, but more drops under load)
     commands: CommandSettings = field(default_factory=CommandSettings)
 
     def __post_init__(self) -> None:
@@ -180,7 +183,7 @@ class TelemetryPublisher:
         self._cond = threading.Condition()
         self._fifo: deque[Message] = deque()
         self._slots: dict[Topic, Message] = {}
-        self._period = {t: 1.0 / settings.rate_hz(t) for t in Topic if t is not Topic.LOG}
+        self._period: dict[Topic, float] = {t: 1.0 / settings.rate_hz(t) for t in Topic if t is not Topic.LOG}
         self._next_due: dict[Topic, float] = {}
         self._seq = dict.fromkeys(Topic, 0)
         self._submitted = dict.fromkeys(Topic, 0)
@@ -190,6 +193,7 @@ class TelemetryPublisher:
         self._put_errors = 0
         self._fifo_overflow = 0
         self._fifo_high_water = 0
+        self._inflight = 0
         self._commands_accepted = 0
         self._commands_refused = 0
         self._info_queries = 0
@@ -225,25 +229,19 @@ class TelemetryPublisher:
             self._publishers[topic] = s.declare_publisher(
                 topic_key(self.vehicle_id, topic),
                 encoding=zenoh.Encoding.APPLICATION_JSON,
-                congestion_control=(
-                    zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-                ),
+                congestion_control=(zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP),
                 priority=zenoh.Priority.DATA_HIGH if block else zenoh.Priority.DATA,
                 express=self.settings.express,
                 reliability=zenoh.Reliability.RELIABLE,
             )
         self._declared.append(s.declare_queryable(info_key(self.vehicle_id), self._on_info_query))
-        self._declared.append(
-            s.declare_queryable(command_key(self.vehicle_id), self._on_command_query)
-        )
+        self._declared.append(s.declare_queryable(command_key(self.vehicle_id), self._on_command_query))
         # The token last: the ground sees the vehicle once everything above answers.
         self._declared.append(s.liveliness().declare_token(alive_key(self.vehicle_id)))
         self._started_unix_s = self._wall()
         self._stopping = False
         self._running = True
-        self._worker = threading.Thread(
-            target=self._run, name=f"telemetry-{self.vehicle_id}", daemon=True
-        )
+        self._worker = threading.Thread(target=self._run, name=f"telemetry-{self.vehicle_id}", daemon=True)
         self._worker.start()
         log.info(
             "telemetry for %s started (commands %s)",
@@ -349,6 +347,7 @@ class TelemetryPublisher:
                     self._cond.wait(wait)
                 fifo = list(self._fifo)
                 self._fifo.clear()
+                self._inflight = len(fifo) + len(due)
             for msg in fifo:
                 self._send(topic_of(msg), msg)
             for topic, msg in due:
@@ -356,12 +355,14 @@ class TelemetryPublisher:
                 period = self._period[topic]
                 nxt = self._next_due.get(topic, now) + period
                 self._next_due[topic] = nxt if nxt >= now else now + period
+            with self._cond:
+                self._inflight = 0
 
     def _send(self, topic: Topic, msg: Message) -> None:
         seq = self._seq[topic]
         try:
             payload = encode(self.vehicle_id, msg, seq, self._wall())
-        except SchemaError as e:
+        except (SchemaError, TypeError, ValueError) as e:
             self._encode_errors += 1
             log.warning("telemetry %s message not encodable, dropped: %s", topic.value, e)
             return
@@ -391,10 +392,21 @@ class TelemetryPublisher:
                 info_queries=self._info_queries,
             )
 
+    def has_subscribers(self, topic: Topic = Topic.STATE) -> bool:
+        """Whether any subscriber (the ground, a recorder) currently matches ``topic``."""
+        pub = self._publishers.get(topic)
+        if pub is None:
+            return False
+        try:
+            status: Any = pub.matching_status  # a MatchingStatus at runtime (the stub says bool)
+            return bool(getattr(status, "matching", status))
+        except Exception:  # session closing
+            return False
+
     def pending(self) -> int:
-        """Messages queued but not yet published."""
+        """Messages queued or being sent, not yet published (or failed)."""
         with self._cond:
-            return len(self._fifo) + len(self._slots)
+            return len(self._fifo) + len(self._slots) + self._inflight
 
     # ---- queryables (called on Zenoh threads) ------------------------------------------------
 

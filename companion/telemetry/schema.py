@@ -39,6 +39,7 @@ import dataclasses
 import enum
 import json
 import math
+import numbers
 import re
 import types
 import typing
@@ -55,7 +56,7 @@ from companion.autopilot.types import (
     VehicleStatus,
 )
 from companion.estimation.types import StateEstimate
-from companion.mission.events import EventKind, MissionEvent, Phase
+from companion.mission.events import MissionEvent, Phase
 
 SCHEMA_NAME = "companion.telemetry"
 SCHEMA_MAJOR = 1
@@ -427,11 +428,11 @@ def _converters(tp: Any) -> tuple[_Conv, _Conv]:
     if tp is float:
         return _dec_float, _enc_float
     if tp is bool:
-        return _dec_bool, _enc_plain
+        return _dec_bool, _enc_bool
     if tp is int:
         return _dec_int, _enc_int
     if tp is str:
-        return _dec_str, _enc_plain
+        return _dec_str, _enc_str
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         return _enum_dec(tp), _enc_enum
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
@@ -519,7 +520,8 @@ def _dataclass_decoder(cls: type) -> _Conv:
 
 
 def _enc_float(v: Any, path: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float):
+    # numbers.Real admits numpy scalars (the EKF's output) as well as Python floats.
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise SchemaError(f"{path}: expected a number, got {type(v).__name__}")
     f = float(v)
     if not math.isfinite(f):
@@ -528,12 +530,22 @@ def _enc_float(v: Any, path: str) -> float:
 
 
 def _enc_int(v: Any, path: str) -> int:
-    if isinstance(v, bool) or not isinstance(v, int):
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
         raise SchemaError(f"{path}: expected an integer, got {type(v).__name__}")
     return int(v)
 
 
-def _enc_plain(v: Any, path: str) -> Any:
+def _enc_bool(v: Any, path: str) -> bool:
+    if not isinstance(v, bool):
+        raise SchemaError(f"{path}: expected a bool, got {type(v).__name__}")
+    return v
+
+
+def _enc_str(v: Any, path: str) -> str:
+    if not isinstance(v, str):
+        raise SchemaError(f"{path}: expected a string, got {type(v).__name__}")
+    if len(v) > MAX_STR_CHARS:
+        raise SchemaError(f"{path}: string longer than {MAX_STR_CHARS} characters")
     return v
 
 

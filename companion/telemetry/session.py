@@ -84,15 +84,11 @@ class ZenohSettings:
         if self.mode == "router" and not self.listen:
             raise SettingsError("zenoh.listen: a router needs at least one listen endpoint")
         if self.mode == "client" and not self.all_connect_endpoints and self.multicast_scouting is False:
-            raise SettingsError(
-                "zenoh.connect: a client without multicast scouting needs a connect or router endpoint"
-            )
+            raise SettingsError("zenoh.connect: a client without multicast scouting needs a connect or router endpoint")
         if (self.user is None) != (self.password is None):
             raise SettingsError("zenoh.user and zenoh.password go together")
         if self.auth_dictionary_file is not None and not Path(self.auth_dictionary_file).is_file():
-            raise SettingsError(
-                f"zenoh.auth_dictionary_file: {self.auth_dictionary_file!r} is not a file"
-            )
+            raise SettingsError(f"zenoh.auth_dictionary_file: {self.auth_dictionary_file!r} is not a file")
         for key in ("scouting_delay_ms", "connect_timeout_ms"):
             value = getattr(self, key)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
@@ -136,9 +132,7 @@ class ZenohSettings:
             items.append(("transport/auth/usrpwd/user", json.dumps(self.user)))
             items.append(("transport/auth/usrpwd/password", json.dumps(self.password)))
         if self.auth_dictionary_file is not None:
-            items.append(
-                ("transport/auth/usrpwd/dictionary_file", json.dumps(str(self.auth_dictionary_file)))
-            )
+            items.append(("transport/auth/usrpwd/dictionary_file", json.dumps(str(self.auth_dictionary_file))))
         items.extend(self.overrides)
         return items
 
@@ -166,9 +160,10 @@ class ZenohSettings:
             elif key in ("multicast_scouting", "gossip_scouting", "connect_exit_on_failure"):
                 if not isinstance(value, bool):
                     raise SettingsError(f"{source}.{key}: expected true/false")
-            elif key in ("user", "password", "auth_dictionary_file", "router_endpoint", "mode"):
-                if not isinstance(value, str):
-                    raise SettingsError(f"{source}.{key}: expected a string")
+            elif key in ("user", "password", "auth_dictionary_file", "router_endpoint", "mode") and not isinstance(
+                value, str
+            ):
+                raise SettingsError(f"{source}.{key}: expected a string")
             kwargs[key] = value
         try:
             return cls(**kwargs)

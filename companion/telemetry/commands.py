@@ -1,0 +1,144 @@
+"""Command-line entry points of the telemetry capability.
+
+- ``register(subparsers)`` adds ``companion ground``:
+  ``companion ground [--listen EP]... [--connect EP]... [--router] [--out DIR] [--duration S]
+  [--zenoh-config FILE] [--no-multicast]``
+- ``register_bench(bench_subparsers)`` adds ``companion bench telemetry``:
+  ``companion bench telemetry [--vehicles 20] [--rate 50] [--duration 5]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from companion.telemetry.session import SettingsError, ZenohSettings, load_settings
+
+DEFAULT_ROUTER_LISTEN = "tcp/0.0.0.0:7447"
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``ground`` subcommand."""
+    p = subparsers.add_parser(
+        "ground",
+        help="ground station: live fleet table over Zenoh, recording everything received",
+        description="Subscribe to companion/** and show every vehicle in a live table; "
+        "record every message as JSON lines under --out.",
+    )
+    p.add_argument(
+        "--listen", action="append", metavar="EP", help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable)"
+    )
+    p.add_argument(
+        "--connect", action="append", metavar="EP", help="connect endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)"
+    )
+    p.add_argument(
+        "--router",
+        action="store_true",
+        help=f"run as the fleet's Zenoh router (listens on {DEFAULT_ROUTER_LISTEN} unless --listen)",
+    )
+    p.add_argument("--out", metavar="DIR", help="record to this folder (JSON lines per vehicle and topic)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument(
+        "--zenoh-config", metavar="FILE", help="TOML file with a [zenoh] table (params/zenoh_*.toml); flags override it"
+    )
+    p.add_argument("--no-multicast", action="store_true", help="disable multicast scouting")
+    p.add_argument("--refresh", type=float, default=4.0, help="table refreshes per second")
+    p.set_defaults(func=cmd_ground)
+
+
+def register_bench(bench_subparsers: Any) -> None:
+    """Add ``telemetry`` to the ``bench`` subcommands."""
+    p = bench_subparsers.add_parser("telemetry", help="N vehicles x rate to one ground station over loopback Zenoh")
+    p.add_argument("--vehicles", type=int, default=20)
+    p.add_argument("--rate", type=float, default=50.0, help="state messages per second per vehicle")
+    p.add_argument("--duration", type=float, default=5.0, help="seconds of publishing")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_bench_telemetry)
+
+
+def ground_settings(args: argparse.Namespace) -> ZenohSettings:
+    """The ground's Zenoh settings from the CLI flags (and optional config file)."""
+    base = load_settings(args.zenoh_config) if args.zenoh_config else ZenohSettings()
+    changes: dict[str, Any] = {}
+    if args.listen:
+        changes["listen"] = tuple(args.listen)
+    if args.connect:
+        changes["connect"] = tuple(args.connect)
+    if args.no_multicast:
+        changes["multicast_scouting"] = False
+    if args.router:
+        changes["mode"] = "router"
+        if not (args.listen or base.listen):
+            changes["listen"] = (DEFAULT_ROUTER_LISTEN,)
+    return replace(base, **changes)
+
+
+def cmd_ground(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from companion.telemetry.ground import GroundStation, run_live
+
+    try:
+        settings = ground_settings(args)
+    except SettingsError as e:
+        print(f"companion ground: {e}", file=sys.stderr)
+        return 2
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        print("companion ground: --duration must be > 0", file=sys.stderr)
+        return 2
+    console = Console()
+    station = GroundStation(settings, out_dir=Path(args.out) if args.out else None)
+    try:
+        station.start()
+    except Exception as e:  # zenoh.ZError: bad endpoint, port in use, router unreachable
+        print(f"companion ground: cannot open the Zenoh session: {e}", file=sys.stderr)
+        return 1
+    where = ", ".join(settings.listen or ()) or "-"
+    console.print(
+        f"ground station: mode {settings.mode}, listen {where}, "
+        f"connect {', '.join(settings.all_connect_endpoints) or '-'}, "
+        f"recording to {args.out or '(not recording)'}"
+    )
+    try:
+        run_live(station, duration_s=args.duration, refresh_hz=args.refresh, console=console)
+    finally:
+        station.stop()
+    c = station.counters()
+    console.print()
+    console.print(f"received {c.received}, lost {c.lost}, malformed {c.malformed}, recorded {c.recorded}")
+    return 0
+
+
+def format_bench_result(result: dict[str, Any]) -> str:
+    """A short human-readable report of :func:`bench_telemetry`'s result."""
+    r = result
+    target_ok = r["lost"] == 0 and r["latency_p99_ms"] <= 10.0
+    return "\n".join(
+        [
+            f"telemetry bench: {r['vehicles']} vehicles x {r['rate_hz']:g} Hz for {r['duration_s']:g} s",
+            f"  submitted {r['submitted']}, delivered {r['delivered']}, lost {r['lost']}"
+            f" (superseded {r['superseded']}, late submissions {r['late_submissions']})",
+            f"  latency p50 {r['latency_p50_ms']:.2f} ms, p99 {r['latency_p99_ms']:.2f} ms,"
+            f" max {r['latency_max_ms']:.2f} ms",
+            f"  CPU {r['cpu_us_per_msg']:.0f} us/msg (whole process), "
+            f"{r['cpu_pct_of_one_core']:.0f} % of one core, {r['throughput_msg_s']:.0f} msg/s",
+            f"  target (0 lost, p99 <= 10 ms): {'MET' if target_ok else 'NOT MET'}",
+        ]
+    )
+
+
+def cmd_bench_telemetry(args: argparse.Namespace) -> int:
+    from companion.telemetry.bench import bench_telemetry
+
+    try:
+        result = bench_telemetry(args.vehicles, args.rate, args.duration)
+    except ValueError as e:
+        print(f"companion bench telemetry: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2) if args.json else format_bench_result(result))
+    return 0
