@@ -16,6 +16,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from companion.autopilot.interface import Autopilot, AutopilotError
 from companion.autopilot.types import VelocitySetpoint
@@ -81,6 +82,7 @@ class DeliveryShell:
         autopilot: Autopilot,
         flight_log: CsvLog | None = None,
         on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+        telemetry: bool = False,
     ):
         self.config = config
         self.autopilot = autopilot
@@ -96,14 +98,30 @@ class DeliveryShell:
         self._request_task: asyncio.Task[None] | None = None
         self._streaming = False
         self._abort_reason: str | None = None
+        self._want_telemetry = telemetry
+        self.telemetry: Any = None  # companion.telemetry.link.ShellTelemetry when publishing
+        self.ground_commands: list[tuple[str, str]] = []
+
+    def on_ground_command(self, cmd: Any) -> str:
+        """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
+        reply = self.mission.command(self._clock.now(), cmd.kind.value, cmd.sender)
+        self.ground_commands.append((cmd.kind.value, reply))
+        log.warning("ground command %s from %s: %s", cmd.kind.value, cmd.sender, reply)
+        return reply
 
     def abort(self, reason: str) -> None:
         """Ask the mission to abort (hold, then land) at its next tick."""
         self._abort_reason = reason
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
-        await self.autopilot.connect()
         loop = asyncio.get_running_loop()
+        if self._want_telemetry:
+            from companion.telemetry.link import ShellTelemetry, command_handler, make_publisher
+
+            pub = make_publisher(self.config, command_handler(loop, self))
+            pub.start()
+            self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
+        await self.autopilot.connect()
         stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
         try:
             if timeout_s is None:
@@ -122,6 +140,9 @@ class DeliveryShell:
                 self._request_task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await self._request_task
+            if self.telemetry is not None:
+                self.telemetry.close()
+                await self.telemetry.publisher.astop()
         return self.mission.summary
 
     # ------------------------------------------------------------------ tasks
@@ -154,6 +175,8 @@ class DeliveryShell:
             if out.request is not None:
                 self._request_task = asyncio.get_running_loop().create_task(self._execute(out.request))
             self._record(now, out, clamped)
+            if self.telemetry is not None:
+                self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
             if self.on_tick is not None:
                 self.on_tick(self, out)
 

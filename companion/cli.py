@@ -24,7 +24,7 @@ from companion.config import (
 log = logging.getLogger(__name__)
 
 # Capability modules that add their own sub-commands: module path -> what it provides.
-COMMAND_MODULES: tuple[str, ...] = ("companion.vision.commands",)
+COMMAND_MODULES: tuple[str, ...] = ("companion.vision.commands", "companion.telemetry.commands")
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -61,11 +61,11 @@ def _fmt_m(v: float) -> str:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from companion_sitl.demo import run_demo
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from companion.flightlog.plots import plot_run
+    from companion_sitl.demo import run_demo
 
     cfg = _load_demo_config(args)
     console = Console()
@@ -106,7 +106,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
             progress.update(task, description=ph, completed=done, t=shell._clock.now(), where=where)
 
-        result = run_demo(cfg, run_dir, realtime=args.realtime, on_tick=on_tick)
+        result = run_demo(cfg, run_dir, realtime=args.realtime, on_tick=on_tick, telemetry=args.telemetry)
     plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
@@ -165,6 +165,20 @@ def cmd_bench_estimation(args: argparse.Namespace) -> int:
     from companion.estimation.dart_bench import bench_estimation
 
     _print_bench(f"bench estimation (microseconds per call, n = {args.n}):", bench_estimation(args.n))
+    return 0
+
+
+def cmd_bench_ekf(args: argparse.Namespace) -> int:
+    from companion.estimation.bench import bench_ekf
+
+    _print_bench(f"bench ekf (microseconds per call, n = {args.n}):", bench_ekf(args.n))
+    return 0
+
+
+def cmd_bench_uwb(args: argparse.Namespace) -> int:
+    from companion.uwb.bench import bench_multilateration
+
+    _print_bench(f"bench uwb (microseconds per solve, n = {args.n}):", bench_multilateration(args.n))
     return 0
 
 
@@ -231,6 +245,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     demo.add_argument("--realtime", action="store_true", help="run in real time instead of lock-step")
     demo.add_argument("--out", help="run folder (default: runs/demo-<time>)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
+    demo.add_argument(
+        "--telemetry", action="store_true",
+        help="publish telemetry over Zenoh (session from [telemetry] zenoh_config; see `companion ground`)",
+    )
     demo.set_defaults(func=cmd_demo)
 
     bench = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
@@ -242,6 +260,18 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000)
     be.set_defaults(func=cmd_bench_estimation)
+    try:
+        from companion.telemetry.commands import register_bench
+
+        register_bench(bsub)
+    except ImportError as err:
+        log.error("bench telemetry unavailable: %s", err)
+    bk = bsub.add_parser("ekf", help="microseconds per EKF predict and per update of each sensor")
+    bk.add_argument("--n", type=int, default=2000)
+    bk.set_defaults(func=cmd_bench_ekf)
+    bu = bsub.add_parser("uwb", help="microseconds per TWR / TDoA multilateration solve")
+    bu.add_argument("--n", type=int, default=300)
+    bu.set_defaults(func=cmd_bench_uwb)
     bv = bsub.add_parser("vision", help="raw full-frame ArUco detection vs our ROI pipeline on the same frames")
     bv.add_argument("--frames", type=int, default=120)
     bv.add_argument("--seed", type=int, default=0)

@@ -192,6 +192,35 @@ class SimConfig(_Section):
         return 0.2 * self.wind_speed_m_s if self.gust_std_m_s < 0 else self.gust_std_m_s
 
 
+class TelemetryCommandsConfig(_Section):
+    """Commands from the ground (hold, return, land, abort). Off by default (DESIGN safety)."""
+
+    enabled: bool = _f(False, "-", "accept authenticated ground commands")
+    secret_file: str | None = _f(None, "-", "file holding the shared HMAC secret (>= 16 bytes)")
+    window_s: float = _f(5.0, "s", "allowed clock difference for a command's timestamp", ge=0.1, le=300.0)
+    max_nonces: int = _f(4096, "-", "replay-protection cache size", ge=16, le=1_000_000)
+
+    @model_validator(mode="after")
+    def _secret(self) -> TelemetryCommandsConfig:
+        if self.enabled and not self.secret_file:
+            raise ValueError("commands.enabled needs secret_file (a file with a shared secret of >= 16 bytes)")
+        return self
+
+
+class TelemetryConfig(_Section):
+    """Ground telemetry over Eclipse Zenoh (companion/telemetry; key space companion/<vehicle_id>/...)."""
+
+    enabled: bool = _f(True, "-", "publish telemetry (the demo publishes only with --telemetry)")
+    zenoh_config: str = _f("zenoh_peer.toml", "-", "Zenoh session file: a path, or the name of a shipped params file")
+    state_rate_hz: float = _f(20.0, "Hz", "state topic rate (newest sample kept)", ge=0.01, le=1000.0)
+    estimate_rate_hz: float = _f(10.0, "Hz", "estimate topic rate", ge=0.01, le=1000.0)
+    mission_rate_hz: float = _f(5.0, "Hz", "mission status rate (events are never dropped)", ge=0.01, le=1000.0)
+    landing_rate_hz: float = _f(10.0, "Hz", "landing topic rate", ge=0.01, le=1000.0)
+    health_rate_hz: float = _f(1.0, "Hz", "health topic rate", ge=0.01, le=1000.0)
+    event_queue_size: int = _f(1024, "-", "bound of the never-drop event queue", ge=16, le=1_000_000)
+    commands: TelemetryCommandsConfig = Field(default_factory=TelemetryCommandsConfig)
+
+
 class CompanionConfig(_Section):
     vehicle_id: str = _f(
         "drone1",
@@ -207,6 +236,7 @@ class CompanionConfig(_Section):
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
     runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
+    telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
 
 
 DEFAULT_PARAMS = "delivery_paper.toml"

@@ -12,12 +12,11 @@ import asyncio
 import contextlib
 import logging
 
-from companion_sitl.vehicle import SimCommandError, SimVehicle
-
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.types import FlightMode, StatusText, VelocitySetpoint
 from companion.config import SimConfig
 from companion.scheduling import LoopClock, RateLoop
+from companion_sitl.vehicle import SimCommandError, SimVehicle
 
 log = logging.getLogger(__name__)
 

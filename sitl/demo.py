@@ -15,11 +15,9 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from companion_sitl.autopilot import SimAutopilot
-from companion_sitl.clock import run_virtual
-from companion_sitl.vehicle import SimVehicle
 
 from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell
 from companion.config import CompanionConfig
@@ -28,6 +26,9 @@ from companion.geometry.earth import GeoPoint
 from companion.mission.delivery import MissionOutput
 from companion.mission.events import Phase
 from companion.mission.planning import pad_position_ned
+from companion_sitl.autopilot import SimAutopilot
+from companion_sitl.clock import run_virtual
+from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +118,7 @@ async def fly(
     run_dir: Path | None = None,
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
     timeout_s: float = 1800.0,
+    telemetry: bool = False,
 ) -> DemoResult:
     """Fly one delivery on the simulator (on whatever loop is running) and score it."""
     vehicle = SimVehicle(config.sim)
@@ -135,7 +137,7 @@ async def fly(
         if on_tick is not None:
             on_tick(shell, out)
 
-    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick)
+    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry)
     wall0 = time.perf_counter()
     try:
         summary = await shell.run(timeout_s=timeout_s)
@@ -146,8 +148,12 @@ async def fly(
                 lg.close()
     wall = time.perf_counter() - wall0
 
-    pad_td = [t for t in vehicle.touchdowns if not t.payload_released]
-    home_td = [t for t in vehicle.touchdowns if t.payload_released]
+    # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
+    def near_pad(t: Any) -> bool:
+        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
+
+    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
+    home_td = [t for t in vehicle.touchdowns if not near_pad(t)]
     pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
     home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
     flight_time = (
@@ -208,9 +214,10 @@ def run_demo(
     run_dir: Path | None = None,
     realtime: bool = False,
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+    telemetry: bool = False,
 ) -> DemoResult:
     """Fly the demo: lock-step virtual time (default) or real time."""
-    coro = fly(config, run_dir, on_tick)
+    coro = fly(config, run_dir, on_tick, telemetry=telemetry)
     if realtime:
         return asyncio.run(coro)
     return run_virtual(coro)

@@ -60,3 +60,10 @@ def test_vision_commands_are_wired(tmp_path, capsys):
     assert out.stat().st_size > 1000
     assert main(["bench", "vision", "--frames", "12"]) == 0
     assert "ratio" in capsys.readouterr().out
+
+
+def test_bench_ekf_and_uwb_are_wired(capsys):
+    assert main(["bench", "ekf", "--n", "50"]) == 0
+    assert main(["bench", "uwb", "--n", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "predict_us" in out and "update_aruco_us" in out

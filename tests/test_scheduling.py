@@ -1,8 +1,7 @@
 import asyncio
 
-from companion_sitl.clock import run_virtual
-
 from companion.scheduling import LoopClock, RateLoop
+from companion_sitl.clock import run_virtual
 
 
 class FakeClock:

@@ -130,6 +130,11 @@ class DeliveryMission:
     # ------------------------------------------------------------------ public API
     def abort(self, time_s: float, reason: str) -> None:
         """Hold position, then land (an abort is never a mid-air disarm)."""
+        if self.phase is Phase.ABORT_HOLD and self._hold_forever:
+            self._hold_forever = False  # an abort during a commanded hold: land after abort_hold_s
+            self._phase_t0 = time_s
+            self._emit(EventKind.ABORT, reason)
+            return
         if self.phase.terminal or self.phase in (Phase.ABORT_HOLD, Phase.ABORT_LAND):
             return
         self._now = time_s
@@ -140,6 +145,43 @@ class DeliveryMission:
             self._goto(Phase.FAILED)
         else:
             self._goto(Phase.ABORT_HOLD)
+
+    def command(self, time_s: float, kind: str, sender: str = "ground") -> str:
+        """A ground command (hold, return, land, abort). The mission decides; the safety contract
+        (clamps, pilot priority) is untouched because every setpoint still goes through the shell.
+        Returns what was done, for the reply and the log."""
+        self._now = time_s
+        if self.phase.terminal:
+            return f"ignored: mission already {self.phase.value}"
+        if kind == "abort":
+            self.abort(time_s, f"ground command from {sender}: abort")
+            return "aborting: hold, then land"
+        if kind == "land":
+            self._emit(EventKind.ABORT, f"ground command from {sender}: land here")
+            if self._on_ground_phase():
+                self.summary.failure = f"ground command from {sender}: land (on the ground)"
+                self._goto(Phase.FAILED)
+                return "on the ground: mission ended"
+            self._abort_reason = f"ground command from {sender}: land"
+            self._goto(Phase.ABORT_LAND)
+            self._land_requested = False
+            return "landing where the vehicle is"
+        if kind == "hold":
+            if self._on_ground_phase():
+                return "ignored: on the ground"
+            self._abort_reason = f"ground command from {sender}: hold"
+            self._emit(EventKind.ABORT, self._abort_reason)
+            self._hold_forever = True
+            self._goto(Phase.ABORT_HOLD)
+            return "holding position until the pilot takes over or a land/abort command"
+        if kind == "return":
+            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+                self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
+                self.summary.failure = "returned on ground command"
+                self._goto(Phase.INBOUND)
+                return "returning home along the path"
+            return f"ignored: cannot return from {self.phase.value}"
+        return f"ignored: unknown command {kind!r}"
 
     def on_result(self, result: RequestResult) -> None:
         p = self._pending
@@ -370,12 +412,21 @@ class DeliveryMission:
                 self._expect_mode_change = True
                 return None, self._make_request(RequestKind.HOLD), math.nan
             return None, None, math.nan
-        if inp.time_s - self._phase_t0 >= self.cfg.abort_hold_s and self._pending is None:
+        if (
+            not self._hold_forever
+            and inp.time_s - self._phase_t0 >= self.cfg.abort_hold_s
+            and self._pending is None
+        ):
             self._goto(Phase.ABORT_LAND)
+            self._land_requested = True
             return None, self._make_request(RequestKind.LAND), math.nan
         return None, None, math.nan
 
     def _do_abort_land(self, inp: MissionInputs) -> tuple:
+        if not self._land_requested and self._pending is None:
+            self._land_requested = True
+            self._expect_mode_change = True
+            return None, self._make_request(RequestKind.LAND), math.nan
         st = inp.status
         if st is not None and st.landed is LandedState.ON_GROUND and not st.armed:
             self.summary.failure = f"aborted: {self._abort_reason}"
@@ -387,6 +438,8 @@ class DeliveryMission:
     _abort_hold_requested = False
     _takeoff_requested = False
     _touched_down = False
+    _hold_forever = False
+    _land_requested = False
     _reenter = False
     _link_restored_at = -math.inf
     _retry_tries = 2

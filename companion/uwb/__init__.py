@@ -1,1 +1,40 @@
-"""companion.uwb"""
+"""UWB positioning (delivery section 4.2.2): anchor layouts and robust multilateration (TDoA,
+delivery eqs 2-4, and two-way ranging as a DWM1001 in PANS mode reports it)."""
+
+from companion.uwb.anchors import (
+    DWM1001_MAX_RANGE_M,
+    AnchorLayout,
+    AnchorLayoutError,
+    anchor_frame_to_ned,
+    load_anchor_layout,
+)
+from companion.uwb.multilateration import (
+    MultilaterationConfig,
+    MultilaterationCounters,
+    Multilaterator,
+    RejectReason,
+    TdoaMeasurement,
+    TwrMeasurement,
+    UwbFix,
+    UwbRejection,
+    solve_tdoa,
+    solve_twr,
+)
+
+__all__ = [
+    "DWM1001_MAX_RANGE_M",
+    "AnchorLayout",
+    "AnchorLayoutError",
+    "MultilaterationConfig",
+    "MultilaterationCounters",
+    "Multilaterator",
+    "RejectReason",
+    "TdoaMeasurement",
+    "TwrMeasurement",
+    "UwbFix",
+    "UwbRejection",
+    "anchor_frame_to_ned",
+    "load_anchor_layout",
+    "solve_tdoa",
+    "solve_twr",
+]

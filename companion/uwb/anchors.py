@@ -154,9 +154,13 @@ class AnchorLayout:
                 or not all(isinstance(c, int | float) and not isinstance(c, bool) for c in pos)
                 or not all(math.isfinite(c) for c in pos)
             ):
-                raise AnchorLayoutError(source, f"{key}.position_m", pos, "must be [x, y, z], three finite numbers in metres")
+                raise AnchorLayoutError(
+                    source, f"{key}.position_m", pos, "must be [x, y, z], three finite numbers in metres"
+                )
             if max(abs(c) for c in pos) > _MAX_COORD_M:
-                raise AnchorLayoutError(source, f"{key}.position_m", pos, f"coordinates must be within +-{_MAX_COORD_M} m")
+                raise AnchorLayoutError(
+                    source, f"{key}.position_m", pos, f"coordinates must be within +-{_MAX_COORD_M} m"
+                )
             ids.append(aid)
             positions.append((float(pos[0]), float(pos[1]), float(pos[2])))
         base = data.get("base_anchor", ids[0])
@@ -205,7 +209,9 @@ def anchor_frame_to_ned(origin_ned_m: ArrayLike, heading_rad: float = 0.0) -> Tr
     """``T_world_anchorframe`` for an anchor frame with z up whose x axis points along
     ``heading_rad`` (clockwise from north) and whose origin is at ``origin_ned_m`` in world NED.
 
-    heading 0: x north, y west, z up; heading pi/2: x east, y north, z up (ENU).
+    heading 0: x north, y west, z up; heading pi/2: x east, y north, z up (ENU), which is the
+    vision pad frame: ``anchor_frame_to_ned(o, pi/2 + yaw)`` equals
+    ``companion_sitl.camera.pad_pose_ned(*o, yaw_rad=yaw)``.
     """
     c, s = math.cos(heading_rad), math.sin(heading_rad)
     # columns: anchor-frame axes expressed in NED

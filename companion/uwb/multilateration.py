@@ -1,8 +1,8 @@
 """UWB multilateration: TDoA (delivery eqs 2-4) and two-way ranging (DWM1001 PANS), robust.
 
 Both problems are solved as nonlinear least squares (Levenberg-Marquardt, hand-written: three or
-four unknowns, a few iterations, ~10x cheaper than ``scipy.optimize.least_squares`` per call)
-seeded by a linearised closed-form solution:
+four unknowns and a few iterations, so the per-call overhead of ``scipy.optimize.least_squares``
+would dominate) seeded by a linearised closed-form solution:
 
 * TWR, ranges d_i: residual r_i = ||x - a_i|| - d_i; seed: subtract the squared-range equation
   of a reference anchor from the others -> linear in x.
@@ -17,13 +17,21 @@ seeded by a linearised closed-form solution:
 
 Robustness (beyond the paper): non-finite inputs and unknown anchors are dropped and counted;
 TWR ranges beyond the 10 m DWM1001 limit (delivery 4.2.2) are dropped, and after solving any
-anchor farther than the limit is dropped and the fix re-solved; when a residual exceeds the
-threshold and the problem has at least two redundant anchors, a consensus search over all (or a
-seeded sample of) 4-anchor subsets finds the largest consistent set, it is re-fitted and the
-worst anchor is dropped while residuals still exceed the threshold. With fewer than two
-redundant anchors an inconsistency can be detected but not attributed, so the sample is refused.
-Fewer than 4 usable anchors, degenerate geometry or PDOP above the limit: a typed
-:class:`UwbRejection`, never a guess.
+anchor farther than the limit is dropped and the fix re-solved. A fix is consistent when every
+anchor's residual, studentised by its leverage (the linearised leave-one-out residual), is
+below ``residual_threshold_m`` -- plain least-squares residuals hide an outlier by pulling the
+fix towards it. If not, and there are at least two redundant anchors, a RANSAC-like consensus
+search (hypotheses from the full fit, every leave-one-out fit and every -- or a seeded sample
+of -- 4-anchor subset) finds the largest agreeing set; it is re-fitted, agreeing anchors are
+taken back, and the worst anchor is dropped and the fix re-solved while still inconsistent.
+With fewer than two redundant anchors (4 TWR / 5 TDoA anchors) an inconsistency can be detected
+but not attributed, so the sample is refused. Fewer than 4 usable anchors, degenerate geometry
+or PDOP above the limit: a typed :class:`UwbRejection`, never a guess.
+
+Known limit: with the tag low, inside the anchors' height band (below ~1 m for the packaged
+layout), vertical geometry is weak and a 1-2 m NLOS error on one anchor can be absorbed by a
+different fix that fits every range within the threshold. The EKF's chi-square gate is the
+second line of defence there.
 """
 
 from __future__ import annotations
@@ -31,7 +39,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -64,9 +72,7 @@ class TdoaMeasurement:
     range_differences_m: tuple[float, ...]
 
     @staticmethod
-    def from_arrival_times(
-        time_s: float, base_anchor_id: str, arrival_times_s: Mapping[str, float]
-    ) -> TdoaMeasurement:
+    def from_arrival_times(time_s: float, base_anchor_id: str, arrival_times_s: Mapping[str, float]) -> TdoaMeasurement:
         """Delivery eq 2: d_i1 = (t_i - t_1) c from the arrival times at each anchor."""
         t1 = arrival_times_s[base_anchor_id]
         ids = tuple(a for a in arrival_times_s if a != base_anchor_id)
@@ -117,7 +123,7 @@ class MultilaterationConfig:
     residual_threshold_m: float = 0.30
     max_pdop: float = 20.0
     max_iterations: int = 30
-    step_tolerance_m: float = 1e-10
+    step_tolerance_m: float = 1e-7  # converged: the next step is ~(1e-7)^2, far below noise
     max_subsets: int = 100
     #: two equally good solutions (exactly determined TDoA, mirror images): without a prior,
     #: take the one with the larger z (the tag flies above the anchors).
@@ -213,12 +219,17 @@ def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0) -> lis
             else:  # noise made it slightly complex: take the real part
                 roots = [-B2 / (2 * A2)]
         cands = [p + t * q for t in roots]
-    for c in cands:
-        d_ref = c[3]
-        if d_ref < -1e-6:
-            continue
+    if len(others) >= 4:
+        # over-determined: the d_1 estimate of the linear solution is noisy (and can come out
+        # negative with an outlier); take only x from it and the offset from x
+        x = cands[0][:3] + anchors[ref]
+        c_off = float(np.mean(np.sqrt(np.sum((x - anchors) ** 2, axis=1)) - rho))
+        return [np.array([x[0], x[1], x[2], c_off])]
+    # exactly determined: keep the roots with a non-negative base range d_1 (eq 4)
+    valid = [c for c in cands if c[3] >= -1e-6] or cands
+    for c in valid:
         x = c[:3] + anchors[ref]
-        thetas.append(np.array([x[0], x[1], x[2], d_ref - rho[ref]]))
+        thetas.append(np.array([x[0], x[1], x[2], c[3] - rho[ref]]))
     return thetas
 
 
@@ -230,20 +241,29 @@ def levenberg_marquardt(
     max_iterations: int = 30,
     step_tolerance: float = 1e-10,
 ) -> tuple[np.ndarray, float]:
-    """Minimise sum r_i^2 from ``theta0``; returns (theta, cost)."""
+    """Minimise sum r_i^2 from ``theta0`` (Marquardt-scaled damping); returns (theta, cost).
+
+    Stops on a step below ``step_tolerance``, a relative cost decrease below 1e-12, or when
+    no damped step lowers the cost any more (converged to rounding).
+    """
     theta = theta0.astype(float).copy()
     r = model_residuals(theta, anchors, obs, tdoa)
     cost = float(r @ r)
-    lam = 1e-3
+    lam = 1e-6
     n = theta.size
+    diag = np.arange(n)
     for _ in range(max_iterations):
         J = model_jacobian(theta, anchors, tdoa)
         A = J.T @ J
         g = J.T @ r
         accepted = False
-        while lam < 1e10:
+        step = np.zeros(n)
+        for _try in range(8):
+            M = A.copy()
+            M[diag, diag] *= 1.0 + lam
+            M[diag, diag] += 1e-12
             try:
-                step = np.linalg.solve(A + lam * (np.diag(np.diag(A)) + 1e-12 * np.eye(n)), -g)
+                step = np.linalg.solve(M, -g)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
@@ -251,12 +271,13 @@ def levenberg_marquardt(
             r_new = model_residuals(cand, anchors, obs, tdoa)
             c_new = float(r_new @ r_new)
             if c_new <= cost:
+                decrease = cost - c_new
                 theta, r, cost = cand, r_new, c_new
                 lam = max(lam * 0.1, 1e-12)
                 accepted = True
                 break
             lam *= 10.0
-        if not accepted or float(np.max(np.abs(step))) < step_tolerance or cost < 1e-26:
+        if not accepted or float(np.max(np.abs(step))) < step_tolerance or cost < 1e-26 or decrease <= 1e-12 * cost:
             break
     return theta, cost
 
@@ -296,9 +317,7 @@ class Multilaterator:
     def __init__(self, layout: AnchorLayout, config: MultilaterationConfig | None = None) -> None:
         self.layout = layout
         self.config = config or MultilaterationConfig()
-        self.max_range_m = (
-            self.config.max_range_m if self.config.max_range_m is not None else layout.max_range_m
-        )
+        self.max_range_m = self.config.max_range_m if self.config.max_range_m is not None else layout.max_range_m
         self.counters = MultilaterationCounters()
         self._rng = np.random.default_rng(self.config.seed)
         self._positions = layout.positions_array()
@@ -376,13 +395,12 @@ class Multilaterator:
         if sol is None:
             return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate anchor geometry", len(ids))
         keep = np.arange(len(ids))
-        if float(np.max(np.abs(sol.residuals))) > thr:
+        if not self._consistent(anchors, obs, tdoa, sol)[0]:
             if len(ids) - n_unknowns < 2:
                 return self._reject(
                     time_s,
                     RejectReason.INCONSISTENT,
-                    f"max residual {np.max(np.abs(sol.residuals)):.3f} m > {thr} m and too few anchors "
-                    "to tell which one is wrong",
+                    f"residuals exceed {thr} m and too few anchors to tell which one is wrong",
                     len(ids),
                 )
             robust = self._consensus(anchors, obs, tdoa, prior_arr)
@@ -402,7 +420,7 @@ class Multilaterator:
             sol = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
             if sol is None:
                 return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
-            if float(np.max(np.abs(sol.residuals))) > thr:
+            if not self._consistent(anchors[keep], obs[keep], tdoa, sol)[0]:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
         pdop = dilution_of_precision(sol.theta, anchors[keep], tdoa)
         if not pdop <= cfg.max_pdop:
@@ -428,7 +446,7 @@ class Multilaterator:
         return min(sols, key=lambda s: s.cost)
 
     def _fit_all(
-        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None
+        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None, refine: bool = True
     ) -> list[_Solution]:
         cfg = self.config
         seeds: list[np.ndarray] = []
@@ -447,14 +465,37 @@ class Multilaterator:
         for seed in seeds:
             if not np.all(np.isfinite(seed)):
                 continue
-            theta, cost = levenberg_marquardt(seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m)
+            if refine:
+                theta, cost = levenberg_marquardt(seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m)
+            else:  # an exactly determined closed-form solution (minimal TDoA subset)
+                theta = seed
+                r0 = model_residuals(seed, anchors, obs, tdoa)
+                cost = float(r0 @ r0)
             if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
-                continue
-            J = model_jacobian(theta, anchors, tdoa)
-            if np.linalg.matrix_rank(J) < theta.size:
                 continue
             out.append(_Solution(theta, cost, model_residuals(theta, anchors, obs, tdoa)))
         return out
+
+    def _consistent(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, sol: _Solution) -> tuple[bool, np.ndarray]:
+        """Are all anchors consistent with the fix? Returns (ok, per-anchor score in metres).
+
+        An outlier pulls a least-squares fit towards itself and hides in small residuals, so
+        each residual is studentised by its leverage h_ii (the diagonal of the hat matrix
+        J (J^T J)^-1 J^T): score_i = |r_i| / sqrt(1 - h_ii), the linearised leave-one-out
+        (deleted) residual scaled to the noise level. Anchors without redundancy (h_ii ~ 1)
+        are judged by their plain residual.
+        """
+        score = np.abs(sol.residuals)
+        J = model_jacobian(sol.theta, anchors, tdoa)
+        try:
+            inv = np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            return False, score
+        h = np.einsum("ij,jk,ik->i", J, inv, J)
+        one_minus = 1.0 - h
+        ok_lev = one_minus > 1e-6
+        score = np.where(ok_lev, score / np.sqrt(np.where(ok_lev, one_minus, 1.0)), score)
+        return bool(np.all(score <= self.config.residual_threshold_m)), score
 
     def _subsets(self, n: int) -> list[tuple[int, ...]]:
         total = math.comb(n, MIN_ANCHORS)
@@ -473,10 +514,27 @@ class Multilaterator:
         thr = self.config.residual_threshold_m
         n = len(anchors)
         n_unknowns = 4 if tdoa else 3
+        cfg = self.config
         best: tuple[int, float, np.ndarray] | None = None
+        hypotheses: list[np.ndarray] = []
+        full = self._fit(anchors, obs, tdoa, prior)
+        if full is not None:
+            hypotheses.append(full.theta)
+            for i in range(n):  # leave-one-out fits, started at the full fit
+                mask = np.arange(n) != i
+                theta, _ = levenberg_marquardt(full.theta, anchors[mask], obs[mask], tdoa, 3, cfg.step_tolerance_m)
+                hypotheses.append(theta)
+        for theta in hypotheses:
+            r_all = model_residuals(theta, anchors, obs, tdoa)
+            cnt = int(np.sum(np.abs(r_all) <= thr))
+            score = float(np.sum(np.minimum(r_all**2, thr * thr)))
+            if best is None or cnt > best[0] or (cnt == best[0] and score < best[1]):
+                best = (cnt, score, theta)
         for subset in self._subsets(n):
             idx = list(subset)
-            for s in self._fit_all(anchors[idx], obs[idx], tdoa, prior):
+            # hypotheses straight from the closed forms (exact for minimal TDoA subsets); only
+            # the winner is refined, which keeps the search ~10x cheaper than refining each
+            for s in self._fit_all(anchors[idx], obs[idx], tdoa, prior, refine=False):
                 theta = s.theta
                 if tdoa:
                     # re-centre the offset on the whole set's median so subsets compete fairly
@@ -497,15 +555,24 @@ class Multilaterator:
         sol = self._fit(anchors[keep], obs[keep], tdoa, theta[:3])
         if sol is None:
             return None
-        # drop the worst anchor and re-solve while residuals exceed the threshold
-        while float(np.max(np.abs(sol.residuals))) > thr and len(keep) - 1 - n_unknowns >= 1:
-            keep = np.delete(keep, int(np.argmax(np.abs(sol.residuals))))
+        # RANSAC's last step: take back every anchor that agrees with the refined fix
+        back = np.flatnonzero(np.abs(model_residuals(sol.theta, anchors, obs, tdoa)) <= thr)
+        if len(back) > len(keep):
+            again = self._fit(anchors[back], obs[back], tdoa, sol.theta[:3])
+            if again is not None:
+                keep, sol = back, again
+        # drop the worst anchor and re-solve while the set is not consistent
+        while True:
+            ok, scores = self._consistent(anchors[keep], obs[keep], tdoa, sol)
+            if ok:
+                break
+            if len(keep) - 1 - n_unknowns < 1:
+                return None
+            keep = np.delete(keep, int(np.argmax(scores)))
             nxt = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
             if nxt is None:
                 return None
             sol = nxt
-        if float(np.max(np.abs(sol.residuals))) > thr:
-            return None
         self.counters.outliers_dropped += n - len(keep)
         return keep, sol
 
@@ -537,7 +604,3 @@ def solve_tdoa(
     ids = tuple(a for a in range_differences_m if a != base)
     m = TdoaMeasurement(time_s, base, ids, tuple(range_differences_m[a] for a in ids))
     return Multilaterator(layout, config).solve_tdoa(m)
-
-
-def stack_ids(values: Sequence[str]) -> tuple[str, ...]:
-    return tuple(values)

@@ -640,9 +640,8 @@ def bench_vision(n_frames: int = 120, seed: int = 0) -> dict[str, float]:
     Returns ms/frame, detection rates (a frame counts when the pad or a marker of it is found)
     and the speed ratio ours/raw.
     """
-    from companion_sitl.camera import SimCameraConfig, SimulatedCamera  # simulation only
-
     from companion.vision.camera import load_default_camera
+    from companion_sitl.camera import SimCameraConfig, SimulatedCamera  # simulation only
 
     if n_frames < 2:
         raise ValueError(f"n_frames = {n_frames}: must be >= 2")

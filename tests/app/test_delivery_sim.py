@@ -4,16 +4,16 @@ import asyncio
 import math
 
 import pytest
-from companion_sitl.autopilot import SimAutopilot
-from companion_sitl.clock import run_virtual
-from companion_sitl.demo import run_demo
-from companion_sitl.vehicle import SimVehicle
 
 from companion.app import DeliveryShell
 from companion.autopilot import AutopilotError, FlightMode, PositionNed
 from companion.config import load_config, shipped_params_path
 from companion.mission.events import EventKind, Phase
 from companion.scheduling import LoopClock
+from companion_sitl.autopilot import SimAutopilot
+from companion_sitl.clock import run_virtual
+from companion_sitl.demo import run_demo
+from companion_sitl.vehicle import SimVehicle
 
 pytestmark = pytest.mark.slow
 
@@ -215,3 +215,41 @@ def test_impossible_geometry_fails_in_preflight_with_a_clear_reason():
     )
     r = run_demo(config)
     assert r.phase == "failed" and "path planning failed" in r.failure and ">= 2 r" in r.failure
+
+
+class _Cmd:
+    def __init__(self, kind):
+        from companion.telemetry.auth import CommandKind
+
+        self.kind = CommandKind(kind)
+        self.sender = "test"
+
+
+def test_ground_land_command_lands_where_the_vehicle_is():
+    config = cfg(seed=1)
+
+    async def monitor(shell, ap, vehicle):
+        await _wait_until(40.0)
+        shell.on_ground_command(_Cmd("land"))
+
+    shell, _, vehicle, summary = run_virtual(_fly_with(config, monitor))
+    assert shell.mission.phase is Phase.FAILED and "ground command" in summary.failure
+    assert vehicle.touchdowns and not vehicle.armed and not summary.delivered
+    td = vehicle.touchdowns[-1]
+    assert 20 < (td.north_m**2 + td.east_m**2) ** 0.5 < 90  # somewhere along the cruise, not home or pad
+
+
+def test_ground_hold_command_holds_until_an_abort():
+    config = cfg(seed=1)
+    seen = {}
+
+    async def monitor(shell, ap, vehicle):
+        await _wait_until(40.0)
+        shell.on_ground_command(_Cmd("hold"))
+        await _wait_until(70.0)
+        seen["phase"], seen["mode"], seen["alt"] = shell.mission.phase, vehicle.mode, -vehicle.pd
+        shell.on_ground_command(_Cmd("abort"))
+
+    shell, _, vehicle, _summary = run_virtual(_fly_with(config, monitor))
+    assert seen["phase"] is Phase.ABORT_HOLD and seen["mode"] is FlightMode.HOLD and seen["alt"] > 20
+    assert shell.mission.phase is Phase.FAILED and not vehicle.armed

@@ -8,6 +8,10 @@ import time
 import cv2
 import numpy as np
 import pytest
+
+from companion.geometry import Transform
+from companion.vision.camera import CameraModel, load_default_camera
+from companion.vision.pad import PadLayout, aruco_dictionary
 from companion_sitl.camera import (
     R_BODY_CAMERA_DOWN,
     SimCameraConfig,
@@ -15,10 +19,6 @@ from companion_sitl.camera import (
     downward_mount,
     pad_pose_ned,
 )
-
-from companion.geometry import Transform
-from companion.vision.camera import CameraModel, load_default_camera
-from companion.vision.pad import PadLayout, aruco_dictionary
 
 CAM = load_default_camera()
 LAYOUT = PadLayout()

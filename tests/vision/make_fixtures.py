@@ -10,11 +10,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from companion_sitl.camera import SimCameraConfig, SimulatedCamera
 
 from companion.geometry import Transform
 from companion.vision.camera import load_default_camera
 from companion.vision.pad import PadLayout
+from companion_sitl.camera import SimCameraConfig, SimulatedCamera
 
 HERE = Path(__file__).resolve().parent / "fixtures"
 

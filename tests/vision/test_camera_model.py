@@ -9,7 +9,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from companion_sitl.camera_targets import chessboard_views
 
 from companion.vision.camera import (
     CalibrationPattern,
@@ -21,6 +20,7 @@ from companion.vision.camera import (
     load_default_camera,
     save_camera,
 )
+from companion_sitl.camera_targets import chessboard_views
 
 OPENCV_CAM = CameraModel(640, 480, 510.0, 505.0, 322.0, 238.0, dist=(0.12, -0.25, 0.001, -0.0005, 0.05))
 DART_CAM = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, kind="dart", k_ud=0.18)

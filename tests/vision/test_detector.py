@@ -9,7 +9,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from companion_sitl.camera import SimCameraConfig, SimulatedCamera
 
 from companion.geometry import Transform, rot_x, rot_y
 from companion.vision.camera import CameraModel, load_default_camera
@@ -23,6 +22,7 @@ from companion.vision.detector import (
     rotation_angle,
 )
 from companion.vision.pad import PadLayout
+from companion_sitl.camera import SimCameraConfig, SimulatedCamera
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 CAM = load_default_camera()

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import cv2
 import pytest
-from companion_sitl.camera_targets import chessboard_views
 
 from companion.vision.camera import CalibrationPattern, CameraModel, load_camera
 from companion.vision.commands import register
 from companion.vision.pad import PadLayout, pad_side_px, save_pad
+from companion_sitl.camera_targets import chessboard_views
 
 
 def _parser() -> argparse.ArgumentParser:

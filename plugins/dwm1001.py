@@ -1,0 +1,404 @@
+"""Decawave DWM1001 (PANS firmware) UART shell driver: two-way-ranging distances for the UWB
+multilateration (delivery section 4.2.2).
+
+Protocol (PANS shell over the UART, 115200 8N1): two carriage returns within a second enter the
+shell, which answers with the ``dwm>`` prompt; the ``lec`` command toggles a CSV stream, one line
+per ranging round::
+
+    DIST,4,AN0,1151,0.00,0.00,0.00,3.26,AN1,0CA8,0.00,3.35,0.00,2.45,...,POS,1.87,1.49,0.46,53
+
+``DIST,<n>`` is followed by n groups ``AN<k>,<id>,<x>,<y>,<z>,<distance>`` (metres) and, when
+the tag's own location engine is on, ``POS,<x>,<y>,<z>,<quality 0-100>``. Sending ``lec`` again
+stops the stream.
+
+:func:`parse_lec_line` is a pure parser; :class:`LecParser` adds counters. Malformed, partial
+(truncated), binary or unexpected lines are counted and dropped, never raised.
+:class:`Dwm1001Driver` owns the serial port; readings are stamped with the injected clock when
+their line is complete (arrival time; the device's own latency is not modelled).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+from types import TracebackType
+from typing import Any, ClassVar
+
+import serial
+
+from companion.uwb.multilateration import TwrMeasurement
+
+log = logging.getLogger(__name__)
+
+MAX_LINE_BYTES = 512
+MAX_ANCHORS_PER_LINE = 16
+PROMPT = b"dwm>"
+_HEX_ID = re.compile(r"^[0-9A-Fa-f]{1,8}$")
+_AN_TAG = re.compile(r"^AN(\d{1,2})$")
+
+
+@dataclass(frozen=True)
+class DwmAnchorRange:
+    """One anchor of a ``lec`` line: its id, its configured position and the measured range."""
+
+    anchor_id: str
+    x_m: float
+    y_m: float
+    z_m: float
+    distance_m: float
+
+
+@dataclass(frozen=True)
+class DwmReading:
+    """One ``lec`` line. ``position_m``/``quality_factor`` only when the tag computed a position."""
+
+    time_s: float
+    anchors: tuple[DwmAnchorRange, ...]
+    position_m: tuple[float, float, float] | None = None
+    quality_factor: int | None = None
+
+    def to_twr_measurement(self) -> TwrMeasurement:
+        return TwrMeasurement(
+            self.time_s,
+            tuple(a.anchor_id for a in self.anchors),
+            tuple(a.distance_m for a in self.anchors),
+        )
+
+
+class LineKind(Enum):
+    READING = "reading"
+    IGNORED = "ignored"  # empty line, the prompt, the echoed command
+    MALFORMED = "malformed"
+    PARTIAL = "partial"  # a valid prefix of a line that ended too early
+    BINARY = "binary"  # not printable ASCII
+
+
+class _Partial(Exception):
+    pass
+
+
+class _Malformed(Exception):
+    pass
+
+
+def _num(tok: str) -> float:
+    try:
+        v = float(tok)
+    except ValueError as exc:
+        raise _Malformed(tok) from exc
+    if not math.isfinite(v):
+        raise _Malformed(tok)
+    return v
+
+
+def classify_lec_line(line: str | bytes, time_s: float = math.nan) -> tuple[LineKind, DwmReading | None]:
+    """Classify and parse one line (with or without its line ending)."""
+    if isinstance(line, bytes | bytearray):
+        try:
+            line = bytes(line).decode("ascii")
+        except UnicodeDecodeError:
+            return LineKind.BINARY, None
+    text = line.strip("\r\n \t")
+    if any(not (32 <= ord(ch) < 127) for ch in text):
+        return LineKind.BINARY, None
+    if not text or text.startswith("dwm>") or text == "lec":
+        return LineKind.IGNORED, None
+    tokens = text.split(",")
+    try:
+        if tokens[0] == "DIST":
+            reading = _parse_dist(tokens, time_s)
+        elif tokens[0] == "POS":
+            pos, qf, used = _parse_pos(tokens, 0)
+            if used != len(tokens):
+                raise _Malformed("trailing tokens")
+            reading = DwmReading(time_s, (), pos, qf)
+        else:
+            return LineKind.MALFORMED, None
+    except _Partial:
+        return LineKind.PARTIAL, None
+    except _Malformed:
+        return LineKind.MALFORMED, None
+    return LineKind.READING, reading
+
+
+def parse_lec_line(line: str, time_s: float = math.nan) -> DwmReading | None:
+    """Parse a ``lec`` CSV line; None for anything that is not a complete, valid reading."""
+    kind, reading = classify_lec_line(line, time_s)
+    return reading if kind is LineKind.READING else None
+
+
+def _take(tokens: list[str], i: int) -> str:
+    if i >= len(tokens):
+        raise _Partial()
+    return tokens[i]
+
+
+def _bad(tokens: list[str], i: int, expected_prefix_ok: bool) -> Exception:
+    """A bad token: a truncated line if it is the last token and a prefix of what was expected."""
+    if i == len(tokens) - 1 and expected_prefix_ok:
+        return _Partial()
+    return _Malformed(tokens[i])
+
+
+def _num_at(tokens: list[str], i: int) -> float:
+    tok = _take(tokens, i)
+    try:
+        return _num(tok)
+    except _Malformed:
+        raise _bad(tokens, i, tok in ("", "-", "+", ".", "-.")) from None
+
+
+def _parse_pos(tokens: list[str], i: int) -> tuple[tuple[float, float, float], int, int]:
+    """Parse ``POS,x,y,z,qf`` starting at tokens[i] == "POS"; returns (pos, qf, next index)."""
+    x = _num_at(tokens, i + 1)
+    y = _num_at(tokens, i + 2)
+    z = _num_at(tokens, i + 3)
+    qf_tok = _take(tokens, i + 4)
+    if not qf_tok.isdigit() or int(qf_tok) > 100:
+        raise _bad(tokens, i + 4, qf_tok == "")
+    return (x, y, z), int(qf_tok), i + 5
+
+
+def _parse_dist(tokens: list[str], time_s: float) -> DwmReading:
+    n_tok = _take(tokens, 1)
+    if not n_tok.isdigit() or int(n_tok) > MAX_ANCHORS_PER_LINE:
+        raise _Malformed(n_tok)
+    n = int(n_tok)
+    anchors: list[DwmAnchorRange] = []
+    i = 2
+    for k in range(n):
+        tag = _take(tokens, i)
+        m = _AN_TAG.match(tag)
+        if not m or int(m.group(1)) != k:
+            raise _bad(tokens, i, f"AN{k}".startswith(tag))
+        aid = _take(tokens, i + 1)
+        if not _HEX_ID.match(aid):
+            raise _bad(tokens, i + 1, aid == "")
+        x = _num_at(tokens, i + 2)
+        y = _num_at(tokens, i + 3)
+        z = _num_at(tokens, i + 4)
+        d = _num_at(tokens, i + 5)
+        if d < 0.0:
+            raise _Malformed(d)
+        anchors.append(DwmAnchorRange(aid.upper(), x, y, z, d))
+        i += 6
+    pos = None
+    qf = None
+    if i < len(tokens):
+        if tokens[i] != "POS":
+            raise _bad(tokens, i, "POS".startswith(tokens[i]) and tokens[i] != "")
+        pos, qf, i = _parse_pos(tokens, i)
+        if i != len(tokens):
+            raise _Malformed("trailing tokens")
+    return DwmReading(time_s, tuple(anchors), pos, qf)
+
+
+@dataclass
+class LecStats:
+    lines: int = 0
+    readings: int = 0
+    ignored: int = 0
+    malformed: int = 0
+    partial: int = 0
+    binary: int = 0
+    overflow: int = 0  # bytes without a line ending beyond MAX_LINE_BYTES (dropped)
+
+    @property
+    def dropped(self) -> int:
+        return self.malformed + self.partial + self.binary + self.overflow
+
+
+class LecParser:
+    """:func:`classify_lec_line` with counters."""
+
+    def __init__(self) -> None:
+        self.stats = LecStats()
+
+    def feed(self, line: str | bytes, time_s: float = math.nan) -> DwmReading | None:
+        self.stats.lines += 1
+        kind, reading = classify_lec_line(line, time_s)
+        if kind is LineKind.READING:
+            self.stats.readings += 1
+        elif kind is LineKind.IGNORED:
+            self.stats.ignored += 1
+        elif kind is LineKind.MALFORMED:
+            self.stats.malformed += 1
+        elif kind is LineKind.PARTIAL:
+            self.stats.partial += 1
+        else:
+            self.stats.binary += 1
+        if kind in (LineKind.MALFORMED, LineKind.PARTIAL, LineKind.BINARY):
+            log.debug("dwm1001: dropped %s line %r", kind.value, line[:80])
+        return reading
+
+
+class Dwm1001Error(RuntimeError):
+    """The device did not answer as a DWM1001 PANS shell."""
+
+
+class Dwm1001Driver:
+    """The DWM1001 shell over a serial port (``companion.uwb`` plugin, API version 1):
+    ``start()`` enters the shell and starts ``lec``, ``read()`` returns the readings received
+    since the last call (``read_one()`` blocks for the next one), ``stop()`` stops the stream
+    and closes the port.
+    """
+
+    api_version: ClassVar[int] = 1
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 115200,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        prompt_timeout_s: float = 3.0,
+        serial_factory: Callable[..., Any] = serial.Serial,
+    ) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self.clock = clock
+        self.prompt_timeout_s = prompt_timeout_s
+        self._serial_factory = serial_factory
+        self._ser: Any = None
+        self._buf = bytearray()
+        self._streaming = False
+        self.parser = LecParser()
+
+    @property
+    def stats(self) -> LecStats:
+        return self.parser.stats
+
+    @property
+    def is_open(self) -> bool:
+        return self._ser is not None and bool(self._ser.is_open)
+
+    def start(self, probe_s: float = 0.3) -> None:
+        """Open the port, enter the shell ("\\r\\r" until ``dwm>``), start the ``lec`` stream.
+
+        ``lec`` toggles, so first listen for ``probe_s``: if a previous session left the stream
+        running (valid lines arriving), keep it and send nothing.
+        """
+        if self._ser is None:
+            self._ser = self._serial_factory(self.port, self.baudrate, timeout=0.05, write_timeout=1.0)
+        self._ser.reset_input_buffer()
+        self._buf.clear()
+        if probe_s > 0 and self._stream_running(probe_s):
+            self._streaming = True
+            log.info("dwm1001 on %s: lec stream already running", self.port)
+            return
+        deadline = self.clock() + self.prompt_timeout_s
+        seen = bytearray()
+        next_send = 0.0
+        while True:
+            now = self.clock()
+            if now >= deadline:
+                raise Dwm1001Error(f"{self.port}: no '{PROMPT.decode()}' prompt within {self.prompt_timeout_s} s")
+            if now >= next_send:
+                self._ser.write(b"\r\r")  # PANS: two Enters within 1 s open the shell
+                self._ser.flush()
+                next_send = now + 1.0
+            chunk = self._ser.read(max(1, self._ser.in_waiting))
+            if chunk:
+                seen += chunk
+                if PROMPT in seen:
+                    break
+                del seen[:-64]  # only the tail matters
+        self._ser.write(b"lec\r")
+        self._ser.flush()
+        self._streaming = True
+        self._buf.clear()
+        log.info("dwm1001 on %s: shell open, lec stream started", self.port)
+
+    def _stream_running(self, window_s: float) -> bool:
+        """Are complete, valid lec lines arriving? (They stay buffered for :meth:`read`.)"""
+        deadline = self.clock() + window_s
+        while self.clock() < deadline:
+            chunk = self._ser.read(max(1, self._ser.in_waiting))
+            if chunk:
+                self._buf += chunk
+            lines = bytes(self._buf).split(b"\n")[:-1]
+            if any(classify_lec_line(line)[0] is LineKind.READING for line in lines):
+                return True
+        self._buf.clear()
+        return False
+
+    def read(self, timeout_s: float = 0.0) -> list[DwmReading]:
+        """Plugin API v1: every valid reading received since the last call (non-blocking by
+        default; with ``timeout_s`` > 0 wait that long for at least one). Bad lines are counted."""
+        if self._ser is None:
+            raise Dwm1001Error("read() before start()")
+        waiting = self._ser.in_waiting
+        if waiting:
+            self._buf += self._ser.read(waiting)
+        out: list[DwmReading] = []
+        while (r := self._next_from_buffer()) is not None:
+            out.append(r)
+        if not out and timeout_s > 0.0:
+            first = self.read_one(timeout_s)
+            if first is not None:
+                out.append(first)
+                while (r := self._next_from_buffer()) is not None:
+                    out.append(r)
+        return out
+
+    def read_one(self, timeout_s: float = 1.0) -> DwmReading | None:
+        """The next valid reading within ``timeout_s`` (None on timeout). Bad lines are counted."""
+        if self._ser is None:
+            raise Dwm1001Error("read_one() before start()")
+        deadline = self.clock() + timeout_s
+        while True:
+            reading = self._next_from_buffer()
+            if reading is not None:
+                return reading
+            if self.clock() >= deadline:
+                return None
+            chunk = self._ser.read(max(1, self._ser.in_waiting))
+            if chunk:
+                self._buf += chunk
+
+    def _next_from_buffer(self) -> DwmReading | None:
+        while True:
+            nl = self._buf.find(b"\n")
+            if nl < 0:
+                if len(self._buf) > MAX_LINE_BYTES:
+                    self.parser.stats.overflow += 1
+                    self._buf.clear()
+                return None
+            raw = bytes(self._buf[:nl])
+            del self._buf[: nl + 1]
+            if len(raw) > MAX_LINE_BYTES:
+                self.parser.stats.overflow += 1
+                continue
+            reading = self.parser.feed(raw, self.clock())
+            if reading is not None:
+                return reading
+
+    def stop(self) -> None:
+        """Send ``lec`` again (stops the stream) and close the port. Safe to call twice."""
+        if self._ser is None:
+            return
+        try:
+            if self._streaming and self._ser.is_open:
+                self._ser.write(b"lec\r")
+                self._ser.flush()
+        except (serial.SerialException, OSError) as exc:
+            log.warning("dwm1001 on %s: could not stop lec: %s", self.port, exc)
+        finally:
+            self._streaming = False
+            self._ser.close()
+            self._ser = None
+            log.info("dwm1001 on %s: stopped", self.port)
+
+    def __enter__(self) -> Dwm1001Driver:
+        self.start()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
