@@ -38,8 +38,10 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
         sim["wind_from_deg"] = args.wind_from
     if args.gps_bias is not None:
         sim["gps_bias_m"] = _parse_vec(args.gps_bias, "--gps-bias")
-    overrides = {"sim": sim} if sim else None
-    return load_config(*paths, overrides=overrides)
+    overrides: dict[str, Any] = {"sim": sim} if sim else {}
+    if getattr(args, "zenoh_config", None):
+        overrides["telemetry"] = {"zenoh_config": args.zenoh_config}
+    return load_config(*paths, overrides=overrides or None)
 
 
 def _parse_vec(text: str, opt: str) -> list[float]:
@@ -249,6 +251,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
         "--telemetry", action="store_true",
         help="publish telemetry over Zenoh (session from [telemetry] zenoh_config; see `companion ground`)",
     )
+    demo.add_argument("--zenoh-config", help="Zenoh session file for --telemetry (e.g. params/zenoh_loopback.toml)")
     demo.set_defaults(func=cmd_demo)
 
     bench = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
