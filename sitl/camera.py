@@ -38,7 +38,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.geometry import Transform, rot_x, rot_z
+from companion.geometry import Transform
+from companion.geometry.mounts import R_BODY_CAMERA_DOWN, downward_mount, pad_pose_ned
 from companion.vision.camera import CameraModel
 from companion.vision.pad import PadLayout, render_pad_px
 
@@ -47,20 +48,8 @@ log = logging.getLogger(__name__)
 U8Image = NDArray[np.uint8]
 
 #: Downward camera, image top towards the vehicle front (camera x -> body y, y -> -x, z -> z).
-R_BODY_CAMERA_DOWN = rot_z(math.pi / 2.0)
-
-
-def downward_mount(offset_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Transform:
-    """``T_body_camera`` for the downward camera at ``offset_body_m`` (FRD) from the body origin."""
-    return Transform(R_BODY_CAMERA_DOWN.copy(), np.asarray(offset_body_m, dtype=float))
-
-
-def pad_pose_ned(north_m: float = 0.0, east_m: float = 0.0, down_m: float = 0.0,
-                 yaw_rad: float = 0.0) -> Transform:
-    """``T_world_pad`` for a pad lying flat at (north, east, down); yaw turns the pad's y axis
-    from north towards east. Pad x = east, y = north, z = up when yaw = 0."""
-    R0 = rot_z(math.pi / 2.0) @ rot_x(math.pi)  # columns: pad x = E, pad y = N, pad z = up
-    return Transform(rot_z(yaw_rad) @ R0, np.array([north_m, east_m, down_m], dtype=float))
+# the mount and pad-frame conventions live in companion.geometry.mounts (re-exported here)
+__all__ = ["R_BODY_CAMERA_DOWN", "SimCameraConfig", "SimFrame", "SimulatedCamera", "downward_mount", "pad_pose_ned"]
 
 
 def check_pose(T: Transform, name: str = "pose") -> None:
