@@ -24,7 +24,11 @@ from companion.config import (
 log = logging.getLogger(__name__)
 
 # Capability modules that add their own sub-commands: module path -> what it provides.
-COMMAND_MODULES: tuple[str, ...] = ("companion.vision.commands", "companion.telemetry.commands")
+COMMAND_MODULES: tuple[str, ...] = (
+    "companion.vision.commands",
+    "companion.telemetry.commands",
+    "companion.autopilot.commands",
+)
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -263,12 +267,11 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000)
     be.set_defaults(func=cmd_bench_estimation)
-    try:
-        from companion.telemetry.commands import register_bench
-
-        register_bench(bsub)
-    except ImportError as err:
-        log.error("bench telemetry unavailable: %s", err)
+    for mod in ("companion.telemetry.commands", "companion.autopilot.commands"):
+        try:
+            importlib.import_module(mod).register_bench(bsub)
+        except ImportError as err:
+            log.error("bench from %s unavailable: %s", mod, err)
     bk = bsub.add_parser("ekf", help="microseconds per EKF predict and per update of each sensor")
     bk.add_argument("--n", type=int, default=2000)
     bk.set_defaults(func=cmd_bench_ekf)

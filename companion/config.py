@@ -88,7 +88,7 @@ class MissionConfig(_Section):
         gt=0.0,
         le=600.0,
     )
-    estimate_timeout_s: float = _f(1.0, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
+    estimate_timeout_s: float = _f(1.5, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
     return_home: bool = _f(True, "-", "take off again after the release and fly home")
     pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
 
@@ -237,6 +237,15 @@ class CompanionConfig(_Section):
     runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
+
+    @model_validator(mode="after")
+    def _timeouts(self) -> CompanionConfig:
+        if self.runtime.link_timeout_s >= self.mission.estimate_timeout_s:
+            raise ValueError(
+                f"runtime.link_timeout_s ({self.runtime.link_timeout_s}) must be < mission.estimate_timeout_s "
+                f"({self.mission.estimate_timeout_s}): a lost link must be noticed before the estimate goes stale"
+            )
+        return self
 
 
 DEFAULT_PARAMS = "delivery_paper.toml"

@@ -208,6 +208,9 @@ class DeliveryMission:
                 self.abort(self._now, reason)
 
     def step(self, inp: MissionInputs) -> MissionOutput:
+        if not self._started:
+            self._started = True
+            self._phase_t0 = inp.time_s  # timeouts count from the first tick, on the caller's clock
         self._now = inp.time_s
         setpoint: VelocitySetpoint | None = None
         request: Request | None = None
@@ -438,6 +441,7 @@ class DeliveryMission:
     _abort_hold_requested = False
     _takeoff_requested = False
     _touched_down = False
+    _started = False
     _hold_forever = False
     _land_requested = False
     _reenter = False

@@ -1,0 +1,636 @@
+"""ArduPilot (ArduCopter) backend over pymavlink: UDP, TCP or a serial port.
+
+A reader thread owns the receive side of the link: it decodes MAVLink into
+:mod:`companion.autopilot.types` samples stamped on the shell's monotonic clock at receipt,
+hands them to the event loop (``call_soon_threadsafe``) for :attr:`telemetry`, resolves
+COMMAND_ACKs, sends the companion's own 1 Hz HEARTBEAT and counts malformed bytes (they are
+ignored, never fatal). Commands are COMMAND_LONGs retried until acknowledged; velocity setpoints
+are a single non-blocking SET_POSITION_TARGET_LOCAL_NED send.
+
+ArduCopter specifics: it streams nothing until asked (message intervals are requested on
+connect and again if telemetry stops while heartbeats go on, e.g. after an autopilot reboot),
+companion control is GUIDED (mapped to :attr:`FlightMode.OFFBOARD`), GUIDED velocity times out
+after 3 s on the vehicle (it stops and holds), arming is refused until the EKF uses GPS (arm()
+retries until ``arm_timeout_s``), takeoff is MAV_CMD_NAV_TAKEOFF in GUIDED, hold is BRAKE (or
+LOITER), land is LAND mode, and the parcel is released with MAV_CMD_DO_GRIPPER or
+MAV_CMD_DO_SET_SERVO.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import os
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
+from pymavlink import mavutil
+
+from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    StatusText,
+    TelemetrySample,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+
+log = logging.getLogger(__name__)
+
+mavutil.set_dialect("ardupilotmega")
+mavlink: Any = mavutil.mavlink
+
+G = 9.80665
+VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # use vx, vy, vz and yaw; ignore position, accel, yaw rate
+
+COPTER_MODES: dict[str, int] = {
+    "STABILIZE": 0,
+    "ACRO": 1,
+    "ALT_HOLD": 2,
+    "AUTO": 3,
+    "GUIDED": 4,
+    "LOITER": 5,
+    "RTL": 6,
+    "CIRCLE": 7,
+    "LAND": 9,
+    "DRIFT": 11,
+    "SPORT": 13,
+    "POSHOLD": 16,
+    "BRAKE": 17,
+    "SMART_RTL": 21,
+}
+
+COPTER_TO_FLIGHT_MODE: dict[int, FlightMode] = {
+    0: FlightMode.MANUAL,
+    1: FlightMode.MANUAL,
+    2: FlightMode.MANUAL,
+    3: FlightMode.MISSION,
+    4: FlightMode.OFFBOARD,
+    5: FlightMode.POSITION,
+    6: FlightMode.RTL,
+    9: FlightMode.LAND,
+    11: FlightMode.MANUAL,
+    13: FlightMode.MANUAL,
+    16: FlightMode.POSITION,
+    17: FlightMode.HOLD,
+    21: FlightMode.RTL,
+}
+
+LANDED_STATES = {
+    1: LandedState.ON_GROUND,
+    2: LandedState.IN_AIR,
+    3: LandedState.TAKING_OFF,
+    4: LandedState.LANDING,
+}
+
+# message id -> rate requested on connect (ArduCopter streams nothing until asked)
+DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
+    30: 50.0,  # ATTITUDE
+    105: 50.0,  # HIGHRES_IMU
+    27: 50.0,  # RAW_IMU (fallback when HIGHRES_IMU is not supported)
+    32: 30.0,  # LOCAL_POSITION_NED
+    33: 30.0,  # GLOBAL_POSITION_INT
+    24: 5.0,  # GPS_RAW_INT
+    1: 5.0,  # SYS_STATUS
+    245: 5.0,  # EXTENDED_SYS_STATE
+    242: 0.5,  # HOME_POSITION
+    147: 1.0,  # BATTERY_STATUS
+    65: 5.0,  # RC_CHANNELS
+}
+
+HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
+
+
+def result_name(result: int) -> str:
+    entry = mavlink.enums["MAV_RESULT"].get(result)
+    return entry.name if entry is not None else f"MAV_RESULT {result}"
+
+
+def command_name(cmd: int) -> str:
+    entry = mavlink.enums["MAV_CMD"].get(cmd)
+    return entry.name if entry is not None else f"MAV_CMD {cmd}"
+
+
+@dataclass
+class LinkCounters:
+    messages: int = 0
+    heartbeats: int = 0
+    bad_data: int = 0
+    garbage_bytes: int = 0
+    read_errors: int = 0
+    setpoints_sent: int = 0
+    setpoints_dropped: int = 0
+    commands_sent: int = 0
+    stream_requests: int = 0
+
+
+def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
+    """Turn a connection URL into (pymavlink device, baud, kind).
+
+    Accepted: ``udpin:HOST:PORT`` / ``udpin://HOST:PORT`` / ``udp://:PORT`` (listen),
+    ``udpout:HOST:PORT`` / ``udpout://HOST:PORT``, ``tcp:HOST:PORT`` / ``tcp://`` /
+    ``tcpout://``, ``serial:///dev/ttyX:BAUD``, or a device path (``/dev/ttyX``, ``/dev/ttyX:BAUD``,
+    ``COM3``) with ``baud``.
+    """
+    u = url.strip()
+    if not u:
+        raise AutopilotError("empty connection URL")
+    scheme, sep, rest = u.partition(":")
+    scheme = scheme.lower()
+    if sep and scheme in ("udpin", "udpout", "udp", "tcp", "tcpout", "tcpin", "serial"):
+        rest = rest.removeprefix("//")
+        if scheme == "serial":
+            dev, _, b = rest.rpartition(":") if rest.rsplit(":", 1)[-1].isdigit() else (rest, "", "")
+            return dev, int(b) if b else baud, "serial"
+        host, _, port = rest.rpartition(":")
+        if not port.isdigit():
+            raise AutopilotError(f"connection {url!r}: expected {scheme}:HOST:PORT")
+        if scheme == "udp":  # MAVSDK style udp://:14540 listens
+            scheme = "udpin"
+        if scheme == "tcpout":
+            scheme = "tcp"
+        host = host or ("0.0.0.0" if scheme in ("udpin", "tcpin") else "127.0.0.1")
+        return f"{scheme}:{host}:{port}", baud, scheme
+    # a device path, optionally with :BAUD
+    dev, b = u, ""
+    head, _, tail = u.rpartition(":")
+    if head and tail.isdigit() and not head.endswith(":"):
+        dev, b = head, tail
+    return dev, int(b) if b else baud, "serial"
+
+
+class ArduPilotAutopilot(Autopilot):
+    def __init__(
+        self,
+        connection: str = "udpin:0.0.0.0:14550",
+        *,
+        baud: int = 57600,
+        link_timeout_s: float = 1.0,
+        source_system: int = 255,
+        source_component: int = 191,  # MAV_COMP_ID_ONBOARD_COMPUTER
+        target_system: int | None = None,
+        release: Literal["gripper", "servo"] = "gripper",
+        release_servo: int = 9,
+        release_pwm: int = 1900,
+        hold_mode: Literal["BRAKE", "LOITER"] = "BRAKE",
+        arm_timeout_s: float = 8.0,
+        command_timeout_s: float = 0.5,
+        command_retries: int = 3,
+        stream_rates_hz: dict[int, float] | None = None,
+    ):
+        self.connection = connection
+        self.baud = baud
+        self.link_timeout_s = link_timeout_s
+        self.source_system = source_system
+        self.source_component = source_component
+        self.target_system = target_system
+        self.target_component = 1
+        self.release = release
+        self.release_servo = release_servo
+        self.release_pwm = release_pwm
+        self.hold_mode = hold_mode
+        self.arm_timeout_s = arm_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.command_retries = command_retries
+        self.stream_rates_hz = dict(DEFAULT_STREAM_RATES_HZ if stream_rates_hz is None else stream_rates_hz)
+        self.telemetry = TelemetryCache()
+        self.counters = LinkCounters()
+        self.rc_channels: tuple[int, ...] = ()
+        self._conn: Any = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._reader: threading.Thread | None = None
+        self._running = False
+        self._send_lock = threading.Lock()
+        self._acks: dict[int, asyncio.Future[int]] = {}
+        self._first_hb: asyncio.Future[None] | None = None
+        self._last_hb = -math.inf
+        self._last_rx = -math.inf
+        self._lost_at: float | None = None
+        self._last_attitude = -math.inf
+        self._last_stream_request = -math.inf
+        self._t_boot = time.monotonic()
+        # vehicle state (reader thread writes, event loop reads)
+        self.copter_mode = -1
+        self._armed = False
+        self._landed = LandedState.UNKNOWN
+        self._battery_pct = math.nan
+        self._prearm_ok: bool | None = None
+        self._gps_fix = 0
+        self._payload_released = False
+        self._have_highres = False
+        self._last_text = ""
+
+    @classmethod
+    def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
+        """Build from a :class:`companion.config.CompanionConfig` (``connection``, link timeout)."""
+        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+
+    # ------------------------------------------------------------------ link
+    async def connect(self, timeout_s: float = 10.0) -> None:
+        if self._conn is not None:
+            return
+        self._loop = asyncio.get_running_loop()
+        device, baud, kind = parse_connection(self.connection, self.baud)
+        if kind == "serial" and not os.path.exists(device):
+            raise AutopilotError(f"serial device {device} does not exist (connection {self.connection!r})")
+        try:
+            self._conn = await self._loop.run_in_executor(None, self._open, device, baud)
+        except AutopilotError:
+            raise
+        except Exception as err:  # pymavlink raises plain OSError / SerialException / socket errors
+            raise AutopilotError(f"cannot open {self.connection!r}: {err}") from None
+        self._first_hb = self._loop.create_future()
+        self._running = True
+        self._reader = threading.Thread(target=self._read_loop, name="ardupilot-reader", daemon=True)
+        self._reader.start()
+        try:
+            await asyncio.wait_for(self._first_hb, timeout_s)
+        except TimeoutError:
+            await self.close()
+            raise AutopilotError(
+                f"no heartbeat from an autopilot on {self.connection!r} within {timeout_s:.1f} s"
+            ) from None
+        log.info("ArduPilot system %d on %s", self.target_system, self.connection)
+        await self._request_streams()
+
+    def _open(self, device: str, baud: int) -> Any:
+        conn = mavutil.mavlink_connection(
+            device,
+            baud=baud,
+            source_system=self.source_system,
+            source_component=self.source_component,
+            dialect="ardupilotmega",
+            robust_parsing=True,
+            autoreconnect=True,
+        )
+        conn.mav.robust_parsing = True
+        return conn
+
+    async def close(self) -> None:
+        self._running = False
+        reader, self._reader = self._reader, None
+        if reader is not None and reader is not threading.current_thread():
+            await asyncio.get_running_loop().run_in_executor(None, reader.join, 2.0)
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            with contextlib.suppress(Exception):
+                conn.close()
+        for fut in self._acks.values():
+            if not fut.done():
+                fut.set_exception(AutopilotError("link closed"))
+        self._acks.clear()
+
+    @property
+    def link_ok(self) -> bool:
+        if self._conn is None:
+            return False
+        now = time.monotonic()
+        hb_age, rx_age = now - self._last_hb, now - self._last_rx
+        fresh = hb_age <= self.link_timeout_s or (rx_age <= self.link_timeout_s and hb_age <= HEARTBEAT_GRACE_S)
+        if not fresh:
+            if self._lost_at is None:
+                self._lost_at = now
+            return False
+        if self._lost_at is not None:  # after a loss: up again only with a fresh heartbeat (fresh mode)
+            if self._last_hb <= self._lost_at:
+                return False
+            self._lost_at = None
+        return True
+
+    @property
+    def mode(self) -> FlightMode:
+        return COPTER_TO_FLIGHT_MODE.get(self.copter_mode, FlightMode.UNKNOWN)
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, fn: Callable[[Any], None]) -> bool:
+        conn = self._conn
+        if conn is None:
+            return False
+        try:
+            with self._send_lock:
+                fn(conn.mav)
+        except (OSError, ValueError) as err:
+            log.debug("send failed: %s", err)
+            return False
+        return True
+
+    def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
+        if not self.link_ok or self.target_system is None:
+            self.counters.setpoints_dropped += 1
+            return
+        ts, tc = self.target_system, self.target_component
+        t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
+        sp = setpoint
+        ok = self._send(
+            lambda mav: mav.set_position_target_local_ned_send(
+                t_ms,
+                ts,
+                tc,
+                mavlink.MAV_FRAME_LOCAL_NED,
+                VELOCITY_YAW_MASK,
+                0.0,
+                0.0,
+                0.0,
+                sp.north_m_s,
+                sp.east_m_s,
+                sp.down_m_s,
+                0.0,
+                0.0,
+                0.0,
+                sp.yaw_rad,
+                0.0,
+            )
+        )
+        if ok:
+            self.counters.setpoints_sent += 1
+        else:
+            self.counters.setpoints_dropped += 1
+
+    def send_rc_override(self, channels: Sequence[int]) -> None:
+        """RC_CHANNELS_OVERRIDE for channels 1..8 (0 = release to the radio, 65535 = ignore)."""
+        ch = [*list(channels)[:8], *[65535] * (8 - min(8, len(channels)))]
+        ts, tc = self.target_system or 1, self.target_component
+        self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch))
+
+    async def _command(self, cmd: int, *params: float, what: str = "", retries: int | None = None) -> None:
+        """COMMAND_LONG, resent until its COMMAND_ACK arrives; AutopilotError unless ACCEPTED."""
+        name = what or command_name(cmd)
+        if self._conn is None or self._loop is None:
+            raise AutopilotError(f"{name}: not connected")
+        if not self.link_ok:
+            raise AutopilotError(f"{name}: link is down")
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        ts, tc = self.target_system or 1, self.target_component
+        old = self._acks.pop(cmd, None)
+        if old is not None and not old.done():
+            old.cancel()
+        fut: asyncio.Future[int] = self._loop.create_future()
+        self._acks[cmd] = fut
+        text_before = self._last_text
+        tries = self.command_retries if retries is None else retries
+        try:
+            for attempt in range(tries):
+                self._send(lambda mav, c=attempt: mav.command_long_send(ts, tc, cmd, c, *p))
+                self.counters.commands_sent += 1
+                try:
+                    result = await asyncio.wait_for(asyncio.shield(fut), self.command_timeout_s)
+                except TimeoutError:
+                    continue
+                if result == mavlink.MAV_RESULT_IN_PROGRESS:  # keep waiting for the final ack
+                    fut = self._loop.create_future()
+                    self._acks[cmd] = fut
+                    result = await asyncio.wait_for(fut, 30.0)
+                if result == mavlink.MAV_RESULT_ACCEPTED:
+                    return
+                reason = self._last_text if self._last_text != text_before else ""
+                raise AutopilotError(f"{name}: {result_name(result)}" + (f" ({reason})" if reason else ""))
+            raise AutopilotError(f"{name}: no COMMAND_ACK after {tries} tries")
+        finally:
+            if self._acks.get(cmd) is fut:
+                del self._acks[cmd]
+
+    async def _request_streams(self) -> None:
+        async def one(mid: int, hz: float) -> None:
+            try:
+                await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mid, 1e6 / hz, retries=2)
+            except AutopilotError as err:
+                log.info("message %d at %.1f Hz not available: %s", mid, hz, err)
+
+        self._last_stream_request = time.monotonic()
+        self.counters.stream_requests += 1
+        # one at a time: the ack futures are keyed by command
+        for mid, hz in self.stream_rates_hz.items():
+            await one(mid, hz)
+        with contextlib.suppress(AutopilotError):
+            await self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, 242, retries=1)
+
+    def _rerequest_streams_fire_and_forget(self) -> None:
+        ts, tc = self.target_system or 1, self.target_component
+        for mid, hz in self.stream_rates_hz.items():
+            self._send(
+                lambda mav, m=mid, h=hz: mav.command_long_send(
+                    ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, m, 1e6 / h, 0, 0, 0, 0, 0
+                )
+            )
+        self.counters.stream_requests += 1
+
+    # ------------------------------------------------------------------ commands
+    async def set_mode(self, name: str) -> None:
+        num = COPTER_MODES[name]
+        await self._command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, num, what=name)
+        self.copter_mode = num  # ACCEPTED means switched; the next heartbeat confirms
+        self._push_status()
+
+    async def arm(self) -> None:
+        if self.copter_mode != COPTER_MODES["GUIDED"]:
+            await self.set_mode("GUIDED")
+        deadline = time.monotonic() + self.arm_timeout_s
+        while True:
+            try:
+                await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arm")
+                break
+            except AutopilotError as err:
+                refused = "FAILED" in str(err) or "TEMPORARILY_REJECTED" in str(err) or "DENIED" in str(err)
+                if not refused or time.monotonic() + 1.0 > deadline:
+                    raise
+                log.info("arming refused (EKF/GPS not ready?), retrying: %s", err)
+                await asyncio.sleep(1.0)
+        self._armed = True
+        self._push_status()
+
+    async def disarm(self) -> None:
+        await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, what="disarm")
+        self._armed = False
+        self._push_status()
+
+    async def takeoff(self, alt_rel_m: float) -> None:
+        if self.copter_mode != COPTER_MODES["GUIDED"]:
+            await self.set_mode("GUIDED")
+        await self._command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt_rel_m, what="takeoff")
+
+    async def start_offboard(self) -> None:
+        await self.set_mode("GUIDED")
+
+    async def hold(self) -> None:
+        await self.set_mode(self.hold_mode)
+
+    async def land(self) -> None:
+        await self.set_mode("LAND")
+
+    async def release_payload(self) -> None:
+        if self.release == "gripper":
+            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what="release (gripper)")
+        else:
+            await self._command(
+                mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what="release (servo)"
+            )
+        self._payload_released = True
+        self._push_status()
+
+    # ------------------------------------------------------------------ receiving (reader thread)
+    def _post(self, fn: Callable[..., Any], *args: Any) -> None:
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        with contextlib.suppress(RuntimeError):  # loop closing
+            loop.call_soon_threadsafe(fn, *args)
+
+    def _push(self, sample: TelemetrySample) -> None:
+        self._post(self.telemetry.push, sample)
+
+    def _status(self) -> VehicleStatus:
+        healthy = self._prearm_ok if self._prearm_ok is not None else self._gps_fix >= 3
+        return VehicleStatus(
+            time.monotonic(),
+            self._armed,
+            self.mode,
+            self._landed,
+            bool(healthy),
+            self._battery_pct if math.isfinite(self._battery_pct) else 100.0,
+            self._payload_released,
+        )
+
+    def _push_status(self) -> None:
+        self._push(self._status())
+
+    def _read_loop(self) -> None:
+        next_hb = 0.0
+        while self._running:
+            conn = self._conn
+            if conn is None:
+                break
+            now = time.monotonic()
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self._send(
+                    lambda mav: mav.heartbeat_send(
+                        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                        mavlink.MAV_AUTOPILOT_INVALID,
+                        0,
+                        0,
+                        mavlink.MAV_STATE_ACTIVE,
+                    )
+                )
+            try:
+                m = conn.recv_match(blocking=True, timeout=0.1)
+            except Exception as err:  # a read error (bad bytes, serial hiccup) must not kill the reader
+                self.counters.read_errors += 1
+                log.debug("read error: %s", err)
+                time.sleep(0.01)
+                continue
+            if m is None:
+                self._check_streams(now)
+                continue
+            try:
+                self._on_message(m)
+            except Exception:
+                log.exception("error decoding %s", m.get_type())
+
+    def _check_streams(self, now: float) -> None:
+        if (
+            self.link_ok
+            and now - self._last_hb < 2.0
+            and now - self._last_attitude > 3.0
+            and now - self._last_stream_request > 5.0
+            and self._last_stream_request > -math.inf
+            and self.target_system is not None
+        ):
+            log.warning("heartbeats but no telemetry: requesting the streams again")
+            self._last_stream_request = now
+            self._rerequest_streams_fire_and_forget()
+
+    def _on_message(self, m: Any) -> None:
+        t = m.get_type()
+        if t == "BAD_DATA":
+            self.counters.bad_data += 1
+            self.counters.garbage_bytes += len(getattr(m, "data", b""))
+            return
+        src = m.get_srcSystem()
+        now = time.monotonic()
+        if t == "HEARTBEAT":
+            if m.autopilot == mavlink.MAV_AUTOPILOT_INVALID or m.type == mavlink.MAV_TYPE_GCS:
+                return  # a GCS or another companion
+            if self.target_system is None:
+                self.target_system = src
+            if src != self.target_system or m.get_srcComponent() != self.target_component:
+                return
+            self.counters.heartbeats += 1
+            self._last_hb = now
+            self._last_rx = now
+            self.copter_mode = m.custom_mode
+            self._armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            if self._first_hb is not None and not self._first_hb.done():
+                self._post(self._resolve_first_hb)
+            self._push_status()
+            if now - self._last_attitude > 3.0:
+                self._check_streams(now)
+            return
+        if self.target_system is None or src != self.target_system:
+            return
+        self.counters.messages += 1
+        self._last_rx = now
+        if t == "ATTITUDE":
+            self._last_attitude = now
+            self._push(Attitude(now, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))
+        elif t == "HIGHRES_IMU":
+            self._have_highres = True
+            self._push(Imu(now, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro))
+        elif t == "RAW_IMU" and not self._have_highres:
+            a = G / 1000.0
+            self._push(Imu(now, m.xacc * a, m.yacc * a, m.zacc * a, m.xgyro / 1e3, m.ygyro / 1e3, m.zgyro / 1e3))
+        elif t == "LOCAL_POSITION_NED":
+            self._push(PositionNed(now, m.x, m.y, m.z, m.vx, m.vy, m.vz))
+        elif t == "GLOBAL_POSITION_INT":
+            self._push(GlobalPosition(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.relative_alt / 1000.0))
+        elif t == "GPS_RAW_INT":
+            self._gps_fix = m.fix_type
+            eph = m.eph / 100.0 if m.eph != 65535 else 99.99
+            self._push(GpsRaw(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.fix_type, m.satellites_visible, eph))
+        elif t == "SYS_STATUS":
+            prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+            if m.onboard_control_sensors_present & prearm:
+                self._prearm_ok = bool(m.onboard_control_sensors_health & prearm)
+            if m.battery_remaining >= 0:
+                self._battery_pct = float(m.battery_remaining)
+            self._push_status()
+        elif t == "BATTERY_STATUS":
+            if m.battery_remaining >= 0:
+                self._battery_pct = float(m.battery_remaining)
+        elif t == "EXTENDED_SYS_STATE":
+            self._landed = LANDED_STATES.get(m.landed_state, LandedState.UNKNOWN)
+            self._push_status()
+        elif t == "HOME_POSITION":
+            self._push(HomePosition(now, m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1000.0))
+        elif t == "STATUSTEXT":
+            text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
+            text = text.rstrip("\x00")
+            self._last_text = text
+            log.info("autopilot: %s", text)
+            self._push(StatusText(now, m.severity, text))
+        elif t == "COMMAND_ACK":
+            if m.target_system in (0, self.source_system):
+                self._post(self._resolve_ack, m.command, m.result)
+        elif t == "RC_CHANNELS":
+            self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
+
+    def _resolve_first_hb(self) -> None:
+        if self._first_hb is not None and not self._first_hb.done():
+            self._first_hb.set_result(None)
+
+    def _resolve_ack(self, cmd: int, result: int) -> None:
+        fut = self._acks.get(cmd)
+        if fut is not None and not fut.done():
+            fut.set_result(result)

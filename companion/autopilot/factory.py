@@ -1,0 +1,34 @@
+"""Pick the autopilot backend named in the configuration."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.config import CompanionConfig
+
+log = logging.getLogger(__name__)
+
+
+def make_autopilot(config: CompanionConfig, **kwargs: Any) -> Autopilot:
+    """``config.autopilot``: "sim" (embedded simulator), "px4" (MAVSDK) or "ardupilot" (pymavlink).
+
+    Extra keyword arguments go to the backend's constructor (e.g. ``release="servo"``).
+    Backends are imported lazily so a missing optional dependency only matters when chosen.
+    """
+    kind = config.autopilot
+    log.info("autopilot backend %s on %s", kind, config.connection if kind != "sim" else "embedded simulator")
+    if kind == "sim":
+        from companion_sitl.autopilot import SimAutopilot
+
+        return SimAutopilot(config.sim, **kwargs)
+    if kind == "px4":
+        from companion.autopilot.px4 import Px4Autopilot
+
+        return Px4Autopilot.from_config(config, **kwargs)
+    if kind == "ardupilot":
+        from companion.autopilot.ardupilot import ArduPilotAutopilot
+
+        return ArduPilotAutopilot.from_config(config, **kwargs)
+    raise AutopilotError(f"unknown autopilot backend {kind!r} (sim, px4, ardupilot)")

@@ -1,0 +1,520 @@
+"""PX4 backend through MAVSDK 4.x (the native ``mavsdk`` binding; no mavsdk_server).
+
+``Mavsdk(Configuration(companion computer))``, ``add_any_connection(url)``,
+``first_autopilot(timeout_s)``, then plugins built explicitly from the system: Action, Telemetry,
+Offboard, MavlinkDirect and Gripper. Telemetry arrives through MAVSDK's async streams, one task
+per stream (cancelled, and so unsubscribed, in :meth:`close`), stamped on the shell's clock.
+
+Setpoints. MAVSDK's Offboard plugin re-sends the last setpoint at 20 Hz on its own thread until
+``offboard.stop()``: a stale setpoint would be resent forever if the control task died (MAVSDK-
+Python issue 374), which defeats the shell's stale-setpoint watchdog and PX4's offboard-loss
+failsafe. So by default (``setpoint_transport="direct"``) each setpoint is one
+SET_POSITION_TARGET_LOCAL_NED sent through MavlinkDirect (synchronous and non-blocking), and
+OFFBOARD is entered with MAV_CMD_DO_SET_MODE (PX4 refuses unless setpoints streamed first).
+``setpoint_transport="offboard"`` uses the plugin's synchronous ``set_velocity_ned`` and
+``start()`` instead, with a guard that calls ``offboard.stop()`` (PX4 HOLD) when the shell stops
+refreshing the setpoint while the vehicle is in OFFBOARD.
+
+Link watchdog: MAVSDK's connection state (3 s heartbeat timeout) and the arrival of telemetry
+(``link_timeout_s``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any, Literal
+
+from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    StatusText,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+
+log = logging.getLogger(__name__)
+
+VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # use vx, vy, vz and yaw
+MAV_FRAME_LOCAL_NED = 1
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_SET_SERVO = 183
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+PX4_MAIN_OFFBOARD = 6
+MAV_RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+
+_FLIGHT_MODES = {
+    "UNKNOWN": FlightMode.UNKNOWN,
+    "READY": FlightMode.HOLD,
+    "TAKEOFF": FlightMode.TAKEOFF,
+    "HOLD": FlightMode.HOLD,
+    "MISSION": FlightMode.MISSION,
+    "RETURN_TO_LAUNCH": FlightMode.RTL,
+    "LAND": FlightMode.LAND,
+    "OFFBOARD": FlightMode.OFFBOARD,
+    "FOLLOW_ME": FlightMode.MISSION,
+    "MANUAL": FlightMode.MANUAL,
+    "ALTCTL": FlightMode.MANUAL,
+    "POSCTL": FlightMode.POSITION,
+    "ACRO": FlightMode.MANUAL,
+    "STABILIZED": FlightMode.MANUAL,
+    "RATTITUDE": FlightMode.MANUAL,
+}
+_LANDED = {
+    "UNKNOWN": LandedState.UNKNOWN,
+    "ON_GROUND": LandedState.ON_GROUND,
+    "IN_AIR": LandedState.IN_AIR,
+    "TAKING_OFF": LandedState.TAKING_OFF,
+    "LANDING": LandedState.LANDING,
+}
+_SEVERITY = {"EMERGENCY": 0, "ALERT": 1, "CRITICAL": 2, "ERROR": 3, "WARNING": 4, "NOTICE": 5, "INFO": 6, "DEBUG": 7}
+
+
+_PX4_AUTO_SUB = {
+    1: FlightMode.HOLD,  # AUTO.READY
+    2: FlightMode.TAKEOFF,
+    3: FlightMode.HOLD,  # AUTO.LOITER
+    4: FlightMode.MISSION,
+    5: FlightMode.RTL,
+    6: FlightMode.LAND,
+    8: FlightMode.MISSION,  # follow target
+    9: FlightMode.LAND,  # precision land
+}
+_PX4_MAIN = {
+    1: FlightMode.MANUAL,
+    2: FlightMode.MANUAL,  # ALTCTL
+    3: FlightMode.POSITION,  # POSCTL
+    5: FlightMode.MANUAL,  # ACRO
+    6: FlightMode.OFFBOARD,
+    7: FlightMode.MANUAL,  # STABILIZED
+    8: FlightMode.MANUAL,  # RATTITUDE
+}
+
+
+def px4_flight_mode(custom_mode: int) -> FlightMode:
+    """PX4 HEARTBEAT custom_mode (main mode << 16 | sub mode << 24) -> :class:`FlightMode`."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main == 4:  # AUTO
+        return _PX4_AUTO_SUB.get(sub, FlightMode.UNKNOWN)
+    return _PX4_MAIN.get(main, FlightMode.UNKNOWN)
+
+
+def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
+    return _FLIGHT_MODES.get(getattr(mode, "name", str(mode)), FlightMode.UNKNOWN)
+
+
+def check_connection_url(url: str) -> str:
+    """Validate a MAVSDK connection URL; a serial device must exist. Returns the URL."""
+    u = url.strip()
+    scheme, sep, rest = u.partition("://")
+    if not sep:
+        raise AutopilotError(
+            f"connection {url!r}: expected a MAVSDK URL (udpin://HOST:PORT, udpout://, tcpout://, serial:///dev/X:BAUD)"
+        )
+    if scheme == "serial":
+        dev = rest.rsplit(":", 1)[0] if rest.rsplit(":", 1)[-1].isdigit() else rest
+        if not os.path.exists(dev):
+            raise AutopilotError(f"serial device {dev} does not exist (connection {url!r})")
+    elif scheme not in ("udp", "udpin", "udpout", "tcp", "tcpin", "tcpout", "raw"):
+        raise AutopilotError(f"connection {url!r}: unknown scheme {scheme!r}")
+    return u
+
+
+class Px4Autopilot(Autopilot):
+    def __init__(
+        self,
+        connection: str = "udpin://0.0.0.0:14540",
+        *,
+        link_timeout_s: float = 1.0,
+        setpoint_transport: Literal["direct", "offboard"] = "direct",
+        setpoint_stale_s: float = 0.5,
+        release: Literal["gripper", "servo"] = "gripper",
+        gripper_instance: int = 1,
+        release_servo: int = 9,
+        release_pwm: int = 1900,
+    ):
+        self.connection = connection
+        self.link_timeout_s = link_timeout_s
+        self.setpoint_transport = setpoint_transport
+        self.setpoint_stale_s = setpoint_stale_s
+        self.release = release
+        self.gripper_instance = gripper_instance
+        self.release_servo = release_servo
+        self.release_pwm = release_pwm
+        self.telemetry = TelemetryCache()
+        self.setpoints_sent = 0
+        self.setpoints_dropped = 0
+        self.system_id = 1
+        self._mavsdk: Any = None
+        self._system: Any = None
+        self._action: Any = None
+        self._tel: Any = None
+        self._offboard: Any = None
+        self._direct: Any = None
+        self._direct_sync: Any = None
+        self._offboard_sync: Any = None
+        self._gripper: Any = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._connected = False
+        self._last_rx = -math.inf
+        self._last_hb = -math.inf
+        self._lost_at: float | None = None
+        self._last_sp_call = -math.inf
+        self._plugin_streaming = False
+        self._t_boot = time.monotonic()
+        # composed status
+        self._armed = False
+        self._mode = FlightMode.UNKNOWN
+        self._landed = LandedState.UNKNOWN
+        self._healthy = False
+        self._battery_pct = 100.0
+        self._payload_released = False
+        self._rates = (0.0, 0.0, 0.0)
+        self._gps_fix = 0
+        self._gps_sats = 0
+        self._last_text = ""
+
+    @classmethod
+    def from_config(cls, config: Any, **kwargs: Any) -> Px4Autopilot:
+        kwargs.setdefault("setpoint_stale_s", config.runtime.setpoint_stale_s)
+        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+
+    # ------------------------------------------------------------------ link
+    async def connect(self, timeout_s: float = 10.0) -> None:
+        if self._system is not None:
+            return
+        url = check_connection_url(self.connection)
+        from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+        from mavsdk.asyncio.plugins.action import ActionAsync
+        from mavsdk.asyncio.plugins.gripper import GripperAsync
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+        from mavsdk.asyncio.plugins.offboard import OffboardAsync
+        from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+        self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
+        try:
+            await self._mavsdk.add_any_connection(url)
+        except Exception as err:
+            self._destroy()
+            raise AutopilotError(f"cannot open {url!r}: {err}") from None
+        system = await self._mavsdk.first_autopilot(timeout_s=timeout_s)
+        if system is None:
+            self._destroy()
+            raise AutopilotError(f"no PX4 autopilot answered on {url!r} within {timeout_s:.1f} s")
+        self._system = system
+        self.system_id = await system.get_system_id()
+        self._action = ActionAsync(system)
+        self._tel = TelemetryAsync(system)
+        self._offboard = OffboardAsync(system)
+        self._offboard_sync = self._offboard._plugin
+        self._direct = MavlinkDirectAsync(system)
+        self._direct_sync = self._direct._plugin
+        with contextlib.suppress(Exception):
+            self._gripper = GripperAsync(system)
+        self._connected = True
+        self._last_rx = time.monotonic()
+        self._start_streams()
+        log.info("PX4 system %d on %s", self.system_id, url)
+
+    def _start_streams(self) -> None:
+        tel, loop = self._tel, asyncio.get_running_loop()
+
+        def now() -> float:
+            return loop.time()
+
+        def on_pv(pv: Any) -> None:
+            p, v = pv.position, pv.velocity
+            self._push(PositionNed(now(), p.north_m, p.east_m, p.down_m, v.north_m_s, v.east_m_s, v.down_m_s))
+
+        def on_pos(p: Any) -> None:
+            self._push(
+                GlobalPosition(now(), p.latitude_deg, p.longitude_deg, p.absolute_altitude_m, p.relative_altitude_m)
+            )
+
+        def on_att(e: Any) -> None:
+            r = math.radians
+            self._push(Attitude(now(), r(e.roll_deg), r(e.pitch_deg), r(e.yaw_deg), *self._rates))
+
+        def on_rates(w: Any) -> None:
+            self._rates = (w.roll_rad_s, w.pitch_rad_s, w.yaw_rad_s)
+
+        def on_imu(i: Any) -> None:
+            a, g = i.acceleration_frd, i.angular_velocity_frd
+            self._push(
+                Imu(now(), a.forward_m_s2, a.right_m_s2, a.down_m_s2, g.forward_rad_s, g.right_rad_s, g.down_rad_s)
+            )
+
+        def on_gps_info(gi: Any) -> None:
+            self._gps_fix = int(getattr(gi.fix_type, "value", gi.fix_type))
+            self._gps_sats = int(gi.num_satellites)
+
+        def on_raw_gps(g: Any) -> None:
+            eph = g.horizontal_uncertainty_m if math.isfinite(g.horizontal_uncertainty_m) else g.hdop
+            eph = eph if math.isfinite(eph) else 99.99
+            self._push(
+                GpsRaw(
+                    now(), g.latitude_deg, g.longitude_deg, g.absolute_altitude_m, self._gps_fix, self._gps_sats, eph
+                )
+            )
+
+        def on_mode(m: Any) -> None:
+            self._mode = flight_mode_from_mavsdk(m)
+            self._push_status()
+
+        def on_armed(a: bool) -> None:
+            self._armed = bool(a)
+            self._push_status()
+
+        def on_landed(s: Any) -> None:
+            self._landed = _LANDED.get(getattr(s, "name", ""), LandedState.UNKNOWN)
+            self._push_status()
+
+        def on_battery(b: Any) -> None:
+            pct = b.remaining_percent
+            if math.isfinite(pct):
+                self._battery_pct = pct * 100.0 if pct <= 1.0 else pct
+
+        def on_health(h: Any) -> None:
+            self._healthy = bool(h.is_armable and h.is_global_position_ok and h.is_home_position_ok)
+            self._push_status()
+
+        def on_text(st: Any) -> None:
+            text = str(st.text)
+            self._last_text = text
+            log.info("autopilot: %s", text)
+            self._push(StatusText(now(), _SEVERITY.get(getattr(st.type, "name", ""), 6), text))
+
+        def on_home(h: Any) -> None:
+            self._push(HomePosition(now(), h.latitude_deg, h.longitude_deg, h.absolute_altitude_m))
+
+        def on_heartbeat(m: Any) -> None:
+            if m.system_id != self.system_id or m.component_id != 1:
+                return
+            try:
+                hb = json.loads(m.fields_json)
+            except ValueError:
+                return
+            self._last_hb = time.monotonic()
+            self._armed = bool(int(hb.get("base_mode", 0)) & MAV_MODE_FLAG_SAFETY_ARMED)
+            self._mode = px4_flight_mode(int(hb.get("custom_mode", 0)))
+            self._push_status()
+
+        streams: list[tuple[Callable[[], AsyncIterator[Any]], Callable[[Any], None]]] = [
+            (tel.subscribe_position_velocity_ned, on_pv),
+            (tel.subscribe_position, on_pos),
+            (tel.subscribe_attitude_euler, on_att),
+            (tel.subscribe_attitude_angular_velocity_body, on_rates),
+            (tel.subscribe_imu, on_imu),
+            (tel.subscribe_gps_info, on_gps_info),
+            (tel.subscribe_raw_gps, on_raw_gps),
+            (tel.subscribe_flight_mode, on_mode),
+            (tel.subscribe_armed, on_armed),
+            (tel.subscribe_landed_state, on_landed),
+            (tel.subscribe_battery, on_battery),
+            (tel.subscribe_health, on_health),
+            (tel.subscribe_status_text, on_text),
+            (tel.subscribe_home, on_home),
+        ]
+        for sub, fn in streams:
+            self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
+        self._tasks.append(
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
+        )
+        self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
+        if self.setpoint_transport == "offboard":
+            self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
+
+    async def _consume(self, subscribe: Callable[[], AsyncIterator[Any]], fn: Callable[[Any], None]) -> None:
+        gen = subscribe()
+        try:
+            async for item in gen:
+                self._last_rx = time.monotonic()
+                try:
+                    fn(item)
+                except Exception:
+                    log.exception("error decoding %s", fn.__name__)
+        finally:
+            with contextlib.suppress(Exception):
+                await gen.aclose()  # type: ignore[attr-defined]
+
+    async def _watch_connection(self) -> None:
+        gen = self._system.is_connected_state()
+        try:
+            async for connected in gen:
+                if connected != self._connected:
+                    log.warning("PX4 link %s", "restored" if connected else "lost (no heartbeat for 3 s)")
+                self._connected = bool(connected)
+        finally:
+            with contextlib.suppress(Exception):
+                await gen.aclose()
+
+    async def _stale_guard(self) -> None:
+        """Offboard-plugin transport: stop MAVSDK's 20 Hz re-send once the shell stops refreshing."""
+        while True:
+            await asyncio.sleep(0.1)
+            if self._plugin_streaming and time.monotonic() - self._last_sp_call > self.setpoint_stale_s:
+                self._plugin_streaming = False
+                if self._mode is FlightMode.OFFBOARD:
+                    log.error("setpoints stale: stopping MAVSDK's offboard re-send (PX4 switches to HOLD)")
+                    with contextlib.suppress(Exception):
+                        await self._offboard.stop()
+
+    def _push(self, sample: Any) -> None:
+        self.telemetry.push(sample)
+
+    def _push_status(self) -> None:
+        self._push(
+            VehicleStatus(
+                time.monotonic(),
+                self._armed,
+                self._mode,
+                self._landed,
+                self._healthy,
+                self._battery_pct,
+                self._payload_released,
+            )
+        )
+
+    def _destroy(self) -> None:
+        if self._mavsdk is not None:
+            with contextlib.suppress(Exception):
+                self._mavsdk.destroy()
+            self._mavsdk = None
+
+    async def close(self) -> None:
+        tasks, self._tasks = self._tasks, []
+        for t in tasks:
+            t.cancel()
+        for t in tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        self._system = None
+        self._connected = False
+        self._destroy()
+
+    @property
+    def link_ok(self) -> bool:
+        """Telemetry within ``link_timeout_s`` and MAVSDK connected; after a loss, only once a
+        fresh HEARTBEAT (and so a fresh mode) has arrived."""
+        if self._system is None:
+            return False
+        now = time.monotonic()
+        fresh = self._connected and now - self._last_rx <= self.link_timeout_s
+        if not fresh:
+            if self._lost_at is None:
+                self._lost_at = now
+            return False
+        if self._lost_at is not None:
+            if self._last_hb <= self._lost_at:
+                return False
+            self._lost_at = None
+        return True
+
+    # ------------------------------------------------------------------ commands
+    async def _call(self, name: str, fn: Callable[[], Awaitable[Any]]) -> Any:
+        if self._system is None:
+            raise AutopilotError(f"{name}: not connected")
+        if not self.link_ok:
+            raise AutopilotError(f"{name}: link is down")
+        text_before = self._last_text
+        try:
+            return await fn()
+        except Exception as err:  # MAVSDK's ActionError, OffboardError, ... (all MavsdkError)
+            await asyncio.sleep(0.05)  # the STATUSTEXT with PX4's reason follows the ack
+            reason = self._last_text if self._last_text != text_before else ""
+            raise AutopilotError(f"{name}: {err}" + (f" ({reason})" if reason else "")) from None
+
+    async def _direct_command(self, name: str, command: int, *params: float) -> None:
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
+
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        fields = {"target_system": self.system_id, "target_component": 1, "command": command, "confirmation": 0}
+        fields.update({f"param{i + 1}": v for i, v in enumerate(p)})
+        msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
+        ack = await self._call(name, lambda: self._direct.send_command(msg))
+        result = json.loads(ack.fields_json).get("result", -1) if ack.fields_json else -1
+        if result != 0:
+            await asyncio.sleep(0.05)
+            raise AutopilotError(f"{name}: {MAV_RESULT_NAMES.get(result, result)} ({self._last_text})")
+
+    async def arm(self) -> None:
+        await self._call("arm", self._action.arm)
+
+    async def disarm(self) -> None:
+        await self._call("disarm", self._action.disarm)
+
+    async def takeoff(self, alt_rel_m: float) -> None:
+        await self._call("takeoff", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
+        await self._call("takeoff", self._action.takeoff)
+
+    def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
+        if self._system is None or not self.link_ok:
+            self.setpoints_dropped += 1
+            return
+        sp = setpoint
+        try:
+            if self.setpoint_transport == "offboard":
+                from mavsdk.plugins.offboard import VelocityNedYaw
+
+                self._offboard_sync.set_velocity_ned(
+                    VelocityNedYaw(sp.north_m_s, sp.east_m_s, sp.down_m_s, math.degrees(sp.yaw_rad))
+                )
+                self._plugin_streaming = True
+            else:
+                from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+                t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
+                fields = (
+                    f'{{"time_boot_ms":{t_ms},"target_system":{self.system_id},"target_component":1,'
+                    f'"coordinate_frame":{MAV_FRAME_LOCAL_NED},"type_mask":{VELOCITY_YAW_MASK},'
+                    f'"x":0,"y":0,"z":0,"vx":{sp.north_m_s!r},"vy":{sp.east_m_s!r},"vz":{sp.down_m_s!r},'
+                    f'"afx":0,"afy":0,"afz":0,"yaw":{sp.yaw_rad!r},"yaw_rate":0}}'
+                )
+                self._direct_sync.send_message(
+                    MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, self.system_id, 1, fields)
+                )
+        except Exception as err:
+            self.setpoints_dropped += 1
+            log.debug("setpoint not sent: %s", err)
+            return
+        self._last_sp_call = time.monotonic()
+        self.setpoints_sent += 1
+
+    async def start_offboard(self) -> None:
+        if self.setpoint_transport == "offboard":
+            await self._call("start_offboard", self._offboard.start)
+            return
+        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if self._armed else 0)
+        await self._direct_command("start_offboard", MAV_CMD_DO_SET_MODE, base, PX4_MAIN_OFFBOARD, 0)
+
+    async def hold(self) -> None:
+        if self.setpoint_transport == "offboard" and self._plugin_streaming:
+            self._plugin_streaming = False
+            await self._call("hold", self._offboard.stop)  # stops the re-send and switches to HOLD
+            return
+        await self._call("hold", self._action.hold)
+
+    async def land(self) -> None:
+        await self._call("land", self._action.land)
+
+    async def release_payload(self) -> None:
+        if self.release == "gripper" and self._gripper is not None:
+            await self._call("release (gripper)", lambda: self._gripper.release(self.gripper_instance))
+        else:
+            await self._direct_command("release (servo)", MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm)
+        self._payload_released = True
+        self._push_status()

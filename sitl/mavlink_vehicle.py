@@ -1,0 +1,998 @@
+"""The embedded :class:`SimVehicle` served over real MAVLink 2 on UDP, in real time.
+
+A background thread steps the vehicle on ``time.monotonic`` and speaks one of two dialects:
+
+- ``"px4"``: HEARTBEAT as MAV_AUTOPILOT_PX4 with PX4 custom modes (main mode << 16 | sub mode
+  << 24), PX4-like default streams (ATTITUDE, ATTITUDE_QUATERNION, HIGHRES_IMU,
+  GLOBAL/LOCAL_POSITION, GPS_RAW_INT, SYS_STATUS, EXTENDED_SYS_STATE, BATTERY_STATUS,
+  HOME_POSITION), COMMAND_LONG/COMMAND_INT with COMMAND_ACK, OFFBOARD velocity setpoints with
+  PX4's rules (SimVehicle: > 2 Hz before the switch, COM_OF_LOSS_T failsafe), a minimal
+  parameter server and an empty mission.
+- ``"ardupilot"``: HEARTBEAT as MAV_AUTOPILOT_ARDUPILOTMEGA with Copter mode numbers, nothing
+  streamed but the heartbeat until asked (REQUEST_DATA_STREAM or SET_MESSAGE_INTERVAL), GUIDED
+  velocity with a 3 s timeout, arming refused until the EKF/GPS delay has passed,
+  RC_CHANNELS_OVERRIDE reflected in RC_CHANNELS (channel 5 is the flight-mode switch).
+
+The vehicle sends to a configured remote address (as PX4 SITL sends to 14540) and to every
+peer it has heard from. Malformed bytes on the socket are counted and ignored. Ground truth goes
+out as HIL_STATE_QUATERNION when requested.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import select
+import socket
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.autopilot.types import FlightMode, LandedState, VelocitySetpoint
+from companion.config import SimConfig
+from companion.geometry.earth import GeoPoint, LocalTangentPlane
+from companion_sitl.vehicle import G, SimCommandError, SimVehicle
+
+log = logging.getLogger(__name__)
+
+Dialect = Literal["px4", "ardupilot"]
+
+# PX4 custom modes (px4_custom_mode.h)
+PX4_MAIN_MANUAL = 1
+PX4_MAIN_ALTCTL = 2
+PX4_MAIN_POSCTL = 3
+PX4_MAIN_AUTO = 4
+PX4_MAIN_ACRO = 5
+PX4_MAIN_OFFBOARD = 6
+PX4_MAIN_STABILIZED = 7
+PX4_SUB_AUTO_READY = 1
+PX4_SUB_AUTO_TAKEOFF = 2
+PX4_SUB_AUTO_LOITER = 3
+PX4_SUB_AUTO_MISSION = 4
+PX4_SUB_AUTO_RTL = 5
+PX4_SUB_AUTO_LAND = 6
+
+PX4_MODES: dict[FlightMode, tuple[int, int]] = {
+    FlightMode.UNKNOWN: (0, 0),
+    FlightMode.MANUAL: (PX4_MAIN_MANUAL, 0),
+    FlightMode.POSITION: (PX4_MAIN_POSCTL, 0),
+    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
+    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
+    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
+    FlightMode.RTL: (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL),
+    FlightMode.MISSION: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
+}
+
+
+def px4_custom_mode(mode: FlightMode) -> int:
+    main, sub = PX4_MODES[mode]
+    return (main << 16) | (sub << 24)
+
+
+def px4_flight_mode(custom_mode: int) -> FlightMode:
+    """Decode a PX4 custom_mode (HEARTBEAT / DO_SET_MODE) into a :class:`FlightMode`."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main in (PX4_MAIN_MANUAL, PX4_MAIN_ALTCTL, PX4_MAIN_ACRO, PX4_MAIN_STABILIZED):
+        return FlightMode.MANUAL
+    if main == PX4_MAIN_AUTO:
+        for mode, (m, s) in PX4_MODES.items():
+            if m == PX4_MAIN_AUTO and s == sub:
+                return mode
+        return FlightMode.HOLD if sub == PX4_SUB_AUTO_READY else FlightMode.UNKNOWN
+    for mode, (m, _s) in PX4_MODES.items():
+        if m == main and m != 0:
+            return mode
+    return FlightMode.UNKNOWN
+
+
+# ArduCopter mode numbers
+COPTER_STABILIZE = 0
+COPTER_ACRO = 1
+COPTER_ALT_HOLD = 2
+COPTER_AUTO = 3
+COPTER_GUIDED = 4
+COPTER_LOITER = 5
+COPTER_RTL = 6
+COPTER_LAND = 9
+COPTER_POSHOLD = 16
+COPTER_BRAKE = 17
+
+COPTER_MODE_NAMES = {
+    COPTER_STABILIZE: "STABILIZE",
+    COPTER_ACRO: "ACRO",
+    COPTER_ALT_HOLD: "ALT_HOLD",
+    COPTER_AUTO: "AUTO",
+    COPTER_GUIDED: "GUIDED",
+    COPTER_LOITER: "LOITER",
+    COPTER_RTL: "RTL",
+    COPTER_LAND: "LAND",
+    COPTER_POSHOLD: "POSHOLD",
+    COPTER_BRAKE: "BRAKE",
+}
+
+
+def copter_flight_mode(custom_mode: int) -> FlightMode:
+    """ArduCopter mode number -> :class:`FlightMode` (GUIDED is companion control)."""
+    return {
+        COPTER_STABILIZE: FlightMode.MANUAL,
+        COPTER_ACRO: FlightMode.MANUAL,
+        COPTER_ALT_HOLD: FlightMode.MANUAL,
+        COPTER_AUTO: FlightMode.MISSION,
+        COPTER_GUIDED: FlightMode.OFFBOARD,
+        COPTER_LOITER: FlightMode.POSITION,
+        COPTER_POSHOLD: FlightMode.POSITION,
+        COPTER_RTL: FlightMode.RTL,
+        COPTER_LAND: FlightMode.LAND,
+        COPTER_BRAKE: FlightMode.HOLD,
+    }.get(custom_mode, FlightMode.UNKNOWN)
+
+
+FLIGHT_MODE_TO_COPTER = {
+    FlightMode.MANUAL: COPTER_STABILIZE,
+    FlightMode.POSITION: COPTER_LOITER,
+    FlightMode.HOLD: COPTER_BRAKE,
+    FlightMode.LAND: COPTER_LAND,
+    FlightMode.RTL: COPTER_RTL,
+    FlightMode.MISSION: COPTER_AUTO,
+    FlightMode.OFFBOARD: COPTER_GUIDED,
+    FlightMode.TAKEOFF: COPTER_GUIDED,
+}
+
+# Copter FLTMODE1..6 on the mode switch channel (FLTMODE_CH = 5), by PWM band
+COPTER_FLTMODES = (COPTER_STABILIZE, COPTER_ALT_HOLD, COPTER_LOITER, COPTER_RTL, COPTER_LAND, COPTER_GUIDED)
+_FLTMODE_PWM_EDGES = (1230, 1360, 1490, 1620, 1749)
+
+
+def fltmode_slot(pwm: int) -> int:
+    for i, edge in enumerate(_FLTMODE_PWM_EDGES):
+        if pwm <= edge:
+            return i
+    return 5
+
+
+# type_mask bits of SET_POSITION_TARGET_LOCAL_NED
+MASK_POS = 0b111
+MASK_VEL = 0b111000
+MASK_ACC = 0b111000000
+MASK_YAW = 1 << 10
+MASK_YAW_RATE = 1 << 11
+VELOCITY_YAW_MASK = MASK_POS | MASK_ACC | MASK_YAW_RATE  # 3527: velocity + yaw used
+
+_IMU = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+SENSORS_BASE = _IMU | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+SENSORS_BASE |= mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mavlink.MAV_SYS_STATUS_AHRS
+SENSORS_GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+SENSORS_PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+PX4_DEFAULT_STREAMS_HZ: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 50.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 50.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 40.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 8.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+}
+
+# ArduPilot REQUEST_DATA_STREAM groups (GCS_MAVLink stream ids)
+AP_STREAM_GROUPS: dict[int, tuple[int, ...]] = {
+    mavlink.MAV_DATA_STREAM_RAW_SENSORS: (mavlink.MAVLINK_MSG_ID_RAW_IMU, mavlink.MAVLINK_MSG_ID_HIGHRES_IMU),
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (
+        mavlink.MAVLINK_MSG_ID_SYS_STATUS,
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+        mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+    ),
+    mavlink.MAV_DATA_STREAM_RC_CHANNELS: (mavlink.MAVLINK_MSG_ID_RC_CHANNELS,),
+    mavlink.MAV_DATA_STREAM_POSITION: (
+        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+        mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    ),
+    mavlink.MAV_DATA_STREAM_EXTRA1: (mavlink.MAVLINK_MSG_ID_ATTITUDE,),
+    mavlink.MAV_DATA_STREAM_EXTRA3: (mavlink.MAVLINK_MSG_ID_BATTERY_STATUS,),
+}
+
+LOCAL_Z_GROUND_OFFSET_M = 0.04  # PX4's EKF reports a few cm, not 0, for z at rest on the ground
+
+
+def _i(x: float) -> int:
+    """A command parameter as an int (MAVSDK sends NaN for unused parameters)."""
+    return int(x) if math.isfinite(x) else 0
+
+
+def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+@dataclass
+class LinkStats:
+    """What the vehicle's MAVLink endpoint saw (read from any thread; counters only grow)."""
+
+    datagrams_in: int = 0
+    messages_in: int = 0
+    bad_data: int = 0  # malformed packets (bad prefix, CRC, length)
+    garbage_bytes: int = 0
+    messages_out: int = 0
+    send_errors: int = 0
+    setpoints: int = 0
+    setpoints_rejected: int = 0
+    commands: Counter[int] = field(default_factory=Counter)
+    unsupported_commands: Counter[int] = field(default_factory=Counter)
+    by_type_in: Counter[str] = field(default_factory=Counter)
+
+
+class _Writer:
+    """File-like sink for pymavlink's encoder: collects the bytes of one message."""
+
+    def __init__(self) -> None:
+        self.data = b""
+
+    def write(self, b: bytes) -> None:
+        self.data += b
+
+
+class MavlinkSimVehicle:
+    """A :class:`SimVehicle` behind a real MAVLink 2 UDP endpoint, stepped in real time.
+
+    ``bind`` is the vehicle's own address (port 0 picks a free one; see :attr:`address`).
+    ``remote`` is where it sends before anyone has spoken to it (a companion listening with
+    ``udpin``). Use as a context manager or call :meth:`start` / :meth:`stop`.
+    """
+
+    def __init__(
+        self,
+        cfg: SimConfig,
+        dialect: Dialect = "px4",
+        *,
+        bind: tuple[str, int] = ("127.0.0.1", 0),
+        remote: tuple[str, int] | None = None,
+        vehicle: SimVehicle | None = None,
+        system_id: int = 1,
+        heartbeat_hz: float = 1.0,
+        stream_rates_hz: dict[int, float] | None = None,
+        ekf_delay_s: float | None = None,
+        guided_timeout_s: float = 3.0,
+        release_servo: int = 9,
+        release_pwm: int = 1900,
+    ):
+        if dialect not in ("px4", "ardupilot"):
+            raise ValueError(f"dialect {dialect!r}: must be 'px4' or 'ardupilot'")
+        self.dialect: Dialect = dialect
+        if vehicle is None:
+            if dialect == "ardupilot":
+                # ArduPilot: GUIDED velocity times out after 3 s (the vehicle stops, stays GUIDED);
+                # arming waits for EKF/GPS
+                vc = cfg.vehicle.model_copy(update={"offboard_loss_timeout_s": guided_timeout_s})
+                upd: dict[str, Any] = {"vehicle": vc}
+                if ekf_delay_s is not None:
+                    upd["ready_delay_s"] = ekf_delay_s
+                cfg = cfg.model_copy(update=upd)
+            vehicle = SimVehicle(cfg)
+        self.cfg = cfg
+        self.vehicle = vehicle
+        self.system_id = system_id
+        self.component_id = mavlink.MAV_COMP_ID_AUTOPILOT1
+        self.stats = LinkStats()
+        self.remote = remote
+        self.peers: list[tuple[str, int]] = []
+        self.release_servo = release_servo
+        self.release_pwm = release_pwm
+        self.lock = threading.RLock()  # held while the vehicle is stepped or commanded
+        self._bind = bind
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._running = False
+        self._link_up = True
+        self._t0 = 0.0
+        self._enc = mavlink.MAVLink(_Writer(), srcSystem=system_id, srcComponent=self.component_id)
+        self._rx = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=self.component_id)
+        self._rx.robust_parsing = True
+        self._hb_period = 1.0 / heartbeat_hz
+        self._hb_next = 0.0
+        # message id -> [interval_s, next_due]
+        self._streams: dict[int, list[float]] = {}
+        if dialect == "px4":
+            for mid, hz in (stream_rates_hz or PX4_DEFAULT_STREAMS_HZ).items():
+                self._streams[mid] = [1.0 / hz, 0.0]
+        elif stream_rates_hz:
+            for mid, hz in stream_rates_hz.items():
+                self._streams[mid] = [1.0 / hz, 0.0]
+        self._texts_sent = 0
+        self._home_sent: tuple[float, float, float] | None = None
+        self._ap_mode = COPTER_STABILIZE
+        self._rc = [1500, 1500, 1000, 1500, 1100, 1100, 1100, 1100] + [0] * 10
+        self._rc_override_at = -math.inf
+        self._fltmode_slot = fltmode_slot(self._rc[4])
+        self._params: dict[str, float] = (
+            {
+                "MIS_TAKEOFF_ALT": 2.5,
+                "COM_OF_LOSS_T": cfg.vehicle.offboard_loss_timeout_s,
+                "COM_OBL_RC_ACT": 0.0,
+                "MPC_XY_VEL_MAX": 12.0,
+                "MPC_LAND_SPEED": cfg.vehicle.land_speed_m_s,
+                "MPC_TKO_SPEED": cfg.vehicle.takeoff_speed_m_s,
+                "SYS_AUTOSTART": 10040.0,
+            }
+            if dialect == "px4"
+            else {
+                "SYSID_THISMAV": float(system_id),
+                "FLTMODE_CH": 5.0,
+                "GUID_TIMEOUT": guided_timeout_s,
+                "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
+                "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
+                **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
+            }
+        )
+        self._ltp = LocalTangentPlane(GeoPoint(cfg.home.lat_deg, cfg.home.lon_deg, cfg.home.alt_amsl_m))
+        self.on_message: Callable[[Any], None] | None = None  # test hook: every decoded message
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def address(self) -> tuple[str, int]:
+        if self._sock is None:
+            raise RuntimeError("vehicle not started")
+        host, port = self._sock.getsockname()[:2]
+        return host, port
+
+    @property
+    def now(self) -> float:
+        """Vehicle time: seconds since :meth:`start` (the vehicle's boot)."""
+        return time.monotonic() - self._t0
+
+    def start(self) -> MavlinkSimVehicle:
+        if self._thread is not None:
+            return self
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(self._bind)
+        sock.setblocking(False)
+        self._sock = sock
+        self._t0 = time.monotonic() - self.vehicle.time_s
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name=f"mavlink-sim-{self.dialect}", daemon=True)
+        self._thread.start()
+        log.info("MAVLink %s sim vehicle on udp %s:%d -> %s", self.dialect, *self.address, self.remote)
+        return self
+
+    def stop(self) -> None:
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def __enter__(self) -> MavlinkSimVehicle:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def set_link(self, up: bool) -> None:
+        """Test hook: cut (both directions) or restore the radio link."""
+        self._link_up = up
+
+    # ------------------------------------------------------------------ pilot hooks
+    def pilot_set_mode(self, mode: FlightMode) -> None:
+        """The pilot flips the mode switch on the vehicle side (thread-safe)."""
+        with self.lock:
+            self.vehicle.step_to(self.now)
+            if self.dialect == "ardupilot":
+                self._set_copter_mode(FLIGHT_MODE_TO_COPTER.get(mode, COPTER_LOITER), pilot=True)
+            else:
+                self.vehicle.pilot_set_mode(mode)
+
+    @property
+    def copter_mode(self) -> int:
+        return self._ap_mode
+
+    @property
+    def rc_channels(self) -> list[int]:
+        return list(self._rc)
+
+    # ------------------------------------------------------------------ main loop
+    def _run(self) -> None:
+        v = self.vehicle
+        dt = 1.0 / self.cfg.vehicle.physics_rate_hz
+        assert self._sock is not None
+        sock = self._sock
+        next_tick = self.now
+        while self._running:
+            timeout = next_tick - self.now
+            if timeout > 0:
+                try:
+                    ready, _, _ = select.select([sock], [], [], timeout)
+                except (OSError, ValueError):
+                    break
+                if ready:
+                    self._drain(sock)
+                    continue
+            now = self.now
+            with self.lock:
+                v.step_to(now)
+                self._ardupilot_rc_switch(now)
+                self._send_due(now)
+            next_tick = max(next_tick + dt, now - dt)
+
+    def _drain(self, sock: socket.socket) -> None:
+        for _ in range(64):
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as err:  # e.g. ICMP port unreachable from a peer that went away
+                log.debug("recv error: %s", err)
+                return
+            if not self._link_up:
+                continue
+            self.stats.datagrams_in += 1
+            if addr not in self.peers:
+                self.peers.append(addr)
+                if len(self.peers) > 8:
+                    del self.peers[0]
+            self._parse(data)
+
+    def _parse(self, data: bytes) -> None:
+        rx = self._rx
+        try:
+            msgs = rx.parse_buffer(data) or []
+        except Exception as err:
+            self.stats.bad_data += 1
+            self.stats.garbage_bytes += len(data)
+            log.debug("unparseable datagram (%d bytes): %s", len(data), err)
+            msgs = []
+        if rx.buf_len() > 0:  # a datagram holds whole packets: leftovers are garbage
+            self.stats.garbage_bytes += rx.buf_len()
+            self.stats.bad_data += 1
+            rx.buf = bytearray()
+            rx.buf_index = 0
+            rx.expected_length = mavlink.HEADER_LEN_V1 + 2
+        for m in msgs:
+            if m.get_type() == "BAD_DATA":
+                self.stats.bad_data += 1
+                self.stats.garbage_bytes += len(m.data)
+                continue
+            if m.get_srcSystem() == self.system_id and m.get_srcComponent() == self.component_id:
+                continue
+            self.stats.messages_in += 1
+            self.stats.by_type_in[m.get_type()] += 1
+            if self.on_message is not None:
+                self.on_message(m)
+            try:
+                with self.lock:
+                    self.vehicle.step_to(self.now)
+                    self._handle(m)
+            except Exception:
+                log.exception("error handling %s", m.get_type())
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, msg: Any) -> None:
+        if not self._link_up or self._sock is None:
+            return
+        w = self._enc.file
+        w.data = b""
+        self._enc.send(msg)
+        buf = w.data
+        targets = list(self.peers)
+        if self.remote is not None and self.remote not in targets:
+            targets.append(self.remote)
+        for addr in targets:
+            try:
+                self._sock.sendto(buf, addr)
+            except OSError:
+                self.stats.send_errors += 1
+        self.stats.messages_out += 1
+
+    def _send_due(self, now: float) -> None:
+        if now >= self._hb_next:
+            self._hb_next = now + self._hb_period
+            self._send(self._heartbeat())
+        for mid, st in self._streams.items():
+            if now >= st[1]:
+                st[1] = max(st[1] + st[0], now)
+                msg = self._build(mid)
+                if msg is not None:
+                    self._send(msg)
+        v = self.vehicle
+        while self._texts_sent < len(v.status_texts):
+            _ts, text = v.status_texts[self._texts_sent]
+            self._texts_sent += 1
+            self._statustext(text, mavlink.MAV_SEVERITY_INFO)
+        home = v.home()
+        if home is not None:
+            key = (home.lat_deg, home.lon_deg, home.alt_amsl_m)
+            wanted = self.dialect == "px4" or mavlink.MAVLINK_MSG_ID_HOME_POSITION in self._streams
+            if key != self._home_sent and wanted:
+                self._home_sent = key
+                self._send(self._build(mavlink.MAVLINK_MSG_ID_HOME_POSITION))
+
+    def _statustext(self, text: str, severity: int) -> None:
+        self._send(self._enc.statustext_encode(severity, text[:50].encode()))
+
+    def _ack(self, command: int, result: int, m: Any) -> None:
+        self._send(self._enc.command_ack_encode(command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()))
+
+    # ------------------------------------------------------------------ message builders
+    def _base_mode(self) -> int:
+        b = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.vehicle.armed:
+            b |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        mode = self.vehicle.mode
+        if self.dialect == "ardupilot":
+            b |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+            if self._ap_mode in (COPTER_GUIDED, COPTER_AUTO, COPTER_RTL, COPTER_LAND):
+                b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+            return b
+        if mode is not FlightMode.MANUAL:
+            b |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if mode in (FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL, FlightMode.MISSION):
+            b |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED
+        if mode is FlightMode.OFFBOARD:
+            b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return b
+
+    def _heartbeat(self) -> Any:
+        v = self.vehicle
+        if self.dialect == "px4":
+            ap, custom = mavlink.MAV_AUTOPILOT_PX4, px4_custom_mode(v.mode)
+        else:
+            ap, custom = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._ap_mode
+        state = mavlink.MAV_STATE_ACTIVE if v.armed else mavlink.MAV_STATE_STANDBY
+        return self._enc.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, ap, self._base_mode(), custom, state, 3)
+
+    def _local(self) -> tuple[float, float, float, float, float, float]:
+        p = self.vehicle.position_ned()
+        dz = LOCAL_Z_GROUND_OFFSET_M if self.dialect == "px4" else 0.0
+        return p.north_m, p.east_m, p.down_m + dz, p.north_m_s, p.east_m_s, p.down_m_s
+
+    def _landed_state(self) -> int:
+        v = self.vehicle
+        if v.landed is LandedState.ON_GROUND:
+            return mavlink.MAV_LANDED_STATE_ON_GROUND
+        if v.mode is FlightMode.LAND:
+            return mavlink.MAV_LANDED_STATE_LANDING
+        if v.mode is FlightMode.TAKEOFF:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
+        return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def _build(self, mid: int) -> Any:
+        v, e = self.vehicle, self._enc
+        t_ms = int(v.time_s * 1000) & 0xFFFFFFFF
+        t_us = int(v.time_s * 1e6)
+        if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+            a = v.attitude()
+            return e.attitude_encode(
+                t_ms, a.roll_rad, a.pitch_rad, a.yaw_rad, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+            a = v.attitude()
+            q = euler_to_quaternion(a.roll_rad, a.pitch_rad, a.yaw_rad)
+            return e.attitude_quaternion_encode(t_ms, *q, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s)
+        if mid == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
+            i = v.imu()
+            alt = -v.pd + self.cfg.home.alt_amsl_m
+            p_hpa = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
+            return e.highres_imu_encode(
+                t_us,
+                i.accel_x_m_s2,
+                i.accel_y_m_s2,
+                i.accel_z_m_s2,
+                i.gyro_x_rad_s,
+                i.gyro_y_rad_s,
+                i.gyro_z_rad_s,
+                0.2,
+                0.0,
+                0.4,
+                p_hpa,
+                0.0,
+                alt,
+                25.0,
+                0x1FFF,
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_RAW_IMU:
+            i = v.imu()
+            mg = 1000.0 / G
+            return e.raw_imu_encode(
+                t_us,
+                *(round(x * mg) for x in (i.accel_x_m_s2, i.accel_y_m_s2, i.accel_z_m_s2)),
+                *(round(x * 1000.0) for x in (i.gyro_x_rad_s, i.gyro_y_rad_s, i.gyro_z_rad_s)),
+                200,
+                0,
+                400,
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            if not v.healthy:
+                return None
+            g = v.global_position()
+            hdg = round(math.degrees(v.yaw) * 100) % 36000
+            return e.global_position_int_encode(
+                t_ms,
+                round(g.lat_deg * 1e7),
+                round(g.lon_deg * 1e7),
+                round(g.alt_amsl_m * 1000),
+                round(g.alt_rel_m * 1000),
+                round(v.vn * 100),
+                round(v.ve * 100),
+                round(v.vd * 100),
+                hdg,
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            if not v.healthy:
+                return None
+            return e.local_position_ned_encode(t_ms, *self._local())
+        if mid == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
+            gr = v.gps_raw()
+            speed = math.hypot(v.vn, v.ve)
+            cog = round(math.degrees(math.atan2(v.ve, v.vn)) * 100) % 36000 if speed > 0.2 else 0xFFFF
+            return e.gps_raw_int_encode(
+                t_us,
+                gr.fix_type,
+                round(gr.lat_deg * 1e7),
+                round(gr.lon_deg * 1e7),
+                round(gr.alt_amsl_m * 1000),
+                int(gr.eph_m * 100),
+                120,
+                int(speed * 100),
+                cog,
+                gr.satellites,
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+            present = SENSORS_BASE | SENSORS_GPS | SENSORS_PREARM
+            health = SENSORS_BASE | (SENSORS_GPS | SENSORS_PREARM if v.healthy else 0)
+            volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
+            return e.sys_status_encode(
+                present, present, health, 250, volts, 1000 if v.armed else 50, int(v.battery_pct), 0, 0, 0, 0, 0, 0
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return e.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
+        if mid == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
+            volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
+            cells = [volts // 3] * 3 + [65535] * 7
+            return e.battery_status_encode(
+                0,
+                mavlink.MAV_BATTERY_FUNCTION_ALL,
+                mavlink.MAV_BATTERY_TYPE_LIPO,
+                32767,
+                cells,
+                1000 if v.armed else 50,
+                -1,
+                -1,
+                int(v.battery_pct),
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            h = v.home()
+            if h is None:
+                return None
+            return e.home_position_encode(
+                round(h.lat_deg * 1e7),
+                round(h.lon_deg * 1e7),
+                round(h.alt_amsl_m * 1000),
+                0.0,
+                0.0,
+                0.0,
+                (1.0, 0.0, 0.0, 0.0),
+                0.0,
+                0.0,
+                0.0,
+                t_us,
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
+            g = self._ltp.to_geo(v.pn, v.pe, v.pd)
+            a = v.attitude()
+            mg = 1000.0 / G
+            acc = v.imu()
+            return e.hil_state_quaternion_encode(
+                t_us,
+                euler_to_quaternion(v.roll, v.pitch, v.yaw),
+                a.rollspeed_rad_s,
+                a.pitchspeed_rad_s,
+                a.yawspeed_rad_s,
+                round(g.lat_deg * 1e7),
+                round(g.lon_deg * 1e7),
+                round(g.alt_amsl_m * 1000),
+                round(v.vn * 100),
+                round(v.ve * 100),
+                round(v.vd * 100),
+                0,
+                0,
+                *(round(x * mg) for x in (acc.accel_x_m_s2, acc.accel_y_m_s2, acc.accel_z_m_s2)),
+            )
+        if mid == mavlink.MAVLINK_MSG_ID_RC_CHANNELS:
+            return e.rc_channels_encode(t_ms, 8, *self._rc, 255)
+        if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            caps = (
+                mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+            )
+            sw = (1 << 24) | (16 << 16) | (0 << 8) | 0xFF  # 1.16.0 release
+            if self.dialect == "ardupilot":
+                sw = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
+            uid = 0x5349_4D00 + self.system_id
+            return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
+        return None
+
+    # ------------------------------------------------------------------ receiving
+    def _handle(self, m: Any) -> None:
+        t = m.get_type()
+        if t == "HEARTBEAT":
+            return
+        if t in ("COMMAND_LONG", "COMMAND_INT"):
+            if m.target_system not in (0, self.system_id) or m.target_component not in (0, self.component_id):
+                return
+            if t == "COMMAND_LONG":
+                p = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
+            else:
+                p = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
+            p = tuple(x if math.isfinite(x) else math.nan for x in p)
+            self.stats.commands[m.command] += 1
+            result = self._command(m.command, p, m)
+            if result is not None:
+                self._ack(m.command, result, m)
+            return
+        if t == "SET_POSITION_TARGET_LOCAL_NED":
+            if m.target_system in (0, self.system_id):
+                self._setpoint(m)
+            return
+        if t == "SET_MODE":
+            if m.target_system in (0, self.system_id):
+                res = self._set_mode(float(m.base_mode), float(m.custom_mode), 0.0)
+                self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, res, m)
+            return
+        if t == "REQUEST_DATA_STREAM":
+            if m.target_system in (0, self.system_id):
+                self._request_data_stream(m.req_stream_id, m.req_message_rate, bool(m.start_stop))
+            return
+        if t == "RC_CHANNELS_OVERRIDE":
+            if m.target_system in (0, self.system_id):
+                vals = [m.chan1_raw, m.chan2_raw, m.chan3_raw, m.chan4_raw, m.chan5_raw, m.chan6_raw, m.chan7_raw]
+                vals.append(m.chan8_raw)
+                for i, val in enumerate(vals):
+                    if val not in (0, 65535):
+                        self._rc[i] = val
+                self._rc_override_at = self.now
+            return
+        if t == "PARAM_REQUEST_LIST":
+            names = list(self._params)
+            for i, name in enumerate(names):
+                self._param_value(name, i)
+            return
+        if t == "PARAM_REQUEST_READ":
+            names = list(self._params)
+            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode(errors="replace")
+            pid = pid.rstrip("\x00")
+            if m.param_index >= 0 and m.param_index < len(names):
+                self._param_value(names[m.param_index], m.param_index)
+            elif pid in self._params:
+                self._param_value(pid, names.index(pid))
+            return
+        if t == "PARAM_SET":
+            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode(errors="replace")
+            pid = pid.rstrip("\x00")
+            if math.isfinite(m.param_value):
+                self._params[pid] = float(m.param_value)
+            self._param_value(pid, list(self._params).index(pid) if pid in self._params else 65535)
+            return
+        if t == "MISSION_REQUEST_LIST":
+            self._send(self._enc.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), 0, m.mission_type))
+            return
+        if t == "TIMESYNC" and m.tc1 == 0:
+            self._send(self._enc.timesync_encode(int(self.now * 1e9), m.ts1))
+            return
+
+    def _param_value(self, name: str, index: int) -> None:
+        val = self._params.get(name, math.nan)
+        self._send(
+            self._enc.param_value_encode(
+                name.encode()[:16], val, mavlink.MAV_PARAM_TYPE_REAL32, len(self._params), index
+            )
+        )
+
+    def _reply(self, text: str, ok: bool) -> int:
+        self._statustext(text, mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_CRITICAL)
+        return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED
+
+    def _command(self, cmd: int, p: tuple[float, ...], m: Any) -> int | None:
+        v = self.vehicle
+        A, D, U = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED, mavlink.MAV_RESULT_UNSUPPORTED
+        try:
+            if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                if p[0] >= 0.5:
+                    if self.dialect == "ardupilot" and not v.healthy:
+                        self._statustext("PreArm: EKF3 waiting for GPS config data", mavlink.MAV_SEVERITY_CRITICAL)
+                        return mavlink.MAV_RESULT_FAILED
+                    if self.dialect == "ardupilot" and self._ap_mode in (COPTER_LAND, COPTER_RTL, COPTER_AUTO):
+                        self._statustext("Arm: Mode not armable", mavlink.MAV_SEVERITY_CRITICAL)
+                        return mavlink.MAV_RESULT_FAILED
+                    v.arm()
+                else:
+                    if _i(p[1]) == 21196 and v.armed:  # forced disarm
+                        v.armed = False
+                    else:
+                        v.disarm()
+                return A
+            if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+                if self.dialect == "ardupilot":
+                    if self._ap_mode != COPTER_GUIDED:
+                        self._statustext("Takeoff: only in GUIDED", mavlink.MAV_SEVERITY_WARNING)
+                        return mavlink.MAV_RESULT_FAILED
+                    v.takeoff(p[6])
+                    return A
+                home = v.home()
+                if math.isfinite(p[6]) and home is not None:
+                    alt_rel = p[6] - home.alt_amsl_m
+                else:
+                    alt_rel = self._params.get("MIS_TAKEOFF_ALT", 2.5)
+                v.takeoff(alt_rel)
+                return A
+            if cmd == mavlink.MAV_CMD_NAV_LAND:
+                if self.dialect == "ardupilot":
+                    return self._set_copter_mode(COPTER_LAND)
+                v.land()
+                return A
+            if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+                if self.dialect == "ardupilot":
+                    return self._set_copter_mode(COPTER_RTL)
+                v.hold()
+                v.mode = FlightMode.RTL
+                return A
+            if cmd == mavlink.MAV_CMD_DO_SET_MODE:
+                return self._set_mode(*(float(_i(x)) for x in p[:3]))
+            if cmd == mavlink.MAV_CMD_DO_GRIPPER:
+                if _i(p[1]) == mavlink.GRIPPER_ACTION_RELEASE:
+                    v.release_payload()
+                return A
+            if cmd == mavlink.MAV_CMD_DO_SET_SERVO:
+                if _i(p[0]) == self.release_servo and _i(p[1]) >= self.release_pwm - 100:
+                    v.release_payload()
+                return A
+            if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+                return self._set_interval(_i(p[0]), p[1] if math.isfinite(p[1]) else 0.0)
+            if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
+                msg = self._build(_i(p[0]))
+                if msg is None:
+                    return U
+                self._ack(cmd, A, m)
+                self._send(msg)
+                return None
+            if cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+                self._ack(cmd, A, m)
+                self._send(self._build(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
+                return None
+        except SimCommandError as err:
+            self._statustext(str(err), mavlink.MAV_SEVERITY_CRITICAL)
+            return D
+        self.stats.unsupported_commands[cmd] += 1
+        return U
+
+    def _set_interval(self, mid: int, interval_us: float) -> int:
+        if mavlink.mavlink_map.get(mid) is None:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if interval_us < 0:
+            self._streams.pop(mid, None)
+            return mavlink.MAV_RESULT_ACCEPTED
+        if interval_us == 0:
+            hz = PX4_DEFAULT_STREAMS_HZ.get(mid, 1.0)
+            interval = 1.0 / hz
+        else:
+            interval = max(interval_us * 1e-6, 0.002)
+        if (
+            mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT
+            and self._build(mid) is None
+            and mid
+            not in (
+                mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+                mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+            )
+        ):
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            self._hb_period = interval
+        else:
+            self._streams[mid] = [interval, self.now]
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _request_data_stream(self, stream_id: int, rate_hz: int, start: bool) -> None:
+        groups = list(AP_STREAM_GROUPS) if stream_id == mavlink.MAV_DATA_STREAM_ALL else [stream_id]
+        for g in groups:
+            for mid in AP_STREAM_GROUPS.get(g, ()):
+                if start and rate_hz > 0:
+                    self._streams[mid] = [1.0 / rate_hz, self.now]
+                else:
+                    self._streams.pop(mid, None)
+
+    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
+        if self.dialect == "ardupilot":
+            return self._set_copter_mode(int(custom_main))
+        v = self.vehicle
+        if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        mode = px4_flight_mode((int(custom_main) << 16) | (int(custom_sub) << 24))
+        if mode is FlightMode.UNKNOWN:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if mode is FlightMode.OFFBOARD:
+            v.start_offboard()
+        elif mode is FlightMode.HOLD:
+            v.hold()
+        elif mode is FlightMode.LAND:
+            v.land()
+        elif mode is FlightMode.TAKEOFF:
+            v.takeoff(self._params.get("MIS_TAKEOFF_ALT", 2.5))
+        else:
+            v.hold()
+            v.mode = mode
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _set_copter_mode(self, mode: int, pilot: bool = False) -> int:
+        v = self.vehicle
+        if mode not in COPTER_MODE_NAMES:
+            return mavlink.MAV_RESULT_FAILED
+        if mode == COPTER_GUIDED:
+            if v.mode is not FlightMode.TAKEOFF:
+                v.hold()
+        elif mode == COPTER_BRAKE:
+            v.hold()
+        elif mode == COPTER_LAND:
+            if v.armed:
+                v.land()
+            else:
+                v.mode = FlightMode.LAND
+        else:
+            v.hold()
+            v.mode = copter_flight_mode(mode)
+        if mode != self._ap_mode:
+            self._ap_mode = mode
+            who = "pilot" if pilot else "command"
+            self._statustext(f"Mode {COPTER_MODE_NAMES[mode]} ({who})", mavlink.MAV_SEVERITY_INFO)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _ardupilot_rc_switch(self, now: float) -> None:
+        if self.dialect != "ardupilot":
+            return
+        slot = fltmode_slot(self._rc[4])
+        if slot != self._fltmode_slot:
+            self._fltmode_slot = slot
+            self._set_copter_mode(int(self._params.get(f"FLTMODE{slot + 1}", COPTER_FLTMODES[slot])), pilot=True)
+
+    def _setpoint(self, m: Any) -> None:
+        v = self.vehicle
+        mask = m.type_mask
+        if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED or (mask & MASK_VEL) == MASK_VEL:
+            self.stats.setpoints_rejected += 1
+            return
+        if (mask & MASK_POS) != MASK_POS:
+            self.stats.setpoints_rejected += 1  # position control is not simulated
+            return
+        yaw = v.yaw if mask & MASK_YAW else m.yaw
+        sp = VelocitySetpoint(m.vx, m.vy, m.vz, yaw)
+        if self.dialect == "ardupilot":
+            if self._ap_mode != COPTER_GUIDED or not v.armed or v.mode is FlightMode.TAKEOFF:
+                self.stats.setpoints_rejected += 1
+                return
+            v.set_velocity(sp)
+            if v.mode is not FlightMode.OFFBOARD:
+                v.mode = FlightMode.OFFBOARD  # GUIDED velocity control resumes at once
+        else:
+            v.set_velocity(sp)
+        self.stats.setpoints += 1

@@ -1,0 +1,115 @@
+"""Whole delivery missions over real MAVLink on loopback UDP, in real time, against the MAVLink
+sim vehicle: PX4 dialect through MAVSDK, ArduPilot dialect through pymavlink."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion.autopilot import FlightMode
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.px4 import Px4Autopilot
+from companion.mission.events import EventKind, Phase
+
+pytestmark = pytest.mark.slow
+
+
+def _pad_error(sim, config):
+    td = [t for t in sim.vehicle.touchdowns if not t.payload_released]
+    assert td, "no touchdown on the pad"
+    return math.hypot(td[0].north_m - config.mission.pad.north_m, td[0].east_m - config.mission.pad.east_m)
+
+
+async def test_full_delivery_ardupilot_over_udp(mav, udp_port):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        shell, summary = await mav.fly(config, ap)
+    assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
+    assert _pad_error(sim, config) < 1.0
+    assert len(sim.vehicle.touchdowns) == 2 and not sim.vehicle.armed
+    assert sim.stats.setpoints > 300 and sim.stats.bad_data == 0
+    assert ap.counters.bad_data == 0 and shell.stats.requests_failed == 0
+    assert sim.stats.commands[511] >= 8  # message intervals were requested (ArduPilot streams nothing unasked)
+
+
+async def test_full_delivery_px4_over_mavsdk(mav, udp_port):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "px4", udp_port) as sim:
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}")
+        shell, summary = await mav.fly(config, ap)
+    assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
+    assert _pad_error(sim, config) < 1.0
+    assert len(sim.vehicle.touchdowns) == 2 and not sim.vehicle.armed
+    assert sim.stats.setpoints > 300
+    assert shell.stats.requests_failed == 0
+    assert ap.telemetry.received["Attitude"] > 500 and ap.telemetry.received["PositionNed"] > 300
+
+
+async def test_pilot_takeover_px4_mode_switch_on_the_vehicle(mav, udp_port):
+    config = mav.short_config(return_home=False)
+    seen = {}
+
+    async def monitor(shell):
+        await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 30.0, "outbound")
+        sim.pilot_set_mode(FlightMode.POSITION)
+        seen["n0"] = sim.stats.setpoints
+        seen["t"] = shell._clock.now()
+        await mav.wait_for(lambda: shell.mission.phase is Phase.PILOT, 3.0, "pilot phase")
+        seen["t_pilot"] = shell._clock.now()
+
+    with mav.sim_vehicle(config, "px4", udp_port) as sim:
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}")
+        shell, summary = await mav.fly(config, ap, monitor, timeout_s=40.0)
+        n_after = sim.stats.setpoints - seen["n0"]
+        mode = sim.vehicle.mode
+    ev = next(e for e in shell.events if e.kind is EventKind.PILOT_TAKEOVER)
+    assert ev.time_s - seen["t"] <= 1.3  # PX4 heartbeat (mode) at 1 Hz + one guidance period
+    assert "pilot took over" in summary.failure
+    assert n_after <= 30  # streaming stops once the takeover is seen
+    assert mode is FlightMode.POSITION  # never switched back
+
+
+async def test_pilot_takeover_ardupilot_rc_mode_switch(mav, udp_port):
+    config = mav.short_config(return_home=False)
+    seen = {}
+
+    async def monitor(shell):
+        await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 30.0, "outbound")
+        ap.send_rc_override([1500, 1500, 1500, 1500, 1425, 0, 0, 0])  # FLTMODE3 = LOITER
+        seen["t"] = shell._clock.now()
+        await mav.wait_for(lambda: shell.mission.phase is Phase.PILOT, 3.0, "pilot phase")
+
+    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        _shell, summary = await mav.fly(config, ap, monitor, timeout_s=40.0)
+        copter_mode = sim.copter_mode
+        rc5 = sim.rc_channels[4]
+    assert "pilot took over (position)" in summary.failure
+    assert copter_mode == 5 and rc5 == 1425
+    assert ap.rc_channels and ap.rc_channels[4] == 1425  # override reflected in RC_CHANNELS
+
+
+async def test_link_loss_and_reconnect_px4(mav, udp_port):
+    config = mav.short_config(return_home=False)
+    out = {}
+
+    async def monitor(shell):
+        await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 30.0, "outbound")
+        sim.set_link(False)
+        n0 = sim.stats.setpoints
+        await mav.wait_for(lambda: not ap.link_ok, 2.0, "link_ok false")
+        out["detect"] = True
+        await mav.wait_for(lambda: sim.vehicle.mode is FlightMode.HOLD, 3.0, "offboard-loss failsafe")
+        out["mode_during_loss"] = sim.vehicle.mode
+        out["setpoints_during_loss"] = sim.stats.setpoints - n0
+        sim.set_link(True)
+
+    with mav.sim_vehicle(config, "px4", udp_port) as sim:
+        ap = Px4Autopilot.from_config(config.model_copy(update={"connection": f"udpin://127.0.0.1:{udp_port}"}))
+        shell, summary = await mav.fly(config, ap, monitor, timeout_s=60.0)
+    kinds = [e.kind for e in shell.events]
+    assert EventKind.LINK_LOST in kinds and EventKind.LINK_RESTORED in kinds
+    assert out["setpoints_during_loss"] == 0 and out["mode_during_loss"] is FlightMode.HOLD
+    assert summary.delivered, summary.failure
