@@ -112,7 +112,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
             progress.update(task, description=ph, completed=done, t=shell._clock.now(), where=where)
 
-        result = run_demo(cfg, run_dir, realtime=args.realtime, on_tick=on_tick, telemetry=args.telemetry)
+        result = run_demo(
+            cfg, run_dir, realtime=args.realtime, on_tick=on_tick, telemetry=args.telemetry, mavlink=args.mavlink
+        )
     plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
@@ -249,10 +251,17 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     demo.add_argument("--wind-from", type=float, help="direction the wind blows from, deg (0 = north)")
     demo.add_argument("--gps-bias", help="constant GPS error in metres: north[,east[,down]]")
     demo.add_argument("--realtime", action="store_true", help="run in real time instead of lock-step")
+    demo.add_argument(
+        "--mavlink",
+        choices=("px4", "ardupilot"),
+        help="serve the simulator over MAVLink on loopback UDP and fly it through the PX4 (MAVSDK) or "
+        "ArduPilot (pymavlink) backend, in real time (use --params params/sitl_short.toml for a short flight)",
+    )
     demo.add_argument("--out", help="run folder (default: runs/demo-<time>)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.add_argument(
-        "--telemetry", action="store_true",
+        "--telemetry",
+        action="store_true",
         help="publish telemetry over Zenoh (session from [telemetry] zenoh_config; see `companion ground`)",
     )
     demo.add_argument("--zenoh-config", help="Zenoh session file for --telemetry (e.g. params/zenoh_loopback.toml)")

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell
+from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry.earth import GeoPoint
@@ -119,12 +120,34 @@ async def fly(
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
     timeout_s: float = 1800.0,
     telemetry: bool = False,
+    mavlink: str | None = None,
 ) -> DemoResult:
-    """Fly one delivery on the simulator (on whatever loop is running) and score it."""
+    """Fly one delivery on the simulator (on whatever loop is running) and score it.
+
+    ``mavlink`` = "px4" or "ardupilot": the simulator is served over real MAVLink on loopback UDP
+    (MavlinkSimVehicle, stepped in real time) and flown through the matching backend (MAVSDK or
+    pymavlink); otherwise the in-process SimAutopilot is used.
+    """
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)
-    ap = SimAutopilot(config.sim, vehicle)
+    mav_sim = None
+    ap: Autopilot
+    if mavlink is None:
+        ap = SimAutopilot(config.sim, vehicle)
+    else:
+        from companion.autopilot.ardupilot import ArduPilotAutopilot
+        from companion.autopilot.px4 import Px4Autopilot
+        from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+
+        port = _free_udp_port()
+        mav_sim = MavlinkSimVehicle(config.sim, mavlink, remote=("127.0.0.1", port), vehicle=vehicle).start()  # type: ignore[arg-type]
+        lt = config.runtime.link_timeout_s
+        ap = (
+            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt)
+            if mavlink == "px4"
+            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt)
+        )
     flight_log = truth_log = None
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -143,6 +166,8 @@ async def fly(
         summary = await shell.run(timeout_s=timeout_s)
     finally:
         await ap.close()
+        if mav_sim is not None:
+            mav_sim.stop()
         for lg in (flight_log, truth_log):
             if lg is not None:
                 lg.close()
@@ -203,6 +228,14 @@ async def fly(
     return result
 
 
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 def _json_default(o: object) -> object:
     if isinstance(o, float) and not math.isfinite(o):
         return None
@@ -215,9 +248,11 @@ def run_demo(
     realtime: bool = False,
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
     telemetry: bool = False,
+    mavlink: str | None = None,
 ) -> DemoResult:
-    """Fly the demo: lock-step virtual time (default) or real time."""
-    coro = fly(config, run_dir, on_tick, telemetry=telemetry)
-    if realtime:
+    """Fly the demo: lock-step virtual time (default), or real time (``realtime``, or always
+    with ``mavlink``, whose simulator runs on the wall clock behind real sockets)."""
+    coro = fly(config, run_dir, on_tick, telemetry=telemetry, mavlink=mavlink)
+    if realtime or mavlink:
         return asyncio.run(coro)
     return run_virtual(coro)

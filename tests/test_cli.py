@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from companion.cli import main
+from companion.config import shipped_params_path
 
 
 @pytest.mark.slow
@@ -67,3 +68,24 @@ def test_bench_ekf_and_uwb_are_wired(capsys):
     assert main(["bench", "uwb", "--n", "10"]) == 0
     out = capsys.readouterr().out
     assert "predict_us" in out and "update_aruco_us" in out
+
+
+@pytest.mark.slow
+def test_demo_over_mavlink_px4(tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(
+        [
+            "demo",
+            "--mavlink",
+            "px4",
+            "--params",
+            str(shipped_params_path("sitl_short.toml")),
+            "--quiet",
+            "--out",
+            str(out),
+        ]
+    )
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "DELIVERED, returned home" in text
+    assert json.loads((out / "summary.json").read_text())["pad_landing_error_m"] < 1.0
