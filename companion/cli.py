@@ -276,6 +276,13 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000)
     be.set_defaults(func=cmd_bench_estimation)
+    campaign = sub.add_parser("campaign", help="repeated simulated experiments with summary statistics")
+    csub = campaign.add_subparsers(dest="campaign", metavar="WHAT", required=True)
+    try:
+        importlib.import_module("companion.mission.dart_commands").register_campaign(csub)
+    except ImportError as err:
+        log.error("campaign dart unavailable: %s", err)
+
     for mod in ("companion.telemetry.commands", "companion.autopilot.commands"):
         try:
             importlib.import_module(mod).register_bench(bsub)

@@ -1,0 +1,722 @@
+"""Lock-step simulation of the Dart experiment (dart secs. 2-5): a quadrotor on an attitude-
+setpoint path, its IMU, a forward camera (fixed, 2-DOF or 3-DOF gimbal) rendering real images of a
+wall marker, the detector on those pixels, one Dart estimator, the PID controller, the hybrid RC
+mixer and a simulated pilot.
+
+Import as ``from companion_sitl.dart_sim import DartSim``. Deterministic for a given seed; time
+is simulated (physics at ``physics_hz``), nothing reads a clock.
+
+Frames: world NED with the marker centre at the origin on a vertical wall facing south
+(estimation.dart_estimators.wall_marker(0): marker x = east, y = up, z = south, towards the
+drone); body FRD; camera OpenCV. A drone heading north 4 m south of the wall is at marker
+z = 4 (the Dart estimators' output frame).
+
+Vehicle (the low-level flight controller, dart sec. 3.1, ArduPilot STABILIZE / ALT_HOLD-like):
+RC sticks -> roll / pitch angle setpoints (full stick = ``max_tilt_deg``, via
+autopilot.rc_mixer.attitude_setpoint), yaw stick -> yaw rate, throttle -> climb rate
+(``throttle_mode = "climb_rate"``, ALT_HOLD: mid stick holds the altitude, the vertical speed
+loop has gain ``climb_gain_per_s``) or -> thrust (``"thrust"``, STABILIZE: mid stick = hover
+thrust). Roll and pitch follow their setpoints with a first-order response (``attitude_tau_s``),
+the yaw rate likewise; the inner loop's imperfect rejection of turbulent torques is a
+Gauss-Markov attitude disturbance added on top. Translation: thrust along body -z, gravity,
+linear drag against the air velocity (wind = mean + Gauss-Markov gusts).
+
+IMU (200 Hz, dart sec. 4): gyro = body rates + bias + white noise + vibration; accelerometer =
+specific force + bias + white noise + vibration (the frame's motor vibration, ``vibration_hz``,
+sampled at 200 Hz without anti-aliasing, as a cheap I2C IMU does). The body also shakes in angle
+at the vibration frequency (amplitude = gyro vibration / (2 pi f)), which the fixed camera sees.
+
+Camera (~30 Hz, capture latency): SimulatedCamera renders the wall marker (a nested PadLayout
+placed on the wall; the wall carries the simulated clutter texture); motion blur along the image
+motion of the exposure (camera angular rate x exposure time), then exposure noise. Mounts:
+- none (FCF-*): camera rigid on the body;
+- 2-DOF gimbal (SCF-MF-2DOF): camera roll and pitch held level, yaw with the body;
+- 3-DOF gimbal (SCF-MF-3DOF): camera attitude held, heading ``gimbal_yaw``.
+A gimbal axis is dragged by the body's motion (``gimbal_coupling``) and restored by its motor
+with time constant ``gimbal_tau_s``, plus ``gimbal_noise_deg`` (the paper's 0.02 deg precision).
+
+Tasks (dart sec. 4, DartTaskRates): estimator IMU update 200 Hz; vision on every frame, the
+observation (timestamped at exposure) handed to the estimator when the frame becomes available;
+control (mission + DartController) 22 Hz; commands through RcMixer 44 Hz. When the mixer is
+disengaged the override is released and the flight controller reads the pilot's sticks directly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.autopilot.rc_mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
+from companion.estimation.dart_estimators import (
+    CameraMarkerObservation,
+    DartEstimator,
+    DartEstimatorConfig,
+    DartPositionEstimate,
+    DartTaskRates,
+    GimbalKind,
+    camera_mount,
+    make_estimator,
+    wall_marker,
+)
+from companion.geometry import Transform, euler_to_rotmat
+from companion.guidance.pid import DartCommand, DartController, DartControllerConfig, DartSetpoint, PidGains
+from companion.mission.dart import (
+    DartMission,
+    DartMissionConfig,
+    DartParamsError,
+    dataclass_from_table,
+    load_mission_config,
+    read_toml,
+)
+from companion.vision.camera import CameraModel, load_default_camera
+from companion.vision.detector import MarkerObservation, PadDetector
+from companion.vision.pad import PadLayout
+
+from .camera import SimCameraConfig, SimulatedCamera
+
+log = logging.getLogger(__name__)
+
+G = 9.80665
+FloatArray = NDArray[np.float64]
+
+#: The gimbal each estimator is flown with in the paper (dart secs. 3.2.4, 5).
+ESTIMATOR_GIMBAL: dict[str, GimbalKind] = {
+    "FCF-CF": GimbalKind.NONE,
+    "FCF-MF": GimbalKind.NONE,
+    "SCF-MF-2DOF": GimbalKind.TWO_DOF,
+    "SCF-MF-3DOF": GimbalKind.THREE_DOF,
+}
+
+NEUTRAL_US = 1500.0
+_DIST_SMOOTH_S = 0.05  # smoothing lag of the attitude disturbance
+SWITCH_ON_US = 2000.0
+SWITCH_OFF_US = 1000.0
+
+
+def _finite(name: str, v: float, *, low: float | None = None, positive: bool = False) -> None:
+    if not math.isfinite(v):
+        raise ValueError(f"{name} = {v!r}: must be finite")
+    if positive and not v > 0.0:
+        raise ValueError(f"{name} = {v!r}: must be > 0")
+    if low is not None and v < low:
+        raise ValueError(f"{name} = {v!r}: must be >= {low}")
+
+
+@dataclass(frozen=True, slots=True)
+class DartSimConfig:
+    """Every physical and sensor parameter of the Dart simulation (SI units, *_deg in degrees)."""
+
+    physics_hz: float = 1000.0
+    # vehicle and low-level flight controller
+    drag_per_s: float = 0.3  # linear drag / mass, 1/s
+    attitude_tau_s: float = 0.08  # roll/pitch first-order response to the setpoint
+    yaw_rate_tau_s: float = 0.1
+    max_tilt_deg: float = 35.0  # full stick (500 us)
+    max_yaw_rate_deg_s: float = 150.0
+    throttle_mode: str = "climb_rate"  # "climb_rate" (ALT_HOLD) or "thrust" (STABILIZE)
+    max_climb_m_s: float = 2.5  # full stick in climb_rate mode
+    climb_gain_per_s: float = 4.0  # vertical speed loop gain in climb_rate mode
+    hover_throttle: float = 0.5  # thrust fraction that hovers in thrust mode
+    # disturbances
+    wind_ned_m_s: tuple[float, float, float] = (0.3, 0.2, 0.0)
+    gust_std_m_s: float = 0.1  # horizontal gusts (vertical: half)
+    gust_tau_s: float = 2.0
+    attitude_disturbance_deg: float = 0.2  # std of the inner loop's residual attitude error
+    attitude_disturbance_tau_s: float = 0.3
+    # IMU (Pololu AltIMU-10 v5 class, rigidly mounted, no vibration damping)
+    gyro_noise_rad_s: float = 0.0012  # white, per sample
+    gyro_bias_rad_s: float = 0.0005  # residual after the start-up calibration, per axis (std)
+    accel_noise_m_s2: float = 0.01
+    accel_bias_m_s2: float = 0.03
+    accel_vibration_m_s2: float = 2.0  # amplitude per axis at vibration_hz
+    gyro_vibration_rad_s: float = 0.1  # amplitude per axis at vibration_hz
+    vibration_hz: float = 117.0  # motor rotation ~7000 rpm
+    # camera
+    camera_file: str = ""  # camera TOML ("" = the shipped nominal Raspberry Pi camera v2)
+    camera_scale: float = 1.0  # 1.0: 640x480; 0.5: 320x240
+    camera_latency_s: float = 0.06  # exposure -> observation available to the estimator
+    exposure_s: float = 0.008  # motion blur integrates the image motion over this
+    image_noise_std: float = 2.0  # grey levels
+    lens_offset_m: tuple[float, float, float] = (0.08, 0.0, 0.03)  # lens from the CoT, body FRD
+    gimbal_tau_s: float = 0.01
+    gimbal_coupling: float = 0.2  # fraction of the body's rotation that reaches a gimbal axis
+    gimbal_noise_deg: float = 0.02  # the Tarot gimbals' 0.02 deg precision (dart sec. 2.4)
+    # the wall marker: a nested pad (outer 5x5, inner 4x4), centre at the world origin
+    outer_size_m: float = 0.5
+    inner_size_m: float = 0.09
+    pad_size_m: float = 0.6
+    wall_size_m: float = 12.0
+    wall_clutter: int = 40
+    # start
+    start_offset_m: tuple[float, float, float] = (0.05, -0.05, 0.1)  # marker frame, from the setpoint
+
+    def __post_init__(self) -> None:
+        for name in ("physics_hz", "attitude_tau_s", "yaw_rate_tau_s", "max_tilt_deg", "max_yaw_rate_deg_s",
+                     "max_climb_m_s", "climb_gain_per_s", "hover_throttle", "gust_tau_s",
+                     "attitude_disturbance_tau_s", "vibration_hz", "camera_scale", "exposure_s", "gimbal_tau_s",
+                     "outer_size_m", "inner_size_m", "pad_size_m", "wall_size_m"):
+            _finite(name, getattr(self, name), positive=True)
+        for name in ("drag_per_s", "gust_std_m_s", "attitude_disturbance_deg", "gyro_noise_rad_s",
+                     "gyro_bias_rad_s", "accel_noise_m_s2", "accel_bias_m_s2", "accel_vibration_m_s2",
+                     "gyro_vibration_rad_s", "camera_latency_s", "image_noise_std", "gimbal_coupling",
+                     "gimbal_noise_deg"):
+            _finite(name, getattr(self, name), low=0.0)
+        for name in ("wind_ned_m_s", "lens_offset_m", "start_offset_m"):
+            for v in getattr(self, name):
+                _finite(name, v)
+        if self.throttle_mode not in ("climb_rate", "thrust"):
+            raise ValueError(f"throttle_mode = {self.throttle_mode!r}: must be 'climb_rate' or 'thrust'")
+        if not self.hover_throttle < 1.0:
+            raise ValueError(f"hover_throttle = {self.hover_throttle!r}: must be < 1")
+        if not self.max_tilt_deg < 80.0:
+            raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
+        if not self.physics_hz >= 400.0:
+            raise ValueError(f"physics_hz = {self.physics_hz!r}: must be >= 400 (the IMU runs at 200 Hz)")
+        if not self.gimbal_coupling <= 1.0:
+            raise ValueError(f"gimbal_coupling = {self.gimbal_coupling!r}: must be <= 1")
+        if self.wall_clutter < 0:
+            raise ValueError(f"wall_clutter = {self.wall_clutter!r}: must be >= 0")
+        PadLayout(outer_size_m=self.outer_size_m, inner_size_m=self.inner_size_m, pad_size_m=self.pad_size_m)
+
+    @property
+    def layout(self) -> PadLayout:
+        return PadLayout(outer_size_m=self.outer_size_m, inner_size_m=self.inner_size_m, pad_size_m=self.pad_size_m)
+
+
+@dataclass(frozen=True, slots=True)
+class DartControlGains:
+    """Gains of the four decoupled PIDs (guidance.pid.DartController) in RC microseconds per
+    metre (kp), per metre-second (ki), per metre/second (kd); yaw in us per rad. "Horizontal" is
+    C_x and C_z (roll and pitch), "vertical" C_y (climb). dart sec. 3.2.2: the PIDs were tuned on
+    numerical simulations of a simplified model; these are tuned on this simulator, identical for
+    every estimator."""
+
+    horizontal_kp: float = 400.0
+    horizontal_ki: float = 120.0
+    horizontal_kd: float = 250.0
+    horizontal_limit_us: float = 200.0
+    horizontal_i_limit_us: float = 100.0
+    vertical_kp: float = 150.0
+    vertical_ki: float = 40.0
+    vertical_kd: float = 60.0
+    vertical_limit_us: float = 200.0
+    vertical_i_limit_us: float = 150.0
+    d_filter_tau_s: float = 0.1
+    yaw_kp: float = 200.0
+    yaw_limit_us: float = 150.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _finite(f.name, getattr(self, f.name), low=0.0)
+        for name in ("horizontal_limit_us", "vertical_limit_us", "yaw_limit_us"):
+            _finite(name, getattr(self, name), positive=True)
+
+    def controller_config(self, rate_hz: float = 22.0) -> DartControllerConfig:
+        def pid(kp: float, ki: float, kd: float, lim: float, ilim: float) -> PidGains:
+            return PidGains(kp=kp, ki=ki, kd=kd, d_filter_tau_s=self.d_filter_tau_s, out_min=-lim, out_max=lim,
+                            i_min=-ilim, i_max=ilim)
+
+        h = pid(self.horizontal_kp, self.horizontal_ki, self.horizontal_kd, self.horizontal_limit_us,
+                self.horizontal_i_limit_us)
+        v = pid(self.vertical_kp, self.vertical_ki, self.vertical_kd, self.vertical_limit_us, self.vertical_i_limit_us)
+        yaw = PidGains(kp=self.yaw_kp, out_min=-self.yaw_limit_us, out_max=self.yaw_limit_us, wrap_error=True)
+        return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
+
+
+@dataclass(frozen=True, slots=True)
+class DartParams:
+    """A Dart parameter file: the simulation, the controller gains and the mission."""
+
+    sim: DartSimConfig = field(default_factory=DartSimConfig)
+    control: DartControlGains = field(default_factory=DartControlGains)
+    mission: DartMissionConfig = field(default_factory=DartMissionConfig)
+
+
+def load_dart_params(path: str | Path) -> DartParams:
+    """params/dart_hover.toml: tables [sim], [control], [mission]; errors name file, key, value
+    and rule."""
+    doc = read_toml(path)
+    unknown = sorted(set(doc) - {"sim", "control", "mission"})
+    if unknown:
+        raise DartParamsError(
+            f"{path}: [{unknown[0]}] = {doc[unknown[0]]!r}: unknown table (allowed: sim, control, mission)"
+        )
+    return DartParams(
+        sim=dataclass_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
+        control=dataclass_from_table(DartControlGains, doc.get("control", {}), path, "control"),
+        mission=load_mission_config(path),
+    )
+
+
+def shipped_dart_params() -> Path:
+    """The shipped params/dart_hover.toml (installed as ``companion_params``)."""
+    return Path(str(resources.files("companion_params").joinpath("dart_hover.toml")))
+
+
+# ------------------------------------------------------------------------------ pilot
+PilotFn = Callable[[float], Sequence[float]]
+
+
+def pilot_channels(
+    roll_us: float = NEUTRAL_US,
+    pitch_us: float = NEUTRAL_US,
+    throttle_us: float = NEUTRAL_US,
+    yaw_us: float = NEUTRAL_US,
+    switch_us: float = SWITCH_ON_US,
+) -> tuple[float, ...]:
+    """Eight RC channels (ArduPilot RCMAP, switch on channel 7) of the pilot's transmitter."""
+    return (roll_us, pitch_us, throttle_us, yaw_us, NEUTRAL_US, NEUTRAL_US, switch_us, NEUTRAL_US)
+
+
+def neutral_pilot(time_s: float) -> Sequence[float]:
+    """The pilot's sticks at neutral, autonomous (hybrid) mode switched on."""
+    return pilot_channels()
+
+
+# ------------------------------------------------------------------------------ records
+@dataclass(frozen=True, slots=True)
+class DartSample:
+    """One control step: the estimate used, the truth (centre of thrust, marker frame) and the
+    setpoint; NaN estimate when none was usable."""
+
+    time_s: float
+    engaged: bool
+    est: tuple[float, float, float]
+    truth: tuple[float, float, float]
+    setpoint: tuple[float, float, float] | None
+    command: DartCommand
+
+
+@dataclass
+class DartRunStats:
+    frames: int = 0
+    detections: int = 0
+    ambiguous: int = 0
+    estimates: int = 0
+    imu_samples: int = 0
+    max_blur_px: float = 0.0
+
+
+class _Noise:
+    """Standard normal draws in blocks (one rng call per block: fast in the physics loop)."""
+
+    def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
+        self._rng = rng
+        self._block = block
+        self._buf: list[float] = []
+        self._i = 0
+
+    def __call__(self) -> float:
+        if self._i >= len(self._buf):
+            self._buf = self._rng.standard_normal(self._block).tolist()
+            self._i = 0
+        v = self._buf[self._i]
+        self._i += 1
+        return v
+
+
+def _blur(img: NDArray[np.uint8], du: float, dv: float) -> NDArray[np.uint8]:
+    """Line blur along the image motion (du, dv) pixels during the exposure."""
+    length = math.hypot(du, dv)
+    n = math.ceil(length) | 1
+    k = np.zeros((n, n), np.float32)
+    c = n // 2
+    for s in np.linspace(-0.5, 0.5, 4 * n):
+        k[round(c + s * dv), round(c + s * du)] = 1.0
+    return np.asarray(cv2.filter2D(img, -1, k / k.sum(), borderType=cv2.BORDER_REPLICATE), dtype=np.uint8)
+
+
+# ------------------------------------------------------------------------------ the simulation
+class DartSim:
+    """One Dart flight: ``run_until(t)`` advances the lock-step simulation.
+
+    ``estimator``: "FCF-CF", "FCF-MF", "SCF-MF-2DOF" or "SCF-MF-3DOF"; ``gimbal`` defaults to
+    the paper's pairing (ESTIMATOR_GIMBAL). ``pilot``: time -> RC channels (neutral sticks,
+    switch on by default).
+    """
+
+    def __init__(
+        self,
+        estimator: str,
+        config: DartSimConfig | None = None,
+        mission: DartMissionConfig | None = None,
+        *,
+        gimbal: GimbalKind | None = None,
+        seed: int = 0,
+        pilot: PilotFn = neutral_pilot,
+        controller: DartControllerConfig | None = None,
+        rates: DartTaskRates | None = None,
+        camera: CameraModel | None = None,
+    ) -> None:
+        self.config = c = config or DartSimConfig()
+        self.rates = rates or DartTaskRates()
+        self.pilot = pilot
+        self.seed = seed
+        self.estimator: DartEstimator = make_estimator(estimator, self._estimator_config())
+        self.name = self.estimator.name
+        self.gimbal = gimbal if gimbal is not None else ESTIMATOR_GIMBAL[self.name]
+        self.mission = DartMission(mission or DartMissionConfig(approach=False, hover_s=1e9))
+        self.controller = DartController(controller or DartControlGains().controller_config(self.rates.control_hz))
+        self.mixer_config = RcMixerConfig()
+        self.mixer = RcMixer(self.mixer_config, on_disengage=self.controller.disengage)
+        self.attitude_map = AttitudeMapConfig(
+            max_tilt_rad=math.radians(c.max_tilt_deg), max_yaw_rate_rad_s=math.radians(c.max_yaw_rate_deg_s)
+        )
+        ss = np.random.SeedSequence(seed)
+        s_phys, s_imu, s_cam, s_render = ss.spawn(4)
+        self._n_phys = _Noise(np.random.default_rng(s_phys))
+        self._n_imu = _Noise(np.random.default_rng(s_imu))
+        self._rng_cam = np.random.default_rng(s_cam)
+        # camera, marker, detector
+        cam = camera
+        if cam is None:
+            from companion.vision.camera import load_camera
+
+            cam = load_camera(c.camera_file) if c.camera_file else load_default_camera()
+        if c.camera_scale != 1.0:
+            cam = cam.scaled(c.camera_scale)
+        self.camera_model = cam
+        self._R_bc = np.array(camera_mount(), dtype=float)
+        self._t_bc = np.array(c.lens_offset_m, dtype=float)
+        self._R_wm = np.array(wall_marker(0.0), dtype=float)
+        layout = c.layout
+        self.camera = SimulatedCamera(
+            cam, layout,
+            SimCameraConfig(latency_s=c.camera_latency_s, noise_std=0.0, ground_size_m=c.wall_size_m,
+                            clutter=c.wall_clutter, clutter_radius_m=0.45 * c.wall_size_m),
+            T_body_camera=Transform(self._R_bc, self._t_bc),
+            T_world_pad=Transform(self._R_wm, np.zeros(3)),
+            seed=int(s_render.generate_state(1)[0]),
+        )
+        self.detector = PadDetector(cam, layout)
+        w, h = cam.size
+        self._noise_img = (self._rng_cam.standard_normal((h + 64, w + 64)) * c.image_noise_std).astype(np.float32)
+        self._f_px = 0.5 * (cam.fx + cam.fy)
+        # IMU biases, vibration phases
+        self._gyro_bias = [c.gyro_bias_rad_s * self._n_imu() for _ in range(3)]
+        self._accel_bias = [c.accel_bias_m_s2 * self._n_imu() for _ in range(3)]
+        self._vib_phase = [2.0 * math.pi * float(self._rng_cam.uniform()) for _ in range(6)]
+        # state: world NED position/velocity of the CoT, controlled attitude, disturbance
+        sp = self.mission.start_setpoint
+        p0_m = np.array([sp.x_m, sp.y_m, sp.z_m]) + np.array(c.start_offset_m)
+        p0 = self._R_wm @ p0_m
+        self.t = 0.0
+        self.pos = [float(p0[0]), float(p0[1]), float(p0[2])]
+        self.vel = [0.0, 0.0, 0.0]
+        self.roll_c = self.pitch_c = 0.0
+        self.yaw = 0.0
+        self.yaw_rate = 0.0
+        self.dist = [0.0, 0.0, 0.0]  # attitude disturbance (roll, pitch, yaw), smoothed
+        self.dist_gm = [0.0, 0.0, 0.0]  # its Gauss-Markov driver
+        self.gust = [0.0, 0.0, 0.0]
+        self.gimbal_err = [0.0, 0.0, 0.0]  # camera attitude error of the gimbal axes
+        self._att_prev = (0.0, 0.0, 0.0)
+        self.euler_rate = (0.0, 0.0, 0.0)
+        self.accel = [0.0, 0.0, 0.0]  # world acceleration of the last physics step
+        # tasks
+        self._dt = 1.0 / c.physics_hz
+        self._next_imu = 0.0
+        self._next_cam = 0.5 / self.rates.vision_hz
+        self._next_ctl = 0.0
+        self._next_cmd = 0.0
+        self._pending: deque[tuple[float, CameraMarkerObservation | None]] = deque()
+        self.command = DartCommand(0.0, 0.0, 0.0, 0.0, 0.0, engaged=False)
+        self.override: tuple[int | None, ...] | None = None  # RC override in force (None: released)
+        self.samples: list[DartSample] = []
+        self.stats = DartRunStats()
+        self.last_setpoint: DartSetpoint | None = None
+        self.rc_in: tuple[float, float, float, float] = (NEUTRAL_US,) * 4  # what the FC flies on
+
+    def _estimator_config(self) -> DartEstimatorConfig:
+        return DartEstimatorConfig(
+            R_body_cam=camera_mount(), t_body_cam_m=tuple(self.config.lens_offset_m),  # type: ignore[arg-type]
+            R_world_marker=wall_marker(0.0),
+        )
+
+    # ---------------------------------------------------------------- truth
+    def attitude(self, t: float | None = None) -> tuple[float, float, float]:
+        """True body attitude (roll, pitch, yaw) including the vibration angles at time t."""
+        c = self.config
+        t = self.t if t is None else t
+        a = c.gyro_vibration_rad_s / (2.0 * math.pi * c.vibration_hz)
+        w = 2.0 * math.pi * c.vibration_hz * t
+        ph = self._vib_phase
+        return (
+            self.roll_c + self.dist[0] - a * math.cos(w + ph[0]),
+            self.pitch_c + self.dist[1] - a * math.cos(w + ph[1]),
+            self.yaw + self.dist[2] - a * math.cos(w + ph[2]),
+        )
+
+    def T_world_body(self) -> Transform:
+        return Transform(euler_to_rotmat(*self.attitude()), np.array(self.pos))
+
+    def truth_marker(self) -> tuple[float, float, float]:
+        """The centre of thrust in the marker frame (x right, y up, z out of the wall)."""
+        p = self._R_wm.T @ np.array(self.pos)
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def T_world_camera(self) -> Transform:
+        roll, pitch, yaw = self.attitude()
+        R_wb = euler_to_rotmat(roll, pitch, yaw)
+        e = self.gimbal_err
+        if self.gimbal is GimbalKind.NONE:
+            R_wc = R_wb @ self._R_bc
+        elif self.gimbal is GimbalKind.TWO_DOF:
+            R_wc = euler_to_rotmat(e[0], e[1], yaw) @ self._R_bc
+        else:
+            R_wc = euler_to_rotmat(e[0], e[1], e[2]) @ self._R_bc  # holds heading 0 (gimbal_yaw_rad)
+        return Transform(R_wc, np.array(self.pos) + R_wb @ self._t_bc)
+
+    # ---------------------------------------------------------------- physics
+    def _sticks(self) -> tuple[float, float, float, float]:
+        if self.override is not None:
+            return tuple(float(v) if v is not None else NEUTRAL_US for v in self.override)  # type: ignore[return-value]
+        p = self.pilot(self.t)
+        ch = self.mixer_config.channels
+        return tuple(float(p[i - 1]) for i in ch)  # type: ignore[return-value]
+
+    def _physics_step(self) -> None:
+        c = self.config
+        dt = self._dt
+        n = self._n_phys
+        sticks = self._sticks()
+        self.rc_in = sticks
+        chans = [NEUTRAL_US] * 8
+        for ch, v in zip(self.mixer_config.channels, sticks, strict=True):
+            chans[ch - 1] = v
+        sp = attitude_setpoint(chans, None, self.mixer_config, self.attitude_map)
+        if sp is None:  # invalid sticks: the FC levels and holds (failsafe-like)
+            roll_sp = pitch_sp = yaw_rate_sp = 0.0
+            thrust = c.hover_throttle if c.throttle_mode == "thrust" else 0.5
+        else:
+            roll_sp, pitch_sp, yaw_rate_sp, thrust = sp.roll_rad, sp.pitch_rad, sp.yaw_rate_rad_s, sp.thrust
+        # attitude: first-order response to the setpoint, plus the disturbance: a Gauss-Markov
+        # process smoothed by a first-order lag (``_DIST_SMOOTH_S``) so that it has a finite rate
+        # (the body's rotation is twice integrated from the disturbing torque; a white-driven
+        # angle would give the gyro an infinite rate)
+        ka = 1.0 / c.attitude_tau_s
+        r_roll = ka * (roll_sp - self.roll_c)
+        r_pitch = ka * (pitch_sp - self.pitch_c)
+        r_yaw = self.yaw_rate
+        self.yaw_rate += dt / c.yaw_rate_tau_s * (yaw_rate_sp - self.yaw_rate)
+        phi_d = math.exp(-dt / c.attitude_disturbance_tau_s)
+        sd = math.radians(c.attitude_disturbance_deg) * math.sqrt(1.0 - phi_d * phi_d)
+        d_rate = [(self.dist_gm[i] - self.dist[i]) / _DIST_SMOOTH_S for i in range(3)]
+        self.euler_rate = (r_roll + d_rate[0], r_pitch + d_rate[1], r_yaw + d_rate[2])
+        self.roll_c += r_roll * dt
+        self.pitch_c += r_pitch * dt
+        self.yaw += r_yaw * dt
+        for i in range(3):
+            self.dist[i] += d_rate[i] * dt
+            self.dist_gm[i] = phi_d * self.dist_gm[i] + sd * n()
+        phi_g = math.exp(-dt / c.gust_tau_s)
+        sg = c.gust_std_m_s * math.sqrt(1.0 - phi_g * phi_g)
+        for i in range(3):
+            self.gust[i] = phi_g * self.gust[i] + (0.5 if i == 2 else 1.0) * sg * n()
+        att = (self.roll_c + self.dist[0], self.pitch_c + self.dist[1], self.yaw + self.dist[2])
+        self._att_prev = att
+        roll, pitch, yaw = att
+        cr, sr = math.cos(roll), math.sin(roll)
+        cp, sp_ = math.cos(pitch), math.sin(pitch)
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        # thrust per mass
+        vd = self.vel[2]
+        if c.throttle_mode == "climb_rate":
+            vd_sp = -(2.0 * thrust - 1.0) * c.max_climb_m_s
+            a_cmd = c.climb_gain_per_s * (vd_sp - vd)  # NED down acceleration wanted
+            f_t = (G - a_cmd) / max(0.3, cr * cp)
+        else:
+            f_t = G * thrust / c.hover_throttle
+        f_t = max(0.0, min(2.5 * G, f_t))
+        # body -z in world: third column of R_wb, negated
+        bz = (cy * sp_ * cr + sy * sr, sy * sp_ * cr - cy * sr, cp * cr)
+        wind = c.wind_ned_m_s
+        acc = [0.0, 0.0, 0.0]
+        for i in range(3):
+            air = self.vel[i] - wind[i] - self.gust[i]
+            acc[i] = -f_t * bz[i] - c.drag_per_s * air + (G if i == 2 else 0.0)
+        for i in range(3):
+            self.vel[i] += acc[i] * dt
+            self.pos[i] += self.vel[i] * dt
+        self.accel = acc
+        # gimbal axes: dragged by the body's rotation, restored by the motors
+        kg = dt / c.gimbal_tau_s
+        er = self.euler_rate
+        for i in range(3):
+            self.gimbal_err[i] += c.gimbal_coupling * er[i] * dt - kg * self.gimbal_err[i]
+        self.t += dt
+
+    # ---------------------------------------------------------------- sensors
+    def _imu(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        c = self.config
+        n = self._n_imu
+        roll, pitch, _ = self._att_prev
+        dr, dp, dy = self.euler_rate
+        sr, cr = math.sin(roll), math.cos(roll)
+        sp, cp = math.sin(pitch), math.cos(pitch)
+        # body rates from ZYX Euler rates
+        p = dr - sp * dy
+        q = cr * dp + sr * cp * dy
+        r = -sr * dp + cr * cp * dy
+        w = 2.0 * math.pi * c.vibration_hz * self.t
+        ph = self._vib_phase
+        gv, av = c.gyro_vibration_rad_s, c.accel_vibration_m_s2
+        gyro = tuple(
+            rate + self._gyro_bias[i] + c.gyro_noise_rad_s * n() + gv * math.sin(w + ph[i])
+            for i, rate in enumerate((p, q, r))
+        )
+        R_wb = euler_to_rotmat(*self.attitude())
+        spec = R_wb.T @ np.array([self.accel[0], self.accel[1], self.accel[2] - G])
+        accel = tuple(
+            float(spec[i]) + self._accel_bias[i] + c.accel_noise_m_s2 * n() + av * math.sin(w + ph[3 + i])
+            for i in range(3)
+        )
+        return gyro, accel  # type: ignore[return-value]
+
+    def _camera_rate_cam(self) -> FloatArray:
+        """Angular rate of the camera in camera axes (for the motion blur)."""
+        c = self.config
+        w = 2.0 * math.pi * c.vibration_hz * self.t
+        vib = [c.gyro_vibration_rad_s * math.sin(w + self._vib_phase[i]) for i in range(3)]
+        er = self.euler_rate
+        if self.gimbal is GimbalKind.NONE:
+            body = np.array([er[0] + vib[0], er[1] + vib[1], er[2] + vib[2]])
+        else:  # a gimbal axis moves at its error rate; vibration is isolated
+            kg = 1.0 / c.gimbal_tau_s
+            body = np.array([c.gimbal_coupling * er[i] - kg * self.gimbal_err[i] for i in range(3)])
+            if self.gimbal is GimbalKind.TWO_DOF:
+                body[2] = er[2] + vib[2]
+        return self._R_bc.T @ body
+
+    def _capture(self) -> None:
+        c = self.config
+        t_exp = self.t
+        T_wc = self.T_world_camera()
+        if self.gimbal is not GimbalKind.NONE and c.gimbal_noise_deg > 0.0:
+            e = np.radians(c.gimbal_noise_deg) * self._rng_cam.standard_normal(3)
+            if self.gimbal is GimbalKind.TWO_DOF:
+                e[2] = 0.0
+            T_wc = Transform(euler_to_rotmat(*e) @ T_wc.R, T_wc.t)
+        frame = self.camera.capture_camera(T_wc, t_exp)
+        img = frame.image
+        wc = self._camera_rate_cam()
+        du = self._f_px * float(wc[1]) * c.exposure_s
+        dv = -self._f_px * float(wc[0]) * c.exposure_s
+        blur = math.hypot(du, dv)
+        self.stats.max_blur_px = max(self.stats.max_blur_px, blur)
+        if blur >= 0.5:
+            img = _blur(img, du, dv)
+        if c.image_noise_std > 0.0:
+            h, w = img.shape
+            oy, ox = (int(v) for v in self._rng_cam.integers(0, 64, 2))
+            img = np.clip(img.astype(np.float32) + self._noise_img[oy:oy + h, ox:ox + w], 0, 255).astype(np.uint8)
+        self.stats.frames += 1
+        obs = self.detector.detect(img, t_exp)
+        cobs = self._to_estimator(obs)
+        self._pending.append((frame.available_time_s, cobs))
+
+    def _to_estimator(self, obs: MarkerObservation | None) -> CameraMarkerObservation | None:
+        if obs is None:
+            return None
+        self.stats.detections += 1
+        if obs.ambiguous:
+            self.stats.ambiguous += 1
+        T = obs.T_camera_pad
+        return CameraMarkerObservation(obs.time_s, np.asarray(T.R, dtype=float), np.asarray(T.t, dtype=float))
+
+    # ---------------------------------------------------------------- tasks
+    def _control(self) -> None:
+        t = self.t
+        engaged = self.mixer.engaged_from(self.pilot(t))
+        step = self.mission.update(t, engaged)
+        sp = step.setpoint or self.last_setpoint or self.mission.start_setpoint
+        self.last_setpoint = sp
+        est: DartPositionEstimate | None = self.estimator.last
+        self.command = self.controller.update(t, est, sp, engaged)
+        e = (math.nan, math.nan, math.nan) if est is None else (est.x_m, est.y_m, est.z_m)
+        self.samples.append(
+            DartSample(t, engaged, e, self.truth_marker(), (sp.x_m, sp.y_m, sp.z_m) if engaged else None, self.command)
+        )
+
+    def _command(self) -> None:
+        out = self.mixer.mix(self.pilot(self.t), self.command)
+        self.override = out.sticks_us if out.engaged else None
+
+    def run_until(self, t_end: float) -> None:
+        """Advance the simulation to ``t_end`` (seconds of simulated time)."""
+        r = self.rates
+        eps = 1e-9
+        while self.t < t_end - eps:
+            self._physics_step()
+            t = self.t
+            if t >= self._next_imu - eps:
+                self._next_imu += 1.0 / r.imu_hz
+                g, a = self._imu()
+                self.estimator.update_imu(t, g, a)
+                self.stats.imu_samples += 1
+            while self._pending and self._pending[0][0] <= t + eps:
+                _, obs = self._pending.popleft()
+                if obs is not None and self.estimator.update_vision(obs) is not None:
+                    self.stats.estimates += 1
+            if t >= self._next_cam - eps:
+                self._next_cam += 1.0 / r.vision_hz
+                self._capture()
+            if t >= self._next_ctl - eps:
+                self._next_ctl += 1.0 / r.control_hz
+                self._control()
+            if t >= self._next_cmd - eps:
+                self._next_cmd += 1.0 / r.command_hz
+                self._command()
+
+    # ---------------------------------------------------------------- results
+    def errors(self, t_from: float = 0.0, *, truth: bool = False) -> NDArray[np.float64]:
+        """(N, 3) position errors (estimate or truth minus setpoint, marker axes) of the engaged
+        control steps from ``t_from`` on; steps without an estimate are left out."""
+        rows = []
+        for s in self.samples:
+            if s.time_s < t_from or not s.engaged or s.setpoint is None or not math.isfinite(s.est[0]):
+                continue
+            p = s.truth if truth else s.est
+            rows.append([p[i] - s.setpoint[i] for i in range(3)])
+        return np.array(rows, dtype=float).reshape(-1, 3)
+
+
+def run_hover(
+    estimator: str,
+    duration_s: float,
+    *,
+    seed: int = 0,
+    config: DartSimConfig | None = None,
+    **kwargs: Any,
+) -> DartSim:
+    """A hover flight of ``duration_s`` at the mission's start point; returns the finished sim."""
+    sim = DartSim(estimator, config, DartMissionConfig(approach=False, hover_s=0.0), seed=seed, **kwargs)
+    sim.run_until(duration_s)
+    return sim
+
+
+__all__ = [
+    "ESTIMATOR_GIMBAL",
+    "DartControlGains",
+    "DartParams",
+    "DartRunStats",
+    "DartSample",
+    "DartSim",
+    "DartSimConfig",
+    "load_dart_params",
+    "neutral_pilot",
+    "pilot_channels",
+    "run_hover",
+    "shipped_dart_params",
+]
