@@ -65,6 +65,22 @@ FLIGHT_LOG_COLUMNS = (
 
 
 @dataclass
+class LandingKit:
+    """What precision landing needs: sensor plugins (api_version 1), the detector and solver, and
+    the mounts. The simulator passes simulated plugins; on a vehicle they come from config."""
+
+    camera: Any | None  # plugin: read() -> plugin_api.Frame | None
+    uwb: Any | None  # plugin: read() -> list of TwrMeasurement (or readings with to_twr_measurement())
+    detector: Any | None  # companion.vision.PadDetector
+    multilaterator: Any | None  # companion.uwb.Multilaterator
+    T_body_camera: Any  # geometry.Transform
+    T_pad_anchors: Any  # geometry.Transform: the UWB anchor frame in the pad frame
+    ekf_config: Any = None  # estimation.EkfConfig (None: defaults)
+    vision_in_thread: bool = True  # off the event loop in flight; inline under virtual time (deterministic)
+    poll_rate_hz: float = 60.0
+
+
+@dataclass
 class ShellStats:
     guidance_overruns: int = 0
     setpoint_overruns: int = 0
@@ -83,6 +99,7 @@ class DeliveryShell:
         flight_log: CsvLog | None = None,
         on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
         telemetry: bool = False,
+        landing: LandingKit | None = None,
     ):
         self.config = config
         self.autopilot = autopilot
@@ -99,6 +116,9 @@ class DeliveryShell:
         self._streaming = False
         self._abort_reason: str | None = None
         self._want_telemetry = telemetry
+        self.landing = landing
+        self.fusion: Any = None  # estimation.fusion.LandingFusion once the pad is known
+        self._sensor_task: asyncio.Task[None] | None = None
         self.telemetry: Any = None  # companion.telemetry.link.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
 
@@ -136,6 +156,14 @@ class DeliveryShell:
             stream.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await stream
+            if self._sensor_task is not None:
+                self._sensor_task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._sensor_task
+            if self.landing is not None:
+                for dev in (self.landing.camera, self.landing.uwb):
+                    if dev is not None:
+                        dev.stop()
             if self._request_task is not None:
                 self._request_task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
@@ -157,6 +185,14 @@ class DeliveryShell:
                 mission.abort(now, self._abort_reason)
                 self._abort_reason = None
             self.estimate = self.estimator.update(tc.position_ned, tc.attitude)
+            if self.landing is not None:
+                if self.fusion is None and mission.frame is not None:
+                    self._start_fusion(now)
+                # The fused frame puts the configured pad where the camera/UWB see it; home is a
+                # GPS point, so the way back (after the delivery) flies on the GPS-frame estimate.
+                fused = self.fusion.estimate() if self.fusion is not None else None
+                if fused is not None and not mission.summary.delivered and not mission.returning:
+                    self.estimate = fused
             out = mission.step(MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok))
             for ev in out.events:
                 self.events.append(ev)
@@ -179,6 +215,59 @@ class DeliveryShell:
                 self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
             if self.on_tick is not None:
                 self.on_tick(self, out)
+
+    def _start_fusion(self, now: float) -> None:
+        from companion.estimation.ekf import EkfConfig
+        from companion.estimation.fusion import FusionSetup, LandingFusion
+        from companion.geometry.mounts import pad_pose_ned
+
+        kit = self.landing
+        assert kit is not None and self.mission.frame is not None
+        pad = self.mission.frame.pad_ned
+        setup = FusionSetup(
+            T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2])),
+            T_body_camera=kit.T_body_camera,
+            T_pad_anchors=kit.T_pad_anchors,
+            ekf=kit.ekf_config or EkfConfig(),
+        )
+        self.fusion = LandingFusion(setup, now)
+        self.autopilot.telemetry.add_listener(self.fusion.on_sample)
+        for dev in (kit.camera, kit.uwb):
+            if dev is not None:
+                dev.start()
+        self._sensor_task = asyncio.get_running_loop().create_task(self._sensor_loop(), name="landing-sensors")
+        log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
+
+    def _vision_wanted(self) -> bool:
+        from companion.mission.events import Phase
+
+        m = self.mission
+        return m.phase is Phase.LANDING_PAD or (m.phase is Phase.OUTBOUND and m._sector >= 5)
+
+    async def _sensor_loop(self) -> None:
+        from companion.uwb.multilateration import UwbFix
+
+        kit = self.landing
+        assert kit is not None and self.fusion is not None
+        rate = RateLoop(self._clock, kit.poll_rate_hz)
+        loop = asyncio.get_running_loop()
+        while True:
+            await rate.tick()
+            if kit.camera is not None and kit.detector is not None and self._vision_wanted():
+                frame = kit.camera.read()
+                if frame is not None:
+                    if kit.vision_in_thread:
+                        obs = await loop.run_in_executor(None, kit.detector.detect, frame.image, frame.time_s)
+                    else:
+                        obs = kit.detector.detect(frame.image, frame.time_s)
+                    if obs is not None:
+                        self.fusion.on_marker(obs)
+            if kit.uwb is not None and kit.multilaterator is not None:
+                for m in kit.uwb.read():
+                    meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
+                    res = kit.multilaterator.solve_twr(meas)
+                    if isinstance(res, UwbFix):
+                        self.fusion.on_uwb(res)
 
     async def _setpoint_stream(self) -> None:
         rt = self.config.runtime

@@ -42,7 +42,11 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
         sim["wind_from_deg"] = args.wind_from
     if args.gps_bias is not None:
         sim["gps_bias_m"] = _parse_vec(args.gps_bias, "--gps-bias")
+    if args.pad_offset is not None:
+        sim["pad_offset_m"] = _parse_vec(args.pad_offset, "--pad-offset")[:2]
     overrides: dict[str, Any] = {"sim": sim} if sim else {}
+    if args.gps_only:
+        overrides["landing"] = {"fusion": False}
     if getattr(args, "zenoh_config", None):
         overrides["telemetry"] = {"zenoh_config": args.zenoh_config}
     return load_config(*paths, overrides=overrides or None)
@@ -80,6 +84,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     console.print(
         f"[bold]companion demo[/]: h = {m.height_m} m, r = {m.arc_radius_m} m, v = {list(m.sector_speed_m_s)} m/s, "
         f"k_f = {m.convergence_gain}; wind {cfg.sim.wind_speed_m_s} m/s, GPS bias {list(cfg.sim.gps_bias_m)} m, "
+        f"pad offset {list(cfg.sim.pad_offset_m)} m, "
+        f"{'EKF fusion (GPS + camera + UWB)' if cfg.landing.fusion else 'GPS-only'}; "
         f"seed {cfg.sim.seed}{' (real time)' if args.realtime else ''}"
     )
     phases = [
@@ -250,6 +256,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     demo.add_argument("--wind", type=float, help="mean wind speed, m/s")
     demo.add_argument("--wind-from", type=float, help="direction the wind blows from, deg (0 = north)")
     demo.add_argument("--gps-bias", help="constant GPS error in metres: north[,east[,down]]")
+    demo.add_argument("--pad-offset", help="the pad lies this far from its configured position: north,east (m)")
+    demo.add_argument("--gps-only", action="store_true", help="GPS-only baseline: no camera/UWB fusion")
     demo.add_argument("--realtime", action="store_true", help="run in real time instead of lock-step")
     demo.add_argument(
         "--mavlink",

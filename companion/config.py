@@ -77,6 +77,13 @@ class MissionConfig(_Section):
         3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0
     )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
+    landing_xy_gain_1_s: float = _f(
+        0.8, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=5.0
+    )
+    landing_xy_tolerance_m: float = _f(
+        0.1, "m", "final descent slows when farther than this off the target, and holds at twice it", gt=0.01, le=5.0
+    )
+    landing_max_xy_speed_m_s: float = _f(1.0, "m/s", "final descent: horizontal speed limit", gt=0.05, le=5.0)
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
@@ -221,6 +228,20 @@ class TelemetryConfig(_Section):
     commands: TelemetryCommandsConfig = Field(default_factory=TelemetryCommandsConfig)
 
 
+class LandingConfig(_Section):
+    """Precision landing (delivery 4.2): fuse the camera and UWB with the GPS pose in the EKF."""
+
+    fusion: bool = _f(True, "-", "use the EKF (GPS + camera + UWB); false = GPS-only baseline")
+    use_camera: bool = _f(True, "-", "fuse pad observations from the downward camera")
+    use_uwb: bool = _f(True, "-", "fuse UWB fixes from the anchors around the pad")
+    camera_rate_hz: float = _f(30.0, "Hz", "camera frame rate", ge=1.0, le=240.0)
+    camera_latency_s: float = _f(0.05, "s", "exposure-to-delivery latency of a frame", ge=0.0, le=1.0)
+    camera_offset_body_m: tuple[float, float, float] = _f(
+        (0.05, 0.0, 0.08), "m", "camera position in the body frame (FRD)"
+    )
+    uwb_rate_hz: float = _f(10.0, "Hz", "UWB ranging rate", ge=0.5, le=100.0)
+
+
 class CompanionConfig(_Section):
     vehicle_id: str = _f(
         "drone1",
@@ -237,6 +258,7 @@ class CompanionConfig(_Section):
     runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
+    landing: LandingConfig = Field(default_factory=LandingConfig)
 
     @model_validator(mode="after")
     def _timeouts(self) -> CompanionConfig:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell
+from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell, LandingKit
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion.flightlog.csvlog import CsvLog
@@ -121,6 +121,7 @@ async def fly(
     timeout_s: float = 1800.0,
     telemetry: bool = False,
     mavlink: str | None = None,
+    fusion: bool | None = None,
 ) -> DemoResult:
     """Fly one delivery on the simulator (on whatever loop is running) and score it.
 
@@ -160,7 +161,9 @@ async def fly(
         if on_tick is not None:
             on_tick(shell, out)
 
-    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry)
+    use_fusion = config.landing.fusion if fusion is None else fusion
+    kit = sim_landing_kit(config, vehicle, (pad_n, pad_e)) if use_fusion else None
+    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit)
     wall0 = time.perf_counter()
     try:
         summary = await shell.run(timeout_s=timeout_s)
@@ -228,6 +231,38 @@ async def fly(
     return result
 
 
+def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: tuple[float, float]) -> LandingKit:
+    """Simulated camera and UWB around the *true* pad, with the real detector and solver."""
+    from companion.geometry.mounts import downward_mount, pad_pose_ned
+    from companion.uwb.anchors import load_anchor_layout
+    from companion.uwb.multilateration import Multilaterator
+    from companion.vision.camera import load_default_camera
+    from companion.vision.detector import PadDetector
+    from companion.vision.pad import PadLayout
+    from companion_sitl.camera import SimulatedCamera
+    from companion_sitl.landing_sensors import SimCameraSource, SimUwbSource
+    from companion_sitl.uwb import SimulatedUwb
+
+    lc = config.landing
+    seed = config.sim.seed
+    T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0)
+    mount = downward_mount(lc.camera_offset_body_m)
+    cam_model = load_default_camera()
+    layout = PadLayout()
+    camera = uwb = detector = multi = None
+    if lc.use_camera:
+        sim_cam = SimulatedCamera(cam_model, layout, T_body_camera=mount, T_world_pad=T_world_pad_true, seed=seed)
+        camera = SimCameraSource(vehicle, sim_cam, lc.camera_rate_hz, lc.camera_latency_s)
+        detector = PadDetector(cam_model, layout)
+    anchors = load_anchor_layout()
+    if lc.use_uwb:
+        uwb = SimUwbSource(vehicle, SimulatedUwb(anchors, seed=seed + 1), T_world_pad_true, lc.uwb_rate_hz)
+        multi = Multilaterator(anchors)
+    from companion.geometry.se3 import Transform
+
+    return LandingKit(camera, uwb, detector, multi, mount, Transform.identity(), vision_in_thread=False)
+
+
 def _free_udp_port() -> int:
     import socket
 
@@ -249,10 +284,11 @@ def run_demo(
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
     telemetry: bool = False,
     mavlink: str | None = None,
+    fusion: bool | None = None,
 ) -> DemoResult:
     """Fly the demo: lock-step virtual time (default), or real time (``realtime``, or always
     with ``mavlink``, whose simulator runs on the wall clock behind real sockets)."""
-    coro = fly(config, run_dir, on_tick, telemetry=telemetry, mavlink=mavlink)
+    coro = fly(config, run_dir, on_tick, telemetry=telemetry, mavlink=mavlink, fusion=fusion)
     if realtime or mavlink:
         return asyncio.run(coro)
     return run_virtual(coro)

@@ -146,6 +146,11 @@ class DeliveryMission:
         else:
             self._goto(Phase.ABORT_HOLD)
 
+    @property
+    def returning(self) -> bool:
+        """Flying (or landing) back home: guidance targets the GPS-surveyed home."""
+        return self.phase in (Phase.TAKEOFF_RETURN, Phase.INBOUND, Phase.LANDING_HOME)
+
     def command(self, time_s: float, kind: str, sender: str = "ground") -> str:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract
         (clamps, pilot priority) is untouched because every setpoint still goes through the shell.
@@ -372,11 +377,31 @@ class DeliveryMission:
             return None, self._make_request(RequestKind.LAND), math.nan
         if self._expect_mode_change:
             return None, None, math.nan
-        # Final descent: the same field along the vertical section, slowed to the land speed.
-        v_sect = self.cfg.sector_speed_m_s[4 if s == 1 else 0]
-        scale = min(1.0, self.cfg.land_speed_m_s / v_sect)
-        sp, lyap = self._field_setpoint(est, 1, speed_scale=scale, force_descent=True)
-        return sp, None, lyap
+        return self._precision_descent(est, s), None, math.nan
+
+    def _precision_descent(self, est: StateEstimate, s: int) -> VelocitySetpoint:
+        """Final descent onto the target (the pad for s = +1, home for s = -1), in F_I.
+
+        The vector field's convergence term scales with v_r, so at land speed it corrects only a
+        few cm/s; here the horizontal error is closed proportionally (landing_xy_gain_1_s) and the
+        descent slows while the vehicle is off-centre, holding height at twice the tolerance
+        (like PX4's precision landing), except in the last half metre.
+        """
+        assert self.frame is not None and self.path is not None
+        c = self.cfg
+        p_i = self.frame.point_from_ned(est.position_ned)
+        ex = float(p_i[0]) if s == 1 else float(p_i[0]) + self.path.d
+        ey = float(p_i[1])
+        e = math.hypot(ex, ey)
+        vx, vy = -c.landing_xy_gain_1_s * ex, -c.landing_xy_gain_1_s * ey
+        vh = math.hypot(vx, vy)
+        if vh > c.landing_max_xy_speed_m_s:
+            vx, vy = vx * c.landing_max_xy_speed_m_s / vh, vy * c.landing_max_xy_speed_m_s / vh
+        tol = c.landing_xy_tolerance_m
+        slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if self._height_above_ground(est) > 0.5 else 1.0
+        vz = -c.land_speed_m_s * slow
+        v_ned = self.frame.vector_to_ned((vx, vy, vz))
+        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0))
 
     def _after_touchdown(self, s: int) -> None:
         if s == 1:

@@ -1,0 +1,113 @@
+"""Landing fusion: the autopilot's GPS pose, pad observations and UWB fixes in the 12-state EKF.
+
+Pure and synchronous (the shell feeds it samples). Inputs (delivery 4.2.3): u = world velocity
+(from the autopilot's local velocity) and body rates (from ATTITUDE). The autopilot pose is the
+h_SDK measurement (eq 12); marker observations are fused as the pad's pose in the camera frame
+(eqs 13-14) at their *exposure* time through the delayed-measurement buffer (camera latency is
+what made the Dart drone oscillate); UWB fixes as positions in the anchor frame (eq 15).
+
+The resulting position is in the frame where the pad sits at its *configured* position: the GPS
+bias state absorbs both the GPS error and a displaced pad (delivery 5.2), so guidance towards
+the configured pad lands on the real one.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
+from companion.estimation.delayed import DelayedMeasurementBuffer
+from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
+from companion.estimation.types import StateEstimate
+from companion.geometry.se3 import Transform
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FusionSetup:
+    T_world_pad: Transform  # the pad's configured pose in world NED (pad frame: x E, y N, z up)
+    T_body_camera: Transform
+    T_pad_anchors: Transform = field(default_factory=Transform.identity)  # UWB anchor frame in the pad frame
+    ekf: EkfConfig = field(default_factory=EkfConfig)
+    history_s: float = 1.0  # how late a measurement may arrive and still be applied at its stamp
+
+
+@dataclass
+class FusionCounters:
+    markers_used: int = 0
+    markers_ambiguous: int = 0
+    uwb_used: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+    def count(self, sensor: str, outcome: UpdateOutcome) -> None:
+        k = f"{sensor}.{outcome.value}"
+        self.outcomes[k] = self.outcomes.get(k, 0) + 1
+
+
+class LandingFusion:
+    def __init__(self, setup: FusionSetup, start_time_s: float):
+        self.setup = setup
+        self.ekf = DeliveryEkf(setup.ekf, T_body_camera=setup.T_body_camera, pad_down_m=float(setup.T_world_pad.t[2]))
+        self.buffer = DelayedMeasurementBuffer(self.ekf, start_time_s, history_s=setup.history_s)
+        self.T_world_anchors = setup.T_world_pad @ setup.T_pad_anchors
+        self.counters = FusionCounters()
+        self._vel = np.zeros(3)
+        self._rates = np.zeros(3)
+        self._euler: np.ndarray | None = None
+        self._last_marker_s = -np.inf
+        self._last_uwb_s = -np.inf
+
+    # ---- inputs --------------------------------------------------------------------------
+    def on_sample(self, sample: TelemetrySample) -> None:
+        """TelemetryCache listener: autopilot attitude and position (already finite-checked)."""
+        if isinstance(sample, Attitude):
+            self._rates = np.array([sample.rollspeed_rad_s, sample.pitchspeed_rad_s, sample.yawspeed_rad_s])
+            self._euler = np.array([sample.roll_rad, sample.pitch_rad, sample.yaw_rad])
+            self._predict(sample.time_s)
+        elif isinstance(sample, PositionNed):
+            self._vel = np.array([sample.north_m_s, sample.east_m_s, sample.down_m_s])
+            self._predict(sample.time_s)
+            out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), self._euler)
+            self.counters.count("sdk", out)
+
+    def _predict(self, t: float) -> None:
+        if t >= self.buffer.now_s:
+            self.buffer.predict(t, np.concatenate([self._vel, self._rates]))
+
+    def on_marker(self, obs: object) -> UpdateOutcome | None:
+        """A :class:`companion.vision.MarkerObservation` (pad pose in the camera, exposure-stamped)."""
+        if getattr(obs, "ambiguous", False):
+            self.counters.markers_ambiguous += 1
+            return None  # never fused blindly (the IPPE flip)
+        out = self.buffer.update_aruco(obs.time_s, obs.T_camera_pad, self.setup.T_world_pad)  # type: ignore[attr-defined]
+        self.counters.count("aruco", out)
+        if out is UpdateOutcome.ACCEPTED:
+            self.counters.markers_used += 1
+            self._last_marker_s = obs.time_s  # type: ignore[attr-defined]
+        return out
+
+    def on_uwb(self, fix: object) -> UpdateOutcome:
+        out = self.buffer.update_uwb(fix, self.T_world_anchors)  # type: ignore[arg-type]
+        self.counters.count("uwb", out)
+        if out is UpdateOutcome.ACCEPTED:
+            self.counters.uwb_used += 1
+            self._last_uwb_s = fix.time_s  # type: ignore[attr-defined]
+        return out
+
+    # ---- outputs -------------------------------------------------------------------------
+    @property
+    def pad_locked(self) -> bool:
+        """Pad-local data has been fused (xi = 1, delivery eq 12)."""
+        return bool(self.ekf.xi)
+
+    def estimate(self) -> StateEstimate | None:
+        if not self.ekf.initialized:
+            return None
+        return self.buffer.estimate()
+
+    def pad_data_age_s(self, now_s: float) -> float:
+        return now_s - max(self._last_marker_s, self._last_uwb_s)

@@ -1,0 +1,136 @@
+"""Simulated landing sensors behind the plugin interface (api_version 1): a downward camera that
+renders real images of the pad, and a DWM1001-like UWB tag ranging to the anchors around it.
+
+Both are fed by simulator truth. The true pose is snapshotted at each exposure / ranging instant
+(a cheap task on the shell's clock); a frame is rendered only when the shell reads it, so its
+pixels show the vehicle where it was at exposure, and it becomes readable only after the capture
+latency. The camera skips exposures in which the pad is outside the field of view (the detector
+would find nothing; rendering them would only burn CPU in simulation).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections import deque
+from typing import ClassVar
+
+import numpy as np
+
+from companion.geometry.se3 import Transform
+from companion.plugin_api import Frame
+from companion.scheduling import LoopClock, RateLoop
+from companion.uwb.multilateration import TwrMeasurement
+from companion_sitl.camera import SimulatedCamera
+from companion_sitl.uwb import SimulatedUwb
+from companion_sitl.vehicle import SimVehicle
+
+log = logging.getLogger(__name__)
+
+
+def _truth_pose(v: SimVehicle) -> Transform:
+    return Transform.from_euler((v.pn, v.pe, v.pd), v.roll, v.pitch, v.yaw)
+
+
+class SimCameraSource:
+    api_version: ClassVar[int] = 1
+
+    def __init__(self, vehicle: SimVehicle, camera: SimulatedCamera, rate_hz: float = 30.0, latency_s: float = 0.05):
+        self.vehicle = vehicle
+        self.camera = camera
+        self.rate_hz = rate_hz
+        self.latency_s = latency_s
+        self._clock = LoopClock()
+        self._poses: deque[tuple[float, Transform]] = deque(maxlen=64)
+        self._task: asyncio.Task[None] | None = None
+        self._index = 0
+        self._last_read_t = -math.inf
+        self.exposures = 0
+        self.rendered = 0
+        self.out_of_view = 0
+        cam = camera.camera
+        self._half_fov_x = math.atan2(cam.width_px / 2.0, cam.fx)
+        self._half_fov_y = math.atan2(cam.height_px / 2.0, cam.fy)
+
+    def start(self) -> None:
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-camera")
+
+    async def _run(self) -> None:
+        rate = RateLoop(self._clock, self.rate_hz)
+        while True:
+            t = await rate.tick()
+            self.vehicle.step_to(t)
+            self._poses.append((t, _truth_pose(self.vehicle)))
+            self.exposures += 1
+
+    def _in_view(self, T_world_body: Transform) -> bool:
+        p = self.camera.T_camera_pad(T_world_body).t
+        if p[2] <= 0.05:
+            return False
+        margin = 0.5 / p[2]  # half a metre around the pad centre
+        return abs(math.atan(p[0] / p[2])) < self._half_fov_x + margin and abs(
+            math.atan(p[1] / p[2])
+        ) < self._half_fov_y + margin
+
+    def read(self) -> Frame | None:
+        """The newest frame whose capture latency has elapsed (older ones are dropped)."""
+        now = self._clock.now()
+        ready = [(t, T) for t, T in self._poses if t + self.latency_s <= now and t > self._last_read_t]
+        if not ready:
+            return None
+        t, T = ready[-1]
+        self._last_read_t = t
+        if not self._in_view(T):
+            self.out_of_view += 1
+            return None
+        frame = self.camera.capture(T, t)
+        self.rendered += 1
+        self._index += 1
+        return Frame(t, frame.image, self._index)
+
+    def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+
+class SimUwbSource:
+    api_version: ClassVar[int] = 1
+
+    def __init__(self, vehicle: SimVehicle, uwb: SimulatedUwb, T_world_anchors_true: Transform, rate_hz: float = 10.0):
+        self.vehicle = vehicle
+        self.uwb = uwb
+        self.T_anchors_world = T_world_anchors_true.inverse()
+        self.rate_hz = rate_hz
+        self._clock = LoopClock()
+        self._out: list[TwrMeasurement] = []
+        self._task: asyncio.Task[None] | None = None
+        self.samples = 0
+
+    def start(self) -> None:
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-uwb")
+
+    async def _run(self) -> None:
+        rate = RateLoop(self._clock, self.rate_hz)
+        while True:
+            t = await rate.tick()
+            self.vehicle.step_to(t)
+            tag = self.T_anchors_world.apply(np.array([self.vehicle.pn, self.vehicle.pe, self.vehicle.pd]))
+            m = self.uwb.twr(t, tag)
+            if len(m.anchor_ids) > 0:
+                self._out.append(m)
+                self.samples += 1
+                if len(self._out) > 50:
+                    del self._out[:-50]
+
+    def read(self) -> list[TwrMeasurement]:
+        out, self._out = self._out, []
+        return out
+
+    def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(Exception):
+                self._task = None
