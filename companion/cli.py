@@ -204,6 +204,45 @@ def cmd_bench_vision(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_campaign_landing(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from companion_sitl.landing_campaign import FAILURE_VARIANTS, run_landing_campaign, write_outputs
+
+    variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
+    if args.variants:
+        variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    console = Console()
+    with Progress(
+        TextColumn("{task.description:<12}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=args.quiet,
+    ) as progress:
+        task = progress.add_task("landing", total=args.n * len(variants))
+
+        def on_progress(variant: str, done: int, total: int) -> None:
+            progress.update(task, description=variant, completed=done)
+
+        result = run_landing_campaign(args.n, args.seed, tuple(variants), args.params, on_progress)
+    out = Path(args.out) if args.out else Path("runs") / time.strftime("landing-%Y%m%d-%H%M%S")
+    files = write_outputs(result, out)
+    table = Table(title=f"{args.n} landings per variant, seed {args.seed} (true touchdown vs true pad centre)")
+    for col in ("variant", "mean", "median", "p95", "max", "on the pad"):
+        table.add_column(col, justify="right" if col != "variant" else "left")
+    for v, s in result["summary"].items():
+        table.add_row(
+            v, *(f"{s[k] * 100:.1f} cm" for k in ("mean_m", "median_m", "p95_m", "max_m")), f"{s['on_pad_pct']:.0f} %"
+        )
+    console.print(table)
+    console.print(f"written: {', '.join(str(f) for f in files)}")
+    return 0
+
+
 def cmd_params_show(args: argparse.Namespace) -> int:
     from companion.config import describe_parameters
 
@@ -286,6 +325,15 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     be.set_defaults(func=cmd_bench_estimation)
     campaign = sub.add_parser("campaign", help="repeated simulated experiments with summary statistics")
     csub = campaign.add_subparsers(dest="campaign", metavar="WHAT", required=True)
+    cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
+    cl.add_argument("--n", type=int, default=100, help="landings per variant")
+    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--failures", action="store_true", help="also: no_camera, no_uwb, outer_only, inner_only")
+    cl.add_argument("--variants", help="comma-separated variants (overrides --failures)")
+    cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
+    cl.add_argument("--quiet", action="store_true")
+    cl.set_defaults(func=cmd_campaign_landing)
     try:
         importlib.import_module("companion.mission.dart_commands").register_campaign(csub)
     except ImportError as err:

@@ -240,6 +240,7 @@ class LandingConfig(_Section):
         (0.05, 0.0, 0.08), "m", "camera position in the body frame (FRD)"
     )
     uwb_rate_hz: float = _f(10.0, "Hz", "UWB ranging rate", ge=0.5, le=100.0)
+    markers: Literal["both", "outer", "inner"] = _f("both", "-", "which of the nested pad's markers to use")
 
 
 class CompanionConfig(_Section):

@@ -253,7 +253,8 @@ def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: t
     if lc.use_camera:
         sim_cam = SimulatedCamera(cam_model, layout, T_body_camera=mount, T_world_pad=T_world_pad_true, seed=seed)
         camera = SimCameraSource(vehicle, sim_cam, lc.camera_rate_hz, lc.camera_latency_s)
-        detector = PadDetector(cam_model, layout)
+        markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
+        detector = PadDetector(cam_model, layout, markers=markers)
     anchors = load_anchor_layout()
     if lc.use_uwb:
         uwb = SimUwbSource(vehicle, SimulatedUwb(anchors, seed=seed + 1), T_world_pad_true, lc.uwb_rate_hz)

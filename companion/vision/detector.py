@@ -387,7 +387,11 @@ class PadDetector:
     """
 
     def __init__(self, camera: CameraModel, layout: PadLayout | None = None,
-                 config: DetectorConfig | None = None) -> None:
+                 config: DetectorConfig | None = None, markers: tuple[str, ...] = MARKERS) -> None:
+        """``markers``: which of the pad's markers to use ("outer", "inner"); a marker left out is
+        ignored even when seen (a damaged or covered marker, and the campaign's failure variants)."""
+        if not markers or any(m not in MARKERS for m in markers):
+            raise ValueError(f"markers = {markers!r}: choose from {MARKERS}")
         self.camera = camera
         self.layout = layout if layout is not None else PadLayout()
         self.config = config if config is not None else DetectorConfig()
@@ -400,7 +404,8 @@ class PadDetector:
             if dname not in dict_names:
                 dict_names.append(dname)
                 self._dicts.append(aruco_dictionary(dname))
-            self._targets[(dict_names.index(dname), getattr(lay, f"{which}_id"))] = which
+            if which in markers:
+                self._targets[(dict_names.index(dname), getattr(lay, f"{which}_id"))] = which
         w, h = camera.size
         min_rate = 4.0 * self.config.min_marker_px / max(w, h)
         self._full = cv2.aruco.ArucoDetector(self._dicts[0], _params(min_rate))
