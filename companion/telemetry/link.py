@@ -11,6 +11,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from companion import __version__
 from companion.autopilot.interface import TelemetryCache
 from companion.autopilot.types import StatusText, TelemetrySample
@@ -19,7 +21,9 @@ from companion.mission.events import MissionEvent, Phase
 from companion.telemetry.auth import CommandSettings, GroundCommand
 from companion.telemetry.publisher import TelemetryPublisher, TelemetrySettings, call_in_loop
 from companion.telemetry.schema import (
+    EstimateMessage,
     HealthMessage,
+    LandingMessage,
     LogMessage,
     MissionMessage,
     RejectionCount,
@@ -97,6 +101,43 @@ class ShellTelemetry:
         est = shell.estimate
         if est is not None:
             pub.publish(StateMessage.from_samples(est, tc.global_position, tc.status, tc.gps))
+        fusion = getattr(shell, "fusion", None)
+        if fusion is not None and fusion.ekf.initialized:
+            fe = fusion.estimate()
+            c = fusion.counters
+            rejected = sum(n for k, n in c.outcomes.items() if ".rejected" in k)
+            accepted = sum(n for k, n in c.outcomes.items() if k.endswith(".accepted"))
+            x = fusion.ekf.x
+            pub.publish(
+                EstimateMessage(
+                    fe.time_s,
+                    "ekf",
+                    fe.north_m,
+                    fe.east_m,
+                    fe.down_m,
+                    fe.roll_rad,
+                    fe.pitch_rad,
+                    fe.yaw_rad,
+                    fe.gps_bias_north_m,
+                    fe.gps_bias_east_m,
+                    fe.gps_bias_down_m,
+                    float(x[9]),
+                    float(x[10]),
+                    float(x[11]),
+                    tuple(float(v) for v in np.diag(fusion.ekf.P)),
+                    accepted,
+                    rejected,
+                )
+            )
+            age = fusion.pad_data_age_s(now)
+            pub.publish(
+                LandingMessage(
+                    now,
+                    pad_visible=math.isfinite(age) and age < 0.5,
+                    observation_age_s=age if math.isfinite(age) else None,
+                    uwb_fix_ok=c.uwb_used > 0,
+                )
+            )
         v = None if not math.isfinite(lyapunov) else lyapunov
         pub.publish(MissionMessage(now, phase, sector or None, v))
         for ev in events:

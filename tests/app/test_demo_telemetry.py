@@ -46,7 +46,10 @@ def test_demo_publishes_every_mission_event_to_the_ground(tmp_path):
     with_event = [line for line in events if '"event": {' in line or '"event":{' in line]
     assert len(with_event) == len(r.events)  # never dropped
     assert ground.counters().lost == 0
-    assert (tmp_path / "rec" / "drone1" / "state.jsonl").stat().st_size > 0
+    for topic in ("state", "estimate", "landing", "health", "log"):
+        assert (tmp_path / "rec" / "drone1" / f"{topic}.jsonl").stat().st_size > 0, topic
+    est = [line for line in (tmp_path / "rec" / "drone1" / "estimate.jsonl").read_text().splitlines() if line]
+    assert '"source": "ekf"' in est[-1] or '"source":"ekf"' in est[-1]
 
 
 @pytest.mark.slow
