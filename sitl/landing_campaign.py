@@ -187,7 +187,9 @@ def write_outputs(result: dict[str, Any], out_dir: Path) -> list[Path]:
     ax.set_ylabel("north of the pad centre [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
-    ax.set_title(f"True touchdown points, {result['n']} landings per variant (2-sigma ellipses; cf. delivery Fig. 15)")
+    ax.set_title(
+        f"True touchdowns, {result['n']} landings per variant\n(2-sigma ellipses; cf. delivery Fig. 15)", fontsize=10
+    )
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     png = out_dir / "landing_scatter.png"
