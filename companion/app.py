@@ -34,7 +34,7 @@ from companion.mission.delivery import (
     RequestKind,
     RequestResult,
 )
-from companion.mission.events import MissionEvent
+from companion.mission.events import MissionEvent, Phase
 from companion.scheduling import LoopClock, RateLoop
 
 log = logging.getLogger(__name__)
@@ -239,8 +239,6 @@ class DeliveryShell:
         log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
 
     def _vision_wanted(self) -> bool:
-        from companion.mission.events import Phase
-
         m = self.mission
         return m.phase is Phase.LANDING_PAD or (m.phase is Phase.OUTBOUND and m._sector >= 5)
 
