@@ -89,3 +89,10 @@ def test_demo_over_mavlink_px4(tmp_path, capsys):
     assert rc == 0, text
     assert "DELIVERED, returned home" in text
     assert json.loads((out / "summary.json").read_text())["pad_landing_error_m"] < 1.0
+
+
+@pytest.mark.slow
+def test_bench_sim_reports_both_flights(capsys):
+    assert main(["bench", "sim", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "GPS-only (simulator + guidance):" in out and "with camera rendering" in out
