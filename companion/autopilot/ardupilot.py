@@ -32,7 +32,7 @@ from typing import Any, Literal
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
-from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -218,7 +218,7 @@ class ArduPilotAutopilot(Autopilot):
         self._first_hb: asyncio.Future[None] | None = None
         self._last_hb = -math.inf
         self._last_rx = -math.inf
-        self._lost_at: float | None = None
+        self._latch = LinkLatch()
         self._last_attitude = -math.inf
         self._last_stream_request = -math.inf
         self._t_boot = time.monotonic()
@@ -300,15 +300,7 @@ class ArduPilotAutopilot(Autopilot):
         now = time.monotonic()
         hb_age, rx_age = now - self._last_hb, now - self._last_rx
         fresh = hb_age <= self.link_timeout_s or (rx_age <= self.link_timeout_s and hb_age <= HEARTBEAT_GRACE_S)
-        if not fresh:
-            if self._lost_at is None:
-                self._lost_at = now
-            return False
-        if self._lost_at is not None:  # after a loss: up again only with a fresh heartbeat (fresh mode)
-            if self._last_hb <= self._lost_at:
-                return False
-            self._lost_at = None
-        return True
+        return self._latch.check(now, fresh, self._last_hb)
 
     @property
     def mode(self) -> FlightMode:

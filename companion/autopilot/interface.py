@@ -30,6 +30,30 @@ class AutopilotError(RuntimeError):
     """A command was refused, timed out, or the link is unusable."""
 
 
+class LinkLatch:
+    """Link-state latch shared by the MAVLink backends.
+
+    Each backend decides whether its link is *fresh* (its own rule: heartbeats, telemetry). Once
+    the link has been lost it counts as up again only after a heartbeat newer than the loss, so
+    the mode the mission sees on reconnect is current (a stale mode would look like a pilot
+    takeover).
+    """
+
+    def __init__(self) -> None:
+        self._lost_at: float | None = None
+
+    def check(self, now_s: float, fresh: bool, last_heartbeat_s: float) -> bool:
+        if not fresh:
+            if self._lost_at is None:
+                self._lost_at = now_s
+            return False
+        if self._lost_at is not None:
+            if last_heartbeat_s <= self._lost_at:
+                return False
+            self._lost_at = None
+        return True
+
+
 class TelemetryCache:
     """The newest valid sample of each kind, plus counters of what was rejected.
 

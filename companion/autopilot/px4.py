@@ -31,7 +31,7 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any, Literal
 
-from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -172,7 +172,7 @@ class Px4Autopilot(Autopilot):
         self._connected = False
         self._last_rx = -math.inf
         self._last_hb = -math.inf
-        self._lost_at: float | None = None
+        self._latch = LinkLatch()
         self._last_sp_call = -math.inf
         self._plugin_streaming = False
         self._t_boot = time.monotonic()
@@ -414,15 +414,7 @@ class Px4Autopilot(Autopilot):
             return False
         now = time.monotonic()
         fresh = self._connected and now - self._last_rx <= self.link_timeout_s
-        if not fresh:
-            if self._lost_at is None:
-                self._lost_at = now
-            return False
-        if self._lost_at is not None:
-            if self._last_hb <= self._lost_at:
-                return False
-            self._lost_at = None
-        return True
+        return self._latch.check(now, fresh, self._last_hb)
 
     # ------------------------------------------------------------------ commands
     async def _call(self, name: str, fn: Callable[[], Awaitable[Any]]) -> Any:

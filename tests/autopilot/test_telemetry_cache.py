@@ -16,3 +16,14 @@ def test_nan_sample_rejected_and_counted_last_good_kept():
     assert "north_m" in tc.last_rejection or "north_m_s" in tc.last_rejection
     assert seen == [good]
     assert tc.push(StatusText(4.0, 6, "hello"))
+
+
+def test_link_latch_needs_a_heartbeat_newer_than_the_loss():
+    from companion.autopilot.interface import LinkLatch
+
+    latch = LinkLatch()
+    assert latch.check(1.0, True, 0.9)
+    assert not latch.check(2.0, False, 0.9)  # lost at t = 2
+    assert not latch.check(2.5, True, 1.9)  # telemetry again, but no heartbeat since the loss
+    assert latch.check(3.0, True, 2.8)  # fresh heartbeat: up
+    assert latch.check(3.1, True, 2.8)
