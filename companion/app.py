@@ -78,6 +78,7 @@ class LandingKit:
     ekf_config: Any = None  # estimation.EkfConfig (None: defaults)
     vision_in_thread: bool = True  # off the event loop in flight; inline under virtual time (deterministic)
     poll_rate_hz: float = 60.0
+    sensors_started: bool = False  # started before take-off (a real vehicle); else at fusion start
 
 
 @dataclass
@@ -100,10 +101,12 @@ class DeliveryShell:
         on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
         telemetry: bool = False,
         landing: LandingKit | None = None,
+        recorder: Any | None = None,
     ):
         self.config = config
+        self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
-        self.mission = DeliveryMission(config.mission)
+        self.mission = DeliveryMission(config.mission, config.landing.controller)
         self.estimator = AutopilotPoseEstimator()
         self.flight_log = flight_log
         self.on_tick = on_tick
@@ -121,10 +124,15 @@ class DeliveryShell:
         self._sensor_task: asyncio.Task[None] | None = None
         self.telemetry: Any = None  # companion.telemetry.link.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
+        self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
+        self.landing_targets_sent = 0
 
     def on_ground_command(self, cmd: Any) -> str:
         """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
-        reply = self.mission.command(self._clock.now(), cmd.kind.value, cmd.sender)
+        now = self._clock.now()
+        reply = self.mission.command(now, cmd.kind.value, cmd.sender)
+        if self.recorder is not None:
+            self.recorder.on_command(now, cmd.kind.value, cmd.sender, reply)
         self.ground_commands.append((cmd.kind.value, reply))
         log.warning("ground command %s from %s: %s", cmd.kind.value, cmd.sender, reply)
         return reply
@@ -135,6 +143,9 @@ class DeliveryShell:
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
         loop = asyncio.get_running_loop()
+        if self.recorder is not None:
+            # first listener: every sample gets a seq
+            self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)
         if self._want_telemetry:
             from companion.telemetry.link import ShellTelemetry, command_handler, make_publisher
 
@@ -171,6 +182,8 @@ class DeliveryShell:
             if self.telemetry is not None:
                 self.telemetry.close()
                 await self.telemetry.publisher.astop()
+            if self.recorder is not None:
+                self.recorder.detach()  # its owner closes it
         return self.mission.summary
 
     # ------------------------------------------------------------------ tasks
@@ -182,6 +195,8 @@ class DeliveryShell:
             now = await rate.tick()
             self.stats.guidance_overruns = rate.overruns
             if self._abort_reason is not None:
+                if self.recorder is not None:
+                    self.recorder.on_abort(now, self._abort_reason)
                 mission.abort(now, self._abort_reason)
                 self._abort_reason = None
             self.estimate = self.estimator.update(tc.position_ned, tc.attitude)
@@ -193,7 +208,8 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and not mission.summary.delivered and not mission.returning:
                     self.estimate = fused
-            out = mission.step(MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok))
+            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok)
+            out = mission.step(inp)
             for ev in out.events:
                 self.events.append(ev)
                 level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
@@ -211,6 +227,9 @@ class DeliveryShell:
             if out.request is not None:
                 self._request_task = asyncio.get_running_loop().create_task(self._execute(out.request))
             self._record(now, out, clamped)
+            if self.recorder is not None:
+                sp = self._setpoint[1] if self._setpoint is not None else None
+                self.recorder.on_tick(inp, out, sp, clamped, mission, self.fusion)
             if self.telemetry is not None:
                 self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
             if self.on_tick is not None:
@@ -231,9 +250,19 @@ class DeliveryShell:
             ekf=kit.ekf_config or EkfConfig(),
         )
         self.fusion = LandingFusion(setup, now)
+        if self.config.landing.landing_target_output != "off":
+            from companion.autopilot.landing_target import LandingTargetBuilder
+            from companion.vision.pad import PadLayout
+
+            self._landing_target = LandingTargetBuilder(
+                self.config.landing.landing_target_output,
+                kit.T_body_camera,
+                setup.T_world_pad,
+                getattr(kit.detector, "layout", PadLayout()).outer_size_m,
+            )
         self.autopilot.telemetry.add_listener(self.fusion.on_sample)
         for dev in (kit.camera, kit.uwb):
-            if dev is not None:
+            if dev is not None and not kit.sensors_started:
                 dev.start()
         self._sensor_task = asyncio.get_running_loop().create_task(self._sensor_loop(), name="landing-sensors")
         log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
@@ -259,13 +288,33 @@ class DeliveryShell:
                     else:
                         obs = kit.detector.detect(frame.image, frame.time_s)
                     if obs is not None:
+                        if self.recorder is not None:
+                            self.recorder.on_marker(self._clock.now(), obs)
                         self.fusion.on_marker(obs)
+                        if self._landing_target is not None:
+                            self._send_landing_target(obs)
             if kit.uwb is not None and kit.multilaterator is not None:
                 for m in kit.uwb.read():
                     meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
                     res = kit.multilaterator.solve_twr(meas)
                     if isinstance(res, UwbFix):
+                        if self.recorder is not None:
+                            self.recorder.on_uwb(self._clock.now(), res)
                         self.fusion.on_uwb(res)
+
+    def _send_landing_target(self, obs: Any) -> None:
+        """LANDING_TARGET for the autopilot's own precision landing (ambiguous poses never sent)."""
+        from companion.autopilot.landing_target import LandingTargetError
+
+        if getattr(obs, "ambiguous", False) or self.fusion is None or not self.fusion.pad_locked:
+            return
+        try:
+            target = self._landing_target.build(obs.time_s, obs.T_camera_pad, self.fusion.estimate())
+            self.autopilot.send_landing_target(target)
+        except (LandingTargetError, AutopilotError) as err:
+            log.warning("LANDING_TARGET not sent: %s", err)
+            return
+        self.landing_targets_sent += 1
 
     async def _setpoint_stream(self) -> None:
         rt = self.config.runtime
@@ -277,6 +326,8 @@ class DeliveryShell:
             if sp is not None and now - sp[0] <= rt.setpoint_stale_s:
                 self.autopilot.set_velocity_ned(sp[1])
                 self.stats.setpoints_sent += 1
+                if self.recorder is not None:
+                    self.recorder.on_setpoint(now, sp[1])
                 self._streaming = True
             elif self._streaming:
                 self._streaming = False
@@ -297,6 +348,7 @@ class DeliveryShell:
             RequestKind.START_OFFBOARD: ap.start_offboard,
             RequestKind.HOLD: ap.hold,
             RequestKind.LAND: ap.land,
+            RequestKind.PRECISION_LAND: ap.precision_land,
             RequestKind.RELEASE: ap.release_payload,
         }
         try:
@@ -308,9 +360,14 @@ class DeliveryShell:
             self.stats.requests_failed += 1
             msg = str(err) or type(err).__name__
             log.warning("%s failed: %s", req.kind.value, msg)
-            self.mission.on_result(RequestResult(req.id, False, msg))
+            self._result(req, RequestResult(req.id, False, msg))
             return
-        self.mission.on_result(RequestResult(req.id, True))
+        self._result(req, RequestResult(req.id, True))
+
+    def _result(self, req: Request, result: RequestResult) -> None:
+        if self.recorder is not None:
+            self.recorder.on_result(self._clock.now(), req.kind.value, result)
+        self.mission.on_result(result)
 
     def _record(self, now: float, out: MissionOutput, clamped: bool) -> None:
         if self.flight_log is None:

@@ -28,6 +28,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "companion.vision.commands",
     "companion.telemetry.commands",
     "companion.autopilot.commands",
+    "companion.flightlog.commands",
+    "companion.mission.dart_commands",
 )
 
 

@@ -78,12 +78,15 @@ class MissionConfig(_Section):
     )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
     landing_xy_gain_1_s: float = _f(
-        0.8, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=5.0
+        3.0, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=5.0
     )
     landing_xy_tolerance_m: float = _f(
         0.1, "m", "final descent slows when farther than this off the target, and holds at twice it", gt=0.01, le=5.0
     )
     landing_max_xy_speed_m_s: float = _f(1.0, "m/s", "final descent: horizontal speed limit", gt=0.05, le=5.0)
+    landing_hold_min_height_m: float = _f(
+        0.5, "m", "final descent: below this height the descent no longer pauses when off-centre", ge=0.0, le=5.0
+    )
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
@@ -241,6 +244,31 @@ class LandingConfig(_Section):
     )
     uwb_rate_hz: float = _f(10.0, "Hz", "UWB ranging rate", ge=0.5, le=100.0)
     markers: Literal["both", "outer", "inner"] = _f("both", "-", "which of the nested pad's markers to use")
+    camera_plugin: str = _f("opencv", "-", "companion.cameras plugin for the downward camera (companion fly)")
+    camera_source: str = _f(
+        "0", "-", "camera plugin source: V4L2 device index, video/image file, or GStreamer pipeline", min_length=1
+    )
+    camera_calibration: str = _f(
+        "camera_rpi_v2.toml", "-", "camera calibration TOML (a path, or a file shipped in params/)", min_length=1
+    )
+    pad_file: str = _f("pad_delivery.toml", "-", "nested pad layout TOML (a path, or shipped in params/)", min_length=1)
+    uwb_plugin: str = _f("dwm1001", "-", "companion.uwb plugin for the UWB tag (companion fly)")
+    uwb_port: str = _f("/dev/ttyACM0", "-", "serial port of the UWB tag", min_length=1)
+    uwb_anchors: str = _f(
+        "uwb_anchors_pad.toml", "-", "UWB anchor layout TOML, pad frame (a path, or shipped in params/)", min_length=1
+    )
+    controller: Literal["companion", "autopilot"] = _f(
+        "companion",
+        "-",
+        "who flies the descent onto the pad: our fused EKF + velocity setpoints, or the autopilot's own "
+        "precision landing (PX4 AUTO.PRECLAND, ArduPilot LAND with PLND) fed LANDING_TARGET",
+    )
+    landing_target_output: Literal["off", "local_ned", "body_angles"] = _f(
+        "off",
+        "-",
+        "send LANDING_TARGET from our pad observations: local_ned (PX4: pad in its local frame), "
+        "body_angles (ArduPilot PLND_TYPE=1: angles + distance), off",
+    )
 
 
 class CompanionConfig(_Section):
@@ -267,6 +295,18 @@ class CompanionConfig(_Section):
             raise ValueError(
                 f"runtime.link_timeout_s ({self.runtime.link_timeout_s}) must be < mission.estimate_timeout_s "
                 f"({self.mission.estimate_timeout_s}): a lost link must be noticed before the estimate goes stale"
+            )
+        lc = self.landing
+        if lc.controller == "autopilot" and (lc.landing_target_output == "off" or not lc.use_camera):
+            raise ValueError(
+                f"landing.controller = 'autopilot' needs landing.landing_target_output 'local_ned' or 'body_angles' "
+                f"(got {lc.landing_target_output!r}) and landing.use_camera = true (got {lc.use_camera}): "
+                "the autopilot's precision landing only knows the pad from our LANDING_TARGET messages"
+            )
+        if lc.landing_target_output == "local_ned" and not lc.fusion:
+            raise ValueError(
+                "landing.landing_target_output = 'local_ned' needs landing.fusion = true: the pad's position in the "
+                "autopilot's frame comes from the EKF's GPS-bias state"
             )
         return self
 

@@ -4,6 +4,11 @@ A physics task steps :class:`SimVehicle` at its physics rate on the running loop
 publishes telemetry at the configured stream rates, like an autopilot streaming MAVLink. Under
 :class:`companion_sitl.clock.VirtualTimeEventLoop` this runs in lock-step far faster than real
 time; under a normal loop it runs in real time (``companion demo --realtime``).
+
+With ``tlog_path`` it writes a MAVLink ``.tlog`` although no MAVLink crosses this link: what
+the autopilot reports and what the companion sends are encoded as the MAVLink 2 a PX4 would
+exchange (:class:`companion.flightlog.tlog.TelemetryEncoder`), stamped on the loop's clock;
+virtual time is mapped onto :data:`SIM_TLOG_EPOCH_S`, so the file is identical for a seed.
 """
 
 from __future__ import annotations
@@ -11,21 +16,43 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
+import time
+from pathlib import Path
 
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
-from companion.autopilot.types import FlightMode, StatusText, VelocitySetpoint
+from companion.autopilot.types import FlightMode, LandingTarget, StatusText, TelemetrySample, VelocitySetpoint
 from companion.config import SimConfig
+from companion.flightlog.tlog import TelemetryEncoder, TlogWriter
 from companion.scheduling import LoopClock, RateLoop
+from companion_sitl.clock import VirtualTimeEventLoop
 from companion_sitl.vehicle import SimCommandError, SimVehicle
 
 log = logging.getLogger(__name__)
 
+SIM_TLOG_EPOCH_S = 1_735_689_600.0  # 2025-01-01T00:00:00Z: virtual time 0 in a simulated .tlog
+
+# the COMMAND_LONG a PX4 companion would send for each command (MAV_CMD, params)
+_MAV_COMMANDS: dict[str, tuple[int, tuple[float, ...]]] = {
+    "arm": (400, (1.0,)),  # COMPONENT_ARM_DISARM
+    "disarm": (400, (0.0,)),
+    "takeoff": (22, ()),  # NAV_TAKEOFF (param7: altitude, filled in)
+    "start_offboard": (176, (1.0, 6.0)),  # DO_SET_MODE custom, PX4 OFFBOARD
+    "hold": (176, (1.0, 4.0, 3.0)),  # DO_SET_MODE custom, PX4 AUTO.LOITER
+    "land": (21, ()),  # NAV_LAND
+    "precision_land": (176, (1.0, 4.0, 9.0)),  # DO_SET_MODE custom, PX4 AUTO.PRECLAND
+    "release_payload": (211, (1.0, 0.0)),  # DO_GRIPPER 1 release
+}
+
 
 class SimAutopilot(Autopilot):
-    def __init__(self, cfg: SimConfig, vehicle: SimVehicle | None = None):
+    def __init__(self, cfg: SimConfig, vehicle: SimVehicle | None = None, tlog_path: str | Path | None = None):
         self.cfg = cfg
         self.vehicle = vehicle or SimVehicle(cfg)
         self.telemetry = TelemetryCache()
+        self.tlog_path = tlog_path
+        self.tlog: TlogWriter | None = None
+        self._tlog_enc: TelemetryEncoder | None = None
         self._clock = LoopClock()
         self._task: asyncio.Task[None] | None = None
         self._link_up = True
@@ -35,15 +62,40 @@ class SimAutopilot(Autopilot):
     # ------------------------------------------------------------------ link
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._task is None:
+            if self.tlog_path is not None and self.tlog is None:
+                self._open_tlog(self.tlog_path)
             self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-physics")
         await asyncio.sleep(0)
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        try:
+            if self._task is not None:
+                self._task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._task
+                self._task = None
+        finally:
+            tlog, self.tlog = self.tlog, None
+            if tlog is not None:
+                self.telemetry.remove_listener(self._tlog_sample)
+                self._tlog_enc = None
+                tlog.close()
+
+    def _open_tlog(self, path: str | Path) -> None:
+        from companion_sitl.mavlink_vehicle import px4_custom_mode
+
+        loop = asyncio.get_running_loop()
+        boot = loop.time()
+        # virtual time -> a fixed epoch (same file for a seed); real time -> the wall clock
+        offset = SIM_TLOG_EPOCH_S if isinstance(loop, VirtualTimeEventLoop) else time.time() - boot
+        # never drop: under virtual time waiting for the writer costs no simulated time
+        self.tlog = TlogWriter(path, drop_when_full=False, clock=lambda: offset + loop.time())
+        self._tlog_enc = TelemetryEncoder(self.tlog, boot_s=boot, clock=loop.time, custom_mode=px4_custom_mode)
+        self.telemetry.add_listener(self._tlog_sample)
+
+    def _tlog_sample(self, sample: TelemetrySample) -> None:
+        if self._tlog_enc is not None:
+            self._tlog_enc.sample(sample)
 
     @property
     def link_ok(self) -> bool:
@@ -57,12 +109,24 @@ class SimAutopilot(Autopilot):
     async def _command(self, name: str, fn, *args) -> None:  # type: ignore[no-untyped-def]
         if not self.link_ok:
             raise AutopilotError(f"{name}: link is down")
+        enc = self._tlog_enc
+        cmd, params = _MAV_COMMANDS.get(name, (0, ()))
+        if enc is not None and cmd:
+            if name == "takeoff":  # PX4 takes the altitude AMSL in param7
+                home = self.telemetry.home
+                alt = (home.alt_amsl_m if home is not None else 0.0) + float(args[0])
+                params = (0.0, 0.0, 0.0, math.nan, 0.0, 0.0, alt)
+            enc.command(cmd, params)
         await asyncio.sleep(self.cfg.vehicle.command_latency_s)
         self.vehicle.step_to(self._clock.now())
         try:
             fn(*args)
         except SimCommandError as err:
+            if enc is not None and cmd:
+                enc.command_ack(cmd, 4)  # MAV_RESULT_FAILED
             raise AutopilotError(f"{name}: {err}") from None
+        if enc is not None and cmd:
+            enc.command_ack(cmd, 0)  # MAV_RESULT_ACCEPTED
 
     async def arm(self) -> None:
         await self._command("arm", self.vehicle.arm)
@@ -79,6 +143,8 @@ class SimAutopilot(Autopilot):
         self.vehicle.step_to(self._clock.now())
         self.vehicle.set_velocity(setpoint)
         self.setpoints_received += 1
+        if self._tlog_enc is not None:
+            self._tlog_enc.setpoint(setpoint)
 
     async def start_offboard(self) -> None:
         await self._command("start_offboard", self.vehicle.start_offboard)
@@ -91,6 +157,17 @@ class SimAutopilot(Autopilot):
 
     async def release_payload(self) -> None:
         await self._command("release_payload", self.vehicle.release_payload)
+
+    async def precision_land(self) -> None:
+        await self._command("precision_land", self.vehicle.precision_land)
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """The in-process vehicle reads the local-NED form (as PX4 does); angles are not used."""
+        if not self.link_ok:
+            return
+        self.vehicle.step_to(self._clock.now())
+        if target.position_valid:
+            self.vehicle.set_landing_target(target.north_m, target.east_m)
 
     def pilot_set_mode(self, mode: FlightMode) -> None:
         self.vehicle.pilot_set_mode(mode)

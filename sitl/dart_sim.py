@@ -43,7 +43,6 @@ disengaged the override is released and the flight controller reads the pilot's 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections import deque
@@ -70,15 +69,15 @@ from companion.estimation.dart_estimators import (
     wall_marker,
 )
 from companion.geometry import Transform, euler_to_rotmat
-from companion.guidance.pid import DartCommand, DartController, DartControllerConfig, DartSetpoint, PidGains
+from companion.guidance.pid import DartCommand, DartController, DartControllerConfig, DartSetpoint
 from companion.mission.dart import (
     DartMission,
     DartMissionConfig,
-    DartParamsError,
     dataclass_from_table,
     load_mission_config,
     read_toml,
 )
+from companion.mission.dart_params import DartControlGains, DartRuntimeConfig, check_tables
 from companion.vision.camera import CameraModel, load_default_camera
 from companion.vision.detector import MarkerObservation, PadDetector
 from companion.vision.pad import PadLayout
@@ -99,7 +98,7 @@ ESTIMATOR_GIMBAL: dict[str, GimbalKind] = {
 }
 
 NEUTRAL_US = 1500.0
-_DIST_SMOOTH_S = 0.05  # smoothing lag of the attitude disturbance
+DIST_SMOOTH_S = 0.05  # smoothing lag of the attitude disturbance
 SWITCH_ON_US = 2000.0
 SWITCH_OFF_US = 1000.0
 
@@ -162,15 +161,42 @@ class DartSimConfig:
     start_offset_m: tuple[float, float, float] = (0.05, -0.05, 0.1)  # marker frame, from the setpoint
 
     def __post_init__(self) -> None:
-        for name in ("physics_hz", "attitude_tau_s", "yaw_rate_tau_s", "max_tilt_deg", "max_yaw_rate_deg_s",
-                     "max_climb_m_s", "climb_gain_per_s", "hover_throttle", "gust_tau_s",
-                     "attitude_disturbance_tau_s", "vibration_hz", "camera_scale", "exposure_s", "gimbal_tau_s",
-                     "outer_size_m", "inner_size_m", "pad_size_m", "wall_size_m"):
+        for name in (
+            "physics_hz",
+            "attitude_tau_s",
+            "yaw_rate_tau_s",
+            "max_tilt_deg",
+            "max_yaw_rate_deg_s",
+            "max_climb_m_s",
+            "climb_gain_per_s",
+            "hover_throttle",
+            "gust_tau_s",
+            "attitude_disturbance_tau_s",
+            "vibration_hz",
+            "camera_scale",
+            "exposure_s",
+            "gimbal_tau_s",
+            "outer_size_m",
+            "inner_size_m",
+            "pad_size_m",
+            "wall_size_m",
+        ):
             _finite(name, getattr(self, name), positive=True)
-        for name in ("drag_per_s", "gust_std_m_s", "attitude_disturbance_deg", "gyro_noise_rad_s",
-                     "gyro_bias_rad_s", "accel_noise_m_s2", "accel_bias_m_s2", "accel_vibration_m_s2",
-                     "gyro_vibration_rad_s", "camera_latency_s", "image_noise_std", "gimbal_coupling",
-                     "gimbal_noise_deg"):
+        for name in (
+            "drag_per_s",
+            "gust_std_m_s",
+            "attitude_disturbance_deg",
+            "gyro_noise_rad_s",
+            "gyro_bias_rad_s",
+            "accel_noise_m_s2",
+            "accel_bias_m_s2",
+            "accel_vibration_m_s2",
+            "gyro_vibration_rad_s",
+            "camera_latency_s",
+            "image_noise_std",
+            "gimbal_coupling",
+            "gimbal_noise_deg",
+        ):
             _finite(name, getattr(self, name), low=0.0)
         for name in ("wind_ned_m_s", "lens_offset_m", "start_offset_m"):
             for v in getattr(self, name):
@@ -195,73 +221,46 @@ class DartSimConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class DartControlGains:
-    """Gains of the four decoupled PIDs (guidance.pid.DartController) in RC microseconds per
-    metre (kp), per metre-second (ki), per metre/second (kd); yaw in us per rad. "Horizontal" is
-    C_x and C_z (roll and pitch), "vertical" C_y (climb). dart sec. 3.2.2: the PIDs were tuned on
-    numerical simulations of a simplified model; these are tuned on this simulator, identical for
-    every estimator."""
-
-    horizontal_kp: float = 400.0
-    horizontal_ki: float = 120.0
-    horizontal_kd: float = 250.0
-    horizontal_limit_us: float = 200.0
-    horizontal_i_limit_us: float = 100.0
-    vertical_kp: float = 150.0
-    vertical_ki: float = 40.0
-    vertical_kd: float = 60.0
-    vertical_limit_us: float = 200.0
-    vertical_i_limit_us: float = 150.0
-    d_filter_tau_s: float = 0.1
-    yaw_kp: float = 200.0
-    yaw_limit_us: float = 150.0
-
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            _finite(f.name, getattr(self, f.name), low=0.0)
-        for name in ("horizontal_limit_us", "vertical_limit_us", "yaw_limit_us"):
-            _finite(name, getattr(self, name), positive=True)
-
-    def controller_config(self, rate_hz: float = 22.0) -> DartControllerConfig:
-        def pid(kp: float, ki: float, kd: float, lim: float, ilim: float) -> PidGains:
-            return PidGains(kp=kp, ki=ki, kd=kd, d_filter_tau_s=self.d_filter_tau_s, out_min=-lim, out_max=lim,
-                            i_min=-ilim, i_max=ilim)
-
-        h = pid(self.horizontal_kp, self.horizontal_ki, self.horizontal_kd, self.horizontal_limit_us,
-                self.horizontal_i_limit_us)
-        v = pid(self.vertical_kp, self.vertical_ki, self.vertical_kd, self.vertical_limit_us, self.vertical_i_limit_us)
-        yaw = PidGains(kp=self.yaw_kp, out_min=-self.yaw_limit_us, out_max=self.yaw_limit_us, wrap_error=True)
-        return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
-
-
-@dataclass(frozen=True, slots=True)
 class DartParams:
     """A Dart parameter file: the simulation, the controller gains and the mission."""
 
     sim: DartSimConfig = field(default_factory=DartSimConfig)
     control: DartControlGains = field(default_factory=DartControlGains)
     mission: DartMissionConfig = field(default_factory=DartMissionConfig)
+    runtime: DartRuntimeConfig = field(default_factory=DartRuntimeConfig)  # the companion over MAVLink
 
 
 def load_dart_params(path: str | Path) -> DartParams:
-    """params/dart_hover.toml: tables [sim], [control], [mission]; errors name file, key, value
-    and rule."""
+    """params/dart_hover.toml: tables [sim], [control], [mission], [runtime]; errors name file,
+    key, value and rule."""
     doc = read_toml(path)
-    unknown = sorted(set(doc) - {"sim", "control", "mission"})
-    if unknown:
-        raise DartParamsError(
-            f"{path}: [{unknown[0]}] = {doc[unknown[0]]!r}: unknown table (allowed: sim, control, mission)"
-        )
+    check_tables(doc, path)
     return DartParams(
         sim=dataclass_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
         control=dataclass_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
+        runtime=dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
     )
 
 
 def shipped_dart_params() -> Path:
     """The shipped params/dart_hover.toml (installed as ``companion_params``)."""
     return Path(str(resources.files("companion_params").joinpath("dart_hover.toml")))
+
+
+def thrust_per_mass(c: DartSimConfig, throttle_mode: str, thrust: float, vd_m_s: float, tilt_cos: float) -> float:
+    """The flight controller's collective thrust per mass (m/s^2) for the throttle stick
+    ``thrust`` (0..1): ``"climb_rate"`` (ALT_HOLD: mid stick holds the altitude, the vertical
+    speed loop tracks the stick's climb rate, tilt-compensated) or ``"thrust"`` (STABILIZE: mid
+    stick = ``hover_throttle`` of thrust). ``vd_m_s``: NED down speed; ``tilt_cos``:
+    cos(roll) cos(pitch). Shared by DartSim and the MAVLink stick vehicle (dart_link)."""
+    if throttle_mode == "climb_rate":
+        vd_sp = -(2.0 * thrust - 1.0) * c.max_climb_m_s
+        a_cmd = c.climb_gain_per_s * (vd_sp - vd_m_s)  # NED down acceleration wanted
+        f_t = (G - a_cmd) / max(0.3, tilt_cos)
+    else:
+        f_t = G * thrust / c.hover_throttle
+    return max(0.0, min(2.5 * G, f_t))
 
 
 # ------------------------------------------------------------------------------ pilot
@@ -308,7 +307,7 @@ class DartRunStats:
     max_blur_px: float = 0.0
 
 
-class _Noise:
+class BlockNoise:
     """Standard normal draws in blocks (one rng call per block: fast in the physics loop)."""
 
     def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
@@ -326,7 +325,7 @@ class _Noise:
         return v
 
 
-def _blur(img: NDArray[np.uint8], du: float, dv: float) -> NDArray[np.uint8]:
+def motion_blur(img: NDArray[np.uint8], du: float, dv: float) -> NDArray[np.uint8]:
     """Line blur along the image motion (du, dv) pixels during the exposure."""
     length = math.hypot(du, dv)
     n = math.ceil(length) | 1
@@ -375,8 +374,8 @@ class DartSim:
         )
         ss = np.random.SeedSequence(seed)
         s_phys, s_imu, s_cam, s_render = ss.spawn(4)
-        self._n_phys = _Noise(np.random.default_rng(s_phys))
-        self._n_imu = _Noise(np.random.default_rng(s_imu))
+        self._n_phys = BlockNoise(np.random.default_rng(s_phys))
+        self._n_imu = BlockNoise(np.random.default_rng(s_imu))
         self._rng_cam = np.random.default_rng(s_cam)
         # camera, marker, detector
         cam = camera
@@ -392,9 +391,15 @@ class DartSim:
         self._R_wm = np.array(wall_marker(0.0), dtype=float)
         layout = c.layout
         self.camera = SimulatedCamera(
-            cam, layout,
-            SimCameraConfig(latency_s=c.camera_latency_s, noise_std=0.0, ground_size_m=c.wall_size_m,
-                            clutter=c.wall_clutter, clutter_radius_m=0.45 * c.wall_size_m),
+            cam,
+            layout,
+            SimCameraConfig(
+                latency_s=c.camera_latency_s,
+                noise_std=0.0,
+                ground_size_m=c.wall_size_m,
+                clutter=c.wall_clutter,
+                clutter_radius_m=0.45 * c.wall_size_m,
+            ),
             T_body_camera=Transform(self._R_bc, self._t_bc),
             T_world_pad=Transform(self._R_wm, np.zeros(3)),
             seed=int(s_render.generate_state(1)[0]),
@@ -440,7 +445,8 @@ class DartSim:
 
     def _estimator_config(self) -> DartEstimatorConfig:
         return DartEstimatorConfig(
-            R_body_cam=camera_mount(), t_body_cam_m=tuple(self.config.lens_offset_m),  # type: ignore[arg-type]
+            R_body_cam=camera_mount(),
+            t_body_cam_m=tuple(self.config.lens_offset_m),  # type: ignore[arg-type]
             R_world_marker=wall_marker(0.0),
         )
 
@@ -502,7 +508,7 @@ class DartSim:
         else:
             roll_sp, pitch_sp, yaw_rate_sp, thrust = sp.roll_rad, sp.pitch_rad, sp.yaw_rate_rad_s, sp.thrust
         # attitude: first-order response to the setpoint, plus the disturbance: a Gauss-Markov
-        # process smoothed by a first-order lag (``_DIST_SMOOTH_S``) so that it has a finite rate
+        # process smoothed by a first-order lag (``DIST_SMOOTH_S``) so that it has a finite rate
         # (the body's rotation is twice integrated from the disturbing torque; a white-driven
         # angle would give the gyro an infinite rate)
         ka = 1.0 / c.attitude_tau_s
@@ -512,7 +518,7 @@ class DartSim:
         self.yaw_rate += dt / c.yaw_rate_tau_s * (yaw_rate_sp - self.yaw_rate)
         phi_d = math.exp(-dt / c.attitude_disturbance_tau_s)
         sd = math.radians(c.attitude_disturbance_deg) * math.sqrt(1.0 - phi_d * phi_d)
-        d_rate = [(self.dist_gm[i] - self.dist[i]) / _DIST_SMOOTH_S for i in range(3)]
+        d_rate = [(self.dist_gm[i] - self.dist[i]) / DIST_SMOOTH_S for i in range(3)]
         self.euler_rate = (r_roll + d_rate[0], r_pitch + d_rate[1], r_yaw + d_rate[2])
         self.roll_c += r_roll * dt
         self.pitch_c += r_pitch * dt
@@ -532,13 +538,7 @@ class DartSim:
         cy, sy = math.cos(yaw), math.sin(yaw)
         # thrust per mass
         vd = self.vel[2]
-        if c.throttle_mode == "climb_rate":
-            vd_sp = -(2.0 * thrust - 1.0) * c.max_climb_m_s
-            a_cmd = c.climb_gain_per_s * (vd_sp - vd)  # NED down acceleration wanted
-            f_t = (G - a_cmd) / max(0.3, cr * cp)
-        else:
-            f_t = G * thrust / c.hover_throttle
-        f_t = max(0.0, min(2.5 * G, f_t))
+        f_t = thrust_per_mass(c, c.throttle_mode, thrust, vd, cr * cp)
         # body -z in world: third column of R_wb, negated
         bz = (cy * sp_ * cr + sy * sr, sy * sp_ * cr - cy * sr, cp * cr)
         wind = c.wind_ned_m_s
@@ -616,11 +616,11 @@ class DartSim:
         blur = math.hypot(du, dv)
         self.stats.max_blur_px = max(self.stats.max_blur_px, blur)
         if blur >= 0.5:
-            img = _blur(img, du, dv)
+            img = motion_blur(img, du, dv)
         if c.image_noise_std > 0.0:
             h, w = img.shape
             oy, ox = (int(v) for v in self._rng_cam.integers(0, 64, 2))
-            img = np.clip(img.astype(np.float32) + self._noise_img[oy:oy + h, ox:ox + w], 0, 255).astype(np.uint8)
+            img = np.clip(img.astype(np.float32) + self._noise_img[oy : oy + h, ox : ox + w], 0, 255).astype(np.uint8)
         self.stats.frames += 1
         obs = self.detector.detect(img, t_exp)
         cobs = self._to_estimator(obs)
@@ -632,8 +632,7 @@ class DartSim:
         self.stats.detections += 1
         if obs.ambiguous:
             self.stats.ambiguous += 1
-        T = obs.T_camera_pad
-        return CameraMarkerObservation(obs.time_s, np.asarray(T.R, dtype=float), np.asarray(T.t, dtype=float))
+        return CameraMarkerObservation.from_detection(obs)  # an ambiguous one is gated by the estimator
 
     # ---------------------------------------------------------------- tasks
     def _control(self) -> None:

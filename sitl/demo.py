@@ -23,6 +23,7 @@ from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell, LandingKit
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
 from companion.mission.delivery import MissionOutput
 from companion.mission.events import Phase
@@ -45,7 +46,6 @@ TRUTH_COLUMNS = (
     "true_path_distance_m",
     "est_lyapunov_m2",
 )
-EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
 
 
 @dataclass
@@ -134,8 +134,9 @@ async def fly(
     vehicle.set_pad_truth(pad_n, pad_e)
     mav_sim = None
     ap: Autopilot
+    tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
     if mavlink is None:
-        ap = SimAutopilot(config.sim, vehicle)
+        ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
         from companion.autopilot.px4 import Px4Autopilot
@@ -145,15 +146,18 @@ async def fly(
         mav_sim = MavlinkSimVehicle(config.sim, mavlink, remote=("127.0.0.1", port), vehicle=vehicle).start()  # type: ignore[arg-type]
         lt = config.runtime.link_timeout_s
         ap = (
-            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt)
+            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog_path=tlog)
             if mavlink == "px4"
-            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt)
+            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog_path=tlog)
         )
-    flight_log = truth_log = None
+    use_fusion = config.landing.fusion if fusion is None else fusion
+    flight_log = truth_log = recorder = None
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
         flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
         truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
+        # per-stream logs (events.csv included, written as they happen) for replay and reports
+        recorder = FlightRecorder(run_dir, config)
     scorer = _Scorer(vehicle, truth_log)
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
@@ -161,19 +165,22 @@ async def fly(
         if on_tick is not None:
             on_tick(shell, out)
 
-    use_fusion = config.landing.fusion if fusion is None else fusion
     kit = sim_landing_kit(config, vehicle, (pad_n, pad_e)) if use_fusion else None
-    shell = DeliveryShell(config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit)
+    shell = DeliveryShell(
+        config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit, recorder=recorder
+    )
     wall0 = time.perf_counter()
     try:
         summary = await shell.run(timeout_s=timeout_s)
     finally:
-        await ap.close()
-        if mav_sim is not None:
-            mav_sim.stop()
-        for lg in (flight_log, truth_log):
-            if lg is not None:
-                lg.close()
+        try:
+            await ap.close()
+            if mav_sim is not None:
+                mav_sim.stop()
+        finally:
+            for lg in (flight_log, truth_log, recorder):
+                if lg is not None:
+                    lg.close()
     wall = time.perf_counter() - wall0
 
     # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
@@ -210,9 +217,6 @@ async def fly(
         events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
     )
     if run_dir is not None:
-        with CsvLog(run_dir / "events.csv", EVENT_COLUMNS) as ev_log:
-            for row in result.events:
-                ev_log.write(row)
         summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]

@@ -12,6 +12,11 @@ A background thread steps the vehicle on ``time.monotonic`` and speaks one of tw
   streamed but the heartbeat until asked (REQUEST_DATA_STREAM or SET_MESSAGE_INTERVAL), GUIDED
   velocity with a 3 s timeout, arming refused until the EKF/GPS delay has passed,
   RC_CHANNELS_OVERRIDE reflected in RC_CHANNELS (channel 5 is the flight-mode switch).
+  The pilot's transmitter is :meth:`MavlinkSimVehicle.pilot_set_rc`; an override replaces its
+  channel until released (0 on channels 1-8, UINT16_MAX-1 on 9-18) or until it lapses after
+  ``rc_override_timeout_s`` (ArduPilot's RC_OVERRIDE_TIME). A vehicle with ``set_rc_input``
+  (companion_sitl.dart_link.StickSimVehicle) is handed the copter mode and channels 1-4 (RCMAP
+  roll, pitch, throttle, yaw) every tick, so STABILIZE / ALT_HOLD fly on the sticks.
 
 The vehicle sends to a configured remote address (as PX4 SITL sends to 14540) and to every
 peer it has heard from. Malformed bytes on the socket are counted and ignored. Ground truth goes
@@ -38,6 +43,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.autopilot.types import FlightMode, LandedState, VelocitySetpoint
 from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
+from companion.geometry.rotations import quat_to_euler
 from companion_sitl.vehicle import G, SimCommandError, SimVehicle
 
 log = logging.getLogger(__name__)
@@ -272,6 +278,7 @@ class MavlinkSimVehicle:
         guided_timeout_s: float = 3.0,
         release_servo: int = 9,
         release_pwm: int = 1900,
+        rc_override_timeout_s: float = -1.0,
     ):
         if dialect not in ("px4", "ardupilot"):
             raise ValueError(f"dialect {dialect!r}: must be 'px4' or 'ardupilot'")
@@ -321,6 +328,12 @@ class MavlinkSimVehicle:
         self._rc = [1500, 1500, 1000, 1500, 1100, 1100, 1100, 1100] + [0] * 10
         self._rc_override_at = -math.inf
         self._fltmode_slot = fltmode_slot(self._rc[4])
+        # ArduPilot RC input: the pilot's transmitter, the overrides in force (per channel, with
+        # their time) and, in ``_rc``, what the autopilot flies on and reports in RC_CHANNELS
+        self._radio = list(self._rc)
+        self._ovr: list[int | None] = [None] * 18
+        self._ovr_at = [-math.inf] * 18
+        self.rc_override_timeout_s = rc_override_timeout_s  # RC_OVERRIDE_TIME; < 0: never lapses
         self._params: dict[str, float] = (
             {
                 "MIS_TAKEOFF_ALT": 2.5,
@@ -336,6 +349,7 @@ class MavlinkSimVehicle:
                 "SYSID_THISMAV": float(system_id),
                 "FLTMODE_CH": 5.0,
                 "GUID_TIMEOUT": guided_timeout_s,
+                "RC_OVERRIDE_TIME": rc_override_timeout_s,
                 "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
                 "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
                 **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
@@ -351,6 +365,11 @@ class MavlinkSimVehicle:
             raise RuntimeError("vehicle not started")
         host, port = self._sock.getsockname()[:2]
         return host, port
+
+    @property
+    def running(self) -> bool:
+        """Started and not stopped: the vehicle's clock runs."""
+        return self._thread is not None
 
     @property
     def now(self) -> float:
@@ -407,6 +426,30 @@ class MavlinkSimVehicle:
     @property
     def rc_channels(self) -> list[int]:
         return list(self._rc)
+
+    @property
+    def rc_overrides(self) -> list[int | None]:
+        """The companion's overrides in force per channel (None: the radio's value is used)."""
+        with self.lock:
+            return list(self._ovr)
+
+    def pilot_set_rc(self, channels: dict[int, int]) -> None:
+        """The pilot's transmitter (ArduPilot dialect): 1-based channel -> microseconds, thread-safe.
+        Overridden channels keep the override until it is released or lapses."""
+        for ch, us in channels.items():
+            if not 1 <= ch <= 18:
+                raise ValueError(f"RC channel {ch}: must be 1..18")
+            if not 0 <= us <= 65535:
+                raise ValueError(f"RC channel {ch} = {us}: must be 0..65535 us")
+        with self.lock:
+            running = self.running  # before start(), vehicle time has not begun
+            now = self.now if running else self.vehicle.time_s
+            if running:
+                self.vehicle.step_to(now)
+            for ch, us in channels.items():
+                self._radio[ch - 1] = int(us)
+            self._rc_effective(now)
+            self._ardupilot_rc_switch(now)
 
     # ------------------------------------------------------------------ main loop
     def _run(self) -> None:
@@ -716,7 +759,8 @@ class MavlinkSimVehicle:
                 *(round(x * mg) for x in (acc.accel_x_m_s2, acc.accel_y_m_s2, acc.accel_z_m_s2)),
             )
         if mid == mavlink.MAVLINK_MSG_ID_RC_CHANNELS:
-            return e.rc_channels_encode(t_ms, 8, *self._rc, 255)
+            n = max(8, max((i + 1 for i, us in enumerate(self._rc) if us), default=8))
+            return e.rc_channels_encode(t_ms, n, *self._rc, 255)
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             caps = (
                 mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
@@ -765,12 +809,11 @@ class MavlinkSimVehicle:
             return
         if t == "RC_CHANNELS_OVERRIDE":
             if m.target_system in (0, self.system_id):
-                vals = [m.chan1_raw, m.chan2_raw, m.chan3_raw, m.chan4_raw, m.chan5_raw, m.chan6_raw, m.chan7_raw]
-                vals.append(m.chan8_raw)
-                for i, val in enumerate(vals):
-                    if val not in (0, 65535):
-                        self._rc[i] = val
-                self._rc_override_at = self.now
+                self._rc_override(m)
+            return
+        if t == "SET_ATTITUDE_TARGET":
+            if m.target_system in (0, self.system_id):
+                self._attitude_target(m)
             return
         if t == "PARAM_REQUEST_LIST":
             names = list(self._params)
@@ -970,10 +1013,54 @@ class MavlinkSimVehicle:
     def _ardupilot_rc_switch(self, now: float) -> None:
         if self.dialect != "ardupilot":
             return
+        self._rc_effective(now)
         slot = fltmode_slot(self._rc[4])
         if slot != self._fltmode_slot:
             self._fltmode_slot = slot
             self._set_copter_mode(int(self._params.get(f"FLTMODE{slot + 1}", COPTER_FLTMODES[slot])), pilot=True)
+        feed = getattr(self.vehicle, "set_rc_input", None)
+        if feed is not None:
+            feed(COPTER_MODE_NAMES.get(self._ap_mode, ""), tuple(self._rc[:4]))
+
+    def _rc_override(self, m: Any) -> None:
+        """RC_CHANNELS_OVERRIDE: channels 1-8: 0 releases, UINT16_MAX ignores; channels 9-18: 0
+        and UINT16_MAX ignore, UINT16_MAX-1 releases; any other value overrides the channel."""
+        now = self.now
+        for i in range(18):
+            val = int(getattr(m, f"chan{i + 1}_raw", 0))
+            if val == 65535 or (i >= 8 and val == 0):
+                continue
+            if (i < 8 and val == 0) or (i >= 8 and val == 65534):
+                self._ovr[i] = None
+                continue
+            self._ovr[i] = val
+            self._ovr_at[i] = now
+        self._rc_override_at = now
+        self._rc_effective(now)
+        self._ardupilot_rc_switch(now)
+
+    def _attitude_target(self, m: Any) -> None:
+        """SET_ATTITUDE_TARGET (offboard attitude) for a vehicle that flies it (``set_attitude_target``:
+        companion_sitl.dart_link.StickSimVehicle): roll and pitch from the quaternion, the body yaw
+        rate, the thrust; anything else (attitude ignored, no such vehicle) is rejected."""
+        feed = getattr(self.vehicle, "set_attitude_target", None)
+        if feed is None or m.type_mask & 0b1000_0000 or m.type_mask & 0b0100_0000:
+            self.stats.setpoints_rejected += 1
+            return
+        roll, pitch, _yaw = quat_to_euler(m.q)
+        yaw_rate = 0.0 if m.type_mask & 0b100 else float(m.body_yaw_rate)
+        feed(roll, pitch, yaw_rate, float(m.thrust))
+        self.stats.setpoints += 1
+
+    def _rc_effective(self, now: float) -> None:
+        """What the autopilot flies on: each override in force, else the radio; stale overrides
+        lapse after RC_OVERRIDE_TIME (ArduPilot: the radio takes the channel back)."""
+        timeout = self.rc_override_timeout_s
+        for i in range(18):
+            o = self._ovr[i]
+            if o is not None and 0.0 <= timeout < now - self._ovr_at[i]:
+                self._ovr[i] = o = None
+            self._rc[i] = self._radio[i] if o is None else o
 
     def _setpoint(self, m: Any) -> None:
         v = self.vehicle

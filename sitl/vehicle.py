@@ -42,6 +42,8 @@ HOLD_MAX_V_SPEED = 1.5
 OFFBOARD_MIN_SETPOINT_RATE_HZ = 2.0
 LAND_DETECT_S = 0.6
 AUTO_DISARM_AFTER_LAND_S = 2.0
+PLD_HACC_RAD_M = 0.2  # PX4 precision landing: horizontal acceptance radius before descending
+PLD_BTOUT_S = 5.0  # PX4 precision landing: target lost after this long -> plain landing
 YAW_RATE_MAX = math.radians(60.0)
 
 
@@ -136,6 +138,10 @@ class SimVehicle:
         self._takeoff_target_d = 0.0
         self._yaw_sp = 0.0
         self._sp: VelocitySetpoint | None = None
+        self._precland = False
+        self._pl_target: tuple[float, float] | None = None
+        self._pl_seen_s = -math.inf
+        self.landing_targets_received = 0
         self._sp_times: list[float] = []
         self._ground_since: float | None = 0.0
         self._landed_since: float | None = 0.0
@@ -213,7 +219,25 @@ class SimVehicle:
             raise SimCommandError("land denied: not armed")
         est = self._estimate()
         self._hold_target = est
+        self._precland = False
         self.mode = FlightMode.LAND
+
+    def precision_land(self) -> None:
+        """LAND steered by LANDING_TARGET (like PX4 AUTO.PRECLAND): approach the target at height
+        until within PLD_HACC_RAD, descend over it; with no target for PLD_BTOUT, plain LAND."""
+        self.land()
+        self._precland = True
+        self._text("precision landing")
+
+    def set_landing_target(self, north_m: float, east_m: float) -> None:
+        """A LANDING_TARGET position in the autopilot's local NED frame (its origin at home)."""
+        if not (math.isfinite(north_m) and math.isfinite(east_m)):
+            self._text(f"landing target rejected: not finite {(north_m, east_m)}")
+            return
+        off = getattr(self, "_home_offset", (0.0, 0.0, 0.0))
+        self._pl_target = (north_m + off[0], east_m + off[1])  # into the estimate frame the controller uses
+        self._pl_seen_s = self.time_s
+        self.landing_targets_received += 1
 
     def release_payload(self) -> None:
         if self._release_at is None and not self.payload_released:
@@ -285,8 +309,16 @@ class SimVehicle:
                 sp_n, sp_e, sp_d = self._pos_ctrl(est, self._hold_target)
             if self.mode is FlightMode.LAND:
                 assert self._hold_target is not None
-                sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
                 sp_d = vc.land_speed_m_s
+                pl = self._pl_target if self._precland and t - self._pl_seen_s <= PLD_BTOUT_S else None
+                if pl is not None:
+                    self._hold_target = (pl[0], pl[1], self._hold_target[2])
+                    if (
+                        math.hypot(pl[0] - est[0], pl[1] - est[1]) > PLD_HACC_RAD_M
+                        and self.landed is not LandedState.ON_GROUND
+                    ):
+                        sp_d = 0.0  # horizontal approach first, as PX4's precision landing does
+                sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
 
         # ---- velocity loop (P + I) -> acceleration setpoint, limits
         ve_n = self.vn

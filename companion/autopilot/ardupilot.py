@@ -14,6 +14,10 @@ after 3 s on the vehicle (it stops and holds), arming is refused until the EKF u
 retries until ``arm_timeout_s``), takeoff is MAV_CMD_NAV_TAKEOFF in GUIDED, hold is BRAKE (or
 LOITER), land is LAND mode, and the parcel is released with MAV_CMD_DO_GRIPPER or
 MAV_CMD_DO_SET_SERVO.
+
+With ``tlog_path``, every packet received (as it arrived, from any system on the link) and every
+packet sent goes into a MAVLink ``.tlog`` (:class:`companion.flightlog.tlog.TlogWriter`, written
+by its own thread).
 """
 
 from __future__ import annotations
@@ -27,12 +31,13 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
-from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, TelemetryCache
+from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, RcInput, TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -41,12 +46,14 @@ from companion.autopilot.types import (
     HomePosition,
     Imu,
     LandedState,
+    LandingTarget,
     PositionNed,
     StatusText,
     TelemetrySample,
     VehicleStatus,
     VelocitySetpoint,
 )
+from companion.flightlog.tlog import TlogWriter
 
 log = logging.getLogger(__name__)
 
@@ -190,6 +197,7 @@ class ArduPilotAutopilot(Autopilot):
         command_timeout_s: float = 0.5,
         command_retries: int = 3,
         stream_rates_hz: dict[int, float] | None = None,
+        tlog_path: str | Path | None = None,
     ):
         self.connection = connection
         self.baud = baud
@@ -209,6 +217,9 @@ class ArduPilotAutopilot(Autopilot):
         self.telemetry = TelemetryCache()
         self.counters = LinkCounters()
         self.rc_channels: tuple[int, ...] = ()
+        self.tlog_path = tlog_path
+        self.tlog: TlogWriter | None = None
+        self._tlog_opened = False  # a reconnect appends to the same file
         self._conn: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._reader: threading.Thread | None = None
@@ -252,6 +263,14 @@ class ArduPilotAutopilot(Autopilot):
             raise
         except Exception as err:  # pymavlink raises plain OSError / SerialException / socket errors
             raise AutopilotError(f"cannot open {self.connection!r}: {err}") from None
+        if self.tlog_path is not None:
+            try:
+                self.tlog = TlogWriter(self.tlog_path, append=self._tlog_opened)
+            except OSError as err:
+                await self.close()
+                raise AutopilotError(str(err)) from None
+            self._tlog_opened = True
+            self._conn.mav.set_send_callback(self._log_sent)
         self._first_hb = self._loop.create_future()
         self._running = True
         self._reader = threading.Thread(target=self._read_loop, name="ardupilot-reader", daemon=True)
@@ -288,6 +307,9 @@ class ArduPilotAutopilot(Autopilot):
         if conn is not None:
             with contextlib.suppress(Exception):
                 conn.close()
+        tlog, self.tlog = self.tlog, None
+        if tlog is not None:
+            await asyncio.get_running_loop().run_in_executor(None, tlog.close)
         for fut in self._acks.values():
             if not fut.done():
                 fut.set_exception(AutopilotError("link closed"))
@@ -352,10 +374,13 @@ class ArduPilotAutopilot(Autopilot):
             self.counters.setpoints_dropped += 1
 
     def send_rc_override(self, channels: Sequence[int]) -> None:
-        """RC_CHANNELS_OVERRIDE for channels 1..8 (0 = release to the radio, 65535 = ignore)."""
-        ch = [*list(channels)[:8], *[65535] * (8 - min(8, len(channels)))]
+        """RC_CHANNELS_OVERRIDE for channels 1..18 (channels 1-8: 0 = release to the radio,
+        65535 = ignore; 9-18: 0 or 65535 = ignore, 65534 = release); missing channels are ignored."""
+        vals = list(channels)[:18]
+        ch = [*vals[:8], *[65535] * (8 - min(8, len(vals)))]
+        ext = [*vals[8:], *[0] * (18 - max(8, len(vals)))]  # MAVLink 2 extensions, chan9..18
         ts, tc = self.target_system or 1, self.target_component
-        self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch))
+        self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch, *ext))
 
     async def _command(self, cmd: int, *params: float, what: str = "", retries: int | None = None) -> None:
         """COMMAND_LONG, resent until its COMMAND_ACK arrives; AutopilotError unless ACCEPTED."""
@@ -462,6 +487,36 @@ class ArduPilotAutopilot(Autopilot):
     async def land(self) -> None:
         await self.set_mode("LAND")
 
+    async def precision_land(self) -> None:
+        """LAND: with PLND_ENABLED = 1 and PLND_TYPE = 1 (companion computer) ArduPilot's LAND
+        steers onto the LANDING_TARGET it receives (landing.landing_target_output = "body_angles")."""
+        await self.set_mode("LAND")
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """LANDING_TARGET (MAVLink 2 fields included). AC_PrecLand_Companion reads angle_x /
+        angle_y / distance (MAV_FRAME_BODY_FRD); the position form is sent as MAV_FRAME_LOCAL_NED."""
+        t = target
+        frame = mavlink.MAV_FRAME_LOCAL_NED if t.position_valid else mavlink.MAV_FRAME_BODY_FRD
+        usec = max(0, int(t.time_s * 1e6))
+        self._send(
+            lambda mav: mav.landing_target_send(
+                usec,
+                0,
+                frame,
+                t.angle_x_rad,
+                t.angle_y_rad,
+                t.distance_m,
+                t.size_x_rad,
+                t.size_y_rad,
+                t.north_m,
+                t.east_m,
+                t.down_m,
+                [1.0, 0.0, 0.0, 0.0],
+                mavlink.LANDING_TARGET_TYPE_VISION_FIDUCIAL,
+                int(t.position_valid),
+            )
+        )
+
     async def release_payload(self) -> None:
         if self.release == "gripper":
             await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what="release (gripper)")
@@ -526,10 +581,18 @@ class ArduPilotAutopilot(Autopilot):
             if m is None:
                 self._check_streams(now)
                 continue
+            tlog = self.tlog
+            if tlog is not None and m.get_type() != "BAD_DATA":
+                tlog.write(m.get_msgbuf())
             try:
                 self._on_message(m)
             except Exception:
                 log.exception("error decoding %s", m.get_type())
+
+    def _log_sent(self, msg: Any) -> None:
+        tlog = self.tlog
+        if tlog is not None:
+            tlog.write(msg.get_msgbuf())
 
     def _check_streams(self, now: float) -> None:
         if (
@@ -617,6 +680,7 @@ class ArduPilotAutopilot(Autopilot):
                 self._post(self._resolve_ack, m.command, m.result)
         elif t == "RC_CHANNELS":
             self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
+            self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))
 
     def _resolve_first_hb(self) -> None:
         if self._first_hb is not None and not self._first_hb.done():

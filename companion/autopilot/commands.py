@@ -13,6 +13,7 @@ import signal
 import socket
 import statistics
 import time
+from pathlib import Path
 from typing import Any
 
 from companion.app import DeliveryShell
@@ -20,6 +21,7 @@ from companion.autopilot.factory import make_autopilot
 from companion.autopilot.interface import Autopilot
 from companion.autopilot.types import VelocitySetpoint
 from companion.config import CompanionConfig, SimConfig, load_config
+from companion.flightlog.recorder import FlightRecorder
 from companion.mission.delivery import MissionSummary
 from companion.scheduling import LoopClock, RateLoop
 
@@ -32,6 +34,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
     p.add_argument("--connection", help="override the MAVLink connection URL")
     p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds")
+    p.add_argument("--out", help="run folder for flight.tlog and the per-stream CSV logs (default runs/fly-<time>)")
     p.set_defaults(func=cmd_fly)
 
 
@@ -44,10 +47,18 @@ def register_bench(bench_subparsers: Any) -> None:
     bl.set_defaults(func=cmd_bench_link)
 
 
-async def run_delivery(config: CompanionConfig, autopilot: Autopilot, timeout_s: float = 1800.0) -> MissionSummary:
-    """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land)."""
+async def run_delivery(
+    config: CompanionConfig,
+    autopilot: Autopilot,
+    timeout_s: float = 1800.0,
+    run_dir: Path | None = None,
+    landing: Any = None,
+) -> MissionSummary:
+    """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land).
+    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash)."""
+    recorder = FlightRecorder(run_dir, config) if run_dir is not None else None
     # the ground link publishes by default (DESIGN safety contract); [telemetry] enabled = false turns it off
-    shell = DeliveryShell(config, autopilot, telemetry=config.telemetry.enabled)
+    shell = DeliveryShell(config, autopilot, telemetry=config.telemetry.enabled, recorder=recorder, landing=landing)
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -58,7 +69,11 @@ async def run_delivery(config: CompanionConfig, autopilot: Autopilot, timeout_s:
         for sig in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.remove_signal_handler(sig)
-        await autopilot.close()
+        try:
+            await autopilot.close()
+        finally:
+            if recorder is not None:
+                recorder.close()
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
@@ -67,8 +82,28 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if config.autopilot == "sim":
         print("autopilot = 'sim' in the parameters: use `companion demo` for the embedded simulator")
         return 2
-    summary = asyncio.run(run_delivery(config, make_autopilot(config), args.timeout))
-    print(json.dumps({"delivered": summary.delivered, "returned": summary.returned, "failure": summary.failure}))
+    from companion.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+
+    try:  # the landing sensors are set up and started on the ground: a missing one stops us here
+        kit = build_landing_kit(config)
+        if kit is not None:
+            start_sensors(kit)
+    except LandingSetupError as err:
+        print(f"companion fly: {err}")
+        return 2
+    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
+    summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+    print(
+        json.dumps(
+            {
+                "delivered": summary.delivered,
+                "returned": summary.returned,
+                "failure": summary.failure,
+                "run_dir": str(run_dir),
+            }
+        )
+    )
     return 0 if summary.delivered and not summary.failure else 1
 
 

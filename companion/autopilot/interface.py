@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import abc
 import logging
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 from companion.autopilot.types import (
     Attitude,
@@ -16,6 +18,7 @@ from companion.autopilot.types import (
     GpsRaw,
     HomePosition,
     Imu,
+    LandingTarget,
     PositionNed,
     StatusText,
     TelemetrySample,
@@ -28,6 +31,35 @@ log = logging.getLogger(__name__)
 
 class AutopilotError(RuntimeError):
     """A command was refused, timed out, or the link is unusable."""
+
+
+@dataclass(frozen=True, slots=True)
+class RcInput:
+    """RC channels as the autopilot reports them (MAVLink RC_CHANNELS), microseconds, index 0 =
+    channel 1; 0 = no value. ``time_s``: receipt on the shell's monotonic clock. ArduPilot
+    reports a channel *after* RC_CHANNELS_OVERRIDE is applied, PX4 the receiver's raw value."""
+
+    time_s: float
+    channels_us: tuple[int, ...]
+
+    def validate(self) -> RcInput:
+        if not math.isfinite(self.time_s):
+            raise ValueError(f"RcInput.time_s is not finite ({self.time_s})")
+        if len(self.channels_us) > 18 or any(not 0 <= int(v) <= 65535 for v in self.channels_us):
+            raise ValueError(f"RcInput.channels_us out of range: {self.channels_us}")
+        return self
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeTarget:
+    """An attitude setpoint (SET_ATTITUDE_TARGET): roll/pitch (FRD, +pitch nose up) and heading
+    in NED, the yaw rate as feed-forward, collective thrust 0..1."""
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    yaw_rate_rad_s: float
+    thrust: float
 
 
 class LinkLatch:
@@ -74,7 +106,9 @@ class TelemetryCache:
         self.received: dict[str, int] = {}
         self.rejected: dict[str, int] = {}
         self.last_rejection: str = ""
+        self.rc_input: RcInput | None = None
         self._listeners: list[Callable[[TelemetrySample], None]] = []
+        self._rc_listeners: list[Callable[[RcInput], None]] = []
 
     def add_listener(self, fn: Callable[[TelemetrySample], None]) -> None:
         self._listeners.append(fn)
@@ -82,6 +116,28 @@ class TelemetryCache:
     def remove_listener(self, fn: Callable[[TelemetrySample], None]) -> None:
         if fn in self._listeners:
             self._listeners.remove(fn)
+
+    def add_rc_listener(self, fn: Callable[[RcInput], None]) -> None:
+        self._rc_listeners.append(fn)
+
+    def remove_rc_listener(self, fn: Callable[[RcInput], None]) -> None:
+        if fn in self._rc_listeners:
+            self._rc_listeners.remove(fn)
+
+    def push_rc(self, rc: RcInput) -> bool:
+        """Store the newest RC channels (rejected and counted when malformed); RC listeners are
+        called synchronously (the Dart mixer reacts to the pilot's switch at once)."""
+        try:
+            rc.validate()
+        except (ValueError, TypeError) as err:
+            self.rejected["RcInput"] = self.rejected.get("RcInput", 0) + 1
+            self.last_rejection = str(err)
+            return False
+        self.received["RcInput"] = self.received.get("RcInput", 0) + 1
+        self.rc_input = rc
+        for fn in self._rc_listeners:
+            fn(rc)
+        return True
 
     def push(self, sample: TelemetrySample) -> bool:
         kind = type(sample).__name__
@@ -171,3 +227,24 @@ class Autopilot(abc.ABC):
     @abc.abstractmethod
     async def release_payload(self) -> None:
         """Open the gripper / move the release servo."""
+
+    # Optional capabilities of the Dart cyber-pilot (hybrid mixer). A backend without them
+    # raises AutopilotError; RC channels, where reported, arrive in ``telemetry.rc_input``.
+    def send_rc_override(self, channels: Sequence[int]) -> None:
+        """One RC_CHANNELS_OVERRIDE now (index 0 = channel 1; 0 releases channels 1-8 and
+        UINT16_MAX-1 channels 9-18, UINT16_MAX leaves a channel alone); non-blocking."""
+        raise AutopilotError(f"{type(self).__name__} cannot override RC channels")
+
+    def set_attitude_target(self, target: AttitudeTarget) -> None:
+        """One attitude setpoint now (offboard attitude control); non-blocking."""
+        raise AutopilotError(f"{type(self).__name__} cannot take attitude setpoints")
+
+    # Optional interop: the autopilot's own precision landing fed with our pad observations.
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """One LANDING_TARGET now (see companion.autopilot.landing_target); non-blocking."""
+        raise AutopilotError(f"{type(self).__name__} cannot send LANDING_TARGET")
+
+    async def precision_land(self) -> None:
+        """Hand the descent to the autopilot's own precision landing (PX4 AUTO.PRECLAND,
+        ArduPilot LAND with PLND enabled). Backends without one fall back to plain LAND."""
+        await self.land()

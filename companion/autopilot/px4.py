@@ -17,21 +17,38 @@ refreshing the setpoint while the vehicle is in OFFBOARD.
 
 Link watchdog: MAVSDK's connection state (3 s heartbeat timeout) and the arrival of telemetry
 (``link_timeout_s``).
+
+MAVLink log (``tlog_path``): MAVSDK does not hand out raw packets on a UDP/TCP/serial link, but its
+core reports every message it receives and every message it sends (its own heartbeats, Action
+and parameter traffic, our MavlinkDirect setpoints and commands) decoded to JSON
+(``Mavsdk::subscribe_incoming/outgoing_messages_json``). Those are re-encoded as MAVLink 2 with
+pymavlink on the log's writer thread: message types, source ids and field values are the
+originals; sequence numbers, MAVLink 1 framing and signatures are not, and whatever MAVSDK
+discards before decoding (bad CRC, unknown ids) is not in the file.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
 import json
 import logging
 import math
 import os
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
 from typing import Any, Literal
 
-from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, TelemetryCache
+from companion.autopilot.interface import (
+    AttitudeTarget,
+    Autopilot,
+    AutopilotError,
+    LinkLatch,
+    RcInput,
+    TelemetryCache,
+)
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -40,16 +57,22 @@ from companion.autopilot.types import (
     HomePosition,
     Imu,
     LandedState,
+    LandingTarget,
     PositionNed,
     StatusText,
     VehicleStatus,
     VelocitySetpoint,
 )
+from companion.flightlog.tlog import MavlinkPacker, TlogWriter
+from companion.geometry import euler_to_quat
 
 log = logging.getLogger(__name__)
 
 VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # use vx, vy, vz and yaw
+ATTITUDE_TARGET_RATES_IGNORED = 0b0000_0011  # SET_ATTITUDE_TARGET: use q, yaw rate, thrust
 MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_SET_SERVO = 183
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
@@ -117,6 +140,47 @@ def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
     return _FLIGHT_MODES.get(getattr(mode, "name", str(mode)), FlightMode.UNKNOWN)
 
 
+def intercept_messages_json(mavsdk: Any, direction: str, fn: Callable[[Any], None]) -> Any:
+    """Call ``fn`` with every MAVLink message MAVSDK receives (``direction="incoming"``) or sends
+    (``"outgoing"``), decoded: a ``mavsdk.types.MavsdkMessage`` with ``message_name``,
+    ``system_id``, ``component_id`` and ``fields_json``. Runs on MAVSDK's thread (or the sender's).
+
+    The C library exports ``mavsdk_subscribe_{incoming,outgoing}_messages_json`` but the mavsdk 4
+    Python binding does not wrap them, so they are called through ctypes. The callback always
+    returns 1 (MAVSDK drops a message whose interceptor returns 0). Returns an unsubscribe
+    function, or None if this MAVSDK build lacks the interface.
+    """
+    try:
+        from mavsdk.cmavsdk_loader import _cmavsdk_lib as lib
+        from mavsdk.types import InterceptJsonCallback
+    except ImportError:
+        return None
+    sub = getattr(lib, f"mavsdk_subscribe_{direction}_messages_json", None)
+    unsub = getattr(lib, f"mavsdk_unsubscribe_{direction}_messages_json", None)
+    core = getattr(getattr(mavsdk, "_mavsdk", None), "_handle", None)
+    if sub is None or unsub is None or not core:
+        return None
+    sub.argtypes = [ctypes.c_void_p, InterceptJsonCallback, ctypes.c_void_p]
+    sub.restype = ctypes.c_void_p
+    unsub.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    unsub.restype = None
+
+    def trampoline(msg: Any, _user_data: Any) -> int:
+        with contextlib.suppress(Exception):
+            fn(msg)
+        return 1
+
+    cb = InterceptJsonCallback(trampoline)
+    handle = sub(core, cb, None)
+    if not handle:
+        return None
+
+    def unsubscribe(keep_alive: Any = cb) -> None:  # the C callback must outlive the subscription
+        unsub(core, handle)
+
+    return unsubscribe
+
+
 def check_connection_url(url: str) -> str:
     """Validate a MAVSDK connection URL; a serial device must exist. Returns the URL."""
     u = url.strip()
@@ -146,6 +210,7 @@ class Px4Autopilot(Autopilot):
         gripper_instance: int = 1,
         release_servo: int = 9,
         release_pwm: int = 1900,
+        tlog_path: str | Path | None = None,
     ):
         self.connection = connection
         self.link_timeout_s = link_timeout_s
@@ -159,6 +224,10 @@ class Px4Autopilot(Autopilot):
         self.setpoints_sent = 0
         self.setpoints_dropped = 0
         self.system_id = 1
+        self.tlog_path = tlog_path
+        self.tlog: TlogWriter | None = None
+        self._tlog_opened = False  # a reconnect appends to the same file
+        self._tlog_unhook: list[Callable[[], None]] = []
         self._mavsdk: Any = None
         self._system: Any = None
         self._action: Any = None
@@ -206,6 +275,12 @@ class Px4Autopilot(Autopilot):
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
         self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
+        if self.tlog_path is not None:
+            try:
+                self._open_tlog(self.tlog_path)
+            except OSError as err:
+                self._destroy()
+                raise AutopilotError(str(err)) from None
         try:
             await self._mavsdk.add_any_connection(url)
         except Exception as err:
@@ -334,6 +409,21 @@ class Px4Autopilot(Autopilot):
         self._tasks.append(
             loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
         )
+
+        def on_rc_channels(m: Any) -> None:  # the receiver's raw channels (Dart: pilot sticks, switch)
+            if m.system_id != self.system_id:
+                return
+            try:
+                f = json.loads(m.fields_json)
+                n = max(0, min(18, int(f.get("chancount", 18))))
+                chans = tuple(int(f.get(f"chan{i}_raw", 0)) for i in range(1, n + 1))
+            except (ValueError, TypeError):
+                return
+            self.telemetry.push_rc(RcInput(now(), chans))
+
+        self._tasks.append(
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("RC_CHANNELS"), on_rc_channels))
+        )
         self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
         if self.setpoint_transport == "offboard":
             self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
@@ -389,11 +479,36 @@ class Px4Autopilot(Autopilot):
             )
         )
 
+    def _open_tlog(self, path: str | Path) -> None:
+        tlog = self.tlog = TlogWriter(path, append=self._tlog_opened)
+        self._tlog_opened = True
+        packer = MavlinkPacker()  # used on the writer thread only
+
+        def log_message(msg: Any) -> None:
+            name, fields = msg.message_name.decode(), msg.fields_json.decode()
+            sysid, compid = msg.system_id, msg.component_id
+            tlog.write(lambda: packer.pack_json(name, fields, sysid, compid))
+
+        for direction in ("incoming", "outgoing"):
+            unhook = intercept_messages_json(self._mavsdk, direction, log_message)
+            if unhook is None:
+                log.warning("this MAVSDK build does not report %s messages: %s lacks them", direction, path)
+            else:
+                self._tlog_unhook.append(unhook)
+
     def _destroy(self) -> None:
+        unhooks, self._tlog_unhook = self._tlog_unhook, []
         if self._mavsdk is not None:
+            for unhook in unhooks:
+                with contextlib.suppress(Exception):
+                    unhook()
             with contextlib.suppress(Exception):
                 self._mavsdk.destroy()
             self._mavsdk = None
+        del unhooks  # the C callbacks may go once MAVSDK is gone
+        tlog, self.tlog = self.tlog, None
+        if tlog is not None:
+            tlog.close()
 
     async def close(self) -> None:
         tasks, self._tasks = self._tasks, []
@@ -486,6 +601,40 @@ class Px4Autopilot(Autopilot):
         self._last_sp_call = time.monotonic()
         self.setpoints_sent += 1
 
+    def set_attitude_target(self, target: AttitudeTarget) -> None:
+        """One SET_ATTITUDE_TARGET through MavlinkDirect (offboard attitude): roll, pitch and
+        heading as a quaternion, the yaw rate as feed-forward, thrust 0..1; body roll and pitch
+        rates ignored. Non-blocking; dropped (and counted) without a link or with a non-finite value."""
+        a = target
+        vals = (a.roll_rad, a.pitch_rad, a.yaw_rad, a.yaw_rate_rad_s, a.thrust)
+        if self._system is None or not self.link_ok or not all(math.isfinite(v) for v in vals):
+            self.setpoints_dropped += 1
+            return
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        q = [float(v) for v in euler_to_quat(a.roll_rad, a.pitch_rad, a.yaw_rad)]
+        fields = {
+            "time_boot_ms": int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF,
+            "target_system": self.system_id,
+            "target_component": 1,
+            "type_mask": ATTITUDE_TARGET_RATES_IGNORED,
+            "q": q,
+            "body_roll_rate": 0.0,
+            "body_pitch_rate": 0.0,
+            "body_yaw_rate": float(a.yaw_rate_rad_s),
+            "thrust": min(1.0, max(0.0, float(a.thrust))),
+        }
+        try:
+            self._direct_sync.send_message(
+                MavlinkMessage("SET_ATTITUDE_TARGET", 0, 0, self.system_id, 1, json.dumps(fields))
+            )
+        except Exception as err:
+            self.setpoints_dropped += 1
+            log.debug("attitude setpoint not sent: %s", err)
+            return
+        self._last_sp_call = time.monotonic()
+        self.setpoints_sent += 1
+
     async def start_offboard(self) -> None:
         if self.setpoint_transport == "offboard":
             await self._call("start_offboard", self._offboard.start)
@@ -502,6 +651,46 @@ class Px4Autopilot(Autopilot):
 
     async def land(self) -> None:
         await self._call("land", self._action.land)
+
+    async def precision_land(self) -> None:
+        """AUTO.PRECLAND (main mode AUTO = 4, sub mode PRECLAND = 9): PX4's precision landing,
+        which needs LANDING_TARGET (landing.landing_target_output = "local_ned")."""
+        await self._direct_command(
+            "precision_land", MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED, 4, 9
+        )
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """LANDING_TARGET through MAVSDK's MavlinkDirect. PX4 reads the position form
+        (position_valid, MAV_FRAME_LOCAL_NED); time_usec is the exposure on the monotonic clock,
+        which PX4 maps into its own through MAVSDK's TIMESYNC."""
+        if self._system is None or not self.link_ok:
+            return
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        t = target
+        frame = MAV_FRAME_LOCAL_NED if t.position_valid else MAV_FRAME_BODY_FRD
+        fields = json.dumps(
+            {
+                "time_usec": max(0, int(t.time_s * 1e6)),
+                "target_num": 0,
+                "frame": frame,
+                "angle_x": t.angle_x_rad,
+                "angle_y": t.angle_y_rad,
+                "distance": t.distance_m,
+                "size_x": t.size_x_rad,
+                "size_y": t.size_y_rad,
+                "x": t.north_m,
+                "y": t.east_m,
+                "z": t.down_m,
+                "q": [1.0, 0.0, 0.0, 0.0],
+                "type": LANDING_TARGET_TYPE_VISION_FIDUCIAL,
+                "position_valid": int(t.position_valid),
+            }
+        )
+        try:
+            self._direct_sync.send_message(MavlinkMessage("LANDING_TARGET", 0, 0, self.system_id, 1, fields))
+        except Exception as err:
+            raise AutopilotError(f"LANDING_TARGET not sent: {err}") from err
 
     async def release_payload(self) -> None:
         if self.release == "gripper" and self._gripper is not None:

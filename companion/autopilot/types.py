@@ -141,3 +141,24 @@ class VelocitySetpoint:
     east_m_s: float
     down_m_s: float
     yaw_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class LandingTarget:
+    """LANDING_TARGET (MAVLink #149) contents, see :mod:`companion.autopilot.landing_target`.
+
+    ``time_s``: the exposure time on the loop clock. Angles (rad) and distance (m) of the pad's
+    centre as ArduPilot reads them; ``north_m``/``east_m``/``down_m`` the pad in the autopilot's
+    local NED frame, meaningful only when ``position_valid`` (MAV_FRAME_LOCAL_NED, as PX4 reads it).
+    """
+
+    time_s: float
+    angle_x_rad: float
+    angle_y_rad: float
+    distance_m: float
+    size_x_rad: float
+    size_y_rad: float
+    north_m: float
+    east_m: float
+    down_m: float
+    position_valid: bool

@@ -39,6 +39,10 @@ R_XYZ(phi, theta, psi) = (Rx(theta) Ry(psi) Rz(phi))^T and R_Z(psi) = Rz(psi)^T,
 (frame) rotations. The estimators build the same relative rotations from the project's ZYX
 convention (geometry.euler_to_rotmat) so every frame is explicit.
 
+Ambiguity: an observation flagged ``ambiguous`` (the IPPE two-fold planar ambiguity left
+unresolved by the detector) is gated in every estimator, FCF-CF included, and counted in
+``ambiguous_observations``; it never reaches a filter.
+
 Timing (DESIGN "time is an input"): observations carry the exposure time; the estimators keep a
 short history of the attitude (IMU rate) and use the attitude at the exposure time. Yaw from
 the Madgwick filter is not observable and drifts; ``yaw_offset_rad`` aligns it to the world of
@@ -148,6 +152,24 @@ class MarkerPoseLike(Protocol):
     def t_cam_marker_m(self) -> ArrayLike: ...
 
 
+class _PoseLike(Protocol):
+    @property
+    def R(self) -> ArrayLike: ...
+    @property
+    def t(self) -> ArrayLike: ...
+
+
+class DetectionLike(Protocol):
+    """What :meth:`CameraMarkerObservation.from_detection` reads (vision.MarkerObservation)."""
+
+    @property
+    def time_s(self) -> float: ...
+    @property
+    def T_camera_pad(self) -> _PoseLike: ...
+    @property
+    def ambiguous(self) -> bool: ...
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class CameraMarkerObservation:
     """A marker pose in the camera frame from a PnP, timestamped at exposure (dart eqs 1, 5)."""
@@ -156,6 +178,19 @@ class CameraMarkerObservation:
     R_cam_marker: FloatArray
     t_cam_marker_m: FloatArray  # Q_m, dart eq 1
     marker_id: int = 0
+    # IPPE two-fold ambiguity unresolved (vision.MarkerObservation.ambiguous): never fused
+    ambiguous: bool = False
+
+    @classmethod
+    def from_detection(cls, detection: DetectionLike) -> CameraMarkerObservation:
+        """From a vision.MarkerObservation (exposure time, T_camera_pad, ambiguity flag)."""
+        T = detection.T_camera_pad
+        return cls(
+            float(detection.time_s),
+            np.asarray(T.R, dtype=float),
+            np.asarray(T.t, dtype=float),
+            ambiguous=bool(detection.ambiguous),
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -272,6 +307,7 @@ class DartEstimator(ABC):
         self.rejected_observations = 0  # malformed (NaN, not a rotation, marker behind camera)
         self.stale_observations = 0  # older than the attitude history
         self.no_attitude_observations = 0  # no (recent) IMU sample
+        self.ambiguous_observations = 0  # IPPE mirror pair unresolved: gated, not fused
 
     # history ---------------------------------------------------------------
     def _record(self, entry: tuple[float, ...]) -> None:
@@ -282,6 +318,12 @@ class DartEstimator(ABC):
             h.popleft()
 
     def _check(self, obs: MarkerPoseLike) -> tuple[float, FloatArray, FloatArray] | None:
+        if bool(getattr(obs, "ambiguous", False)):
+            # the planar pose's mirror pair was not resolved (vision.detector.resolve_ambiguity):
+            # its attitude may be the wrong one of the two, so no estimator fuses it (FCF-CF would
+            # take the attitude, the Madgwick-based ones a position from the same unsure solve)
+            self.ambiguous_observations += 1
+            return None
         try:
             t = float(obs.time_s)
             R = np.asarray(obs.R_cam_marker, dtype=float).reshape(3, 3)

@@ -20,9 +20,11 @@ def _floats(col: list[str]) -> np.ndarray:
     return np.array([float(v) if v not in ("", "nan") else math.nan for v in col])
 
 
-def plot_run(run_dir: str | Path) -> list[Path]:
-    """Write path.png (delivery Fig. 8) and lyapunov.png (Fig. 9) into ``run_dir``."""
+def plot_run(run_dir: str | Path, out_dir: str | Path | None = None) -> list[Path]:
+    """Write path.png (delivery Fig. 8) and lyapunov.png (Fig. 9) into ``out_dir`` (default ``run_dir``)."""
     run = Path(run_dir)
+    dest = Path(out_dir) if out_dir is not None else run
+    dest.mkdir(parents=True, exist_ok=True)
     summary = json.loads((run / "summary.json").read_text())
     if not summary.get("path"):
         raise ValueError(f"{run / 'summary.json'}: no planned path recorded (the mission never planned one)")
@@ -58,7 +60,7 @@ def plot_run(run_dir: str | Path) -> list[Path]:
     ax2.grid(True, alpha=0.3)
     ax2.legend()
     fig.tight_layout()
-    f = run / "path.png"
+    f = dest / "path.png"
     fig.savefig(f, dpi=110)
     plt.close(fig)
     out.append(f)
@@ -76,7 +78,7 @@ def plot_run(run_dir: str | Path) -> list[Path]:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    f = run / "lyapunov.png"
+    f = dest / "lyapunov.png"
     fig.savefig(f, dpi=110)
     plt.close(fig)
     out.append(f)

@@ -23,3 +23,30 @@ def test_bench_link_measures_both_backends():
         assert res["20hz"]["received"] == res["20hz"]["sent"] == 12
         # latencies are benchmark figures (`companion bench link`), not asserted against wall-clock bounds
         assert res["50hz"]["jitter_p99_ms"] >= 0.0 and res["command_rtt_p50_ms"] > 0.0
+
+
+def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, capsys):
+    from companion.autopilot import commands
+    from companion.cli import build_parser
+    from companion.config import shipped_params_path
+    from companion.mission.delivery import MissionSummary
+
+    seen = {}
+
+    def make_autopilot(config, **kwargs):
+        seen.update(kwargs, backend=config.autopilot, connection=config.connection)
+        return object()
+
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None):
+        seen["run_dir"], seen["landing"] = run_dir, landing
+        return MissionSummary(delivered=True, returned=True)
+
+    monkeypatch.setattr(commands, "make_autopilot", make_autopilot)
+    monkeypatch.setattr(commands, "run_delivery", run_delivery)
+    parser, _ = build_parser()
+    params = str(shipped_params_path("ardupilot_quad.toml"))
+    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run")])
+    assert args.func(args) == 0
+    assert seen["run_dir"] == tmp_path / "run" and seen["tlog_path"] == tmp_path / "run" / "flight.tlog"
+    assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")
+    assert '"delivered": true' in capsys.readouterr().out

@@ -10,9 +10,25 @@ import pytest
 from companion.autopilot import FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
+from companion.flightlog.tlog import read_tlog
 from companion.mission.events import EventKind, Phase
 
 pytestmark = pytest.mark.slow
+
+
+def _tlog_by_source(path):
+    out: dict[tuple[int, int], list] = {}
+    for m in read_tlog(path):
+        out.setdefault((m.get_srcSystem(), m.get_srcComponent()), []).append(m)
+    return out
+
+
+def _setpoints(msgs):
+    return [(m.vx, m.vy, m.vz, m.yaw) for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+
+
+def _types(msgs):
+    return {m.get_type() for m in msgs}
 
 
 def _pad_error(sim, config):
@@ -21,10 +37,12 @@ def _pad_error(sim, config):
     return math.hypot(td[0].north_m - config.mission.pad.north_m, td[0].east_m - config.mission.pad.east_m)
 
 
-async def test_full_delivery_ardupilot_over_udp(mav, udp_port):
+async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
     config = mav.short_config()
+    received = []  # what reached the vehicle
     with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
-        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        sim.on_message = received.append
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", tlog_path=tmp_path / "flight.tlog")
         shell, summary = await mav.fly(config, ap)
     assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
     assert _pad_error(sim, config) < 1.0
@@ -33,11 +51,27 @@ async def test_full_delivery_ardupilot_over_udp(mav, udp_port):
     assert ap.counters.bad_data == 0 and shell.stats.requests_failed == 0
     assert sim.stats.commands[511] >= 8  # message intervals were requested (ArduPilot streams nothing unasked)
 
+    # the .tlog holds both directions, as they crossed the link
+    log = _tlog_by_source(tmp_path / "flight.tlog")
+    ours, vehicle = log.pop((ap.source_system, ap.source_component)), log.pop((sim.system_id, sim.component_id))
+    assert not log  # nobody else on the link
+    sent = _setpoints(ours)
+    assert len(sent) == ap.counters.setpoints_sent and sent == _setpoints(received)
+    commands = [(m.command, m.param1) for m in ours if m.get_type() == "COMMAND_LONG"]
+    assert commands == [(m.command, m.param1) for m in received if m.get_type() == "COMMAND_LONG"]
+    assert {"HEARTBEAT", "SET_POSITION_TARGET_LOCAL_NED", "COMMAND_LONG"} <= _types(ours)
+    wanted = {"HEARTBEAT", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "COMMAND_ACK"}
+    assert wanted <= _types(vehicle)
+    assert sum(m.get_type() == "HEARTBEAT" for m in vehicle) == ap.counters.heartbeats
+    assert len(vehicle) == ap.counters.messages + ap.counters.heartbeats  # every packet received is there
 
-async def test_full_delivery_px4_over_mavsdk(mav, udp_port):
+
+async def test_full_delivery_px4_over_mavsdk(mav, udp_port, tmp_path):
     config = mav.short_config()
+    received = []
     with mav.sim_vehicle(config, "px4", udp_port) as sim:
-        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}")
+        sim.on_message = received.append
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}", tlog_path=tmp_path / "flight.tlog")
         shell, summary = await mav.fly(config, ap)
     assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
     assert _pad_error(sim, config) < 1.0
@@ -45,6 +79,19 @@ async def test_full_delivery_px4_over_mavsdk(mav, udp_port):
     assert sim.stats.setpoints > 300
     assert shell.stats.requests_failed == 0
     assert ap.telemetry.received["Attitude"] > 500 and ap.telemetry.received["PositionNed"] > 300
+
+    # the .tlog: every message MAVSDK received and sent, re-encoded from its decoded fields
+    log = _tlog_by_source(tmp_path / "flight.tlog")
+    vehicle = log.pop((sim.system_id, sim.component_id))
+    (mavsdk_id, ours), *others = log.items()
+    assert not others and mavsdk_id[0] == ap.system_id  # MAVSDK speaks as a component of the vehicle
+    sent = _setpoints(ours)
+    assert len(sent) == ap.setpoints_sent and sent == _setpoints(received)
+    assert {"HEARTBEAT", "COMMAND_LONG"} <= _types(ours)  # MAVSDK's own traffic (Action, intervals) too
+    wanted = {"HEARTBEAT", "ATTITUDE", "HIGHRES_IMU", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "COMMAND_ACK"}
+    assert wanted <= _types(vehicle)
+    attitudes = sum(m.get_type() in ("ATTITUDE", "ATTITUDE_QUATERNION") for m in vehicle)
+    assert attitudes >= ap.telemetry.received["Attitude"]  # MAVSDK's attitude stream derives from these
 
 
 async def test_pilot_takeover_px4_mode_switch_on_the_vehicle(mav, udp_port):

@@ -1,5 +1,9 @@
 import multiprocessing as mp
+import struct
+import subprocess
+import sys
 
+import numpy as np
 import pytest
 
 from companion.app import FLIGHT_LOG_COLUMNS
@@ -11,7 +15,7 @@ def test_header_time_first_and_units(tmp_path):
         lg.write((0.5, 1.0, 2.0))
     cols = read_csv(tmp_path / "a.csv")
     assert list(cols) == ["time_s", "north_m", "speed_m_s"]
-    assert cols["north_m"] == ["1.000000"]
+    assert cols["north_m"] == ["1.0"]
     with pytest.raises(ValueError, match="time_s"):
         CsvLog(tmp_path / "b.csv", ("north_m",))
 
@@ -45,4 +49,32 @@ def test_rows_survive_a_crash(tmp_path):
     proc.join(10)
     assert proc.exitcode == 1
     cols = read_csv(p)
-    assert len(cols["time_s"]) == 100 and cols["x_m"][-1] == "198.000000"
+    assert len(cols["time_s"]) == 100 and cols["x_m"][-1] == "198.0"
+
+
+def test_floats_round_trip_exactly(tmp_path):
+    rng = np.random.default_rng(7)
+    values = [*rng.normal(0.0, 1e3, 200), *rng.uniform(-1e-9, 1e-9, 50), 0.1, -0.0, 1e300, 5e-324, np.float64(2) / 3]
+    with CsvLog(tmp_path / "f.csv", ("time_s", "x_m")) as lg:
+        for i, v in enumerate(values):
+            lg.write((float(i), v))
+    back = [float(v) for v in read_csv(tmp_path / "f.csv")["x_m"]]
+    assert [struct.pack("<d", v) for v in back] == [struct.pack("<d", float(v)) for v in values]
+    assert read_csv(tmp_path / "f.csv")["x_m"][-4] == "-0.0"
+
+
+def test_open_logs_are_drained_and_closed_at_interpreter_exit(tmp_path):
+    # many rows handed to the writer thread, then a normal exit without close(): the atexit hook
+    # drains the queue (the writer is a daemon thread and would otherwise die with rows queued)
+    p = tmp_path / "exit.csv"
+    code = (
+        "from companion.flightlog import CsvLog\n"
+        f"lg = CsvLog({str(p)!r}, ('time_s', 'x_m'), max_queue=100000)\n"
+        "for i in range(60000):\n"
+        "    lg.write((float(i), 0.5 * i))\n"
+        "raise SystemExit(3)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3, proc.stderr
+    cols = read_csv(p)
+    assert len(cols["time_s"]) == 60000 and cols["x_m"][-1] == "29999.5"

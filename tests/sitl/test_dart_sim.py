@@ -39,7 +39,11 @@ def test_hover_ordering_and_scf_mf_3dof_within_a_centimetre(hovers: dict[str, Da
     for sim in (fcf, scf):
         assert sim.stats.frames == pytest.approx(15.0 * 30.0, abs=2)
         assert sim.stats.detections >= 0.9 * sim.stats.frames  # real pixels, real detector
-        assert sim.stats.estimates >= 0.9 * sim.stats.detections
+        # ambiguous detections (IPPE mirror pair unresolved) are gated by every estimator
+        # (the newest frames may still be in the camera's latency when the run stops)
+        assert sim.stats.ambiguous - 2 <= sim.estimator.ambiguous_observations <= sim.stats.ambiguous
+        assert sim.stats.estimates >= 0.9 * (sim.stats.detections - sim.stats.ambiguous)
+        assert sim.stats.estimates >= 0.5 * sim.stats.frames
     s_fcf = _std_cm(fcf.errors(5.0))  # dart eq 22 on estimate - setpoint, cm
     s_scf = _std_cm(scf.errors(5.0))
     # the paper's ordering: FCF-CF (vision attitude, noisy at 4 m) worst, SCF-MF-3DOF best
@@ -59,8 +63,11 @@ def test_hover_is_deterministic_by_seed() -> None:
 
 
 def test_gimbals_hold_the_camera_while_the_body_tilts() -> None:
-    for name, kind in (("FCF-MF", GimbalKind.NONE), ("SCF-MF-2DOF", GimbalKind.TWO_DOF),
-                       ("SCF-MF-3DOF", GimbalKind.THREE_DOF)):
+    for name, kind in (
+        ("FCF-MF", GimbalKind.NONE),
+        ("SCF-MF-2DOF", GimbalKind.TWO_DOF),
+        ("SCF-MF-3DOF", GimbalKind.THREE_DOF),
+    ):
         sim = DartSim(name, DartSimConfig(camera_scale=0.5))
         assert sim.gimbal is kind
         sim.roll_c, sim.pitch_c, sim.yaw = 0.2, -0.15, 0.3
@@ -76,8 +83,15 @@ def test_gimbals_hold_the_camera_while_the_body_tilts() -> None:
 
 
 def test_imu_at_rest_reads_gravity_and_zero_rates() -> None:
-    cfg = DartSimConfig(accel_vibration_m_s2=0.0, gyro_vibration_rad_s=0.0, accel_noise_m_s2=0.0,
-                        gyro_noise_rad_s=0.0, accel_bias_m_s2=0.0, gyro_bias_rad_s=0.0, camera_scale=0.5)
+    cfg = DartSimConfig(
+        accel_vibration_m_s2=0.0,
+        gyro_vibration_rad_s=0.0,
+        accel_noise_m_s2=0.0,
+        gyro_noise_rad_s=0.0,
+        accel_bias_m_s2=0.0,
+        gyro_bias_rad_s=0.0,
+        camera_scale=0.5,
+    )
     sim = DartSim("FCF-MF", cfg)
     gyro, accel = sim._imu()
     assert np.allclose(gyro, 0.0) and np.allclose(accel, (0.0, 0.0, -9.80665))
@@ -163,8 +177,7 @@ def test_mission_approach_from_4_m_to_1_5_m_on_real_frames() -> None:
 
     sim = DartSim("SCF-MF-3DOF", mission=DartMissionConfig(hover_s=2.0, max_speed_m_s=0.25), seed=3)
     sim.run_until(25.0)
-    assert [p for _, p in sim.mission.transitions] == [DartPhase.HOVER_START, DartPhase.APPROACH,
-                                                       DartPhase.HOVER_END]
+    assert [p for _, p in sim.mission.transitions] == [DartPhase.HOVER_START, DartPhase.APPROACH, DartPhase.HOVER_END]
     assert sim.stats.detections >= 0.9 * sim.stats.frames  # the marker is tracked from 4 m to 1.5 m
     approach = [s for s in sim.samples if 3.0 <= s.time_s <= 22.0]
     lag = max(abs(s.truth[2] - s.setpoint[2]) for s in approach if s.setpoint is not None)

@@ -31,3 +31,26 @@ async def test_px4_sitl_connects_and_arms(px4_root, tmp_path):
             assert ap.link_ok
         finally:
             await ap.close()
+
+
+async def test_delivery_on_px4_sih_lands_on_the_displaced_pad(px4_root, tmp_path):
+    """The sitl_short delivery against PX4 SIH: MAVSDK on the offboard link (14540), ground truth
+    from HIL_STATE_QUATERNION on the GCS link (14550), camera and UWB rendered from it around a
+    pad displaced 0.75 m from its configured position."""
+    import asyncio
+
+    from companion.config import load_config, shipped_params_path
+    from companion_sitl.truth_feed import MavlinkTruth
+    from companion_sitl.truth_harness import fly_on_truth
+
+    config = load_config(shipped_params_path("sitl_short.toml"))
+    with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
+        await asyncio.to_thread(truth.wait, 30.0)
+        ap = Px4Autopilot("udpin://127.0.0.1:14540", link_timeout_s=config.runtime.link_timeout_s)
+        try:
+            r = await fly_on_truth(config, ap, truth, truth.origin, (0.6, -0.45), timeout_s=240.0)
+        finally:
+            await ap.close()
+    assert r.delivered and r.returned, r.failure
+    assert r.markers_used > 20
+    assert r.pad_landing_error_m < 0.3, r

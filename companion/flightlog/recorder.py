@@ -1,0 +1,609 @@
+"""Per-stream flight logs: one CSV per input and output of the core, in the run folder.
+
+:class:`FlightRecorder` is handed to :class:`companion.app.DeliveryShell` (``recorder=``). It
+listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
+calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
+ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
+(writer thread, flushed as it goes; time in seconds first, units in the headers), so PlotJuggler
+opens every file as is:
+
+=====================  ==========================================================================
+``ap_position.csv``    autopilot local position and velocity (LOCAL_POSITION_NED), NED
+``ap_attitude.csv``    attitude and body rates
+``ap_global.csv``      global position; ``ap_gps.csv`` raw GPS; ``ap_imu.csv`` IMU
+``ap_status.csv``      armed, mode, landed state, health, battery, payload
+``ap_home.csv``        home position; ``ap_statustext.csv`` autopilot messages
+``camera.csv``         pad observations as the fusion receives them (exposure time, T_camera_pad)
+``uwb.csv``            UWB fixes in the anchor frame as the fusion receives them
+``ekf.csv``            the fused EKF state at each guidance tick: position, attitude, GPS bias,
+                       gyro bias, covariance diagonal
+``guidance.csv``       each guidance tick: the estimate the mission used, phase, sector, V, the
+                       mission's setpoint and the clamped one sent, the request issued
+``setpoints.csv``      every setpoint the stream sent to the autopilot
+``requests.csv``       results of autopilot requests as fed back to the mission
+``commands.csv``       operator aborts (Ctrl-C) and ground commands as applied to the mission
+``events.csv``         mission events as they happen
+``run.json``           format, configuration, fusion setup, mission frame and path, row counts
+=====================  ==========================================================================
+
+Replay (:mod:`companion.flightlog.replay`) needs every input in the order the core saw it: every
+input row carries ``seq``, one counter across all streams (samples, observations, fixes, request
+results, commands and guidance ticks). Floats are written as shortest round-trip decimals, so
+they read back as the same doubles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+import itertools
+import json
+import logging
+import math
+import operator
+import os
+import typing
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from companion.autopilot.types import (
+    Attitude,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    PositionNed,
+    StatusText,
+    TelemetrySample,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+from companion.flightlog.csvlog import CsvLog
+from companion.geometry.rotations import rotmat_to_euler
+from companion.geometry.se3 import Transform
+
+log = logging.getLogger(__name__)
+
+FORMAT = "companion.flightlog/1"
+META_FILE = "run.json"
+
+# ---------------------------------------------------------------------------------------------
+# autopilot samples: one file per sample type; columns time_s, seq, then the dataclass fields
+# (whose names carry their units)
+
+SAMPLE_FILES: dict[type, str] = {
+    PositionNed: "ap_position.csv",
+    Attitude: "ap_attitude.csv",
+    GlobalPosition: "ap_global.csv",
+    GpsRaw: "ap_gps.csv",
+    Imu: "ap_imu.csv",
+    VehicleStatus: "ap_status.csv",
+    HomePosition: "ap_home.csv",
+    StatusText: "ap_statustext.csv",
+}
+
+
+def sample_fields(cls: type) -> list[tuple[str, Any]]:
+    """(name, type) of a sample dataclass's fields after ``time_s``, in column order."""
+    hints = typing.get_type_hints(cls)
+    return [(f.name, hints[f.name]) for f in dataclasses.fields(cls) if f.name != "time_s"]
+
+
+_SAMPLE_FIELDS = {cls: sample_fields(cls) for cls in SAMPLE_FILES}
+
+
+def sample_columns(cls: type) -> tuple[str, ...]:
+    return ("time_s", "seq", *(name for name, _ in _SAMPLE_FIELDS[cls]))
+
+
+def _sample_encoder(cls: type) -> Any:
+    """A fast row builder for one sample type (called at the telemetry rate on the loop thread):
+    enums as their value, flags as 0/1, numbers as they are."""
+    fields_ = _SAMPLE_FIELDS[cls]
+    get = operator.attrgetter(*(n for n, _ in fields_))
+    conv = [
+        (i, (lambda v: v.value) if isinstance(t, type) and issubclass(t, enum.Enum) else (lambda v: int(bool(v))))
+        for i, (_, t) in enumerate(fields_)
+        if t is bool or (isinstance(t, type) and issubclass(t, enum.Enum))
+    ]
+    if not conv:
+        if len(fields_) == 1:
+            return lambda seq, s: (s.time_s, seq, get(s))
+        return lambda seq, s: (s.time_s, seq, *get(s))
+
+    def encode(seq: int, s: Any) -> tuple[object, ...]:
+        vals = list(get(s))
+        for i, f in conv:
+            vals[i] = f(vals[i])
+        return (s.time_s, seq, *vals)
+
+    return encode
+
+
+_ENCODERS = {cls: _sample_encoder(cls) for cls in SAMPLE_FILES}
+
+
+def encode_sample(seq: int, sample: TelemetrySample) -> tuple[object, ...]:
+    return _ENCODERS[type(sample)](seq, sample)  # type: ignore[no-any-return]
+
+
+def decode_value(text: str, typ: Any) -> object:
+    """A CSV cell back into a field of type ``typ`` (float, int, bool, str or an Enum)."""
+    if typ is float:
+        return float(text)
+    if typ is bool:
+        if text not in ("0", "1"):
+            raise ValueError("expected 0 or 1")
+        return text == "1"
+    if typ is int:
+        return int(text)
+    if typ is str:
+        return text
+    if isinstance(typ, type) and issubclass(typ, enum.Enum):
+        return typ(text)
+    raise TypeError(f"no CSV codec for {typ!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+# the other streams
+
+CAMERA_COLUMNS = (
+    "time_s",  # exposure time
+    "seq",
+    "arrival_s",
+    "t_x_m",  # T_camera_pad translation: the pad centre in the camera frame
+    "t_y_m",
+    "t_z_m",
+    "r00",  # T_camera_pad rotation matrix, row-major (unitless)
+    "r01",
+    "r02",
+    "r10",
+    "r11",
+    "r12",
+    "r20",
+    "r21",
+    "r22",
+    "roll_rad",  # ZYX Euler angles of the same rotation (for plotting; replay uses r..)
+    "pitch_rad",
+    "yaw_rad",
+    "ambiguous",
+    "markers",
+    "reprojection_error_px",
+)
+UWB_COLUMNS = (
+    "time_s",
+    "seq",
+    "arrival_s",
+    "x_m",
+    "y_m",
+    "z_m",
+    "pdop",
+    "residual_rms_m",
+    "anchors_used",
+    "frame",
+)
+_AXES12 = (
+    ("north", "m"),
+    ("east", "m"),
+    ("down", "m"),
+    ("roll", "rad"),
+    ("pitch", "rad"),
+    ("yaw", "rad"),
+    ("bias_north", "m"),
+    ("bias_east", "m"),
+    ("bias_down", "m"),
+    ("gyro_bias_x", "rad_s"),
+    ("gyro_bias_y", "rad_s"),
+    ("gyro_bias_z", "rad_s"),
+)
+_VAR_UNIT = {"m": "m2", "rad": "rad2", "rad_s": "rad2_s2"}
+EKF_COLUMNS = (
+    "time_s",  # the time the filter state is valid at
+    "seq",  # the guidance tick's seq
+    "tick_s",
+    *(f"{n}_{u}" for n, u in _AXES12),
+    "north_m_s",  # the velocity input held by the filter (world NED)
+    "east_m_s",
+    "down_m_s",
+    *(f"var_{n}_{_VAR_UNIT[u]}" for n, u in _AXES12),
+    "xi",
+    "markers_used",
+    "uwb_used",
+)
+GUIDANCE_COLUMNS = (
+    "time_s",
+    "seq",
+    "link_ok",
+    "est_source",
+    "est_time_s",
+    "est_north_m",
+    "est_east_m",
+    "est_down_m",
+    "est_north_m_s",
+    "est_east_m_s",
+    "est_down_m_s",
+    "est_roll_rad",
+    "est_pitch_rad",
+    "est_yaw_rad",
+    "est_bias_north_m",
+    "est_bias_east_m",
+    "est_bias_down_m",
+    "phase",
+    "sector",
+    "lyapunov_m2",
+    "cmd_north_m_s",
+    "cmd_east_m_s",
+    "cmd_down_m_s",
+    "cmd_yaw_rad",
+    "sp_north_m_s",
+    "sp_east_m_s",
+    "sp_down_m_s",
+    "sp_yaw_rad",
+    "clamped",
+    "request",
+    "request_id",
+    "request_alt_m",
+)
+SETPOINT_COLUMNS = ("time_s", "north_m_s", "east_m_s", "down_m_s", "yaw_rad")
+REQUEST_COLUMNS = ("time_s", "seq", "id", "kind", "ok", "error")
+COMMAND_COLUMNS = ("time_s", "seq", "source", "kind", "detail", "reply")
+EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
+
+STREAM_FILES: dict[str, tuple[str, ...]] = {
+    **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},
+    "camera.csv": CAMERA_COLUMNS,
+    "uwb.csv": UWB_COLUMNS,
+    "ekf.csv": EKF_COLUMNS,
+    "guidance.csv": GUIDANCE_COLUMNS,
+    "setpoints.csv": SETPOINT_COLUMNS,
+    "requests.csv": REQUEST_COLUMNS,
+    "commands.csv": COMMAND_COLUMNS,
+    "events.csv": EVENT_COLUMNS,
+}
+
+_NAN = math.nan
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class PadObservation:
+    """A pad observation as the fusion consumes it (what replay feeds back; the live one is a
+    :class:`companion.vision.MarkerObservation`)."""
+
+    time_s: float
+    T_camera_pad: Transform
+    ambiguous: bool
+    markers: tuple[str, ...] = ()
+    reprojection_error_px: float = _NAN
+
+
+def camera_row(seq: int, arrival_s: float, obs: Any) -> tuple[object, ...]:
+    T = obs.T_camera_pad
+    R = np.asarray(T.R, dtype=float)
+    roll, pitch, yaw = rotmat_to_euler(R)
+    return (
+        float(obs.time_s),
+        seq,
+        float(arrival_s),
+        *(float(v) for v in np.asarray(T.t, dtype=float).reshape(3)),
+        *(float(v) for v in R.reshape(9)),
+        float(roll),
+        float(pitch),
+        float(yaw),
+        int(bool(getattr(obs, "ambiguous", False))),
+        " ".join(getattr(obs, "markers", ())),
+        float(getattr(obs, "reprojection_error_px", _NAN)),
+    )
+
+
+def uwb_row(seq: int, arrival_s: float, fix: Any) -> tuple[object, ...]:
+    return (
+        float(fix.time_s),
+        seq,
+        float(arrival_s),
+        float(fix.x_m),
+        float(fix.y_m),
+        float(fix.z_m),
+        float(fix.pdop),
+        float(getattr(fix, "residual_rms_m", _NAN)),
+        " ".join(getattr(fix, "anchors_used", ())),
+        str(getattr(fix, "frame", "")),
+    )
+
+
+def ekf_row(seq: int, tick_s: float, fusion: Any) -> tuple[object, ...] | None:
+    """The fusion's EKF state, or None before the filter is initialised (no row then)."""
+    ekf = fusion.ekf
+    if not ekf.initialized:
+        return None
+    x = ekf.x
+    d = np.diag(ekf.P)
+    return (
+        float(fusion.buffer.now_s),
+        seq,
+        float(tick_s),
+        *(float(v) for v in x),
+        *(float(v) for v in ekf.last_input[:3]),
+        *(float(v) for v in d),
+        int(bool(ekf.xi)),
+        int(fusion.counters.markers_used),
+        int(fusion.counters.uwb_used),
+    )
+
+
+def guidance_row(seq: int, inp: Any, out: Any, setpoint: VelocitySetpoint | None, clamped: bool) -> tuple[object, ...]:
+    """One guidance tick: the mission's inputs (``MissionInputs``) and output (``MissionOutput``),
+    and the clamped setpoint the shell streams (None when the mission gave none)."""
+    e = inp.estimate
+    est = (
+        (
+            e.source,
+            e.time_s,
+            e.north_m,
+            e.east_m,
+            e.down_m,
+            e.north_m_s,
+            e.east_m_s,
+            e.down_m_s,
+            e.roll_rad,
+            e.pitch_rad,
+            e.yaw_rad,
+            e.gps_bias_north_m,
+            e.gps_bias_east_m,
+            e.gps_bias_down_m,
+        )
+        if e is not None
+        else ("", *([_NAN] * 13))
+    )
+    cmd = out.setpoint
+    req = out.request
+    return (
+        inp.time_s,
+        seq,
+        int(bool(inp.link_ok)),
+        *est,
+        out.phase.value,
+        out.sector,
+        float(out.lyapunov),
+        *((cmd.north_m_s, cmd.east_m_s, cmd.down_m_s, cmd.yaw_rad) if cmd is not None else (_NAN,) * 4),
+        *(
+            (setpoint.north_m_s, setpoint.east_m_s, setpoint.down_m_s, setpoint.yaw_rad)
+            if setpoint is not None
+            else (_NAN,) * 4
+        ),
+        int(bool(clamped)),
+        req.kind.value if req is not None else "",
+        req.id if req is not None else 0,
+        float(req.alt_rel_m) if req is not None else _NAN,
+    )
+
+
+def transform_json(T: Transform) -> dict[str, list[Any]]:
+    return {"R": np.asarray(T.R, dtype=float).tolist(), "t": np.asarray(T.t, dtype=float).tolist()}
+
+
+def transform_from_json(d: dict[str, Any]) -> Transform:
+    return Transform(np.array(d["R"], dtype=float).reshape(3, 3), np.array(d["t"], dtype=float).reshape(3))
+
+
+def _json_safe(o: object) -> object:
+    if isinstance(o, float) and not math.isfinite(o):
+        return repr(o)
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_json_safe(v) for v in o]
+    return o
+
+
+# ---------------------------------------------------------------------------------------------
+
+_F = typing.TypeVar("_F", bound=typing.Callable[..., None])
+
+
+def _guarded(fn: _F) -> _F:
+    """A hook of the control path: a failure to log is logged and counted (``errors``, and in
+    ``run.json``), never raised into the flight."""
+
+    @functools.wraps(fn)
+    def hook(self: FlightRecorder, *args: Any) -> None:
+        try:
+            fn(self, *args)
+        except Exception:
+            self.errors += 1
+            if self.errors in (1, 10, 100, 1000):
+                log.exception(
+                    "flight log: %s failed (%d failures so far); the log is incomplete", fn.__name__, self.errors
+                )
+
+    return typing.cast(_F, hook)
+
+
+class FlightRecorder:
+    """Writes the per-stream CSV logs of one flight into ``run_dir``.
+
+    ``config`` is the :class:`companion.config.CompanionConfig` flown (saved in ``run.json`` for
+    replay). The shell attaches it when it starts (:meth:`attach`). Close it in a
+    ``finally`` (or use it as a context manager): every stream is flushed and closed, and
+    ``run.json`` records the row counts. Calls after :meth:`close` are ignored.
+    """
+
+    def __init__(self, run_dir: str | Path, config: Any, max_queue: int = 200_000):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._seq = itertools.count()
+        self._closed = False
+        self._telemetry: Any = None
+        self.logs: dict[str, CsvLog] = {}
+        self.ignored_after_close = 0
+        self.errors = 0  # hook failures (the log is then incomplete; replay reports the seq gaps)
+        self.meta: dict[str, Any] = {
+            "format": FORMAT,
+            "config": config.model_dump(mode="json"),
+            "landing": None,  # set by attach(): does the shell run the landing fusion?
+            "fusion": None,
+            "mission": None,
+            "streams": {name: list(cols) for name, cols in STREAM_FILES.items()},
+            "closed": False,
+        }
+        try:
+            for name, cols in STREAM_FILES.items():
+                self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue)
+            self._write_meta()
+        except BaseException:
+            for lg in self.logs.values():
+                lg.close()
+            raise
+
+    # ---- attachment ---------------------------------------------------------------------
+    def attach(self, telemetry: Any, landing: bool) -> None:
+        """Listen to a TelemetryCache (before anything else, so every sample gets a seq);
+        ``landing``: the shell runs the landing fusion (replay must start it at the same tick)."""
+        self._telemetry = telemetry
+        telemetry.add_listener(self.on_sample)
+        self.meta["landing"] = bool(landing)
+        self._write_meta()
+
+    def detach(self) -> None:
+        if self._telemetry is not None:
+            self._telemetry.remove_listener(self.on_sample)
+            self._telemetry = None
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _write(self, name: str, row: tuple[object, ...]) -> None:
+        if self._closed:
+            self.ignored_after_close += 1
+            return
+        self.logs[name].write(row)
+
+    # ---- inputs of the core -------------------------------------------------------------
+    @_guarded
+    def on_sample(self, sample: TelemetrySample) -> None:
+        """TelemetryCache listener: every accepted autopilot sample."""
+        cls = type(sample)
+        name = SAMPLE_FILES.get(cls)
+        if name is None:
+            log.debug("no stream for %s", cls.__name__)
+            return
+        self._write(name, _ENCODERS[cls](next(self._seq), sample))
+
+    @_guarded
+    def on_marker(self, now_s: float, obs: Any) -> None:
+        """A pad observation about to be handed to the fusion."""
+        self._write("camera.csv", camera_row(next(self._seq), now_s, obs))
+
+    @_guarded
+    def on_uwb(self, now_s: float, fix: Any) -> None:
+        """A UWB fix about to be handed to the fusion."""
+        self._write("uwb.csv", uwb_row(next(self._seq), now_s, fix))
+
+    @_guarded
+    def on_result(self, now_s: float, kind: str, result: Any) -> None:
+        """A request result about to be fed back to the mission (``RequestResult``)."""
+        self._write("requests.csv", (now_s, next(self._seq), result.id, kind, int(bool(result.ok)), result.error))
+
+    @_guarded
+    def on_abort(self, now_s: float, reason: str) -> None:
+        """An operator abort (signal) about to be applied to the mission."""
+        self._write("commands.csv", (now_s, next(self._seq), "operator", "abort", reason, ""))
+
+    @_guarded
+    def on_command(self, now_s: float, kind: str, sender: str, reply: str) -> None:
+        """A ground command just applied to the mission (``mission.command(now, kind, sender)``)."""
+        self._write("commands.csv", (now_s, next(self._seq), "ground", kind, sender, reply))
+
+    # ---- outputs of the core ------------------------------------------------------------
+    @_guarded
+    def on_tick(
+        self,
+        inp: Any,
+        out: Any,
+        setpoint: VelocitySetpoint | None,
+        clamped: bool,
+        mission: Any,
+        fusion: Any,
+    ) -> None:
+        """One guidance tick, after the mission stepped (``inp``: MissionInputs, ``out``:
+        MissionOutput, ``setpoint``: the clamped setpoint to stream)."""
+        if self._closed:
+            self.ignored_after_close += 1
+            return
+        seq = next(self._seq)
+        self._write("guidance.csv", guidance_row(seq, inp, out, setpoint, clamped))
+        for ev in out.events:
+            self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))
+        if fusion is not None:
+            row = ekf_row(seq, inp.time_s, fusion)
+            if row is not None:
+                self._write("ekf.csv", row)
+            if self.meta["fusion"] is None:
+                self._record_fusion(fusion, inp.time_s)
+        if self.meta["mission"] is None and mission.frame is not None and mission.path is not None:
+            self.meta["mission"] = {
+                "pad_ned_m": [float(v) for v in mission.frame.pad_ned],
+                "heading_rad": float(mission.frame.heading_rad),
+                "h_m": float(mission.path.h),
+                "r_m": float(mission.path.r),
+                "d_m": float(mission.path.d),
+                "z_start_m": float(mission.z_start),
+                "planned_at_s": float(inp.time_s),
+            }
+            self._write_meta()
+
+    @_guarded
+    def on_setpoint(self, now_s: float, sp: VelocitySetpoint) -> None:
+        """A setpoint the stream sent to the autopilot."""
+        self._write("setpoints.csv", (now_s, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad))
+
+    def _record_fusion(self, fusion: Any, now_s: float) -> None:
+        s = fusion.setup
+        self.meta["fusion"] = {
+            "started_at_s": float(now_s),
+            "T_world_pad": transform_json(s.T_world_pad),
+            "T_body_camera": transform_json(s.T_body_camera),
+            "T_pad_anchors": transform_json(s.T_pad_anchors),
+            "ekf": dataclasses.asdict(s.ekf),
+            "history_s": float(s.history_s),
+        }
+        self._write_meta()
+
+    # ---- closing --------------------------------------------------------------------------
+    def _write_meta(self) -> None:
+        tmp = self.run_dir / (META_FILE + ".tmp")
+        tmp.write_text(json.dumps(_json_safe(self.meta), indent=1), encoding="utf-8")
+        os.replace(tmp, self.run_dir / META_FILE)
+
+    def close(self) -> None:
+        """Flush and close every stream (idempotent); ``run.json`` gets the row counts."""
+        if self._closed:
+            return
+        self._closed = True
+        self.detach()
+        errors = []
+        for lg in self.logs.values():
+            try:
+                lg.close()
+            except Exception as err:  # one bad stream must not keep the others open
+                errors.append(f"{lg.path}: {err}")
+        self.meta["closed"] = True
+        self.meta["errors"] = self.errors
+        self.meta["rows"] = {name: lg.written for name, lg in self.logs.items()}
+        self.meta["dropped"] = {name: lg.dropped for name, lg in self.logs.items() if lg.dropped}
+        try:
+            self._write_meta()
+        except OSError as err:
+            errors.append(f"{self.run_dir / META_FILE}: {err}")
+        for e in errors:
+            log.error("flight log: %s", e)
+
+    def __enter__(self) -> FlightRecorder:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()

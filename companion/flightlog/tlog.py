@@ -1,0 +1,566 @@
+"""MAVLink telemetry logs (``.tlog``): the link traffic, as pymavlink, MAVExplorer and QGC read it.
+
+A ``.tlog`` is a sequence of records, each an 8-byte big-endian timestamp in microseconds since
+the UNIX epoch followed by one raw MAVLink packet (pymavlink ``mavfile.setup_logfile`` /
+``mavlogfile``). As pymavlink does, the timestamp's two low bits are cleared (MAVProxy keeps a
+link number there; ours is link 0).
+
+:class:`TlogWriter` takes packets from any thread (the event loop, a link's reader thread, a
+MAVSDK callback) through a bounded queue; a writer thread owns the file, writes whole records
+in batches and hands every batch to the OS as soon as the queue runs empty, so a crash loses
+nothing the writer has seen, and the control path never does disk I/O. A full queue drops the
+packet and counts it (or, with ``drop_when_full=False``, waits: used under the simulator's
+virtual clock, where waiting costs no simulated time and keeps files identical for a seed).
+Packets may also be handed over as a function that builds them, so encoding runs on the writer
+thread too.
+
+:class:`MavlinkPacker` makes MAVLink 2 packets from pymavlink messages or from decoded fields
+(MAVSDK only exposes decoded messages), one sequence counter per source. :class:`TelemetryEncoder`
+turns what an autopilot without a MAVLink link reports (:mod:`companion.autopilot.types`
+samples) and what the companion sends it into MAVLink, so the embedded simulator's flights give a
+``.tlog`` too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import queue
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    StatusText,
+    TelemetrySample,
+    VehicleStatus,
+    VelocitySetpoint,
+)
+
+log = logging.getLogger(__name__)
+
+_TS = struct.Struct(">Q")
+_LINK_BITS = ~3  # pymavlink/MAVProxy: the two low timestamp bits carry the link number
+_BATCH = 4096
+_STOP = object()
+
+PacketSource = bytes | bytearray | Callable[[], bytes | bytearray | None]
+
+
+class _Flush:
+    __slots__ = ("done",)
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+
+
+def tlog_timestamp_us(t_unix_s: float) -> int:
+    """The record timestamp for a UNIX time in seconds (microseconds, link bits cleared)."""
+    return round(float(t_unix_s) * 1e6) & _LINK_BITS
+
+
+class TlogWriter:
+    """Append MAVLink packets to a ``.tlog`` from a writer thread.
+
+    ``clock`` gives the UNIX time of a packet written without an explicit time (default
+    ``time.time``; the simulator maps its loop clock onto a fixed epoch). The file is opened
+    (and truncated, unless ``append``) here, so a bad path fails at once with a clear error.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        max_queue: int = 20000,
+        drop_when_full: bool = True,
+        append: bool = False,
+        clock: Callable[[], float] = time.time,
+    ):
+        if max_queue < 1:
+            raise ValueError(f"max_queue = {max_queue}: must be >= 1")
+        self.path = Path(path)
+        self.clock = clock
+        self.drop_when_full = drop_when_full
+        self.written = 0  # records on disk
+        self.dropped = 0  # packets refused: queue full, or the writer has failed or closed
+        self.encode_errors = 0  # deferred packets whose build function raised
+        self.error: str | None = None  # why the writer thread stopped early, if it did
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115 (closed by the writer thread)
+        except OSError as err:
+            raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
+        self._q: queue.Queue[object] = queue.Queue(max_queue)
+        self._closed = False
+        self._dead = False
+        self._thread = threading.Thread(target=self._run, name=f"tlog-{self.path.name}", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ producer side
+    def write(self, packet: PacketSource, t_unix_s: float | None = None) -> bool:
+        """Queue one packet (bytes, or a function returning its bytes, called on the writer
+        thread; None from it skips the record). False if it was dropped."""
+        if self._closed or self._dead:
+            self.dropped += 1
+            return False
+        usec = tlog_timestamp_us(self.clock() if t_unix_s is None else t_unix_s)
+        item = (usec, packet)
+        if self.drop_when_full:
+            try:
+                self._q.put_nowait(item)
+            except queue.Full:
+                self.dropped += 1
+                return False
+            return True
+        while True:  # wait for room, but not on a writer that has died meanwhile
+            try:
+                self._q.put(item, timeout=0.5)
+                return True
+            except queue.Full:
+                if self._dead:
+                    self.dropped += 1
+                    return False
+
+    def flush(self, timeout_s: float = 5.0) -> bool:
+        """Wait until everything queued so far is handed to the OS. False on timeout or if the
+        writer has stopped."""
+        if self._closed or self._dead:
+            return False
+        marker = _Flush()
+        try:
+            self._q.put(marker, timeout=timeout_s)
+        except queue.Full:
+            return False
+        return marker.done.wait(timeout_s) and not self._dead
+
+    def close(self) -> None:
+        """Write what is queued, sync and close the file; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        while self._thread.is_alive():
+            try:
+                self._q.put(_STOP, timeout=0.5)
+                break
+            except queue.Full:
+                continue
+        self._thread.join()
+        if self.dropped:
+            log.warning(
+                "%s: %d MAVLink packets dropped (queue full, or the writer had stopped)", self.path, self.dropped
+            )
+        if self.encode_errors:
+            log.warning("%s: %d MAVLink packets could not be encoded", self.path, self.encode_errors)
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ writer thread
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except Exception as err:  # disk full, I/O error: keep what is written, refuse the rest
+            self.error = f"{type(err).__name__}: {err}"
+            self._dead = True
+            log.error("%s: MAVLink log writer stopped: %s (everything before is kept)", self.path, self.error)
+        finally:
+            self._dead = True
+            self._release_waiters()
+            with contextlib.suppress(OSError):
+                os.fsync(self._fh.fileno())
+            self._fh.close()
+
+    def _loop(self) -> None:
+        q = self._q
+        while True:
+            items = [q.get()]
+            if q.qsize() < q.maxsize // 2:
+                time.sleep(0.01)  # gather a batch: one wake-up and one write per batch, not per packet
+            while len(items) < _BATCH:
+                try:
+                    items.append(q.get_nowait())
+                except queue.Empty:
+                    break
+            buf = bytearray()
+            n = 0
+            markers: list[_Flush] = []
+            stop = False
+            for it in items:
+                if it is _STOP:
+                    stop = True
+                    continue
+                if isinstance(it, _Flush):
+                    markers.append(it)
+                    continue
+                usec: int
+                src: PacketSource
+                usec, src = it  # type: ignore[misc]
+                try:
+                    packet: bytes | bytearray | None = src() if callable(src) else src
+                except Exception:
+                    self.encode_errors += 1
+                    if self.encode_errors in (1, 100, 10000):
+                        log.exception("%s: cannot encode a MAVLink packet (%d so far)", self.path, self.encode_errors)
+                    continue
+                if not packet:
+                    continue
+                buf += _TS.pack(usec)
+                buf += packet
+                n += 1
+            try:
+                if buf:
+                    try:
+                        self._write_all(bytes(buf))
+                    except BaseException:
+                        self.dropped += n
+                        raise
+                    self.written += n
+            finally:
+                for m in markers:
+                    m.done.set()
+            if stop:
+                return
+
+    def _write_all(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            k = self._fh.write(view)
+            if k is None or k <= 0:
+                raise OSError(f"short write to {self.path}")
+            view = view[k:]
+
+    def _release_waiters(self) -> None:
+        while True:
+            try:
+                it = self._q.get_nowait()
+            except queue.Empty:
+                return
+            if isinstance(it, _Flush):
+                it.done.set()
+            elif it is not _STOP:
+                self.dropped += 1
+
+
+def read_tlog(path: str | Path, types: Sequence[str] | None = None) -> Iterator[Any]:
+    """The messages of a ``.tlog`` through pymavlink's own reader (``mavutil.mavlink_connection``),
+    in file order; each has ``_timestamp`` (UNIX seconds). ``types`` filters by message name."""
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
+    try:
+        want = list(types) if types is not None else None
+        while True:
+            m = conn.recv_match(type=want)
+            if m is None:
+                return
+            if m.get_type() != "BAD_DATA":
+                yield m
+    finally:
+        conn.close()
+
+
+# ---------------------------------------------------------------------------------- encoding
+_FLOAT_TYPES = ("float", "double")
+
+
+class MavlinkPacker:
+    """MAVLink 2 packets in pymavlink's ``ardupilotmega`` dialect (a superset of ``common``),
+    with one sequence counter per source (system, component). Not thread-safe: use it from one
+    thread (e.g. inside functions handed to :meth:`TlogWriter.write`)."""
+
+    def __init__(self) -> None:
+        self._mav: dict[tuple[int, int], Any] = {}
+
+    def pack(self, msg: Any, system_id: int, component_id: int) -> bytes:
+        key = (system_id, component_id)
+        mav = self._mav.get(key)
+        if mav is None:
+            mav = self._mav[key] = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        buf = bytes(msg.pack(mav))
+        mav.seq = (mav.seq + 1) % 256
+        return buf
+
+    @staticmethod
+    def message_from_fields(name_or_id: str | int, fields: Mapping[str, Any]) -> Any:
+        """A pymavlink message from decoded field values (missing fields are 0; None, as in
+        MAVSDK's JSON for NaN, is NaN for float fields and 0 otherwise)."""
+        if isinstance(name_or_id, int):
+            cls = mavlink2.mavlink_map.get(name_or_id)
+        else:
+            cls = getattr(mavlink2, f"MAVLink_{name_or_id.lower()}_message", None)
+        if cls is None:
+            raise KeyError(f"MAVLink message {name_or_id!r} is not in pymavlink's ardupilotmega dialect")
+        lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))  # wire order
+        args: list[Any] = []
+        for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=True):  # constructor order
+            v, n = fields.get(name), lengths[name]
+            if ftype == "char":
+                s = v if isinstance(v, (bytes, bytearray)) else str(v or "").encode("utf-8", errors="replace")
+                args.append(bytes(s[: max(n, 1)]))
+                continue
+            blank = math.nan if ftype in _FLOAT_TYPES else 0
+            if n:
+                seq = list(v) if isinstance(v, (list, tuple, bytes, bytearray)) else []
+                seq = [blank if x is None else x for x in seq[:n]]
+                args.append(seq + [0] * (n - len(seq)))
+            else:
+                args.append(blank if v is None else v)
+        return cls(*args)
+
+    def pack_fields(self, name_or_id: str | int, fields: Mapping[str, Any], system_id: int, component_id: int) -> bytes:
+        return self.pack(self.message_from_fields(name_or_id, fields), system_id, component_id)
+
+    def pack_json(self, name: str, fields_json: str, system_id: int, component_id: int) -> bytes:
+        """A packet from one of MAVSDK's decoded messages (``message_name`` and ``fields_json``)."""
+        fields = json.loads(fields_json) if fields_json else {}
+        return self.pack_fields(fields.get("message_id", name), fields, system_id, component_id)
+
+
+_LANDED = {
+    LandedState.UNKNOWN: mavlink2.MAV_LANDED_STATE_UNDEFINED,
+    LandedState.ON_GROUND: mavlink2.MAV_LANDED_STATE_ON_GROUND,
+    LandedState.IN_AIR: mavlink2.MAV_LANDED_STATE_IN_AIR,
+    LandedState.TAKING_OFF: mavlink2.MAV_LANDED_STATE_TAKEOFF,
+    LandedState.LANDING: mavlink2.MAV_LANDED_STATE_LANDING,
+}
+_U16_MAX = 65535
+_VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # SET_POSITION_TARGET_LOCAL_NED: use vx, vy, vz and yaw
+
+
+def _i32(x: float) -> int:
+    return max(-(2**31), min(2**31 - 1, round(float(x))))
+
+
+class TelemetryEncoder:
+    """MAVLink for an autopilot that has no MAVLink link (the embedded simulator).
+
+    :meth:`sample` encodes what the autopilot reports (HEARTBEAT with mode and armed flag,
+    SYS_STATUS, BATTERY_STATUS and EXTENDED_SYS_STATE from a status; ATTITUDE; HIGHRES_IMU;
+    LOCAL_POSITION_NED; GLOBAL_POSITION_INT; GPS_RAW_INT; HOME_POSITION; STATUSTEXT) from
+    ``system_id``/``component_id``; :meth:`setpoint`, :meth:`command` and :meth:`command_ack`
+    encode what the companion sends (SET_POSITION_TARGET_LOCAL_NED, COMMAND_LONG from
+    ``companion_component``) and the autopilot's answer. ``custom_mode`` maps a
+    :class:`FlightMode` onto the autopilot's HEARTBEAT custom mode. Encoding runs on the
+    writer thread; ``boot_s`` is the clock time of the autopilot's boot (``time_boot_ms``).
+    """
+
+    def __init__(
+        self,
+        writer: TlogWriter,
+        *,
+        boot_s: float,
+        clock: Callable[[], float],
+        custom_mode: Callable[[FlightMode], int],
+        autopilot: int = mavlink2.MAV_AUTOPILOT_PX4,
+        vehicle_type: int = mavlink2.MAV_TYPE_QUADROTOR,
+        system_id: int = 1,
+        component_id: int = mavlink2.MAV_COMP_ID_AUTOPILOT1,
+        companion_component: int = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER,
+    ):
+        self.writer = writer
+        self.boot_s = boot_s
+        self.clock = clock
+        self.custom_mode = custom_mode
+        self.autopilot = autopilot
+        self.vehicle_type = vehicle_type
+        self.vehicle_id = (system_id, component_id)
+        self.companion_id = (system_id, companion_component)
+        self._packer = MavlinkPacker()  # used on the writer thread only
+        self._velocity = (0.0, 0.0, 0.0)
+        self._yaw = 0.0
+
+    def _emit(self, source: tuple[int, int], msg: Any) -> None:
+        packer = self._packer
+        self.writer.write(lambda: packer.pack(msg, *source))  # packed on the writer thread, in order
+
+    def _ms(self, t: float) -> int:
+        return max(0, int((t - self.boot_s) * 1000.0)) & 0xFFFFFFFF
+
+    def _us(self, t: float) -> int:
+        return max(0, int((t - self.boot_s) * 1e6))
+
+    def sample(self, s: TelemetrySample) -> None:
+        """Encode one reported sample (at the clock's current time)."""
+        t = self.clock()
+        ms, us = self._ms(t), self._us(t)
+        m: list[Any]
+        match s:
+            case Attitude():
+                self._yaw = s.yaw_rad
+                m = [
+                    mavlink2.MAVLink_attitude_message(
+                        ms, s.roll_rad, s.pitch_rad, s.yaw_rad, s.rollspeed_rad_s, s.pitchspeed_rad_s, s.yawspeed_rad_s
+                    )
+                ]
+            case Imu():
+                m = [
+                    mavlink2.MAVLink_highres_imu_message(
+                        us,
+                        s.accel_x_m_s2,
+                        s.accel_y_m_s2,
+                        s.accel_z_m_s2,
+                        s.gyro_x_rad_s,
+                        s.gyro_y_rad_s,
+                        s.gyro_z_rad_s,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0b111111,  # fields_updated: accelerometer and gyro
+                        0,
+                    )
+                ]
+            case PositionNed():
+                self._velocity = (s.north_m_s, s.east_m_s, s.down_m_s)
+                m = [
+                    mavlink2.MAVLink_local_position_ned_message(
+                        ms, s.north_m, s.east_m, s.down_m, s.north_m_s, s.east_m_s, s.down_m_s
+                    )
+                ]
+            case GlobalPosition():
+                vn, ve, vd = self._velocity
+                hdg = round(math.degrees(self._yaw) % 360.0 * 100.0) % 36000
+                m = [
+                    mavlink2.MAVLink_global_position_int_message(
+                        ms,
+                        _i32(s.lat_deg * 1e7),
+                        _i32(s.lon_deg * 1e7),
+                        _i32(s.alt_amsl_m * 1000.0),
+                        _i32(s.alt_rel_m * 1000.0),
+                        round(float(vn) * 100.0),
+                        round(float(ve) * 100.0),
+                        round(float(vd) * 100.0),
+                        hdg,
+                    )
+                ]
+            case GpsRaw():
+                eph = _U16_MAX if not math.isfinite(s.eph_m) else min(_U16_MAX - 1, round(float(s.eph_m) * 100.0))
+                m = [
+                    mavlink2.MAVLink_gps_raw_int_message(
+                        us,
+                        s.fix_type,
+                        _i32(s.lat_deg * 1e7),
+                        _i32(s.lon_deg * 1e7),
+                        _i32(s.alt_amsl_m * 1000.0),
+                        eph,
+                        _U16_MAX,
+                        _U16_MAX,
+                        _U16_MAX,
+                        s.satellites,
+                    )
+                ]
+            case VehicleStatus():
+                m = self._status(s)
+            case HomePosition():
+                m = [
+                    mavlink2.MAVLink_home_position_message(
+                        _i32(s.lat_deg * 1e7),
+                        _i32(s.lon_deg * 1e7),
+                        _i32(s.alt_amsl_m * 1000.0),
+                        0.0,
+                        0.0,
+                        0.0,
+                        [1.0, 0.0, 0.0, 0.0],
+                        0.0,
+                        0.0,
+                        0.0,
+                        us,
+                    )
+                ]
+            case StatusText():
+                m = [
+                    mavlink2.MAVLink_statustext_message(s.severity, s.text.encode("utf-8", errors="replace")[:50], 0, 0)
+                ]
+            case _:
+                return
+        for msg in m:
+            self._emit(self.vehicle_id, msg)
+
+    def _status(self, s: VehicleStatus) -> list[Any]:
+        base = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if s.armed:
+            base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        state = mavlink2.MAV_STATE_ACTIVE if s.armed else mavlink2.MAV_STATE_STANDBY
+        prearm = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
+        remaining = max(0, min(100, round(float(s.battery_pct))))
+        return [
+            mavlink2.MAVLink_heartbeat_message(
+                self.vehicle_type, self.autopilot, base, self.custom_mode(s.mode), state, 3
+            ),
+            mavlink2.MAVLink_sys_status_message(
+                prearm, prearm, prearm if s.healthy else 0, 0, _U16_MAX, -1, remaining, 0, 0, 0, 0, 0, 0
+            ),
+            mavlink2.MAVLink_battery_status_message(
+                0,
+                mavlink2.MAV_BATTERY_FUNCTION_ALL,
+                mavlink2.MAV_BATTERY_TYPE_LIPO,
+                32767,
+                [_U16_MAX] * 10,
+                -1,
+                -1,
+                -1,
+                remaining,
+            ),
+            mavlink2.MAVLink_extended_sys_state_message(mavlink2.MAV_VTOL_STATE_UNDEFINED, _LANDED[s.landed]),
+        ]
+
+    def setpoint(self, sp: VelocitySetpoint) -> None:
+        """The companion's velocity setpoint, as SET_POSITION_TARGET_LOCAL_NED."""
+        ms = self._ms(self.clock())
+        ts, tc = self.vehicle_id
+        msg = mavlink2.MAVLink_set_position_target_local_ned_message(
+            ms,
+            ts,
+            tc,
+            mavlink2.MAV_FRAME_LOCAL_NED,
+            _VELOCITY_YAW_MASK,
+            0.0,
+            0.0,
+            0.0,
+            sp.north_m_s,
+            sp.east_m_s,
+            sp.down_m_s,
+            0.0,
+            0.0,
+            0.0,
+            sp.yaw_rad,
+            0.0,
+        )
+        self._emit(self.companion_id, msg)
+
+    def command(self, command: int, params: Sequence[float] = ()) -> None:
+        """A COMMAND_LONG from the companion (up to seven parameters)."""
+        p = [float(x) for x in params][:7]
+        p += [0.0] * (7 - len(p))
+        ts, tc = self.vehicle_id
+        msg = mavlink2.MAVLink_command_long_message(ts, tc, command, 0, *p)
+        self._emit(self.companion_id, msg)
+
+    def command_ack(self, command: int, result: int) -> None:
+        """The autopilot's COMMAND_ACK to the companion."""
+        ts, tc = self.companion_id
+        msg = mavlink2.MAVLink_command_ack_message(command, result, 0, 0, ts, tc)
+        self._emit(self.vehicle_id, msg)

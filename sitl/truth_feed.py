@@ -1,0 +1,193 @@
+"""Ground truth from a running autopilot simulation, for rendering the landing sensors.
+
+PX4's SIH (and our MAVLink sim vehicle) stream the simulated vehicle's true state as
+HIL_STATE_QUATERNION when asked with SET_MESSAGE_INTERVAL. :class:`MavlinkTruth` listens on its
+own MAVLink link (for PX4 SITL the GCS link, ``udpin:127.0.0.1:14550``; for the sim vehicle a
+``udpout`` to its port), asks for that message and exposes the truth the way the simulated camera
+and UWB read a :class:`~companion_sitl.vehicle.SimVehicle` (``pn``/``pe``/``pd`` metres NED from
+an origin, ``roll``/``pitch``/``yaw`` radians, ``step_to``), so
+:func:`companion_sitl.demo.sim_landing_kit` renders real images of a pad whose true position is
+displaced from the configured one (SIH cannot bias GPS; displacing the pad tests the same thing).
+
+The reader is a thread; the newest sample is swapped in as one tuple, so readers on the event loop
+never see a torn state.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from companion.geometry.earth import GeoPoint, LocalTangentPlane
+from companion.geometry.rotations import quat_to_euler
+
+log = logging.getLogger(__name__)
+
+MSG_ID_HIL_STATE_QUATERNION = 115
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+
+
+class TruthUnavailable(RuntimeError):
+    """No ground truth arrived (the reason says from where and for how long)."""
+
+
+class MavlinkTruth:
+    """HIL_STATE_QUATERNION ground truth over MAVLink (see the module doc).
+
+    ``origin``: the NED origin (the true home); None takes the first sample's position, which is
+    home when the feed starts with the vehicle on the ground.
+    """
+
+    def __init__(self, url: str, origin: GeoPoint | None = None, rate_hz: float = 50.0, source_system: int = 246):
+        if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1000.0):
+            raise ValueError(f"truth rate {rate_hz!r} Hz: expected 0.5..1000")
+        self.url = url
+        self.rate_hz = rate_hz
+        self.source_system = source_system
+        self._ltp = LocalTangentPlane(origin) if origin is not None else None
+        self._state: tuple[float, float, float, float, float, float, float] | None = None  # t, n, e, d, r, p, y
+        self._conn: Any = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.samples = 0
+        self.rejected = 0
+        self._target: tuple[int, int] | None = None
+        self._last_request = -math.inf
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> MavlinkTruth:
+        try:
+            self._conn = mavutil.mavlink_connection(self.url, source_system=self.source_system, source_component=0)
+        except OSError as err:
+            raise TruthUnavailable(f"ground truth link {self.url!r} cannot be opened: {err}") from err
+        self._thread = threading.Thread(target=self._run, name="truth-feed", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def __enter__(self) -> MavlinkTruth:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def wait(self, timeout_s: float = 10.0) -> None:
+        """Block until the first truth sample (raises :class:`TruthUnavailable` after ``timeout_s``)."""
+        t_end = time.monotonic() + timeout_s
+        while self._state is None:
+            if time.monotonic() > t_end:
+                raise TruthUnavailable(
+                    f"no HIL_STATE_QUATERNION on {self.url!r} within {timeout_s} s "
+                    f"(heartbeat seen: {self._target is not None})"
+                )
+            time.sleep(0.02)
+
+    # ------------------------------------------------------------------ reader thread
+    def _run(self) -> None:
+        conn = self._conn
+        while not self._stop.is_set():
+            if self._target is None or time.monotonic() - self._last_request > 2.0:
+                self._request(conn)
+            try:
+                msg = conn.recv_match(blocking=True, timeout=0.1)
+            except Exception as err:  # malformed bytes: pymavlink raises on some; count and go on
+                self.rejected += 1
+                log.debug("truth feed: bad packet dropped: %s", err)
+                continue
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if kind == "HEARTBEAT" and self._target is None and msg.get_srcComponent() == 1:
+                self._target = (msg.get_srcSystem(), msg.get_srcComponent())
+                self._last_request = -math.inf
+            elif kind == "HIL_STATE_QUATERNION":
+                self._on_truth(msg)
+
+    def _request(self, conn: Any) -> None:
+        """SET_MESSAGE_INTERVAL for HIL_STATE_QUATERNION; repeated every 2 s until it flows (a
+        first heartbeat also tells a ``udpout`` peer where we are)."""
+        self._last_request = time.monotonic()
+        try:
+            conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+            if self._target is not None and (self._state is None or time.monotonic() - self._state[0] > 1.0):
+                ts, tc = self._target
+                interval_us = 1e6 / self.rate_hz
+                conn.mav.command_long_send(
+                    ts, tc, MAV_CMD_SET_MESSAGE_INTERVAL, 0, MSG_ID_HIL_STATE_QUATERNION, interval_us, 0, 0, 0, 0, 0
+                )
+        except OSError as err:
+            log.debug("truth feed: request not sent: %s", err)
+
+    def _on_truth(self, m: Any) -> None:
+        q = list(m.attitude_quaternion)
+        geo = (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        if not all(math.isfinite(v) for v in (*q, *geo)) or abs(sum(v * v for v in q) - 1.0) > 0.1:
+            self.rejected += 1
+            return
+        p = GeoPoint(*geo)
+        if self._ltp is None:
+            self._ltp = LocalTangentPlane(p)
+            log.info("truth origin taken from the first sample: %.7f %.7f %.2f m", *geo)
+        n, e, d = self._ltp.to_ned(p)
+        r, pi, y = quat_to_euler(q)
+        self._state = (time.monotonic(), n, e, d, float(r), float(pi), float(y))
+        self.samples += 1
+
+    # ------------------------------------------------------------------ SimVehicle-like view
+    def step_to(self, t_s: float) -> None:
+        """Truth advances by itself (the autopilot's simulation runs on its own clock)."""
+
+    def _get(self, i: int) -> float:
+        s = self._state
+        if s is None:
+            raise TruthUnavailable(f"no ground truth from {self.url!r} yet")
+        return s[i]
+
+    @property
+    def origin(self) -> GeoPoint | None:
+        """The NED origin (given, or the first sample's position once one arrived)."""
+        return self._ltp.origin if self._ltp is not None else None
+
+    @property
+    def age_s(self) -> float:
+        s = self._state
+        return math.inf if s is None else time.monotonic() - s[0]
+
+    @property
+    def pn(self) -> float:
+        return self._get(1)
+
+    @property
+    def pe(self) -> float:
+        return self._get(2)
+
+    @property
+    def pd(self) -> float:
+        return self._get(3)
+
+    @property
+    def roll(self) -> float:
+        return self._get(4)
+
+    @property
+    def pitch(self) -> float:
+        return self._get(5)
+
+    @property
+    def yaw(self) -> float:
+        return self._get(6)

@@ -1,0 +1,34 @@
+"""A short seeded demo flight (fusion: GPS + camera + UWB) shared by the flight-log tests."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from companion.config import load_config, shipped_params_path
+
+
+def short_config(**sim):
+    over = {"sim": {"seed": 3, **sim}}
+    return load_config(shipped_params_path("sitl_short.toml"), overrides=over)
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory) -> Path:
+    """Run folder of the short delivery (35 s simulated, about 2 s wall) with a GPS bias and a
+    displaced pad, so the fusion has something to estimate. Tests copy it before changing it."""
+    from companion_sitl.demo import run_demo
+
+    run = tmp_path_factory.mktemp("demo") / "run"
+    r = run_demo(short_config(gps_bias_m=[1.0, -0.5, 0.0], pad_offset_m=[0.3, -0.2]), run_dir=run)
+    assert r.delivered and r.returned, r.failure
+    return run
+
+
+@pytest.fixture
+def run_copy(demo_run, tmp_path) -> Path:
+    dst = tmp_path / "run"
+    shutil.copytree(demo_run, dst)
+    return dst
