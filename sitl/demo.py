@@ -8,6 +8,7 @@ the simulator only here, for scoring: path distance, landing error on the true p
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import logging
 import math
@@ -15,7 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -165,7 +166,13 @@ async def fly(
         if on_tick is not None:
             on_tick(shell, out)
 
-    kit = sim_landing_kit(config, vehicle, (pad_n, pad_e)) if use_fusion else None
+    kit = None
+    if use_fusion:
+        # over MAVLink the vehicle runs on its own thread and clock: the sensors only read its truth
+        truth_src = vehicle if mav_sim is None else cast(SimVehicle, _ThreadedTruth(mav_sim))
+        kit = sim_landing_kit(config, truth_src, (pad_n, pad_e))
+        if mav_sim is not None:
+            kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     shell = DeliveryShell(
         config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit, recorder=recorder
     )
@@ -233,6 +240,28 @@ async def fly(
         )
         (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
     return result
+
+
+class _ThreadedTruth:
+    """Truth of a vehicle stepped by the MAVLink sim's thread, read under its lock. The simulated
+    sensors must not step it: their clock (the event loop's) is not the vehicle's."""
+
+    def __init__(self, mav_sim: Any):
+        self._sim = mav_sim
+
+    def step_to(self, t_s: float) -> None:
+        """The MAVLink sim's thread steps the vehicle in real time."""
+
+    def _read(self, name: str) -> float:
+        with self._sim.lock:
+            return float(getattr(self._sim.vehicle, name))
+
+    pn = property(lambda self: self._read("pn"))
+    pe = property(lambda self: self._read("pe"))
+    pd = property(lambda self: self._read("pd"))
+    roll = property(lambda self: self._read("roll"))
+    pitch = property(lambda self: self._read("pitch"))
+    yaw = property(lambda self: self._read("yaw"))
 
 
 def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: tuple[float, float]) -> LandingKit:

@@ -64,6 +64,7 @@ PX4_SUB_AUTO_LOITER = 3
 PX4_SUB_AUTO_MISSION = 4
 PX4_SUB_AUTO_RTL = 5
 PX4_SUB_AUTO_LAND = 6
+PX4_SUB_AUTO_PRECLAND = 9
 
 PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.UNKNOWN: (0, 0),
@@ -92,6 +93,8 @@ def px4_flight_mode(custom_mode: int) -> FlightMode:
         for mode, (m, s) in PX4_MODES.items():
             if m == PX4_MAIN_AUTO and s == sub:
                 return mode
+        if sub == PX4_SUB_AUTO_PRECLAND:
+            return FlightMode.LAND  # AUTO.PRECLAND: a landing steered by LANDING_TARGET
         return FlightMode.HOLD if sub == PX4_SUB_AUTO_READY else FlightMode.UNKNOWN
     for mode, (m, _s) in PX4_MODES.items():
         if m == main and m != 0:
@@ -240,6 +243,7 @@ class LinkStats:
     send_errors: int = 0
     setpoints: int = 0
     setpoints_rejected: int = 0
+    landing_targets: int = 0
     commands: Counter[int] = field(default_factory=Counter)
     unsupported_commands: Counter[int] = field(default_factory=Counter)
     by_type_in: Counter[str] = field(default_factory=Counter)
@@ -811,6 +815,9 @@ class MavlinkSimVehicle:
             if m.target_system in (0, self.system_id):
                 self._rc_override(m)
             return
+        if t == "LANDING_TARGET":
+            self._landing_target(m)
+            return
         if t == "SET_ATTITUDE_TARGET":
             if m.target_system in (0, self.system_id):
                 self._attitude_target(m)
@@ -979,13 +986,38 @@ class MavlinkSimVehicle:
         elif mode is FlightMode.HOLD:
             v.hold()
         elif mode is FlightMode.LAND:
-            v.land()
+            if int(custom_main) == PX4_MAIN_AUTO and int(custom_sub) == PX4_SUB_AUTO_PRECLAND:
+                v.precision_land()
+            else:
+                v.land()
         elif mode is FlightMode.TAKEOFF:
             v.takeoff(self._params.get("MIS_TAKEOFF_ALT", 2.5))
         else:
             v.hold()
             v.mode = mode
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _landing_target(self, m: Any) -> None:
+        """LANDING_TARGET as each autopilot reads it: PX4 the position form in MAV_FRAME_LOCAL_NED;
+        ArduPilot (AC_PrecLand_Companion) angle_x / angle_y / distance as the body-frame line of
+        sight (-tan(angle_y), tan(angle_x), 1), rotated by the attitude and added to its position."""
+        v = self.vehicle
+        self.stats.landing_targets += 1
+        if m.position_valid and m.frame == mavlink.MAV_FRAME_LOCAL_NED:
+            v.set_landing_target(float(m.x), float(m.y))
+            return
+        if self.dialect != "ardupilot":
+            return  # PX4's landing_target_estimator takes the position form only
+        los = [-math.tan(m.angle_y), math.tan(m.angle_x), 1.0]
+        n = math.sqrt(sum(c * c for c in los))
+        if not (math.isfinite(n) and math.isfinite(m.distance) and m.distance > 0):
+            self._statustext("PrecLand: bad LANDING_TARGET ignored", mavlink.MAV_SEVERITY_WARNING)
+            return
+        from companion.geometry.rotations import euler_to_rotmat
+
+        rel = euler_to_rotmat(v.roll, v.pitch, v.yaw) @ [c * m.distance / n for c in los]
+        pn, pe, _ = v._local()
+        v.set_landing_target(pn + float(rel[0]), pe + float(rel[1]))
 
     def _set_copter_mode(self, mode: int, pilot: bool = False) -> int:
         v = self.vehicle
@@ -997,7 +1029,9 @@ class MavlinkSimVehicle:
         elif mode == COPTER_BRAKE:
             v.hold()
         elif mode == COPTER_LAND:
-            if v.armed:
+            if v.armed and self._params.get("PLND_ENABLED", 1.0):
+                v.precision_land()  # PLND_ENABLED = 1, PLND_TYPE = 1: steered by LANDING_TARGET if any
+            elif v.armed:
                 v.land()
             else:
                 v.mode = FlightMode.LAND

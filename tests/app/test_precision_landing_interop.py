@@ -54,3 +54,25 @@ def test_autopilot_controller_without_landing_target_output_is_a_config_error():
         _cfg({"controller": "autopilot"})
     with pytest.raises(ConfigError, match="fusion"):
         _cfg({"fusion": False, "landing_target_output": "local_ned"})
+
+
+@pytest.mark.parametrize(("dialect", "form"), [("px4", "local_ned"), ("ardupilot", "body_angles")])
+def test_over_mavlink_each_autopilot_lands_on_the_pad_from_its_own_landing_target_form(dialect, form):
+    """Real time over loopback UDP: PX4 dialect reads the local-NED position form in AUTO.PRECLAND,
+    ArduPilot's LAND (PLND_TYPE = 1) the body-frame angles; both land on the displaced pad."""
+    overrides = {
+        "sim": {"seed": 4, "gps_bias_m": [1.2, 0.9, 0.0], "pad_offset_m": [-0.3, 0.4]},
+        "mission": {"return_home": False},
+        "landing": {"controller": "autopilot", "landing_target_output": form},
+    }
+    config = load_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
+    seen = {}
+
+    def tick(shell, out):
+        seen["sent"] = shell.landing_targets_sent
+
+    r = run_demo(config, mavlink=dialect, on_tick=tick)
+    assert r.delivered, r.failure
+    dn, de = r.pad_landing_error_ne_m
+    assert abs(dn) <= 0.5 and abs(de) <= 0.5, (r.pad_landing_error_ne_m, seen)  # the bias alone is 1.5 m
+    assert seen["sent"] >= 10
