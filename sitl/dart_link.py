@@ -62,7 +62,6 @@ from companion.vision.camera import CameraModel, load_camera, load_default_camer
 
 from .camera import SimCameraConfig, SimulatedCamera
 from .dart_sim import (
-    DIST_SMOOTH_S,
     ESTIMATOR_GIMBAL,
     NEUTRAL_US,
     SWITCH_OFF_US,
@@ -70,6 +69,7 @@ from .dart_sim import (
     BlockNoise,
     DartParams,
     DartSimConfig,
+    attitude_response,
     motion_blur,
     thrust_per_mass,
 )
@@ -201,20 +201,18 @@ class StickSimVehicle(SimVehicle):
             thrust = d.hover_throttle if throttle_mode == "thrust" else 0.5
         else:
             roll_sp, pitch_sp, yaw_rate_sp, thrust = sp.roll_rad, sp.pitch_rad, sp.yaw_rate_rad_s, sp.thrust
-        ka = 1.0 / d.attitude_tau_s
-        r_roll = ka * (roll_sp - self._roll_c)
-        r_pitch = ka * (pitch_sp - self._pitch_c)
-        r_yaw = self._yaw_rate
-        self._yaw_rate += dt / d.yaw_rate_tau_s * (yaw_rate_sp - self._yaw_rate)
-        phi_d = math.exp(-dt / d.attitude_disturbance_tau_s)
-        sd = math.radians(d.attitude_disturbance_deg) * math.sqrt(1.0 - phi_d * phi_d)
-        d_rate = [(self._dist_gm[i] - self._dist[i]) / DIST_SMOOTH_S for i in range(3)]
+        (r_roll, r_pitch, r_yaw), d_rate, self._yaw_rate = attitude_response(
+            d,
+            dt,
+            (self._roll_c, self._pitch_c, self._yaw_rate),
+            (roll_sp, pitch_sp, yaw_rate_sp),
+            self._dist,
+            self._dist_gm,
+            n,
+        )
         self._roll_c += r_roll * dt
         self._pitch_c += r_pitch * dt
         self._yaw_c = wrap_angle(self._yaw_c + r_yaw * dt)
-        for i in range(3):
-            self._dist[i] += d_rate[i] * dt
-            self._dist_gm[i] = phi_d * self._dist_gm[i] + sd * n()
         self.roll = self._roll_c + self._dist[0]
         self.pitch = self._pitch_c + self._dist[1]
         self.yaw = wrap_angle(self._yaw_c + self._dist[2])

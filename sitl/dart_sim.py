@@ -248,6 +248,39 @@ def shipped_dart_params() -> Path:
     return Path(str(resources.files("companion_params").joinpath("dart_hover.toml")))
 
 
+def attitude_response(
+    c: DartSimConfig,
+    dt: float,
+    att_c: tuple[float, float, float],
+    sp: tuple[float, float, float],
+    dist: list[float],
+    dist_gm: list[float],
+    noise: Callable[[], float],
+) -> tuple[tuple[float, float, float], list[float], float]:
+    """The flight controller's attitude loop and the airframe's disturbance, one step.
+
+    ``att_c`` = (commanded roll, pitch, current yaw rate), ``sp`` = (roll, pitch, yaw-rate
+    setpoints). Roll and pitch follow their setpoints first-order (``attitude_tau_s``), the yaw
+    rate lags its setpoint (``yaw_rate_tau_s``). The disturbance is a Gauss-Markov process
+    (``dist_gm``) smoothed by a first-order lag (``DIST_SMOOTH_S``) into ``dist`` so that it has a
+    finite rate (the body's rotation is twice integrated from the disturbing torque; a white-driven
+    angle would give the gyro an infinite rate); both lists are updated in place, drawing three
+    ``noise()`` samples. Returns the commanded Euler rates (roll, pitch, yaw), the disturbance's
+    Euler rates and the next yaw rate; the caller integrates the commanded angles.
+    """
+    roll_c, pitch_c, yaw_rate = att_c
+    ka = 1.0 / c.attitude_tau_s
+    r = (ka * (sp[0] - roll_c), ka * (sp[1] - pitch_c), yaw_rate)
+    yaw_rate_next = yaw_rate + dt / c.yaw_rate_tau_s * (sp[2] - yaw_rate)
+    phi_d = math.exp(-dt / c.attitude_disturbance_tau_s)
+    sd = math.radians(c.attitude_disturbance_deg) * math.sqrt(1.0 - phi_d * phi_d)
+    d_rate = [(dist_gm[i] - dist[i]) / DIST_SMOOTH_S for i in range(3)]
+    for i in range(3):
+        dist[i] += d_rate[i] * dt
+        dist_gm[i] = phi_d * dist_gm[i] + sd * noise()
+    return r, d_rate, yaw_rate_next
+
+
 def thrust_per_mass(c: DartSimConfig, throttle_mode: str, thrust: float, vd_m_s: float, tilt_cos: float) -> float:
     """The flight controller's collective thrust per mass (m/s^2) for the throttle stick
     ``thrust`` (0..1): ``"climb_rate"`` (ALT_HOLD: mid stick holds the altitude, the vertical
@@ -507,25 +540,19 @@ class DartSim:
             thrust = c.hover_throttle if c.throttle_mode == "thrust" else 0.5
         else:
             roll_sp, pitch_sp, yaw_rate_sp, thrust = sp.roll_rad, sp.pitch_rad, sp.yaw_rate_rad_s, sp.thrust
-        # attitude: first-order response to the setpoint, plus the disturbance: a Gauss-Markov
-        # process smoothed by a first-order lag (``DIST_SMOOTH_S``) so that it has a finite rate
-        # (the body's rotation is twice integrated from the disturbing torque; a white-driven
-        # angle would give the gyro an infinite rate)
-        ka = 1.0 / c.attitude_tau_s
-        r_roll = ka * (roll_sp - self.roll_c)
-        r_pitch = ka * (pitch_sp - self.pitch_c)
-        r_yaw = self.yaw_rate
-        self.yaw_rate += dt / c.yaw_rate_tau_s * (yaw_rate_sp - self.yaw_rate)
-        phi_d = math.exp(-dt / c.attitude_disturbance_tau_s)
-        sd = math.radians(c.attitude_disturbance_deg) * math.sqrt(1.0 - phi_d * phi_d)
-        d_rate = [(self.dist_gm[i] - self.dist[i]) / DIST_SMOOTH_S for i in range(3)]
+        (r_roll, r_pitch, r_yaw), d_rate, self.yaw_rate = attitude_response(
+            c,
+            dt,
+            (self.roll_c, self.pitch_c, self.yaw_rate),
+            (roll_sp, pitch_sp, yaw_rate_sp),
+            self.dist,
+            self.dist_gm,
+            n,
+        )
         self.euler_rate = (r_roll + d_rate[0], r_pitch + d_rate[1], r_yaw + d_rate[2])
         self.roll_c += r_roll * dt
         self.pitch_c += r_pitch * dt
         self.yaw += r_yaw * dt
-        for i in range(3):
-            self.dist[i] += d_rate[i] * dt
-            self.dist_gm[i] = phi_d * self.dist_gm[i] + sd * n()
         phi_g = math.exp(-dt / c.gust_tau_s)
         sg = c.gust_std_m_s * math.sqrt(1.0 - phi_g * phi_g)
         for i in range(3):
