@@ -111,7 +111,8 @@ async def _exercise(ap, mav, sim) -> None:
         await mav.wait_for(lambda: sim.vehicle.armed, 5.0, "vehicle armed")
         await ap.disarm()
         await mav.wait_for(lambda: not sim.vehicle.armed, 5.0, "vehicle disarmed")
-        assert ap.telemetry.status.landed is LandedState.ON_GROUND
+        # EXTENDED_SYS_STATE streams at its own rate after the intervals are requested
+        await mav.wait_for(lambda: ap.telemetry.status.landed is LandedState.ON_GROUND, 5.0, "landed state reported")
         assert ap.link_ok
     finally:
         await ap.close()
