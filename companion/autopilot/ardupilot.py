@@ -38,6 +38,7 @@ os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
 from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, RcInput, TelemetryCache
+from companion.autopilot.mavlink_messages import velocity_setpoint_message
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -61,7 +62,6 @@ mavutil.set_dialect("ardupilotmega")
 mavlink: Any = mavutil.mavlink
 
 G = 9.80665
-VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # use vx, vy, vz and yaw; ignore position, accel, yaw rate
 
 COPTER_MODES: dict[str, int] = {
     "STABILIZE": 0,
@@ -347,27 +347,8 @@ class ArduPilotAutopilot(Autopilot):
             return
         ts, tc = self.target_system, self.target_component
         t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
-        sp = setpoint
-        ok = self._send(
-            lambda mav: mav.set_position_target_local_ned_send(
-                t_ms,
-                ts,
-                tc,
-                mavlink.MAV_FRAME_LOCAL_NED,
-                VELOCITY_YAW_MASK,
-                0.0,
-                0.0,
-                0.0,
-                sp.north_m_s,
-                sp.east_m_s,
-                sp.down_m_s,
-                0.0,
-                0.0,
-                0.0,
-                sp.yaw_rad,
-                0.0,
-            )
-        )
+        msg = velocity_setpoint_message(t_ms, ts, tc, setpoint)
+        ok = self._send(lambda mav: mav.send(msg))
         if ok:
             self.counters.setpoints_sent += 1
         else:

@@ -49,6 +49,7 @@ from companion.autopilot.interface import (
     RcInput,
     TelemetryCache,
 )
+from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -68,7 +69,6 @@ from companion.geometry import euler_to_quat
 
 log = logging.getLogger(__name__)
 
-VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # use vx, vy, vz and yaw
 ATTITUDE_TARGET_RATES_IGNORED = 0b0000_0011  # SET_ATTITUDE_TARGET: use q, yaw rate, thrust
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12

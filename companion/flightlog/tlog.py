@@ -39,6 +39,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from companion.autopilot.mavlink_messages import velocity_setpoint_message
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -344,7 +345,6 @@ _LANDED = {
     LandedState.LANDING: mavlink2.MAV_LANDED_STATE_LANDING,
 }
 _U16_MAX = 65535
-_VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # SET_POSITION_TARGET_LOCAL_NED: use vx, vy, vz and yaw
 
 
 def _i32(x: float) -> int:
@@ -531,24 +531,7 @@ class TelemetryEncoder:
         """The companion's velocity setpoint, as SET_POSITION_TARGET_LOCAL_NED."""
         ms = self._ms(self.clock())
         ts, tc = self.vehicle_id
-        msg = mavlink2.MAVLink_set_position_target_local_ned_message(
-            ms,
-            ts,
-            tc,
-            mavlink2.MAV_FRAME_LOCAL_NED,
-            _VELOCITY_YAW_MASK,
-            0.0,
-            0.0,
-            0.0,
-            sp.north_m_s,
-            sp.east_m_s,
-            sp.down_m_s,
-            0.0,
-            0.0,
-            0.0,
-            sp.yaw_rad,
-            0.0,
-        )
+        msg = velocity_setpoint_message(ms, ts, tc, sp)
         self._emit(self.companion_id, msg)
 
     def command(self, command: int, params: Sequence[float] = ()) -> None:
