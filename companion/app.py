@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.autopilot.types import VelocitySetpoint
 from companion.config import CompanionConfig
 from companion.estimation.passthrough import AutopilotPoseEstimator
@@ -251,7 +252,6 @@ class DeliveryShell:
         )
         self.fusion = LandingFusion(setup, now)
         if self.config.landing.landing_target_output != "off":
-            from companion.autopilot.landing_target import LandingTargetBuilder
             from companion.vision.pad import PadLayout
 
             self._landing_target = LandingTargetBuilder(
@@ -304,8 +304,6 @@ class DeliveryShell:
 
     def _send_landing_target(self, obs: Any) -> None:
         """LANDING_TARGET for the autopilot's own precision landing (ambiguous poses never sent)."""
-        from companion.autopilot.landing_target import LandingTargetError
-
         if getattr(obs, "ambiguous", False) or self.fusion is None or not self.fusion.pad_locked:
             return
         try:
