@@ -21,9 +21,10 @@ import time
 from pathlib import Path
 
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
-from companion.autopilot.types import FlightMode, LandingTarget, StatusText, TelemetrySample, VelocitySetpoint
+from companion.autopilot.types import FlightMode, LandingTarget, StatusText, TelemetrySample
 from companion.config import SimConfig
 from companion.flightlog.tlog import TelemetryEncoder, TlogWriter
+from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.clock import VirtualTimeEventLoop
 from companion_sitl.vehicle import SimCommandError, SimVehicle

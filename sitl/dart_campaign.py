@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from companion.estimation.dart_estimators import ESTIMATORS, corrected_sample_std
-from companion.mission.dart import DartMissionConfig
+from companion.dart.estimators import ESTIMATORS, corrected_sample_std
+from companion.dart.mission import DartMissionConfig
 
 from .dart_sim import ESTIMATOR_GIMBAL, DartParams, DartSim, load_dart_params, shipped_dart_params
 

@@ -5,7 +5,7 @@ forward camera plugin rendering the wall marker from its ground truth.
 modes. While armed in STABILIZE or ALT_HOLD (handed in by the MAVLink vehicle every tick with
 channels 1-4, RCMAP roll, pitch, throttle, yaw) it flies the attitude-setpoint path of
 companion_sitl.dart_sim (dart sec. 3.1): roll / pitch stick -> angle setpoint (full stick =
-``max_tilt_deg``, autopilot.rc_mixer.attitude_setpoint), yaw stick -> yaw rate, throttle ->
+``max_tilt_deg``, companion.dart.mixer.attitude_setpoint), yaw stick -> yaw rate, throttle ->
 climb rate (ALT_HOLD) or thrust (STABILIZE, mid stick = hover), first-order attitude response,
 the inner loop's residual attitude disturbance, linear drag against wind and gusts. In OFFBOARD
 (PX4 dialect) it flies the SET_ATTITUDE_TARGETs it receives the same way while they are fresh
@@ -26,7 +26,7 @@ above home, facing south), the vehicle airborne at the mission's start point in 
 (ArduPilot dialect) or POSCTL (PX4 dialect) -- the paper's pilot has flown it there --, the
 pilot's transmitter (sticks on channels 1-4, mirrored on the runtime's ``pilot_channels``, the
 cyber-pilot switch) and truth in the marker frame. :func:`fly_dart_link` flies the Dart shell
-(companion.dart_shell) through the ArduPilot or PX4 backend against it, with a pilot script.
+(companion.dart.shell) through the ArduPilot or PX4 backend against it, with a pilot script.
 """
 
 from __future__ import annotations
@@ -48,14 +48,14 @@ import numpy as np
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
-from companion.autopilot.rc_mixer import AttitudeMapConfig, RcMixerConfig, attitude_setpoint
 from companion.autopilot.types import FlightMode, Imu, LandedState
 from companion.config import SimConfig, VehicleSimConfig
-from companion.dart_shell import DART_STREAM_RATES_HZ, DartRunSummary, DartShell
-from companion.estimation.dart_estimators import GimbalKind, camera_mount, wall_marker
+from companion.dart.estimators import GimbalKind, camera_mount, wall_marker
+from companion.dart.mission import DartPhase
+from companion.dart.mixer import AttitudeMapConfig, RcMixerConfig, attitude_setpoint
+from companion.dart.params import DartFlightParams
+from companion.dart.shell import DART_STREAM_RATES_HZ, DartRunSummary, DartShell
 from companion.geometry import Transform, euler_to_rotmat, rot_z, wrap_angle
-from companion.mission.dart import DartPhase
-from companion.mission.dart_params import DartFlightParams
 from companion.plugin_api import Frame
 from companion.scheduling import RateLoop
 from companion.vision.camera import CameraModel, load_camera, load_default_camera

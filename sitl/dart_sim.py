@@ -7,13 +7,13 @@ Import as ``from companion_sitl.dart_sim import DartSim``. Deterministic for a g
 is simulated (physics at ``physics_hz``), nothing reads a clock.
 
 Frames: world NED with the marker centre at the origin on a vertical wall facing south
-(estimation.dart_estimators.wall_marker(0): marker x = east, y = up, z = south, towards the
+(dart.estimators.wall_marker(0): marker x = east, y = up, z = south, towards the
 drone); body FRD; camera OpenCV. A drone heading north 4 m south of the wall is at marker
 z = 4 (the Dart estimators' output frame).
 
 Vehicle (the low-level flight controller, dart sec. 3.1, ArduPilot STABILIZE / ALT_HOLD-like):
 RC sticks -> roll / pitch angle setpoints (full stick = ``max_tilt_deg``, via
-autopilot.rc_mixer.attitude_setpoint), yaw stick -> yaw rate, throttle -> climb rate
+companion.dart.mixer.attitude_setpoint), yaw stick -> yaw rate, throttle -> climb rate
 (``throttle_mode = "climb_rate"``, ALT_HOLD: mid stick holds the altitude, the vertical speed
 loop has gain ``climb_gain_per_s``) or -> thrust (``"thrust"``, STABILIZE: mid stick = hover
 thrust). Roll and pitch follow their setpoints with a first-order response (``attitude_tau_s``),
@@ -56,8 +56,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.autopilot.rc_mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
-from companion.estimation.dart_estimators import (
+from companion.dart.control import DartCommand, DartController, DartControllerConfig, DartSetpoint
+from companion.dart.estimators import (
     CameraMarkerObservation,
     DartEstimator,
     DartEstimatorConfig,
@@ -68,16 +68,16 @@ from companion.estimation.dart_estimators import (
     make_estimator,
     wall_marker,
 )
-from companion.geometry import Transform, euler_to_rotmat
-from companion.guidance.pid import DartCommand, DartController, DartControllerConfig, DartSetpoint
-from companion.mission.dart import (
+from companion.dart.mission import (
     DartMission,
     DartMissionConfig,
     dataclass_from_table,
     load_mission_config,
     read_toml,
 )
-from companion.mission.dart_params import DartControlGains, DartRuntimeConfig, check_tables
+from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
+from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables
+from companion.geometry import Transform, euler_to_rotmat
 from companion.vision.camera import CameraModel, load_default_camera
 from companion.vision.detector import MarkerObservation, PadDetector
 from companion.vision.pad import PadLayout

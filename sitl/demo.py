@@ -1,6 +1,6 @@
 """Fly the delivery mission on the embedded simulator and score it against simulator truth.
 
-The application cannot tell the simulator from a vehicle: :class:`companion.app.DeliveryShell`
+The application cannot tell the simulator from a vehicle: :class:`companion.delivery.shell.DeliveryShell`
 runs unchanged against :class:`SimAutopilot`. Truth (what the vehicle really did) is read from
 the simulator only here, for scoring: path distance, landing error on the true pad.
 """
@@ -20,15 +20,15 @@ from typing import Any, cast
 
 import numpy as np
 
-from companion.app import FLIGHT_LOG_COLUMNS, DeliveryShell, LandingKit
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
+from companion.delivery.mission import MissionOutput
+from companion.delivery.planning import pad_position_ned
+from companion.delivery.shell import FLIGHT_LOG_COLUMNS, DeliveryShell, LandingKit
+from companion.events import Phase
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
-from companion.mission.delivery import MissionOutput
-from companion.mission.events import Phase
-from companion.mission.planning import pad_position_ned
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.vehicle import SimVehicle
@@ -141,15 +141,17 @@ async def fly(
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
         from companion.autopilot.px4 import Px4Autopilot
+        from companion.flightlog.tlog import open_tlog
         from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
         port = _free_udp_port()
         mav_sim = MavlinkSimVehicle(config.sim, mavlink, remote=("127.0.0.1", port), vehicle=vehicle).start()  # type: ignore[arg-type]
         lt = config.runtime.link_timeout_s
+        sink = open_tlog(tlog) if tlog is not None else None
         ap = (
-            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog_path=tlog)
+            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
             if mavlink == "px4"
-            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog_path=tlog)
+            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
         )
     use_fusion = config.landing.fusion if fusion is None else fusion
     flight_log = truth_log = recorder = None

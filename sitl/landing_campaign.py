@@ -14,7 +14,6 @@ A landing is *on the pad* when the true touchdown point lies inside the 1 x 1 m 
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -132,67 +131,3 @@ def run_landing_campaign(
                 progress(v, done, total)
     summary = {v: _stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]) for v, ls in landings.items()}
     return {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
-
-
-def write_outputs(result: dict[str, Any], out_dir: Path) -> list[Path]:
-    """summary.json and a scatter like delivery Fig. 15 (true touchdowns, 2-sigma ellipses)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Ellipse, Rectangle
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    js = out_dir / "landing_campaign.json"
-    js.write_text(json.dumps(result, indent=1, default=lambda o: None))
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.add_patch(Rectangle((-0.5, -0.5), 1.0, 1.0, fill=False, lw=1.5, color="k", label="1 x 1 m pad"))
-    colours = {
-        "fusion": "tab:red",
-        "gps_only": "tab:blue",
-        "no_camera": "tab:green",
-        "no_uwb": "tab:orange",
-        "outer_only": "tab:purple",
-        "inner_only": "tab:brown",
-    }
-    for v, ls in result["landings"].items():
-        pts = np.array([(x["east_m"], x["north_m"]) for x in ls if math.isfinite(x["north_m"])])
-        if pts.size == 0:
-            continue
-        c = colours.get(v, "gray")
-        s = result["summary"][v]
-        ax.scatter(
-            pts[:, 0],
-            pts[:, 1],
-            marker="x",
-            color=c,
-            label=f"{v}: mean {s['mean_m'] * 100:.1f} cm, on pad {s['on_pad_pct']:.0f} %",
-        )
-        if len(pts) >= 3:
-            cov = np.cov(pts.T)
-            w, vecs = np.linalg.eigh(cov)
-            ang = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
-            ax.add_patch(
-                Ellipse(
-                    pts.mean(axis=0),
-                    4 * math.sqrt(max(w[1], 0)),
-                    4 * math.sqrt(max(w[0], 0)),
-                    angle=ang,
-                    fill=False,
-                    color=c,
-                    ls="--",
-                )
-            )
-    ax.set_xlabel("east of the pad centre [m]")
-    ax.set_ylabel("north of the pad centre [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.set_title(
-        f"True touchdowns, {result['n']} landings per variant\n(2-sigma ellipses; cf. delivery Fig. 15)", fontsize=10
-    )
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    png = out_dir / "landing_scatter.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return [js, png]

@@ -40,10 +40,11 @@ from typing import Any, Literal
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.autopilot.types import FlightMode, LandedState, VelocitySetpoint
+from companion.autopilot.types import FlightMode, LandedState
 from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import quat_to_euler
+from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.vehicle import G, SimCommandError, SimVehicle
 
 log = logging.getLogger(__name__)

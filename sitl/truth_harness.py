@@ -16,14 +16,14 @@ import math
 from dataclasses import dataclass
 from typing import Any, cast
 
-from companion.app import DeliveryShell
 from companion.autopilot.interface import Autopilot
 from companion.autopilot.types import LandedState
 from companion.config import CompanionConfig
+from companion.delivery.mission import MissionOutput
+from companion.delivery.planning import pad_position_ned
+from companion.delivery.shell import DeliveryShell
+from companion.events import Phase
 from companion.geometry.earth import GeoPoint
-from companion.mission.delivery import MissionOutput
-from companion.mission.events import Phase
-from companion.mission.planning import pad_position_ned
 from companion_sitl.demo import sim_landing_kit
 from companion_sitl.truth_feed import MavlinkTruth
 from companion_sitl.vehicle import SimVehicle

@@ -28,11 +28,11 @@ from companion.autopilot.types import (
     LandedState,
     PositionNed,
     VehicleStatus,
-    VelocitySetpoint,
 )
 from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@ import textwrap
 
 import pytest
 
-from companion.cli import main
+from companion.cli.main import main
 from companion.plugin_api import API_VERSION, PluginError, create, discover
 
 

@@ -1,4 +1,4 @@
-"""Autopilot interface, telemetry types and (later) the MAVSDK and pymavlink backends."""
+"""Autopilot interface, telemetry types, the MAVSDK (PX4) and pymavlink (ArduPilot) backends and MAVLink codecs."""
 
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.types import (
@@ -13,7 +13,6 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
-    VelocitySetpoint,
 )
 
 __all__ = [
@@ -31,5 +30,4 @@ __all__ = [
     "TelemetryCache",
     "TelemetrySample",
     "VehicleStatus",
-    "VelocitySetpoint",
 ]

@@ -15,9 +15,9 @@ retries until ``arm_timeout_s``), takeoff is MAV_CMD_NAV_TAKEOFF in GUIDED, hold
 LOITER), land is LAND mode, and the parcel is released with MAV_CMD_DO_GRIPPER or
 MAV_CMD_DO_SET_SERVO.
 
-With ``tlog_path``, every packet received (as it arrived, from any system on the link) and every
-packet sent goes into a MAVLink ``.tlog`` (:class:`companion.flightlog.tlog.TlogWriter`, written
-by its own thread).
+With ``tlog`` (a :data:`~companion.autopilot.interface.OpenPacketSink`, e.g. a MAVLink ``.tlog``
+writer with its own thread), every packet received (as it arrived, from any system on the link)
+and every packet sent goes into the sink.
 """
 
 from __future__ import annotations
@@ -31,13 +31,20 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
-from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, RcInput, TelemetryCache
+from companion.autopilot.interface import (
+    Autopilot,
+    AutopilotError,
+    LinkLatch,
+    OpenPacketSink,
+    PacketSink,
+    RcInput,
+    TelemetryCache,
+)
 from companion.autopilot.mavlink_messages import velocity_setpoint_message
 from companion.autopilot.types import (
     Attitude,
@@ -52,9 +59,8 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
-    VelocitySetpoint,
 )
-from companion.flightlog.tlog import TlogWriter
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
@@ -197,7 +203,7 @@ class ArduPilotAutopilot(Autopilot):
         command_timeout_s: float = 0.5,
         command_retries: int = 3,
         stream_rates_hz: dict[int, float] | None = None,
-        tlog_path: str | Path | None = None,
+        tlog: OpenPacketSink | None = None,
     ):
         self.connection = connection
         self.baud = baud
@@ -217,8 +223,8 @@ class ArduPilotAutopilot(Autopilot):
         self.telemetry = TelemetryCache()
         self.counters = LinkCounters()
         self.rc_channels: tuple[int, ...] = ()
-        self.tlog_path = tlog_path
-        self.tlog: TlogWriter | None = None
+        self.open_tlog = tlog
+        self.tlog: PacketSink | None = None
         self._tlog_opened = False  # a reconnect appends to the same file
         self._conn: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -263,9 +269,9 @@ class ArduPilotAutopilot(Autopilot):
             raise
         except Exception as err:  # pymavlink raises plain OSError / SerialException / socket errors
             raise AutopilotError(f"cannot open {self.connection!r}: {err}") from None
-        if self.tlog_path is not None:
+        if self.open_tlog is not None:
             try:
-                self.tlog = TlogWriter(self.tlog_path, append=self._tlog_opened)
+                self.tlog = self.open_tlog(self._tlog_opened)
             except OSError as err:
                 await self.close()
                 raise AutopilotError(str(err)) from None

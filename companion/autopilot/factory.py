@@ -12,17 +12,15 @@ log = logging.getLogger(__name__)
 
 
 def make_autopilot(config: CompanionConfig, **kwargs: Any) -> Autopilot:
-    """``config.autopilot``: "sim" (embedded simulator), "px4" (MAVSDK) or "ardupilot" (pymavlink).
+    """``config.autopilot``: "px4" (MAVSDK) or "ardupilot" (pymavlink).
 
-    Extra keyword arguments go to the backend's constructor (e.g. ``release="servo"``).
-    Backends are imported lazily so a missing optional dependency only matters when chosen.
+    Extra keyword arguments go to the backend's constructor (e.g. ``release="servo"``, ``tlog=``).
+    Backends are imported lazily so a missing optional dependency only matters when chosen. The
+    embedded simulator ("sim") is not a backend of this package: the command line wires it
+    (:func:`companion.cli.fly.make_autopilot`).
     """
     kind = config.autopilot
-    log.info("autopilot backend %s on %s", kind, config.connection if kind != "sim" else "embedded simulator")
-    if kind == "sim":
-        from companion_sitl.autopilot import SimAutopilot
-
-        return SimAutopilot(config.sim, **kwargs)
+    log.info("autopilot backend %s on %s", kind, config.connection)
     if kind == "px4":
         from companion.autopilot.px4 import Px4Autopilot
 

@@ -11,6 +11,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from companion.autopilot.types import (
     Attitude,
@@ -23,10 +24,28 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
-    VelocitySetpoint,
 )
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
+
+
+PacketSource = bytes | bytearray | Callable[[], bytes | bytearray | None]
+
+
+class PacketSink(Protocol):
+    """Where a backend hands every MAVLink packet of its link, sent and received (the flight's
+    ``.tlog``, :class:`companion.flightlog.tlog.TlogWriter`). ``write`` is called from the link's
+    threads and must not block (a callable packet is encoded by the sink, off the link's path);
+    ``close`` flushes and closes."""
+
+    def write(self, packet: PacketSource, t_unix_s: float | None = None) -> bool: ...
+
+    def close(self) -> None: ...
+
+
+OpenPacketSink = Callable[[bool], PacketSink]
+"""Opens the packet sink when the link connects; the argument is True on a reconnect (append)."""
 
 
 class AutopilotError(RuntimeError):

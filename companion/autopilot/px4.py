@@ -18,9 +18,10 @@ refreshing the setpoint while the vehicle is in OFFBOARD.
 Link watchdog: MAVSDK's connection state (3 s heartbeat timeout) and the arrival of telemetry
 (``link_timeout_s``).
 
-MAVLink log (``tlog_path``): MAVSDK does not hand out raw packets on a UDP/TCP/serial link, but its
-core reports every message it receives and every message it sends (its own heartbeats, Action
-and parameter traffic, our MavlinkDirect setpoints and commands) decoded to JSON
+MAVLink log (``tlog``, an :data:`~companion.autopilot.interface.OpenPacketSink`): MAVSDK does
+not hand out raw packets on a UDP/TCP/serial link, but its core reports every message it
+receives and every message it sends (its own heartbeats, Action and parameter traffic, our
+MavlinkDirect setpoints and commands) decoded to JSON
 (``Mavsdk::subscribe_incoming/outgoing_messages_json``). Those are re-encoded as MAVLink 2 with
 pymavlink on the log's writer thread: message types, source ids and field values are the
 originals; sequence numbers, MAVLink 1 framing and signatures are not, and whatever MAVSDK
@@ -38,7 +39,6 @@ import math
 import os
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
-from pathlib import Path
 from typing import Any, Literal
 
 from companion.autopilot.interface import (
@@ -46,10 +46,12 @@ from companion.autopilot.interface import (
     Autopilot,
     AutopilotError,
     LinkLatch,
+    OpenPacketSink,
+    PacketSink,
     RcInput,
     TelemetryCache,
 )
-from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK, MavlinkPacker
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -62,10 +64,9 @@ from companion.autopilot.types import (
     PositionNed,
     StatusText,
     VehicleStatus,
-    VelocitySetpoint,
 )
-from companion.flightlog.tlog import MavlinkPacker, TlogWriter
 from companion.geometry import euler_to_quat
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
@@ -210,7 +211,7 @@ class Px4Autopilot(Autopilot):
         gripper_instance: int = 1,
         release_servo: int = 9,
         release_pwm: int = 1900,
-        tlog_path: str | Path | None = None,
+        tlog: OpenPacketSink | None = None,
     ):
         self.connection = connection
         self.link_timeout_s = link_timeout_s
@@ -224,8 +225,8 @@ class Px4Autopilot(Autopilot):
         self.setpoints_sent = 0
         self.setpoints_dropped = 0
         self.system_id = 1
-        self.tlog_path = tlog_path
-        self.tlog: TlogWriter | None = None
+        self.open_tlog = tlog
+        self.tlog: PacketSink | None = None
         self._tlog_opened = False  # a reconnect appends to the same file
         self._tlog_unhook: list[Callable[[], None]] = []
         self._mavsdk: Any = None
@@ -275,9 +276,9 @@ class Px4Autopilot(Autopilot):
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
         self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
-        if self.tlog_path is not None:
+        if self.open_tlog is not None:
             try:
-                self._open_tlog(self.tlog_path)
+                self._open_tlog(self.open_tlog)
             except OSError as err:
                 self._destroy()
                 raise AutopilotError(str(err)) from None
@@ -479,8 +480,8 @@ class Px4Autopilot(Autopilot):
             )
         )
 
-    def _open_tlog(self, path: str | Path) -> None:
-        tlog = self.tlog = TlogWriter(path, append=self._tlog_opened)
+    def _open_tlog(self, open_sink: OpenPacketSink) -> None:
+        tlog = self.tlog = open_sink(self._tlog_opened)
         self._tlog_opened = True
         packer = MavlinkPacker()  # used on the writer thread only
 
@@ -492,7 +493,8 @@ class Px4Autopilot(Autopilot):
         for direction in ("incoming", "outgoing"):
             unhook = intercept_messages_json(self._mavsdk, direction, log_message)
             if unhook is None:
-                log.warning("this MAVSDK build does not report %s messages: %s lacks them", direction, path)
+                where = getattr(tlog, "path", "the MAVLink log")
+                log.warning("this MAVSDK build does not report %s messages: %s lacks them", direction, where)
             else:
                 self._tlog_unhook.append(unhook)
 

@@ -134,16 +134,6 @@ TelemetrySample = PositionNed | GlobalPosition | Attitude | Imu | GpsRaw | Vehic
 
 
 @dataclass(frozen=True, slots=True)
-class VelocitySetpoint:
-    """Offboard velocity setpoint in local NED with an absolute NED yaw."""
-
-    north_m_s: float
-    east_m_s: float
-    down_m_s: float
-    yaw_rad: float
-
-
-@dataclass(frozen=True, slots=True)
 class LandingTarget:
     """LANDING_TARGET (MAVLink #149) contents, see :mod:`companion.autopilot.landing_target`.
 

@@ -1,13 +1,12 @@
-"""State estimation: the autopilot pass-through (GPS-only baseline), the 12-state delivery EKF
-with its delayed-measurement buffer, and the Dart filters and estimators."""
+"""State estimation: the 12-state delivery EKF with its delayed-measurement buffer, the Madgwick
+and complementary attitude filters, and the estimate type. How the sensors are fused is the
+applications' business (``companion.delivery.fusion``, ``companion.dart.estimators``)."""
 
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, EkfSnapshot, UpdateOutcome
-from companion.estimation.passthrough import AutopilotPoseEstimator
 from companion.estimation.types import StateEstimate
 
 __all__ = [
-    "AutopilotPoseEstimator",
     "DelayedMeasurementBuffer",
     "DeliveryEkf",
     "EkfConfig",

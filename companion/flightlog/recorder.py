@@ -1,6 +1,6 @@
 """Per-stream flight logs: one CSV per input and output of the core, in the run folder.
 
-:class:`FlightRecorder` is handed to :class:`companion.app.DeliveryShell` (``recorder=``). It
+:class:`FlightRecorder` is handed to :class:`companion.delivery.shell.DeliveryShell` (``recorder=``). It
 listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
 calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
 ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
@@ -26,7 +26,7 @@ opens every file as is:
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
 =====================  ==========================================================================
 
-Replay (:mod:`companion.flightlog.replay`) needs every input in the order the core saw it: every
+Replay (:mod:`companion.delivery.replay`) needs every input in the order the core saw it: every
 input row carries ``seq``, one counter across all streams (samples, observations, fixes, request
 results, commands and guidance ticks). Floats are written as shortest round-trip decimals, so
 they read back as the same doubles.
@@ -60,11 +60,11 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
-    VelocitySetpoint,
 )
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry.rotations import rotmat_to_euler
 from companion.geometry.se3 import Transform
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 

@@ -9,23 +9,20 @@
                            the fused EKF estimate, in the mission frame F_I (delivery Fig. 10)
 ``landing_axes.png``       the same per axis over time (delivery Fig. 11)
 ``gps_bias.png``           the EKF's GPS-bias state with its 2-sigma band (delivery Fig. 12)
-``landing_scatter.png``    from ``landing_campaign.json``: touchdowns with 2-sigma ellipses
-                           (delivery Fig. 15)
-``dart_estimators.png``    from a Dart campaign JSON: std of the position error per estimator
-                           and axis, estimated and true (dart Tables 1-2)
 =========================  ===================================================================
 
+The campaign figures (landing scatter, Dart estimator comparison) are drawn beside the campaigns
+(``companion_sitl.campaign_output``); ``companion report`` hands them in as :class:`ExtraFigure`.
+
 A figure whose inputs are missing is skipped and the reason reported; a malformed input file is
-an error naming the file, line and column (:class:`~companion.flightlog.replay.LogFormatError`).
+an error naming the file, line and column (:class:`~companion.flightlog.reader.LogFormatError`).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
-import shutil
-import tempfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,8 +33,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from companion.flightlog.reader import LogFormatError, Table, read_meta
 from companion.flightlog.recorder import META_FILE, STREAM_FILES, transform_from_json
-from companion.flightlog.replay import LogFormatError, Table, read_meta
 
 log = logging.getLogger(__name__)
 
@@ -53,14 +50,26 @@ class FigureResult:
     skipped: str = ""
 
 
-class _Skip(Exception):
+class FigureSkipped(Exception):
     """A figure's inputs are missing (reported, not fatal)."""
+
+
+
+@dataclass(frozen=True)
+class ExtraFigure:
+    """A figure :func:`make_report` draws beside the run's own, handed in by the caller (the
+    campaign figures live with the campaigns): ``draw(run_dir, out_dir)`` returns the PNG written
+    or raises :class:`FigureSkipped`."""
+
+    name: str
+    title: str
+    draw: Callable[[Path, Path], Path]
 
 
 def _table(run: Path, name: str, required: tuple[str, ...] = ()) -> Table:
     p = run / name
     if not p.exists():
-        raise _Skip(f"{name} not found")
+        raise FigureSkipped(f"{name} not found")
     return Table(p, required or STREAM_FILES.get(name, ("time_s",)))
 
 
@@ -69,7 +78,7 @@ def _frame(meta: dict[str, Any]) -> Any:
 
     m = meta.get("mission")
     if not isinstance(m, dict):
-        raise _Skip(f"{META_FILE} has no mission frame (the mission never planned a path)")
+        raise FigureSkipped(f"{META_FILE} has no mission frame (the mission never planned a path)")
     try:
         return MissionFrame(np.array(m["pad_ned_m"], dtype=float), float(m["heading_rad"]))
     except (KeyError, TypeError, ValueError) as err:
@@ -107,7 +116,7 @@ def _sources(run: Path, meta: dict[str, Any]) -> _Sources:
     fusion = meta.get("fusion")
     if not isinstance(fusion, dict):
         why = "GPS-only flight" if not meta.get("landing") else "the landing fusion never started"
-        raise _Skip(f"no fused estimate in this run ({why})")
+        raise FigureSkipped(f"no fused estimate in this run ({why})")
     try:
         T_world_pad = transform_from_json(fusion["T_world_pad"])
         T_body_camera = transform_from_json(fusion["T_body_camera"])
@@ -116,7 +125,7 @@ def _sources(run: Path, meta: dict[str, Any]) -> _Sources:
         raise LogFormatError(f"{run / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
     ekf = _table(run, "ekf.csv")
     if len(ekf) == 0:
-        raise _Skip("ekf.csv has no rows (the filter was never initialised)")
+        raise FigureSkipped("ekf.csv has no rows (the filter was never initialised)")
     t_ekf = ekf.floats("time_s")
     p_ekf = np.column_stack([ekf.floats(c) for c in ("north_m", "east_m", "down_m")])
 
@@ -250,7 +259,7 @@ def _fig_landing_axes(s: _Sources, out: Path) -> Path:
 def _fig_gps_bias(run: Path, out: Path) -> Path:
     ekf = _table(run, "ekf.csv")
     if len(ekf) == 0:
-        raise _Skip("ekf.csv has no rows (GPS-only flight, or the filter was never initialised)")
+        raise FigureSkipped("ekf.csv has no rows (GPS-only flight, or the filter was never initialised)")
     t = ekf.floats("time_s")
     xi = ekf.floats("xi") > 0.5
     fig, ax = plt.subplots(figsize=(10, 4.5))
@@ -328,7 +337,7 @@ def _check_plot_run_inputs(run: Path) -> None:
     except json.JSONDecodeError as err:
         raise LogFormatError(f"{run / 'summary.json'}: not valid JSON: {err}") from None
     if not isinstance(summary, dict) or not summary.get("path"):
-        raise _Skip("summary.json has no planned path (the mission never planned one)")
+        raise FigureSkipped("summary.json has no planned path (the mission never planned one)")
     truth = Table(
         run / "truth.csv",
         ("time_s", "true_mission_x_m", "true_mission_y_m", "true_mission_z_m", "true_path_distance_m"),
@@ -341,78 +350,14 @@ def _check_plot_run_inputs(run: Path) -> None:
         flight.floats(c)
 
 
-def _fig_landing_scatter(run: Path, out: Path) -> Path:
-    p = run / "landing_campaign.json"
-    if not p.exists():
-        raise _Skip("no landing_campaign.json (written by `companion campaign landing`)")
-    try:
-        result = json.loads(p.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise LogFormatError(f"{p}: not valid JSON: {err}") from None
-    missing = [k for k in ("n", "summary", "landings") if not isinstance(result, dict) or k not in result]
-    if missing:
-        raise LogFormatError(f"{p}: not a landing campaign result (missing key(s) {missing})")
-    from companion_sitl.landing_campaign import write_outputs
-
-    with tempfile.TemporaryDirectory() as td:  # write_outputs also rewrites the JSON: keep the input untouched
-        files = write_outputs(result, Path(td))
-        png = next(f for f in files if f.suffix == ".png")
-        dest = out / "landing_scatter.png"
-        shutil.copyfile(png, dest)
-    return dest
-
-
-def _dart_result(run: Path) -> tuple[Path, dict[str, Any]]:
-    skip = {META_FILE, "summary.json", "landing_campaign.json"}
-    for p in sorted(run.glob("*.json")):
-        if p.name in skip:
-            continue
-        try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            continue
-        est = d.get("estimators") if isinstance(d, dict) else None
-        if isinstance(est, dict) and est and all(isinstance(v, dict) and "std_cm" in v for v in est.values()):
-            return p, d
-    raise _Skip("no Dart campaign JSON (written by `companion campaign dart --json FILE`)")
-
-
-def _fig_dart(run: Path, out: Path) -> Path:
-    p, d = _dart_result(run)
-    names = list(d["estimators"])
-    try:
-        est = np.array([d["estimators"][n]["std_cm"] for n in names], dtype=float).reshape(len(names), 3)
-        tru = np.array([d["estimators"][n].get("truth_std_cm", [math.nan] * 3) for n in names], dtype=float)
-        tru = tru.reshape(len(names), 3)
-    except (TypeError, ValueError) as err:
-        raise LogFormatError(f"{p}: 'std_cm' / 'truth_std_cm' must be three numbers per estimator ({err})") from None
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharey=True)
-    x = np.arange(len(names))
-    for i, (ax, axis) in enumerate(zip(axes, ("x (right)", "y (up)", "z (from the wall)"), strict=True)):
-        ax.bar(x - 0.2, est[:, i], 0.4, color="tab:blue", label="estimated - desired (dart eq 22)")
-        ax.bar(x + 0.2, tru[:, i], 0.4, color="tab:gray", label="true - desired")
-        ax.set_xticks(x, names, rotation=20, fontsize=8)
-        ax.set_title(f"axis {axis}")
-        ax.grid(True, axis="y", alpha=0.3)
-    axes[0].set_ylabel("std of the position error [cm]")
-    axes[0].legend(fontsize=8)
-    fig.suptitle(
-        f"Dart hover at 4 m: estimator comparison, {d.get('n', '?')} run(s) per estimator, seed {d.get('seed', '?')} "
-        "(cf. dart Tables 1-2)",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    f = out / "dart_estimators.png"
-    fig.savefig(f, dpi=DPI)
-    plt.close(fig)
-    return f
-
-
 # ---------------------------------------------------------------------------------------------
 
 
-def make_report(run_dir: str | Path, out_dir: str | Path | None = None) -> list[FigureResult]:
-    """Every figure the run folder has inputs for, into ``out_dir`` (default ``run_dir``)."""
+def make_report(
+    run_dir: str | Path, out_dir: str | Path | None = None, extra: Sequence[ExtraFigure] = ()
+) -> list[FigureResult]:
+    """Every figure the run folder has inputs for, into ``out_dir`` (default ``run_dir``), then
+    each of ``extra`` (the CLI hands in the campaign figures)."""
     from companion.flightlog.plots import plot_run
 
     run = Path(run_dir)
@@ -433,7 +378,7 @@ def make_report(run_dir: str | Path, out_dir: str | Path | None = None) -> list[
             files = fn()
             files = files if isinstance(files, list) else [files]
             results.extend(FigureResult(n, t, f) for n, t, f in zip(names, titles, files, strict=True))
-        except _Skip as why:
+        except FigureSkipped as why:
             results.extend(FigureResult(n, t, None, str(why)) for n, t in zip(names, titles, strict=True))
 
     def fig8_9() -> list[Path]:
@@ -441,12 +386,12 @@ def make_report(run_dir: str | Path, out_dir: str | Path | None = None) -> list[
             _check_plot_run_inputs(run)
             return plot_run(run, out)
         if meta is None:
-            raise _Skip(f"neither summary.json + truth.csv + flight.csv (simulator) nor {META_FILE}")
+            raise FigureSkipped(f"neither summary.json + truth.csv + flight.csv (simulator) nor {META_FILE}")
         return _fig_path_from_logs(run, meta, out)
 
     def need_meta() -> dict[str, Any]:
         if meta is None:
-            raise _Skip(meta_skip)
+            raise FigureSkipped(meta_skip)
         return meta
 
     attempt(["path.png", "lyapunov.png"], ["planned vs flown path (Fig. 8)", "Lyapunov function V (Fig. 9)"], fig8_9)
@@ -461,6 +406,6 @@ def make_report(run_dir: str | Path, out_dir: str | Path | None = None) -> list[
         landing,
     )
     attempt(["gps_bias.png"], ["estimated GPS bias (Fig. 12)"], lambda: (need_meta(), _fig_gps_bias(run, out))[1])
-    attempt(["landing_scatter.png"], ["landing campaign scatter (Fig. 15)"], lambda: _fig_landing_scatter(run, out))
-    attempt(["dart_estimators.png"], ["Dart estimator comparison (Tables 1-2)"], lambda: _fig_dart(run, out))
+    for x in extra:
+        attempt([x.name], [x.title], lambda x=x: x.draw(run, out))
     return results

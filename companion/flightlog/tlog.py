@@ -24,7 +24,6 @@ samples) and what the companion sends it into MAVLink, so the embedded simulator
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import math
 import os
@@ -32,14 +31,15 @@ import queue
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from companion.autopilot.mavlink_messages import velocity_setpoint_message
+from companion.autopilot.interface import PacketSource
+from companion.autopilot.mavlink_messages import MavlinkPacker, velocity_setpoint_message
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -52,8 +52,8 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
-    VelocitySetpoint,
 )
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,6 @@ _LINK_BITS = ~3  # pymavlink/MAVProxy: the two low timestamp bits carry the link
 _BATCH = 4096
 _STOP = object()
 
-PacketSource = bytes | bytearray | Callable[[], bytes | bytearray | None]
 
 
 class _Flush:
@@ -262,6 +261,12 @@ class TlogWriter:
                 self.dropped += 1
 
 
+def open_tlog(path: str | Path) -> Callable[[bool], TlogWriter]:
+    """The :data:`~companion.autopilot.interface.OpenPacketSink` a backend takes: a MAVLink log at
+    ``path``, opened when the link connects (appended to on a reconnect)."""
+    return lambda append: TlogWriter(path, append=append)
+
+
 def read_tlog(path: str | Path, types: Sequence[str] | None = None) -> Iterator[Any]:
     """The messages of a ``.tlog`` through pymavlink's own reader (``mavutil.mavlink_connection``),
     in file order; each has ``_timestamp`` (UNIX seconds). ``types`` filters by message name."""
@@ -281,62 +286,6 @@ def read_tlog(path: str | Path, types: Sequence[str] | None = None) -> Iterator[
 
 
 # ---------------------------------------------------------------------------------- encoding
-_FLOAT_TYPES = ("float", "double")
-
-
-class MavlinkPacker:
-    """MAVLink 2 packets in pymavlink's ``ardupilotmega`` dialect (a superset of ``common``),
-    with one sequence counter per source (system, component). Not thread-safe: use it from one
-    thread (e.g. inside functions handed to :meth:`TlogWriter.write`)."""
-
-    def __init__(self) -> None:
-        self._mav: dict[tuple[int, int], Any] = {}
-
-    def pack(self, msg: Any, system_id: int, component_id: int) -> bytes:
-        key = (system_id, component_id)
-        mav = self._mav.get(key)
-        if mav is None:
-            mav = self._mav[key] = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
-        buf = bytes(msg.pack(mav))
-        mav.seq = (mav.seq + 1) % 256
-        return buf
-
-    @staticmethod
-    def message_from_fields(name_or_id: str | int, fields: Mapping[str, Any]) -> Any:
-        """A pymavlink message from decoded field values (missing fields are 0; None, as in
-        MAVSDK's JSON for NaN, is NaN for float fields and 0 otherwise)."""
-        if isinstance(name_or_id, int):
-            cls = mavlink2.mavlink_map.get(name_or_id)
-        else:
-            cls = getattr(mavlink2, f"MAVLink_{name_or_id.lower()}_message", None)
-        if cls is None:
-            raise KeyError(f"MAVLink message {name_or_id!r} is not in pymavlink's ardupilotmega dialect")
-        lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))  # wire order
-        args: list[Any] = []
-        for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=True):  # constructor order
-            v, n = fields.get(name), lengths[name]
-            if ftype == "char":
-                s = v if isinstance(v, (bytes, bytearray)) else str(v or "").encode("utf-8", errors="replace")
-                args.append(bytes(s[: max(n, 1)]))
-                continue
-            blank = math.nan if ftype in _FLOAT_TYPES else 0
-            if n:
-                seq = list(v) if isinstance(v, (list, tuple, bytes, bytearray)) else []
-                seq = [blank if x is None else x for x in seq[:n]]
-                args.append(seq + [0] * (n - len(seq)))
-            else:
-                args.append(blank if v is None else v)
-        return cls(*args)
-
-    def pack_fields(self, name_or_id: str | int, fields: Mapping[str, Any], system_id: int, component_id: int) -> bytes:
-        return self.pack(self.message_from_fields(name_or_id, fields), system_id, component_id)
-
-    def pack_json(self, name: str, fields_json: str, system_id: int, component_id: int) -> bytes:
-        """A packet from one of MAVSDK's decoded messages (``message_name`` and ``fields_json``)."""
-        fields = json.loads(fields_json) if fields_json else {}
-        return self.pack_fields(fields.get("message_id", name), fields, system_id, component_id)
-
-
 _LANDED = {
     LandedState.UNKNOWN: mavlink2.MAV_LANDED_STATE_UNDEFINED,
     LandedState.ON_GROUND: mavlink2.MAV_LANDED_STATE_ON_GROUND,

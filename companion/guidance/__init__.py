@@ -1,7 +1,8 @@
-"""Guidance: the delivery path and sectors, the vector field, setpoint limits."""
+"""Guidance: the delivery path and sectors, the vector field, the velocity setpoint and its limits."""
 
 from companion.guidance.limits import ClampResult, clamp_velocity
 from companion.guidance.path import DeliveryPath, PathGeometryError
+from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.vector_field import FieldSample, VectorField
 
 __all__ = [
@@ -10,5 +11,6 @@ __all__ = [
     "FieldSample",
     "PathGeometryError",
     "VectorField",
+    "VelocitySetpoint",
     "clamp_velocity",
 ]

@@ -6,9 +6,9 @@ import logging
 import math
 from dataclasses import dataclass
 
-from companion.autopilot.types import VelocitySetpoint
 from companion.config import LimitsConfig
 from companion.geometry.rotations import wrap_angle
+from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 

@@ -35,7 +35,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from companion.mission.events import Phase
+from companion.events import Phase
 from companion.telemetry.auth import CommandKind, sign_command
 from companion.telemetry.schema import (
     ALL_ALIVE_KEY,

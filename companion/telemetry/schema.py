@@ -56,7 +56,7 @@ from companion.autopilot.types import (
     VehicleStatus,
 )
 from companion.estimation.types import StateEstimate
-from companion.mission.events import MissionEvent, Phase
+from companion.events import MissionEvent, Phase
 
 SCHEMA_NAME = "companion.telemetry"
 SCHEMA_MAJOR = 1

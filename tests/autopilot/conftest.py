@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from companion.app import DeliveryShell
 from companion.config import load_config, shipped_params_path
+from companion.delivery.shell import DeliveryShell
 from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
 

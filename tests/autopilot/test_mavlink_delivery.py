@@ -10,8 +10,8 @@ import pytest
 from companion.autopilot import FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
-from companion.flightlog.tlog import read_tlog
-from companion.mission.events import EventKind, Phase
+from companion.events import EventKind, Phase
+from companion.flightlog.tlog import open_tlog, read_tlog
 
 pytestmark = pytest.mark.slow
 
@@ -42,7 +42,7 @@ async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
     received = []  # what reached the vehicle
     with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
         sim.on_message = received.append
-        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", tlog_path=tmp_path / "flight.tlog")
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", tlog=open_tlog(tmp_path / "flight.tlog"))
         shell, summary = await mav.fly(config, ap)
     assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
     assert _pad_error(sim, config) < 1.0
@@ -71,7 +71,7 @@ async def test_full_delivery_px4_over_mavsdk(mav, udp_port, tmp_path):
     received = []
     with mav.sim_vehicle(config, "px4", udp_port) as sim:
         sim.on_message = received.append
-        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}", tlog_path=tmp_path / "flight.tlog")
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}", tlog=open_tlog(tmp_path / "flight.tlog"))
         shell, summary = await mav.fly(config, ap)
     assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
     assert _pad_error(sim, config) < 1.0

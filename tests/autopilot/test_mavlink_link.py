@@ -8,11 +8,12 @@ import socket
 
 import pytest
 
-from companion.autopilot import Autopilot, AutopilotError, FlightMode, VelocitySetpoint
+from companion.autopilot import Autopilot, AutopilotError, FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot, parse_connection
-from companion.autopilot.factory import make_autopilot
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.px4 import px4_flight_mode as px4_decode
+from companion.cli.fly import make_autopilot
+from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink_vehicle import (
     COPTER_GUIDED,
     MavlinkSimVehicle,

@@ -7,8 +7,9 @@ import json
 
 import pytest
 
+from companion.delivery.replay import read_inputs, replay_run
+from companion.flightlog.reader import Table
 from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES
-from companion.flightlog.replay import Table, read_inputs, replay_run
 from companion_sitl.demo import run_demo
 
 from .conftest import short_config

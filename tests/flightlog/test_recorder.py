@@ -20,8 +20,9 @@ from companion.autopilot.types import (
     VehicleStatus,
 )
 from companion.config import CompanionConfig
+from companion.delivery.replay import read_inputs
+from companion.flightlog.reader import Table
 from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES, FlightRecorder
-from companion.flightlog.replay import Table, read_inputs
 
 pytestmark = pytest.mark.slow
 

@@ -11,8 +11,9 @@ import signal
 
 import pytest
 
-from companion.cli import main
-from companion.flightlog.replay import LogFormatError, Table, replay_run
+from companion.cli.main import main
+from companion.delivery.replay import replay_run
+from companion.flightlog.reader import LogFormatError, Table
 
 from .conftest import short_config
 
@@ -90,7 +91,7 @@ def test_not_a_run_folder(tmp_path):
 def test_fly_logs_an_operator_ctrl_c_and_replays_it(tmp_path):
     """`companion fly`'s runner (run_delivery) on the simulator under virtual time: SIGINT at
     t = 15 s aborts (hold, then land); the logs are closed and the replay, abort included, is exact."""
-    from companion.autopilot.commands import run_delivery
+    from companion.cli.fly import run_delivery
     from companion_sitl.autopilot import SimAutopilot
     from companion_sitl.clock import run_virtual
 

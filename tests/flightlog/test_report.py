@@ -9,9 +9,10 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from companion.cli import main
-from companion.flightlog.replay import LogFormatError
+from companion.cli.main import main
+from companion.flightlog.reader import LogFormatError
 from companion.flightlog.report import make_report
+from companion_sitl.campaign_output import CAMPAIGN_FIGURES
 from companion_sitl.demo import run_demo
 
 from .conftest import short_config
@@ -35,7 +36,7 @@ def _by_name(figs):
 
 
 def test_report_of_the_demo_run(demo_run, tmp_path):
-    figs = _by_name(make_report(demo_run, tmp_path / "rep"))
+    figs = _by_name(make_report(demo_run, tmp_path / "rep", extra=CAMPAIGN_FIGURES))
     for name in FLIGHT_FIGURES:
         assert figs[name].path == tmp_path / "rep" / name, figs[name].skipped
         _assert_real_image(figs[name].path)
@@ -74,7 +75,7 @@ def test_campaign_results_get_their_figures(tmp_path):
     text = json.dumps(_landing_campaign(rng), indent=1)
     (camp / "landing_campaign.json").write_text(text)
     (camp / "dart_hover.json").write_text(json.dumps(_dart_campaign(rng)))
-    figs = _by_name(make_report(camp))
+    figs = _by_name(make_report(camp, extra=CAMPAIGN_FIGURES))
     for name in ("landing_scatter.png", "dart_estimators.png"):
         assert figs[name].path == camp / name, figs[name].skipped
         _assert_real_image(figs[name].path, min_w=500)

@@ -16,7 +16,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.app import DeliveryShell
+from companion.autopilot.mavlink_messages import MavlinkPacker
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -25,10 +25,11 @@ from companion.autopilot.types import (
     PositionNed,
     StatusText,
     VehicleStatus,
-    VelocitySetpoint,
 )
 from companion.config import load_config, shipped_params_path
-from companion.flightlog.tlog import MavlinkPacker, TelemetryEncoder, TlogWriter, read_tlog, tlog_timestamp_us
+from companion.delivery.shell import DeliveryShell
+from companion.flightlog.tlog import TelemetryEncoder, TlogWriter, read_tlog, tlog_timestamp_us
+from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.autopilot import SIM_TLOG_EPOCH_S, SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.demo import run_demo

@@ -1,8 +1,8 @@
 import math
 
-from companion.autopilot.types import VelocitySetpoint
 from companion.config import LimitsConfig
 from companion.guidance import clamp_velocity
+from companion.guidance.setpoint import VelocitySetpoint
 
 LIM = LimitsConfig(
     max_horizontal_speed_m_s=5, max_climb_m_s=2, max_descent_m_s=1, geofence_radius_m=100, geofence_max_alt_m=50

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.estimation.dart_estimators import GimbalKind, corrected_sample_std
+from companion.dart.estimators import GimbalKind, corrected_sample_std
+from companion.dart.mission import DartParamsError
 from companion.geometry import rotmat_to_euler
-from companion.mission.dart import DartParamsError
 from companion_sitl.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
 from companion_sitl.dart_sim import (
     DartSim,
@@ -143,7 +143,7 @@ def test_campaign_function_and_table() -> None:
 
 
 def test_cli_registers_campaign_dart() -> None:
-    from companion.cli import build_parser
+    from companion.cli.main import build_parser
 
     parser, failed = build_parser()
     assert not failed
@@ -173,7 +173,7 @@ def test_shipped_params_and_errors(tmp_path: Path) -> None:
 
 def test_mission_approach_from_4_m_to_1_5_m_on_real_frames() -> None:
     # the paper's mission with a 2.5x faster profile (0.25 m/s peak) to keep the test short
-    from companion.mission.dart import DartMissionConfig, DartPhase
+    from companion.dart.mission import DartMissionConfig, DartPhase
 
     sim = DartSim("SCF-MF-3DOF", mission=DartMissionConfig(hover_s=2.0, max_speed_m_s=0.25), seed=3)
     sim.run_until(25.0)

@@ -5,7 +5,7 @@ import json
 import matplotlib.image as mpimg
 import pytest
 
-from companion.cli import main
+from companion.cli.main import main
 from companion_sitl.landing_campaign import draw_scenarios, run_landing_campaign
 
 pytestmark = pytest.mark.slow

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import pytest
 
-from companion.telemetry.bench import bench_telemetry, free_tcp_port, loopback_settings
-from companion.telemetry.commands import (
+from companion.cli.telemetry import (
     cmd_ground,
     format_bench_result,
     ground_settings,
     register,
     register_bench,
 )
+from companion.telemetry.bench import bench_telemetry, free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation, VehicleRow, render_table
 from companion.telemetry.publisher import TelemetryPublisher, TelemetrySettings
 from companion.telemetry.schema import StateMessage

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from companion.mission.events import EventKind, MissionEvent, Phase
+from companion.events import EventKind, MissionEvent, Phase
 from companion.telemetry.auth import CommandKind, CommandSettings, GroundCommand, sign_command
 from companion.telemetry.bench import free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation

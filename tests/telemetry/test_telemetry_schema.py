@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from companion.autopilot.types import FlightMode, GlobalPosition, GpsRaw, LandedState, StatusText, VehicleStatus
 from companion.estimation.types import StateEstimate
-from companion.mission.events import EventKind, MissionEvent, Phase
+from companion.events import EventKind, MissionEvent, Phase
 from companion.telemetry.schema import (
     ESTIMATE_STATES,
     MAX_PAYLOAD_BYTES,

@@ -17,12 +17,12 @@ from companion.vision.detector import (
     ImageError,
     PadDetector,
     PoseCandidate,
-    bench_vision,
     resolve_ambiguity,
     rotation_angle,
 )
 from companion.vision.pad import PadLayout
 from companion_sitl.camera import SimCameraConfig, SimulatedCamera
+from companion_sitl.vision_bench import bench_vision
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 CAM = load_default_camera()

@@ -1,0 +1,211 @@
+"""CLI commands of the autopilot layer: ``fly`` (a delivery on the configured real autopilot)
+and ``bench link`` (setpoint-stream jitter and command latency against the MAVLink sim vehicle)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import itertools
+import json
+import logging
+import signal
+import socket
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+from companion.autopilot import factory
+from companion.autopilot.interface import Autopilot
+from companion.config import CompanionConfig, SimConfig, load_config
+from companion.delivery.mission import MissionSummary
+from companion.delivery.shell import DeliveryShell
+from companion.flightlog.recorder import FlightRecorder
+from companion.guidance.setpoint import VelocitySetpoint
+from companion.scheduling import LoopClock, RateLoop
+
+log = logging.getLogger(__name__)
+
+
+def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwargs: Any) -> Autopilot:
+    """The backend ``config.autopilot`` names: the embedded simulator for "sim", else the PX4 or
+    ArduPilot backend (:func:`companion.autopilot.factory.make_autopilot`); ``tlog_path``: the
+    MAVLink log of the link."""
+    if config.autopilot == "sim":
+        log.info("autopilot backend sim on embedded simulator")
+        from companion_sitl.autopilot import SimAutopilot
+
+        return SimAutopilot(config.sim, tlog_path=tlog_path, **kwargs)
+    if tlog_path is not None:
+        from companion.flightlog.tlog import open_tlog
+
+        kwargs["tlog"] = open_tlog(tlog_path)
+    return factory.make_autopilot(config, **kwargs)
+
+
+def register(subparsers: Any) -> None:
+    """Add ``fly`` to the CLI's subparsers (``bench link``: :func:`register_bench`)."""
+    p = subparsers.add_parser("fly", help="fly the delivery mission on the configured real autopilot")
+    p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
+    p.add_argument("--connection", help="override the MAVLink connection URL")
+    p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds")
+    p.add_argument("--out", help="run folder for flight.tlog and the per-stream CSV logs (default runs/fly-<time>)")
+    p.set_defaults(func=cmd_fly)
+
+
+def register_bench(bench_subparsers: Any) -> None:
+    """Add ``link`` to the ``bench`` subcommands."""
+    bl = bench_subparsers.add_parser(
+        "link", help="setpoint jitter and command latency over MAVLink against the sim vehicle"
+    )
+    bl.add_argument("--seconds", type=float, default=3.0, help="stream duration per rate")
+    bl.set_defaults(func=cmd_bench_link)
+
+
+async def run_delivery(
+    config: CompanionConfig,
+    autopilot: Autopilot,
+    timeout_s: float = 1800.0,
+    run_dir: Path | None = None,
+    landing: Any = None,
+) -> MissionSummary:
+    """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land).
+    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash)."""
+    recorder = FlightRecorder(run_dir, config) if run_dir is not None else None
+    # the ground link publishes by default (DESIGN safety contract); [telemetry] enabled = false turns it off
+    shell = DeliveryShell(config, autopilot, telemetry=config.telemetry.enabled, recorder=recorder, landing=landing)
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, shell.abort, f"operator abort ({signal.Signals(sig).name})")
+    try:
+        return await shell.run(timeout_s=timeout_s)
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.remove_signal_handler(sig)
+        try:
+            await autopilot.close()
+        finally:
+            if recorder is not None:
+                recorder.close()
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    overrides = {"connection": args.connection} if args.connection else None
+    config = load_config(args.params, overrides=overrides)
+    if config.autopilot == "sim":
+        print("autopilot = 'sim' in the parameters: use `companion demo` for the embedded simulator")
+        return 2
+    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+
+    try:  # the landing sensors are set up and started on the ground: a missing one stops us here
+        kit = build_landing_kit(config)
+        if kit is not None:
+            start_sensors(kit)
+    except LandingSetupError as err:
+        print(f"companion fly: {err}")
+        return 2
+    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
+    summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+    print(
+        json.dumps(
+            {
+                "delivered": summary.delivered,
+                "returned": summary.returned,
+                "failure": summary.failure,
+                "run_dir": str(run_dir),
+            }
+        )
+    )
+    return 0 if summary.delivered and not summary.failure else 1
+
+
+def cmd_bench_link(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_link(seconds=args.seconds), indent=2))
+    return 0
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _pct(xs: list[float], q: float) -> float:
+    if not xs:
+        return float("nan")
+    ys = sorted(xs)
+    return ys[min(len(ys) - 1, int(q * (len(ys) - 1) + 0.5))]
+
+
+async def _bench(backend: str, seconds: float) -> dict[str, Any]:
+    from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+
+    port = _free_udp_port()
+    dialect = "px4" if backend == "px4" else "ardupilot"
+    sim = MavlinkSimVehicle(SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", port)).start()
+    arrivals: list[float] = []
+
+    def on_msg(m: Any) -> None:
+        if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            arrivals.append(time.monotonic())
+
+    sim.on_message = on_msg
+    ap: Any
+    if backend == "px4":
+        from companion.autopilot.px4 import Px4Autopilot
+
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{port}")
+    else:
+        from companion.autopilot.ardupilot import ArduPilotAutopilot
+
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{port}")
+    out: dict[str, Any] = {}
+    try:
+        await ap.connect(timeout_s=5.0)
+        await asyncio.sleep(0.5)
+        sp = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+        for hz in (20.0, 50.0):
+            arrivals.clear()
+            rate = RateLoop(LoopClock(), hz)
+            call_us: list[float] = []
+            for _ in range(int(seconds * hz)):
+                await rate.tick()
+                t = time.perf_counter()
+                ap.set_velocity_ned(sp)
+                call_us.append((time.perf_counter() - t) * 1e6)
+            await asyncio.sleep(0.1)
+            jitter_ms = [abs((b - a) - 1.0 / hz) * 1e3 for a, b in itertools.pairwise(arrivals)]
+            out[f"{int(hz)}hz"] = {
+                "received": len(arrivals),
+                "sent": int(seconds * hz),
+                "jitter_p50_ms": round(_pct(jitter_ms, 0.5), 3),
+                "jitter_p99_ms": round(_pct(jitter_ms, 0.99), 3),
+                "send_call_p50_us": round(statistics.median(call_us), 1),
+            }
+        rtt: list[float] = []
+        for _ in range(30):
+            t = time.perf_counter()
+            if backend == "px4":
+                await ap._direct_command("request", 512, 148)  # MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION
+            else:
+                await ap._command(512, 148)
+            rtt.append((time.perf_counter() - t) * 1e3)
+        out["command_rtt_p50_ms"] = round(_pct(rtt, 0.5), 3)
+        out["command_rtt_p99_ms"] = round(_pct(rtt, 0.99), 3)
+    finally:
+        await ap.close()
+        sim.stop()
+    return out
+
+
+def bench_link(seconds: float = 3.0) -> dict[str, Any]:
+    """Setpoint-stream jitter (p50/p99 of |inter-arrival - period| at the vehicle) at 20 and 50 Hz
+    and COMMAND_LONG round-trip latency, for both backends against the MAVLink sim vehicle."""
+    return {
+        "ardupilot_pymavlink": asyncio.run(_bench("ardupilot", seconds)),
+        "px4_mavsdk": asyncio.run(_bench("px4", seconds)),
+    }

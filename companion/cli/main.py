@@ -1,0 +1,87 @@
+"""The ``companion`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Callable
+from typing import Any
+
+from companion import __version__
+from companion.cli import params, plugins, sim
+from companion.config import ConfigError
+
+log = logging.getLogger(__name__)
+
+# Capability modules that add their own sub-commands: module path -> what it provides.
+COMMAND_MODULES: tuple[str, ...] = (
+    "companion.cli.vision",
+    "companion.cli.telemetry",
+    "companion.cli.fly",
+    "companion.cli.logs",
+    "companion.cli.dart",
+)
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    parser = argparse.ArgumentParser(prog="companion", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"companion {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    sim.register_demo(sub)
+    bench = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
+    bsub = bench.add_subparsers(dest="bench", metavar="WHAT", required=True)
+    sim.register_bench(bsub)
+    campaign = sub.add_parser("campaign", help="repeated simulated experiments with summary statistics")
+    csub = campaign.add_subparsers(dest="campaign", metavar="WHAT", required=True)
+    sim.register_campaign(csub)
+    try:
+        importlib.import_module("companion.cli.dart").register_campaign(csub)
+    except ImportError as err:
+        log.error("campaign dart unavailable: %s", err)
+    for mod in ("companion.cli.telemetry", "companion.cli.fly"):
+        try:
+            importlib.import_module(mod).register_bench(bsub)
+        except ImportError as err:
+            log.error("bench from %s unavailable: %s", mod, err)
+    sim.register_bench_micro(bsub)
+    params.register(sub)
+    plugins.register(sub)
+
+    failed = []
+    for mod in COMMAND_MODULES:
+        try:
+            register: Callable[[Any], None] = importlib.import_module(mod).register
+            register(sub)
+        except Exception as err:  # a broken capability must not take the CLI down
+            failed.append(f"{mod}: {type(err).__name__}: {err}")
+    return parser, failed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, failed = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    for f in failed:
+        log.error("command module failed to load: %s", f)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args))
+    except ConfigError as err:
+        print(f"companion: bad configuration: {err.source}", file=sys.stderr)
+        for p in err.problems:
+            print(f"  {p}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("companion: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

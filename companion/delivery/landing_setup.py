@@ -1,0 +1,120 @@
+"""The precision-landing kit of a real vehicle, from configuration: sensor plugins found through
+entry points (``companion.cameras``, ``companion.uwb``), the camera calibration, the pad layout,
+the UWB anchor layout and the camera mount. The simulator builds its own kit
+(:func:`companion_sitl.demo.sim_landing_kit`); everything after the plugins is the same code.
+
+A sensor that cannot be set up is an error naming the plugin, the setting and the reason, raised
+before take-off, with the switch that flies without it (``use_camera`` / ``use_uwb`` /
+``fusion``). A delivery never starts believing it has a camera that is not there.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from companion.config import CompanionConfig, ConfigError, shipped_params_path
+from companion.delivery.shell import LandingKit
+from companion.plugin_api import PluginError, create
+
+log = logging.getLogger(__name__)
+
+
+class LandingSetupError(RuntimeError):
+    """A landing sensor or file could not be set up (the message says which and how to fly without)."""
+
+
+def resolve_params_file(name: str, key: str) -> Path:
+    """``name`` as a path if it exists, else a file shipped in ``params/``."""
+    p = Path(name).expanduser()
+    if p.is_file():
+        return p
+    try:
+        return shipped_params_path(name)
+    except ConfigError as err:
+        raise LandingSetupError(f"landing.{key} = {name!r}: no such file, and {err}") from None
+
+
+def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
+    """The kit for ``config.landing``, or None when fusion is off (GPS-only)."""
+    from companion.geometry.mounts import downward_mount
+    from companion.geometry.se3 import Transform
+    from companion.uwb.anchors import load_anchor_layout
+    from companion.uwb.multilateration import Multilaterator
+    from companion.vision.camera import load_camera
+    from companion.vision.detector import PadDetector
+    from companion.vision.pad import load_pad
+
+    lc = config.landing
+    if not lc.fusion:
+        return None
+    camera: Any = None
+    uwb: Any = None
+    detector = multi = None
+    if lc.use_camera:
+        model = load_camera(resolve_params_file(lc.camera_calibration, "camera_calibration"))
+        layout = load_pad(resolve_params_file(lc.pad_file, "pad_file"))
+        markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
+        detector = PadDetector(model, layout, markers=markers)
+        source: str | int = int(lc.camera_source) if lc.camera_source.isdigit() else lc.camera_source
+        try:
+            camera = create(
+                "companion.cameras",
+                lc.camera_plugin,
+                source=source,
+                width_px=model.width_px,
+                height_px=model.height_px,
+                fps=lc.camera_rate_hz,
+                latency_s=lc.camera_latency_s,
+            )
+        except (PluginError, TypeError) as err:
+            raise LandingSetupError(
+                f"camera plugin {lc.camera_plugin!r} (landing.camera_source = {lc.camera_source!r}): {err}; "
+                "set landing.use_camera = false to fly without the camera"
+            ) from err
+    if lc.use_uwb:
+        anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
+        multi = Multilaterator(anchors)
+        try:
+            uwb = create("companion.uwb", lc.uwb_plugin, port=lc.uwb_port)
+        except (PluginError, TypeError) as err:
+            raise LandingSetupError(
+                f"UWB plugin {lc.uwb_plugin!r} (landing.uwb_port = {lc.uwb_port!r}): {err}; "
+                "set landing.use_uwb = false to fly without UWB"
+            ) from err
+    if camera is None and uwb is None:
+        raise LandingSetupError(
+            "landing.fusion = true but both use_camera and use_uwb are false: nothing to fuse; "
+            "set landing.fusion = false for a GPS-only landing"
+        )
+    return LandingKit(
+        camera,
+        uwb,
+        detector,
+        multi,
+        downward_mount(lc.camera_offset_body_m),
+        Transform.identity(),  # anchor coordinates are given in the pad frame
+    )
+
+
+def start_sensors(kit: LandingKit) -> None:
+    """Start the sensors on the ground, before take-off, so a missing device fails there; the
+    shell then leaves them running and stops them when the flight ends."""
+    started = []
+    for name, dev in (("camera", kit.camera), ("uwb", kit.uwb)):
+        if dev is None:
+            continue
+        try:
+            dev.start()
+        except Exception as err:
+            for d in started:
+                try:
+                    d.stop()
+                except Exception as stop_err:
+                    log.debug("stop after a failed start: %s", stop_err)
+            raise LandingSetupError(
+                f"{name} {type(dev).__name__} does not start: {err}; set landing.use_{name} = false to fly without it"
+            ) from err
+        started.append(dev)
+    kit.sensors_started = True

@@ -1,0 +1,605 @@
+"""The delivery mission state machine (delivery Algorithm 1, made complete).
+
+Pure and synchronous: :meth:`DeliveryMission.step` takes timestamped inputs and returns what
+to do (a velocity setpoint, at most one autopilot request, events). The asyncio shell executes
+requests and feeds their results back with :meth:`DeliveryMission.on_result`.
+
+Phases: preflight -> arming -> takeoff -> outbound (s = +1) -> landing on the pad -> release
+-> (arming -> takeoff -> inbound (s = -1) -> landing at home) -> done. Abort: hold, then land.
+The pilot always wins: a mode switch away from offboard that we did not ask for ends autonomy.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
+from companion.config import MissionConfig
+from companion.delivery.planning import plan_delivery
+from companion.estimation.types import StateEstimate
+from companion.events import EventKind, MissionEvent, Phase
+from companion.geometry.earth import GeoPoint
+from companion.geometry.mission_frame import MissionFrame
+from companion.guidance.path import DeliveryPath, PathGeometryError
+from companion.guidance.setpoint import VelocitySetpoint
+from companion.guidance.vector_field import VectorField
+
+log = logging.getLogger(__name__)
+
+FOLLOW_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.INBOUND, Phase.LANDING_HOME)
+OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OFFBOARD
+MAX_REQUEST_TRIES = 3
+
+
+class RequestKind(enum.Enum):
+    ARM = "arm"
+    DISARM = "disarm"
+    TAKEOFF = "takeoff"
+    START_OFFBOARD = "start_offboard"
+    HOLD = "hold"
+    LAND = "land"
+    PRECISION_LAND = "precision_land"
+    RELEASE = "release"
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    id: int
+    kind: RequestKind
+    alt_rel_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class RequestResult:
+    id: int
+    ok: bool
+    error: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class MissionInputs:
+    time_s: float
+    estimate: StateEstimate | None
+    status: VehicleStatus | None
+    home: HomePosition | None
+    link_ok: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class MissionOutput:
+    phase: Phase
+    setpoint: VelocitySetpoint | None = None
+    request: Request | None = None
+    events: tuple[MissionEvent, ...] = ()
+    sector: int = 0
+    lyapunov: float = math.nan
+
+
+@dataclass
+class _Pending:
+    request: Request
+    tries: int = 1
+
+
+@dataclass
+class MissionSummary:
+    delivered: bool = False
+    returned: bool = False
+    takeoff_time_s: float | None = None
+    end_time_s: float | None = None
+    pad_touchdown_ned: tuple[float, float, float] | None = None
+    home_touchdown_ned: tuple[float, float, float] | None = None
+    failure: str = ""
+    events: list[MissionEvent] = field(default_factory=list)
+
+
+class DeliveryMission:
+    def __init__(self, cfg: MissionConfig, landing_controller: str = "companion"):
+        """``landing_controller``: "companion" flies the descent onto the pad with velocity
+        setpoints; "autopilot" hands it to the autopilot's own precision landing (fed
+        LANDING_TARGET by the shell) and only watches for the touchdown."""
+        if landing_controller not in ("companion", "autopilot"):
+            raise ValueError(f"landing_controller {landing_controller!r}: expected 'companion' or 'autopilot'")
+        self.cfg = cfg
+        self.landing_controller = landing_controller
+        self.phase = Phase.PREFLIGHT
+        self.frame: MissionFrame | None = None
+        self.path: DeliveryPath | None = None
+        self.field: VectorField | None = None
+        self.z_start = 0.0
+        self.summary = MissionSummary()
+        self._next_id = 1
+        self._pending: _Pending | None = None
+        self._retry: tuple[RequestKind, float, float] | None = None  # kind, alt, not-before time
+        self._phase_t0 = 0.0
+        self._stream_t0: float | None = None  # when we started streaming before offboard
+        self._offboard_requested = False
+        self._expect_mode_change = False
+        self._sector = 0
+        self._link_lost = False
+        self._link_lost_mode: FlightMode | None = None
+        self._abort_reason = ""
+        self._release_t0: float | None = None
+        self._events: list[MissionEvent] = []
+        self._now = 0.0
+        self._low_since: float | None = None
+        self._precland_requested = False
+
+    # ------------------------------------------------------------------ public API
+    def abort(self, time_s: float, reason: str) -> None:
+        """Hold position, then land (an abort is never a mid-air disarm)."""
+        if self.phase is Phase.ABORT_HOLD and self._hold_forever:
+            self._hold_forever = False  # an abort during a commanded hold: land after abort_hold_s
+            self._phase_t0 = time_s
+            self._emit(EventKind.ABORT, reason)
+            return
+        if self.phase.terminal or self.phase in (Phase.ABORT_HOLD, Phase.ABORT_LAND):
+            return
+        self._now = time_s
+        self._abort_reason = reason
+        self._emit(EventKind.ABORT, reason)
+        if self._on_ground_phase():
+            self.summary.failure = f"aborted on the ground: {reason}"
+            self._goto(Phase.FAILED)
+        else:
+            self._goto(Phase.ABORT_HOLD)
+
+    @property
+    def returning(self) -> bool:
+        """Flying (or landing) back home: guidance targets the GPS-surveyed home."""
+        return self.phase in (Phase.TAKEOFF_RETURN, Phase.INBOUND, Phase.LANDING_HOME)
+
+    def command(self, time_s: float, kind: str, sender: str = "ground") -> str:
+        """A ground command (hold, return, land, abort). The mission decides; the safety contract
+        (clamps, pilot priority) is untouched because every setpoint still goes through the shell.
+        Returns what was done, for the reply and the log."""
+        self._now = time_s
+        if self.phase.terminal:
+            return f"ignored: mission already {self.phase.value}"
+        if kind == "abort":
+            self.abort(time_s, f"ground command from {sender}: abort")
+            return "aborting: hold, then land"
+        if kind == "land":
+            self._emit(EventKind.ABORT, f"ground command from {sender}: land here")
+            if self._on_ground_phase():
+                self.summary.failure = f"ground command from {sender}: land (on the ground)"
+                self._goto(Phase.FAILED)
+                return "on the ground: mission ended"
+            self._abort_reason = f"ground command from {sender}: land"
+            self._goto(Phase.ABORT_LAND)
+            self._land_requested = False
+            return "landing where the vehicle is"
+        if kind == "hold":
+            if self._on_ground_phase():
+                return "ignored: on the ground"
+            self._abort_reason = f"ground command from {sender}: hold"
+            self._emit(EventKind.ABORT, self._abort_reason)
+            self._hold_forever = True
+            self._goto(Phase.ABORT_HOLD)
+            return "holding position until the pilot takes over or a land/abort command"
+        if kind == "return":
+            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+                self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
+                self.summary.failure = "returned on ground command"
+                self._goto(Phase.INBOUND)
+                return "returning home along the path"
+            return f"ignored: cannot return from {self.phase.value}"
+        return f"ignored: unknown command {kind!r}"
+
+    def on_result(self, result: RequestResult) -> None:
+        p = self._pending
+        if p is None or p.request.id != result.id:
+            log.warning("result for unknown request %s ignored", result)
+            return
+        self._pending = None
+        if result.ok:
+            self._on_request_ok(p.request)
+            return
+        self._emit(EventKind.REQUEST_FAILED, f"{p.request.kind.value} (try {p.tries}): {result.error}")
+        if p.tries < MAX_REQUEST_TRIES:
+            self._retry = (p.request.kind, p.request.alt_rel_m, self._now + 1.0)
+            self._retry_tries = p.tries + 1
+        else:
+            reason = f"{p.request.kind.value} failed {p.tries} times: {result.error}"
+            if p.request.kind in (RequestKind.HOLD, RequestKind.LAND) and self.phase in (
+                Phase.ABORT_HOLD,
+                Phase.ABORT_LAND,
+            ):
+                self.summary.failure = reason
+                self._goto(Phase.FAILED)
+            else:
+                self.abort(self._now, reason)
+
+    def step(self, inp: MissionInputs) -> MissionOutput:
+        if not self._started:
+            self._started = True
+            self._phase_t0 = inp.time_s  # timeouts count from the first tick, on the caller's clock
+        self._now = inp.time_s
+        setpoint: VelocitySetpoint | None = None
+        request: Request | None = None
+        lyap = math.nan
+
+        if not self._check_link(inp):
+            return self._out(None, None, lyap)
+
+        if self.phase in FOLLOW_PHASES or self.phase in (Phase.TAKEOFF, Phase.TAKEOFF_RETURN):
+            self._check_estimate(inp)
+        if self.phase in FOLLOW_PHASES:
+            self._check_pilot(inp)
+
+        handler = getattr(self, f"_do_{self.phase.value}", None)
+        if handler is not None:
+            setpoint, request, lyap = handler(inp)
+        if request is None and self._retry is not None and self._pending is None:
+            kind, alt, not_before = self._retry
+            if inp.time_s >= not_before:
+                self._retry = None
+                request = self._make_request(kind, alt, tries=getattr(self, "_retry_tries", 2))
+        return self._out(setpoint, request, lyap)
+
+    # ------------------------------------------------------------------ phases
+    def _do_preflight(self, inp: MissionInputs) -> tuple:
+        st, home, est = inp.status, inp.home, inp.estimate
+        if self.frame is None and home is not None and est is not None:
+            try:
+                self.frame, self.path, self.z_start = plan_delivery(
+                    self.cfg,
+                    GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m),
+                    np.array(est.position_ned),
+                )
+            except (PathGeometryError, ValueError) as err:
+                self.summary.failure = f"path planning failed: {err}"
+                self._emit(EventKind.WARNING, self.summary.failure)
+                self._goto(Phase.FAILED)
+                return None, None, math.nan
+            self.field = VectorField(self.path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
+            self._emit(
+                EventKind.PHASE,
+                f"path planned: d = {self.path.d:.2f} m, h = {self.path.h} m, r = {self.path.r} m, "
+                f"heading {math.degrees(self.frame.heading_rad):.1f} deg",
+            )
+        ready = st is not None and st.healthy and self.frame is not None
+        if ready and st is not None and st.armed is False and self._pending is None:
+            self._goto(Phase.ARMING)
+            return None, self._make_request(RequestKind.ARM), math.nan
+        if inp.time_s - self._phase_t0 > self.cfg.ready_timeout_s:
+            why = "no status" if st is None else ("not healthy" if not st.healthy else "no home/estimate")
+            self.summary.failure = f"vehicle not ready after {self.cfg.ready_timeout_s} s: {why}"
+            self._goto(Phase.FAILED)
+        return None, None, math.nan
+
+    def _do_arming(self, inp: MissionInputs) -> tuple:
+        return None, None, math.nan  # waits for the ARM result (see _on_request_ok)
+
+    def _do_takeoff(self, inp: MissionInputs) -> tuple:
+        return self._takeoff_common(inp, Phase.OUTBOUND, s=1)
+
+    def _do_takeoff_return(self, inp: MissionInputs) -> tuple:
+        return self._takeoff_common(inp, Phase.INBOUND, s=-1)
+
+    def _takeoff_common(self, inp: MissionInputs, nxt: Phase, s: int) -> tuple:
+        est = inp.estimate
+        if est is None or self.field is None or self.frame is None:
+            return None, None, math.nan
+        if inp.time_s - self._phase_t0 > self.cfg.takeoff_timeout_s:
+            self.abort(inp.time_s, f"takeoff did not reach {self.cfg.takeoff_alt_m} m in time")
+            return None, None, math.nan
+        if not self._takeoff_requested:
+            if self._pending is None:
+                self._takeoff_requested = True
+                self._expect_mode_change = True
+                return None, self._make_request(RequestKind.TAKEOFF), math.nan
+            return None, None, math.nan
+        if self._height_above_ground(est) < 0.9 * self.cfg.takeoff_alt_m:
+            return None, None, math.nan
+        sp, lyap = self._field_setpoint(est, s)
+        req = self._enter_offboard(inp)
+        if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
+            self._goto(nxt)
+        return sp, req, lyap
+
+    def _enter_offboard(self, inp: MissionInputs) -> Request | None:
+        """Stream field setpoints for a while, then ask for OFFBOARD (PX4 refuses otherwise).
+
+        The caller returns the setpoint alongside; this only times the switch request.
+        """
+        if self._stream_t0 is None:
+            self._stream_t0 = inp.time_s
+        if (
+            not self._offboard_requested
+            and self._pending is None
+            and inp.time_s - self._stream_t0 >= OFFBOARD_STREAM_BEFORE_SWITCH_S
+        ):
+            self._offboard_requested = True
+            self._expect_mode_change = True
+            return self._make_request(RequestKind.START_OFFBOARD)
+        return None
+
+    @staticmethod
+    def _in_offboard(inp: MissionInputs) -> bool:
+        return inp.status is not None and inp.status.mode is FlightMode.OFFBOARD
+
+    def _do_outbound(self, inp: MissionInputs) -> tuple:
+        return self._follow(inp, s=1, landing=Phase.LANDING_PAD)
+
+    def _do_inbound(self, inp: MissionInputs) -> tuple:
+        return self._follow(inp, s=-1, landing=Phase.LANDING_HOME)
+
+    def _follow(self, inp: MissionInputs, s: int, landing: Phase) -> tuple:
+        est = inp.estimate
+        if est is None:
+            return None, None, math.nan
+        sp, lyap = self._field_setpoint(est, s)
+        if self._reenter:
+            # back from a link loss during which the autopilot's failsafe switched to HOLD
+            req = self._enter_offboard(inp)
+            if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
+                self._reenter = False
+                self._expect_mode_change = False
+                self._offboard_requested = False
+                self._stream_t0 = None
+            return sp, req, lyap
+        target_sector = 5 if s == 1 else 1
+        if self._sector == target_sector and self._height_above_ground(est) < self.cfg.final_descent_alt_m:
+            self._goto(landing)
+        return sp, None, lyap
+
+    def _do_landing_pad(self, inp: MissionInputs) -> tuple:
+        return self._landing(inp, s=1)
+
+    def _do_landing_home(self, inp: MissionInputs) -> tuple:
+        return self._landing(inp, s=-1)
+
+    def _landing(self, inp: MissionInputs, s: int) -> tuple:
+        est, st = inp.estimate, inp.status
+        if st is not None and st.landed is LandedState.ON_GROUND:
+            if not self._touched_down:
+                self._touched_down = True
+                if est is not None:
+                    if s == 1:
+                        self.summary.pad_touchdown_ned = est.position_ned
+                    else:
+                        self.summary.home_touchdown_ned = est.position_ned
+                self._emit(EventKind.TOUCHDOWN, "pad" if s == 1 else "home")
+            if not st.armed:
+                self._after_touchdown(s)
+                return None, None, math.nan
+            if self._pending is None:
+                return None, self._make_request(RequestKind.DISARM), math.nan
+            return None, None, math.nan
+        if est is None:
+            return None, None, math.nan
+        if inp.time_s - self._phase_t0 > self.cfg.touchdown_timeout_s and self._pending is None:
+            self._expect_mode_change = True
+            self._emit(EventKind.WARNING, "no touchdown in time: handing the last metres to the autopilot's LAND")
+            return None, self._make_request(RequestKind.LAND), math.nan
+        if s == 1 and self.landing_controller == "autopilot":
+            # the autopilot's precision landing flies the descent; we only wait for the touchdown
+            if not self._precland_requested and self._pending is None:
+                self._precland_requested = True
+                self._expect_mode_change = True
+                return None, self._make_request(RequestKind.PRECISION_LAND), math.nan
+            return None, None, math.nan
+        if self._expect_mode_change:
+            return None, None, math.nan
+        return self._precision_descent(est, s), None, math.nan
+
+    def _precision_descent(self, est: StateEstimate, s: int) -> VelocitySetpoint:
+        """Final descent onto the target (the pad for s = +1, home for s = -1), in F_I.
+
+        The vector field's convergence term scales with v_r, so at land speed it corrects only a
+        few cm/s; here the horizontal error is closed proportionally (landing_xy_gain_1_s: firm,
+        3 1/s by default, so the part of a gust the autopilot's velocity loop lets through is
+        taken back within a fraction of a second; measured on the windiest campaign draws, 0.8 1/s
+        left 30 cm at touchdown, 3 1/s 15 cm, and an added integral term made it worse). The
+        descent slows while the vehicle is off-centre and holds height at twice the tolerance
+        (like PX4's precision landing) down to landing_hold_min_height_m.
+        """
+        assert self.frame is not None and self.path is not None
+        c = self.cfg
+        p_i = self.frame.point_from_ned(est.position_ned)
+        ex = float(p_i[0]) if s == 1 else float(p_i[0]) + self.path.d
+        ey = float(p_i[1])
+        e = math.hypot(ex, ey)
+        vx, vy = -c.landing_xy_gain_1_s * ex, -c.landing_xy_gain_1_s * ey
+        vh = math.hypot(vx, vy)
+        if vh > c.landing_max_xy_speed_m_s:
+            vx, vy = vx * c.landing_max_xy_speed_m_s / vh, vy * c.landing_max_xy_speed_m_s / vh
+        tol = c.landing_xy_tolerance_m
+        gated = self._height_above_ground(est) > c.landing_hold_min_height_m
+        slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
+        vz = -c.land_speed_m_s * slow
+        v_ned = self.frame.vector_to_ned((vx, vy, vz))
+        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0))
+
+    def _after_touchdown(self, s: int) -> None:
+        if s == 1:
+            self._goto(Phase.RELEASE)
+        else:
+            self.summary.returned = True
+            self.summary.end_time_s = self._now
+            self._emit(EventKind.RETURNED, "landed at home")
+            self._goto(Phase.DONE)
+
+    def _do_release(self, inp: MissionInputs) -> tuple:
+        st = inp.status
+        if self._release_t0 is None:
+            if self._pending is None:
+                return None, self._make_request(RequestKind.RELEASE), math.nan
+            return None, None, math.nan
+        if inp.time_s - self._release_t0 < self.cfg.release_time_s:
+            return None, None, math.nan
+        if st is not None and not st.payload_released:
+            self.abort(inp.time_s, "payload actuator reports the parcel still attached")
+            return None, None, math.nan
+        if not self.summary.delivered:
+            self.summary.delivered = True
+            self._emit(EventKind.DELIVERED, "parcel released on the pad")
+        if not self.cfg.return_home:
+            self.summary.end_time_s = inp.time_s
+            self._goto(Phase.DONE)
+            return None, None, math.nan
+        self._goto(Phase.ARMING)
+        return None, self._make_request(RequestKind.ARM), math.nan
+
+    def _do_abort_hold(self, inp: MissionInputs) -> tuple:
+        if not self._abort_hold_requested:
+            if self._pending is None:
+                self._abort_hold_requested = True
+                self._expect_mode_change = True
+                return None, self._make_request(RequestKind.HOLD), math.nan
+            return None, None, math.nan
+        if not self._hold_forever and inp.time_s - self._phase_t0 >= self.cfg.abort_hold_s and self._pending is None:
+            self._goto(Phase.ABORT_LAND)
+            self._land_requested = True
+            return None, self._make_request(RequestKind.LAND), math.nan
+        return None, None, math.nan
+
+    def _do_abort_land(self, inp: MissionInputs) -> tuple:
+        if not self._land_requested and self._pending is None:
+            self._land_requested = True
+            self._expect_mode_change = True
+            return None, self._make_request(RequestKind.LAND), math.nan
+        st = inp.status
+        if st is not None and st.landed is LandedState.ON_GROUND and not st.armed:
+            self.summary.failure = f"aborted: {self._abort_reason}"
+            self.summary.end_time_s = inp.time_s
+            self._goto(Phase.FAILED)
+        return None, None, math.nan
+
+    # ------------------------------------------------------------------ helpers
+    _abort_hold_requested = False
+    _takeoff_requested = False
+    _touched_down = False
+    _started = False
+    _hold_forever = False
+    _land_requested = False
+    _reenter = False
+    _link_restored_at = -math.inf
+    _retry_tries = 2
+
+    def _on_request_ok(self, req: Request) -> None:
+        k = req.kind
+        if k is RequestKind.ARM:
+            self._emit(EventKind.ARMED, "")
+            if self.summary.takeoff_time_s is None:
+                self.summary.takeoff_time_s = self._now
+            self._goto(Phase.TAKEOFF if not self.summary.delivered else Phase.TAKEOFF_RETURN)
+        elif k is RequestKind.RELEASE:
+            self._release_t0 = self._now
+            self._emit(EventKind.RELEASED, "release commanded")
+        elif k is RequestKind.START_OFFBOARD:
+            pass  # the phase changes once the status shows OFFBOARD
+        elif k is RequestKind.DISARM:
+            pass  # the landing phase sees disarmed and moves on
+
+    def _make_request(self, kind: RequestKind, alt: float = 0.0, tries: int = 1) -> Request:
+        if kind is RequestKind.TAKEOFF:
+            alt = self.cfg.takeoff_alt_m
+        req = Request(self._next_id, kind, alt)
+        self._next_id += 1
+        self._pending = _Pending(req, tries)
+        return req
+
+    def _goto(self, phase: Phase) -> None:
+        if phase is self.phase:
+            return
+        log.info("mission phase %s -> %s", self.phase.value, phase.value)
+        self.phase = phase
+        self._phase_t0 = self._now
+        self._stream_t0 = None
+        self._offboard_requested = False
+        self._abort_hold_requested = False
+        self._takeoff_requested = False
+        self._touched_down = False
+        self._reenter = False
+        self._release_t0 = None if phase is not Phase.RELEASE else self._release_t0
+        self._precland_requested = False
+        if phase in (Phase.OUTBOUND, Phase.INBOUND):
+            self._expect_mode_change = False
+        self._emit(EventKind.PHASE, phase.value)
+
+    def _emit(self, kind: EventKind, detail: str) -> None:
+        ev = MissionEvent(self._now, kind, self.phase, detail)
+        self._events.append(ev)
+        self.summary.events.append(ev)
+
+    def _out(self, sp: VelocitySetpoint | None, req: Request | None, lyap: float) -> MissionOutput:
+        # events raised between ticks (abort, request results) go out with this tick's output
+        events, self._events = tuple(self._events), []
+        return MissionOutput(self.phase, sp, req, events, self._sector, lyap)
+
+    def _on_ground_phase(self) -> bool:
+        return self.phase in (Phase.PREFLIGHT, Phase.ARMING, Phase.RELEASE)
+
+    def _height_above_ground(self, est: StateEstimate) -> float:
+        """Height above the ground under the vehicle: the pad's level near the pad (s = +1
+        landing), home's level elsewhere; both from the configured geometry."""
+        assert self.frame is not None
+        z_i = float(self.frame.point_from_ned(est.position_ned)[2])
+        if self.path is not None and self._sector_of(est) == 1:
+            return z_i - self.z_start
+        return z_i
+
+    def _sector_of(self, est: StateEstimate) -> int:
+        assert self.frame is not None and self.path is not None
+        return self.path.sector(self.frame.point_from_ned(est.position_ned))
+
+    def _field_setpoint(
+        self, est: StateEstimate, s: int, speed_scale: float = 1.0, force_descent: bool = False
+    ) -> tuple[VelocitySetpoint, float]:
+        assert self.frame is not None and self.field is not None
+        p_i = self.frame.point_from_ned(est.position_ned)
+        fs = self.field(p_i, s if not force_descent else (1 if self._sector_of(est) == 5 else -1), speed_scale)
+        if fs.sector != self._sector:
+            self._sector = fs.sector
+            self._emit(EventKind.SECTOR, f"S{fs.sector}")
+        v_ned = self.frame.vector_to_ned(fs.velocity)
+        yaw = self.frame.yaw_to_ned(0.0)  # psi_r = 0 in F_I (delivery 4.3)
+        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), yaw), fs.lyapunov
+
+    def _check_link(self, inp: MissionInputs) -> bool:
+        st = inp.status
+        if not inp.link_ok:
+            if not self._link_lost:
+                self._link_lost = True
+                self._link_lost_mode = st.mode if st is not None else None
+                self._emit(EventKind.LINK_LOST, "no heartbeat: stopped commanding, autopilot failsafe acts")
+            return False
+        if self._link_lost:
+            self._link_lost = False
+            self._link_restored_at = inp.time_s
+            self._emit(EventKind.LINK_RESTORED, "resuming from where the vehicle is")
+            # The autopilot's offboard-loss failsafe will have switched to HOLD: that is not
+            # the pilot, so re-enter offboard and let the (path-based) field resume.
+            if self.phase in FOLLOW_PHASES and st is not None and st.mode is FlightMode.HOLD:
+                self._reenter = True
+                self._expect_mode_change = True
+                self._offboard_requested = False
+                self._stream_t0 = None
+        return True
+
+    def _check_pilot(self, inp: MissionInputs) -> None:
+        st = inp.status
+        if st is None or self._expect_mode_change or self._pending is not None:
+            return
+        if st.mode is not FlightMode.OFFBOARD and st.armed:
+            self._emit(EventKind.PILOT_TAKEOVER, f"mode switched to {st.mode.value}: autonomy ended")
+            self.summary.failure = f"pilot took over ({st.mode.value})"
+            self.summary.end_time_s = inp.time_s
+            self._goto(Phase.PILOT)
+
+    def _check_estimate(self, inp: MissionInputs) -> None:
+        est = inp.estimate
+        if est is None:
+            return
+        if inp.time_s - self._link_restored_at < self.cfg.estimate_timeout_s:
+            return  # fresh telemetry is still arriving after a reconnect
+        age = inp.time_s - est.time_s
+        if age > self.cfg.estimate_timeout_s:
+            self.abort(inp.time_s, f"state estimate is {age:.2f} s old (limit {self.cfg.estimate_timeout_s} s)")

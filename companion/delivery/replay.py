@@ -1,0 +1,425 @@
+"""Replay a recorded flight through the same core code, and check it is bit for bit the same.
+
+The recorder (:mod:`companion.flightlog.recorder`) numbers every input of the core with one
+counter, ``seq``: autopilot samples, pad observations, UWB fixes, request results, operator and
+ground commands, and guidance ticks. Replay merges the input streams by ``seq`` and feeds them,
+in that order, to fresh core objects built from the recorded configuration:
+
+- samples go through a :class:`~companion.autopilot.interface.TelemetryCache` (the fusion listens
+  to it from the tick it was started at, as in flight);
+- pad observations and UWB fixes go to :class:`~companion.delivery.fusion.LandingFusion`;
+- request results, aborts and ground commands to :class:`~companion.delivery.mission.DeliveryMission`;
+- each tick repeats the shell's guidance step (:meth:`companion.delivery.shell.DeliveryShell._guidance_loop`):
+  autopilot pose estimate, fusion start once the mission has a frame, the fused estimate on the
+  way to the pad, ``mission.step``, the setpoint clamp.
+
+The replayed ``ekf.csv``, ``guidance.csv`` and ``events.csv`` are written (same columns) and
+compared cell by cell with the recorded ones: floats are written as shortest round-trip decimals,
+so equal text means equal doubles.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from companion.flightlog.csvlog import CsvLog, format_cell
+from companion.flightlog.reader import LogFormatError, Table, read_meta
+from companion.flightlog.recorder import (
+    EKF_COLUMNS,
+    EVENT_COLUMNS,
+    GUIDANCE_COLUMNS,
+    META_FILE,
+    SAMPLE_FILES,
+    STREAM_FILES,
+    PadObservation,
+    ekf_row,
+    guidance_row,
+    sample_fields,
+    transform_from_json,
+)
+
+log = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------------------------------------
+# the merged input stream
+
+
+@dataclass(frozen=True)
+class _Input:
+    seq: int
+    kind: str  # sample, marker, uwb, result, abort, command, tick
+    payload: Any
+    where: str  # file:line, for messages
+
+
+def _int(t: Table, k: int, c: str) -> int:
+    return int(t.value(k, c, int))
+
+
+def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
+    """Every recorded input of the core in ``seq`` order, and the tables read."""
+    from companion.delivery.mission import RequestResult
+    from companion.uwb.multilateration import UwbFix
+
+    tables: dict[str, Table] = {}
+    inputs: list[_Input] = []
+
+    def table(name: str) -> Table:
+        tables[name] = Table(run_dir / name, STREAM_FILES[name])
+        return tables[name]
+
+    for cls, name in SAMPLE_FILES.items():
+        t = table(name)
+        fields_ = sample_fields(cls)
+        for k in range(len(t)):
+            sample = cls(t.value(k, "time_s"), *(t.value(k, n, typ) for n, typ in fields_))
+            inputs.append(_Input(_int(t, k, "seq"), "sample", sample, f"{name}:{k + 2}"))
+    t = table("camera.csv")
+    from companion.geometry.se3 import Transform
+
+    for k in range(len(t)):
+        R = np.array([t.value(k, f"r{i}{j}") for i in range(3) for j in range(3)], dtype=float).reshape(3, 3)
+        tv = np.array([t.value(k, c) for c in ("t_x_m", "t_y_m", "t_z_m")], dtype=float)
+        obs = PadObservation(
+            t.value(k, "time_s"),
+            Transform(R, tv),
+            t.value(k, "ambiguous", bool),
+            tuple(t.text(k, "markers").split()),
+            t.value(k, "reprojection_error_px"),
+        )
+        inputs.append(_Input(_int(t, k, "seq"), "marker", obs, f"camera.csv:{k + 2}"))
+    t = table("uwb.csv")
+    for k in range(len(t)):
+        fix = UwbFix(
+            t.value(k, "time_s"),
+            t.value(k, "x_m"),
+            t.value(k, "y_m"),
+            t.value(k, "z_m"),
+            t.value(k, "pdop"),
+            t.value(k, "residual_rms_m"),
+            tuple(t.text(k, "anchors_used").split()),
+            t.text(k, "frame"),
+        )
+        inputs.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
+    t = table("requests.csv")
+    for k in range(len(t)):
+        res = RequestResult(_int(t, k, "id"), t.value(k, "ok", bool), t.text(k, "error"))
+        inputs.append(_Input(_int(t, k, "seq"), "result", res, f"requests.csv:{k + 2}"))
+    t = table("commands.csv")
+    for k in range(len(t)):
+        src = t.text(k, "source")
+        if src not in ("operator", "ground"):
+            raise LogFormatError(f"{t.path}: line {k + 2}, column 'source': {src!r} is not one of 'operator', 'ground'")
+        cmd = (t.value(k, "time_s"), t.text(k, "kind"), t.text(k, "detail"), t.text(k, "reply"))
+        inputs.append(
+            _Input(_int(t, k, "seq"), "abort" if src == "operator" else "command", cmd, f"commands.csv:{k + 2}")
+        )
+    t = table("guidance.csv")
+    for k in range(len(t)):
+        payload = (t.value(k, "time_s"), t.value(k, "link_ok", bool))
+        inputs.append(_Input(_int(t, k, "seq"), "tick", payload, f"guidance.csv:{k + 2}"))
+    for name in ("ekf.csv", "events.csv"):
+        table(name)
+    inputs.sort(key=lambda i: i.seq)
+    for a, b in itertools.pairwise(inputs):
+        if a.seq == b.seq:
+            raise LogFormatError(f"{run_dir}: seq {a.seq} appears twice ({a.where} and {b.where})")
+    return inputs, tables
+
+
+# ---------------------------------------------------------------------------------------------
+# the replaying shell
+
+
+@dataclass
+class _LogLink:
+    """Stands in for the autopilot while the shell's core objects are built for replay."""
+
+    telemetry: Any
+
+
+class _ReplayShell:
+    """The synchronous part of :class:`companion.delivery.shell.DeliveryShell`, fed from the log."""
+
+    def __init__(self, meta: dict[str, Any], run_dir: Path):
+        from companion.autopilot.interface import TelemetryCache
+        from companion.config import ConfigError, config_from_dict
+        from companion.delivery.shell import DeliveryShell
+
+        try:
+            self.config = config_from_dict(meta["config"], str(run_dir / META_FILE))
+        except ConfigError as err:
+            raise LogFormatError(
+                f"{err.source}: recorded configuration invalid (a log from another version of companion?): "
+                + "; ".join(err.problems)
+            ) from None
+        self.meta = meta
+        self.run_dir = run_dir
+        self.telemetry = TelemetryCache()
+        # the mission and the autopilot-pose estimator exactly as the shell builds them (its
+        # constructor starts nothing; the link is never used)
+        built = DeliveryShell(self.config, cast(Any, _LogLink(self.telemetry)))
+        self.mission = built.mission
+        self.estimator = built.estimator
+        self.fusion: Any = None
+        self.landing = bool(meta.get("landing"))
+        self.notes: list[str] = []
+
+    def _start_fusion(self, now: float) -> None:
+        from companion.delivery.fusion import FusionSetup, LandingFusion
+        from companion.estimation.ekf import EkfConfig
+        from companion.geometry.mounts import pad_pose_ned
+
+        rec = self.meta.get("fusion")
+        if not isinstance(rec, dict):
+            raise LogFormatError(
+                f"{self.run_dir / META_FILE}: the landing fusion started at t = {now} but its setup "
+                "(key 'fusion') was not recorded"
+            )
+        assert self.mission.frame is not None
+        pad = self.mission.frame.pad_ned
+        T_world_pad = pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2]))
+        try:
+            setup = FusionSetup(
+                T_world_pad=T_world_pad,
+                T_body_camera=transform_from_json(rec["T_body_camera"]),
+                T_pad_anchors=transform_from_json(rec["T_pad_anchors"]),
+                ekf=EkfConfig(**rec["ekf"]),
+                history_s=float(rec["history_s"]),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
+        recorded_pad = transform_from_json(rec["T_world_pad"])
+        if not (np.array_equal(recorded_pad.t, T_world_pad.t) and np.array_equal(recorded_pad.R, T_world_pad.R)):
+            self.notes.append(
+                f"the replayed mission put the pad at {T_world_pad.t.tolist()}, the flight at {recorded_pad.t.tolist()}"
+            )
+        if rec.get("started_at_s") != now:
+            self.notes.append(f"fusion started at t = {now} in replay, {rec.get('started_at_s')} in flight")
+        self.fusion = LandingFusion(setup, now)
+        self.telemetry.add_listener(self.fusion.on_sample)
+
+    def feed(self, inp: _Input) -> Any:
+        k = inp.kind
+        if k == "sample":
+            self.telemetry.push(inp.payload)
+        elif k in ("marker", "uwb"):
+            if self.fusion is None:
+                raise LogFormatError(f"{inp.where}: a {k} input before the landing fusion started (seq {inp.seq})")
+            (self.fusion.on_marker if k == "marker" else self.fusion.on_uwb)(inp.payload)
+        elif k == "result":
+            self.mission.on_result(inp.payload)
+        elif k == "abort":
+            now, _kind, reason, _reply = inp.payload
+            self.mission.abort(now, reason)
+        elif k == "command":
+            now, kind, sender, reply = inp.payload
+            got = self.mission.command(now, kind, sender)
+            if got != reply:
+                self.notes.append(
+                    f"{inp.where}: ground command {kind!r} replied {got!r} in replay, {reply!r} in flight"
+                )
+        elif k == "tick":
+            return self.tick(*inp.payload)
+        return None
+
+    def tick(self, now: float, link_ok: bool) -> tuple[Any, Any, Any, bool]:
+        # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
+        from companion.delivery.mission import MissionInputs
+        from companion.guidance.limits import clamp_velocity
+
+        mission, tc = self.mission, self.telemetry
+        estimate = self.estimator.update(tc.position_ned, tc.attitude)
+        if self.landing:
+            if self.fusion is None and mission.frame is not None:
+                self._start_fusion(now)
+            fused = self.fusion.estimate() if self.fusion is not None else None
+            if fused is not None and not mission.summary.delivered and not mission.returning:
+                estimate = fused
+        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok)
+        out = mission.step(inp)
+        setpoint, clamped = None, False
+        if out.setpoint is not None:
+            pos = estimate.position_ned if estimate else None
+            res = clamp_velocity(out.setpoint, self.config.limits, pos)
+            setpoint, clamped = res.setpoint, res.clamped
+        return inp, out, setpoint, clamped
+
+
+# ---------------------------------------------------------------------------------------------
+# comparison
+
+
+@dataclass
+class StreamComparison:
+    name: str
+    recorded_rows: int
+    replayed_rows: int
+    differing_rows: int = 0
+    max_abs_diff: dict[str, float] = field(default_factory=dict)  # per float column that differs
+    text_diffs: dict[str, int] = field(default_factory=dict)  # per non-float column: differing cells
+    first_difference: str = ""
+
+    @property
+    def identical(self) -> bool:
+        return self.recorded_rows == self.replayed_rows and self.differing_rows == 0
+
+
+def _cells(row: Sequence[object]) -> list[str]:
+    return [format_cell(v) for v in row]
+
+
+def _compare_row(
+    cmp: StreamComparison, header: Sequence[str], rec: Sequence[str], rep: Sequence[str], where: str
+) -> None:
+    differs = False
+    for col, a, b in zip(header, rec, rep, strict=True):
+        if a == b:
+            continue
+        differs = True
+        try:
+            fa, fb = float(a), float(b)
+            d = abs(fa - fb) if math.isfinite(fa) and math.isfinite(fb) else math.inf
+            cmp.max_abs_diff[col] = max(cmp.max_abs_diff.get(col, 0.0), d)
+        except ValueError:
+            cmp.text_diffs[col] = cmp.text_diffs.get(col, 0) + 1
+        if not cmp.first_difference:
+            cmp.first_difference = f"{where}, column {col!r}: recorded {a!r}, replayed {b!r}"
+    if differs:
+        cmp.differing_rows += 1
+
+
+@dataclass
+class ReplayResult:
+    run_dir: str
+    out_dir: str
+    inputs: int
+    ticks: int
+    missing_seq: int
+    streams: dict[str, StreamComparison]
+    notes: list[str]
+    wall_s: float
+    torn: list[str] = field(default_factory=list)
+
+    @property
+    def identical(self) -> bool:
+        return all(c.identical for c in self.streams.values()) and self.missing_seq == 0
+
+    def lines(self) -> list[str]:
+        out = [
+            f"replayed {self.inputs} inputs ({self.ticks} guidance ticks) from {self.run_dir} in {self.wall_s:.2f} s",
+        ]
+        if self.missing_seq:
+            out.append(f"  {self.missing_seq} input(s) missing from the log (seq gaps): the replay cannot be exact")
+        for t in self.torn:
+            out.append(f"  {t}: torn last line dropped")
+        for c in self.streams.values():
+            if c.identical:
+                out.append(f"  {c.name}: {c.recorded_rows} rows, identical bit for bit")
+                continue
+            out.append(
+                f"  {c.name}: DIFFERENT: {c.recorded_rows} rows recorded, {c.replayed_rows} replayed, "
+                f"{c.differing_rows} rows differ"
+            )
+            for col, d in sorted(c.max_abs_diff.items(), key=lambda kv: -kv[1])[:8]:
+                out.append(f"    max |recorded - replayed| {col}: {d:.3g}")
+            for col, n in c.text_diffs.items():
+                out.append(f"    {col}: {n} cells differ")
+            if c.first_difference:
+                out.append(f"    first: {c.first_difference}")
+        out.extend(f"  note: {n}" for n in self.notes)
+        out.append(f"  replayed logs: {self.out_dir}")
+        out.append("IDENTICAL: the replay reproduces the flight bit for bit" if self.identical else "NOT IDENTICAL")
+        return out
+
+
+def replay_run(
+    run_dir: str | Path, out_dir: str | Path | None = None, progress: Callable[[int, int], None] | None = None
+) -> ReplayResult:
+    """Replay ``run_dir``; write the replayed ekf.csv, guidance.csv and events.csv into
+    ``out_dir`` (default ``run_dir/replay``) and compare them with the recorded ones."""
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise LogFormatError(f"{run}: not a folder")
+    out = Path(out_dir) if out_dir is not None else run / "replay"
+    if out.resolve() == run.resolve():
+        raise LogFormatError(f"{out}: the replay must not overwrite the recorded logs; choose another --out")
+    t0 = time.perf_counter()
+    meta = read_meta(run)
+    inputs, tables = read_inputs(run)
+    shell = _ReplayShell(meta, run)
+    if meta.get("errors"):
+        shell.notes.append(f"the recorder reported {meta['errors']} logging failure(s): the log is incomplete")
+    if not meta.get("closed"):
+        shell.notes.append("run.json says the recorder was never closed (the process died): the log may end early")
+    seqs = [i.seq for i in inputs]
+    missing = (seqs[-1] + 1 - len(seqs)) if seqs else 0
+    rec_ekf = {int(tables["ekf.csv"].text(k, "seq")): tables["ekf.csv"].rows[k] for k in range(len(tables["ekf.csv"]))}
+    rec_guid = tables["guidance.csv"]
+    rec_events = tables["events.csv"]
+    cmp_ekf = StreamComparison("ekf.csv", len(tables["ekf.csv"]), 0)
+    cmp_guid = StreamComparison("guidance.csv", len(rec_guid), 0)
+    cmp_ev = StreamComparison("events.csv", len(rec_events), 0)
+    ticks = 0
+    logs = {
+        "ekf.csv": CsvLog(out / "ekf.csv", EKF_COLUMNS),
+        "guidance.csv": CsvLog(out / "guidance.csv", GUIDANCE_COLUMNS),
+        "events.csv": CsvLog(out / "events.csv", EVENT_COLUMNS),
+    }
+    try:
+        for n, item in enumerate(inputs):
+            res = shell.feed(item)
+            if progress is not None and n % 2000 == 0:
+                progress(n, len(inputs))
+            if res is None:
+                continue
+            inp, mout, setpoint, clamped = res
+            g = guidance_row(item.seq, inp, mout, setpoint, clamped)
+            logs["guidance.csv"].write(g)
+            _compare_row(cmp_guid, GUIDANCE_COLUMNS, rec_guid.rows[ticks], _cells(g), f"guidance.csv line {ticks + 2}")
+            ticks += 1
+            cmp_guid.replayed_rows += 1
+            for ev in mout.events:
+                row = (ev.time_s, ev.kind.value, ev.phase.value, ev.detail)
+                logs["events.csv"].write(row)
+                k = cmp_ev.replayed_rows
+                cmp_ev.replayed_rows += 1
+                if k < len(rec_events):
+                    _compare_row(cmp_ev, EVENT_COLUMNS, rec_events.rows[k], _cells(row), f"events.csv line {k + 2}")
+            if shell.fusion is not None:
+                e = ekf_row(item.seq, inp.time_s, shell.fusion)
+                if e is not None:
+                    logs["ekf.csv"].write(e)
+                    cmp_ekf.replayed_rows += 1
+                    recorded = rec_ekf.get(item.seq)
+                    if recorded is None:
+                        cmp_ekf.differing_rows += 1
+                        cmp_ekf.first_difference = cmp_ekf.first_difference or f"seq {item.seq}: no recorded row"
+                    else:
+                        _compare_row(cmp_ekf, EKF_COLUMNS, recorded, _cells(e), f"ekf.csv seq {item.seq}")
+    finally:
+        for lg in logs.values():
+            lg.close()
+    if progress is not None:
+        progress(len(inputs), len(inputs))
+    return ReplayResult(
+        run_dir=str(run),
+        out_dir=str(out),
+        inputs=len(inputs),
+        ticks=ticks,
+        missing_seq=missing,
+        streams={c.name: c for c in (cmp_ekf, cmp_guid, cmp_ev)},
+        notes=shell.notes,
+        wall_s=time.perf_counter() - t0,
+        torn=[name for name, t in tables.items() if t.torn],
+    )

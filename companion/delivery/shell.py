@@ -1,0 +1,399 @@
+"""The asyncio shell: schedules the synchronous core against an :class:`Autopilot`.
+
+Tasks: the guidance/mission loop (>= 20 Hz) and the setpoint stream (>= 20 Hz), both on
+absolute deadlines of the running loop's clock (real, or virtual under the simulator). Autopilot
+requests run as their own tasks so a slow acknowledgement never stalls guidance. The setpoint
+stream is a watchdog too: if the guidance task stops refreshing the setpoint, streaming stops,
+so the autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent
+forever, cf. MAVSDK-Python issue 374).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
+from companion.config import CompanionConfig
+from companion.delivery.mission import (
+    DeliveryMission,
+    MissionInputs,
+    MissionOutput,
+    MissionSummary,
+    Request,
+    RequestKind,
+    RequestResult,
+)
+from companion.delivery.passthrough import AutopilotPoseEstimator
+from companion.estimation.types import StateEstimate
+from companion.events import MissionEvent, Phase
+from companion.flightlog.csvlog import CsvLog
+from companion.guidance.limits import clamp_velocity
+from companion.guidance.setpoint import VelocitySetpoint
+from companion.scheduling import LoopClock, RateLoop
+
+log = logging.getLogger(__name__)
+
+FLIGHT_LOG_COLUMNS = (
+    "time_s",
+    "phase",
+    "sector",
+    "lyapunov_m2",
+    "est_north_m",
+    "est_east_m",
+    "est_down_m",
+    "est_north_m_s",
+    "est_east_m_s",
+    "est_down_m_s",
+    "est_yaw_rad",
+    "sp_north_m_s",
+    "sp_east_m_s",
+    "sp_down_m_s",
+    "sp_yaw_rad",
+    "clamped",
+    "mission_x_m",
+    "mission_y_m",
+    "mission_z_m",
+    "mode",
+    "armed",
+)
+
+
+@dataclass
+class LandingKit:
+    """What precision landing needs: sensor plugins (api_version 1), the detector and solver, and
+    the mounts. The simulator passes simulated plugins; on a vehicle they come from config."""
+
+    camera: Any | None  # plugin: read() -> plugin_api.Frame | None
+    uwb: Any | None  # plugin: read() -> list of TwrMeasurement (or readings with to_twr_measurement())
+    detector: Any | None  # companion.vision.PadDetector
+    multilaterator: Any | None  # companion.uwb.Multilaterator
+    T_body_camera: Any  # geometry.Transform
+    T_pad_anchors: Any  # geometry.Transform: the UWB anchor frame in the pad frame
+    ekf_config: Any = None  # estimation.EkfConfig (None: defaults)
+    vision_in_thread: bool = True  # off the event loop in flight; inline under virtual time (deterministic)
+    poll_rate_hz: float = 60.0
+    sensors_started: bool = False  # started before take-off (a real vehicle); else at fusion start
+
+
+@dataclass
+class ShellStats:
+    guidance_overruns: int = 0
+    setpoint_overruns: int = 0
+    setpoints_sent: int = 0
+    setpoints_clamped: int = 0
+    stream_stops: int = 0
+    requests: int = 0
+    requests_failed: int = 0
+
+
+class DeliveryShell:
+    def __init__(
+        self,
+        config: CompanionConfig,
+        autopilot: Autopilot,
+        flight_log: CsvLog | None = None,
+        on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+        telemetry: bool = False,
+        landing: LandingKit | None = None,
+        recorder: Any | None = None,
+    ):
+        self.config = config
+        self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
+        self.autopilot = autopilot
+        self.mission = DeliveryMission(config.mission, config.landing.controller)
+        self.estimator = AutopilotPoseEstimator()
+        self.flight_log = flight_log
+        self.on_tick = on_tick
+        self.stats = ShellStats()
+        self.estimate: StateEstimate | None = None
+        self.events: list[MissionEvent] = []
+        self._clock = LoopClock()
+        self._setpoint: tuple[float, VelocitySetpoint] | None = None
+        self._request_task: asyncio.Task[None] | None = None
+        self._streaming = False
+        self._abort_reason: str | None = None
+        self._want_telemetry = telemetry
+        self.landing = landing
+        self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
+        self._sensor_task: asyncio.Task[None] | None = None
+        self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
+        self.ground_commands: list[tuple[str, str]] = []
+        self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
+        self.landing_targets_sent = 0
+
+    def on_ground_command(self, cmd: Any) -> str:
+        """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
+        now = self._clock.now()
+        reply = self.mission.command(now, cmd.kind.value, cmd.sender)
+        if self.recorder is not None:
+            self.recorder.on_command(now, cmd.kind.value, cmd.sender, reply)
+        self.ground_commands.append((cmd.kind.value, reply))
+        log.warning("ground command %s from %s: %s", cmd.kind.value, cmd.sender, reply)
+        return reply
+
+    def abort(self, reason: str) -> None:
+        """Ask the mission to abort (hold, then land) at its next tick."""
+        self._abort_reason = reason
+
+    async def run(self, timeout_s: float | None = None) -> MissionSummary:
+        loop = asyncio.get_running_loop()
+        if self.recorder is not None:
+            # first listener: every sample gets a seq
+            self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)
+        if self._want_telemetry:
+            from companion.delivery.telemetry import ShellTelemetry, command_handler, make_publisher
+
+            pub = make_publisher(self.config, command_handler(loop, self))
+            pub.start()
+            self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
+        await self.autopilot.connect()
+        stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
+        try:
+            if timeout_s is None:
+                await self._guidance_loop()
+            else:
+                try:
+                    await asyncio.wait_for(self._guidance_loop(), timeout_s)
+                except TimeoutError:
+                    self.mission.summary.failure = f"mission did not finish within {timeout_s} s"
+                    log.error(self.mission.summary.failure)
+        finally:
+            stream.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await stream
+            if self._sensor_task is not None:
+                self._sensor_task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._sensor_task
+            if self.landing is not None:
+                for dev in (self.landing.camera, self.landing.uwb):
+                    if dev is not None:
+                        dev.stop()
+            if self._request_task is not None:
+                self._request_task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._request_task
+            if self.telemetry is not None:
+                self.telemetry.close()
+                await self.telemetry.publisher.astop()
+            if self.recorder is not None:
+                self.recorder.detach()  # its owner closes it
+        return self.mission.summary
+
+    # ------------------------------------------------------------------ tasks
+    async def _guidance_loop(self) -> None:
+        rate = RateLoop(self._clock, self.config.runtime.guidance_rate_hz)
+        tc = self.autopilot.telemetry
+        mission = self.mission
+        while not mission.phase.terminal:
+            now = await rate.tick()
+            self.stats.guidance_overruns = rate.overruns
+            if self._abort_reason is not None:
+                if self.recorder is not None:
+                    self.recorder.on_abort(now, self._abort_reason)
+                mission.abort(now, self._abort_reason)
+                self._abort_reason = None
+            self.estimate = self.estimator.update(tc.position_ned, tc.attitude)
+            if self.landing is not None:
+                if self.fusion is None and mission.frame is not None:
+                    self._start_fusion(now)
+                # The fused frame puts the configured pad where the camera/UWB see it; home is a
+                # GPS point, so the way back (after the delivery) flies on the GPS-frame estimate.
+                fused = self.fusion.estimate() if self.fusion is not None else None
+                if fused is not None and not mission.summary.delivered and not mission.returning:
+                    self.estimate = fused
+            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok)
+            out = mission.step(inp)
+            for ev in out.events:
+                self.events.append(ev)
+                level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
+                log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
+            clamped = False
+            if out.setpoint is not None:
+                pos = self.estimate.position_ned if self.estimate else None
+                res = clamp_velocity(out.setpoint, self.config.limits, pos)
+                clamped = res.clamped
+                if res.clamped:
+                    self.stats.setpoints_clamped += 1
+                self._setpoint = (now, res.setpoint)
+            else:
+                self._setpoint = None
+            if out.request is not None:
+                self._request_task = asyncio.get_running_loop().create_task(self._execute(out.request))
+            self._record(now, out, clamped)
+            if self.recorder is not None:
+                sp = self._setpoint[1] if self._setpoint is not None else None
+                self.recorder.on_tick(inp, out, sp, clamped, mission, self.fusion)
+            if self.telemetry is not None:
+                self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
+            if self.on_tick is not None:
+                self.on_tick(self, out)
+
+    def _start_fusion(self, now: float) -> None:
+        from companion.delivery.fusion import FusionSetup, LandingFusion
+        from companion.estimation.ekf import EkfConfig
+        from companion.geometry.mounts import pad_pose_ned
+
+        kit = self.landing
+        assert kit is not None and self.mission.frame is not None
+        pad = self.mission.frame.pad_ned
+        setup = FusionSetup(
+            T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2])),
+            T_body_camera=kit.T_body_camera,
+            T_pad_anchors=kit.T_pad_anchors,
+            ekf=kit.ekf_config or EkfConfig(),
+        )
+        self.fusion = LandingFusion(setup, now)
+        if self.config.landing.landing_target_output != "off":
+            from companion.vision.pad import PadLayout
+
+            self._landing_target = LandingTargetBuilder(
+                self.config.landing.landing_target_output,
+                kit.T_body_camera,
+                setup.T_world_pad,
+                getattr(kit.detector, "layout", PadLayout()).outer_size_m,
+            )
+        self.autopilot.telemetry.add_listener(self.fusion.on_sample)
+        for dev in (kit.camera, kit.uwb):
+            if dev is not None and not kit.sensors_started:
+                dev.start()
+        self._sensor_task = asyncio.get_running_loop().create_task(self._sensor_loop(), name="landing-sensors")
+        log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
+
+    def _vision_wanted(self) -> bool:
+        m = self.mission
+        return m.phase is Phase.LANDING_PAD or (m.phase is Phase.OUTBOUND and m._sector >= 5)
+
+    async def _sensor_loop(self) -> None:
+        from companion.uwb.multilateration import UwbFix
+
+        kit = self.landing
+        assert kit is not None and self.fusion is not None
+        rate = RateLoop(self._clock, kit.poll_rate_hz)
+        loop = asyncio.get_running_loop()
+        while True:
+            await rate.tick()
+            if kit.camera is not None and kit.detector is not None and self._vision_wanted():
+                frame = kit.camera.read()
+                if frame is not None:
+                    if kit.vision_in_thread:
+                        obs = await loop.run_in_executor(None, kit.detector.detect, frame.image, frame.time_s)
+                    else:
+                        obs = kit.detector.detect(frame.image, frame.time_s)
+                    if obs is not None:
+                        if self.recorder is not None:
+                            self.recorder.on_marker(self._clock.now(), obs)
+                        self.fusion.on_marker(obs)
+                        if self._landing_target is not None:
+                            self._send_landing_target(obs)
+            if kit.uwb is not None and kit.multilaterator is not None:
+                for m in kit.uwb.read():
+                    meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
+                    res = kit.multilaterator.solve_twr(meas)
+                    if isinstance(res, UwbFix):
+                        if self.recorder is not None:
+                            self.recorder.on_uwb(self._clock.now(), res)
+                        self.fusion.on_uwb(res)
+
+    def _send_landing_target(self, obs: Any) -> None:
+        """LANDING_TARGET for the autopilot's own precision landing (ambiguous poses never sent)."""
+        if getattr(obs, "ambiguous", False) or self.fusion is None or not self.fusion.pad_locked:
+            return
+        try:
+            target = self._landing_target.build(obs.time_s, obs.T_camera_pad, self.fusion.estimate())
+            self.autopilot.send_landing_target(target)
+        except (LandingTargetError, AutopilotError) as err:
+            log.warning("LANDING_TARGET not sent: %s", err)
+            return
+        self.landing_targets_sent += 1
+
+    async def _setpoint_stream(self) -> None:
+        rt = self.config.runtime
+        rate = RateLoop(self._clock, rt.setpoint_rate_hz)
+        while True:
+            now = await rate.tick()
+            self.stats.setpoint_overruns = rate.overruns
+            sp = self._setpoint
+            if sp is not None and now - sp[0] <= rt.setpoint_stale_s:
+                self.autopilot.set_velocity_ned(sp[1])
+                self.stats.setpoints_sent += 1
+                if self.recorder is not None:
+                    self.recorder.on_setpoint(now, sp[1])
+                self._streaming = True
+            elif self._streaming:
+                self._streaming = False
+                if sp is not None:  # stale, not merely finished
+                    self.stats.stream_stops += 1
+                    log.error(
+                        "setpoint is %.2f s old: control task stalled, setpoint stream stopped "
+                        "so the autopilot's failsafe acts",
+                        now - sp[0],
+                    )
+
+    async def _execute(self, req: Request) -> None:
+        ap = self.autopilot
+        self.stats.requests += 1
+        calls = {
+            RequestKind.ARM: ap.arm,
+            RequestKind.DISARM: ap.disarm,
+            RequestKind.START_OFFBOARD: ap.start_offboard,
+            RequestKind.HOLD: ap.hold,
+            RequestKind.LAND: ap.land,
+            RequestKind.PRECISION_LAND: ap.precision_land,
+            RequestKind.RELEASE: ap.release_payload,
+        }
+        try:
+            if req.kind is RequestKind.TAKEOFF:
+                await asyncio.wait_for(ap.takeoff(req.alt_rel_m), 10.0)
+            else:
+                await asyncio.wait_for(calls[req.kind](), 10.0)
+        except (AutopilotError, TimeoutError) as err:
+            self.stats.requests_failed += 1
+            msg = str(err) or type(err).__name__
+            log.warning("%s failed: %s", req.kind.value, msg)
+            self._result(req, RequestResult(req.id, False, msg))
+            return
+        self._result(req, RequestResult(req.id, True))
+
+    def _result(self, req: Request, result: RequestResult) -> None:
+        if self.recorder is not None:
+            self.recorder.on_result(self._clock.now(), req.kind.value, result)
+        self.mission.on_result(result)
+
+    def _record(self, now: float, out: MissionOutput, clamped: bool) -> None:
+        if self.flight_log is None:
+            return
+        e = self.estimate
+        sp = self._setpoint[1] if self._setpoint is not None else None
+        st = self.autopilot.telemetry.status
+        nan = math.nan
+        if e is not None and self.mission.frame is not None:
+            pm = self.mission.frame.point_from_ned(e.position_ned)
+            mx, my, mz = float(pm[0]), float(pm[1]), float(pm[2])
+        else:
+            mx = my = mz = nan
+        self.flight_log.write(
+            (
+                now,
+                out.phase.value,
+                out.sector,
+                out.lyapunov,
+                *(e.position_ned if e else (nan, nan, nan)),
+                *(e.velocity_ned if e else (nan, nan, nan)),
+                e.yaw_rad if e else nan,
+                *((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan)),
+                int(clamped),
+                mx,
+                my,
+                mz,
+                st.mode.value if st else "",
+                int(st.armed) if st else 0,
+            )
+        )

@@ -1,0 +1,98 @@
+import json
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from companion.cli.main import main
+from companion.config import shipped_params_path
+
+
+@pytest.mark.slow
+def test_demo_writes_run_folder_and_plots(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["demo", "--out", str(out), "--quiet", "--seed", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "DELIVERED, returned home" in text and "landing error on the pad" in text
+    for name in ("flight.csv", "truth.csv", "events.csv", "summary.json", "path.png", "lyapunov.png"):
+        assert (out / name).stat().st_size > 0, name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["delivered"] and summary["returned"] and summary["path"]["h_m"] == 45.0
+    for png in ("path.png", "lyapunov.png"):
+        img = mpimg.imread(out / png)
+        assert img.shape[0] > 300 and img.shape[1] > 600
+        assert np.std(img[..., :3]) > 0.05  # not a blank image
+    header = (out / "flight.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "time_s" and "est_north_m" in header and "sp_down_m_s" in header
+
+
+def test_bad_params_file_exit_code_and_message(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[mission]\nheight_m = 10.0\narc_radius_m = 12.0\nwhat = 1\n")
+    assert main(["demo", "--params", str(bad), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "mission.what" in err and "unknown key" in err
+    bad.write_text("[mission]\nheight_m = 10.0\narc_radius_m = 12.0\n")
+    assert main(["params", "check", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert str(bad) in err and "arc_radius_m (12.0) must be < height_m (10.0)" in err
+
+
+def test_bad_gps_bias_option(capsys):
+    assert main(["demo", "--gps-bias", "two", "--quiet"]) == 2
+    assert "--gps-bias" in capsys.readouterr().err
+
+
+def test_params_show_documents_units(capsys):
+    assert main(["params", "show"]) == 0
+    out = capsys.readouterr().out
+    assert "mission.height_m = 45.0 [m]" in out and "sim.wind_speed_m_s" in out
+
+
+def test_bench_estimation_prints_figures(capsys):
+    assert main(["bench", "estimation", "--n", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "madgwick_update_us" in out and "SCF-MF-3DOF.vision_us" in out
+
+
+def test_vision_commands_are_wired(tmp_path, capsys):
+    out = tmp_path / "pad.png"
+    assert main(["pad", "--out", str(out), "--dpi", "30"]) == 0
+    assert out.stat().st_size > 1000
+    assert main(["bench", "vision", "--frames", "12"]) == 0
+    assert "ratio" in capsys.readouterr().out
+
+
+def test_bench_ekf_and_uwb_are_wired(capsys):
+    assert main(["bench", "ekf", "--n", "50"]) == 0
+    assert main(["bench", "uwb", "--n", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "predict_us" in out and "update_aruco_us" in out
+
+
+@pytest.mark.slow
+def test_demo_over_mavlink_px4(tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(
+        [
+            "demo",
+            "--mavlink",
+            "px4",
+            "--params",
+            str(shipped_params_path("sitl_short.toml")),
+            "--quiet",
+            "--out",
+            str(out),
+        ]
+    )
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "DELIVERED, returned home" in text
+    assert json.loads((out / "summary.json").read_text())["pad_landing_error_m"] < 1.0
+
+
+@pytest.mark.slow
+def test_bench_sim_reports_both_flights(capsys):
+    assert main(["bench", "sim", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "GPS-only (simulator + guidance):" in out and "with camera rendering" in out

@@ -1,0 +1,52 @@
+"""The autopilot CLI commands: parser wiring and the link bench (short)."""
+
+from __future__ import annotations
+
+from companion.cli.fly import bench_link
+
+
+def test_register_adds_fly_and_bench_link():
+    from companion.cli.main import build_parser
+
+    parser, failed = build_parser()
+    assert not failed
+    a = parser.parse_args(["fly", "--params", "x.toml", "--connection", "udpin:0.0.0.0:14550"])
+    assert a.func.__name__ == "cmd_fly" and a.connection == "udpin:0.0.0.0:14550"
+    b = parser.parse_args(["bench", "link", "--seconds", "1"])
+    assert b.func.__name__ == "cmd_bench_link" and b.seconds == 1.0
+
+
+def test_bench_link_measures_both_backends():
+    r = bench_link(seconds=0.6)
+    for backend in ("ardupilot_pymavlink", "px4_mavsdk"):
+        res = r[backend]
+        assert res["20hz"]["received"] == res["20hz"]["sent"] == 12
+        # latencies are benchmark figures (`companion bench link`), not asserted against wall-clock bounds
+        assert res["50hz"]["jitter_p99_ms"] >= 0.0 and res["command_rtt_p50_ms"] > 0.0
+
+
+def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, capsys):
+    from companion.cli import fly as commands
+    from companion.cli.main import build_parser
+    from companion.config import shipped_params_path
+    from companion.delivery.mission import MissionSummary
+
+    seen = {}
+
+    def make_autopilot(config, **kwargs):
+        seen.update(kwargs, backend=config.autopilot, connection=config.connection)
+        return object()
+
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None):
+        seen["run_dir"], seen["landing"] = run_dir, landing
+        return MissionSummary(delivered=True, returned=True)
+
+    monkeypatch.setattr(commands, "make_autopilot", make_autopilot)
+    monkeypatch.setattr(commands, "run_delivery", run_delivery)
+    parser, _ = build_parser()
+    params = str(shipped_params_path("ardupilot_quad.toml"))
+    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run")])
+    assert args.func(args) == 0
+    assert seen["run_dir"] == tmp_path / "run" and seen["tlog_path"] == tmp_path / "run" / "flight.tlog"
+    assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")
+    assert '"delivered": true' in capsys.readouterr().out

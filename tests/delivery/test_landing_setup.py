@@ -1,0 +1,73 @@
+"""The landing kit of a real vehicle, built from config through the plugin entry points."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.cli.main import main
+from companion.config import load_config, shipped_params_path
+from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+
+FIXTURES = Path(__file__).parents[1] / "vision" / "fixtures"
+
+
+def _cfg(tmp_path, **landing):
+    return load_config(shipped_params_path("px4_sih_quad.toml"), overrides={"landing": {"fusion": True, **landing}})
+
+
+def test_kit_from_config_sees_the_pad_in_a_real_image_through_the_camera_plugin(tmp_path):
+    cfg = _cfg(tmp_path, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
+    kit = build_landing_kit(cfg)
+    assert kit is not None and kit.uwb is None and kit.multilaterator is None
+    start_sensors(kit)
+    try:
+        frame = None
+        t_end = time.monotonic() + 5.0
+        while frame is None and time.monotonic() < t_end:
+            frame = kit.camera.read()
+            time.sleep(0.01)
+        assert frame is not None, "the opencv plugin delivered no frame of the image file"
+        obs = kit.detector.detect(frame.image, frame.time_s)
+    finally:
+        kit.camera.stop()
+    assert obs is not None and "outer" in obs.markers
+    # ground truth of the fixture: the pad 2.49 m in front of the camera
+    truth = np.array([0.3265974280354187, 0.10833722894894722, 2.493310483037424])
+    assert np.linalg.norm(obs.T_camera_pad.t - truth) < 0.05
+
+
+def test_missing_camera_fails_on_the_ground_and_says_how_to_fly_without(tmp_path):
+    kit = build_landing_kit(_cfg(tmp_path, camera_source=str(tmp_path / "no_such_video.mp4"), use_uwb=False))
+    with pytest.raises(LandingSetupError, match="use_camera = false"):
+        start_sensors(kit)
+
+
+def test_missing_uwb_port_fails_on_the_ground(tmp_path):
+    kit = build_landing_kit(_cfg(tmp_path, use_camera=False, uwb_port=str(tmp_path / "ttyNOPE")))
+    with pytest.raises(LandingSetupError, match="use_uwb = false"):
+        start_sensors(kit)
+
+
+def test_bad_files_and_plugins_are_named(tmp_path):
+    with pytest.raises(LandingSetupError, match="camera_calibration"):
+        build_landing_kit(_cfg(tmp_path, camera_calibration="nope.toml"))
+    with pytest.raises(LandingSetupError, match=r"no plugin companion\.cameras/nosuch"):
+        build_landing_kit(_cfg(tmp_path, camera_plugin="nosuch", use_uwb=False))
+    with pytest.raises(LandingSetupError, match="nothing to fuse"):
+        build_landing_kit(_cfg(tmp_path, use_camera=False, use_uwb=False))
+    assert build_landing_kit(load_config(shipped_params_path("px4_sih_quad.toml"))) is None  # fusion off
+
+
+def test_fly_refuses_to_start_without_its_camera(tmp_path, capsys):
+    p = tmp_path / "vehicle.toml"
+    p.write_text(
+        'autopilot = "px4"\nconnection = "udpin://127.0.0.1:9"\n'
+        f'[landing]\nfusion = true\nuse_uwb = false\ncamera_source = "{tmp_path / "missing.mp4"}"\n'
+    )
+    assert main(["fly", "--params", str(p), "--out", str(tmp_path / "run")]) == 2
+    assert "use_camera = false" in capsys.readouterr().out
+    assert not (tmp_path / "run").exists()  # nothing flew, nothing logged

@@ -1,0 +1,79 @@
+"""The mission core alone: synthetic, timestamped inputs in; requests and events out."""
+
+from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
+from companion.config import MissionConfig, PadConfig
+from companion.delivery.mission import DeliveryMission, MissionInputs, RequestKind, RequestResult
+from companion.estimation.types import StateEstimate
+from companion.events import EventKind, Phase
+
+HOME = HomePosition(0.0, -19.869, -43.9638, 850.0)
+
+
+def est(t, n=0.0, e=0.0, d=0.0):
+    return StateEstimate(t, n, e, d, 0, 0, 0, 0, 0, 0)
+
+
+def status(t, healthy=True, armed=False, mode=FlightMode.HOLD, landed=LandedState.ON_GROUND):
+    return VehicleStatus(t, armed, mode, landed, healthy, 90.0, False)
+
+
+def cfg(**kw):
+    return MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0), **kw)
+
+
+def test_arm_refused_three_times_fails_on_the_ground_with_the_reason():
+    m = DeliveryMission(cfg())
+    t = 0.0
+    out = m.step(MissionInputs(t, est(t), status(t), HOME))
+    assert out.request is not None and out.request.kind is RequestKind.ARM
+    assert m.path is not None and abs(m.path.d - 100.0) < 1e-9
+    tries = 0
+    req = out.request
+    while m.phase is not Phase.FAILED and t < 30:
+        if req is not None:
+            tries += 1
+            m.on_result(RequestResult(req.id, False, "arming denied: battery low"))
+        t += 0.05
+        req = m.step(MissionInputs(t, est(t), status(t), HOME)).request
+    assert tries == 3
+    assert m.phase is Phase.FAILED and "arm failed 3 times: arming denied: battery low" in m.summary.failure
+    assert sum(e.kind is EventKind.REQUEST_FAILED for e in m.summary.events) == 3
+
+
+def test_preflight_times_out_when_the_vehicle_never_becomes_healthy():
+    m = DeliveryMission(cfg(ready_timeout_s=5.0))
+    t = 0.0
+    while t < 6.0:
+        out = m.step(MissionInputs(t, est(t), status(t, healthy=False), HOME))
+        assert out.request is None
+        t += 0.05
+    assert m.phase is Phase.FAILED and "not healthy" in m.summary.failure
+
+
+def test_takeoff_then_offboard_only_after_streaming():
+    m = DeliveryMission(cfg())
+    t = 0.0
+    req = m.step(MissionInputs(t, est(t), status(t), HOME)).request
+    m.on_result(RequestResult(req.id, True))
+    out = m.step(MissionInputs(t, est(t), status(t, armed=True), HOME))
+    assert m.phase is Phase.TAKEOFF and out.request.kind is RequestKind.TAKEOFF
+    m.on_result(RequestResult(out.request.id, True))
+    first_sp = None
+    offboard_t = None
+    alt = 0.0
+    while t < 20 and offboard_t is None:
+        t += 0.05
+        alt = min(3.0, alt + 0.075)
+        out = m.step(MissionInputs(t, est(t, d=-alt), status(t, armed=True, mode=FlightMode.TAKEOFF,
+                                                              landed=LandedState.IN_AIR), HOME))
+        if out.setpoint is not None and first_sp is None:
+            first_sp = t
+        if out.request is not None:
+            assert out.request.kind is RequestKind.START_OFFBOARD
+            offboard_t = t
+            m.on_result(RequestResult(out.request.id, True))
+    assert first_sp is not None and offboard_t - first_sp >= 0.5 - 1e-9  # PX4: stream first
+    out = m.step(MissionInputs(t + 0.05, est(t, d=-3.0), status(t, armed=True, mode=FlightMode.OFFBOARD,
+                                                                landed=LandedState.IN_AIR), HOME))
+    assert m.phase is Phase.OUTBOUND
+    assert out.setpoint.down_m_s < -1.9  # climbing along S1 at v1 = 2 m/s
