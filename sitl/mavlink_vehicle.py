@@ -1,4 +1,8 @@
-"""The embedded :class:`SimVehicle` served over real MAVLink 2 on UDP, in real time.
+"""The embedded :class:`SimVehicle` served over real MAVLink 2 on UDP, in real time: the core
+shared by both dialects (socket, parsing, streams, message builders, commands, parameters, RC
+input). The dialects are subclasses in :mod:`companion_sitl.mavlink_px4` and
+:mod:`companion_sitl.mavlink_ardupilot`; ``MavlinkSimVehicle(cfg, "px4" | "ardupilot", ...)``
+builds the one named.
 
 A background thread steps the vehicle on ``time.monotonic`` and speaks one of two dialects:
 
@@ -35,7 +39,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -50,123 +54,6 @@ from companion_sitl.vehicle import G, SimCommandError, SimVehicle
 log = logging.getLogger(__name__)
 
 Dialect = Literal["px4", "ardupilot"]
-
-# PX4 custom modes (px4_custom_mode.h)
-PX4_MAIN_MANUAL = 1
-PX4_MAIN_ALTCTL = 2
-PX4_MAIN_POSCTL = 3
-PX4_MAIN_AUTO = 4
-PX4_MAIN_ACRO = 5
-PX4_MAIN_OFFBOARD = 6
-PX4_MAIN_STABILIZED = 7
-PX4_SUB_AUTO_READY = 1
-PX4_SUB_AUTO_TAKEOFF = 2
-PX4_SUB_AUTO_LOITER = 3
-PX4_SUB_AUTO_MISSION = 4
-PX4_SUB_AUTO_RTL = 5
-PX4_SUB_AUTO_LAND = 6
-PX4_SUB_AUTO_PRECLAND = 9
-
-PX4_MODES: dict[FlightMode, tuple[int, int]] = {
-    FlightMode.UNKNOWN: (0, 0),
-    FlightMode.MANUAL: (PX4_MAIN_MANUAL, 0),
-    FlightMode.POSITION: (PX4_MAIN_POSCTL, 0),
-    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
-    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
-    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
-    FlightMode.RTL: (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL),
-    FlightMode.MISSION: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
-    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
-}
-
-
-def px4_custom_mode(mode: FlightMode) -> int:
-    main, sub = PX4_MODES[mode]
-    return (main << 16) | (sub << 24)
-
-
-def px4_flight_mode(custom_mode: int) -> FlightMode:
-    """Decode a PX4 custom_mode (HEARTBEAT / DO_SET_MODE) into a :class:`FlightMode`."""
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    if main in (PX4_MAIN_MANUAL, PX4_MAIN_ALTCTL, PX4_MAIN_ACRO, PX4_MAIN_STABILIZED):
-        return FlightMode.MANUAL
-    if main == PX4_MAIN_AUTO:
-        for mode, (m, s) in PX4_MODES.items():
-            if m == PX4_MAIN_AUTO and s == sub:
-                return mode
-        if sub == PX4_SUB_AUTO_PRECLAND:
-            return FlightMode.LAND  # AUTO.PRECLAND: a landing steered by LANDING_TARGET
-        return FlightMode.HOLD if sub == PX4_SUB_AUTO_READY else FlightMode.UNKNOWN
-    for mode, (m, _s) in PX4_MODES.items():
-        if m == main and m != 0:
-            return mode
-    return FlightMode.UNKNOWN
-
-
-# ArduCopter mode numbers
-COPTER_STABILIZE = 0
-COPTER_ACRO = 1
-COPTER_ALT_HOLD = 2
-COPTER_AUTO = 3
-COPTER_GUIDED = 4
-COPTER_LOITER = 5
-COPTER_RTL = 6
-COPTER_LAND = 9
-COPTER_POSHOLD = 16
-COPTER_BRAKE = 17
-
-COPTER_MODE_NAMES = {
-    COPTER_STABILIZE: "STABILIZE",
-    COPTER_ACRO: "ACRO",
-    COPTER_ALT_HOLD: "ALT_HOLD",
-    COPTER_AUTO: "AUTO",
-    COPTER_GUIDED: "GUIDED",
-    COPTER_LOITER: "LOITER",
-    COPTER_RTL: "RTL",
-    COPTER_LAND: "LAND",
-    COPTER_POSHOLD: "POSHOLD",
-    COPTER_BRAKE: "BRAKE",
-}
-
-
-def copter_flight_mode(custom_mode: int) -> FlightMode:
-    """ArduCopter mode number -> :class:`FlightMode` (GUIDED is companion control)."""
-    return {
-        COPTER_STABILIZE: FlightMode.MANUAL,
-        COPTER_ACRO: FlightMode.MANUAL,
-        COPTER_ALT_HOLD: FlightMode.MANUAL,
-        COPTER_AUTO: FlightMode.MISSION,
-        COPTER_GUIDED: FlightMode.OFFBOARD,
-        COPTER_LOITER: FlightMode.POSITION,
-        COPTER_POSHOLD: FlightMode.POSITION,
-        COPTER_RTL: FlightMode.RTL,
-        COPTER_LAND: FlightMode.LAND,
-        COPTER_BRAKE: FlightMode.HOLD,
-    }.get(custom_mode, FlightMode.UNKNOWN)
-
-
-FLIGHT_MODE_TO_COPTER = {
-    FlightMode.MANUAL: COPTER_STABILIZE,
-    FlightMode.POSITION: COPTER_LOITER,
-    FlightMode.HOLD: COPTER_BRAKE,
-    FlightMode.LAND: COPTER_LAND,
-    FlightMode.RTL: COPTER_RTL,
-    FlightMode.MISSION: COPTER_AUTO,
-    FlightMode.OFFBOARD: COPTER_GUIDED,
-    FlightMode.TAKEOFF: COPTER_GUIDED,
-}
-
-# Copter FLTMODE1..6 on the mode switch channel (FLTMODE_CH = 5), by PWM band
-COPTER_FLTMODES = (COPTER_STABILIZE, COPTER_ALT_HOLD, COPTER_LOITER, COPTER_RTL, COPTER_LAND, COPTER_GUIDED)
-_FLTMODE_PWM_EDGES = (1230, 1360, 1490, 1620, 1749)
-
-
-def fltmode_slot(pwm: int) -> int:
-    for i, edge in enumerate(_FLTMODE_PWM_EDGES):
-        if pwm <= edge:
-            return i
-    return 5
-
 
 # type_mask bits of SET_POSITION_TARGET_LOCAL_NED
 MASK_POS = 0b111
@@ -212,7 +99,6 @@ AP_STREAM_GROUPS: dict[int, tuple[int, ...]] = {
     mavlink.MAV_DATA_STREAM_EXTRA3: (mavlink.MAVLINK_MSG_ID_BATTERY_STATUS,),
 }
 
-LOCAL_Z_GROUND_OFFSET_M = 0.04  # PX4's EKF reports a few cm, not 0, for z at rest on the ground
 
 
 def _i(x: float) -> int:
@@ -266,12 +152,33 @@ class MavlinkSimVehicle:
     ``bind`` is the vehicle's own address (port 0 picks a free one; see :attr:`address`).
     ``remote`` is where it sends before anyone has spoken to it (a companion listening with
     ``udpin``). Use as a context manager or call :meth:`start` / :meth:`stop`.
+
+    ``MavlinkSimVehicle(cfg, dialect)`` returns the dialect's subclass
+    (:class:`~companion_sitl.mavlink_px4.Px4SimVehicle`,
+    :class:`~companion_sitl.mavlink_ardupilot.ArduPilotSimVehicle`), which fills in the hooks below.
     """
+
+    dialect: Dialect
+    DEFAULT_STREAMS_HZ: ClassVar[dict[int, float]] = {}  # streamed from boot unless stream_rates_hz
+    HOME_ALWAYS: ClassVar[bool] = False  # send HOME_POSITION on change even when not streamed
+    LOCAL_Z_OFFSET_M: ClassVar[float] = 0.0  # added to LOCAL_POSITION_NED z
+    SOFTWARE_VERSION: ClassVar[int] = 0  # AUTOPILOT_VERSION flight_sw_version
+
+    def __new__(cls, cfg: SimConfig, dialect: Dialect = "px4", **kwargs: Any) -> MavlinkSimVehicle:
+        if cls is MavlinkSimVehicle:
+            from companion_sitl.mavlink_ardupilot import ArduPilotSimVehicle
+            from companion_sitl.mavlink_px4 import Px4SimVehicle
+
+            by_dialect: dict[str, type[MavlinkSimVehicle]] = {"px4": Px4SimVehicle, "ardupilot": ArduPilotSimVehicle}
+            if dialect not in by_dialect:
+                raise ValueError(f"dialect {dialect!r}: must be 'px4' or 'ardupilot'")
+            cls = by_dialect[dialect]
+        return super().__new__(cls)
 
     def __init__(
         self,
         cfg: SimConfig,
-        dialect: Dialect = "px4",
+        dialect: Dialect | None = None,
         *,
         bind: tuple[str, int] = ("127.0.0.1", 0),
         remote: tuple[str, int] | None = None,
@@ -285,18 +192,10 @@ class MavlinkSimVehicle:
         release_pwm: int = 1900,
         rc_override_timeout_s: float = -1.0,
     ):
-        if dialect not in ("px4", "ardupilot"):
-            raise ValueError(f"dialect {dialect!r}: must be 'px4' or 'ardupilot'")
-        self.dialect: Dialect = dialect
+        if dialect is not None and dialect != self.dialect:
+            raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
         if vehicle is None:
-            if dialect == "ardupilot":
-                # ArduPilot: GUIDED velocity times out after 3 s (the vehicle stops, stays GUIDED);
-                # arming waits for EKF/GPS
-                vc = cfg.vehicle.model_copy(update={"offboard_loss_timeout_s": guided_timeout_s})
-                upd: dict[str, Any] = {"vehicle": vc}
-                if ekf_delay_s is not None:
-                    upd["ready_delay_s"] = ekf_delay_s
-                cfg = cfg.model_copy(update=upd)
+            cfg = self._vehicle_config(cfg, guided_timeout_s, ekf_delay_s)
             vehicle = SimVehicle(cfg)
         self.cfg = cfg
         self.vehicle = vehicle
@@ -321,47 +220,65 @@ class MavlinkSimVehicle:
         self._hb_next = 0.0
         # message id -> [interval_s, next_due]
         self._streams: dict[int, list[float]] = {}
-        if dialect == "px4":
-            for mid, hz in (stream_rates_hz or PX4_DEFAULT_STREAMS_HZ).items():
-                self._streams[mid] = [1.0 / hz, 0.0]
-        elif stream_rates_hz:
-            for mid, hz in stream_rates_hz.items():
-                self._streams[mid] = [1.0 / hz, 0.0]
+        for mid, hz in (stream_rates_hz or self.DEFAULT_STREAMS_HZ).items():
+            self._streams[mid] = [1.0 / hz, 0.0]
         self._texts_sent = 0
         self._home_sent: tuple[float, float, float] | None = None
-        self._ap_mode = COPTER_STABILIZE
         self._rc = [1500, 1500, 1000, 1500, 1100, 1100, 1100, 1100] + [0] * 10
         self._rc_override_at = -math.inf
-        self._fltmode_slot = fltmode_slot(self._rc[4])
-        # ArduPilot RC input: the pilot's transmitter, the overrides in force (per channel, with
+        # RC input: the pilot's transmitter, the overrides in force (per channel, with
         # their time) and, in ``_rc``, what the autopilot flies on and reports in RC_CHANNELS
         self._radio = list(self._rc)
         self._ovr: list[int | None] = [None] * 18
         self._ovr_at = [-math.inf] * 18
         self.rc_override_timeout_s = rc_override_timeout_s  # RC_OVERRIDE_TIME; < 0: never lapses
-        self._params: dict[str, float] = (
-            {
-                "MIS_TAKEOFF_ALT": 2.5,
-                "COM_OF_LOSS_T": cfg.vehicle.offboard_loss_timeout_s,
-                "COM_OBL_RC_ACT": 0.0,
-                "MPC_XY_VEL_MAX": 12.0,
-                "MPC_LAND_SPEED": cfg.vehicle.land_speed_m_s,
-                "MPC_TKO_SPEED": cfg.vehicle.takeoff_speed_m_s,
-                "SYS_AUTOSTART": 10040.0,
-            }
-            if dialect == "px4"
-            else {
-                "SYSID_THISMAV": float(system_id),
-                "FLTMODE_CH": 5.0,
-                "GUID_TIMEOUT": guided_timeout_s,
-                "RC_OVERRIDE_TIME": rc_override_timeout_s,
-                "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
-                "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
-                **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
-            }
-        )
+        self._params: dict[str, float] = self._default_params(cfg, system_id, guided_timeout_s)
         self._ltp = LocalTangentPlane(GeoPoint(cfg.home.lat_deg, cfg.home.lon_deg, cfg.home.alt_amsl_m))
         self.on_message: Callable[[Any], None] | None = None  # test hook: every decoded message
+
+
+    # ------------------------------------------------------------------ dialect hooks
+    def _vehicle_config(self, cfg: SimConfig, guided_timeout_s: float, ekf_delay_s: float | None) -> SimConfig:
+        """The configuration of the vehicle the dialect builds when none is handed in."""
+        return cfg
+
+    def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
+        raise NotImplementedError
+
+    def _pilot_mode(self, mode: FlightMode) -> None:
+        raise NotImplementedError
+
+    def _rc_switch(self, now: float) -> None:
+        """The autopilot reads the pilot's RC (mode switch, sticks) after the RC input changed."""
+
+    def _mode_flags(self) -> int:
+        raise NotImplementedError
+
+    def _heartbeat_autopilot(self) -> tuple[int, int]:
+        """(MAV_AUTOPILOT, custom_mode) of the HEARTBEAT."""
+        raise NotImplementedError
+
+    def _arm_refused(self) -> int | None:
+        """A MAV_RESULT if the dialect refuses to arm now, else None."""
+        return None
+
+    def _takeoff(self, p: tuple[float, ...]) -> int:
+        raise NotImplementedError
+
+    def _land(self) -> int:
+        raise NotImplementedError
+
+    def _rtl(self) -> int:
+        raise NotImplementedError
+
+    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
+        raise NotImplementedError
+
+    def _landing_target_angles(self, m: Any) -> None:
+        """LANDING_TARGET without a valid local position (the angle form)."""
+
+    def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
+        raise NotImplementedError
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -419,14 +336,7 @@ class MavlinkSimVehicle:
         """The pilot flips the mode switch on the vehicle side (thread-safe)."""
         with self.lock:
             self.vehicle.step_to(self.now)
-            if self.dialect == "ardupilot":
-                self._set_copter_mode(FLIGHT_MODE_TO_COPTER.get(mode, COPTER_LOITER), pilot=True)
-            else:
-                self.vehicle.pilot_set_mode(mode)
-
-    @property
-    def copter_mode(self) -> int:
-        return self._ap_mode
+            self._pilot_mode(mode)
 
     @property
     def rc_channels(self) -> list[int]:
@@ -454,7 +364,7 @@ class MavlinkSimVehicle:
             for ch, us in channels.items():
                 self._radio[ch - 1] = int(us)
             self._rc_effective(now)
-            self._ardupilot_rc_switch(now)
+            self._rc_switch(now)
 
     # ------------------------------------------------------------------ main loop
     def _run(self) -> None:
@@ -476,7 +386,7 @@ class MavlinkSimVehicle:
             now = self.now
             with self.lock:
                 v.step_to(now)
-                self._ardupilot_rc_switch(now)
+                self._rc_switch(now)
                 self._send_due(now)
             next_tick = max(next_tick + dt, now - dt)
 
@@ -567,7 +477,7 @@ class MavlinkSimVehicle:
         home = v.home()
         if home is not None:
             key = (home.lat_deg, home.lon_deg, home.alt_amsl_m)
-            wanted = self.dialect == "px4" or mavlink.MAVLINK_MSG_ID_HOME_POSITION in self._streams
+            wanted = self.HOME_ALWAYS or mavlink.MAVLINK_MSG_ID_HOME_POSITION in self._streams
             if key != self._home_sent and wanted:
                 self._home_sent = key
                 self._send(self._build(mavlink.MAVLINK_MSG_ID_HOME_POSITION))
@@ -583,32 +493,17 @@ class MavlinkSimVehicle:
         b = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if self.vehicle.armed:
             b |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        mode = self.vehicle.mode
-        if self.dialect == "ardupilot":
-            b |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
-            if self._ap_mode in (COPTER_GUIDED, COPTER_AUTO, COPTER_RTL, COPTER_LAND):
-                b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
-            return b
-        if mode is not FlightMode.MANUAL:
-            b |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
-        if mode in (FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL, FlightMode.MISSION):
-            b |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED
-        if mode is FlightMode.OFFBOARD:
-            b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
-        return b
+        return b | self._mode_flags()
 
     def _heartbeat(self) -> Any:
         v = self.vehicle
-        if self.dialect == "px4":
-            ap, custom = mavlink.MAV_AUTOPILOT_PX4, px4_custom_mode(v.mode)
-        else:
-            ap, custom = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._ap_mode
+        ap, custom = self._heartbeat_autopilot()
         state = mavlink.MAV_STATE_ACTIVE if v.armed else mavlink.MAV_STATE_STANDBY
         return self._enc.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, ap, self._base_mode(), custom, state, 3)
 
     def _local(self) -> tuple[float, float, float, float, float, float]:
         p = self.vehicle.position_ned()
-        dz = LOCAL_Z_GROUND_OFFSET_M if self.dialect == "px4" else 0.0
+        dz = self.LOCAL_Z_OFFSET_M
         return p.north_m, p.east_m, p.down_m + dz, p.north_m_s, p.east_m_s, p.down_m_s
 
     def _landed_state(self) -> int:
@@ -774,9 +669,7 @@ class MavlinkSimVehicle:
                 | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
             )
-            sw = (1 << 24) | (16 << 16) | (0 << 8) | 0xFF  # 1.16.0 release
-            if self.dialect == "ardupilot":
-                sw = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
+            sw = self.SOFTWARE_VERSION
             uid = 0x5349_4D00 + self.system_id
             return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
         return None
@@ -869,12 +762,9 @@ class MavlinkSimVehicle:
         try:
             if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
                 if p[0] >= 0.5:
-                    if self.dialect == "ardupilot" and not v.healthy:
-                        self._statustext("PreArm: EKF3 waiting for GPS config data", mavlink.MAV_SEVERITY_CRITICAL)
-                        return mavlink.MAV_RESULT_FAILED
-                    if self.dialect == "ardupilot" and self._ap_mode in (COPTER_LAND, COPTER_RTL, COPTER_AUTO):
-                        self._statustext("Arm: Mode not armable", mavlink.MAV_SEVERITY_CRITICAL)
-                        return mavlink.MAV_RESULT_FAILED
+                    refused = self._arm_refused()
+                    if refused is not None:
+                        return refused
                     v.arm()
                 else:
                     if _i(p[1]) == 21196 and v.armed:  # forced disarm
@@ -883,30 +773,11 @@ class MavlinkSimVehicle:
                         v.disarm()
                 return A
             if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
-                if self.dialect == "ardupilot":
-                    if self._ap_mode != COPTER_GUIDED:
-                        self._statustext("Takeoff: only in GUIDED", mavlink.MAV_SEVERITY_WARNING)
-                        return mavlink.MAV_RESULT_FAILED
-                    v.takeoff(p[6])
-                    return A
-                home = v.home()
-                if math.isfinite(p[6]) and home is not None:
-                    alt_rel = p[6] - home.alt_amsl_m
-                else:
-                    alt_rel = self._params.get("MIS_TAKEOFF_ALT", 2.5)
-                v.takeoff(alt_rel)
-                return A
+                return self._takeoff(p)
             if cmd == mavlink.MAV_CMD_NAV_LAND:
-                if self.dialect == "ardupilot":
-                    return self._set_copter_mode(COPTER_LAND)
-                v.land()
-                return A
+                return self._land()
             if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-                if self.dialect == "ardupilot":
-                    return self._set_copter_mode(COPTER_RTL)
-                v.hold()
-                v.mode = FlightMode.RTL
-                return A
+                return self._rtl()
             if cmd == mavlink.MAV_CMD_DO_SET_MODE:
                 return self._set_mode(*(float(_i(x)) for x in p[:3]))
             if cmd == mavlink.MAV_CMD_DO_GRIPPER:
@@ -973,31 +844,6 @@ class MavlinkSimVehicle:
                 else:
                     self._streams.pop(mid, None)
 
-    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
-        if self.dialect == "ardupilot":
-            return self._set_copter_mode(int(custom_main))
-        v = self.vehicle
-        if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            return mavlink.MAV_RESULT_UNSUPPORTED
-        mode = px4_flight_mode((int(custom_main) << 16) | (int(custom_sub) << 24))
-        if mode is FlightMode.UNKNOWN:
-            return mavlink.MAV_RESULT_UNSUPPORTED
-        if mode is FlightMode.OFFBOARD:
-            v.start_offboard()
-        elif mode is FlightMode.HOLD:
-            v.hold()
-        elif mode is FlightMode.LAND:
-            if int(custom_main) == PX4_MAIN_AUTO and int(custom_sub) == PX4_SUB_AUTO_PRECLAND:
-                v.precision_land()
-            else:
-                v.land()
-        elif mode is FlightMode.TAKEOFF:
-            v.takeoff(self._params.get("MIS_TAKEOFF_ALT", 2.5))
-        else:
-            v.hold()
-            v.mode = mode
-        return mavlink.MAV_RESULT_ACCEPTED
-
     def _landing_target(self, m: Any) -> None:
         """LANDING_TARGET as each autopilot reads it: PX4 the position form in MAV_FRAME_LOCAL_NED;
         ArduPilot (AC_PrecLand_Companion) angle_x / angle_y / distance as the body-frame line of
@@ -1007,56 +853,7 @@ class MavlinkSimVehicle:
         if m.position_valid and m.frame == mavlink.MAV_FRAME_LOCAL_NED:
             v.set_landing_target(float(m.x), float(m.y))
             return
-        if self.dialect != "ardupilot":
-            return  # PX4's landing_target_estimator takes the position form only
-        los = [-math.tan(m.angle_y), math.tan(m.angle_x), 1.0]
-        n = math.sqrt(sum(c * c for c in los))
-        if not (math.isfinite(n) and math.isfinite(m.distance) and m.distance > 0):
-            self._statustext("PrecLand: bad LANDING_TARGET ignored", mavlink.MAV_SEVERITY_WARNING)
-            return
-        from companion.geometry.rotations import euler_to_rotmat
-
-        rel = euler_to_rotmat(v.roll, v.pitch, v.yaw) @ [c * m.distance / n for c in los]
-        pn, pe, _ = v._local()
-        v.set_landing_target(pn + float(rel[0]), pe + float(rel[1]))
-
-    def _set_copter_mode(self, mode: int, pilot: bool = False) -> int:
-        v = self.vehicle
-        if mode not in COPTER_MODE_NAMES:
-            return mavlink.MAV_RESULT_FAILED
-        if mode == COPTER_GUIDED:
-            if v.mode is not FlightMode.TAKEOFF:
-                v.hold()
-        elif mode == COPTER_BRAKE:
-            v.hold()
-        elif mode == COPTER_LAND:
-            if v.armed and self._params.get("PLND_ENABLED", 1.0):
-                v.precision_land()  # PLND_ENABLED = 1, PLND_TYPE = 1: steered by LANDING_TARGET if any
-            elif v.armed:
-                v.land()
-            else:
-                v.mode = FlightMode.LAND
-        else:
-            v.hold()
-            v.mode = copter_flight_mode(mode)
-        if mode != self._ap_mode:
-            self._ap_mode = mode
-            who = "pilot" if pilot else "command"
-            self._statustext(f"Mode {COPTER_MODE_NAMES[mode]} ({who})", mavlink.MAV_SEVERITY_INFO)
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _ardupilot_rc_switch(self, now: float) -> None:
-        if self.dialect != "ardupilot":
-            return
-        self._rc_effective(now)
-        slot = fltmode_slot(self._rc[4])
-        if slot != self._fltmode_slot:
-            self._fltmode_slot = slot
-            self._set_copter_mode(int(self._params.get(f"FLTMODE{slot + 1}", COPTER_FLTMODES[slot])), pilot=True)
-        feed = getattr(self.vehicle, "set_rc_input", None)
-        if feed is not None:
-            feed(COPTER_MODE_NAMES.get(self._ap_mode, ""), tuple(self._rc[:4]))
-
+        self._landing_target_angles(m)  # PX4's landing_target_estimator takes the position form only
     def _rc_override(self, m: Any) -> None:
         """RC_CHANNELS_OVERRIDE: channels 1-8: 0 releases, UINT16_MAX ignores; channels 9-18: 0
         and UINT16_MAX ignore, UINT16_MAX-1 releases; any other value overrides the channel."""
@@ -1072,7 +869,7 @@ class MavlinkSimVehicle:
             self._ovr_at[i] = now
         self._rc_override_at = now
         self._rc_effective(now)
-        self._ardupilot_rc_switch(now)
+        self._rc_switch(now)
 
     def _attitude_target(self, m: Any) -> None:
         """SET_ATTITUDE_TARGET (offboard attitude) for a vehicle that flies it (``set_attitude_target``:
@@ -1107,14 +904,5 @@ class MavlinkSimVehicle:
             self.stats.setpoints_rejected += 1  # position control is not simulated
             return
         yaw = v.yaw if mask & MASK_YAW else m.yaw
-        sp = VelocitySetpoint(m.vx, m.vy, m.vz, yaw)
-        if self.dialect == "ardupilot":
-            if self._ap_mode != COPTER_GUIDED or not v.armed or v.mode is FlightMode.TAKEOFF:
-                self.stats.setpoints_rejected += 1
-                return
-            v.set_velocity(sp)
-            if v.mode is not FlightMode.OFFBOARD:
-                v.mode = FlightMode.OFFBOARD  # GUIDED velocity control resumes at once
-        else:
-            v.set_velocity(sp)
+        self._velocity_setpoint(VelocitySetpoint(m.vx, m.vy, m.vz, yaw))
         self.stats.setpoints += 1

@@ -14,13 +14,9 @@ from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.px4 import px4_flight_mode as px4_decode
 from companion.cli.fly import make_autopilot
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.mavlink_vehicle import (
-    COPTER_GUIDED,
-    MavlinkSimVehicle,
-    copter_flight_mode,
-    px4_custom_mode,
-    px4_flight_mode,
-)
+from companion_sitl.mavlink_ardupilot import COPTER_GUIDED, copter_flight_mode
+from companion_sitl.mavlink_px4 import px4_custom_mode, px4_flight_mode
+from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
 
 def test_px4_custom_mode_round_trip():

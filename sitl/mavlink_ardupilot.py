@@ -1,0 +1,215 @@
+"""The ArduPilot (ArduCopter) dialect of the MAVLink sim vehicle (:class:`ArduPilotSimVehicle`).
+
+HEARTBEAT as MAV_AUTOPILOT_ARDUPILOTMEGA with Copter mode numbers, nothing streamed but the
+heartbeat until asked, GUIDED velocity with a timeout, arming refused until the EKF/GPS delay has
+passed or in a non-armable mode, the flight-mode switch on RC channel 5 (FLTMODE1..6), the
+pilot's sticks handed to a stick vehicle, LANDING_TARGET in its angle form (AC_PrecLand_Companion).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, ClassVar
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.autopilot.types import FlightMode
+from companion.config import SimConfig
+from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.mavlink_vehicle import Dialect, MavlinkSimVehicle
+
+# ArduCopter mode numbers
+COPTER_STABILIZE = 0
+COPTER_ACRO = 1
+COPTER_ALT_HOLD = 2
+COPTER_AUTO = 3
+COPTER_GUIDED = 4
+COPTER_LOITER = 5
+COPTER_RTL = 6
+COPTER_LAND = 9
+COPTER_POSHOLD = 16
+COPTER_BRAKE = 17
+
+COPTER_MODE_NAMES = {
+    COPTER_STABILIZE: "STABILIZE",
+    COPTER_ACRO: "ACRO",
+    COPTER_ALT_HOLD: "ALT_HOLD",
+    COPTER_AUTO: "AUTO",
+    COPTER_GUIDED: "GUIDED",
+    COPTER_LOITER: "LOITER",
+    COPTER_RTL: "RTL",
+    COPTER_LAND: "LAND",
+    COPTER_POSHOLD: "POSHOLD",
+    COPTER_BRAKE: "BRAKE",
+}
+
+
+def copter_flight_mode(custom_mode: int) -> FlightMode:
+    """ArduCopter mode number -> :class:`FlightMode` (GUIDED is companion control)."""
+    return {
+        COPTER_STABILIZE: FlightMode.MANUAL,
+        COPTER_ACRO: FlightMode.MANUAL,
+        COPTER_ALT_HOLD: FlightMode.MANUAL,
+        COPTER_AUTO: FlightMode.MISSION,
+        COPTER_GUIDED: FlightMode.OFFBOARD,
+        COPTER_LOITER: FlightMode.POSITION,
+        COPTER_POSHOLD: FlightMode.POSITION,
+        COPTER_RTL: FlightMode.RTL,
+        COPTER_LAND: FlightMode.LAND,
+        COPTER_BRAKE: FlightMode.HOLD,
+    }.get(custom_mode, FlightMode.UNKNOWN)
+
+
+FLIGHT_MODE_TO_COPTER = {
+    FlightMode.MANUAL: COPTER_STABILIZE,
+    FlightMode.POSITION: COPTER_LOITER,
+    FlightMode.HOLD: COPTER_BRAKE,
+    FlightMode.LAND: COPTER_LAND,
+    FlightMode.RTL: COPTER_RTL,
+    FlightMode.MISSION: COPTER_AUTO,
+    FlightMode.OFFBOARD: COPTER_GUIDED,
+    FlightMode.TAKEOFF: COPTER_GUIDED,
+}
+
+# Copter FLTMODE1..6 on the mode switch channel (FLTMODE_CH = 5), by PWM band
+COPTER_FLTMODES = (COPTER_STABILIZE, COPTER_ALT_HOLD, COPTER_LOITER, COPTER_RTL, COPTER_LAND, COPTER_GUIDED)
+_FLTMODE_PWM_EDGES = (1230, 1360, 1490, 1620, 1749)
+
+
+def fltmode_slot(pwm: int) -> int:
+    for i, edge in enumerate(_FLTMODE_PWM_EDGES):
+        if pwm <= edge:
+            return i
+    return 5
+
+
+class ArduPilotSimVehicle(MavlinkSimVehicle):
+    """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink_vehicle.MavlinkSimVehicle`)."""
+
+    dialect: Dialect = "ardupilot"
+    SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._ap_mode = COPTER_STABILIZE
+        super().__init__(*args, **kwargs)
+        self._fltmode_slot = fltmode_slot(self._rc[4])
+
+    @property
+    def copter_mode(self) -> int:
+        return self._ap_mode
+
+    def _vehicle_config(self, cfg: SimConfig, guided_timeout_s: float, ekf_delay_s: float | None) -> SimConfig:
+        # ArduPilot: GUIDED velocity times out after 3 s (the vehicle stops, stays GUIDED);
+        # arming waits for EKF/GPS
+        vc = cfg.vehicle.model_copy(update={"offboard_loss_timeout_s": guided_timeout_s})
+        upd: dict[str, Any] = {"vehicle": vc}
+        if ekf_delay_s is not None:
+            upd["ready_delay_s"] = ekf_delay_s
+        return cfg.model_copy(update=upd)
+
+    def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
+        return {
+            "SYSID_THISMAV": float(system_id),
+            "FLTMODE_CH": 5.0,
+            "GUID_TIMEOUT": guided_timeout_s,
+            "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
+            "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
+            "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
+            **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
+        }
+
+    def _pilot_mode(self, mode: FlightMode) -> None:
+        self._set_copter_mode(FLIGHT_MODE_TO_COPTER.get(mode, COPTER_LOITER), pilot=True)
+
+    def _mode_flags(self) -> int:
+        b = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self._ap_mode in (COPTER_GUIDED, COPTER_AUTO, COPTER_RTL, COPTER_LAND):
+            b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return b
+
+    def _heartbeat_autopilot(self) -> tuple[int, int]:
+        return mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._ap_mode
+
+    def _arm_refused(self) -> int | None:
+        if not self.vehicle.healthy:
+            self._statustext("PreArm: EKF3 waiting for GPS config data", mavlink.MAV_SEVERITY_CRITICAL)
+            return mavlink.MAV_RESULT_FAILED
+        if self._ap_mode in (COPTER_LAND, COPTER_RTL, COPTER_AUTO):
+            self._statustext("Arm: Mode not armable", mavlink.MAV_SEVERITY_CRITICAL)
+            return mavlink.MAV_RESULT_FAILED
+        return None
+
+    def _takeoff(self, p: tuple[float, ...]) -> int:
+        if self._ap_mode != COPTER_GUIDED:
+            self._statustext("Takeoff: only in GUIDED", mavlink.MAV_SEVERITY_WARNING)
+            return mavlink.MAV_RESULT_FAILED
+        self.vehicle.takeoff(p[6])
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _land(self) -> int:
+        return self._set_copter_mode(COPTER_LAND)
+
+    def _rtl(self) -> int:
+        return self._set_copter_mode(COPTER_RTL)
+
+    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
+        return self._set_copter_mode(int(custom_main))
+
+    def _landing_target_angles(self, m: Any) -> None:
+        v = self.vehicle
+        los = [-math.tan(m.angle_y), math.tan(m.angle_x), 1.0]
+        n = math.sqrt(sum(c * c for c in los))
+        if not (math.isfinite(n) and math.isfinite(m.distance) and m.distance > 0):
+            self._statustext("PrecLand: bad LANDING_TARGET ignored", mavlink.MAV_SEVERITY_WARNING)
+            return
+        from companion.geometry.rotations import euler_to_rotmat
+
+        rel = euler_to_rotmat(v.roll, v.pitch, v.yaw) @ [c * m.distance / n for c in los]
+        pn, pe, _ = v._local()
+        v.set_landing_target(pn + float(rel[0]), pe + float(rel[1]))
+
+    def _set_copter_mode(self, mode: int, pilot: bool = False) -> int:
+        v = self.vehicle
+        if mode not in COPTER_MODE_NAMES:
+            return mavlink.MAV_RESULT_FAILED
+        if mode == COPTER_GUIDED:
+            if v.mode is not FlightMode.TAKEOFF:
+                v.hold()
+        elif mode == COPTER_BRAKE:
+            v.hold()
+        elif mode == COPTER_LAND:
+            if v.armed and self._params.get("PLND_ENABLED", 1.0):
+                v.precision_land()  # PLND_ENABLED = 1, PLND_TYPE = 1: steered by LANDING_TARGET if any
+            elif v.armed:
+                v.land()
+            else:
+                v.mode = FlightMode.LAND
+        else:
+            v.hold()
+            v.mode = copter_flight_mode(mode)
+        if mode != self._ap_mode:
+            self._ap_mode = mode
+            who = "pilot" if pilot else "command"
+            self._statustext(f"Mode {COPTER_MODE_NAMES[mode]} ({who})", mavlink.MAV_SEVERITY_INFO)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _rc_switch(self, now: float) -> None:
+        self._rc_effective(now)
+        slot = fltmode_slot(self._rc[4])
+        if slot != self._fltmode_slot:
+            self._fltmode_slot = slot
+            self._set_copter_mode(int(self._params.get(f"FLTMODE{slot + 1}", COPTER_FLTMODES[slot])), pilot=True)
+        feed = getattr(self.vehicle, "set_rc_input", None)
+        if feed is not None:
+            feed(COPTER_MODE_NAMES.get(self._ap_mode, ""), tuple(self._rc[:4]))
+
+    def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
+        v = self.vehicle
+        if self._ap_mode != COPTER_GUIDED or not v.armed or v.mode is FlightMode.TAKEOFF:
+            self.stats.setpoints_rejected += 1
+            return
+        v.set_velocity(sp)
+        if v.mode is not FlightMode.OFFBOARD:
+            v.mode = FlightMode.OFFBOARD  # GUIDED velocity control resumes at once

@@ -1,0 +1,156 @@
+"""The PX4 dialect of the MAVLink sim vehicle (:class:`Px4SimVehicle`).
+
+HEARTBEAT as MAV_AUTOPILOT_PX4 with PX4 custom modes (main mode << 16 | sub mode << 24),
+PX4-like default streams from boot, OFFBOARD velocity setpoints with PX4's rules, takeoff to
+MIS_TAKEOFF_ALT, AUTO.PRECLAND, LANDING_TARGET in its position form only, PX4 parameters.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import ClassVar
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.autopilot.types import FlightMode
+from companion.config import SimConfig
+from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, Dialect, MavlinkSimVehicle
+
+# PX4 custom modes (px4_custom_mode.h)
+PX4_MAIN_MANUAL = 1
+PX4_MAIN_ALTCTL = 2
+PX4_MAIN_POSCTL = 3
+PX4_MAIN_AUTO = 4
+PX4_MAIN_ACRO = 5
+PX4_MAIN_OFFBOARD = 6
+PX4_MAIN_STABILIZED = 7
+PX4_SUB_AUTO_READY = 1
+PX4_SUB_AUTO_TAKEOFF = 2
+PX4_SUB_AUTO_LOITER = 3
+PX4_SUB_AUTO_MISSION = 4
+PX4_SUB_AUTO_RTL = 5
+PX4_SUB_AUTO_LAND = 6
+PX4_SUB_AUTO_PRECLAND = 9
+
+PX4_MODES: dict[FlightMode, tuple[int, int]] = {
+    FlightMode.UNKNOWN: (0, 0),
+    FlightMode.MANUAL: (PX4_MAIN_MANUAL, 0),
+    FlightMode.POSITION: (PX4_MAIN_POSCTL, 0),
+    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
+    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
+    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
+    FlightMode.RTL: (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL),
+    FlightMode.MISSION: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
+}
+
+
+def px4_custom_mode(mode: FlightMode) -> int:
+    main, sub = PX4_MODES[mode]
+    return (main << 16) | (sub << 24)
+
+
+def px4_flight_mode(custom_mode: int) -> FlightMode:
+    """Decode a PX4 custom_mode (HEARTBEAT / DO_SET_MODE) into a :class:`FlightMode`."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main in (PX4_MAIN_MANUAL, PX4_MAIN_ALTCTL, PX4_MAIN_ACRO, PX4_MAIN_STABILIZED):
+        return FlightMode.MANUAL
+    if main == PX4_MAIN_AUTO:
+        for mode, (m, s) in PX4_MODES.items():
+            if m == PX4_MAIN_AUTO and s == sub:
+                return mode
+        if sub == PX4_SUB_AUTO_PRECLAND:
+            return FlightMode.LAND  # AUTO.PRECLAND: a landing steered by LANDING_TARGET
+        return FlightMode.HOLD if sub == PX4_SUB_AUTO_READY else FlightMode.UNKNOWN
+    for mode, (m, _s) in PX4_MODES.items():
+        if m == main and m != 0:
+            return mode
+    return FlightMode.UNKNOWN
+
+
+class Px4SimVehicle(MavlinkSimVehicle):
+    """The sim vehicle speaking PX4 (see :class:`~companion_sitl.mavlink_vehicle.MavlinkSimVehicle`)."""
+
+    dialect: Dialect = "px4"
+    DEFAULT_STREAMS_HZ: ClassVar[dict[int, float]] = PX4_DEFAULT_STREAMS_HZ
+    HOME_ALWAYS: ClassVar[bool] = True
+    LOCAL_Z_OFFSET_M: ClassVar[float] = 0.04  # PX4's EKF reports a few cm, not 0, for z at rest on the ground
+    SOFTWARE_VERSION: ClassVar[int] = (1 << 24) | (16 << 16) | (0 << 8) | 0xFF  # 1.16.0 release
+
+    def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
+        return {
+            "MIS_TAKEOFF_ALT": 2.5,
+            "COM_OF_LOSS_T": cfg.vehicle.offboard_loss_timeout_s,
+            "COM_OBL_RC_ACT": 0.0,
+            "MPC_XY_VEL_MAX": 12.0,
+            "MPC_LAND_SPEED": cfg.vehicle.land_speed_m_s,
+            "MPC_TKO_SPEED": cfg.vehicle.takeoff_speed_m_s,
+            "SYS_AUTOSTART": 10040.0,
+        }
+
+    def _pilot_mode(self, mode: FlightMode) -> None:
+        self.vehicle.pilot_set_mode(mode)
+
+    def _mode_flags(self) -> int:
+        b = 0
+        mode = self.vehicle.mode
+        if mode is not FlightMode.MANUAL:
+            b |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if mode in (FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL, FlightMode.MISSION):
+            b |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED
+        if mode is FlightMode.OFFBOARD:
+            b |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return b
+
+    def _heartbeat_autopilot(self) -> tuple[int, int]:
+        return mavlink.MAV_AUTOPILOT_PX4, px4_custom_mode(self.vehicle.mode)
+
+    def _takeoff(self, p: tuple[float, ...]) -> int:
+        v = self.vehicle
+        home = v.home()
+        if math.isfinite(p[6]) and home is not None:
+            alt_rel = p[6] - home.alt_amsl_m
+        else:
+            alt_rel = self._params.get("MIS_TAKEOFF_ALT", 2.5)
+        v.takeoff(alt_rel)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _land(self) -> int:
+        self.vehicle.land()
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _rtl(self) -> int:
+        v = self.vehicle
+        v.hold()
+        v.mode = FlightMode.RTL
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
+        v = self.vehicle
+        if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        mode = px4_flight_mode((int(custom_main) << 16) | (int(custom_sub) << 24))
+        if mode is FlightMode.UNKNOWN:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if mode is FlightMode.OFFBOARD:
+            v.start_offboard()
+        elif mode is FlightMode.HOLD:
+            v.hold()
+        elif mode is FlightMode.LAND:
+            if int(custom_main) == PX4_MAIN_AUTO and int(custom_sub) == PX4_SUB_AUTO_PRECLAND:
+                v.precision_land()
+            else:
+                v.land()
+        elif mode is FlightMode.TAKEOFF:
+            v.takeoff(self._params.get("MIS_TAKEOFF_ALT", 2.5))
+        else:
+            v.hold()
+            v.mode = mode
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
+        self.vehicle.set_velocity(sp)
+
