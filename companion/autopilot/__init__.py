@@ -1,6 +1,6 @@
 """Autopilot interface, telemetry types, the MAVSDK (PX4) and pymavlink (ArduPilot) backends and MAVLink codecs."""
 
-from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected, TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -19,6 +19,7 @@ __all__ = [
     "Attitude",
     "Autopilot",
     "AutopilotError",
+    "CommandRejected",
     "FlightMode",
     "GlobalPosition",
     "GpsRaw",
