@@ -100,6 +100,12 @@ class MissionConfig(_Section):
     )
     estimate_timeout_s: float = _f(1.5, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
     return_home: bool = _f(True, "-", "take off again after the release and fly home")
+    on_release_failure: Literal["return", "stay"] = _f(
+        "return",
+        "-",
+        "when the autopilot refuses or fails the release: fly home with the parcel (return) or stay "
+        "disarmed on the pad (stay); the mission reports the delivery as failed either way",
+    )
     pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
 
     @model_validator(mode="after")
@@ -118,6 +124,23 @@ class MissionConfig(_Section):
                 f"({self.height_m - self.arc_radius_m}), the top of the vertical section"
             )
         return self
+
+
+class PayloadConfig(_Section):
+    """How the parcel is released through the autopilot (the ``autopilot`` payload plugin)."""
+
+    release: Literal["gripper", "servo", "actuator"] = _f(
+        "gripper",
+        "-",
+        "gripper: MAV_CMD_DO_GRIPPER (ArduPilot GRIP_ENABLE = 1; PX4 payload deliverer); servo: "
+        "MAV_CMD_DO_SET_SERVO (ArduPilot; PX4 answers UNSUPPORTED); actuator: MAV_CMD_DO_SET_ACTUATOR "
+        "(PX4: an output whose function is 'Peripheral via Actuator Set N')",
+    )
+    gripper_instance: int = _f(1, "-", "gripper instance (DO_GRIPPER param 1)", ge=1, le=8)
+    servo_channel: int = _f(9, "-", "servo output for release = servo (ArduPilot SERVOn)", ge=1, le=32)
+    servo_pwm_us: int = _f(1900, "us", "PWM that opens the release servo", ge=800, le=2200)
+    actuator_index: int = _f(1, "-", "PX4 actuator set index for release = actuator", ge=1, le=6)
+    actuator_value: float = _f(1.0, "-", "PX4 actuator value that opens the release (-1..1)", ge=-1.0, le=1.0)
 
 
 class LimitsConfig(_Section):
@@ -288,6 +311,7 @@ class CompanionConfig(_Section):
     sim: SimConfig = Field(default_factory=SimConfig)
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     landing: LandingConfig = Field(default_factory=LandingConfig)
+    payload: PayloadConfig = Field(default_factory=PayloadConfig)
 
     @model_validator(mode="after")
     def _timeouts(self) -> CompanionConfig:

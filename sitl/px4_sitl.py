@@ -1,7 +1,8 @@
 """Start a built PX4 SITL (SIH quad, headless) and stop it cleanly. Never builds PX4.
 
 The build is looked up in ``$PX4_DIR`` else ``~/PX4-Autopilot``:
-``build/px4_sitl_default/bin/px4`` run with ``-d`` from the build's ``rootfs`` directory and
+``build/px4_sitl_default/bin/px4`` run with ``-d`` and the build's ``etc`` as data directory from
+``rootfs/<instance>`` (parameters cleared first unless ``clean=False``) and
 ``PX4_SIM_MODEL=sihsim_quadx``. PX4 then sends MAVLink to udp 14540 (the onboard/offboard link).
 """
 
@@ -45,6 +46,7 @@ class Px4Sitl:
     model: str = "sihsim_quadx"
     instance: int = 0
     log_path: Path | None = None
+    clean: bool = True
     proc: subprocess.Popen[bytes] | None = None
 
     @property
@@ -52,12 +54,23 @@ class Px4Sitl:
         return self.root / "build" / "px4_sitl_default"
 
     def start(self, heartbeat_timeout_s: float = 20.0) -> Px4Sitl:
-        rootfs = self.build_dir / "rootfs"
+        port = OFFBOARD_PORT + self.instance
+        if wait_for_heartbeat(port, 1.2):  # PX4 heartbeats at 1 Hz
+            raise RuntimeError(
+                f"an autopilot is already sending heartbeats to udp {port} (a PX4 SITL left running?): "
+                f"stop it first (pkill -f 'px4 -d'); a second PX4 instance {self.instance} would only attach to it"
+            )
+        rootfs = self.build_dir / "rootfs" / str(self.instance)
         rootfs.mkdir(parents=True, exist_ok=True)
+        if self.clean:
+            # parameters and mission storage persist between runs: start as a fresh vehicle
+            for name in ("parameters.bson", "parameters_backup.bson", "dataman"):
+                (rootfs / name).unlink(missing_ok=True)
         env = dict(os.environ, PX4_SIM_MODEL=self.model, HEADLESS="1")
         out = open(self.log_path, "wb") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
         self.proc = subprocess.Popen(
-            [str(self.build_dir / "bin" / "px4"), "-d", "-i", str(self.instance)],
+            # the data directory argument makes px4 link rootfs/etc to the build's etc
+            [str(self.build_dir / "bin" / "px4"), "-d", "-i", str(self.instance), str(self.build_dir / "etc")],
             cwd=rootfs,
             env=env,
             stdin=subprocess.DEVNULL,

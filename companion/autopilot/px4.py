@@ -2,7 +2,7 @@
 
 ``Mavsdk(Configuration(companion computer))``, ``add_any_connection(url)``,
 ``first_autopilot(timeout_s)``, then plugins built explicitly from the system: Action, Telemetry,
-Offboard, MavlinkDirect and Gripper. Telemetry arrives through MAVSDK's async streams, one task
+Offboard and MavlinkDirect. Telemetry arrives through MAVSDK's async streams, one task
 per stream (cancelled, and so unsubscribed, in :meth:`close`), stamped on the shell's clock.
 
 Setpoints. MAVSDK's Offboard plugin re-sends the last setpoint at 20 Hz on its own thread until
@@ -17,6 +17,17 @@ refreshing the setpoint while the vehicle is in OFFBOARD.
 
 Link watchdog: MAVSDK's connection state (3 s heartbeat timeout) and the arrival of telemetry
 (``link_timeout_s``).
+
+Commands, as PX4 v1.16 SIH answers them (measured): every call is bounded by
+``command_timeout_s`` and ends in :class:`CommandRejected` with PX4's MAV_RESULT. Arming is
+refused (TEMPORARILY_REJECTED) in POSCTL without RC and in AUTO.LAND / AUTO.TAKEOFF, and (DENIED)
+in OFFBOARD once our setpoints stopped, which is the mode a companion-flown landing leaves the
+vehicle in; :meth:`arm` therefore switches to HOLD (AUTO.LOITER, where PX4 arms) first. The parcel
+is released with MAV_CMD_DO_GRIPPER (ACCEPTED at once) or MAV_CMD_DO_SET_ACTUATOR (an output whose
+function is "Peripheral via Actuator Set N"); PX4 answers MAV_CMD_DO_SET_SERVO with UNSUPPORTED.
+Both go out as COMMAND_LONG through MavlinkDirect: MAVSDK's Gripper plugin answered UNKNOWN and
+then left a native call blocked, and ``Mavsdk.destroy()`` behind it, so :meth:`close` also
+destroys MAVSDK on a daemon thread with a time limit rather than hang the application.
 
 MAVLink log (``tlog``, an :data:`~companion.autopilot.interface.OpenPacketSink`): MAVSDK does
 not hand out raw packets on a UDP/TCP/serial link, but its core reports every message it
@@ -37,14 +48,18 @@ import json
 import logging
 import math
 import os
+import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any, Literal
 
 from companion.autopilot.interface import (
+    LINK_DOWN,
+    NO_ANSWER,
     AttitudeTarget,
     Autopilot,
     AutopilotError,
+    CommandRejected,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -76,10 +91,35 @@ MAV_FRAME_BODY_FRD = 12
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_SET_SERVO = 183
+MAV_CMD_DO_SET_ACTUATOR = 187
+MAV_CMD_DO_GRIPPER = 211
+GRIPPER_ACTION_RELEASE = 0
+PX4_MAIN_AUTO = 4
+PX4_AUTO_LOITER = 3
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 PX4_MAIN_OFFBOARD = 6
-MAV_RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+MAV_RESULT_NAMES = {
+    0: "ACCEPTED",
+    1: "TEMPORARILY_REJECTED",
+    2: "DENIED",
+    3: "UNSUPPORTED",
+    4: "FAILED",
+    5: "IN_PROGRESS",
+    6: "CANCELLED",
+}
+# MAVSDK's Action/Offboard result names -> the MAV_RESULT behind them (CommandRejected.result)
+_MAVSDK_RESULTS = {
+    "COMMAND_DENIED": "DENIED",
+    "COMMAND_DENIED_LANDED_STATE_UNKNOWN": "DENIED",
+    "COMMAND_DENIED_NOT_LANDED": "DENIED",
+    "UNSUPPORTED": "UNSUPPORTED",
+    "FAILED": "FAILED",
+    "BUSY": "TEMPORARILY_REJECTED",
+    "TIMEOUT": NO_ANSWER,
+    "NO_SYSTEM": LINK_DOWN,
+    "CONNECTION_ERROR": LINK_DOWN,
+}
 
 _FLIGHT_MODES = {
     "UNKNOWN": FlightMode.UNKNOWN,
@@ -207,10 +247,14 @@ class Px4Autopilot(Autopilot):
         link_timeout_s: float = 1.0,
         setpoint_transport: Literal["direct", "offboard"] = "direct",
         setpoint_stale_s: float = 0.5,
-        release: Literal["gripper", "servo"] = "gripper",
+        release: Literal["gripper", "servo", "actuator"] = "gripper",
         gripper_instance: int = 1,
         release_servo: int = 9,
         release_pwm: int = 1900,
+        release_actuator: int = 1,
+        release_actuator_value: float = 1.0,
+        command_timeout_s: float = 5.0,
+        destroy_timeout_s: float = 3.0,
         tlog: OpenPacketSink | None = None,
     ):
         self.connection = connection
@@ -221,6 +265,11 @@ class Px4Autopilot(Autopilot):
         self.gripper_instance = gripper_instance
         self.release_servo = release_servo
         self.release_pwm = release_pwm
+        self.release_actuator = release_actuator
+        self.release_actuator_value = release_actuator_value
+        self.command_timeout_s = command_timeout_s
+        self.destroy_timeout_s = destroy_timeout_s
+        self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
         self.telemetry = TelemetryCache()
         self.setpoints_sent = 0
         self.setpoints_dropped = 0
@@ -237,8 +286,8 @@ class Px4Autopilot(Autopilot):
         self._direct: Any = None
         self._direct_sync: Any = None
         self._offboard_sync: Any = None
-        self._gripper: Any = None
         self._tasks: list[asyncio.Task[None]] = []
+        self._leaked: list[Any] = []
         self._connected = False
         self._last_rx = -math.inf
         self._last_hb = -math.inf
@@ -261,6 +310,13 @@ class Px4Autopilot(Autopilot):
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> Px4Autopilot:
         kwargs.setdefault("setpoint_stale_s", config.runtime.setpoint_stale_s)
+        pl = config.payload
+        kwargs.setdefault("release", pl.release)
+        kwargs.setdefault("gripper_instance", pl.gripper_instance)
+        kwargs.setdefault("release_servo", pl.servo_channel)
+        kwargs.setdefault("release_pwm", pl.servo_pwm_us)
+        kwargs.setdefault("release_actuator", pl.actuator_index)
+        kwargs.setdefault("release_actuator_value", pl.actuator_value)
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     # ------------------------------------------------------------------ link
@@ -270,7 +326,6 @@ class Px4Autopilot(Autopilot):
         url = check_connection_url(self.connection)
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
         from mavsdk.asyncio.plugins.action import ActionAsync
-        from mavsdk.asyncio.plugins.gripper import GripperAsync
         from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
@@ -299,8 +354,6 @@ class Px4Autopilot(Autopilot):
         self._offboard_sync = self._offboard._plugin
         self._direct = MavlinkDirectAsync(system)
         self._direct_sync = self._direct._plugin
-        with contextlib.suppress(Exception):
-            self._gripper = GripperAsync(system)
         self._connected = True
         self._last_rx = time.monotonic()
         self._start_streams()
@@ -375,7 +428,26 @@ class Px4Autopilot(Autopilot):
             self._push(StatusText(now(), _SEVERITY.get(getattr(st.type, "name", ""), 6), text))
 
         def on_home(h: Any) -> None:
-            self._push(HomePosition(now(), h.latitude_deg, h.longitude_deg, h.absolute_altitude_m))
+            pass  # MAVSDK's home stream keeps HOME_POSITION coming; on_home_position reads it whole
+
+        def on_home_position(m: Any) -> None:  # with x/y/z: home in PX4's local frame
+            if m.system_id != self.system_id:
+                return
+            try:
+                f = json.loads(m.fields_json)
+                home = HomePosition(
+                    now(),
+                    int(f["latitude"]) / 1e7,
+                    int(f["longitude"]) / 1e7,
+                    int(f["altitude"]) / 1000.0,
+                    float(f.get("x", 0.0)),
+                    float(f.get("y", 0.0)),
+                    float(f.get("z", 0.0)),
+                )
+            except (ValueError, TypeError, KeyError) as err:
+                log.warning("HOME_POSITION not understood (%s): %s", err, m.fields_json)
+                return
+            self._push(home)
 
         def on_heartbeat(m: Any) -> None:
             if m.system_id != self.system_id or m.component_id != 1:
@@ -409,6 +481,11 @@ class Px4Autopilot(Autopilot):
             self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
         self._tasks.append(
             loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
+        )
+        self._tasks.append(
+            loop.create_task(
+                self._consume(lambda: self._direct.subscribe_message("HOME_POSITION"), on_home_position)
+            )
         )
 
         def on_rc_channels(m: Any) -> None:  # the receiver's raw channels (Dart: pilot sticks, switch)
@@ -500,13 +577,30 @@ class Px4Autopilot(Autopilot):
 
     def _destroy(self) -> None:
         unhooks, self._tlog_unhook = self._tlog_unhook, []
-        if self._mavsdk is not None:
+        mavsdk, self._mavsdk = self._mavsdk, None
+        if mavsdk is not None:
             for unhook in unhooks:
                 with contextlib.suppress(Exception):
                     unhook()
-            with contextlib.suppress(Exception):
-                self._mavsdk.destroy()
-            self._mavsdk = None
+
+            def destroy() -> None:
+                with contextlib.suppress(Exception):
+                    mavsdk.destroy()
+
+            # Mavsdk.destroy() waits for native calls in flight; one the autopilot never answers
+            # would block it (and the application) for good: give it destroy_timeout_s.
+            t = threading.Thread(target=destroy, name="mavsdk-destroy", daemon=True)
+            t.start()
+            t.join(self.destroy_timeout_s)
+            if t.is_alive():
+                log.warning(
+                    "MAVSDK did not shut down within %.1f s (%d unanswered call(s) still blocked in it); "
+                    "left to the process exit",
+                    self.destroy_timeout_s,
+                    self.calls_unanswered,
+                )
+                self._leaked.append((mavsdk, unhooks))  # its C callbacks must outlive it
+                return
         del unhooks  # the C callbacks may go once MAVSDK is gone
         tlog, self.tlog = self.tlog, None
         if tlog is not None:
@@ -535,32 +629,53 @@ class Px4Autopilot(Autopilot):
 
     # ------------------------------------------------------------------ commands
     async def _call(self, name: str, fn: Callable[[], Awaitable[Any]]) -> Any:
+        """One MAVSDK call, bounded by ``command_timeout_s``; failures as :class:`CommandRejected`."""
         if self._system is None:
-            raise AutopilotError(f"{name}: not connected")
+            raise CommandRejected(name, LINK_DOWN, "not connected")
         if not self.link_ok:
-            raise AutopilotError(f"{name}: link is down")
+            raise CommandRejected(name, LINK_DOWN, "link is down")
         text_before = self._last_text
         try:
-            return await fn()
+            return await asyncio.wait_for(fn(), self.command_timeout_s)
+        except TimeoutError:
+            # the native call goes on blocking a MAVSDK thread; we stop waiting for it
+            self.calls_unanswered += 1
+            raise CommandRejected(name, NO_ANSWER, f"no answer within {self.command_timeout_s:.1f} s") from None
         except Exception as err:  # MAVSDK's ActionError, OffboardError, ... (all MavsdkError)
             await asyncio.sleep(0.05)  # the STATUSTEXT with PX4's reason follows the ack
             reason = self._last_text if self._last_text != text_before else ""
-            raise AutopilotError(f"{name}: {err}" + (f" ({reason})" if reason else "")) from None
+            code = str(err).split(";", 1)[0].strip()
+            result = _MAVSDK_RESULTS.get(code, code or type(err).__name__)
+            raise CommandRejected(name, result, reason or str(err)) from None
 
     async def _direct_command(self, name: str, command: int, *params: float) -> None:
+        """COMMAND_LONG through MavlinkDirect; returns on ACCEPTED, else :class:`CommandRejected`."""
         from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
 
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         fields = {"target_system": self.system_id, "target_component": 1, "command": command, "confirmation": 0}
         fields.update({f"param{i + 1}": v for i, v in enumerate(p)})
         msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
+        text_before = self._last_text
         ack = await self._call(name, lambda: self._direct.send_command(msg))
         result = json.loads(ack.fields_json).get("result", -1) if ack.fields_json else -1
         if result != 0:
-            await asyncio.sleep(0.05)
-            raise AutopilotError(f"{name}: {MAV_RESULT_NAMES.get(result, result)} ({self._last_text})")
+            await asyncio.sleep(0.05)  # PX4's STATUSTEXT with the reason follows the ack
+            reason = self._last_text if self._last_text != text_before else ""
+            raise CommandRejected(name, MAV_RESULT_NAMES.get(result, str(result)), reason)
 
     async def arm(self) -> None:
+        if not self._armed and self._mode is not FlightMode.HOLD:
+            # PX4 refuses to arm in the mode a landing leaves (OFFBOARD without setpoints,
+            # AUTO.LAND) and in POSCTL without RC: arm in HOLD, then take off from there
+            await self._direct_command(
+                "arm (switch to HOLD first)",
+                MAV_CMD_DO_SET_MODE,
+                MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                PX4_MAIN_AUTO,
+                PX4_AUTO_LOITER,
+            )
+            self._mode = FlightMode.HOLD
         await self._call("arm", self._action.arm)
 
     async def disarm(self) -> None:
@@ -695,8 +810,17 @@ class Px4Autopilot(Autopilot):
             raise AutopilotError(f"LANDING_TARGET not sent: {err}") from err
 
     async def release_payload(self) -> None:
-        if self.release == "gripper" and self._gripper is not None:
-            await self._call("release (gripper)", lambda: self._gripper.release(self.gripper_instance))
+        """Release the parcel (``release``: gripper, servo or actuator; see the module doc). PX4
+        gives no feedback beyond the COMMAND_ACK, so ACCEPTED counts as released."""
+        if self.release == "gripper":
+            await self._direct_command(
+                "release (gripper)", MAV_CMD_DO_GRIPPER, self.gripper_instance, GRIPPER_ACTION_RELEASE
+            )
+        elif self.release == "actuator":
+            # DO_SET_ACTUATOR: params 1-6 are actuator sets 1-6 (-1..1), NaN leaves one unchanged
+            values = [math.nan] * 6
+            values[self.release_actuator - 1] = self.release_actuator_value
+            await self._direct_command("release (actuator)", MAV_CMD_DO_SET_ACTUATOR, *values, 0)
         else:
             await self._direct_command("release (servo)", MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm)
         self._payload_released = True

@@ -117,10 +117,17 @@ class VehicleStatus(_Finite):
 
 @dataclass(frozen=True, slots=True)
 class HomePosition(_Finite):
+    """Home as the autopilot reports it (MAVLink HOME_POSITION): geodetic, and where it lies in
+    the autopilot's local NED frame, whose origin (the EKF origin) need not be home: PX4 v1.16 SIH
+    was measured with home 21 m from its local origin on a fresh start."""
+
     time_s: float
     lat_deg: float
     lon_deg: float
     alt_amsl_m: float
+    north_m: float = 0.0
+    east_m: float = 0.0
+    down_m: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

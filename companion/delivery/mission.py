@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 FOLLOW_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.INBOUND, Phase.LANDING_HOME)
 OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OFFBOARD
 MAX_REQUEST_TRIES = 3
+REQUEST_RETRY_DELAY_S = 1.0  # between tries of a request the autopilot refused for now
+DISARM_REPEAT_S = 2.0  # after an accepted DISARM, the status may show armed for a moment
 
 
 class RequestKind(enum.Enum):
@@ -56,9 +58,13 @@ class Request:
 
 @dataclass(frozen=True, slots=True)
 class RequestResult:
+    """What became of a request. ``permanent``: the autopilot will give the same answer to the
+    same request (UNSUPPORTED, DENIED, FAILED, never answered): the mission does not resend it."""
+
     id: int
     ok: bool
     error: str = ""
+    permanent: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,20 +206,33 @@ class DeliveryMission:
         if result.ok:
             self._on_request_ok(p.request)
             return
-        self._emit(EventKind.REQUEST_FAILED, f"{p.request.kind.value} (try {p.tries}): {result.error}")
-        if p.tries < MAX_REQUEST_TRIES:
-            self._retry = (p.request.kind, p.request.alt_rel_m, self._now + 1.0)
+        final = result.permanent or p.tries >= MAX_REQUEST_TRIES
+        self._emit(
+            EventKind.REQUEST_FAILED,
+            f"{p.request.kind.value} (try {p.tries} of {MAX_REQUEST_TRIES}"
+            + (", not retried: the autopilot will answer the same" if result.permanent else "")
+            + f"): {result.error}",
+        )
+        if not final:
+            # the one retry path: phase handlers issue nothing while a retry is scheduled
+            self._retry = (p.request.kind, p.request.alt_rel_m, self._now + REQUEST_RETRY_DELAY_S)
             self._retry_tries = p.tries + 1
+            return
+        reason = (
+            f"{p.request.kind.value} refused: {result.error}"
+            if result.permanent
+            else f"{p.request.kind.value} failed {p.tries} times: {result.error}"
+        )
+        if p.request.kind is RequestKind.RELEASE and self.phase is Phase.RELEASE:
+            self._release_error = reason
+        elif p.request.kind in (RequestKind.HOLD, RequestKind.LAND) and self.phase in (
+            Phase.ABORT_HOLD,
+            Phase.ABORT_LAND,
+        ):
+            self.summary.failure = reason
+            self._goto(Phase.FAILED)
         else:
-            reason = f"{p.request.kind.value} failed {p.tries} times: {result.error}"
-            if p.request.kind in (RequestKind.HOLD, RequestKind.LAND) and self.phase in (
-                Phase.ABORT_HOLD,
-                Phase.ABORT_LAND,
-            ):
-                self.summary.failure = reason
-                self._goto(Phase.FAILED)
-            else:
-                self.abort(self._now, reason)
+            self.abort(self._now, reason)
 
     def step(self, inp: MissionInputs) -> MissionOutput:
         if not self._started:
@@ -236,6 +255,7 @@ class DeliveryMission:
         if handler is not None:
             setpoint, request, lyap = handler(inp)
         if request is None and self._retry is not None and self._pending is None:
+            # (a phase change drops the retry: see _goto)
             kind, alt, not_before = self._retry
             if inp.time_s >= not_before:
                 self._retry = None
@@ -251,6 +271,7 @@ class DeliveryMission:
                     self.cfg,
                     GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m),
                     np.array(est.position_ned),
+                    (home.north_m, home.east_m, home.down_m),
                 )
             except (PathGeometryError, ValueError) as err:
                 self.summary.failure = f"path planning failed: {err}"
@@ -264,7 +285,7 @@ class DeliveryMission:
                 f"heading {math.degrees(self.frame.heading_rad):.1f} deg",
             )
         ready = st is not None and st.healthy and self.frame is not None
-        if ready and st is not None and st.armed is False and self._pending is None:
+        if ready and st is not None and st.armed is False and self._idle():
             self._goto(Phase.ARMING)
             return None, self._make_request(RequestKind.ARM), math.nan
         if inp.time_s - self._phase_t0 > self.cfg.ready_timeout_s:
@@ -290,7 +311,7 @@ class DeliveryMission:
             self.abort(inp.time_s, f"takeoff did not reach {self.cfg.takeoff_alt_m} m in time")
             return None, None, math.nan
         if not self._takeoff_requested:
-            if self._pending is None:
+            if self._idle():
                 self._takeoff_requested = True
                 self._expect_mode_change = True
                 return None, self._make_request(RequestKind.TAKEOFF), math.nan
@@ -312,7 +333,7 @@ class DeliveryMission:
             self._stream_t0 = inp.time_s
         if (
             not self._offboard_requested
-            and self._pending is None
+            and self._idle()
             and inp.time_s - self._stream_t0 >= OFFBOARD_STREAM_BEFORE_SWITCH_S
         ):
             self._offboard_requested = True
@@ -369,18 +390,23 @@ class DeliveryMission:
             if not st.armed:
                 self._after_touchdown(s)
                 return None, None, math.nan
-            if self._pending is None:
+            if self._idle() and inp.time_s >= self._disarm_not_before:
+                # the autopilot usually disarms by itself; ask, and ask again only if it stays armed
+                self._disarm_not_before = inp.time_s + DISARM_REPEAT_S
                 return None, self._make_request(RequestKind.DISARM), math.nan
             return None, None, math.nan
         if est is None:
             return None, None, math.nan
-        if inp.time_s - self._phase_t0 > self.cfg.touchdown_timeout_s and self._pending is None:
+        if self._touchdown_land_requested:
+            return None, None, math.nan  # the autopilot's LAND flies the rest; we wait for the touchdown
+        if inp.time_s - self._phase_t0 > self.cfg.touchdown_timeout_s and self._idle():
             self._expect_mode_change = True
+            self._touchdown_land_requested = True
             self._emit(EventKind.WARNING, "no touchdown in time: handing the last metres to the autopilot's LAND")
             return None, self._make_request(RequestKind.LAND), math.nan
         if s == 1 and self.landing_controller == "autopilot":
             # the autopilot's precision landing flies the descent; we only wait for the touchdown
-            if not self._precland_requested and self._pending is None:
+            if not self._precland_requested and self._idle():
                 self._precland_requested = True
                 self._expect_mode_change = True
                 return None, self._make_request(RequestKind.PRECISION_LAND), math.nan
@@ -419,6 +445,7 @@ class DeliveryMission:
 
     def _after_touchdown(self, s: int) -> None:
         if s == 1:
+            self._left_pad = True  # the next ARM is for the return leg
             self._goto(Phase.RELEASE)
         else:
             self.summary.returned = True
@@ -428,15 +455,18 @@ class DeliveryMission:
 
     def _do_release(self, inp: MissionInputs) -> tuple:
         st = inp.status
+        if self._release_error:
+            return self._release_failed(inp)
         if self._release_t0 is None:
-            if self._pending is None:
+            if self._idle() and not self._release_requested:  # later tries come from the retry path
+                self._release_requested = True
                 return None, self._make_request(RequestKind.RELEASE), math.nan
             return None, None, math.nan
         if inp.time_s - self._release_t0 < self.cfg.release_time_s:
             return None, None, math.nan
         if st is not None and not st.payload_released:
-            self.abort(inp.time_s, "payload actuator reports the parcel still attached")
-            return None, None, math.nan
+            self._release_error = "the payload actuator reports the parcel still attached"
+            return self._release_failed(inp)
         if not self.summary.delivered:
             self.summary.delivered = True
             self._emit(EventKind.DELIVERED, "parcel released on the pad")
@@ -447,21 +477,39 @@ class DeliveryMission:
         self._goto(Phase.ARMING)
         return None, self._make_request(RequestKind.ARM), math.nan
 
+    def _release_failed(self, inp: MissionInputs) -> tuple:
+        """The autopilot refused or failed the release (or never answered): the parcel is still
+        attached. Say so once, then fly home with it or stay on the pad (mission.on_release_failure)."""
+        reason, self._release_error = self._release_error, ""
+        self.summary.failure = f"parcel not released: {reason}"
+        stay = self.cfg.on_release_failure == "stay" or not self.cfg.return_home
+        self._emit(
+            EventKind.WARNING,
+            f"parcel not released ({reason}); "
+            + ("staying disarmed on the pad" if stay else "flying home with the parcel"),
+        )
+        if stay:
+            self.summary.end_time_s = inp.time_s
+            self._goto(Phase.FAILED)
+            return None, None, math.nan
+        self._goto(Phase.ARMING)
+        return None, self._make_request(RequestKind.ARM), math.nan
+
     def _do_abort_hold(self, inp: MissionInputs) -> tuple:
         if not self._abort_hold_requested:
-            if self._pending is None:
+            if self._idle():
                 self._abort_hold_requested = True
                 self._expect_mode_change = True
                 return None, self._make_request(RequestKind.HOLD), math.nan
             return None, None, math.nan
-        if not self._hold_forever and inp.time_s - self._phase_t0 >= self.cfg.abort_hold_s and self._pending is None:
+        if not self._hold_forever and inp.time_s - self._phase_t0 >= self.cfg.abort_hold_s and self._idle():
             self._goto(Phase.ABORT_LAND)
             self._land_requested = True
             return None, self._make_request(RequestKind.LAND), math.nan
         return None, None, math.nan
 
     def _do_abort_land(self, inp: MissionInputs) -> tuple:
-        if not self._land_requested and self._pending is None:
+        if not self._land_requested and self._idle():
             self._land_requested = True
             self._expect_mode_change = True
             return None, self._make_request(RequestKind.LAND), math.nan
@@ -482,6 +530,15 @@ class DeliveryMission:
     _reenter = False
     _link_restored_at = -math.inf
     _retry_tries = 2
+    _touchdown_land_requested = False
+    _disarm_not_before = -math.inf
+    _left_pad = False
+    _release_requested = False
+    _release_error = ""
+
+    def _idle(self) -> bool:
+        """No request in flight and none waiting for its retry: a phase may issue a new one."""
+        return self._pending is None and self._retry is None
 
     def _on_request_ok(self, req: Request) -> None:
         k = req.kind
@@ -489,7 +546,7 @@ class DeliveryMission:
             self._emit(EventKind.ARMED, "")
             if self.summary.takeoff_time_s is None:
                 self.summary.takeoff_time_s = self._now
-            self._goto(Phase.TAKEOFF if not self.summary.delivered else Phase.TAKEOFF_RETURN)
+            self._goto(Phase.TAKEOFF_RETURN if self._left_pad else Phase.TAKEOFF)
         elif k is RequestKind.RELEASE:
             self._release_t0 = self._now
             self._emit(EventKind.RELEASED, "release commanded")
@@ -520,6 +577,10 @@ class DeliveryMission:
         self._reenter = False
         self._release_t0 = None if phase is not Phase.RELEASE else self._release_t0
         self._precland_requested = False
+        self._touchdown_land_requested = False
+        self._disarm_not_before = -math.inf
+        self._release_requested = False
+        self._retry = None  # a retry belongs to the phase that asked
         if phase in (Phase.OUTBOUND, Phase.INBOUND):
             self._expect_mode_change = False
         self._emit(EventKind.PHASE, phase.value)

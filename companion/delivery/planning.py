@@ -27,10 +27,11 @@ def pad_position_ned(cfg: MissionConfig, home: GeoPoint) -> np.ndarray:
 
 
 def plan_delivery(
-    cfg: MissionConfig, home: GeoPoint, start_ned: np.ndarray
+    cfg: MissionConfig, home: GeoPoint, start_ned: np.ndarray, home_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> tuple[MissionFrame, DeliveryPath, float]:
-    """Mission frame F_I, the path, and the start's height z_s in F_I."""
-    pad_ned = pad_position_ned(cfg, home)
+    """Mission frame F_I, the path, and the start's height z_s in F_I. ``home_ned``: home in the
+    autopilot's local NED frame (HOME_POSITION x/y/z), which is where the pad's offsets start."""
+    pad_ned = np.asarray(home_ned, dtype=float) + pad_position_ned(cfg, home)
     start = np.asarray(start_ned, dtype=float)
     d = math.hypot(pad_ned[0] - start[0], pad_ned[1] - start[1])
     if d < 1e-3:

@@ -50,6 +50,16 @@ from companion.flightlog.recorder import (
 log = logging.getLogger(__name__)
 
 
+# Columns added after the log format was first released, with the value older logs imply.
+OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
+    ("requests.csv", "permanent"): False,
+    ("ap_home.csv", "north_m"): 0.0,
+    ("ap_home.csv", "east_m"): 0.0,
+    ("ap_home.csv", "down_m"): 0.0,
+}
+
+
+
 # ---------------------------------------------------------------------------------------------
 # the merged input stream
 
@@ -75,14 +85,19 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
     inputs: list[_Input] = []
 
     def table(name: str) -> Table:
-        tables[name] = Table(run_dir / name, STREAM_FILES[name])
+        # logs written before a column was added still replay (with its default)
+        required = [c for c in STREAM_FILES[name] if (name, c) not in OPTIONAL_COLUMNS]
+        tables[name] = Table(run_dir / name, required)
         return tables[name]
 
     for cls, name in SAMPLE_FILES.items():
         t = table(name)
         fields_ = sample_fields(cls)
         for k in range(len(t)):
-            sample = cls(t.value(k, "time_s"), *(t.value(k, n, typ) for n, typ in fields_))
+            sample = cls(
+                t.value(k, "time_s"),
+                *(t.value(k, n, typ) if n in t.index else OPTIONAL_COLUMNS[(name, n)] for n, typ in fields_),
+            )
             inputs.append(_Input(_int(t, k, "seq"), "sample", sample, f"{name}:{k + 2}"))
     t = table("camera.csv")
     from companion.geometry.se3 import Transform
@@ -113,7 +128,8 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
         inputs.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
     t = table("requests.csv")
     for k in range(len(t)):
-        res = RequestResult(_int(t, k, "id"), t.value(k, "ok", bool), t.text(k, "error"))
+        permanent = "permanent" in t.index and t.value(k, "permanent", bool)
+        res = RequestResult(_int(t, k, "id"), t.value(k, "ok", bool), t.text(k, "error"), permanent)
         inputs.append(_Input(_int(t, k, "seq"), "result", res, f"requests.csv:{k + 2}"))
     t = table("commands.csv")
     for k in range(len(t)):

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.config import CompanionConfig
 from companion.delivery.mission import (
@@ -357,8 +357,9 @@ class DeliveryShell:
         except (AutopilotError, TimeoutError) as err:
             self.stats.requests_failed += 1
             msg = str(err) or type(err).__name__
-            log.warning("%s failed: %s", req.kind.value, msg)
-            self._result(req, RequestResult(req.id, False, msg))
+            permanent = isinstance(err, CommandRejected) and err.permanent
+            log.warning("%s failed%s: %s", req.kind.value, " (not retried)" if permanent else "", msg)
+            self._result(req, RequestResult(req.id, False, msg, permanent))
             return
         self._result(req, RequestResult(req.id, True))
 

@@ -249,7 +249,7 @@ GUIDANCE_COLUMNS = (
     "request_alt_m",
 )
 SETPOINT_COLUMNS = ("time_s", "north_m_s", "east_m_s", "down_m_s", "yaw_rad")
-REQUEST_COLUMNS = ("time_s", "seq", "id", "kind", "ok", "error")
+REQUEST_COLUMNS = ("time_s", "seq", "id", "kind", "ok", "error", "permanent")
 COMMAND_COLUMNS = ("time_s", "seq", "source", "kind", "detail", "reply")
 EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
 
@@ -506,7 +506,10 @@ class FlightRecorder:
     @_guarded
     def on_result(self, now_s: float, kind: str, result: Any) -> None:
         """A request result about to be fed back to the mission (``RequestResult``)."""
-        self._write("requests.csv", (now_s, next(self._seq), result.id, kind, int(bool(result.ok)), result.error))
+        self._write(
+            "requests.csv",
+            (now_s, next(self._seq), result.id, kind, int(bool(result.ok)), result.error, int(bool(result.permanent))),
+        )
 
     @_guarded
     def on_abort(self, now_s: float, reason: str) -> None:

@@ -1,0 +1,163 @@
+"""How the mission treats the autopilot's answers: one retry path, permanent refusals never
+resent, a failed release handled once (fly home with the parcel, or stay), no request storms.
+
+The firmware answers these tests model were measured on PX4 v1.16 SIH and ArduCopter 4.7 SITL:
+PX4 answers DO_SET_SERVO with UNSUPPORTED and refuses to arm in the mode a landing leaves;
+ArduCopter answers DO_GRIPPER with FAILED while GRIP_ENABLE = 0.
+"""
+
+import math
+
+from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
+from companion.config import MissionConfig, PadConfig
+from companion.estimation.types import StateEstimate
+from companion.delivery.mission import (
+    DISARM_REPEAT_S,
+    MAX_REQUEST_TRIES,
+    REQUEST_RETRY_DELAY_S,
+    DeliveryMission,
+    MissionInputs,
+    RequestKind,
+    RequestResult,
+)
+from companion.events import EventKind, Phase
+
+HOME = HomePosition(0.0, -19.869, -43.9638, 850.0)
+DT = 0.05  # the guidance rate
+
+
+def est(t, n=0.0, e=0.0, d=0.0):
+    return StateEstimate(t, n, e, d, 0, 0, 0, 0, 0, 0)
+
+
+def status(t, armed=False, mode=FlightMode.HOLD, landed=LandedState.ON_GROUND, released=False):
+    return VehicleStatus(t, armed, mode, landed, True, 90.0, released)
+
+
+def on_the_pad(**kw) -> tuple[DeliveryMission, float]:
+    """A mission that has flown out and touched down on the pad, now in RELEASE."""
+    m = DeliveryMission(MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0), **kw))
+    req = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
+    assert req is not None and req.kind is RequestKind.ARM
+    m.on_result(RequestResult(req.id, True))
+    m._after_touchdown(1)  # the flight itself is covered by the whole-mission tests
+    assert m.phase is Phase.RELEASE
+    return m, 0.0
+
+
+def run(m, t, seconds, answer, st=None):
+    """Tick at 20 Hz for ``seconds``, answering every request with ``answer(req)``; the requests."""
+    reqs = []
+    end = t + seconds
+    while t < end and not m.phase.terminal:
+        t += DT
+        out = m.step(MissionInputs(t, est(t, 60.0, 80.0), st(t) if st else status(t), HOME))
+        if out.request is not None:
+            reqs.append((t, out.request))
+            res = answer(out.request)
+            if res is not None:
+                m.on_result(res)
+    return t, reqs
+
+
+def refuse(result_ok_kinds=(), permanent=True, error="release (gripper): FAILED"):
+    def answer(req):
+        if req.kind in result_ok_kinds:
+            return RequestResult(req.id, True)
+        return RequestResult(req.id, False, error, permanent)
+
+    return answer
+
+
+def test_a_permanent_release_refusal_is_sent_once_then_the_vehicle_flies_home_with_the_parcel():
+    m, t = on_the_pad()
+    t, reqs = run(m, t, 10.0, refuse(result_ok_kinds=(RequestKind.ARM, RequestKind.TAKEOFF)))
+    releases = [r for _, r in reqs if r.kind is RequestKind.RELEASE]
+    assert len(releases) == 1  # not 20 Hz forever
+    assert m.phase is Phase.TAKEOFF_RETURN  # re-armed for the return leg, not the outbound one
+    assert not m.summary.delivered
+    assert "parcel not released" in m.summary.failure and "FAILED" in m.summary.failure
+    warnings = [e for e in m.summary.events if e.kind is EventKind.WARNING and "parcel not released" in e.detail]
+    assert len(warnings) == 1 and "flying home with the parcel" in warnings[0].detail
+    failed = [e for e in m.summary.events if e.kind is EventKind.REQUEST_FAILED]
+    assert len(failed) == 1 and "try 1 of 3, not retried" in failed[0].detail
+
+
+def test_on_release_failure_stay_ends_the_mission_disarmed_on_the_pad():
+    m, t = on_the_pad(on_release_failure="stay")
+    t, reqs = run(m, t, 10.0, refuse())
+    assert [r.kind for _, r in reqs] == [RequestKind.RELEASE]
+    assert m.phase is Phase.FAILED
+    assert m.summary.failure.startswith("parcel not released: release refused: release (gripper): FAILED")
+
+
+def test_a_temporary_refusal_is_retried_on_the_one_retry_path_then_given_up():
+    m, t = on_the_pad(on_release_failure="stay")
+    t, reqs = run(m, t, 10.0, refuse(permanent=False, error="release: TEMPORARILY_REJECTED"))
+    times = [tr for tr, r in reqs if r.kind is RequestKind.RELEASE]
+    assert len(times) == MAX_REQUEST_TRIES
+    assert all(b - a >= REQUEST_RETRY_DELAY_S - 1e-9 for a, b in zip(times, times[1:], strict=False))
+    tries = [e.detail for e in m.summary.events if e.kind is EventKind.REQUEST_FAILED]
+    assert [d.split(")")[0] for d in tries] == ["release (try 1 of 3", "release (try 2 of 3", "release (try 3 of 3"]
+    assert m.phase is Phase.FAILED and "failed 3 times" in m.summary.failure
+
+
+def test_an_unanswered_release_is_not_resent_while_it_is_in_flight():
+    m, t = on_the_pad()
+    t, reqs = run(m, t, 5.0, lambda req: None)  # the autopilot never answers
+    assert len(reqs) == 1 and reqs[0][1].kind is RequestKind.RELEASE
+
+
+def test_a_released_parcel_still_reported_attached_takes_the_release_failure_path():
+    m, t = on_the_pad(release_time_s=1.0)
+    t, reqs = run(m, t, 5.0, refuse(result_ok_kinds=(RequestKind.RELEASE, RequestKind.ARM, RequestKind.TAKEOFF)))
+    assert [r.kind for _, r in reqs][:2] == [RequestKind.RELEASE, RequestKind.ARM]
+    assert m.phase is Phase.TAKEOFF_RETURN
+    assert "still attached" in m.summary.failure and not m.summary.delivered
+
+
+def test_a_permanent_arm_refusal_fails_at_once_with_the_autopilots_answer():
+    m = DeliveryMission(MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0)))
+    req = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
+    m.on_result(RequestResult(req.id, False, "arm: DENIED (Arming denied: switch to a manual mode)", True))
+    t, reqs = run(m, 0.0, 5.0, refuse())
+    assert reqs == []
+    assert m.phase is Phase.FAILED and "arm refused: arm: DENIED" in m.summary.failure
+
+
+def test_disarm_after_touchdown_is_asked_once_and_again_only_if_the_vehicle_stays_armed():
+    m, t = on_the_pad()
+    m._goto(Phase.LANDING_HOME)  # touched down at home, still armed
+
+    def landed_armed(t):
+        return status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.ON_GROUND)
+
+    t, reqs = run(m, t, 3 * DISARM_REPEAT_S - 0.01, refuse(result_ok_kinds=(RequestKind.DISARM,)), landed_armed)
+    kinds = [r.kind for _, r in reqs]
+    assert kinds == [RequestKind.DISARM] * 3  # at 0, 2 and 4 s: not 20 Hz
+    t, _ = run(m, t, 0.2, refuse(), lambda t: status(t, landed=LandedState.ON_GROUND))
+    assert m.phase is Phase.DONE and m.summary.returned
+
+
+def test_the_touchdown_timeout_hands_over_to_land_once():
+    m, t = on_the_pad()
+    m._goto(Phase.LANDING_HOME)
+
+    def hovering(t):
+        return status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+
+    t, reqs = run(m, t, m.cfg.touchdown_timeout_s + 5.0, refuse(result_ok_kinds=(RequestKind.LAND,)), hovering)
+    assert [r.kind for _, r in reqs] == [RequestKind.LAND]
+    warnings = [e for e in m.summary.events if "no touchdown in time" in e.detail]
+    assert len(warnings) == 1
+
+
+def test_the_pad_is_placed_from_home_in_the_autopilots_local_frame():
+    """PX4's local origin (the EKF origin) need not be home: HOME_POSITION's x/y/z say where home
+    is, and the pad's offsets start there."""
+    home = HomePosition(0.0, -19.869, -43.9638, 850.0, north_m=15.0, east_m=-7.0, down_m=0.1)
+    m = DeliveryMission(MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0)))
+    m.step(MissionInputs(0.0, est(0.0, 15.0, -7.0, 0.1), status(0.0), home))
+    assert m.frame is not None and m.path is not None
+    assert math.isclose(m.path.d, 100.0, rel_tol=1e-9)
+    assert [round(float(v), 9) for v in m.frame.pad_ned] == [75.0, 73.0, 0.1]
