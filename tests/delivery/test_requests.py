@@ -6,11 +6,11 @@ PX4 answers DO_SET_SERVO with UNSUPPORTED and refuses to arm in the mode a landi
 ArduCopter answers DO_GRIPPER with FAILED while GRIP_ENABLE = 0.
 """
 
+import itertools
 import math
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import MissionConfig, PadConfig
-from companion.estimation.types import StateEstimate
 from companion.delivery.mission import (
     DISARM_REPEAT_S,
     MAX_REQUEST_TRIES,
@@ -20,6 +20,7 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
+from companion.estimation.types import StateEstimate
 from companion.events import EventKind, Phase
 
 HOME = HomePosition(0.0, -19.869, -43.9638, 850.0)
@@ -96,7 +97,7 @@ def test_a_temporary_refusal_is_retried_on_the_one_retry_path_then_given_up():
     t, reqs = run(m, t, 10.0, refuse(permanent=False, error="release: TEMPORARILY_REJECTED"))
     times = [tr for tr, r in reqs if r.kind is RequestKind.RELEASE]
     assert len(times) == MAX_REQUEST_TRIES
-    assert all(b - a >= REQUEST_RETRY_DELAY_S - 1e-9 for a, b in zip(times, times[1:], strict=False))
+    assert all(b - a >= REQUEST_RETRY_DELAY_S - 1e-9 for a, b in itertools.pairwise(times))
     tries = [e.detail for e in m.summary.events if e.kind is EventKind.REQUEST_FAILED]
     assert [d.split(")")[0] for d in tries] == ["release (try 1 of 3", "release (try 2 of 3", "release (try 3 of 3"]
     assert m.phase is Phase.FAILED and "failed 3 times" in m.summary.failure
@@ -120,7 +121,7 @@ def test_a_permanent_arm_refusal_fails_at_once_with_the_autopilots_answer():
     m = DeliveryMission(MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0)))
     req = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
     m.on_result(RequestResult(req.id, False, "arm: DENIED (Arming denied: switch to a manual mode)", True))
-    t, reqs = run(m, 0.0, 5.0, refuse())
+    _, reqs = run(m, 0.0, 5.0, refuse())
     assert reqs == []
     assert m.phase is Phase.FAILED and "arm refused: arm: DENIED" in m.summary.failure
 

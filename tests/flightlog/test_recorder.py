@@ -31,8 +31,8 @@ UNITS = ("_s", "_m", "_m_s", "_rad", "_rad_s", "_deg", "_m_s2", "_px", "_pct", "
 UNITLESS = {
     "seq", "phase", "sector", "mode", "armed", "landed", "healthy", "payload_released", "fix_type", "satellites",
     "severity", "text", "ambiguous", "markers", "anchors_used", "frame", "pdop", "xi", "markers_used", "uwb_used",
-    "link_ok", "est_source", "clamped", "request", "request_id", "id", "kind", "ok", "error", "permanent", "source", "detail",
-    "reply", *(f"r{i}{j}" for i in range(3) for j in range(3)),
+    "link_ok", "est_source", "clamped", "request", "request_id", "id", "kind", "ok", "error", "permanent", "source",
+    "detail", "reply", *(f"r{i}{j}" for i in range(3) for j in range(3)),
 }  # fmt: skip
 
 
