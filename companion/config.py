@@ -280,6 +280,24 @@ class LandingConfig(_Section):
     uwb_anchors: str = _f(
         "uwb_anchors_pad.toml", "-", "UWB anchor layout TOML, pad frame (a path, or shipped in params/)", min_length=1
     )
+    ekf_position_process_sigma_m_per_sqrt_s: float = _f(
+        0.05,
+        "m/sqrt(s)",
+        "EKF position random walk (delivery eq 6 Q_f): how fast the autopilot's velocity error can carry "
+        "the position away between pad observations. 0.05 suits an autopilot whose velocity estimate is "
+        "good (ArduCopter SITL, the embedded simulator); PX4 v1.16 SIH needs ~0.3 (its velocity estimate "
+        "was measured 0.5 m/s off for seconds near the ground)",
+        gt=0.0,
+        le=5.0,
+    )
+    ekf_gate_reset_after_rejections: int = _f(
+        20,
+        "-",
+        "consecutive chi-square rejections of one sensor after which the EKF admits it is lost and "
+        "re-opens its covariance (UWB at 10 Hz: 20 = 2 s)",
+        ge=1,
+        le=1000,
+    )
     controller: Literal["companion", "autopilot"] = _f(
         "companion",
         "-",

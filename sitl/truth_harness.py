@@ -57,6 +57,7 @@ async def fly_on_truth(
     origin: GeoPoint,
     pad_offset_m: tuple[float, float],
     timeout_s: float = 300.0,
+    recorder: Any | None = None,
 ) -> HarnessResult:
     """One delivery with fusion; ``truth`` must be started (and is not stopped here)."""
     pad_ne = true_pad_ne(config, origin, pad_offset_m)
@@ -75,7 +76,7 @@ async def fly_on_truth(
         ):
             touchdown.append((truth.pn, truth.pe))
 
-    shell = DeliveryShell(config, autopilot, on_tick=tick, landing=kit)
+    shell = DeliveryShell(config, autopilot, on_tick=tick, landing=kit, recorder=recorder)
     summary = await shell.run(timeout_s=timeout_s)
     td = touchdown[0] if touchdown else (math.nan, math.nan)
     err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])

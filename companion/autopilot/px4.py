@@ -91,7 +91,6 @@ MAV_FRAME_BODY_FRD = 12
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_SET_SERVO = 183
-MAV_CMD_DO_SET_ACTUATOR = 187
 MAV_CMD_DO_GRIPPER = 211
 GRIPPER_ACTION_RELEASE = 0
 PX4_MAIN_AUTO = 4
@@ -817,10 +816,12 @@ class Px4Autopilot(Autopilot):
                 "release (gripper)", MAV_CMD_DO_GRIPPER, self.gripper_instance, GRIPPER_ACTION_RELEASE
             )
         elif self.release == "actuator":
-            # DO_SET_ACTUATOR: params 1-6 are actuator sets 1-6 (-1..1), NaN leaves one unchanged
-            values = [math.nan] * 6
-            values[self.release_actuator - 1] = self.release_actuator_value
-            await self._direct_command("release (actuator)", MAV_CMD_DO_SET_ACTUATOR, *values, 0)
+            # DO_SET_ACTUATOR with NaN for the other sets (left unchanged): MavlinkDirect's JSON
+            # cannot carry a NaN, MAVSDK's Action.set_actuator sends exactly this command
+            await self._call(
+                "release (actuator)",
+                lambda: self._action.set_actuator(self.release_actuator, self.release_actuator_value),
+            )
         else:
             await self._direct_command("release (servo)", MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm)
         self._payload_released = True

@@ -248,7 +248,11 @@ class DeliveryShell:
             T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2])),
             T_body_camera=kit.T_body_camera,
             T_pad_anchors=kit.T_pad_anchors,
-            ekf=kit.ekf_config or EkfConfig(),
+            ekf=kit.ekf_config
+            or EkfConfig(
+                position_process_sigma_m_per_sqrt_s=self.config.landing.ekf_position_process_sigma_m_per_sqrt_s,
+                gate_reset_after_rejections=self.config.landing.ekf_gate_reset_after_rejections,
+            ),
         )
         self.fusion = LandingFusion(setup, now)
         if self.config.landing.landing_target_output != "off":

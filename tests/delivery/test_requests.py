@@ -162,3 +162,17 @@ def test_the_pad_is_placed_from_home_in_the_autopilots_local_frame():
     assert m.frame is not None and m.path is not None
     assert math.isclose(m.path.d, 100.0, rel_tol=1e-9)
     assert [round(float(v), 9) for v in m.frame.pad_ned] == [75.0, 73.0, 0.1]
+
+
+def test_takeoff_counts_as_done_once_the_autopilot_holds_in_the_air_short_of_our_90_percent():
+    """PX4 climbs to the takeoff height by its own altitude; ours can read 0.2-0.3 m lower."""
+    m, t = on_the_pad()
+    m._goto(Phase.TAKEOFF_RETURN)
+    m._takeoff_requested = True
+    climbing = status(t, armed=True, mode=FlightMode.TAKEOFF, landed=LandedState.IN_AIR)
+    alt = 0.85 * m.cfg.takeoff_alt_m
+    out = m.step(MissionInputs(t + DT, est(t + DT, 60.0, 80.0, -alt), climbing, HOME))
+    assert out.setpoint is None  # still the autopilot's takeoff
+    holding = status(t, armed=True, mode=FlightMode.HOLD, landed=LandedState.IN_AIR)
+    out = m.step(MissionInputs(t + 2 * DT, est(t + 2 * DT, 60.0, 80.0, -alt), holding, HOME))
+    assert out.setpoint is not None  # the field takes over

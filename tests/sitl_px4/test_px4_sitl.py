@@ -1,13 +1,31 @@
-"""Against a real PX4 SITL build (SIH quad): skipped with the reason when no build is found."""
+"""Against the real PX4 v1.16 SITL (SIH quad, headless): skipped with the reason when no build is
+found (``PX4_DIR`` or ``~/PX4-Autopilot``; ``../shared/sitl/install`` in this workplace).
+
+Each test starts its own PX4 from clean parameters. MAVSDK talks on the offboard link (udp
+14540); ground truth (HIL_STATE_QUATERNION) comes on the GCS link (udp 14550).
+"""
 
 from __future__ import annotations
 
+import asyncio
+import math
+import time
+
 import pytest
 
+from companion.autopilot.interface import CommandRejected
 from companion.autopilot.px4 import Px4Autopilot
+from companion.autopilot.types import FlightMode, LandedState
+from companion.config import load_config, shipped_params_path
+from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.px4_sitl import Px4NotFound, Px4Sitl, find_px4
+from companion_sitl.truth_feed import MavlinkTruth
+from companion_sitl.truth_harness import fly_on_truth
 
 pytestmark = pytest.mark.sitl
+
+# The pad lies 1.5 m from where the parameters say (SIH cannot bias GPS): GPS alone lands 1.5 m off.
+PAD_OFFSET_M = (1.5 / math.sqrt(2.0), 1.5 / math.sqrt(2.0))
 
 
 @pytest.fixture(scope="module")
@@ -23,34 +41,107 @@ def test_find_px4_reports_where_it_looked(tmp_path):
         find_px4(tmp_path)
 
 
-async def test_px4_sitl_connects_and_arms(px4_root, tmp_path):
+async def wait_for(pred, timeout_s: float, what: str) -> float:
+    t0 = time.monotonic()
+    while not pred():
+        if time.monotonic() - t0 > timeout_s:
+            raise AssertionError(f"{what}: not within {timeout_s} s")
+        await asyncio.sleep(0.05)
+    return time.monotonic() - t0
+
+
+async def test_commands_are_answered_the_way_px4_answers_and_close_never_hangs(px4_root, tmp_path):
+    """DO_SET_SERVO is UNSUPPORTED on PX4 (a permanent refusal, not retried); DO_GRIPPER and
+    DO_SET_ACTUATOR are ACCEPTED; arming works from the boot mode (POSCTL without RC refuses it)."""
+    with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"):
+        ap = Px4Autopilot("udpin://127.0.0.1:14540", release="servo")
+        await ap.connect(timeout_s=15.0)
+        try:
+            await wait_for(lambda: ap.telemetry.status is not None and ap.telemetry.status.healthy, 30.0, "healthy")
+            with pytest.raises(CommandRejected) as err:
+                await ap.release_payload()
+            assert err.value.result == "UNSUPPORTED" and err.value.permanent
+            ap.release = "gripper"
+            await ap.release_payload()
+            ap.release = "actuator"
+            await ap.release_payload()
+            await ap.arm()  # switches POSCTL -> HOLD first
+            await wait_for(lambda: ap.telemetry.status.armed, 3.0, "armed")
+            await ap.disarm()
+        finally:
+            t0 = time.monotonic()
+            await ap.close()
+            assert time.monotonic() - t0 < ap.destroy_timeout_s + 1.0
+
+
+async def test_offboard_loss_failsafe_acts_when_the_companion_stalls(px4_root, tmp_path):
+    """A stalled companion stops the setpoint stream (one SET_POSITION_TARGET per call, nothing
+    resent behind our back) and PX4 leaves OFFBOARD after COM_OF_LOSS_T (1 s by default)."""
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"):
         ap = Px4Autopilot("udpin://127.0.0.1:14540")
         await ap.connect(timeout_s=15.0)
         try:
-            assert ap.link_ok
+            await wait_for(lambda: ap.telemetry.status is not None and ap.telemetry.status.healthy, 30.0, "healthy")
+            await ap.arm()
+            await ap.takeoff(2.5)
+            pos = ap.telemetry
+            await wait_for(lambda: pos.position_ned is not None and pos.position_ned.down_m < -2.0, 20.0, "takeoff")
+            hover = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+            for _ in range(20):  # PX4 wants a stream before OFFBOARD
+                ap.set_velocity_ned(hover)
+                await asyncio.sleep(0.05)
+            await ap.start_offboard()
+            for _ in range(40):
+                ap.set_velocity_ned(hover)
+                await asyncio.sleep(0.05)
+            assert ap.telemetry.status.mode is FlightMode.OFFBOARD
+            # the companion stalls: no more setpoints
+            left = await wait_for(lambda: ap.telemetry.status.mode is not FlightMode.OFFBOARD, 5.0, "failsafe")
+            assert 0.5 <= left <= 3.0, left  # COM_OF_LOSS_T = 1 s, plus heartbeat delay
+            assert ap.telemetry.status.armed
+            await ap.land()
+            await wait_for(lambda: ap.telemetry.status.landed is LandedState.ON_GROUND, 30.0, "landed")
         finally:
             await ap.close()
 
 
-async def test_delivery_on_px4_sih_lands_on_the_displaced_pad(px4_root, tmp_path):
-    """The sitl_short delivery against PX4 SIH: MAVSDK on the offboard link (14540), ground truth
-    from HIL_STATE_QUATERNION on the GCS link (14550), camera and UWB rendered from it around a
-    pad displaced 0.75 m from its configured position."""
-    import asyncio
+# What params/px4_sih_quad.toml sets for PX4 SIH's landing fusion (see LandingConfig's descriptions)
+PX4_SIH_LANDING = {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5}
 
-    from companion.config import load_config, shipped_params_path
-    from companion_sitl.truth_feed import MavlinkTruth
-    from companion_sitl.truth_harness import fly_on_truth
+
+async def _delivery(px4_root, tmp_path, **landing):
+    from companion.flightlog.recorder import FlightRecorder
 
     config = load_config(shipped_params_path("sitl_short.toml"))
+    config = config.model_copy(
+        update={"landing": config.landing.model_copy(update={**PX4_SIH_LANDING, **landing})}
+    )
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
         await asyncio.to_thread(truth.wait, 30.0)
-        ap = Px4Autopilot("udpin://127.0.0.1:14540", link_timeout_s=config.runtime.link_timeout_s)
+        ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))
+        rec = FlightRecorder(tmp_path / "run", config)
         try:
-            r = await fly_on_truth(config, ap, truth, truth.origin, (0.6, -0.45), timeout_s=240.0)
+            r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET_M, timeout_s=240.0, recorder=rec)
         finally:
+            rec.close()
             await ap.close()
+    print(f"PX4 SIH delivery {landing or 'companion descent'}: landing error on truth {r.pad_landing_error_m:.3f} m")
+    return r
+
+
+async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_root, tmp_path):
+    """The sitl_short delivery end to end on PX4: our fused descent onto a pad 1.5 m from its
+    configured position, the gripper release, re-arming (from HOLD) and the flight home."""
+    r = await _delivery(px4_root, tmp_path)
     assert r.delivered and r.returned, r.failure
+    assert r.failure == ""
     assert r.markers_used > 20
     assert r.pad_landing_error_m < 0.3, r
+
+
+async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):
+    """AUTO.PRECLAND flies the descent, steered by the LANDING_TARGET we send in PX4's local frame."""
+    r = await _delivery(px4_root, tmp_path, controller="autopilot", landing_target_output="local_ned")
+    assert r.delivered and r.returned, r.failure
+    assert r.landing_targets_sent > 20
+    assert r.pad_landing_error_m < 0.6, r  # PX4's own precision landing: 32 cm mean, 60 cm max (measured)
