@@ -145,7 +145,15 @@ async def fly(
         from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
         port = _free_udp_port()
-        mav_sim = MavlinkSimVehicle(config.sim, mavlink, remote=("127.0.0.1", port), vehicle=vehicle).start()  # type: ignore[arg-type]
+        # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
+        grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
+        mav_sim = MavlinkSimVehicle(
+            config.sim,
+            mavlink,  # type: ignore[arg-type]
+            remote=("127.0.0.1", port),
+            vehicle=vehicle,
+            params=grip,
+        ).start()
         lt = config.runtime.link_timeout_s
         sink = open_tlog(tlog) if tlog is not None else None
         ap = (

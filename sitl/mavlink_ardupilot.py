@@ -112,6 +112,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
     def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
         return {
             "SYSID_THISMAV": float(system_id),
+            "GRIP_ENABLE": 0.0,  # ArduCopter's default: DO_GRIPPER answers FAILED
             "FLTMODE_CH": 5.0,
             "GUID_TIMEOUT": guided_timeout_s,
             "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
@@ -140,6 +141,12 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             self._statustext("Arm: Mode not armable", mavlink.MAV_SEVERITY_CRITICAL)
             return mavlink.MAV_RESULT_FAILED
         return None
+
+    def _gripper(self, p: tuple[float, ...]) -> int:
+        # ArduCopter answers FAILED while the gripper library is off (GRIP_ENABLE = 0, its default)
+        if self._params.get("GRIP_ENABLE", 0.0) < 0.5:
+            return mavlink.MAV_RESULT_FAILED
+        return super()._gripper(p)
 
     def _takeoff(self, p: tuple[float, ...]) -> int:
         if self._ap_mode != COPTER_GUIDED:

@@ -91,6 +91,34 @@ class Px4SimVehicle(MavlinkSimVehicle):
             "SYS_AUTOSTART": 10040.0,
         }
 
+    # PX4 v1.16 SIH, measured over MAVLink (see companion/autopilot/px4.py):
+    #   boots in POSCTL; arming: TEMPORARILY_REJECTED in POSCTL without RC and in AUTO.TAKEOFF /
+    #   AUTO.LAND, DENIED in OFFBOARD without a setpoint stream, ACCEPTED in HOLD;
+    #   DO_GRIPPER and DO_SET_ACTUATOR ACCEPTED, DO_SET_SERVO UNSUPPORTED.
+    BOOT_MODE: ClassVar[FlightMode] = FlightMode.POSITION
+    release_actuator: int = 1
+
+    def _arm_refused(self) -> int | None:
+        v = self.vehicle
+        if v.armed:
+            return None
+        if v.mode in (FlightMode.POSITION, FlightMode.TAKEOFF, FlightMode.LAND):
+            self._statustext(f"Arming denied: not armable in {v.mode.value} here", mavlink.MAV_SEVERITY_CRITICAL)
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if v.mode is FlightMode.OFFBOARD and not v.setpoint_fresh():
+            self._statustext("Arming denied: no offboard signal", mavlink.MAV_SEVERITY_CRITICAL)
+            return mavlink.MAV_RESULT_DENIED
+        return None
+
+    def _set_servo(self, p: tuple[float, ...]) -> int:
+        return mavlink.MAV_RESULT_UNSUPPORTED
+
+    def _set_actuator(self, p: tuple[float, ...]) -> int | None:
+        value = p[self.release_actuator - 1]
+        if math.isfinite(value) and value > 0.0:
+            self.vehicle.release_payload()
+        return mavlink.MAV_RESULT_ACCEPTED
+
     def _pilot_mode(self, mode: FlightMode) -> None:
         self.vehicle.pilot_set_mode(mode)
 

@@ -191,6 +191,7 @@ class MavlinkSimVehicle:
         release_servo: int = 9,
         release_pwm: int = 1900,
         rc_override_timeout_s: float = -1.0,
+        params: dict[str, float] | None = None,
     ):
         if dialect is not None and dialect != self.dialect:
             raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
@@ -233,6 +234,9 @@ class MavlinkSimVehicle:
         self._ovr_at = [-math.inf] * 18
         self.rc_override_timeout_s = rc_override_timeout_s  # RC_OVERRIDE_TIME; < 0: never lapses
         self._params: dict[str, float] = self._default_params(cfg, system_id, guided_timeout_s)
+        self._params.update(params or {})  # the vehicle's own configuration (e.g. GRIP_ENABLE = 1)
+        if self.BOOT_MODE is not None and not self.vehicle.armed:
+            self.vehicle.mode = self.BOOT_MODE
         self._ltp = LocalTangentPlane(GeoPoint(cfg.home.lat_deg, cfg.home.lon_deg, cfg.home.alt_amsl_m))
         self.on_message: Callable[[Any], None] | None = None  # test hook: every decoded message
 
@@ -264,6 +268,22 @@ class MavlinkSimVehicle:
 
     def _takeoff(self, p: tuple[float, ...]) -> int:
         raise NotImplementedError
+
+    def _gripper(self, p: tuple[float, ...]) -> int:
+        """MAV_CMD_DO_GRIPPER (param 2: 0 = release)."""
+        if _i(p[1]) == mavlink.GRIPPER_ACTION_RELEASE:
+            self.vehicle.release_payload()
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _set_servo(self, p: tuple[float, ...]) -> int:
+        """MAV_CMD_DO_SET_SERVO (param 1 output, param 2 PWM)."""
+        if _i(p[0]) == self.release_servo and _i(p[1]) >= self.release_pwm - 100:
+            self.vehicle.release_payload()
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _set_actuator(self, p: tuple[float, ...]) -> int | None:
+        """MAV_CMD_DO_SET_ACTUATOR; None: not a command of this dialect."""
+        return None
 
     def _land(self) -> int:
         raise NotImplementedError
@@ -297,6 +317,8 @@ class MavlinkSimVehicle:
     def now(self) -> float:
         """Vehicle time: seconds since :meth:`start` (the vehicle's boot)."""
         return time.monotonic() - self._t0
+
+    BOOT_MODE: ClassVar[FlightMode | None] = None  # the autopilot's mode at boot (None: the vehicle's)
 
     def start(self) -> MavlinkSimVehicle:
         if self._thread is not None:
@@ -781,13 +803,16 @@ class MavlinkSimVehicle:
             if cmd == mavlink.MAV_CMD_DO_SET_MODE:
                 return self._set_mode(*(float(_i(x)) for x in p[:3]))
             if cmd == mavlink.MAV_CMD_DO_GRIPPER:
-                if _i(p[1]) == mavlink.GRIPPER_ACTION_RELEASE:
-                    v.release_payload()
-                return A
+                return self._gripper(p)
             if cmd == mavlink.MAV_CMD_DO_SET_SERVO:
-                if _i(p[0]) == self.release_servo and _i(p[1]) >= self.release_pwm - 100:
-                    v.release_payload()
-                return A
+                result = self._set_servo(p)
+                if result == U:
+                    self.stats.unsupported_commands[cmd] += 1
+                return result
+            if cmd == mavlink.MAV_CMD_DO_SET_ACTUATOR:
+                actuator = self._set_actuator(p)
+                if actuator is not None:
+                    return actuator
             if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
                 return self._set_interval(_i(p[0]), p[1] if math.isfinite(p[1]) else 0.0)
             if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:

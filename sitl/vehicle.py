@@ -201,6 +201,10 @@ class SimVehicle:
         if len(self._sp_times) > 50:
             del self._sp_times[:-50]
 
+    def setpoint_fresh(self) -> bool:
+        """Offboard setpoints arrived within the offboard-loss timeout."""
+        return bool(self._sp_times) and self.time_s - self._sp_times[-1] <= self.cfg.vehicle.offboard_loss_timeout_s
+
     def start_offboard(self) -> None:
         if not self.armed:
             raise SimCommandError("offboard denied: not armed")

@@ -30,8 +30,14 @@ def short_config(**mission):
     return load_config(shipped_params_path("sitl_short.toml"), overrides={"mission": mission} if mission else None)
 
 
+# A delivery vehicle has its release configured: ArduCopter's gripper library is off by default
+# (GRIP_ENABLE = 0: DO_GRIPPER answers FAILED, as the sim vehicle does unless told otherwise).
+DELIVERY_PARAMS = {"ardupilot": {"GRIP_ENABLE": 1.0}, "px4": {}}
+
+
 @contextlib.contextmanager
 def sim_vehicle(config, dialect, port, **kwargs):
+    kwargs.setdefault("params", DELIVERY_PARAMS[dialect])
     sim = MavlinkSimVehicle(config.sim, dialect, remote=("127.0.0.1", port), **kwargs).start()
     try:
         yield sim

@@ -160,3 +160,19 @@ async def test_link_loss_and_reconnect_px4(mav, udp_port):
     assert EventKind.LINK_LOST in kinds and EventKind.LINK_RESTORED in kinds
     assert out["setpoints_during_loss"] == 0 and out["mode_during_loss"] is FlightMode.HOLD
     assert summary.delivered, summary.failure
+
+
+async def test_ardupilot_gripper_refused_is_reported_once_and_the_vehicle_flies_home_with_the_parcel(mav, udp_port):
+    """ArduCopter with its gripper library off (GRIP_ENABLE = 0, the firmware default) answers
+    DO_GRIPPER with FAILED: one request, one warning, then the return leg with the parcel."""
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "ardupilot", udp_port, params={"GRIP_ENABLE": 0.0}) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        _, summary = await mav.fly(config, ap)
+    assert summary.returned and not summary.delivered
+    refused = "parcel not released: release refused: release (gripper): FAILED"
+    assert summary.failure.startswith(refused), summary.failure
+    assert sim.stats.commands[211] == 1  # MAV_CMD_DO_GRIPPER sent once, not at 20 Hz
+    failed = [e for e in summary.events if e.kind is EventKind.REQUEST_FAILED]
+    assert len(failed) == 1 and "not retried" in failed[0].detail
+    assert len(sim.vehicle.touchdowns) == 2 and all(not t.payload_released for t in sim.vehicle.touchdowns)
