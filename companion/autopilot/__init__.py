@@ -1,6 +1,6 @@
 """Autopilot interface, telemetry types and (later) the MAVSDK and pymavlink backends."""
 
-from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected, TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -20,6 +20,7 @@ __all__ = [
     "Attitude",
     "Autopilot",
     "AutopilotError",
+    "CommandRejected",
     "FlightMode",
     "GlobalPosition",
     "GpsRaw",

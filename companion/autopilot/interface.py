@@ -33,6 +33,32 @@ class AutopilotError(RuntimeError):
     """A command was refused, timed out, or the link is unusable."""
 
 
+# MAV_RESULT names a command can end with, plus the two outcomes that carry no COMMAND_ACK.
+NO_ANSWER = "NO_ANSWER"  # no COMMAND_ACK at all (PX4 ignores commands no module handles)
+LINK_DOWN = "LINK_DOWN"
+# Results that will not change by sending the same command again: the autopilot lacks the
+# feature (UNSUPPORTED), its configuration or state forbids it (DENIED), the action itself failed
+# (FAILED: e.g. ArduCopter's DO_GRIPPER with GRIP_ENABLE = 0), or nothing handles it (NO_ANSWER).
+PERMANENT_RESULTS = frozenset({"UNSUPPORTED", "DENIED", "FAILED", NO_ANSWER})
+
+
+class CommandRejected(AutopilotError):
+    """A command ended without ACCEPTED. ``result`` is the MAV_RESULT name (``"DENIED"``,
+    ``"UNSUPPORTED"``, ``"FAILED"``, ``"TEMPORARILY_REJECTED"``, ...), :data:`NO_ANSWER` or
+    :data:`LINK_DOWN`; ``reason`` the autopilot's STATUSTEXT that came with it, if any."""
+
+    def __init__(self, command: str, result: str, reason: str = ""):
+        self.command = command
+        self.result = result
+        self.reason = reason
+        super().__init__(f"{command}: {result}" + (f" ({reason})" if reason else ""))
+
+    @property
+    def permanent(self) -> bool:
+        """Sending the same command again will get the same answer (see :data:`PERMANENT_RESULTS`)."""
+        return self.result in PERMANENT_RESULTS
+
+
 @dataclass(frozen=True, slots=True)
 class RcInput:
     """RC channels as the autopilot reports them (MAVLink RC_CHANNELS), microseconds, index 0 =
