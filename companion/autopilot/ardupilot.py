@@ -37,7 +37,16 @@ from typing import Any, Literal
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
-from companion.autopilot.interface import Autopilot, AutopilotError, LinkLatch, RcInput, TelemetryCache
+from companion.autopilot.interface import (
+    LINK_DOWN,
+    NO_ANSWER,
+    Autopilot,
+    AutopilotError,
+    CommandRejected,
+    LinkLatch,
+    RcInput,
+    TelemetryCache,
+)
 from companion.autopilot.mavlink_messages import velocity_setpoint_message
 from companion.autopilot.types import (
     Attitude,
@@ -118,12 +127,16 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
     65: 5.0,  # RC_CHANNELS
 }
 
+# arming refusals that clear by themselves (pre-arm checks while the EKF converges)
+ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
+
 HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
 
 
 def result_name(result: int) -> str:
+    """The MAV_RESULT name without its prefix ("FAILED", "DENIED", ...), as CommandRejected carries it."""
     entry = mavlink.enums["MAV_RESULT"].get(result)
-    return entry.name if entry is not None else f"MAV_RESULT {result}"
+    return entry.name.removeprefix("MAV_RESULT_") if entry is not None else f"MAV_RESULT {result}"
 
 
 def command_name(cmd: int) -> str:
@@ -243,6 +256,7 @@ class ArduPilotAutopilot(Autopilot):
         self._payload_released = False
         self._have_highres = False
         self._last_text = ""
+        self._texts_seen = 0
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
@@ -364,12 +378,14 @@ class ArduPilotAutopilot(Autopilot):
         self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch, *ext))
 
     async def _command(self, cmd: int, *params: float, what: str = "", retries: int | None = None) -> None:
-        """COMMAND_LONG, resent until its COMMAND_ACK arrives; AutopilotError unless ACCEPTED."""
+        """COMMAND_LONG, resent until its COMMAND_ACK arrives. Anything but ACCEPTED raises
+        :class:`CommandRejected` with the MAV_RESULT name (with the STATUSTEXT that came with it),
+        :data:`NO_ANSWER` when no ack came after the tries, :data:`LINK_DOWN` without a link."""
         name = what or command_name(cmd)
         if self._conn is None or self._loop is None:
-            raise AutopilotError(f"{name}: not connected")
+            raise CommandRejected(name, LINK_DOWN, "not connected")
         if not self.link_ok:
-            raise AutopilotError(f"{name}: link is down")
+            raise CommandRejected(name, LINK_DOWN, "link is down")
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         ts, tc = self.target_system or 1, self.target_component
         old = self._acks.pop(cmd, None)
@@ -377,7 +393,7 @@ class ArduPilotAutopilot(Autopilot):
             old.cancel()
         fut: asyncio.Future[int] = self._loop.create_future()
         self._acks[cmd] = fut
-        text_before = self._last_text
+        texts_before = self._texts_seen
         tries = self.command_retries if retries is None else retries
         try:
             for attempt in range(tries):
@@ -390,12 +406,16 @@ class ArduPilotAutopilot(Autopilot):
                 if result == mavlink.MAV_RESULT_IN_PROGRESS:  # keep waiting for the final ack
                     fut = self._loop.create_future()
                     self._acks[cmd] = fut
-                    result = await asyncio.wait_for(fut, 30.0)
+                    try:
+                        result = await asyncio.wait_for(fut, 30.0)
+                    except TimeoutError:
+                        raise CommandRejected(name, NO_ANSWER, "IN_PROGRESS without a final ack") from None
                 if result == mavlink.MAV_RESULT_ACCEPTED:
                     return
-                reason = self._last_text if self._last_text != text_before else ""
-                raise AutopilotError(f"{name}: {result_name(result)}" + (f" ({reason})" if reason else ""))
-            raise AutopilotError(f"{name}: no COMMAND_ACK after {tries} tries")
+                # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
+                reason = self._last_text if self._texts_seen != texts_before else ""
+                raise CommandRejected(name, result_name(result), reason)
+            raise CommandRejected(name, NO_ANSWER, f"no COMMAND_ACK after {tries} tries")
         finally:
             if self._acks.get(cmd) is fut:
                 del self._acks[cmd]
@@ -433,18 +453,22 @@ class ArduPilotAutopilot(Autopilot):
         self._push_status()
 
     async def arm(self) -> None:
-        if self.copter_mode != COPTER_MODES["GUIDED"]:
-            await self.set_mode("GUIDED")
+        """GUIDED, then arm. Until EKF3 uses GPS (~41 s after boot in SITL) ArduCopter answers
+        FAILED to both: GUIDED with "Mode change to GUIDED failed: requires position" (the first
+        ~20 s), arming with "Arm: Need Position Estimate". Both are retried every second until
+        ``arm_timeout_s``, then the last refusal is raised. Arming in LAND (the mode a LAND
+        leaves it in) is refused for good ("Arm: LAND mode not armable"): GUIDED comes first."""
         deadline = time.monotonic() + self.arm_timeout_s
         while True:
             try:
+                if self.copter_mode != COPTER_MODES["GUIDED"]:
+                    await self.set_mode("GUIDED")
                 await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arm")
                 break
-            except AutopilotError as err:
-                refused = "FAILED" in str(err) or "TEMPORARILY_REJECTED" in str(err) or "DENIED" in str(err)
-                if not refused or time.monotonic() + 1.0 > deadline:
+            except CommandRejected as err:
+                if err.result not in ARM_RETRY_RESULTS or time.monotonic() + 1.0 > deadline:
                     raise
-                log.info("arming refused (EKF/GPS not ready?), retrying: %s", err)
+                log.info("GUIDED/arming refused (EKF/GPS not ready?), retrying: %s", err)
                 await asyncio.sleep(1.0)
         self._armed = True
         self._push_status()
@@ -654,6 +678,7 @@ class ArduPilotAutopilot(Autopilot):
             text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
             text = text.rstrip("\x00")
             self._last_text = text
+            self._texts_seen += 1
             log.info("autopilot: %s", text)
             self._push(StatusText(now, m.severity, text))
         elif t == "COMMAND_ACK":
