@@ -207,6 +207,7 @@ class ArduPilotAutopilot(Autopilot):
         release_pwm: int = 1900,
         hold_mode: Literal["BRAKE", "LOITER"] = "BRAKE",
         arm_timeout_s: float = 8.0,
+        release_confirm_timeout_s: float = 2.0,
         command_timeout_s: float = 0.5,
         command_retries: int = 3,
         stream_rates_hz: dict[int, float] | None = None,
@@ -224,6 +225,7 @@ class ArduPilotAutopilot(Autopilot):
         self.release_pwm = release_pwm
         self.hold_mode = hold_mode
         self.arm_timeout_s = arm_timeout_s
+        self.release_confirm_timeout_s = release_confirm_timeout_s
         self.command_timeout_s = command_timeout_s
         self.command_retries = command_retries
         self.stream_rates_hz = dict(DEFAULT_STREAM_RATES_HZ if stream_rates_hz is None else stream_rates_hz)
@@ -257,6 +259,12 @@ class ArduPilotAutopilot(Autopilot):
         self._have_highres = False
         self._last_text = ""
         self._texts_seen = 0
+        self.params: dict[str, float] = {}  # every PARAM_VALUE seen
+        self._param_waiters: dict[str, asyncio.Future[float]] = {}
+        self.servo_outputs: tuple[int, ...] = ()  # SERVO_OUTPUT_RAW port 0, index 0 = output 1, us
+        self._servo_outputs_time = -math.inf
+        self._gripper_output: tuple[int, int] | bool | None = False  # False: not looked up yet
+        self.releases_unconfirmed = 0
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
@@ -523,14 +531,104 @@ class ArduPilotAutopilot(Autopilot):
         )
 
     async def release_payload(self) -> None:
+        """DO_GRIPPER release (or DO_SET_SERVO), then confirmed on the output itself.
+
+        ArduCopter ACCEPTs DO_GRIPPER once GRIP_ENABLE = 1 and moves the servo at once (4.7 SITL,
+        GRIP_TYPE = 1: SERVOn_FUNCTION = 28 output to GRIP_RELEASE within 0.1 s, STATUSTEXT
+        "Gripper load releasing" then "Gripper load released" 0.5 s later); with GRIP_ENABLE = 0
+        it answers FAILED, for good. The release counts as done only when SERVO_OUTPUT_RAW shows
+        the gripper's output (found from the GRIP_* and SERVOn_FUNCTION parameters) or the
+        release servo at the release PWM; CommandRejected FAILED after
+        ``release_confirm_timeout_s`` otherwise. An autopilot that sends no SERVO_OUTPUT_RAW or
+        no parameters cannot confirm: its ACK is taken (counted in ``releases_unconfirmed``).
+        """
+        outputs_streamed = True  # the confirmation reads SERVO_OUTPUT_RAW at 10 Hz
+        try:
+            await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 36, 1e5, retries=2)
+        except CommandRejected as err:
+            outputs_streamed = self._servo_outputs_time > -math.inf
+            log.info("SERVO_OUTPUT_RAW not available: %s", err)
         if self.release == "gripper":
-            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what="release (gripper)")
+            what = "release (gripper)"
+            target = await self._find_gripper_output() if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what=what)
         else:
-            await self._command(
-                mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what="release (servo)"
-            )
+            what = "release (servo)"
+            target = (self.release_servo, self.release_pwm) if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what=what)
+        if target is None:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; its output cannot be watched, release not confirmed", what)
+        else:
+            await self._confirm_output(what, *target, t_cmd)
         self._payload_released = True
         self._push_status()
+
+    async def _confirm_output(self, what: str, channel: int, pwm: int, since: float) -> None:
+        end = time.monotonic() + self.release_confirm_timeout_s
+        while time.monotonic() < end:
+            out = self.servo_outputs
+            if self._servo_outputs_time > since and len(out) >= channel and abs(out[channel - 1] - pwm) <= 20:
+                log.info("%s confirmed: output %d at %d us", what, channel, out[channel - 1])
+                return
+            await asyncio.sleep(0.02)
+        if self._servo_outputs_time == -math.inf:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; no SERVO_OUTPUT_RAW from the autopilot, release not confirmed", what)
+            return
+        seen = self.servo_outputs[channel - 1] if len(self.servo_outputs) >= channel else None
+        raise CommandRejected(
+            what, "FAILED", f"output {channel} at {seen} us, not {pwm} us, {self.release_confirm_timeout_s:.1f} s after"
+        )
+
+    async def _find_gripper_output(self) -> tuple[int, int] | None:
+        """(output, release PWM) of a servo gripper (GRIP_TYPE = 1, SERVOn_FUNCTION = 28,
+        GRIP_RELEASE), looked up once; None when the parameters do not say (or do not answer)."""
+        if self._gripper_output is not False:
+            return self._gripper_output  # type: ignore[return-value]
+        found: tuple[int, int] | None = None
+        grip_type = await self.read_param("GRIP_TYPE")
+        release = await self.read_param("GRIP_RELEASE") if grip_type == 1 else None
+        if release is not None:
+            order = [self.release_servo, *(n for n in range(1, 17) if n != self.release_servo)]
+            for n in order:
+                fn = await self.read_param(f"SERVO{n}_FUNCTION")
+                if fn is None:
+                    break
+                if int(fn) == 28:  # SRV_Channel::k_gripper
+                    found = (n, round(release))
+                    break
+        log.info("gripper output: %s", found)
+        self._gripper_output = found
+        return found
+
+    async def read_param(self, name: str, timeout_s: float = 0.4, tries: int = 2) -> float | None:
+        """One parameter by name (PARAM_REQUEST_READ), None without an answer."""
+        if self._loop is None:
+            return None
+        ts, tc = self.target_system or 1, self.target_component
+        for _ in range(tries):
+            fut = self._param_waiters.get(name)
+            if fut is None or fut.done():
+                fut = self._loop.create_future()
+                self._param_waiters[name] = fut
+            self._send(lambda mav: mav.param_request_read_send(ts, tc, name.encode(), -1))
+            try:
+                return await asyncio.wait_for(asyncio.shield(fut), timeout_s)
+            except TimeoutError:
+                continue
+            finally:
+                if self._param_waiters.get(name) is fut and fut.done():
+                    del self._param_waiters[name]
+        self._param_waiters.pop(name, None)
+        return None
+
+    def _resolve_param(self, name: str, value: float) -> None:
+        fut = self._param_waiters.get(name)
+        if fut is not None and not fut.done():
+            fut.set_result(value)
 
     # ------------------------------------------------------------------ receiving (reader thread)
     def _post(self, fn: Callable[..., Any], *args: Any) -> None:
@@ -684,6 +782,17 @@ class ArduPilotAutopilot(Autopilot):
         elif t == "COMMAND_ACK":
             if m.target_system in (0, self.source_system):
                 self._post(self._resolve_ack, m.command, m.result)
+        elif t == "SERVO_OUTPUT_RAW":
+            if m.port == 0:
+                outs = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
+                self.servo_outputs = tuple(outs)
+                self._servo_outputs_time = now
+        elif t == "PARAM_VALUE":
+            pid = m.param_id if isinstance(m.param_id, str) else bytes(m.param_id).decode(errors="replace")
+            pid = pid.rstrip("\x00")
+            if math.isfinite(m.param_value):
+                self.params[pid] = float(m.param_value)
+                self._post(self._resolve_param, pid, float(m.param_value))
         elif t == "RC_CHANNELS":
             self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
             self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))
