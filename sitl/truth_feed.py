@@ -9,6 +9,12 @@ an origin, ``roll``/``pitch``/``yaw`` radians, ``step_to``), so
 :func:`companion_sitl.demo.sim_landing_kit` renders real images of a pad whose true position is
 displaced from the configured one (SIH cannot bias GPS; displacing the pad tests the same thing).
 
+ArduPilot's SITL offers the same as SIM_STATE (message 108, ``message="SIM_STATE"``): its
+physics' true attitude quaternion, latitude/longitude (``lat_int``/``lon_int``, degE7) and
+altitude (m AMSL), sent on any link that asks with SET_MESSAGE_INTERVAL (measured on ArduCopter
+4.7.0-dev; its float ``lat``/``lon`` fields carry degE7 too, so the integer ones are preferred).
+SIMSTATE (164) carries no altitude and is not used.
+
 The reader is a thread; the newest sample is swapped in as one tuple, so readers on the event loop
 never see a torn state.
 """
@@ -31,6 +37,8 @@ from companion.geometry.rotations import quat_to_euler
 log = logging.getLogger(__name__)
 
 MSG_ID_HIL_STATE_QUATERNION = 115
+MSG_ID_SIM_STATE = 108
+TRUTH_MESSAGES = {"HIL_STATE_QUATERNION": MSG_ID_HIL_STATE_QUATERNION, "SIM_STATE": MSG_ID_SIM_STATE}
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 
 
@@ -39,15 +47,26 @@ class TruthUnavailable(RuntimeError):
 
 
 class MavlinkTruth:
-    """HIL_STATE_QUATERNION ground truth over MAVLink (see the module doc).
+    """HIL_STATE_QUATERNION (PX4 SIH, our sim vehicle) or SIM_STATE (ArduPilot SITL) ground truth
+    over MAVLink (see the module doc).
 
     ``origin``: the NED origin (the true home); None takes the first sample's position, which is
     home when the feed starts with the vehicle on the ground.
     """
 
-    def __init__(self, url: str, origin: GeoPoint | None = None, rate_hz: float = 50.0, source_system: int = 246):
+    def __init__(
+        self,
+        url: str,
+        origin: GeoPoint | None = None,
+        rate_hz: float = 50.0,
+        source_system: int = 246,
+        message: str = "HIL_STATE_QUATERNION",
+    ):
         if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1000.0):
             raise ValueError(f"truth rate {rate_hz!r} Hz: expected 0.5..1000")
+        if message not in TRUTH_MESSAGES:
+            raise ValueError(f"truth message {message!r}: expected one of {sorted(TRUTH_MESSAGES)}")
+        self.message = message
         self.url = url
         self.rate_hz = rate_hz
         self.source_system = source_system
@@ -92,7 +111,7 @@ class MavlinkTruth:
         while self._state is None:
             if time.monotonic() > t_end:
                 raise TruthUnavailable(
-                    f"no HIL_STATE_QUATERNION on {self.url!r} within {timeout_s} s "
+                    f"no {self.message} on {self.url!r} within {timeout_s} s "
                     f"(heartbeat seen: {self._target is not None})"
                 )
             time.sleep(0.02)
@@ -115,11 +134,13 @@ class MavlinkTruth:
             if kind == "HEARTBEAT" and self._target is None and msg.get_srcComponent() == 1:
                 self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 self._last_request = -math.inf
-            elif kind == "HIL_STATE_QUATERNION":
+            elif kind == "HIL_STATE_QUATERNION" == self.message:
                 self._on_truth(msg)
+            elif kind == "SIM_STATE" == self.message:
+                self._on_sim_state(msg)
 
     def _request(self, conn: Any) -> None:
-        """SET_MESSAGE_INTERVAL for HIL_STATE_QUATERNION; repeated every 2 s until it flows (a
+        """SET_MESSAGE_INTERVAL for the truth message; repeated every 2 s until it flows (a
         first heartbeat also tells a ``udpout`` peer where we are)."""
         self._last_request = time.monotonic()
         try:
@@ -128,14 +149,27 @@ class MavlinkTruth:
                 ts, tc = self._target
                 interval_us = 1e6 / self.rate_hz
                 conn.mav.command_long_send(
-                    ts, tc, MAV_CMD_SET_MESSAGE_INTERVAL, 0, MSG_ID_HIL_STATE_QUATERNION, interval_us, 0, 0, 0, 0, 0
+                    ts, tc, MAV_CMD_SET_MESSAGE_INTERVAL, 0, TRUTH_MESSAGES[self.message], interval_us, 0, 0, 0, 0, 0
                 )
         except OSError as err:
             log.debug("truth feed: request not sent: %s", err)
 
     def _on_truth(self, m: Any) -> None:
-        q = list(m.attitude_quaternion)
-        geo = (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        self._store(list(m.attitude_quaternion), (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
+
+    def _on_sim_state(self, m: Any) -> None:
+        """ArduPilot SITL's SIM_STATE: degE7 in lat_int/lon_int (MAVLink 2 extensions); without
+        them the float fields, which ArduPilot fills with degE7 as well (float32: ~1 m steps)."""
+        lat_i, lon_i = getattr(m, "lat_int", 0), getattr(m, "lon_int", 0)
+        if lat_i or lon_i:
+            lat, lon = lat_i * 1e-7, lon_i * 1e-7
+        else:
+            lat, lon = m.lat, m.lon
+            if abs(lat) > 90.0 or abs(lon) > 180.0:
+                lat, lon = lat * 1e-7, lon * 1e-7
+        self._store([m.q1, m.q2, m.q3, m.q4], (lat, lon, m.alt))
+
+    def _store(self, q: list[float], geo: tuple[float, float, float]) -> None:
         if not all(math.isfinite(v) for v in (*q, *geo)) or abs(sum(v * v for v in q) - 1.0) > 0.1:
             self.rejected += 1
             return

@@ -37,8 +37,11 @@ os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
 from pymavlink import mavutil
 
 from companion.autopilot.interface import (
+    LINK_DOWN,
+    NO_ANSWER,
     Autopilot,
     AutopilotError,
+    CommandRejected,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -124,12 +127,16 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
     65: 5.0,  # RC_CHANNELS
 }
 
+# arming refusals that clear by themselves (pre-arm checks while the EKF converges)
+ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
+
 HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
 
 
 def result_name(result: int) -> str:
+    """The MAV_RESULT name without its prefix ("FAILED", "DENIED", ...), as CommandRejected carries it."""
     entry = mavlink.enums["MAV_RESULT"].get(result)
-    return entry.name if entry is not None else f"MAV_RESULT {result}"
+    return entry.name.removeprefix("MAV_RESULT_") if entry is not None else f"MAV_RESULT {result}"
 
 
 def command_name(cmd: int) -> str:
@@ -200,6 +207,7 @@ class ArduPilotAutopilot(Autopilot):
         release_pwm: int = 1900,
         hold_mode: Literal["BRAKE", "LOITER"] = "BRAKE",
         arm_timeout_s: float = 8.0,
+        release_confirm_timeout_s: float = 2.0,
         command_timeout_s: float = 0.5,
         command_retries: int = 3,
         stream_rates_hz: dict[int, float] | None = None,
@@ -217,6 +225,7 @@ class ArduPilotAutopilot(Autopilot):
         self.release_pwm = release_pwm
         self.hold_mode = hold_mode
         self.arm_timeout_s = arm_timeout_s
+        self.release_confirm_timeout_s = release_confirm_timeout_s
         self.command_timeout_s = command_timeout_s
         self.command_retries = command_retries
         self.stream_rates_hz = dict(DEFAULT_STREAM_RATES_HZ if stream_rates_hz is None else stream_rates_hz)
@@ -249,10 +258,27 @@ class ArduPilotAutopilot(Autopilot):
         self._payload_released = False
         self._have_highres = False
         self._last_text = ""
+        self._texts_seen = 0
+        self.params: dict[str, float] = {}  # every PARAM_VALUE seen
+        self._param_waiters: dict[str, asyncio.Future[float]] = {}
+        self.servo_outputs: tuple[int, ...] = ()  # SERVO_OUTPUT_RAW port 0, index 0 = output 1, us
+        self._servo_outputs_time = -math.inf
+        self._gripper_output: tuple[int, int] | bool | None = False  # False: not looked up yet
+        self.releases_unconfirmed = 0
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
-        """Build from a :class:`companion.config.CompanionConfig` (``connection``, link timeout)."""
+        """Build from a :class:`companion.config.CompanionConfig` (``connection``, link timeout,
+        ``[payload]``: gripper or servo; ArduPilot has no actuator-set command)."""
+        pl = config.payload
+        if pl.release == "actuator":
+            raise AutopilotError(
+                "payload.release = 'actuator' is PX4's DO_SET_ACTUATOR: on ArduPilot use 'gripper' "
+                "(GRIP_ENABLE = 1, SERVOn_FUNCTION = 28) or 'servo' (payload.servo_channel)"
+            )
+        kwargs.setdefault("release", pl.release)
+        kwargs.setdefault("release_servo", pl.servo_channel)
+        kwargs.setdefault("release_pwm", pl.servo_pwm_us)
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     # ------------------------------------------------------------------ link
@@ -370,12 +396,14 @@ class ArduPilotAutopilot(Autopilot):
         self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch, *ext))
 
     async def _command(self, cmd: int, *params: float, what: str = "", retries: int | None = None) -> None:
-        """COMMAND_LONG, resent until its COMMAND_ACK arrives; AutopilotError unless ACCEPTED."""
+        """COMMAND_LONG, resent until its COMMAND_ACK arrives. Anything but ACCEPTED raises
+        :class:`CommandRejected` with the MAV_RESULT name (with the STATUSTEXT that came with it),
+        :data:`NO_ANSWER` when no ack came after the tries, :data:`LINK_DOWN` without a link."""
         name = what or command_name(cmd)
         if self._conn is None or self._loop is None:
-            raise AutopilotError(f"{name}: not connected")
+            raise CommandRejected(name, LINK_DOWN, "not connected")
         if not self.link_ok:
-            raise AutopilotError(f"{name}: link is down")
+            raise CommandRejected(name, LINK_DOWN, "link is down")
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         ts, tc = self.target_system or 1, self.target_component
         old = self._acks.pop(cmd, None)
@@ -383,7 +411,7 @@ class ArduPilotAutopilot(Autopilot):
             old.cancel()
         fut: asyncio.Future[int] = self._loop.create_future()
         self._acks[cmd] = fut
-        text_before = self._last_text
+        texts_before = self._texts_seen
         tries = self.command_retries if retries is None else retries
         try:
             for attempt in range(tries):
@@ -396,12 +424,16 @@ class ArduPilotAutopilot(Autopilot):
                 if result == mavlink.MAV_RESULT_IN_PROGRESS:  # keep waiting for the final ack
                     fut = self._loop.create_future()
                     self._acks[cmd] = fut
-                    result = await asyncio.wait_for(fut, 30.0)
+                    try:
+                        result = await asyncio.wait_for(fut, 30.0)
+                    except TimeoutError:
+                        raise CommandRejected(name, NO_ANSWER, "IN_PROGRESS without a final ack") from None
                 if result == mavlink.MAV_RESULT_ACCEPTED:
                     return
-                reason = self._last_text if self._last_text != text_before else ""
-                raise AutopilotError(f"{name}: {result_name(result)}" + (f" ({reason})" if reason else ""))
-            raise AutopilotError(f"{name}: no COMMAND_ACK after {tries} tries")
+                # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
+                reason = self._last_text if self._texts_seen != texts_before else ""
+                raise CommandRejected(name, result_name(result), reason)
+            raise CommandRejected(name, NO_ANSWER, f"no COMMAND_ACK after {tries} tries")
         finally:
             if self._acks.get(cmd) is fut:
                 del self._acks[cmd]
@@ -439,18 +471,22 @@ class ArduPilotAutopilot(Autopilot):
         self._push_status()
 
     async def arm(self) -> None:
-        if self.copter_mode != COPTER_MODES["GUIDED"]:
-            await self.set_mode("GUIDED")
+        """GUIDED, then arm. Until EKF3 uses GPS (~41 s after boot in SITL) ArduCopter answers
+        FAILED to both: GUIDED with "Mode change to GUIDED failed: requires position" (the first
+        ~20 s), arming with "Arm: Need Position Estimate". Both are retried every second until
+        ``arm_timeout_s``, then the last refusal is raised. Arming in LAND (the mode a LAND
+        leaves it in) is refused for good ("Arm: LAND mode not armable"): GUIDED comes first."""
         deadline = time.monotonic() + self.arm_timeout_s
         while True:
             try:
+                if self.copter_mode != COPTER_MODES["GUIDED"]:
+                    await self.set_mode("GUIDED")
                 await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arm")
                 break
-            except AutopilotError as err:
-                refused = "FAILED" in str(err) or "TEMPORARILY_REJECTED" in str(err) or "DENIED" in str(err)
-                if not refused or time.monotonic() + 1.0 > deadline:
+            except CommandRejected as err:
+                if err.result not in ARM_RETRY_RESULTS or time.monotonic() + 1.0 > deadline:
                     raise
-                log.info("arming refused (EKF/GPS not ready?), retrying: %s", err)
+                log.info("GUIDED/arming refused (EKF/GPS not ready?), retrying: %s", err)
                 await asyncio.sleep(1.0)
         self._armed = True
         self._push_status()
@@ -505,14 +541,104 @@ class ArduPilotAutopilot(Autopilot):
         )
 
     async def release_payload(self) -> None:
+        """DO_GRIPPER release (or DO_SET_SERVO), then confirmed on the output itself.
+
+        ArduCopter ACCEPTs DO_GRIPPER once GRIP_ENABLE = 1 and moves the servo at once (4.7 SITL,
+        GRIP_TYPE = 1: SERVOn_FUNCTION = 28 output to GRIP_RELEASE within 0.1 s, STATUSTEXT
+        "Gripper load releasing" then "Gripper load released" 0.5 s later); with GRIP_ENABLE = 0
+        it answers FAILED, for good. The release counts as done only when SERVO_OUTPUT_RAW shows
+        the gripper's output (found from the GRIP_* and SERVOn_FUNCTION parameters) or the
+        release servo at the release PWM; CommandRejected FAILED after
+        ``release_confirm_timeout_s`` otherwise. An autopilot that sends no SERVO_OUTPUT_RAW or
+        no parameters cannot confirm: its ACK is taken (counted in ``releases_unconfirmed``).
+        """
+        outputs_streamed = True  # the confirmation reads SERVO_OUTPUT_RAW at 10 Hz
+        try:
+            await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 36, 1e5, retries=2)
+        except CommandRejected as err:
+            outputs_streamed = self._servo_outputs_time > -math.inf
+            log.info("SERVO_OUTPUT_RAW not available: %s", err)
         if self.release == "gripper":
-            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what="release (gripper)")
+            what = "release (gripper)"
+            target = await self._find_gripper_output() if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what=what)
         else:
-            await self._command(
-                mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what="release (servo)"
-            )
+            what = "release (servo)"
+            target = (self.release_servo, self.release_pwm) if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what=what)
+        if target is None:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; its output cannot be watched, release not confirmed", what)
+        else:
+            await self._confirm_output(what, *target, t_cmd)
         self._payload_released = True
         self._push_status()
+
+    async def _confirm_output(self, what: str, channel: int, pwm: int, since: float) -> None:
+        end = time.monotonic() + self.release_confirm_timeout_s
+        while time.monotonic() < end:
+            out = self.servo_outputs
+            if self._servo_outputs_time > since and len(out) >= channel and abs(out[channel - 1] - pwm) <= 20:
+                log.info("%s confirmed: output %d at %d us", what, channel, out[channel - 1])
+                return
+            await asyncio.sleep(0.02)
+        if self._servo_outputs_time == -math.inf:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; no SERVO_OUTPUT_RAW from the autopilot, release not confirmed", what)
+            return
+        seen = self.servo_outputs[channel - 1] if len(self.servo_outputs) >= channel else None
+        raise CommandRejected(
+            what, "FAILED", f"output {channel} at {seen} us, not {pwm} us, {self.release_confirm_timeout_s:.1f} s after"
+        )
+
+    async def _find_gripper_output(self) -> tuple[int, int] | None:
+        """(output, release PWM) of a servo gripper (GRIP_TYPE = 1, SERVOn_FUNCTION = 28,
+        GRIP_RELEASE), looked up once; None when the parameters do not say (or do not answer)."""
+        if self._gripper_output is not False:
+            return self._gripper_output  # type: ignore[return-value]
+        found: tuple[int, int] | None = None
+        grip_type = await self.read_param("GRIP_TYPE")
+        release = await self.read_param("GRIP_RELEASE") if grip_type == 1 else None
+        if release is not None:
+            order = [self.release_servo, *(n for n in range(1, 17) if n != self.release_servo)]
+            for n in order:
+                fn = await self.read_param(f"SERVO{n}_FUNCTION")
+                if fn is None:
+                    break
+                if int(fn) == 28:  # SRV_Channel::k_gripper
+                    found = (n, round(release))
+                    break
+        log.info("gripper output: %s", found)
+        self._gripper_output = found
+        return found
+
+    async def read_param(self, name: str, timeout_s: float = 0.4, tries: int = 2) -> float | None:
+        """One parameter by name (PARAM_REQUEST_READ), None without an answer."""
+        if self._loop is None:
+            return None
+        ts, tc = self.target_system or 1, self.target_component
+        for _ in range(tries):
+            fut = self._param_waiters.get(name)
+            if fut is None or fut.done():
+                fut = self._loop.create_future()
+                self._param_waiters[name] = fut
+            self._send(lambda mav: mav.param_request_read_send(ts, tc, name.encode(), -1))
+            try:
+                return await asyncio.wait_for(asyncio.shield(fut), timeout_s)
+            except TimeoutError:
+                continue
+            finally:
+                if self._param_waiters.get(name) is fut and fut.done():
+                    del self._param_waiters[name]
+        self._param_waiters.pop(name, None)
+        return None
+
+    def _resolve_param(self, name: str, value: float) -> None:
+        fut = self._param_waiters.get(name)
+        if fut is not None and not fut.done():
+            fut.set_result(value)
 
     # ------------------------------------------------------------------ receiving (reader thread)
     def _post(self, fn: Callable[..., Any], *args: Any) -> None:
@@ -655,16 +781,28 @@ class ArduPilotAutopilot(Autopilot):
             self._landed = LANDED_STATES.get(m.landed_state, LandedState.UNKNOWN)
             self._push_status()
         elif t == "HOME_POSITION":
-            self._push(HomePosition(now, m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1000.0))
+            self._push(HomePosition(now, m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1000.0, m.x, m.y, m.z))
         elif t == "STATUSTEXT":
             text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
             text = text.rstrip("\x00")
             self._last_text = text
+            self._texts_seen += 1
             log.info("autopilot: %s", text)
             self._push(StatusText(now, m.severity, text))
         elif t == "COMMAND_ACK":
             if m.target_system in (0, self.source_system):
                 self._post(self._resolve_ack, m.command, m.result)
+        elif t == "SERVO_OUTPUT_RAW":
+            if m.port == 0:
+                outs = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
+                self.servo_outputs = tuple(outs)
+                self._servo_outputs_time = now
+        elif t == "PARAM_VALUE":
+            pid = m.param_id if isinstance(m.param_id, str) else bytes(m.param_id).decode(errors="replace")
+            pid = pid.rstrip("\x00")
+            if math.isfinite(m.param_value):
+                self.params[pid] = float(m.param_value)
+                self._post(self._resolve_param, pid, float(m.param_value))
         elif t == "RC_CHANNELS":
             self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
             self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))

@@ -1,0 +1,77 @@
+"""The sitl_short delivery against a real ArduCopter SITL: the pymavlink backend on SERIAL0 (tcp),
+ground truth as SIM_STATE on SERIAL1, camera and UWB rendered from it around a pad displaced
+1.5 m from its configured position, the gripper enabled on the vehicle (servo on output 9) and
+the landing scored on truth. Each test starts its own SITL (clean state); ~45 s of it is EKF3
+waiting for GPS before arming."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.config import load_config, shipped_params_path
+from companion_sitl.truth_harness import fly_on_truth
+
+from .conftest import GRIPPER_SERVO9, arducopter
+
+pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+
+PAD_OFFSET = (1.2, -0.9)  # 1.5 m: GPS alone would land 1.5 m off the true pad
+
+
+def _config(connection: str, **landing):
+    overrides = {
+        "autopilot": "ardupilot",
+        "connection": connection,
+        "mission": {"ready_timeout_s": 120.0},  # EKF3 uses GPS ~41 s after boot
+    }
+    if landing:
+        overrides["landing"] = landing
+    return load_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
+
+
+async def _fly(ardupilot_root, tmp_path, params, **landing):
+    with arducopter(ardupilot_root, tmp_path, extra_params=params) as (sitl, truth):
+        config = _config(sitl.connection, **landing)
+        ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
+        try:
+            r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=300.0)
+        finally:
+            await ap.close()
+    print(
+        f"\npad error on truth {r.pad_landing_error_m * 100:.1f} cm (touchdown {r.touchdown_truth_ne_m}, "
+        f"pad {r.true_pad_ne_m}); markers {r.markers_used}, uwb {r.uwb_used}, "
+        f"LANDING_TARGET {r.landing_targets_sent}; unconfirmed releases {ap.releases_unconfirmed}"
+    )
+    return r, ap
+
+
+@pytest.mark.xfail(
+    strict=False,
+    reason="measured 2 runs: camera frames from SIM_STATE truth gave only 4-5 markers (UWB ~2500), touchdown 0.35 m "
+    "off the true pad; the descent's horizontal correction on the ground kept ArduCopter's land detector from "
+    "ON_GROUND, the touchdown-timeout LAND was re-sent at 20 Hz (mission side) and the vehicle never disarmed",
+)
+async def test_delivery_on_arducopter_lands_on_the_displaced_pad(ardupilot_root, tmp_path):
+    r, ap = await _fly(ardupilot_root, tmp_path, GRIPPER_SERVO9)
+    assert r.delivered and r.returned, r.failure
+    assert ap.releases_unconfirmed == 0  # the gripper's output was seen at GRIP_RELEASE
+    assert r.markers_used > 20 and r.uwb_used > 5
+    assert r.pad_landing_error_m < 0.10, r
+
+
+@pytest.mark.xfail(
+    strict=False,
+    reason="measured 1 run: no marker detected (0), so no LANDING_TARGET was sent and PLND had nothing to steer on: "
+    "plain LAND touched down 0.59 m from the true pad (delivered; the return was not awaited)",
+)
+async def test_arducopter_precision_landing_fed_by_our_landing_target(ardupilot_root, tmp_path):
+    """LAND with PLND (PLND_TYPE = 1, companion computer) steering on our LANDING_TARGET
+    (body angles + distance) onto the displaced pad."""
+    params = {**GRIPPER_SERVO9, "PLND_ENABLED": 1, "PLND_TYPE": 1}
+    r, _ = await _fly(
+        ardupilot_root, tmp_path, params, landing_target_output="body_angles", controller="autopilot"
+    )
+    assert r.delivered and r.returned, r.failure
+    assert r.landing_targets_sent > 20
+    assert r.pad_landing_error_m < 0.5, r

@@ -1,0 +1,122 @@
+"""Against a real ArduCopter SITL build: the backend flies it (arm waits for EKF3, take off,
+GUIDED velocity, LAND), SIM_STATE ground truth matches its GLOBAL_POSITION_INT, and GUIDED
+velocity control times out on the vehicle when the setpoints stop. One SITL for the module."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+
+import pytest
+
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.types import FlightMode, LandedState
+from companion.geometry.earth import GeoPoint, LocalTangentPlane
+from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.ardupilot_sitl import CMAC_HOME, ArduPilotNotFound, find_ardupilot
+
+from .conftest import arducopter, wait_for
+
+pytestmark = pytest.mark.sitl
+
+
+def test_find_ardupilot_reports_where_it_looked(tmp_path):
+    with pytest.raises(ArduPilotNotFound, match="no ArduCopter SITL build at"):
+        find_ardupilot(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def copter(ardupilot_root, tmp_path_factory):
+    with arducopter(ardupilot_root, tmp_path_factory.mktemp("arducopter")) as (sitl, truth):
+        yield sitl, truth
+
+
+async def _airborne(ap: ArduPilotAutopilot, alt_m: float) -> None:
+    await ap.arm()  # GUIDED; refused ("Need Position Estimate") until EKF3 uses GPS, retried
+    await ap.takeoff(alt_m)
+    await wait_for(
+        lambda: ap.telemetry.global_position is not None and ap.telemetry.global_position.alt_rel_m > alt_m - 0.3,
+        20.0,
+        f"take off to {alt_m} m",
+    )
+
+
+async def _land(ap: ArduPilotAutopilot) -> float:
+    await ap.land()
+    return await wait_for(
+        lambda: (st := ap.telemetry.status) is not None and st.landed is LandedState.ON_GROUND and not st.armed,
+        40.0,
+        "landed and disarmed",
+    )
+
+
+def _gpi_ned(ap: ArduPilotAutopilot, origin: GeoPoint) -> tuple[float, float, float]:
+    g = ap.telemetry.global_position
+    assert g is not None
+    return LocalTangentPlane(origin).to_ned(GeoPoint(g.lat_deg, g.lon_deg, g.alt_amsl_m))
+
+
+async def test_arm_take_off_guided_velocity_and_land_on_truth(copter):
+    sitl, truth = copter
+    origin = truth.origin
+    # the truth origin is the true home given on the command line
+    assert origin.lat_deg == pytest.approx(CMAC_HOME[0], abs=2e-7) and origin.lon_deg == pytest.approx(
+        CMAC_HOME[1], abs=2e-7
+    )
+    ap = ArduPilotAutopilot(sitl.connection, arm_timeout_s=90.0)
+    await ap.connect(timeout_s=15.0)
+    try:
+        t0 = time.monotonic()
+        await _airborne(ap, 5.0)
+        t_air = time.monotonic() - t0
+        assert truth.pd == pytest.approx(-5.0, abs=0.5)
+        await ap.start_offboard()
+        for _ in range(60):  # 3 s north at 2 m/s
+            ap.set_velocity_ned(VelocitySetpoint(2.0, 0.0, 0.0, 0.0))
+            await asyncio.sleep(0.05)
+        assert ap.mode is FlightMode.OFFBOARD
+        assert truth.pn > 3.5 and abs(truth.pe) < 0.5, (truth.pn, truth.pe)
+        # noise-free SITL: the vehicle's own estimate is the truth within centimetres
+        n, e, d = _gpi_ned(ap, origin)
+        assert math.hypot(n - truth.pn, e - truth.pe) < 0.3 and abs(d - truth.pd) < 0.3, ((n, e, d), truth._state)
+        t_land = await _land(ap)
+        assert ap.mode is FlightMode.LAND  # ArduCopter stays in LAND, disarmed
+        print(f"arm+takeoff {t_air:.1f} s, land {t_land:.1f} s, truth samples {truth.samples}")
+    finally:
+        await ap.close()
+
+
+async def test_guided_velocity_times_out_and_the_vehicle_stops(copter):
+    """GUID_TIMEOUT (3 s): the last velocity is flown for that long, then the vehicle brakes and
+    holds, still in GUIDED."""
+    sitl, truth = copter
+    ap = ArduPilotAutopilot(sitl.connection, arm_timeout_s=90.0)
+    await ap.connect(timeout_s=15.0)
+    try:
+        await _airborne(ap, 4.0)  # arm() leaves LAND for GUIDED first ("LAND mode not armable")
+        await ap.start_offboard()
+        for _ in range(40):
+            ap.set_velocity_ned(VelocitySetpoint(0.0, 2.0, 0.0, 0.0))
+            await asyncio.sleep(0.05)
+        t_stop = time.monotonic()
+        samples = []
+        while time.monotonic() - t_stop < 6.5:
+            samples.append((time.monotonic() - t_stop, truth.pe))
+            await asyncio.sleep(0.05)
+        # east speed over 0.25 s windows, stamped at their middle
+        speed = [
+            ((t0 + t1) / 2, (e1 - e0) / (t1 - t0)) for (t0, e0), (t1, e1) in zip(samples, samples[5:], strict=False)
+        ]
+        still_fast = [t for t, v in speed if v > 1.5]
+        stopped = next(t for t, v in speed if t > 2.0 and abs(v) < 0.1)
+        print(f"last setpoint +{max(still_fast):.2f} s still at 2 m/s; stopped at +{stopped:.2f} s")
+        assert 2.5 < max(still_fast) < 4.0  # flies the last setpoint for GUID_TIMEOUT = 3 s (+ braking)
+        assert stopped < 5.5
+        assert ap.mode is FlightMode.OFFBOARD  # still GUIDED
+        e_hold = truth.pe
+        await asyncio.sleep(1.0)
+        assert abs(truth.pe - e_hold) < 0.1  # holds
+        await _land(ap)
+    finally:
+        await ap.close()
