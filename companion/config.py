@@ -87,6 +87,14 @@ class MissionConfig(_Section):
     landing_hold_min_height_m: float = _f(
         0.5, "m", "final descent: below this height the descent no longer pauses when off-centre", ge=0.0, le=5.0
     )
+    landing_touchdown_height_m: float = _f(
+        0.15,
+        "m",
+        "final descent: below this height only the vertical command remains (ArduCopter never reports "
+        "ON_GROUND while a horizontal velocity is commanded on the ground; measured on its SITL)",
+        ge=0.0,
+        le=2.0,
+    )
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)

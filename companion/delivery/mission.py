@@ -453,7 +453,12 @@ class DeliveryMission:
         if vh > c.landing_max_xy_speed_m_s:
             vx, vy = vx * c.landing_max_xy_speed_m_s / vh, vy * c.landing_max_xy_speed_m_s / vh
         tol = c.landing_xy_tolerance_m
-        gated = self._height_above_ground(est) > c.landing_hold_min_height_m
+        height = self._height_above_ground(est)
+        if height < c.landing_touchdown_height_m:
+            # touching down: a sideways command on the ground keeps the autopilot's land detector
+            # from ever firing (ArduCopter), so only the descent remains
+            vx = vy = 0.0
+        gated = height > c.landing_hold_min_height_m
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
         vz = -c.land_speed_m_s * slow
         v_ned = self.frame.vector_to_ned((vx, vy, vz))
