@@ -1,6 +1,6 @@
 """companion: a MAVLink companion-computer application for precision parcel delivery.
 
-See ../shared/DESIGN.md (layout, frames, rates, safety contract) and README.md.
+See docs/architecture.md (layers, frames, rates, safety contract, paper equations) and README.md.
 """
 
 __version__ = "0.1.0"

@@ -1,5 +1,7 @@
-"""CLI commands of the autopilot layer: ``fly`` (a delivery on the configured real autopilot)
-and ``bench link`` (setpoint-stream jitter and command latency against the MAVLink sim vehicle)."""
+"""CLI of the delivery on a vehicle: ``fly`` (a delivery on the configured real autopilot) and
+``bench link`` (setpoint-stream jitter and command latency against the MAVLink sim vehicle).
+:func:`make_autopilot` is where the backend named in the parameters is built, the embedded
+simulator for ``autopilot = "sim"`` included."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Command-line entry points of the telemetry capability.
+"""CLI of the telemetry: the ground station and its benchmark.
 
 - ``register(subparsers)`` adds ``companion ground``:
   ``companion ground [--listen EP]... [--connect EP]... [--router] [--out DIR] [--duration S]

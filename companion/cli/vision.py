@@ -1,4 +1,4 @@
-"""CLI subcommands of the vision package: ``companion pad`` and ``companion calibrate``.
+"""CLI of the vision layer: ``companion pad`` and ``companion calibrate``.
 
 ``register(subparsers)`` adds them to the application's argparse subparsers; each handler takes
 the parsed args and returns an exit code.

@@ -127,10 +127,6 @@ def _sample_encoder(cls: type) -> Any:
 _ENCODERS = {cls: _sample_encoder(cls) for cls in SAMPLE_FILES}
 
 
-def encode_sample(seq: int, sample: TelemetrySample) -> tuple[object, ...]:
-    return _ENCODERS[type(sample)](seq, sample)  # type: ignore[no-any-return]
-
-
 def decode_value(text: str, typ: Any) -> object:
     """A CSV cell back into a field of type ``typ`` (float, int, bool, str or an Enum)."""
     if typ is float:
