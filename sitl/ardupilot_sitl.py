@@ -16,18 +16,18 @@ GPS"; :func:`wait_ekf_ready` waits for it).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from companion_sitl.px4_sitl import stop_process_group
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +47,8 @@ def find_ardupilot(ardupilot_dir: str | os.PathLike[str] | None = None) -> Path:
     defaults = root / "Tools" / "autotest" / "default_params" / "copter.parm"
     if not binary.is_file():
         raise ArduPilotNotFound(
-            f"no ArduCopter SITL build at {binary} (set ARDUPILOT_DIR to an ArduPilot tree where "
-            "`./waf configure --board sitl && ./waf copter` has run)"
+            f"no ArduCopter SITL build at {binary} (set ARDUPILOT_DIR to an ArduPilot tree with a SITL "
+            "build, made as ArduPilot's own SITL documentation says)"
         )
     if not defaults.is_file():
         raise ArduPilotNotFound(f"ArduPilot tree {root} has no {defaults.relative_to(root)}")
@@ -158,15 +158,7 @@ class ArduCopterSitl:
 
     def stop(self, timeout_s: float = 10.0) -> None:
         p, self.proc = self.proc, None
-        if p is not None and p.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGINT)
-            try:
-                p.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-                p.wait(5.0)
+        stop_process_group(p, timeout_s)
         wd, self.workdir = self.workdir, None
         if wd is not None and not self.keep_workdir:
             shutil.rmtree(wd, ignore_errors=True)

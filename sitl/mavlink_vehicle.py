@@ -29,6 +29,7 @@ out as HIL_STATE_QUATERNION when requested.
 
 from __future__ import annotations
 
+import abc
 import logging
 import math
 import os
@@ -146,7 +147,7 @@ class _Writer:
         self.data += b
 
 
-class MavlinkSimVehicle:
+class MavlinkSimVehicle(abc.ABC):
     """A :class:`SimVehicle` behind a real MAVLink 2 UDP endpoint, stepped in real time.
 
     ``bind`` is the vehicle's own address (port 0 picks a free one; see :attr:`address`).
@@ -246,28 +247,34 @@ class MavlinkSimVehicle:
         """The configuration of the vehicle the dialect builds when none is handed in."""
         return cfg
 
+    @abc.abstractmethod
     def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _pilot_mode(self, mode: FlightMode) -> None:
-        raise NotImplementedError
+        ...
 
     def _rc_switch(self, now: float) -> None:
         """The autopilot reads the pilot's RC (mode switch, sticks) after the RC input changed."""
+        return None  # optional hook: this dialect ignores it
 
+    @abc.abstractmethod
     def _mode_flags(self) -> int:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _heartbeat_autopilot(self) -> tuple[int, int]:
         """(MAV_AUTOPILOT, custom_mode) of the HEARTBEAT."""
-        raise NotImplementedError
+        ...
 
     def _arm_refused(self) -> int | None:
         """A MAV_RESULT if the dialect refuses to arm now, else None."""
         return None
 
+    @abc.abstractmethod
     def _takeoff(self, p: tuple[float, ...]) -> int:
-        raise NotImplementedError
+        ...
 
     def _gripper(self, p: tuple[float, ...]) -> int:
         """MAV_CMD_DO_GRIPPER (param 2: 0 = release)."""
@@ -285,20 +292,25 @@ class MavlinkSimVehicle:
         """MAV_CMD_DO_SET_ACTUATOR; None: not a command of this dialect."""
         return None
 
+    @abc.abstractmethod
     def _land(self) -> int:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _rtl(self) -> int:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
-        raise NotImplementedError
+        ...
 
     def _landing_target_angles(self, m: Any) -> None:
         """LANDING_TARGET without a valid local position (the angle form)."""
+        return None  # optional hook: this dialect ignores it
 
+    @abc.abstractmethod
     def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
-        raise NotImplementedError
+        ...
 
     # ------------------------------------------------------------------ lifecycle
     @property

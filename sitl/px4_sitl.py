@@ -88,22 +88,28 @@ class Px4Sitl:
 
     def stop(self, timeout_s: float = 10.0) -> None:
         p, self.proc = self.proc, None
-        if p is None or p.poll() is not None:
-            return
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(p.pid, signal.SIGINT)  # px4 shuts down cleanly on SIGINT
-        try:
-            p.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGKILL)
-            p.wait(5.0)
+        stop_process_group(p, timeout_s)
 
     def __enter__(self) -> Px4Sitl:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def stop_process_group(p: subprocess.Popen[bytes] | None, timeout_s: float = 10.0) -> None:
+    """SIGINT to a SITL's process group (PX4 and ArduCopter both shut down cleanly on it), then
+    SIGKILL if it has not exited within ``timeout_s``."""
+    if p is None or p.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(p.pid, signal.SIGINT)
+    try:
+        p.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait(5.0)
 
 
 def wait_for_heartbeat(port: int, timeout_s: float) -> bool:
