@@ -199,6 +199,12 @@ class SimConfig(_Section):
     """A simulated scenario: seed, home, wind, sensors."""
 
     seed: int = _f(1, "-", "random seed (every noise source derives from it)", ge=0)
+    profile: Literal["ideal", "px4-sih", "arducopter-sitl"] = _f(
+        "ideal",
+        "-",
+        "autopilot behaviour measured on the real firmware SITL (estimate errors, velocity response, land "
+        "detector, start-up delay, wind model; companion_sitl/profiles.py); it overrides the fields it fixes",
+    )
     home: GeoConfig = Field(default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0))
     wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
     wind_from_deg: float = _f(270.0, "deg", "direction the wind blows from (0 = north)", ge=0.0, lt=360.0)

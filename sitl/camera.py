@@ -126,9 +126,7 @@ class _Texture:
             if prev.shape[0] <= 8 or prev.shape[0] % 2:
                 return prev  # no exact 2x level below this one
             side = prev.shape[0] // 2
-            self.levels[n] = np.asarray(
-                cv2.resize(prev, (side, side), interpolation=cv2.INTER_AREA), dtype=np.uint8
-            )
+            self.levels[n] = np.asarray(cv2.resize(prev, (side, side), interpolation=cv2.INTER_AREA), dtype=np.uint8)
         return self.levels[n]
 
     def texel_to_plane(self, img: U8Image) -> NDArray[np.float64]:
@@ -142,8 +140,9 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
     n = -(-round(cfg.ground_size_m / cfg.ground_texel_m) // 64) * 64  # exact 2x pyramid levels
     coarse = rng.normal(0.0, 1.0, (24, 24)).astype(np.float32)
     low = cv2.resize(coarse, (n, n), interpolation=cv2.INTER_CUBIC)
-    mid = cv2.resize(rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n),
-                     interpolation=cv2.INTER_LINEAR)
+    mid = cv2.resize(
+        rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR
+    )
     img = 105.0 + 22.0 * low + 10.0 * mid + 6.0 * rng.standard_normal((n, n), dtype=np.float32)
     ground = np.clip(img, 0, 255).astype(np.uint8)
     px_per_m = 1.0 / cfg.ground_texel_m
@@ -166,11 +165,11 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
             w = size
             h = size if kind == 1 else size * rng.uniform(0.3, 1.0)
             ang = rng.uniform(0.0, 180.0)
-            box = cv2.boxPoints(((c0 + x * px_per_m, c0 - y * px_per_m),
-                                 (w * px_per_m, h * px_per_m), ang))
+            box = cv2.boxPoints(((c0 + x * px_per_m, c0 - y * px_per_m), (w * px_per_m, h * px_per_m), ang))
             if kind == 1:  # dark tile on a light border, like a marker without a valid code
-                border = cv2.boxPoints(((c0 + x * px_per_m, c0 - y * px_per_m),
-                                        (1.4 * w * px_per_m, 1.4 * h * px_per_m), ang))
+                border = cv2.boxPoints(
+                    ((c0 + x * px_per_m, c0 - y * px_per_m), (1.4 * w * px_per_m, 1.4 * h * px_per_m), ang)
+                )
                 cv2.fillPoly(ground, [np.round(border).astype(np.int32)], 235)
                 grey = int(rng.integers(0, 60))
             cv2.fillPoly(ground, [np.round(box).astype(np.int32)], grey)
@@ -232,10 +231,9 @@ class SimulatedCamera:
         self._setup_distortion()
         w, h = camera.size
         self._noise_margin = 64
-        self._noise = (
-            self._rng.standard_normal((h + self._noise_margin, w + self._noise_margin))
-            .astype(np.float32) * np.float32(cfg.noise_std)
-        )
+        self._noise = self._rng.standard_normal((h + self._noise_margin, w + self._noise_margin)).astype(
+            np.float32
+        ) * np.float32(cfg.noise_std)
         self._blur_kernel = self._make_blur_kernel()
         self.frames_rendered = 0
 
@@ -260,8 +258,7 @@ class SimulatedCamera:
         ch = math.ceil(my.max() + oy) + 3
         self._offset = (ox, oy)
         self._canvas_size = (cw, ch)
-        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32),
-                                 cv2.CV_16SC2)
+        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32), cv2.CV_16SC2)
         self._maps = (m1, m2)
 
     def _make_blur_kernel(self) -> NDArray[np.float32] | None:
@@ -292,8 +289,7 @@ class SimulatedCamera:
         T_wc = self.T_world_camera(T_world_body)
         T_cp = T_wc.inverse() @ self.T_world_pad
         image = self.render(T_cp)
-        return SimFrame(image, float(exposure_time_s),
-                        float(exposure_time_s) + self.config.latency_s, T_cp, T_wc)
+        return SimFrame(image, float(exposure_time_s), float(exposure_time_s) + self.config.latency_s, T_cp, T_wc)
 
     def capture_camera(self, T_world_camera: Transform, exposure_time_s: float) -> SimFrame:
         """Render the frame for a camera pose given directly in the world (NED) frame."""
@@ -302,8 +298,9 @@ class SimulatedCamera:
         check_pose(T_world_camera, "T_world_camera")
         T_cp = T_world_camera.inverse() @ self.T_world_pad
         image = self.render(T_cp)
-        return SimFrame(image, float(exposure_time_s),
-                        float(exposure_time_s) + self.config.latency_s, T_cp, T_world_camera)
+        return SimFrame(
+            image, float(exposure_time_s), float(exposure_time_s) + self.config.latency_s, T_cp, T_world_camera
+        )
 
     # ------------------------------------------------------------------ rendering
     def _level_for(self, tex: _Texture, px_per_texel: float) -> int:
@@ -318,9 +315,7 @@ class SimulatedCamera:
         t = np.asarray(T_camera_pad.t, dtype=float)
         cam_in_pad = -R.T @ t
         if cam_in_pad[2] <= 1e-3:
-            raise ValueError(
-                f"T_camera_pad: camera is {cam_in_pad[2]:.3f} m above the pad plane; must be above it"
-            )
+            raise ValueError(f"T_camera_pad: camera is {cam_in_pad[2]:.3f} m above the pad plane; must be above it")
         cfg = self.config
         ox, oy = self._offset
         cw, ch = self._canvas_size
@@ -335,16 +330,27 @@ class SimulatedCamera:
         f = 0.5 * (self.camera.fx + self.camera.fy)
         lg = self._level_for(self._ground, f * cfg.ground_texel_m / depth)
         gimg = self._ground.level(lg)
-        canvas: U8Image = np.asarray(cv2.warpPerspective(
-            gimg, P @ self._ground.texel_to_plane(gimg), (cw, ch), flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=self._ground_mean,
-        ), dtype=np.uint8)
+        canvas: U8Image = np.asarray(
+            cv2.warpPerspective(
+                gimg,
+                P @ self._ground.texel_to_plane(gimg),
+                (cw, ch),
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=self._ground_mean,
+            ),
+            dtype=np.uint8,
+        )
         z_pad = max(float(t[2]), 1e-3)  # depth of the pad centre
         lp = self._level_for(self._pad, f * cfg.pad_texel_m / z_pad)
         pimg = self._pad.level(lp)
         cv2.warpPerspective(
-            pimg, P @ self._pad.texel_to_plane(pimg), (cw, ch), dst=canvas,
-            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT,
+            pimg,
+            P @ self._pad.texel_to_plane(pimg),
+            (cw, ch),
+            dst=canvas,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_TRANSPARENT,
         )
         self._paint_sky(canvas, R, Kc)
         img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR) if self._maps is not None else canvas

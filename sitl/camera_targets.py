@@ -16,7 +16,10 @@ from companion.vision.camera import CalibrationPattern, CameraModel
 
 
 def render_plane_texture(
-    camera: CameraModel, texture: NDArray[np.uint8], texel_m: float, T_camera_plane: Transform,
+    camera: CameraModel,
+    texture: NDArray[np.uint8],
+    texel_m: float,
+    T_camera_plane: Transform,
     background: int = 128,
 ) -> NDArray[np.uint8]:
     """Render a planar texture whose top-left texel is at the plane origin (x right, y down)."""
@@ -32,8 +35,7 @@ def render_plane_texture(
     with np.errstate(divide="ignore", invalid="ignore"):
         mx = np.where(q[:, 2] > 0, q[:, 0] / q[:, 2], -1e6).reshape(h, w).astype(np.float32)
         my = np.where(q[:, 2] > 0, q[:, 1] / q[:, 2], -1e6).reshape(h, w).astype(np.float32)
-    out = cv2.remap(texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=background)
+    out = cv2.remap(texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=background)
     return np.asarray(out, dtype=np.uint8)
 
 
@@ -46,8 +48,7 @@ def chessboard_texture(pattern: CalibrationPattern, square_px: int = 40) -> NDAr
     for r in range(rows):
         for c in range(cols):
             if (r + c) % 2 == 0:
-                board[(r + 1) * square_px:(r + 2) * square_px,
-                      (c + 1) * square_px:(c + 2) * square_px] = 0
+                board[(r + 1) * square_px : (r + 2) * square_px, (c + 1) * square_px : (c + 2) * square_px] = 0
     return np.asarray(cv2.GaussianBlur(board, (3, 3), 0.6), dtype=np.uint8)
 
 
@@ -58,14 +59,17 @@ def charuco_texture(pattern: CalibrationPattern, square_px: int = 40) -> NDArray
     img = pattern.charuco_board().generateImage(
         (pattern.cols * square_px, pattern.rows * square_px), marginSize=0, borderBits=1
     )
-    img = cv2.copyMakeBorder(img, square_px, square_px, square_px, square_px,
-                             cv2.BORDER_CONSTANT, value=255)
+    img = cv2.copyMakeBorder(img, square_px, square_px, square_px, square_px, cv2.BORDER_CONSTANT, value=255)
     return np.asarray(cv2.GaussianBlur(img, (3, 3), 0.6), dtype=np.uint8)
 
 
 def chessboard_views(
-    camera: CameraModel, pattern: CalibrationPattern, n: int, seed: int,
-    distance_m: tuple[float, float] = (0.45, 0.65), noise_std: float = 1.5,
+    camera: CameraModel,
+    pattern: CalibrationPattern,
+    n: int,
+    seed: int,
+    distance_m: tuple[float, float] = (0.45, 0.65),
+    noise_std: float = 1.5,
 ) -> list[NDArray[np.uint8]]:
     """``n`` seeded views of the target (chessboard or ChArUco): random tilt (+-0.5 rad), spin,
     offset and distance."""
@@ -78,8 +82,7 @@ def chessboard_views(
     views = []
     for _ in range(n):
         R = euler_to_rotmat(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.3, 0.3))
-        centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06),
-                           rng.uniform(*distance_m)])
+        centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06), rng.uniform(*distance_m)])
         t = centre - R @ np.array([width_m / 2, height_m / 2, 0.0])
         img = render_plane_texture(camera, board, texel, Transform(R, t)).astype(float)
         img += rng.normal(0.0, noise_std, img.shape)

@@ -37,7 +37,7 @@ AXES = ("x", "y", "z")
 
 
 def resolve_estimators(names: Sequence[str] | str) -> list[str]:
-    """"all" or names (case and '_' / '-' ignored) -> canonical names in the paper's order."""
+    """ "all" or names (case and '_' / '-' ignored) -> canonical names in the paper's order."""
     items = [names] if isinstance(names, str) else list(names)
     out: list[str] = []
     for item in items:
@@ -88,7 +88,11 @@ def run_dart_campaign(
         params = load_dart_params(params)
     mission: DartMissionConfig = replace(params.mission, approach=False, hover_s=0.0)
     result: dict[str, Any] = {
-        "n": n, "seed": seed, "duration_s": duration_s, "settle_s": settle_s, "estimators": {},
+        "n": n,
+        "seed": seed,
+        "duration_s": duration_s,
+        "settle_s": settle_s,
+        "estimators": {},
     }
     for name in names:
         est_rows: list[np.ndarray] = []
@@ -98,7 +102,10 @@ def run_dart_campaign(
         t0 = time.perf_counter()
         for k in range(n):
             sim = DartSim(
-                name, params.sim, mission, seed=seed + k,
+                name,
+                params.sim,
+                mission,
+                seed=seed + k,
                 controller=params.control.controller_config(),
             )
             sim.run_until(duration_s)
@@ -146,7 +153,8 @@ def campaign_table(result: dict[str, Any]) -> Any:
     for name, r in result["estimators"].items():
         det = r["detections"] / r["frames"] if r["frames"] else float("nan")
         table.add_row(
-            name, r["gimbal"],
+            name,
+            r["gimbal"],
             *(f"{v:.2f}" for v in r["std_cm"]),
             *(f"{v:.2f}" for v in r["truth_std_cm"]),
             f"{100 * det:.0f} %",

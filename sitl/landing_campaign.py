@@ -24,6 +24,7 @@ import numpy as np
 
 from companion.config import CompanionConfig, load_config, shipped_params_path
 from companion_sitl.demo import run_demo
+from companion_sitl.profiles import get_profile
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "fusion": {},
@@ -68,7 +69,11 @@ def draw_scenarios(
     return out
 
 
-def scenario_config(base_file: Path, d: Draw, variant: str) -> CompanionConfig:
+def scenario_config(
+    base_file: Path, d: Draw, variant: str, profile: str = "ideal", landing_overrides: dict[str, Any] | None = None
+) -> CompanionConfig:
+    """The draw ``d`` flown as ``variant`` on the embedded simulator with the autopilot ``profile``
+    (companion_sitl/profiles.py: a profile without wind flies the draw in still air)."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
     sim = {
@@ -78,7 +83,10 @@ def scenario_config(base_file: Path, d: Draw, variant: str) -> CompanionConfig:
         "wind_speed_m_s": d.wind_speed_m_s,
         "wind_from_deg": d.wind_from_deg,
     }
-    return load_config(base_file, overrides={"sim": sim, "landing": dict(VARIANTS[variant])})
+    if profile != "ideal":
+        sim["profile"] = profile
+    landing = {**(landing_overrides or {}), **VARIANTS[variant]}
+    return load_config(base_file, overrides={"sim": sim, "landing": landing})
 
 
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
@@ -89,6 +97,7 @@ def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
         "landed": int(ok.size),
         "mean_m": float(ok.mean()) if ok.size else math.nan,
         "median_m": float(np.median(ok)) if ok.size else math.nan,
+        "p90_m": float(np.percentile(ok, 90)) if ok.size else math.nan,
         "p95_m": float(np.percentile(ok, 95)) if ok.size else math.nan,
         "max_m": float(ok.max()) if ok.size else math.nan,
         "on_pad_pct": 100.0 * sum(on_pad) / len(on_pad),
@@ -101,6 +110,8 @@ def run_landing_campaign(
     variants: tuple[str, ...] = DEFAULT_VARIANTS,
     params: str | Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    profile: str = "ideal",
+    landing_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     base = Path(params) if params else shipped_params_path("landing_campaign.toml")
     draws = draw_scenarios(n, seed)
@@ -109,7 +120,7 @@ def run_landing_campaign(
     total, done = n * len(variants), 0
     for d in draws:
         for v in variants:
-            r = run_demo(scenario_config(base, d, v))
+            r = run_demo(scenario_config(base, d, v, profile, landing_overrides))
             dn, de = r.pad_landing_error_ne_m
             on_pad = bool(math.isfinite(dn) and abs(dn) <= pad_half and abs(de) <= pad_half and r.delivered)
             landings[v].append(
@@ -123,11 +134,14 @@ def run_landing_campaign(
                     "failure": r.failure,
                     "gps_bias_m": d.gps_bias_m[:2],
                     "pad_offset_m": d.pad_offset_m,
-                    "wind_m_s": d.wind_speed_m_s,
+                    "wind_m_s": d.wind_speed_m_s if get_profile(profile).has_wind else 0.0,
                 }
             )
             done += 1
             if progress is not None:
                 progress(v, done, total)
     summary = {v: _stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]) for v, ls in landings.items()}
-    return {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
+    out = {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
+    if profile != "ideal":
+        out["profile"] = profile
+    return out

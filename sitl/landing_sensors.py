@@ -70,9 +70,10 @@ class SimCameraSource:
         if p[2] <= 0.05:
             return False
         margin = 0.5 / p[2]  # half a metre around the pad centre
-        return abs(math.atan(p[0] / p[2])) < self._half_fov_x + margin and abs(
-            math.atan(p[1] / p[2])
-        ) < self._half_fov_y + margin
+        return (
+            abs(math.atan(p[0] / p[2])) < self._half_fov_x + margin
+            and abs(math.atan(p[1] / p[2])) < self._half_fov_y + margin
+        )
 
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""

@@ -181,4 +181,3 @@ class Px4SimVehicle(MavlinkSimVehicle):
 
     def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
         self.vehicle.set_velocity(sp)
-

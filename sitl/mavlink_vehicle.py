@@ -101,7 +101,6 @@ AP_STREAM_GROUPS: dict[int, tuple[int, ...]] = {
 }
 
 
-
 def _i(x: float) -> int:
     """A command parameter as an int (MAVSDK sends NaN for unused parameters)."""
     return int(x) if math.isfinite(x) else 0
@@ -241,27 +240,23 @@ class MavlinkSimVehicle(abc.ABC):
         self._ltp = LocalTangentPlane(GeoPoint(cfg.home.lat_deg, cfg.home.lon_deg, cfg.home.alt_amsl_m))
         self.on_message: Callable[[Any], None] | None = None  # test hook: every decoded message
 
-
     # ------------------------------------------------------------------ dialect hooks
     def _vehicle_config(self, cfg: SimConfig, guided_timeout_s: float, ekf_delay_s: float | None) -> SimConfig:
         """The configuration of the vehicle the dialect builds when none is handed in."""
         return cfg
 
     @abc.abstractmethod
-    def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
-        ...
+    def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]: ...
 
     @abc.abstractmethod
-    def _pilot_mode(self, mode: FlightMode) -> None:
-        ...
+    def _pilot_mode(self, mode: FlightMode) -> None: ...
 
     def _rc_switch(self, now: float) -> None:
         """The autopilot reads the pilot's RC (mode switch, sticks) after the RC input changed."""
         return None  # optional hook: this dialect ignores it
 
     @abc.abstractmethod
-    def _mode_flags(self) -> int:
-        ...
+    def _mode_flags(self) -> int: ...
 
     @abc.abstractmethod
     def _heartbeat_autopilot(self) -> tuple[int, int]:
@@ -273,8 +268,7 @@ class MavlinkSimVehicle(abc.ABC):
         return None
 
     @abc.abstractmethod
-    def _takeoff(self, p: tuple[float, ...]) -> int:
-        ...
+    def _takeoff(self, p: tuple[float, ...]) -> int: ...
 
     def _gripper(self, p: tuple[float, ...]) -> int:
         """MAV_CMD_DO_GRIPPER (param 2: 0 = release)."""
@@ -293,24 +287,20 @@ class MavlinkSimVehicle(abc.ABC):
         return None
 
     @abc.abstractmethod
-    def _land(self) -> int:
-        ...
+    def _land(self) -> int: ...
 
     @abc.abstractmethod
-    def _rtl(self) -> int:
-        ...
+    def _rtl(self) -> int: ...
 
     @abc.abstractmethod
-    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int:
-        ...
+    def _set_mode(self, base: float, custom_main: float, custom_sub: float) -> int: ...
 
     def _landing_target_angles(self, m: Any) -> None:
         """LANDING_TARGET without a valid local position (the angle form)."""
         return None  # optional hook: this dialect ignores it
 
     @abc.abstractmethod
-    def _velocity_setpoint(self, sp: VelocitySetpoint) -> None:
-        ...
+    def _velocity_setpoint(self, sp: VelocitySetpoint) -> None: ...
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -891,6 +881,7 @@ class MavlinkSimVehicle(abc.ABC):
             v.set_landing_target(float(m.x), float(m.y))
             return
         self._landing_target_angles(m)  # PX4's landing_target_estimator takes the position form only
+
     def _rc_override(self, m: Any) -> None:
         """RC_CHANNELS_OVERRIDE: channels 1-8: 0 releases, UINT16_MAX ignores; channels 9-18: 0
         and UINT16_MAX ignore, UINT16_MAX-1 releases; any other value overrides the channel."""

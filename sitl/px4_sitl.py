@@ -32,9 +32,7 @@ def find_px4(px4_dir: str | os.PathLike[str] | None = None) -> Path:
     root = Path(px4_dir or os.environ.get("PX4_DIR") or Path.home() / "PX4-Autopilot").expanduser()
     binary = root / "build" / "px4_sitl_default" / "bin" / "px4"
     if not binary.is_file():
-        raise Px4NotFound(
-            f"no PX4 SITL build at {binary} (set PX4_DIR to a PX4 tree with a built SITL)"
-        )
+        raise Px4NotFound(f"no PX4 SITL build at {binary} (set PX4_DIR to a PX4 tree with a built SITL)")
     return root
 
 

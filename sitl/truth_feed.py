@@ -71,7 +71,7 @@ class MavlinkTruth:
         self.rate_hz = rate_hz
         self.source_system = source_system
         self._ltp = LocalTangentPlane(origin) if origin is not None else None
-        self._state: tuple[float, float, float, float, float, float, float] | None = None  # t, n, e, d, r, p, y
+        self._state: tuple[float, ...] | None = None  # t, n, e, d, r, p, y, vn, ve, vd
         self._conn: Any = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -79,6 +79,8 @@ class MavlinkTruth:
         self.rejected = 0
         self._target: tuple[int, int] | None = None
         self._last_request = -math.inf
+        self.params: dict[str, float] = {}  # PARAM_VALUE answers seen on this link
+        self.acks: dict[int, int] = {}  # command id -> MAV_RESULT of its last COMMAND_ACK
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> MavlinkTruth:
@@ -134,10 +136,51 @@ class MavlinkTruth:
             if kind == "HEARTBEAT" and self._target is None and msg.get_srcComponent() == 1:
                 self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 self._last_request = -math.inf
+            elif kind == "PARAM_VALUE":
+                self.params[str(msg.param_id)] = float(msg.param_value)
+            elif kind == "COMMAND_ACK":
+                self.acks[int(msg.command)] = int(msg.result)
             elif kind == "HIL_STATE_QUATERNION" == self.message:
                 self._on_truth(msg)
             elif kind == "SIM_STATE" == self.message:
                 self._on_sim_state(msg)
+
+    def set_param(self, name: str, value: float, timeout_s: float = 5.0) -> None:
+        """PARAM_SET on this link (a simulator setting such as ArduPilot's SIM_WIND_SPD), resent
+        every 0.5 s until the autopilot echoes the value; raises TimeoutError otherwise."""
+        if self._target is None or self._conn is None:
+            raise TruthUnavailable(f"no autopilot heartbeat on {self.url!r}: cannot set {name}")
+        ts, tc = self._target
+        t_end = time.monotonic() + timeout_s
+        self.params.pop(name, None)
+        while time.monotonic() < t_end:
+            self._conn.mav.param_set_send(ts, tc, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+            t_next = time.monotonic() + 0.5
+            while time.monotonic() < t_next:
+                got = self.params.get(name)
+                if got is not None and abs(got - value) <= 1e-4 * max(1.0, abs(value)):
+                    return
+                time.sleep(0.02)
+        raise TimeoutError(f"{name} = {value}: not confirmed by the autopilot within {timeout_s} s")
+
+    def command(self, command: int, *params: float, timeout_s: float = 5.0) -> int:
+        """COMMAND_LONG on this link (a test harness acting as a ground station, e.g.
+        MAV_CMD_DO_SET_HOME between campaign landings), resent every 0.5 s until acknowledged;
+        returns the MAV_RESULT, raises TimeoutError without an answer."""
+        if self._target is None or self._conn is None:
+            raise TruthUnavailable(f"no autopilot heartbeat on {self.url!r}: cannot send command {command}")
+        ts, tc = self._target
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        self.acks.pop(command, None)
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            self._conn.mav.command_long_send(ts, tc, command, 0, *p)
+            t_next = time.monotonic() + 0.5
+            while time.monotonic() < t_next:
+                if command in self.acks:
+                    return self.acks[command]
+                time.sleep(0.02)
+        raise TimeoutError(f"command {command}: no COMMAND_ACK within {timeout_s} s")
 
     def _request(self, conn: Any) -> None:
         """SET_MESSAGE_INTERVAL for the truth message; repeated every 2 s until it flows (a
@@ -155,7 +198,8 @@ class MavlinkTruth:
             log.debug("truth feed: request not sent: %s", err)
 
     def _on_truth(self, m: Any) -> None:
-        self._store(list(m.attitude_quaternion), (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
+        v = (m.vx * 0.01, m.vy * 0.01, m.vz * 0.01)  # cm/s, NED
+        self._store(list(m.attitude_quaternion), (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3), v)
 
     def _on_sim_state(self, m: Any) -> None:
         """ArduPilot SITL's SIM_STATE: degE7 in lat_int/lon_int (MAVLink 2 extensions); without
@@ -167,10 +211,10 @@ class MavlinkTruth:
             lat, lon = m.lat, m.lon
             if abs(lat) > 90.0 or abs(lon) > 180.0:
                 lat, lon = lat * 1e-7, lon * 1e-7
-        self._store([m.q1, m.q2, m.q3, m.q4], (lat, lon, m.alt))
+        self._store([m.q1, m.q2, m.q3, m.q4], (lat, lon, m.alt), (m.vn, m.ve, m.vd))
 
-    def _store(self, q: list[float], geo: tuple[float, float, float]) -> None:
-        if not all(math.isfinite(v) for v in (*q, *geo)) or abs(sum(v * v for v in q) - 1.0) > 0.1:
+    def _store(self, q: list[float], geo: tuple[float, float, float], vel: tuple[float, float, float]) -> None:
+        if not all(math.isfinite(v) for v in (*q, *geo, *vel)) or abs(sum(v * v for v in q) - 1.0) > 0.1:
             self.rejected += 1
             return
         p = GeoPoint(*geo)
@@ -179,7 +223,7 @@ class MavlinkTruth:
             log.info("truth origin taken from the first sample: %.7f %.7f %.2f m", *geo)
         n, e, d = self._ltp.to_ned(p)
         r, pi, y = quat_to_euler(q)
-        self._state = (time.monotonic(), n, e, d, float(r), float(pi), float(y))
+        self._state = (time.monotonic(), n, e, d, float(r), float(pi), float(y), *(float(v) for v in vel))
         self.samples += 1
 
     # ------------------------------------------------------------------ SimVehicle-like view
@@ -225,3 +269,15 @@ class MavlinkTruth:
     @property
     def yaw(self) -> float:
         return self._get(6)
+
+    @property
+    def vn(self) -> float:
+        return self._get(7)
+
+    @property
+    def ve(self) -> float:
+        return self._get(8)
+
+    @property
+    def vd(self) -> float:
+        return self._get(9)

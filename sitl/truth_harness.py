@@ -42,6 +42,7 @@ class HarnessResult:
     markers_used: int
     uwb_used: int
     landing_targets_sent: int
+    fusion_outcomes: dict[str, int] = dataclasses.field(default_factory=dict)  # "sensor.outcome" -> count
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -58,9 +59,13 @@ async def fly_on_truth(
     pad_offset_m: tuple[float, float],
     timeout_s: float = 300.0,
     recorder: Any | None = None,
+    pad_ne: tuple[float, float] | None = None,
 ) -> HarnessResult:
-    """One delivery with fusion; ``truth`` must be started (and is not stopped here)."""
-    pad_ne = true_pad_ne(config, origin, pad_offset_m)
+    """One delivery with fusion; ``truth`` must be started (and is not stopped here). ``pad_ne``
+    gives the true pad in the truth frame directly (a vehicle that does not start at the truth
+    origin); otherwise it is the configured pad from ``origin`` plus ``pad_offset_m``."""
+    if pad_ne is None:
+        pad_ne = true_pad_ne(config, origin, pad_offset_m)
     kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
     kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
@@ -91,4 +96,5 @@ async def fly_on_truth(
         markers_used=fusion.counters.markers_used if fusion is not None else 0,
         uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
         landing_targets_sent=shell.landing_targets_sent,
+        fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
     )

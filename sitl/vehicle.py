@@ -33,6 +33,7 @@ from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
 from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.profiles import apply_profile, get_profile
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +41,6 @@ G = 9.80665
 HOLD_MAX_H_SPEED = 5.0
 HOLD_MAX_V_SPEED = 1.5
 OFFBOARD_MIN_SETPOINT_RATE_HZ = 2.0
-LAND_DETECT_S = 0.6
 AUTO_DISARM_AFTER_LAND_S = 2.0
 PLD_HACC_RAD_M = 0.2  # PX4 precision landing: horizontal acceptance radius before descending
 PLD_BTOUT_S = 5.0  # PX4 precision landing: target lost after this long -> plain landing
@@ -109,9 +109,25 @@ class SimVehicle:
     status_texts: list[tuple[float, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        # the autopilot profile fixes what the firmware decides (companion_sitl/profiles.py)
+        self.profile = get_profile(self.cfg.profile)
+        self.cfg = apply_profile(self.cfg)
         c = self.cfg
         ss = np.random.SeedSequence(c.seed)
         self._rng_wind, self._rng_gps, self._rng_imu, self._rng_misc = (np.random.default_rng(s) for s in ss.spawn(4))
+        # the autopilot's velocity-estimate error (profile; none for ideal: no draw, no cost)
+        self._verr: list[_GaussMarkov] = []
+        if self.profile.velocity_error_m_s > 0.0:
+            self._rng_verr = np.random.default_rng(ss.spawn(1)[0])
+            pr = self.profile
+            self._verr = [
+                _GaussMarkov(pr.velocity_error_m_s, pr.velocity_error_tau_s),
+                _GaussMarkov(pr.velocity_error_m_s, pr.velocity_error_tau_s),
+                _GaussMarkov(pr.velocity_error_down_m_s, pr.velocity_error_tau_s),
+            ]
+            for w in self._verr:
+                w.x = w.sigma * float(self._rng_verr.standard_normal())
+        self._land_detect_s = self.profile.land_detect_s
         self._dt = 1.0 / c.vehicle.physics_rate_hz
         # wind: mean from "wind_from", gusts as Gauss-Markov per axis
         wf = math.radians(c.wind_from_deg)
@@ -277,6 +293,10 @@ class SimVehicle:
         rg = self._rng_gps.standard_normal(3)
         for i in range(3):
             self._walk[i].step(dt, float(rg[i]))
+        if self._verr:
+            rv = self._rng_verr.standard_normal(3)
+            for i in range(3):
+                self._verr[i].step(dt, float(rv[i]))
         if self._release_at is not None and t >= self._release_at:
             self.payload_released = True
             self._release_at = None
@@ -324,10 +344,15 @@ class SimVehicle:
                         sp_d = 0.0  # horizontal approach first, as PX4's precision landing does
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
 
-        # ---- velocity loop (P + I) -> acceleration setpoint, limits
+        # ---- velocity loop (P + I) -> acceleration setpoint, limits; it runs on the autopilot's
+        # velocity estimate (truth + the profile's error: PX4 SIH drifts on it, profiles.py)
         ve_n = self.vn
         ve_e = self.ve
         ve_d = self.vd
+        if self._verr:
+            ve_n += self._verr[0].x
+            ve_e += self._verr[1].x
+            ve_d += self._verr[2].x
         kp, ki = vc.velocity_p_gain, vc.velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
         an = kp * en + ki * self._int[0]
@@ -422,7 +447,7 @@ class SimVehicle:
         if on_ground:
             if self._ground_since is None:
                 self._ground_since = t
-            if t - self._ground_since >= LAND_DETECT_S and self.landed is not LandedState.ON_GROUND:
+            if t - self._ground_since >= self._land_detect_s and self.landed is not LandedState.ON_GROUND:
                 self.landed = LandedState.ON_GROUND
                 self._landed_since = t
                 if self._airborne:
@@ -465,7 +490,12 @@ class SimVehicle:
     def position_ned(self) -> PositionNed:
         n, e, d = self._local()
         r = self._rng_misc.standard_normal(3) * 0.03
-        return PositionNed(self.time_s, n, e, d, self.vn + float(r[0]), self.ve + float(r[1]), self.vd + float(r[2]))
+        vn, ve, vd = self.vn, self.ve, self.vd
+        if self._verr:  # the reported velocity is the estimate the velocity loop flies on
+            vn += self._verr[0].x
+            ve += self._verr[1].x
+            vd += self._verr[2].x
+        return PositionNed(self.time_s, n, e, d, vn + float(r[0]), ve + float(r[1]), vd + float(r[2]))
 
     def global_position(self) -> GlobalPosition:
         est = self._estimate()

@@ -49,8 +49,7 @@ def bench_vision(n_frames: int = 120, seed: int = 0) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     cam = load_default_camera()
     layout = PadLayout()
-    sim = SimulatedCamera(cam, layout, SimCameraConfig(noise_std=2.0, gain_jitter=0.03,
-                                                       offset_jitter=3.0), seed=seed)
+    sim = SimulatedCamera(cam, layout, SimCameraConfig(noise_std=2.0, gain_jitter=0.03, offset_jitter=3.0), seed=seed)
     frames: list[NDArray[np.uint8]] = []
     truths: list[Transform] = []
     phase = rng.uniform(0, 2 * math.pi, 4)
@@ -81,8 +80,11 @@ def bench_vision(n_frames: int = 120, seed: int = 0) -> dict[str, float]:
         raw_s += t1 - t0
         ours_s += t2 - t1
 
-    errs = [float(np.linalg.norm(o.T_camera_pad.t - tr.t))
-            for o, tr in zip(obs, truths, strict=True) if o is not None and not o.ambiguous]
+    errs = [
+        float(np.linalg.norm(o.T_camera_pad.t - tr.t))
+        for o, tr in zip(obs, truths, strict=True)
+        if o is not None and not o.ambiguous
+    ]
     st = det.stats
     out = {
         "n_frames": float(n_frames),

@@ -482,9 +482,7 @@ class Px4Autopilot(Autopilot):
             loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
         )
         self._tasks.append(
-            loop.create_task(
-                self._consume(lambda: self._direct.subscribe_message("HOME_POSITION"), on_home_position)
-            )
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HOME_POSITION"), on_home_position))
         )
 
         def on_rc_channels(m: Any) -> None:  # the receiver's raw channels (Dart: pilot sticks, switch)

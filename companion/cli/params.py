@@ -42,4 +42,3 @@ def register(sub: Any) -> None:
     pc = psub.add_parser("check", help="validate parameter files")
     pc.add_argument("files", nargs="+")
     pc.set_defaults(func=cmd_params_check)
-

@@ -28,4 +28,3 @@ def register(sub: Any) -> None:
     pl = sub.add_parser("plugins", help="list installed driver plugins (cameras, UWB, payloads)")
     pl.add_argument("--strict", action="store_true", help="exit 1 if any plugin failed to load")
     pl.set_defaults(func=cmd_plugins)
-

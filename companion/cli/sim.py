@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 from pathlib import Path
@@ -226,18 +227,71 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         def on_progress(variant: str, done: int, total: int) -> None:
             progress.update(task, description=variant, completed=done)
 
-        result = run_landing_campaign(args.n, args.seed, tuple(variants), args.params, on_progress)
-    out = Path(args.out) if args.out else Path("runs") / time.strftime("landing-%Y%m%d-%H%M%S")
+        out = Path(args.out) if args.out else Path("runs") / time.strftime("landing-%Y%m%d-%H%M%S")
+        if args.autopilot:
+            from companion_sitl.real_campaign import run_real_landing_campaign
+
+            result = run_real_landing_campaign(
+                args.autopilot, args.n, args.seed, tuple(variants), args.params, out / "sitl", on_progress
+            )
+        else:
+            result = run_landing_campaign(
+                args.n, args.seed, tuple(variants), args.params, on_progress, profile=args.profile
+            )
     files = write_outputs(result, out)
-    table = Table(title=f"{args.n} landings per variant, seed {args.seed} (true touchdown vs true pad centre)")
-    for col in ("variant", "mean", "median", "p95", "max", "on the pad"):
+    where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
+    table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
+    for col in ("variant", "mean", "median", "p90", "p95", "max", "on the pad"):
         table.add_column(col, justify="right" if col != "variant" else "left")
     for v, s in result["summary"].items():
         table.add_row(
-            v, *(f"{s[k] * 100:.1f} cm" for k in ("mean_m", "median_m", "p95_m", "max_m")), f"{s['on_pad_pct']:.0f} %"
+            v,
+            *(f"{s[k] * 100:.1f} cm" for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
+            f"{s['on_pad_pct']:.0f} %",
         )
     console.print(table)
     console.print(f"written: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def cmd_campaign_parity(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from companion_sitl.real_campaign import run_parity
+
+    variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
+    out = Path(args.out) if args.out else None
+    result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants)
+    console = Console()
+    for v, c in result["comparison"].items():
+        title = f"{v}: {result['profile']} profile vs real {args.autopilot} SITL, same {len(c['seeds'])} draws"
+        table = Table(title=title)
+        for col in ("", "mean", "p90", "max"):
+            table.add_column(col, justify="right" if col else "left")
+        for name in ("predicted", "real"):
+            f = c[name]
+            table.add_row(name, *(f"{f[k] * 100:.1f} cm" for k in ("mean_m", "p90_m", "max_m")))
+        r = c["ratio_predicted_to_real"]
+        table.add_row("ratio", *(f"{r[k]:.2f}" for k in ("mean_m", "p90_m", "max_m")))
+        console.print(table)
+        console.print(
+            f"mean and p90 within {c['within_factor']}x: {'yes' if c['mean_and_p90_within_factor'] else 'NO'}; "
+            f"failure classes agree: {'yes' if c['failure_classes_agree'] else 'NO'} "
+            f"(disagreeing seeds: {c['failure_class_disagreements'] or 'none'})"
+        )
+    console.print(f"written: {result['out_dir']}/parity.json, parity.png")
+    return 0
+
+
+def cmd_campaign_probe(args: argparse.Namespace) -> int:
+    from companion_sitl.firmware_probe import run_probe
+
+    out = Path(args.out) if args.out else Path("runs") / time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S")
+    fig = run_probe(args.autopilot, out)
+    for k, v in sorted(fig.items()):
+        print(f"{k:48s} {json.dumps(v)}")
+    print(f"written: {out}/probe.csv, {out}/probe.json")
     return 0
 
 
@@ -269,7 +323,6 @@ def register_demo(sub: Any) -> None:
     demo.set_defaults(func=cmd_demo)
 
 
-
 def register_bench(bsub: Any) -> None:
     """Add ``companion bench sim`` and ``bench estimation``."""
     bs = bsub.add_parser("sim", help="how many times faster than real time the demo flight runs")
@@ -295,7 +348,6 @@ def register_bench_micro(bsub: Any) -> None:
     bv.set_defaults(func=cmd_bench_vision)
 
 
-
 def register_campaign(csub: Any) -> None:
     """Add ``companion campaign landing``."""
     cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
@@ -306,4 +358,34 @@ def register_campaign(csub: Any) -> None:
     cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
     cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
     cl.add_argument("--quiet", action="store_true")
+    where = cl.add_mutually_exclusive_group()
+    where.add_argument(
+        "--profile",
+        choices=("ideal", "px4-sih", "arducopter-sitl"),
+        default="ideal",
+        help="embedded simulator behaving like this autopilot (measured on its SITL; default ideal)",
+    )
+    where.add_argument(
+        "--autopilot",
+        choices=("px4", "ardupilot"),
+        help="fly the landings on the real SITL build (PX4_DIR / ARDUPILOT_DIR), in real time",
+    )
     cl.set_defaults(func=cmd_campaign_landing)
+    cp = csub.add_parser(
+        "parity",
+        help="the embedded campaign with the firmware's profile against the real SITL on the same draws",
+    )
+    cp.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True)
+    cp.add_argument("--n", type=int, default=10, help="landings (each real one takes about a minute)")
+    cp.add_argument("--seed", type=int, default=1)
+    cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
+    cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cp.add_argument("--out", help="output folder (default runs/parity-<autopilot>-<time>)")
+    cp.set_defaults(func=cmd_campaign_parity)
+    pr = csub.add_parser(
+        "probe",
+        help="measure a real SITL for its autopilot profile: estimate errors, velocity step, land detector",
+    )
+    pr.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True)
+    pr.add_argument("--out", help="output folder (default runs/probe-<autopilot>-<time>)")
+    pr.set_defaults(func=cmd_campaign_probe)

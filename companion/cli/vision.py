@@ -55,11 +55,18 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}")
         return 1
-    out = save_camera(cam, args.out, rms_px=rms, n_images=len(images),
-                      note=f"calibrated from {len(images)} images, pattern {args.pattern}")
+    out = save_camera(
+        cam,
+        args.out,
+        rms_px=rms,
+        n_images=len(images),
+        note=f"calibrated from {len(images)} images, pattern {args.pattern}",
+    )
     print(f"reprojection error (RMS): {rms:.3f} px")
-    print(f"fx {cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} "
-          f"dist {[round(d, 5) for d in cam.dist]} k_ud {cam.k_ud:.5f} ({cam.kind})")
+    print(
+        f"fx {cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} "
+        f"dist {[round(d, 5) for d in cam.dist]} k_ud {cam.k_ud:.5f} ({cam.kind})"
+    )
     print(f"wrote {out}")
     if rms > 1.0:
         print("warning: RMS above 1 px; check the images (focus, motion blur, pattern flatness)")
@@ -71,17 +78,27 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser("pad", help="render the nested ArUco landing pad to a PNG at true scale")
     p.add_argument("--out", type=Path, default=Path("pad.png"), help="output PNG (default pad.png)")
     p.add_argument("--dpi", type=float, default=150.0, help="print resolution (default 150)")
-    p.add_argument("--params", type=Path, default=None,
-                   help="pad layout TOML with a [pad] table (default: the delivery paper's pad)")
+    p.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="pad layout TOML with a [pad] table (default: the delivery paper's pad)",
+    )
     p.set_defaults(func=_cmd_pad)
 
     c = subparsers.add_parser("calibrate", help="calibrate a camera from chessboard/ChArUco images")
     c.add_argument("images", nargs="+", type=Path, help="image files (>= 5 views)")
-    c.add_argument("--pattern", required=True,
-                   help="chessboard:COLSxROWS:SQUARE_M (inner corners) or "
-                        "charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT] (squares)")
+    c.add_argument(
+        "--pattern",
+        required=True,
+        help="chessboard:COLSxROWS:SQUARE_M (inner corners) or charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT] (squares)",
+    )
     c.add_argument("--out", type=Path, required=True, help="output TOML, e.g. params/camera_x.toml")
-    c.add_argument("--model", choices=("opencv", "dart"), default="opencv",
-                   help="distortion model: OpenCV k1,k2,p1,p2,k3 or the Dart single coefficient")
+    c.add_argument(
+        "--model",
+        choices=("opencv", "dart"),
+        default="opencv",
+        help="distortion model: OpenCV k1,k2,p1,p2,k3 or the Dart single coefficient",
+    )
     c.add_argument("--min-views", type=int, default=5, help="minimum views with the pattern found")
     c.set_defaults(func=_cmd_calibrate)

@@ -59,7 +59,6 @@ OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
 }
 
 
-
 # ---------------------------------------------------------------------------------------------
 # the merged input stream
 

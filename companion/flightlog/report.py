@@ -54,7 +54,6 @@ class FigureSkipped(Exception):
     """A figure's inputs are missing (reported, not fatal)."""
 
 
-
 @dataclass(frozen=True)
 class ExtraFigure:
     """A figure :func:`make_report` draws beside the run's own, handed in by the caller (the

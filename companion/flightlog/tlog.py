@@ -63,7 +63,6 @@ _BATCH = 4096
 _STOP = object()
 
 
-
 class _Flush:
     __slots__ = ("done",)
 

@@ -255,8 +255,7 @@ def camera_from_mapping(data: dict[str, Any], source: Path | str = "<camera>") -
         if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
             raise _cfg_error(source, f"camera.{k}", v, "must be a positive integer")
         dims[k] = v
-    vals = {k: _num(source, f"camera.{k}", data[k], positive=k in ("fx", "fy"))
-            for k in ("fx", "fy", "cx", "cy")}
+    vals = {k: _num(source, f"camera.{k}", data[k], positive=k in ("fx", "fy")) for k in ("fx", "fy", "cx", "cy")}
     dist_raw = data.get("dist", [0.0, 0.0, 0.0, 0.0, 0.0])
     if not isinstance(dist_raw, list) or len(dist_raw) != 5:
         raise _cfg_error(source, "camera.dist", dist_raw, "must be a list of 5 numbers [k1, k2, p1, p2, k3]")
@@ -318,14 +317,17 @@ def _toml_str(s: str) -> str:
 
 
 def camera_to_toml(
-    camera: CameraModel, *, rms_px: float | None = None, n_images: int | None = None,
+    camera: CameraModel,
+    *,
+    rms_px: float | None = None,
+    n_images: int | None = None,
     note: str | None = None,
 ) -> str:
     """The TOML text :func:`load_camera` reads back (written by hand: tomllib only reads)."""
     lines = [
         "# Camera intrinsics (companion.vision.camera). Pixels: OpenCV convention, the centre of",
-        "# the top-left pixel is (0, 0). kind = \"opencv\": dist = [k1, k2, p1, p2, k3];",
-        "# kind = \"dart\": single barrel coefficient k_ud (dart eqs 2-4).",
+        '# the top-left pixel is (0, 0). kind = "opencv": dist = [k1, k2, p1, p2, k3];',
+        '# kind = "dart": single barrel coefficient k_ud (dart eqs 2-4).',
         "[camera]",
         f"kind = {_toml_str(camera.kind)}",
         f"width_px = {int(camera.width_px)}",
@@ -350,8 +352,12 @@ def camera_to_toml(
 
 
 def save_camera(
-    camera: CameraModel, path: str | Path, *, rms_px: float | None = None,
-    n_images: int | None = None, note: str | None = None,
+    camera: CameraModel,
+    path: str | Path,
+    *,
+    rms_px: float | None = None,
+    n_images: int | None = None,
+    note: str | None = None,
 ) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -389,9 +395,7 @@ class CalibrationPattern:
             raise ValueError(f"pattern square_m = {self.square_m!r}: must be > 0")
         if self.kind == "charuco":
             if not (0.0 < self.marker_m < self.square_m):
-                raise ValueError(
-                    f"pattern marker_m = {self.marker_m!r}: must be in (0, square_m={self.square_m})"
-                )
+                raise ValueError(f"pattern marker_m = {self.marker_m!r}: must be in (0, square_m={self.square_m})")
             if self.dictionary not in _DICT_NAMES:
                 raise ValueError(f"pattern dictionary {self.dictionary!r}: unknown ArUco dictionary")
 
@@ -511,9 +515,7 @@ def calibrate(
         raise ValueError(f"calibrate kind {kind!r}: must be one of {DISTORTION_KINDS}")
     views, size = _find_views(images, pat)
     if len(views.obj) < min_views:
-        raise ValueError(
-            f"calibration: the pattern was found in {len(views.obj)} image(s), need >= {min_views}"
-        )
+        raise ValueError(f"calibration: the pattern was found in {len(views.obj)} image(s), need >= {min_views}")
     flags = 0
     if kind == "dart":
         flags = cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
@@ -522,8 +524,9 @@ def calibrate(
     d5 = np.zeros(5)
     d5[: min(5, d.size)] = d[:5]
     w, h = size
-    common: dict[str, Any] = dict(width_px=w, height_px=h, fx=float(K[0, 0]), fy=float(K[1, 1]),
-                                  cx=float(K[0, 2]), cy=float(K[1, 2]))
+    common: dict[str, Any] = dict(
+        width_px=w, height_px=h, fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2])
+    )
     if kind == "dart":
         r_max = math.hypot(max(K[0, 2], w - K[0, 2]) / K[0, 0], max(K[1, 2], h - K[1, 2]) / K[1, 1])
         cam = CameraModel(**common, kind="dart", k_ud=_fit_dart_k(d5[0], d5[1], d5[4], r_max))

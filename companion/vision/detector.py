@@ -59,6 +59,7 @@ class ImageError(ValueError):
 
 # ---------------------------------------------------------------------------- data types
 
+
 @dataclass(frozen=True, eq=False)
 class MarkerObservation:
     """The pad seen in one frame.
@@ -125,9 +126,17 @@ class DetectorConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.err_ratio_threshold <= 1.0:
             raise ValueError(f"err_ratio_threshold = {self.err_ratio_threshold}: must be in (0, 1]")
-        for name in ("agree_angle_rad", "prior_margin_rad", "prior_max_age_s", "max_tilt_rad",
-                     "max_reprojection_error_px", "roi_margin_frac", "roi_target_marker_px",
-                     "min_marker_px", "min_pose_marker_px"):
+        for name in (
+            "agree_angle_rad",
+            "prior_margin_rad",
+            "prior_max_age_s",
+            "max_tilt_rad",
+            "max_reprojection_error_px",
+            "roi_margin_frac",
+            "roi_target_marker_px",
+            "min_marker_px",
+            "min_pose_marker_px",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"DetectorConfig.{name} = {v!r}: must be finite and > 0")
@@ -157,6 +166,7 @@ class PoseCandidate:
 
 
 # ---------------------------------------------------------------------------- helpers
+
 
 def rotation_angle(Ra: FloatArray, Rb: FloatArray) -> float:
     """Angle (rad) of the rotation taking Ra to Rb."""
@@ -274,9 +284,7 @@ def check_image(image: Any, size: tuple[int, int] | None = None) -> NDArray[np.u
     else:
         raise ImageError(f"image shape {image.shape}: expected HxW or HxWx3")
     if size is not None and (gray.shape[1], gray.shape[0]) != size:
-        raise ImageError(
-            f"image is {gray.shape[1]}x{gray.shape[0]}, the camera model is {size[0]}x{size[1]}"
-        )
+        raise ImageError(f"image is {gray.shape[1]}x{gray.shape[0]}, the camera model is {size[0]}x{size[1]}")
     return gray
 
 
@@ -297,7 +305,10 @@ def _marker_side_px(c: FloatArray) -> float:
 
 
 def refine_corners_by_edges(
-    gray: NDArray[np.uint8], corners: FloatArray, camera: CameraModel, cells: int,
+    gray: NDArray[np.uint8],
+    corners: FloatArray,
+    camera: CameraModel,
+    cells: int,
     samples_per_side: int = 16,
 ) -> FloatArray | None:
     """Corners of a marker as intersections of its four fitted border lines, in IDEAL pixels.
@@ -354,10 +365,10 @@ def refine_corners_by_edges(
         ideal_all[good] = camera.undistort_pixels(edge[good])
     lines = []
     for i in range(4):
-        sel = good[i * S:(i + 1) * S]
+        sel = good[i * S : (i + 1) * S]
         if sel.sum() < 4:
             return None
-        ideal = ideal_all[i * S:(i + 1) * S][sel]
+        ideal = ideal_all[i * S : (i + 1) * S][sel]
         if not np.all(np.isfinite(ideal)):
             return None
         m = ideal.mean(axis=0)
@@ -379,14 +390,20 @@ def refine_corners_by_edges(
 
 # ---------------------------------------------------------------------------- the detector
 
+
 class PadDetector:
     """Detects the nested pad and estimates ``T_camera_pad``; keeps ROI-tracking state.
 
     Not thread-safe: one instance per camera stream.
     """
 
-    def __init__(self, camera: CameraModel, layout: PadLayout | None = None,
-                 config: DetectorConfig | None = None, markers: tuple[str, ...] = MARKERS) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        layout: PadLayout | None = None,
+        config: DetectorConfig | None = None,
+        markers: tuple[str, ...] = MARKERS,
+    ) -> None:
         """``markers``: which of the pad's markers to use ("outer", "inner"); a marker left out is
         ignored even when seen (a damaged or covered marker, and the campaign's failure variants)."""
         if not markers or any(m not in MARKERS for m in markers):
@@ -439,8 +456,7 @@ class PadDetector:
         self._prior = (float(time_s), R.copy())
 
     # ------------------------------------------------------------------ detection
-    def _run(self, det: Any, gray: NDArray[np.uint8], x0: int = 0, y0: int = 0
-             ) -> dict[str, FloatArray]:
+    def _run(self, det: Any, gray: NDArray[np.uint8], x0: int = 0, y0: int = 0) -> dict[str, FloatArray]:
         corners, ids, _, dict_idx = det.detectMarkersMultiDict(gray)
         found: dict[str, FloatArray] = {}
         if ids is None or len(ids) == 0:
@@ -488,8 +504,7 @@ class PadDetector:
     def detect_markers(self, gray: NDArray[np.uint8]) -> tuple[dict[str, FloatArray], str]:
         """Marker corners (distorted pixels, ArUco order) by name, and the search used."""
         cfg = self.config
-        use_roi = (cfg.roi_enabled and self._roi_corners is not None
-                   and self._frames_since_full < cfg.full_search_every)
+        use_roi = cfg.roi_enabled and self._roi_corners is not None and self._frames_since_full < cfg.full_search_every
         found: dict[str, FloatArray] = {}
         how = "full"
         if use_roi:
@@ -523,8 +538,7 @@ class PadDetector:
             self._roi_corners = None
         return found, how
 
-    def detect(self, image: Any, time_s: float, *, down_cam: Any = None
-               ) -> MarkerObservation | None:
+    def detect(self, image: Any, time_s: float, *, down_cam: Any = None) -> MarkerObservation | None:
         """Detect the pad in ``image`` exposed at ``time_s``; None when it is not seen.
 
         ``down_cam``: world "down" in the camera frame from the attitude estimate (unit vector);
@@ -535,8 +549,7 @@ class PadDetector:
         self._counts["frames"] += 1
         try:
             gray = check_image(image, self.camera.size)
-            if (isinstance(time_s, bool) or not isinstance(time_s, numbers.Real)
-                    or not math.isfinite(float(time_s))):
+            if isinstance(time_s, bool) or not isinstance(time_s, numbers.Real) or not math.isfinite(float(time_s)):
                 raise ValueError(f"time_s = {time_s!r}: must be a finite number")
             up = np.array([0.0, 0.0, -1.0])
             if down_cam is not None:
@@ -554,8 +567,9 @@ class PadDetector:
         return self._estimate(found, gray, float(time_s), up)
 
     # ------------------------------------------------------------------ pose
-    def _ideal_corners(self, found: dict[str, FloatArray], names: tuple[str, ...],
-                       gray: NDArray[np.uint8]) -> FloatArray:
+    def _ideal_corners(
+        self, found: dict[str, FloatArray], names: tuple[str, ...], gray: NDArray[np.uint8]
+    ) -> FloatArray:
         out = []
         for m in names:
             ref = None
@@ -564,14 +578,14 @@ class PadDetector:
             out.append(ref if ref is not None else self.camera.undistort_pixels(found[m]))
         return np.vstack(out)
 
-    def _estimate(self, found: dict[str, FloatArray], gray: NDArray[np.uint8], time_s: float,
-                  up_cam: FloatArray) -> MarkerObservation | None:
+    def _estimate(
+        self, found: dict[str, FloatArray], gray: NDArray[np.uint8], time_s: float, up_cam: FloatArray
+    ) -> MarkerObservation | None:
         cfg = self.config
         names = tuple(m for m in MARKERS if m in found)
         if len(names) == 1 and _marker_side_px(found[names[0]]) < cfg.min_pose_marker_px:
             self._counts["rejected_poses"] += 1
-            log.debug("pose rejected: lone %s marker is only %.1f px", names[0],
-                      _marker_side_px(found[names[0]]))
+            log.debug("pose rejected: lone %s marker is only %.1f px", names[0], _marker_side_px(found[names[0]]))
             return None
         obj = np.vstack([self._obj[m] for m in names])
         ideal = self._ideal_corners(found, names, gray)

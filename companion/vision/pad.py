@@ -52,9 +52,7 @@ def square_corners(size_m: float, center_xy: tuple[float, float] = (0.0, 0.0)) -
     """Corners (4, 3) of a square marker in ArUco order (TL, TR, BR, BL), z = 0, y up."""
     h = size_m / 2.0
     cx, cy = center_xy
-    return np.array(
-        [[cx - h, cy + h, 0.0], [cx + h, cy + h, 0.0], [cx + h, cy - h, 0.0], [cx - h, cy - h, 0.0]]
-    )
+    return np.array([[cx - h, cy + h, 0.0], [cx + h, cy + h, 0.0], [cx + h, cy - h, 0.0], [cx - h, cy - h, 0.0]])
 
 
 @dataclass(frozen=True)
@@ -83,9 +81,7 @@ class PadLayout:
             if isinstance(mid, bool) or not isinstance(mid, int) or not 0 <= mid < n:
                 raise ValueError(f"pad {which}_id = {mid!r}: must be an integer in [0, {n}) for {dname}")
         if self.outer_size_m > self.pad_size_m:
-            raise ValueError(
-                f"pad outer_size_m = {self.outer_size_m}: must be <= pad_size_m = {self.pad_size_m}"
-            )
+            raise ValueError(f"pad outer_size_m = {self.outer_size_m}: must be <= pad_size_m = {self.pad_size_m}")
         if self.inner_quiet_size_m >= self.outer_size_m * 0.5:
             raise ValueError(
                 f"pad inner_size_m = {self.inner_size_m}: with its quiet zone it must be smaller than "
@@ -134,6 +130,7 @@ class PadLayout:
 
 
 # ---------------------------------------------------------------------------- rendering
+
 
 def render_pad_px(layout: PadLayout, side_px: int) -> NDArray[np.uint8]:
     """The pad as a square greyscale image ``side_px`` wide (white background, markers centred)."""
@@ -186,8 +183,7 @@ def save_pad_png(layout: PadLayout, path: str | Path, dpi: float = 150.0) -> Pat
 
 # ---------------------------------------------------------------------------- TOML
 
-_PAD_KEYS = ("outer_id", "outer_dict", "outer_size_m", "inner_id", "inner_dict", "inner_size_m",
-             "pad_size_m")
+_PAD_KEYS = ("outer_id", "outer_dict", "outer_size_m", "inner_id", "inner_dict", "inner_size_m", "pad_size_m")
 
 
 def _pad_error(path: Path | str, key: str, value: Any, rule: str) -> PadConfigError:

@@ -46,14 +46,12 @@ def test_pad_command_with_params_and_bad_params(tmp_path: Path, capsys: pytest.C
 def test_calibrate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     truth = CameraModel(640, 480, 510.0, 510.0, 320.0, 240.0, dist=(0.08, -0.1, 0.0, 0.0, 0.0))
     names = []
-    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"),
-                                              7, seed=9)):
+    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"), 7, seed=9)):
         p = tmp_path / f"view{i}.png"
         cv2.imwrite(str(p), img)
         names.append(str(p))
     out = tmp_path / "camera_test.toml"
-    args = _parser().parse_args(["calibrate", *names, "--pattern", "chessboard:9x6:0.025",
-                                 "--out", str(out)])
+    args = _parser().parse_args(["calibrate", *names, "--pattern", "chessboard:9x6:0.025", "--out", str(out)])
     assert args.func(args) == 0
     text = capsys.readouterr().out
     assert "reprojection error (RMS)" in text
@@ -63,8 +61,16 @@ def test_calibrate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
 
 
 def test_calibrate_command_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    args = _parser().parse_args(["calibrate", str(tmp_path / "missing.png"), "--pattern",
-                                 "chessboard:9x6:0.025", "--out", str(tmp_path / "c.toml")])
+    args = _parser().parse_args(
+        [
+            "calibrate",
+            str(tmp_path / "missing.png"),
+            "--pattern",
+            "chessboard:9x6:0.025",
+            "--out",
+            str(tmp_path / "c.toml"),
+        ]
+    )
     assert args.func(args) == 2 and "cannot read" in capsys.readouterr().out
     args = _parser().parse_args(["calibrate", "x.png", "--pattern", "rings:3", "--out", "c.toml"])
     assert args.func(args) == 2 and "pattern" in capsys.readouterr().out

@@ -64,8 +64,11 @@ def test_takeoff_then_offboard_only_after_streaming():
     while t < 20 and offboard_t is None:
         t += 0.05
         alt = min(3.0, alt + 0.075)
-        out = m.step(MissionInputs(t, est(t, d=-alt), status(t, armed=True, mode=FlightMode.TAKEOFF,
-                                                              landed=LandedState.IN_AIR), HOME))
+        out = m.step(
+            MissionInputs(
+                t, est(t, d=-alt), status(t, armed=True, mode=FlightMode.TAKEOFF, landed=LandedState.IN_AIR), HOME
+            )
+        )
         if out.setpoint is not None and first_sp is None:
             first_sp = t
         if out.request is not None:
@@ -73,7 +76,10 @@ def test_takeoff_then_offboard_only_after_streaming():
             offboard_t = t
             m.on_result(RequestResult(out.request.id, True))
     assert first_sp is not None and offboard_t - first_sp >= 0.5 - 1e-9  # PX4: stream first
-    out = m.step(MissionInputs(t + 0.05, est(t, d=-3.0), status(t, armed=True, mode=FlightMode.OFFBOARD,
-                                                                landed=LandedState.IN_AIR), HOME))
+    out = m.step(
+        MissionInputs(
+            t + 0.05, est(t, d=-3.0), status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR), HOME
+        )
+    )
     assert m.phase is Phase.OUTBOUND
     assert out.setpoint.down_m_s < -1.9  # climbing along S1 at v1 = 2 m/s

@@ -24,8 +24,9 @@ CAM = load_default_camera()
 LAYOUT = PadLayout()
 
 
-def _vehicle(north: float, east: float, alt: float, roll: float = 0.0, pitch: float = 0.0,
-             yaw: float = 0.0) -> Transform:
+def _vehicle(
+    north: float, east: float, alt: float, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0
+) -> Transform:
     return Transform.from_euler([north, east, -alt], roll, pitch, yaw)
 
 
@@ -89,8 +90,7 @@ def test_dart_distortion_is_rendered() -> None:
     assert found is not None
     expect = cam.project(f.T_camera_pad.apply(LAYOUT.outer_corners))
     assert np.max(np.linalg.norm(found - expect, axis=1)) < 0.5
-    pinhole = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0).project(
-        f.T_camera_pad.apply(LAYOUT.outer_corners))
+    pinhole = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0).project(f.T_camera_pad.apply(LAYOUT.outer_corners))
     assert np.max(np.linalg.norm(found - pinhole, axis=1)) > 5.0  # barrel pulls corners in
 
 
@@ -131,8 +131,11 @@ def test_frame_times_and_latency() -> None:
 def test_lighting_and_blur_change_the_image() -> None:
     pose = _vehicle(0.0, 0.0, 3.0)
     base = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0), seed=3).capture(pose, 0).image
-    dim = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, gain=0.5, offset=10.0),
-                          seed=3).capture(pose, 0).image
+    dim = (
+        SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, gain=0.5, offset=10.0), seed=3)
+        .capture(pose, 0)
+        .image
+    )
     assert np.allclose(dim.astype(float), np.clip(base * 0.5 + 10.0, 0, 255), atol=1.0)
     blur = SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=0.0, blur_px=9.0), seed=3)
     b = blur.capture(pose, 0).image

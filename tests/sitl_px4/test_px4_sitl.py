@@ -113,9 +113,7 @@ async def _delivery(px4_root, tmp_path, **landing):
     from companion.flightlog.recorder import FlightRecorder
 
     config = load_config(shipped_params_path("sitl_short.toml"))
-    config = config.model_copy(
-        update={"landing": config.landing.model_copy(update={**PX4_SIH_LANDING, **landing})}
-    )
+    config = config.model_copy(update={"landing": config.landing.model_copy(update={**PX4_SIH_LANDING, **landing})})
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
         await asyncio.to_thread(truth.wait, 30.0)
         ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))

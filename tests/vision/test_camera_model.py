@@ -118,20 +118,39 @@ def test_shipped_pi_camera_is_nominal_and_loads() -> None:
 @pytest.mark.parametrize(
     "body, key, rule",
     [
-        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = -5.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n",
-         "camera.fx", "> 0"),
-        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n"
-         "focal = 3\n", "camera.focal", "unknown key"),
-        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\n",
-         "camera.cy", "missing"),
-        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n"
-         "dist = [0.1, 0.2]\n", "camera.dist", "5 numbers"),
-        ("[camera]\nwidth_px = 640.5\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n",
-         "camera.width_px", "positive integer"),
-        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 900.0\ncy = 240.0\n",
-         "camera.cx", "inside the image"),
-        ("[camera]\nkind = \"fisheye\"\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\n"
-         "cx = 320.0\ncy = 240.0\n", "camera.kind", "one of"),
+        (
+            "[camera]\nwidth_px = 640\nheight_px = 480\nfx = -5.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n",
+            "camera.fx",
+            "> 0",
+        ),
+        (
+            "[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nfocal = 3\n",
+            "camera.focal",
+            "unknown key",
+        ),
+        ("[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\n", "camera.cy", "missing"),
+        (
+            "[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n"
+            "dist = [0.1, 0.2]\n",
+            "camera.dist",
+            "5 numbers",
+        ),
+        (
+            "[camera]\nwidth_px = 640.5\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n",
+            "camera.width_px",
+            "positive integer",
+        ),
+        (
+            "[camera]\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\ncx = 900.0\ncy = 240.0\n",
+            "camera.cx",
+            "inside the image",
+        ),
+        (
+            '[camera]\nkind = "fisheye"\nwidth_px = 640\nheight_px = 480\nfx = 500.0\nfy = 500.0\n'
+            "cx = 320.0\ncy = 240.0\n",
+            "camera.kind",
+            "one of",
+        ),
         ("[lens]\nfx = 1\n", "lens", "unknown"),
     ],
 )
@@ -170,6 +189,7 @@ def test_pattern_parse() -> None:
 
 
 # ---------------------------------------------------------------------------- calibration
+
 
 def test_calibrate_recovers_intrinsics_from_rendered_chessboards() -> None:
     truth = CameraModel(640, 480, 520.0, 515.0, 325.0, 236.0, dist=(0.1, -0.15, 0.0, 0.0, 0.0))

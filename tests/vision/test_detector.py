@@ -34,24 +34,26 @@ def sim() -> SimulatedCamera:
     return SimulatedCamera(CAM, LAYOUT, SimCameraConfig(noise_std=2.0), seed=21)
 
 
-def _vehicle(north: float, east: float, alt: float, roll: float = 0.0, pitch: float = 0.0,
-             yaw: float = 0.0) -> Transform:
+def _vehicle(
+    north: float, east: float, alt: float, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0
+) -> Transform:
     return Transform.from_euler([north, east, -alt], roll, pitch, yaw)
 
 
 def _errors(obs_T: Transform, truth: Transform) -> tuple[float, float]:
-    return (float(np.linalg.norm(obs_T.t - truth.t)),
-            math.degrees(rotation_angle(obs_T.R, truth.R)))
+    return (float(np.linalg.norm(obs_T.t - truth.t)), math.degrees(rotation_angle(obs_T.R, truth.R)))
 
 
 # ---------------------------------------------------------------------------- accuracy
+
 
 def test_pose_accuracy_at_5m(sim: SimulatedCamera) -> None:
     """Outer marker only (~85 px) at 5 m, several poses: < 1 cm position always, < 1 deg
     attitude for every observation not flagged ambiguous (measured: <= 3 mm, <= 0.3 deg)."""
     pos_err, rot_err = [], []
-    for i, (n, e, yaw) in enumerate([(0.0, 0.0, 0.0), (0.3, -0.2, 0.4), (-0.5, 0.4, 1.3),
-                                     (0.8, 0.6, -2.0), (-0.9, -0.7, 2.8), (0.2, 1.1, 0.9)]):
+    for i, (n, e, yaw) in enumerate(
+        [(0.0, 0.0, 0.0), (0.3, -0.2, 0.4), (-0.5, 0.4, 1.3), (0.8, 0.6, -2.0), (-0.9, -0.7, 2.8), (0.2, 1.1, 0.9)]
+    ):
         f = sim.capture(_vehicle(n, e, 5.0, 0.03, -0.02, yaw), float(i))
         obs = PadDetector(CAM, LAYOUT).detect(f.image, f.exposure_time_s)
         assert obs is not None and obs.markers == ("outer",)
@@ -110,8 +112,7 @@ def test_stray_inner_marker_outside_the_pad_is_ignored(sim: SimulatedCamera) -> 
     """A copy of the inner marker lying elsewhere (bigger than the real one) must not be used."""
     f = sim.capture(_vehicle(0.0, 0.0, 3.0, 0.0, 0.0, 0.2), 0.0)
     img = f.image.copy()
-    fake = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
-                                         LAYOUT.inner_id, 48)
+    fake = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), LAYOUT.inner_id, 48)
     img[20:88, 20:88] = 255
     img[30:78, 30:78] = fake
     obs = PadDetector(CAM, LAYOUT).detect(img, np.float32(0.5))  # numpy scalars are fine
@@ -127,6 +128,7 @@ def test_no_pad_in_view_returns_none(sim: SimulatedCamera) -> None:
 
 
 # ---------------------------------------------------------------------------- ambiguity
+
 
 def test_no_flip_over_fronto_parallel_sweep(sim: SimulatedCamera) -> None:
     """Camera straight down at several heights and offsets, fresh detector each time (no
@@ -219,6 +221,7 @@ def test_resolve_agreeing_candidates_and_tilt_gate() -> None:
 
 # ---------------------------------------------------------------------------- tracking
 
+
 def test_roi_tracking_counters_and_fallback(sim: SimulatedCamera) -> None:
     det = PadDetector(CAM, LAYOUT, DetectorConfig(full_search_every=10))
     n = 25
@@ -249,6 +252,7 @@ def test_roi_lost_pad_goes_back_to_full_search(sim: SimulatedCamera) -> None:
 
 
 # ---------------------------------------------------------------------------- bad input
+
 
 @pytest.mark.parametrize(
     "image, word",
@@ -290,6 +294,7 @@ def test_nan_pose_inputs_rejected(sim: SimulatedCamera) -> None:
 
 
 # ---------------------------------------------------------------------------- fixture, bench
+
 
 def test_committed_fixture_image() -> None:
     img = cv2.imread(str(FIXTURES / "pad_2m5.png"), cv2.IMREAD_UNCHANGED)

@@ -48,8 +48,7 @@ def test_corner_coordinates_in_marker_frame() -> None:
     lay = PadLayout(outer_size_m=0.6, inner_size_m=0.1)
     # ArUco order TL, TR, BR, BL with x right, y up, z = 0; pad centre at the origin
     assert np.allclose(lay.outer_corners, [[-0.3, 0.3, 0], [0.3, 0.3, 0], [0.3, -0.3, 0], [-0.3, -0.3, 0]])
-    assert np.allclose(lay.inner_corners, [[-0.05, 0.05, 0], [0.05, 0.05, 0], [0.05, -0.05, 0],
-                                           [-0.05, -0.05, 0]])
+    assert np.allclose(lay.inner_corners, [[-0.05, 0.05, 0], [0.05, 0.05, 0], [0.05, -0.05, 0], [-0.05, -0.05, 0]])
     assert np.allclose(lay.inner_corners.mean(axis=0), 0.0)
 
 
@@ -94,8 +93,10 @@ def test_two_dictionaries_find_both_markers() -> None:
     det = cv2.aruco.ArucoDetector(aruco_dictionary(lay.outer_dict), p)
     det.setDictionaries([aruco_dictionary(lay.outer_dict), aruco_dictionary(lay.inner_dict)])
     _, ids, _, dict_idx = det.detectMarkersMultiDict(img)
-    assert sorted(zip(np.asarray(dict_idx).ravel().tolist(), np.asarray(ids).ravel().tolist(),
-                      strict=True)) == [(0, lay.outer_id), (1, lay.inner_id)]
+    assert sorted(zip(np.asarray(dict_idx).ravel().tolist(), np.asarray(ids).ravel().tolist(), strict=True)) == [
+        (0, lay.outer_id),
+        (1, lay.inner_id),
+    ]
 
 
 def test_one_dictionary_loses_the_outer_marker() -> None:
@@ -108,8 +109,7 @@ def test_one_dictionary_loses_the_outer_marker() -> None:
     # the same outer marker without a nested marker is found: it is the nesting that hides it
     plain = PadLayout(outer_id=0, inner_dict="DICT_5X5_50", inner_id=1, inner_size_m=0.01)
     big = cv2.resize(render_pad_px(plain, 1000), (420, 420), interpolation=cv2.INTER_AREA)
-    assert 0 in _detect(cv2.copyMakeBorder(big, 40, 40, 40, 40, cv2.BORDER_CONSTANT, value=110),
-                        "DICT_5X5_50")
+    assert 0 in _detect(cv2.copyMakeBorder(big, 40, 40, 40, 40, cv2.BORDER_CONSTANT, value=110), "DICT_5X5_50")
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,139 @@
+"""Autopilot profiles: the embedded simulator (and the MAVLink sim vehicle built on it) behaving
+like a given firmware, chosen by name with ``[sim] profile`` (issue 17).
+
+Every figure below was measured on the real SITL with the firmware probe
+(``companion campaign probe --autopilot px4|ardupilot``: hover, a 2 m/s step, a descent onto the
+ground, truth beside what the autopilot reports, 50 Hz) on this machine, 2026-11-23:
+
+======================================  ===================  =====================
+figure                                  PX4 v1.16 SIH        ArduCopter 4.7 SITL
+======================================  ===================  =====================
+position-estimate error, std (N, E, D)  0.09, 0.14, 0.19 m   0.03, 0.01, 0.02 m
+its correlation time                    2.2-2.7 s            1.6-4 s
+velocity-estimate error, RMS (N, E, D)  0.13, 0.28, 0.13 m/s 0.018, 0.015, 0.006
+its correlation time                    2.2-2.7 s            2.2-2.4 s
+horizontal velocity error below 1 m     0.42 m/s RMS         0.02 m/s
+velocity step 0 -> 2 m/s (estimate)     63 % in 0.98 s,      63 % in 0.88 s,
+                                        1.69 m/s after 6 s   2.0 m/s after 3.5 s
+                                        (truth: 1.51 m/s)    (truth: 2.02 m/s)
+land detector (touchdown -> ON_GROUND)  2.26 s               1.38 s
+armable after start                     ~5 s                 ~41 s (EKF3 on GPS)
+wind model                              none (no SIH_WIND_*) SIM_WIND_SPD/DIR/TURB
+======================================  ===================  =====================
+
+PX4 SIH's velocity estimate is not consistent with its position estimate: hovering on a zero
+velocity setpoint, the vehicle drifted 4 m in 14 s at 0.5 m/s while PX4 reported ~0.1 m/s and its
+position followed the truth within 0.3-0.45 m. The profile therefore models the two errors
+independently: the velocity loop (and the reported velocity) sees truth + a Gauss-Markov error;
+the reported position (and the position loops) truth + a separate Gauss-Markov wander.
+
+The velocity-loop gains, drag and limits were fitted to the measured step (least squares over
+0.5-5.5 s): PX4 SIH P 1.8, I 0.4 (MPC_XY_VEL_P_ACC / I_ACC defaults), drag 0.9 1/s, 3 m/s^2
+(MPC_ACC_HOR); ArduCopter P 1.8, I 0.4, drag 0.1 1/s, 2 m/s^2, attitude lag 0.3 s (its GUIDED
+velocity is jerk-shaped).
+
+``ideal`` is the simulator as it was before profiles (every figure and replay unchanged).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from companion.config import SimConfig
+
+PROFILE_NAMES = ("ideal", "px4-sih", "arducopter-sitl")
+
+
+@dataclass(frozen=True)
+class AutopilotProfile:
+    name: str
+    description: str
+    # the autopilot's velocity-estimate error: Gauss-Markov per axis (std, correlation time);
+    # 0 = the velocity loop runs on truth (ideal)
+    velocity_error_m_s: float = 0.0
+    velocity_error_down_m_s: float = 0.0
+    velocity_error_tau_s: float = 1.0
+    land_detect_s: float = 0.6
+    has_wind: bool = True
+    # SimConfig fields the firmware fixes (position wander, start-up delay, ...)
+    sim: dict[str, Any] = field(default_factory=dict)
+    # VehicleSimConfig fields (velocity loop, limits)
+    vehicle: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ideal(self) -> bool:
+        return self.name == "ideal"
+
+
+PROFILES: dict[str, AutopilotProfile] = {
+    "ideal": AutopilotProfile("ideal", "the embedded model as designed: velocity loop on truth, 0.6 s land detector"),
+    "px4-sih": AutopilotProfile(
+        "px4-sih",
+        "PX4 v1.16 SIH: velocity estimate off by 0.22 m/s per axis (2.5 s), position wander 0.12 m "
+        "(2.5 s), 2.3 s land detector, no wind",
+        velocity_error_m_s=0.22,  # horizontal RMS 0.13 / 0.28 m/s (N / E), up to 0.7 m/s
+        velocity_error_down_m_s=0.13,
+        velocity_error_tau_s=2.5,  # autocorrelation 1/e at 2.2-2.7 s
+        land_detect_s=2.26,
+        has_wind=False,  # SIH v1.16 has no wind parameters
+        sim={
+            "gps_walk_m": 0.12,  # position error std 0.09 / 0.14 m (N / E), 0.19 m down (1.5x)
+            "gps_walk_time_constant_s": 2.5,
+            "ready_delay_s": 5.0,
+        },
+        vehicle={
+            "velocity_p_gain": 1.8,
+            "velocity_i_gain": 0.4,
+            "drag_coefficient_1_s": 0.9,
+            "max_horizontal_accel_m_s2": 3.0,
+            "land_speed_m_s": 0.7,  # MPC_LAND_SPEED (measured descent 0.64 m/s)
+            "takeoff_speed_m_s": 1.5,
+            "offboard_loss_timeout_s": 1.0,  # COM_OF_LOSS_T
+        },
+    ),
+    "arducopter-sitl": AutopilotProfile(
+        "arducopter-sitl",
+        "ArduCopter 4.7 SITL: near-perfect estimate (2 cm, 2 cm/s), jerk-shaped GUIDED velocity "
+        "(63 % in 0.9 s), 1.4 s land detector, armable after 41 s, SIM_WIND_* wind without turbulence",
+        velocity_error_m_s=0.017,
+        velocity_error_down_m_s=0.006,
+        velocity_error_tau_s=2.3,
+        land_detect_s=1.38,
+        sim={
+            "gps_walk_m": 0.02,
+            "gps_walk_time_constant_s": 3.0,
+            "gps_noise_m": 0.0,
+            "gust_std_m_s": 0.0,  # SIM_WIND_TURB = 0 in the real campaign
+            "ready_delay_s": 41.0,
+        },
+        vehicle={
+            "velocity_p_gain": 1.8,
+            "velocity_i_gain": 0.4,
+            "drag_coefficient_1_s": 0.1,
+            "max_horizontal_accel_m_s2": 2.0,
+            "attitude_time_constant_s": 0.3,
+            "land_speed_m_s": 0.5,  # LAND_SPEED 50 cm/s
+            "offboard_loss_timeout_s": 3.0,  # GUID_TIMEOUT
+        },
+    ),
+}
+
+
+def get_profile(name: str) -> AutopilotProfile:
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise ValueError(f"autopilot profile {name!r}: expected one of {', '.join(PROFILE_NAMES)}") from None
+
+
+def apply_profile(sim: SimConfig) -> SimConfig:
+    """``sim`` with the fields its profile fixes; ``ideal`` returns ``sim`` itself."""
+    p = get_profile(sim.profile)
+    if p.ideal:
+        return sim
+    update: dict[str, Any] = dict(p.sim)
+    if not p.has_wind:
+        update.update(wind_speed_m_s=0.0, gust_std_m_s=0.0)
+    update["vehicle"] = sim.vehicle.model_copy(update=p.vehicle)
+    return sim.model_copy(update=update)
