@@ -78,7 +78,7 @@ class MissionConfig(_Section):
     )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
     landing_xy_gain_1_s: float = _f(
-        3.0, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=5.0
+        3.0, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=10.0
     )
     landing_xy_tolerance_m: float = _f(
         0.1, "m", "final descent slows when farther than this off the target, and holds at twice it", gt=0.01, le=5.0

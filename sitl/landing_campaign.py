@@ -70,10 +70,11 @@ def draw_scenarios(
 
 
 def scenario_config(
-    base_file: Path, d: Draw, variant: str, profile: str = "ideal", landing_overrides: dict[str, Any] | None = None
+    base_file: Path, d: Draw, variant: str, profile: str = "ideal", tuning: dict[str, dict[str, Any]] | None = None
 ) -> CompanionConfig:
     """The draw ``d`` flown as ``variant`` on the embedded simulator with the autopilot ``profile``
-    (companion_sitl/profiles.py: a profile without wind flies the draw in still air)."""
+    (companion_sitl/profiles.py: a profile without wind flies the draw in still air); ``tuning``:
+    config overrides by table (a firmware's landing tuning, see real_campaign.firmware_tuning)."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
     sim = {
@@ -85,8 +86,10 @@ def scenario_config(
     }
     if profile != "ideal":
         sim["profile"] = profile
-    landing = {**(landing_overrides or {}), **VARIANTS[variant]}
-    return load_config(base_file, overrides={"sim": sim, "landing": landing})
+    tuning = tuning or {}
+    landing = {**tuning.get("landing", {}), **VARIANTS[variant]}
+    overrides = {**tuning, "sim": sim, "landing": landing}
+    return load_config(base_file, overrides=overrides)
 
 
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
@@ -111,7 +114,7 @@ def run_landing_campaign(
     params: str | Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
     profile: str = "ideal",
-    landing_overrides: dict[str, Any] | None = None,
+    tuning: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     base = Path(params) if params else shipped_params_path("landing_campaign.toml")
     draws = draw_scenarios(n, seed)
@@ -120,7 +123,7 @@ def run_landing_campaign(
     total, done = n * len(variants), 0
     for d in draws:
         for v in variants:
-            r = run_demo(scenario_config(base, d, v, profile, landing_overrides))
+            r = run_demo(scenario_config(base, d, v, profile, tuning))
             dn, de = r.pad_landing_error_ne_m
             on_pad = bool(math.isfinite(dn) and abs(dn) <= pad_half and abs(de) <= pad_half and r.delivered)
             landings[v].append(

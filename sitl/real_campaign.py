@@ -38,18 +38,23 @@ from companion_sitl.truth_harness import fly_on_truth
 log = logging.getLogger(__name__)
 
 PROFILE_FOR = {"px4": "px4-sih", "ardupilot": "arducopter-sitl"}
+FIRMWARE_OF_PROFILE = {v: k for k, v in PROFILE_FOR.items()}
 # the companion's landing settings shipped for each firmware (params/px4_sih_quad.toml,
 # params/ardupilot_quad.toml): the same in the real and in the profile campaign
 FIRMWARE_PARAMS = {"px4": "px4_sih_quad.toml", "ardupilot": "ardupilot_quad.toml"}
-FIRMWARE_LANDING_KEYS = ("ekf_position_process_sigma_m_per_sqrt_s", "ekf_gate_reset_after_rejections")
+FIRMWARE_TUNING_KEYS = {
+    "landing": ("ekf_position_process_sigma_m_per_sqrt_s", "ekf_gate_reset_after_rejections"),
+    "mission": ("landing_xy_gain_1_s", "landing_touchdown_height_m"),
+}
 LANDING_TIMEOUT_S = 300.0
 MAV_CMD_DO_SET_HOME = 179
 
 
-def firmware_landing_overrides(autopilot: str) -> dict[str, Any]:
-    """The EKF tuning the shipped parameters of ``autopilot`` carry (see FIRMWARE_PARAMS)."""
+def firmware_tuning(autopilot: str) -> dict[str, dict[str, Any]]:
+    """The landing tuning (fusion and final descent) the shipped parameters of ``autopilot``
+    carry (see FIRMWARE_PARAMS), as config overrides by table."""
     cfg = load_config(shipped_params_path(FIRMWARE_PARAMS[autopilot]))
-    return {k: getattr(cfg.landing, k) for k in FIRMWARE_LANDING_KEYS}
+    return {table: {k: getattr(getattr(cfg, table), k) for k in keys} for table, keys in FIRMWARE_TUNING_KEYS.items()}
 
 
 def real_pad_displacement(d: Draw) -> tuple[float, float]:
@@ -62,7 +67,10 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
-    cfg = load_config(base, overrides={"landing": {**firmware_landing_overrides(autopilot), **VARIANTS[variant]}})
+    tuning = firmware_tuning(autopilot)
+    cfg = load_config(
+        base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
+    )
     h = cfg.sim.home
     pn, pe, _ = pad_position_ned(cfg.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
     pad = PadConfig(north_m=float(pn), east_m=float(pe), size_m=cfg.mission.pad.size_m)
@@ -79,6 +87,7 @@ async def _one_landing(
         wind = (("SIM_WIND_SPD", d.wind_speed_m_s), ("SIM_WIND_DIR", d.wind_from_deg), ("SIM_WIND_TURB", 0.0))
         for name, value in wind:
             await asyncio.to_thread(truth.set_param, name, value)
+    if rv.autopilot_name == "ardupilot" and rv.landings_flown > 0:
         # the next landing starts where the last one ended: home there, as a ground station
         # would set it (ArduPilot sets home only at arming; the mission plans from home first)
         result = await asyncio.to_thread(truth.command, MAV_CMD_DO_SET_HOME, 1.0)
@@ -99,6 +108,7 @@ async def _one_landing(
         used = {"markers_used": 0, "uwb_used": 0}
     finally:
         await ap.close()
+        rv.landings_flown += 1
     dn, de = td[0] - pad_ne[0], td[1] - pad_ne[1]
     return {
         "seed": d.seed,
@@ -245,7 +255,7 @@ def run_parity(
     profile = PROFILE_FOR[autopilot]
     t0 = time.monotonic()
     predicted = run_landing_campaign(
-        n, seed, variants, params, progress, profile=profile, landing_overrides=firmware_landing_overrides(autopilot)
+        n, seed, variants, params, progress, profile=profile, tuning=firmware_tuning(autopilot)
     )
     t_pred = time.monotonic() - t0
     real = run_real_landing_campaign(autopilot, n, seed, variants, params, out / "sitl", progress)

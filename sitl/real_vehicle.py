@@ -37,6 +37,7 @@ class RealVehicle:
     sitl: Px4Sitl | ArduCopterSitl
     truth: MavlinkTruth
     connection: str
+    landings_flown: int = 0
 
     def backend(self, config: CompanionConfig) -> Autopilot:
         """The backend ``config`` selects, pointed at this SITL (not yet connected)."""

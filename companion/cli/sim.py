@@ -235,8 +235,13 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
                 args.autopilot, args.n, args.seed, tuple(variants), args.params, out / "sitl", on_progress
             )
         else:
+            from companion_sitl.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
+
+            # a firmware's profile flies with the landing tuning shipped for that firmware
+            fw = FIRMWARE_OF_PROFILE.get(args.profile)
+            tuning = firmware_tuning(fw) if fw else None
             result = run_landing_campaign(
-                args.n, args.seed, tuple(variants), args.params, on_progress, profile=args.profile
+                args.n, args.seed, tuple(variants), args.params, on_progress, profile=args.profile, tuning=tuning
             )
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"

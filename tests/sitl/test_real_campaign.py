@@ -16,7 +16,7 @@ from companion.geometry.earth import GeoPoint
 from companion_sitl.landing_campaign import Draw, draw_scenarios, run_landing_campaign, scenario_config
 from companion_sitl.real_campaign import (
     compare,
-    firmware_landing_overrides,
+    firmware_tuning,
     parity_figure,
     real_config,
     real_pad_displacement,
@@ -33,12 +33,13 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     assert cfg.mission.pad.north_m == pytest.approx(n) and cfg.mission.pad.east_m == pytest.approx(e)
     assert cfg.mission.pad.lat_deg is None and cfg.autopilot == "px4"
     assert math.hypot(n, e) == pytest.approx(15.0, abs=0.5)  # the shipped pad, 15 m from home
-    # the firmware's own EKF tuning comes from its shipped parameters (PX4 SIH: 0.3, 5)
-    assert firmware_landing_overrides("px4") == {
-        "ekf_position_process_sigma_m_per_sqrt_s": 0.3,
-        "ekf_gate_reset_after_rejections": 5,
+    # the firmware's own landing tuning comes from its shipped parameters (params/px4_sih_quad.toml)
+    assert firmware_tuning("px4") == {
+        "landing": {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5},
+        "mission": {"landing_xy_gain_1_s": 5.0, "landing_touchdown_height_m": 0.0},
     }
-    assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3
+    assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
+    assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
     assert real_config(base, "px4", "gps_only").landing.fusion is False
     with pytest.raises(ValueError, match="unknown variant"):
         real_config(base, "px4", "no_such")
@@ -48,6 +49,10 @@ def test_profile_campaign_flies_the_same_draws_without_wind_on_px4_sih():
     d = draw_scenarios(1, 4)[0]
     cfg = scenario_config(shipped_params_path("landing_campaign.toml"), d, "fusion", "px4-sih")
     assert cfg.sim.profile == "px4-sih" and cfg.sim.wind_speed_m_s == d.wind_speed_m_s  # the vehicle drops it
+    tuned = scenario_config(
+        shipped_params_path("landing_campaign.toml"), d, "gps_only", "px4-sih", firmware_tuning("px4")
+    )
+    assert tuned.mission.landing_xy_gain_1_s == 5.0 and tuned.landing.fusion is False
     r = run_landing_campaign(1, 4, ("fusion",), profile="px4-sih")
     assert r["profile"] == "px4-sih" and r["landings"]["fusion"][0]["wind_m_s"] == 0.0
     assert r["landings"]["fusion"][0]["delivered"]

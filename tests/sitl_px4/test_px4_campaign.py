@@ -1,0 +1,45 @@
+"""`companion campaign parity --autopilot px4` for three seeds on the real PX4 v1.16 SIH: the
+embedded campaign with the px4-sih profile against the real firmware on the same draws (the short
+12 m scenario), every landing scored on PX4's HIL_STATE_QUATERNION truth."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from companion.config import shipped_params_path
+from companion_sitl.px4_sitl import Px4NotFound, find_px4
+from companion_sitl.real_campaign import run_parity
+
+pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def px4_root():
+    try:
+        return find_px4()
+    except Px4NotFound as err:
+        pytest.skip(str(err))
+
+
+def test_parity_on_three_seeds(px4_root, tmp_path):
+    r = run_parity("px4", 3, 1, shipped_params_path("landing_campaign_short.toml"), tmp_path)
+    saved = json.loads((tmp_path / "parity.json").read_text())
+    assert saved["comparison"]["fusion"]["seeds"] == [1000, 1001, 1002]
+    assert (tmp_path / "parity.png").stat().st_size > 10_000
+    real = r["real"]["landings"]["fusion"]
+    pred = r["predicted"]["landings"]["fusion"]
+    print("\nreal", [round(x["error_m"], 3) for x in real], "predicted", [round(x["error_m"], 3) for x in pred])
+    for x in real:
+        assert x["delivered"] and x["failure"] == "", x
+        assert x["markers_used"] > 20 and x["uwb_used"] > 20, x
+        assert x["on_pad"] and x["error_m"] < 0.3, x
+    # the draws put the pad up to several metres from where GPS leads: fusion found it each time
+    assert max(math.hypot(*x["pad_displacement_m"]) for x in real) > 1.0
+    c = r["comparison"]["fusion"]
+    assert c["failure_classes_agree"]
+    # three landings are too few for the 1.5x criterion (the command's 10+ are for that): the
+    # prediction must be of the same order as the firmware
+    assert 1 / 3 < c["ratio_predicted_to_real"]["mean_m"] < 3, c
