@@ -72,6 +72,15 @@ class MissionConfig(_Section):
         (2.0, 3.0, 5.0, 2.0, 1.5), "m/s", "reference speed v_i in sectors S1..S5", min_length=5
     )
     convergence_gain: float = _f(1.0, "1/m", "k_f: vector field convergence weight", gt=0.0, le=20.0)
+    field_lookahead_s: float = _f(
+        0.0,
+        "s",
+        "evaluate the vector field where the vehicle will be this much later (position + velocity x "
+        "lookahead), making up for the autopilot's velocity-loop lag at the arcs (not in the paper; "
+        "0 = the paper's field at the current position; ~0.5 s for PX4 / ArduCopter)",
+        ge=0.0,
+        le=3.0,
+    )
     takeoff_alt_m: float = _f(3.0, "m", "autopilot takeoff height before the field takes over", gt=0.5, le=20.0)
     final_descent_alt_m: float = _f(
         3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0

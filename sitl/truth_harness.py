@@ -16,6 +16,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, cast
 
+import numpy as np
+
 from companion.autopilot.interface import Autopilot
 from companion.autopilot.types import LandedState
 from companion.config import CompanionConfig
@@ -43,6 +45,9 @@ class HarnessResult:
     uwb_used: int
     landing_targets_sent: int
     fusion_outcomes: dict[str, int] = dataclasses.field(default_factory=dict)  # "sensor.outcome" -> count
+    # distance of the true vehicle to the planned path while the vector field is followed
+    path_rms_truth_m: float = math.nan
+    path_max_truth_m: float = math.nan
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -69,9 +74,24 @@ async def fly_on_truth(
     kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
     kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
+    path_d: list[float] = []
+    start: list[tuple[float, float, float]] = []
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
-        st = shell.autopilot.telemetry.status
+        tel = shell.autopilot.telemetry
+        if not start and truth.age_s < 1.0:
+            start.append((truth.pn, truth.pe, truth.pd))  # the vehicle on the ground at home
+        m = shell.mission
+        if out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None:
+            home = tel.home
+            if start and home is not None and truth.age_s < 1.0:
+                # truth in the autopilot's local frame, where the plan lives: home is where the
+                # vehicle stood at the start, and the autopilot reports home's local position
+                h = (home.north_m, home.east_m, home.down_m)
+                p = [getattr(truth, a) - s0 + h0 for a, s0, h0 in zip(("pn", "pe", "pd"), start[0], h, strict=True)]
+                if all(math.isfinite(x) for x in p):
+                    path_d.append(float(m.path.distance_to_path(m.frame.point_from_ned(np.array(p)))))
+        st = tel.status
         if (
             not touchdown
             and out.phase is Phase.LANDING_PAD
@@ -97,4 +117,6 @@ async def fly_on_truth(
         uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
         landing_targets_sent=shell.landing_targets_sent,
         fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
+        path_rms_truth_m=math.sqrt(sum(d * d for d in path_d) / len(path_d)) if path_d else math.nan,
+        path_max_truth_m=max(path_d) if path_d else math.nan,
     )

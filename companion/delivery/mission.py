@@ -635,15 +635,28 @@ class DeliveryMission:
     def _field_setpoint(
         self, est: StateEstimate, s: int, speed_scale: float = 1.0, force_descent: bool = False
     ) -> tuple[VelocitySetpoint, float]:
-        assert self.frame is not None and self.field is not None
+        assert self.frame is not None and self.field is not None and self.path is not None
         p_i = self.frame.point_from_ned(est.position_ned)
-        fs = self.field(p_i, s if not force_descent else (1 if self._sector_of(est) == 5 else -1), speed_scale)
+        s_dir = s if not force_descent else (1 if self._sector_of(est) == 5 else -1)
+        la = self.cfg.field_lookahead_s
+        if la > 0.0:
+            # Not in the paper: the autopilot's velocity loop lags the setpoint by about 1/k_v
+            # (0.5 s on PX4 and ArduCopter), so at an arc the vehicle follows the field of where
+            # it was and overshoots by v * lag (measured 1.8 m at r = 2 m, 3 m/s). Evaluating F at
+            # the position predicted one lag ahead (still a function of the state, not of time)
+            # turns the vehicle in time; V is still reported at the current position.
+            p_ahead = np.asarray(est.position_ned) + la * np.array([est.north_m_s, est.east_m_s, est.down_m_s])
+            fs = self.field(self.frame.point_from_ned(p_ahead), s_dir, speed_scale)
+            lyap = self.path.lyapunov(p_i)
+        else:
+            fs = self.field(p_i, s_dir, speed_scale)  # delivery eq 19
+            lyap = fs.lyapunov
         if fs.sector != self._sector:
             self._sector = fs.sector
             self._emit(EventKind.SECTOR, f"S{fs.sector}")
         v_ned = self.frame.vector_to_ned(fs.velocity)
         yaw = self.frame.yaw_to_ned(0.0)  # psi_r = 0 in F_I (delivery 4.3)
-        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), yaw), fs.lyapunov
+        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), yaw), lyap
 
     def _check_link(self, inp: MissionInputs) -> bool:
         st = inp.status

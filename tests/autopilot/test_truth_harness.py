@@ -12,6 +12,7 @@ import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
 from companion.geometry.earth import GeoPoint
+from companion_sitl.real_campaign import firmware_tuning
 from companion_sitl.truth_feed import MavlinkTruth, TruthUnavailable
 from companion_sitl.truth_harness import fly_on_truth
 
@@ -49,8 +50,21 @@ def mav_free_port() -> int:
         return s.getsockname()[1]
 
 
-async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_truth(mav, udp_port):
+@pytest.mark.parametrize("profile", ["ideal", "px4-sih"])
+async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_truth(mav, udp_port, profile):
+    """Also with the px4-sih profile (issue 17): the MAVLink sim vehicle standing in for PX4 SIH
+    flies on a velocity estimate 0.2 m/s off, detects the landing after 2.3 s, and the companion
+    flies it with the tuning shipped for PX4 SIH, as it flies the firmware (tests/sitl_px4)."""
     config = mav.short_config()
+    if profile != "ideal":
+        tuning = firmware_tuning("px4")
+        config = config.model_copy(
+            update={
+                "sim": config.sim.model_copy(update={"profile": profile}),
+                "mission": config.mission.model_copy(update=tuning["mission"]),
+                "landing": config.landing.model_copy(update=tuning["landing"]),
+            }
+        )
     h = config.sim.home
     offset = (0.6, -0.45)  # the pad lies 0.75 m from where it is configured
     with mav.sim_vehicle(config, "px4", udp_port) as sim:
@@ -64,6 +78,7 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
                 await ap.close()
         finally:
             truth.stop()
+    assert sim.vehicle.profile.name == profile
     assert r.delivered and r.returned, r.failure
     assert r.markers_used > 20 and r.uwb_used > 5
     # GPS only would land ~0.75 m off (the displacement); the fused landing is on the true pad

@@ -83,3 +83,24 @@ def test_takeoff_then_offboard_only_after_streaming():
     )
     assert m.phase is Phase.OUTBOUND
     assert out.setpoint.down_m_s < -1.9  # climbing along S1 at v1 = 2 m/s
+
+
+def test_field_lookahead_evaluates_the_field_one_lag_ahead_and_reports_v_where_the_vehicle_is():
+    import numpy as np
+
+    m = DeliveryMission(cfg(field_lookahead_s=0.5))
+    m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))  # plans the path from home
+    assert m.frame is not None and m.path is not None and m.field is not None
+    e = StateEstimate(1.0, 1.0, 2.0, -10.0, 4.0, -2.0, -1.0, 0, 0, 0)
+    sp, lyap = m._field_setpoint(e, 1)
+    ahead = np.array([1.0 + 0.5 * 4.0, 2.0 + 0.5 * -2.0, -10.0 + 0.5 * -1.0])
+    f = m.field(m.frame.point_from_ned(ahead), 1)
+    v = m.frame.vector_to_ned(f.velocity)
+    assert (sp.north_m_s, sp.east_m_s, sp.down_m_s) == tuple(float(x) for x in v)
+    assert lyap == m.path.lyapunov(m.frame.point_from_ned(np.array([1.0, 2.0, -10.0])))
+    # without lookahead: the paper's field at the current position
+    m0 = DeliveryMission(cfg())
+    m0.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    sp0, _ = m0._field_setpoint(e, 1)
+    f0 = m0.field(m0.frame.point_from_ned(np.array([1.0, 2.0, -10.0])), 1)
+    assert (sp0.north_m_s, sp0.east_m_s, sp0.down_m_s) == tuple(float(x) for x in m0.frame.vector_to_ned(f0.velocity))

@@ -19,20 +19,20 @@ pytestmark = [pytest.mark.sitl, pytest.mark.slow]
 PAD_OFFSET = (1.2, -0.9)  # 1.5 m: GPS alone would land 1.5 m off the true pad
 
 
-def _config(connection: str, **landing):
+def _config(connection: str, return_home: bool = True, **landing):
     overrides = {
         "autopilot": "ardupilot",
         "connection": connection,
-        "mission": {"ready_timeout_s": 120.0},  # EKF3 uses GPS ~41 s after boot
+        "mission": {"ready_timeout_s": 120.0, "return_home": return_home},  # EKF3 uses GPS ~41 s after boot
     }
     if landing:
         overrides["landing"] = landing
     return load_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
 
 
-async def _fly(ardupilot_root, tmp_path, params, **landing):
+async def _fly(ardupilot_root, tmp_path, params, return_home: bool = True, **landing):
     with arducopter(ardupilot_root, tmp_path, extra_params=params) as (sitl, truth):
-        config = _config(sitl.connection, **landing)
+        config = _config(sitl.connection, return_home, **landing)
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
         try:
             r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=300.0)
@@ -60,3 +60,16 @@ async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_disp
     assert ap.releases_unconfirmed == 0  # the gripper's output was seen at GRIP_RELEASE
     assert r.uwb_used > 50
     assert r.pad_landing_error_m < 0.6, r
+
+
+async def test_arducopter_precision_landing_fed_our_landing_target(ardupilot_root, tmp_path):
+    """ArduCopter's LAND with precision landing (PLND_ENABLED = 1, PLND_TYPE = 1: companion
+    computer) flies the descent, steered by the LANDING_TARGET angles we send in the body frame
+    (``body_angles``); the pad lies 1.5 m from where GPS leads."""
+    plnd = {**GRIPPER_SERVO9, "PLND_ENABLED": 1, "PLND_TYPE": 1}
+    r, _ap = await _fly(
+        ardupilot_root, tmp_path, plnd, return_home=False, controller="autopilot", landing_target_output="body_angles"
+    )
+    assert r.delivered, r.failure
+    assert r.landing_targets_sent > 20
+    assert r.pad_landing_error_m < 0.3, r  # GPS alone: 1.5 m

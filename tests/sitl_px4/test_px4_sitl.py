@@ -18,7 +18,9 @@ from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import load_config, shipped_params_path
 from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.demo import run_demo
 from companion_sitl.px4_sitl import Px4NotFound, Px4Sitl, find_px4
+from companion_sitl.real_campaign import firmware_tuning
 from companion_sitl.truth_feed import MavlinkTruth
 from companion_sitl.truth_harness import fly_on_truth
 
@@ -105,15 +107,15 @@ async def test_offboard_loss_failsafe_acts_when_the_companion_stalls(px4_root, t
             await ap.close()
 
 
-# What params/px4_sih_quad.toml sets for PX4 SIH's landing fusion (see LandingConfig's descriptions)
-PX4_SIH_LANDING = {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5}
-
-
 async def _delivery(px4_root, tmp_path, **landing):
     from companion.flightlog.recorder import FlightRecorder
 
-    config = load_config(shipped_params_path("sitl_short.toml"))
-    config = config.model_copy(update={"landing": config.landing.model_copy(update={**PX4_SIH_LANDING, **landing})})
+    # the landing tuning params/px4_sih_quad.toml ships for PX4 SIH (fusion and final descent)
+    tuning = firmware_tuning("px4")
+    config = load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **landing}},
+    )
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
         await asyncio.to_thread(truth.wait, 30.0)
         ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))
@@ -123,23 +125,35 @@ async def _delivery(px4_root, tmp_path, **landing):
         finally:
             rec.close()
             await ap.close()
-    print(f"PX4 SIH delivery {landing or 'companion descent'}: landing error on truth {r.pad_landing_error_m:.3f} m")
-    return r
+    print(
+        f"PX4 SIH delivery {landing or 'companion descent'}: landing error on truth {r.pad_landing_error_m:.3f} m, "
+        f"path RMS {r.path_rms_truth_m:.3f} m, max {r.path_max_truth_m:.3f} m"
+    )
+    return r, config
 
 
 async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_root, tmp_path):
     """The sitl_short delivery end to end on PX4: our fused descent onto a pad 1.5 m from its
     configured position, the gripper release, re-arming (from HOLD) and the flight home."""
-    r = await _delivery(px4_root, tmp_path)
+    r, config = await _delivery(px4_root, tmp_path)
     assert r.delivered and r.returned, r.failure
     assert r.failure == ""
     assert r.markers_used > 20
     assert r.pad_landing_error_m < 0.3, r
+    # path tracking on the firmware against the embedded simulator on the same path (issue 12)
+    sim = config.model_copy(update={"sim": config.sim.model_copy(update={"pad_offset_m": PAD_OFFSET_M})})
+    embedded = await asyncio.to_thread(run_demo, sim)
+    print(f"embedded (ideal): path RMS {embedded.path_rms_truth_m:.3f} m, max {embedded.path_max_truth_m:.3f} m")
+    # (both score the true vehicle against the configured path, so the correct move to the
+    # displaced pad counts in both; sitl_short's 2 m arcs at 3 m/s ask 4.5 m/s^2, more than PX4's
+    # MPC_ACC_HOR = 3 m/s^2, so neither stays within 0.5 m at the arcs: measured ~1.2 / 2.9 m
+    # RMS / max embedded)
+    assert r.path_rms_truth_m <= 1.5 * embedded.path_rms_truth_m, (r.path_rms_truth_m, embedded.path_rms_truth_m)
 
 
 async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):
     """AUTO.PRECLAND flies the descent, steered by the LANDING_TARGET we send in PX4's local frame."""
-    r = await _delivery(px4_root, tmp_path, controller="autopilot", landing_target_output="local_ned")
+    r, _ = await _delivery(px4_root, tmp_path, controller="autopilot", landing_target_output="local_ned")
     assert r.delivered and r.returned, r.failure
     assert r.landing_targets_sent > 20
     # PX4 lands by its own estimate, which wanders; with a perfect target its precision landing was

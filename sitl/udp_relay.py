@@ -1,0 +1,82 @@
+"""A UDP relay between an autopilot and the companion that can cut the link (a radio or cable
+dropping out), for link-loss tests on the real firmware.
+
+PX4 SITL sends its onboard MAVLink link to a fixed port (14540); the relay listens there and
+forwards everything to the port the companion listens on, and the companion's replies back to
+wherever the autopilot sent from. While cut, datagrams in both directions are dropped (counted),
+as a dead radio would.
+"""
+
+from __future__ import annotations
+
+import logging
+import select
+import socket
+import threading
+import time
+
+log = logging.getLogger(__name__)
+
+
+class UdpRelay:
+    def __init__(self, listen_port: int, forward_port: int, host: str = "127.0.0.1"):
+        self.forward = (host, forward_port)
+        self._a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # autopilot side
+        self._a.bind((host, listen_port))
+        self._b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # companion side
+        self._b.bind((host, 0))
+        self._autopilot: tuple[str, int] | None = None
+        self._cut_until = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="udp-relay", daemon=True)
+        self.forwarded = 0
+        self.dropped = 0
+
+    def start(self) -> UdpRelay:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._a.close()
+        self._b.close()
+
+    def __enter__(self) -> UdpRelay:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def cut(self, seconds: float) -> None:
+        """Drop everything, both ways, for ``seconds`` from now."""
+        self._cut_until = time.monotonic() + seconds
+        log.info("link cut for %.1f s", seconds)
+
+    @property
+    def is_cut(self) -> bool:
+        return time.monotonic() < self._cut_until
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._a, self._b], [], [], 0.1)
+            for s in ready:
+                try:
+                    data, addr = s.recvfrom(65535)
+                except OSError:
+                    continue
+                if s is self._a:
+                    self._autopilot = addr
+                    dest: tuple[str, int] | None = self.forward
+                    out = self._b
+                else:
+                    dest = self._autopilot
+                    out = self._a
+                if self.is_cut or dest is None:
+                    self.dropped += 1
+                    continue
+                try:
+                    out.sendto(data, dest)
+                    self.forwarded += 1
+                except OSError as err:
+                    log.debug("relay: %s", err)
