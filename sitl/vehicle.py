@@ -290,6 +290,11 @@ class SimVehicle:
         rn = self._rng_wind.standard_normal(3)
         for i in range(3):
             self._wind[i] = self._wind_mean[i] + self._gust[i].step(dt, float(rn[i]))
+        ramp = self.profile.wind_ramp_height_m
+        if ramp > 0.0 and -self.pd < ramp:  # the SITL's wind fades towards the ground (profiles.py)
+            k = math.sqrt(max(0.0, -self.pd) / ramp)
+            for i in range(3):
+                self._wind[i] *= k
         rg = self._rng_gps.standard_normal(3)
         for i in range(3):
             self._walk[i].step(dt, float(rg[i]))
