@@ -135,6 +135,7 @@ def run_landing_campaign(
                     "on_pad": on_pad,
                     "delivered": r.delivered,
                     "failure": r.failure,
+                    "sim_time_s": r.sim_time_s,
                     "gps_bias_m": d.gps_bias_m[:2],
                     "pad_offset_m": d.pad_offset_m,
                     "wind_m_s": d.wind_speed_m_s if get_profile(profile).has_wind else 0.0,

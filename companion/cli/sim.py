@@ -173,6 +173,24 @@ def _print_bench(title: str, result: dict[str, Any]) -> None:
         print(f"  {k:<{width}}  {v:.2f}" if isinstance(v, float) else f"  {k:<{width}}  {v}")
 
 
+def cmd_bench_campaign(args: argparse.Namespace) -> int:
+    from companion_sitl.landing_campaign import run_landing_campaign
+    from companion_sitl.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
+
+    fw = FIRMWARE_OF_PROFILE.get(args.profile)
+    t0 = time.perf_counter()
+    r = run_landing_campaign(
+        args.n, args.seed, ("fusion",), None, profile=args.profile, tuning=firmware_tuning(fw) if fw else None
+    )
+    wall = time.perf_counter() - t0
+    sim = sum(x["sim_time_s"] for x in r["landings"]["fusion"])
+    print(
+        f"bench campaign: {args.n} fused landings on the {args.profile} profile: {sim:.0f} s simulated in "
+        f"{wall:.1f} s wall = {sim / wall:.1f}x real time (target >= 20x on a 2-core machine)"
+    )
+    return 0
+
+
 def cmd_bench_estimation(args: argparse.Namespace) -> int:
     from companion.dart.bench import bench_estimation
 
@@ -334,6 +352,13 @@ def register_bench(bsub: Any) -> None:
     bs.add_argument("--repeat", type=int, default=2)
     bs.add_argument("--seed", type=int, default=1)
     bs.set_defaults(func=cmd_bench_sim)
+    bc = bsub.add_parser(
+        "campaign", help="how many times faster than real time the landing campaign flies on a profile"
+    )
+    bc.add_argument("--profile", choices=("ideal", "px4-sih", "arducopter-sitl"), default="px4-sih")
+    bc.add_argument("--n", type=int, default=5, help="fused landings (default 5)")
+    bc.add_argument("--seed", type=int, default=1)
+    bc.set_defaults(func=cmd_bench_campaign)
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000)
     be.set_defaults(func=cmd_bench_estimation)
