@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 
 class ConfigError(ValueError):
@@ -72,6 +72,14 @@ class MissionConfig(_Section):
         (2.0, 3.0, 5.0, 2.0, 1.5), "m/s", "reference speed v_i in sectors S1..S5", min_length=5
     )
     convergence_gain: float = _f(1.0, "1/m", "k_f: vector field convergence weight", gt=0.0, le=20.0)
+    link_loss_resume_modes: tuple[str, ...] = _f(
+        ("hold", "position"),
+        "-",
+        "after a link loss in flight, modes found on reconnect that count as the autopilot's own "
+        "offboard-loss failsafe (PX4 COM_OBL_RC_ACT = 0 goes to position, measured) and resume the "
+        "mission; any other mode is the pilot's. A pilot who picks one of these during the outage gets "
+        "autonomy back on reconnect: list only your autopilot's failsafe mode",
+    )
     field_lookahead_s: float = _f(
         0.0,
         "s",
@@ -141,6 +149,15 @@ class MissionConfig(_Section):
                 f"({self.height_m - self.arc_radius_m}), the top of the vertical section"
             )
         return self
+
+    @field_validator("link_loss_resume_modes")
+    @classmethod
+    def _resume_modes(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        allowed = ("manual", "position", "hold", "takeoff", "land", "rtl", "mission", "unknown")
+        bad = [m for m in v if m not in allowed]
+        if bad:
+            raise ValueError(f"{bad}: expected modes among {allowed} (offboard is ours, never a failsafe)")
+        return v
 
 
 class PayloadConfig(_Section):

@@ -96,6 +96,9 @@ class Px4SimVehicle(MavlinkSimVehicle):
     #   AUTO.LAND, DENIED in OFFBOARD without a setpoint stream, ACCEPTED in HOLD;
     #   DO_GRIPPER and DO_SET_ACTUATOR ACCEPTED, DO_SET_SERVO UNSUPPORTED.
     BOOT_MODE: ClassVar[FlightMode] = FlightMode.POSITION
+    # offboard lost (COM_OF_LOSS_T) with COM_OBL_RC_ACT = 0: PX4 v1.16 SIH went to POSCTL, measured
+    # (tests/sitl_px4/test_px4_link_and_pilot.py), not to HOLD
+    OFFBOARD_LOSS_MODE: ClassVar[FlightMode] = FlightMode.POSITION
     release_actuator: int = 1
 
     def _arm_refused(self) -> int | None:

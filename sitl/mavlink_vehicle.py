@@ -160,6 +160,7 @@ class MavlinkSimVehicle(abc.ABC):
 
     dialect: Dialect
     DEFAULT_STREAMS_HZ: ClassVar[dict[int, float]] = {}  # streamed from boot unless stream_rates_hz
+    OFFBOARD_LOSS_MODE: ClassVar[FlightMode] = FlightMode.HOLD  # where the offboard-loss failsafe goes
     HOME_ALWAYS: ClassVar[bool] = False  # send HOME_POSITION on change even when not streamed
     LOCAL_Z_OFFSET_M: ClassVar[float] = 0.0  # added to LOCAL_POSITION_NED z
     SOFTWARE_VERSION: ClassVar[int] = 0  # AUTOPILOT_VERSION flight_sw_version
@@ -200,6 +201,7 @@ class MavlinkSimVehicle(abc.ABC):
             vehicle = SimVehicle(cfg)
         self.cfg = cfg
         self.vehicle = vehicle
+        vehicle.offboard_loss_mode = self.OFFBOARD_LOSS_MODE
         self.system_id = system_id
         self.component_id = mavlink.MAV_COMP_ID_AUTOPILOT1
         self.stats = LinkStats()

@@ -20,11 +20,11 @@ log = logging.getLogger(__name__)
 
 class UdpRelay:
     def __init__(self, listen_port: int, forward_port: int, host: str = "127.0.0.1"):
+        self.host = host
+        self.listen_port = listen_port
         self.forward = (host, forward_port)
-        self._a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # autopilot side
-        self._a.bind((host, listen_port))
+        self._a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # autopilot side (bound at start)
         self._b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # companion side
-        self._b.bind((host, 0))
         self._autopilot: tuple[str, int] | None = None
         self._cut_until = 0.0
         self._stop = threading.Event()
@@ -33,6 +33,8 @@ class UdpRelay:
         self.dropped = 0
 
     def start(self) -> UdpRelay:
+        self._a.bind((self.host, self.listen_port))
+        self._b.bind((self.host, 0))
         self._thread.start()
         return self
 

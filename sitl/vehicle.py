@@ -128,6 +128,9 @@ class SimVehicle:
             for w in self._verr:
                 w.x = w.sigma * float(self._rng_verr.standard_normal())
         self._land_detect_s = self.profile.land_detect_s
+        # the mode the autopilot's offboard-loss failsafe switches to (PX4: COM_OBL_RC_ACT; the
+        # PX4-dialect MAVLink vehicle sets POSITION, measured on PX4 v1.16 SIH)
+        self.offboard_loss_mode = FlightMode.HOLD
         self._dt = 1.0 / c.vehicle.physics_rate_hz
         # wind: mean from "wind_from", gusts as Gauss-Markov per axis
         wf = math.radians(c.wind_from_deg)
@@ -314,8 +317,9 @@ class SimVehicle:
         if self.armed:
             if self.mode is FlightMode.OFFBOARD:
                 if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
-                    self._text("offboard lost: failsafe hold")
+                    self._text(f"offboard lost: failsafe {self.offboard_loss_mode.value}")
                     self.hold()
+                    self.mode = self.offboard_loss_mode  # holds position in either
                 else:
                     sp_n, sp_e, sp_d = self._sp.north_m_s, self._sp.east_m_s, self._sp.down_m_s
                     self._yaw_sp = self._sp.yaw_rad

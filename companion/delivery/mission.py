@@ -670,9 +670,15 @@ class DeliveryMission:
             self._link_lost = False
             self._link_restored_at = inp.time_s
             self._emit(EventKind.LINK_RESTORED, "resuming from where the vehicle is")
-            # The autopilot's offboard-loss failsafe will have switched to HOLD: that is not
-            # the pilot, so re-enter offboard and let the (path-based) field resume.
-            if self.phase in FOLLOW_PHASES and st is not None and st.mode is FlightMode.HOLD:
+            # The autopilot's offboard-loss failsafe will have switched to its failsafe mode (HOLD;
+            # POSCTL on PX4 v1.16 with COM_OBL_RC_ACT = 0, measured): that is not the pilot, so
+            # re-enter offboard and let the (path-based) field resume.
+            if (
+                self.phase in FOLLOW_PHASES
+                and st is not None
+                and st.mode is not FlightMode.OFFBOARD
+                and st.mode.value in self.cfg.link_loss_resume_modes
+            ):
                 self._reenter = True
                 self._expect_mode_change = True
                 self._offboard_requested = False
