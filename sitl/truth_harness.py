@@ -48,6 +48,12 @@ class HarnessResult:
     # distance of the true vehicle to the planned path while the vector field is followed
     path_rms_truth_m: float = math.nan
     path_max_truth_m: float = math.nan
+    path_rms_outbound_m: float = math.nan  # the way out only (before any pad was seen)
+    path_max_outbound_m: float = math.nan
+
+
+def _rms(xs: list[float]) -> float:
+    return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -75,22 +81,26 @@ async def fly_on_truth(
     kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
     path_d: list[float] = []
-    start: list[tuple[float, float, float]] = []
+    path_out: list[float] = []
+    # truth <-> the autopilot's local frame, fixed at the start (home, on the ground): the
+    # autopilot may move home later (PX4 sets it again when it re-arms on the pad)
+    ref: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
         tel = shell.autopilot.telemetry
-        if not start and truth.age_s < 1.0:
-            start.append((truth.pn, truth.pe, truth.pd))  # the vehicle on the ground at home
+        home = tel.home
+        if not ref and home is not None and truth.age_s < 1.0:
+            ref.append(((truth.pn, truth.pe, truth.pd), (home.north_m, home.east_m, home.down_m)))
         m = shell.mission
-        if out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None:
-            home = tel.home
-            if start and home is not None and truth.age_s < 1.0:
-                # truth in the autopilot's local frame, where the plan lives: home is where the
-                # vehicle stood at the start, and the autopilot reports home's local position
-                h = (home.north_m, home.east_m, home.down_m)
-                p = [getattr(truth, a) - s0 + h0 for a, s0, h0 in zip(("pn", "pe", "pd"), start[0], h, strict=True)]
-                if all(math.isfinite(x) for x in p):
-                    path_d.append(float(m.path.distance_to_path(m.frame.point_from_ned(np.array(p)))))
+        following = out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None
+        if following and ref and truth.age_s < 1.0:
+            assert m.frame is not None and m.path is not None
+            t0, h0 = ref[0]
+            p = [getattr(truth, a) - s0 + hh for a, s0, hh in zip(("pn", "pe", "pd"), t0, h0, strict=True)]
+            if all(math.isfinite(x) for x in p):
+                path_d.append(float(m.path.distance_to_path(m.frame.point_from_ned(np.array(p)))))
+                if out.phase is Phase.OUTBOUND:
+                    path_out.append(path_d[-1])
         st = tel.status
         if (
             not touchdown
@@ -117,6 +127,8 @@ async def fly_on_truth(
         uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
         landing_targets_sent=shell.landing_targets_sent,
         fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
-        path_rms_truth_m=math.sqrt(sum(d * d for d in path_d) / len(path_d)) if path_d else math.nan,
+        path_rms_truth_m=_rms(path_d),
         path_max_truth_m=max(path_d) if path_d else math.nan,
+        path_rms_outbound_m=_rms(path_out),
+        path_max_outbound_m=max(path_out) if path_out else math.nan,
     )
