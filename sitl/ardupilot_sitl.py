@@ -144,7 +144,7 @@ class ArduCopterSitl:
                 start_new_session=True,
             )
         finally:
-            if out is not subprocess.DEVNULL:
+            if not isinstance(out, int):
                 out.close()  # the child holds its own descriptor
         log.info("ArduCopter SITL pid %d in %s: %s", self.proc.pid, self.workdir, " ".join(cmd))
         if not wait_for_tcp_heartbeat(self.port, heartbeat_timeout_s, self.proc):

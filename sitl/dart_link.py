@@ -42,7 +42,7 @@ from collections import deque
 from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 
@@ -488,7 +488,7 @@ class DartLinkSim:
         if dialect == "px4":
             self.vehicle.mode = FlightMode.POSITION  # the pilot hovers in POSCTL
             streams = {**PX4_DEFAULT_STREAMS_HZ, **PX4_DART_STREAMS_HZ}
-        self.link = MavlinkSimVehicle(
+        self.link = MavlinkSimVehicle(  # type: ignore[abstract]  # the factory returns the dialect's subclass
             self.sim_config,
             dialect,  # type: ignore[arg-type]
             remote=("127.0.0.1", port),
@@ -567,7 +567,7 @@ class DartLinkSim:
 
     @property
     def copter_mode(self) -> int:
-        return self.link.copter_mode
+        return int(cast(Any, self.link).copter_mode)
 
 
 # ------------------------------------------------------------------------------ a whole flight

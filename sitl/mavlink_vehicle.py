@@ -712,7 +712,7 @@ class MavlinkSimVehicle(abc.ABC):
                 p = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
             else:
                 p = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
-            p = tuple(x if math.isfinite(x) else math.nan for x in p)
+            p = tuple(x if math.isfinite(x) else math.nan for x in p)  # type: ignore[assignment]
             self.stats.commands[m.command] += 1
             result = self._command(m.command, p, m)
             if result is not None:

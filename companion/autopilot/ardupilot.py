@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -142,6 +143,10 @@ def result_name(result: int) -> str:
 def command_name(cmd: int) -> str:
     entry = mavlink.enums["MAV_CMD"].get(cmd)
     return entry.name if entry is not None else f"MAV_CMD {cmd}"
+
+
+def _command_long(mav: Any, *, ts: int, tc: int, cmd: int, confirmation: int, params: Sequence[float]) -> None:
+    mav.command_long_send(ts, tc, cmd, confirmation, *params)
 
 
 @dataclass
@@ -415,7 +420,7 @@ class ArduPilotAutopilot(Autopilot):
         tries = self.command_retries if retries is None else retries
         try:
             for attempt in range(tries):
-                self._send(lambda mav, c=attempt: mav.command_long_send(ts, tc, cmd, c, *p))
+                self._send(functools.partial(_command_long, ts=ts, tc=tc, cmd=cmd, confirmation=attempt, params=p))
                 self.counters.commands_sent += 1
                 try:
                     result = await asyncio.wait_for(asyncio.shield(fut), self.command_timeout_s)
@@ -457,8 +462,13 @@ class ArduPilotAutopilot(Autopilot):
         ts, tc = self.target_system or 1, self.target_component
         for mid, hz in self.stream_rates_hz.items():
             self._send(
-                lambda mav, m=mid, h=hz: mav.command_long_send(
-                    ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, m, 1e6 / h, 0, 0, 0, 0, 0
+                functools.partial(
+                    _command_long,
+                    ts=ts,
+                    tc=tc,
+                    cmd=mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                    confirmation=0,
+                    params=(mid, 1e6 / hz, 0, 0, 0, 0, 0),
                 )
             )
         self.counters.stream_requests += 1

@@ -650,7 +650,12 @@ class Px4Autopilot(Autopilot):
         from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
 
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
-        fields = {"target_system": self.system_id, "target_component": 1, "command": command, "confirmation": 0}
+        fields: dict[str, float] = {
+            "target_system": self.system_id,
+            "target_component": 1,
+            "command": command,
+            "confirmation": 0,
+        }
         fields.update({f"param{i + 1}": v for i, v in enumerate(p)})
         msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
         text_before = self._last_text

@@ -101,7 +101,7 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
 def start_sensors(kit: LandingKit) -> None:
     """Start the sensors on the ground, before take-off, so a missing device fails there; the
     shell then leaves them running and stops them when the flight ends."""
-    started = []
+    started: list[Any] = []
     for name, dev in (("camera", kit.camera), ("uwb", kit.uwb)):
         if dev is None:
             continue
