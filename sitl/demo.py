@@ -111,7 +111,7 @@ def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
     return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
 
 
-def _rms(xs: list[float]) -> float:
+def rms(xs: list[float]) -> float:
     return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
 
 
@@ -144,7 +144,7 @@ async def fly(
         from companion.flightlog.tlog import open_tlog
         from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
-        port = _free_udp_port()
+        port = free_udp_port()
         # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
         grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
         mav_sim = MavlinkSimVehicle(
@@ -221,9 +221,9 @@ async def fly(
         flight_time_s=flight_time,
         sim_time_s=vehicle.time_s,
         wall_time_s=wall,
-        path_rms_truth_m=_rms(scorer.truth_d),
+        path_rms_truth_m=rms(scorer.truth_d),
         path_max_truth_m=max(scorer.truth_d) if scorer.truth_d else math.nan,
-        path_rms_estimate_m=_rms(scorer.est_d),
+        path_rms_estimate_m=rms(scorer.est_d),
         pad_landing_error_m=math.hypot(*pad_err_ne),
         pad_landing_error_ne_m=pad_err_ne,
         home_landing_error_m=home_err,
@@ -307,7 +307,7 @@ def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: t
     return LandingKit(camera, uwb, detector, multi, mount, Transform.identity(), vision_in_thread=False)
 
 
-def _free_udp_port() -> int:
+def free_udp_port() -> int:
     import socket
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

@@ -92,6 +92,11 @@ def scenario_config(
     return load_config(base_file, overrides=overrides)
 
 
+def on_pad(north_m: float, east_m: float, half_size_m: float, delivered: bool) -> bool:
+    """The true touchdown lies inside the square pad (and the parcel was delivered there)."""
+    return bool(math.isfinite(north_m) and abs(north_m) <= half_size_m and abs(east_m) <= half_size_m and delivered)
+
+
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
     a = np.array(errs)
     ok = a[np.isfinite(a)]
@@ -125,14 +130,14 @@ def run_landing_campaign(
         for v in variants:
             r = run_demo(scenario_config(base, d, v, profile, tuning))
             dn, de = r.pad_landing_error_ne_m
-            on_pad = bool(math.isfinite(dn) and abs(dn) <= pad_half and abs(de) <= pad_half and r.delivered)
+            landed_on_pad = on_pad(dn, de, pad_half, r.delivered)
             landings[v].append(
                 {
                     "seed": d.seed,
                     "error_m": r.pad_landing_error_m,
                     "north_m": dn,
                     "east_m": de,
-                    "on_pad": on_pad,
+                    "on_pad": landed_on_pad,
                     "delivered": r.delivered,
                     "failure": r.failure,
                     "sim_time_s": r.sim_time_s,

@@ -31,7 +31,7 @@ import numpy as np
 from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.geometry.earth import GeoPoint
-from companion_sitl.landing_campaign import VARIANTS, Draw, _stats, draw_scenarios, run_landing_campaign
+from companion_sitl.landing_campaign import VARIANTS, Draw, _stats, draw_scenarios, on_pad, run_landing_campaign
 from companion_sitl.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_sitl.truth_harness import fly_on_truth
 
@@ -151,12 +151,7 @@ async def run_real_landing_campaign_async(
         nonlocal done
         for d, v in todo:
             row = await _one_landing(rv, configs[v], d, rel_pad)
-            row["on_pad"] = bool(
-                math.isfinite(row["north_m"])
-                and abs(row["north_m"]) <= pad_half
-                and abs(row["east_m"]) <= pad_half
-                and row["delivered"]
-            )
+            row["on_pad"] = on_pad(row["north_m"], row["east_m"], pad_half, row["delivered"])
             landings[v].append(row)
             done += 1
             log.info("%s %s seed %d: %.3f m (%s)", autopilot, v, d.seed, row["error_m"], row["failure"] or "ok")

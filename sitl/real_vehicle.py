@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Any
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion_sitl.ardupilot_sitl import ArduCopterSitl, find_ardupilot
+from companion_sitl.demo import free_udp_port
 from companion_sitl.px4_sitl import Px4Sitl, find_px4
 from companion_sitl.truth_feed import MavlinkTruth
 
@@ -51,12 +51,6 @@ class RealVehicle:
         return ArduPilotAutopilot.from_config(cfg, arm_timeout_s=90.0)
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextlib.asynccontextmanager
 async def real_vehicle(
     autopilot: str, log_dir: Path, extra_params: dict[str, float] | None = None, root: Path | None = None
@@ -71,7 +65,7 @@ async def real_vehicle(
             yield RealVehicle("px4", px4, truth, PX4_OFFBOARD_URL)
         return
     if autopilot == "ardupilot":
-        port = _free_udp_port()
+        port = free_udp_port()
         params: dict[str, Any] = {**ARDUCOPTER_GRIPPER_SERVO9, **(extra_params or {})}
         ac = ArduCopterSitl(
             root or find_ardupilot(),

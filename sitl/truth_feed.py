@@ -145,42 +145,53 @@ class MavlinkTruth:
             elif kind == "SIM_STATE" == self.message:
                 self._on_sim_state(msg)
 
+    def _until_answered(self, what: str, send: Any, answer: Any, timeout_s: float) -> Any:
+        """Call ``send(mav)`` every 0.5 s until ``answer()`` is not None (read by the reader
+        thread); raises TimeoutError after ``timeout_s``."""
+        if self._target is None or self._conn is None:
+            raise TruthUnavailable(f"no autopilot heartbeat on {self.url!r}: cannot send {what}")
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            send(self._conn.mav)
+            t_next = min(t_end, time.monotonic() + 0.5)
+            while time.monotonic() < t_next:
+                got = answer()
+                if got is not None:
+                    return got
+                time.sleep(0.02)
+        raise TimeoutError(f"{what}: no answer from the autopilot within {timeout_s} s")
+
     def set_param(self, name: str, value: float, timeout_s: float = 5.0) -> None:
         """PARAM_SET on this link (a simulator setting such as ArduPilot's SIM_WIND_SPD), resent
         every 0.5 s until the autopilot echoes the value; raises TimeoutError otherwise."""
-        if self._target is None or self._conn is None:
-            raise TruthUnavailable(f"no autopilot heartbeat on {self.url!r}: cannot set {name}")
-        ts, tc = self._target
-        t_end = time.monotonic() + timeout_s
+        ts, tc = self._target or (0, 0)
         self.params.pop(name, None)
-        while time.monotonic() < t_end:
-            self._conn.mav.param_set_send(ts, tc, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
-            t_next = time.monotonic() + 0.5
-            while time.monotonic() < t_next:
-                got = self.params.get(name)
-                if got is not None and abs(got - value) <= 1e-4 * max(1.0, abs(value)):
-                    return
-                time.sleep(0.02)
-        raise TimeoutError(f"{name} = {value}: not confirmed by the autopilot within {timeout_s} s")
+
+        def echoed() -> bool | None:
+            got = self.params.get(name)
+            return True if got is not None and abs(got - value) <= 1e-4 * max(1.0, abs(value)) else None
+
+        self._until_answered(
+            f"{name} = {value}",
+            lambda mav: mav.param_set_send(ts, tc, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32),
+            echoed,
+            timeout_s,
+        )
 
     def command(self, command: int, *params: float, timeout_s: float = 5.0) -> int:
         """COMMAND_LONG on this link (a test harness acting as a ground station, e.g.
         MAV_CMD_DO_SET_HOME between campaign landings), resent every 0.5 s until acknowledged;
         returns the MAV_RESULT, raises TimeoutError without an answer."""
-        if self._target is None or self._conn is None:
-            raise TruthUnavailable(f"no autopilot heartbeat on {self.url!r}: cannot send command {command}")
-        ts, tc = self._target
+        ts, tc = self._target or (0, 0)
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         self.acks.pop(command, None)
-        t_end = time.monotonic() + timeout_s
-        while time.monotonic() < t_end:
-            self._conn.mav.command_long_send(ts, tc, command, 0, *p)
-            t_next = time.monotonic() + 0.5
-            while time.monotonic() < t_next:
-                if command in self.acks:
-                    return self.acks[command]
-                time.sleep(0.02)
-        raise TimeoutError(f"command {command}: no COMMAND_ACK within {timeout_s} s")
+        result: int = self._until_answered(
+            f"command {command}",
+            lambda mav: mav.command_long_send(ts, tc, command, 0, *p),
+            lambda: self.acks.get(command),
+            timeout_s,
+        )
+        return result
 
     def _request(self, conn: Any) -> None:
         """SET_MESSAGE_INTERVAL for the truth message; repeated every 2 s until it flows (a

@@ -26,7 +26,7 @@ from companion.delivery.planning import pad_position_ned
 from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion.geometry.earth import GeoPoint
-from companion_sitl.demo import sim_landing_kit
+from companion_sitl.demo import rms, sim_landing_kit
 from companion_sitl.truth_feed import MavlinkTruth
 from companion_sitl.vehicle import SimVehicle
 
@@ -50,10 +50,6 @@ class HarnessResult:
     path_max_truth_m: float = math.nan
     path_rms_outbound_m: float = math.nan  # the way out only (before any pad was seen)
     path_max_outbound_m: float = math.nan
-
-
-def _rms(xs: list[float]) -> float:
-    return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -127,8 +123,8 @@ async def fly_on_truth(
         uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
         landing_targets_sent=shell.landing_targets_sent,
         fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
-        path_rms_truth_m=_rms(path_d),
+        path_rms_truth_m=rms(path_d),
         path_max_truth_m=max(path_d) if path_d else math.nan,
-        path_rms_outbound_m=_rms(path_out),
+        path_rms_outbound_m=rms(path_out),
         path_max_outbound_m=max(path_out) if path_out else math.nan,
     )

@@ -32,6 +32,10 @@ def test_truth_feed_reads_hil_state_quaternion_from_the_vehicle(mav, udp_port):
             assert truth.pd == pytest.approx(v.pd, abs=0.01)
             assert truth.yaw == pytest.approx(v.yaw, abs=0.01)
             assert truth.samples > 5 and truth.age_s < 0.5
+            # the same link acts as a ground station: PARAM_SET echoed, COMMAND_LONG acknowledged
+            truth.set_param("COM_OF_LOSS_T", 2.0)
+            assert truth.params["COM_OF_LOSS_T"] == pytest.approx(2.0)
+            assert truth.command(176, 1.0, 4.0, 3.0) == 0  # DO_SET_MODE AUTO.LOITER: ACCEPTED
 
 
 def test_truth_feed_without_a_vehicle_says_so():

@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 
 from companion_sitl.ardupilot_sitl import ArduCopterSitl, ArduPilotNotFound, find_ardupilot
+from companion_sitl.real_vehicle import ARDUCOPTER_GRIPPER_SERVO9
 from companion_sitl.truth_feed import MavlinkTruth
 
-# ArduCopter's optional features used here, set from boot (they need a reboot)
-GRIPPER_SERVO9 = {"GRIP_ENABLE": 1, "GRIP_TYPE": 1, "SERVO9_FUNCTION": 28}  # servo gripper on output 9
+# ArduCopter's optional features used here, set from boot (they need a reboot): servo gripper on output 9
+GRIPPER_SERVO9 = ARDUCOPTER_GRIPPER_SERVO9
 
 
 @pytest.fixture(scope="module")

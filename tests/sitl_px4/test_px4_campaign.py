@@ -10,18 +10,9 @@ import math
 import pytest
 
 from companion.config import shipped_params_path
-from companion_sitl.px4_sitl import Px4NotFound, find_px4
 from companion_sitl.real_campaign import run_parity
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
-
-
-@pytest.fixture(scope="module")
-def px4_root():
-    try:
-        return find_px4()
-    except Px4NotFound as err:
-        pytest.skip(str(err))
 
 
 def test_parity_on_three_seeds(px4_root, tmp_path):

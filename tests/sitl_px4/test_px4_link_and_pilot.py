@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import asyncio
-import socket
 import time
 
 import pytest
@@ -18,7 +17,8 @@ from companion.autopilot.types import FlightMode, LandedState
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase
-from companion_sitl.px4_sitl import Px4NotFound, Px4Sitl, find_px4
+from companion_sitl.demo import free_udp_port
+from companion_sitl.px4_sitl import Px4Sitl
 from companion_sitl.real_campaign import firmware_tuning
 from companion_sitl.truth_feed import MavlinkTruth
 from companion_sitl.udp_relay import UdpRelay
@@ -29,22 +29,8 @@ MAV_CMD_DO_SET_MODE = 176
 PX4_AUTO_LOITER = (1.0, 4.0, 3.0)  # base mode custom, PX4 main mode AUTO, sub mode LOITER ("Hold")
 
 
-@pytest.fixture(scope="module")
-def px4_root():
-    try:
-        return find_px4()
-    except Px4NotFound as err:
-        pytest.skip(str(err))
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 async def test_link_loss_resumes_and_a_pilot_mode_switch_ends_autonomy(px4_root, tmp_path):
-    port = _free_udp_port()
+    port = free_udp_port()
     tuning = firmware_tuning("px4")
     config = load_config(
         shipped_params_path("sitl_short.toml"),

@@ -30,14 +30,6 @@ pytestmark = pytest.mark.sitl
 PAD_OFFSET_M = (1.5 / math.sqrt(2.0), 1.5 / math.sqrt(2.0))
 
 
-@pytest.fixture(scope="module")
-def px4_root():
-    try:
-        return find_px4()
-    except Px4NotFound as err:
-        pytest.skip(str(err))
-
-
 def test_find_px4_reports_where_it_looked(tmp_path):
     with pytest.raises(Px4NotFound, match="no PX4 SITL build at"):
         find_px4(tmp_path)
