@@ -89,6 +89,18 @@ class MissionConfig(_Section):
         ge=0.0,
         le=3.0,
     )
+    velocity_bias_tau_s: float = _f(
+        0.0,
+        "s",
+        "correct every setpoint by the autopilot's velocity-estimate bias, seen as the low-passed "
+        "difference between the rate of its position estimate and its reported velocity, with this "
+        "time constant (not in the papers; PX4 SIH: 1 s; 0 = off, setpoints as the field gives them)",
+        ge=0.0,
+        le=10.0,
+    )
+    velocity_bias_max_m_s: float = _f(
+        1.0, "m/s", "largest velocity-bias correction applied to a setpoint", ge=0.0, le=3.0
+    )
     takeoff_alt_m: float = _f(3.0, "m", "autopilot takeoff height before the field takes over", gt=0.5, le=20.0)
     final_descent_alt_m: float = _f(
         3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0
@@ -125,6 +137,12 @@ class MissionConfig(_Section):
     )
     estimate_timeout_s: float = _f(1.5, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
     return_home: bool = _f(True, "-", "take off again after the release and fly home")
+    return_from_landing_point: bool = _f(
+        True,
+        "-",
+        "plan the way home from where the vehicle landed (the pad as found) instead of flying the "
+        "outbound path back from the configured pad (the paper's flight)",
+    )
     on_release_failure: Literal["return", "stay"] = _f(
         "return",
         "-",

@@ -31,6 +31,7 @@ from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
+from companion_sitl.path_scoring import PathScorer
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -76,12 +77,15 @@ class DemoResult:
 
 
 class _Scorer:
-    """Samples truth at each guidance tick while the vector field is being followed."""
+    """Samples truth at each guidance tick while the vector field is being followed, against the
+    reference of companion_sitl.path_scoring (the way out may end at the pad as found)."""
 
     FOLLOW = (Phase.OUTBOUND, Phase.INBOUND)
 
-    def __init__(self, vehicle: SimVehicle, truth_log: CsvLog | None):
+    def __init__(self, vehicle: SimVehicle, truth_log: CsvLog | None, true_pad_ne: tuple[float, float] | None = None):
         self.vehicle = vehicle
+        self.true_pad_ne = true_pad_ne  # truth frame; the reference path on the way out (path_scoring)
+        self.path_scorer: PathScorer | None = None
         self.truth_log = truth_log
         self.truth_d: list[float] = []
         self.est_d: list[float] = []
@@ -95,7 +99,10 @@ class _Scorer:
         # the plan lives in the autopilot's local frame, whose origin is the home estimate
         p_local_truth = np.array([v.pn - off[0], v.pe - off[1], v.pd - off[2]])
         p_i = m.frame.point_from_ned(p_local_truth)
-        d_truth = m.path.distance_to_path(p_i)
+        if self.path_scorer is None:
+            tp = self.true_pad_ne
+            self.path_scorer = PathScorer((tp[0] - off[0], tp[1] - off[1]) if tp is not None else None)
+        d_truth = self.path_scorer.distance(m, out.phase, p_local_truth)
         if out.phase in self.FOLLOW:
             self.truth_d.append(d_truth)
             if math.isfinite(out.lyapunov):
@@ -169,7 +176,7 @@ async def fly(
         truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
         # per-stream logs (events.csv included, written as they happen) for replay and reports
         recorder = FlightRecorder(run_dir, config)
-    scorer = _Scorer(vehicle, truth_log)
+    scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
         scorer(shell, out)

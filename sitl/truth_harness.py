@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import time
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -27,6 +28,7 @@ from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion.geometry.earth import GeoPoint
 from companion_sitl.demo import rms, sim_landing_kit
+from companion_sitl.path_scoring import PathScorer
 from companion_sitl.truth_feed import MavlinkTruth
 from companion_sitl.vehicle import SimVehicle
 
@@ -50,6 +52,12 @@ class HarnessResult:
     path_max_truth_m: float = math.nan
     path_rms_outbound_m: float = math.nan  # the way out only (before any pad was seen)
     path_max_outbound_m: float = math.nan
+    # the estimate the autopilot flies on against the mission's path: what the guidance controls
+    tracking_rms_m: float = math.nan
+    tracking_max_m: float = math.nan
+    # per tick while following: time s, phase, sector of the true position, distance of truth and of
+    # the estimate flown on to the path m, truth and estimate in the mission frame F_I m
+    path_trace: tuple[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]], ...] = ()
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -78,11 +86,15 @@ async def fly_on_truth(
     touchdown: list[tuple[float, float]] = []
     path_d: list[float] = []
     path_out: list[float] = []
+    trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
+    t_start = time.monotonic()
+    scorer: PathScorer | None = None
     # truth <-> the autopilot's local frame, fixed at the start (home, on the ground): the
     # autopilot may move home later (PX4 sets it again when it re-arms on the pad)
     ref: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
+        nonlocal scorer
         tel = shell.autopilot.telemetry
         home = tel.home
         if not ref and home is not None and truth.age_s < 1.0:
@@ -94,7 +106,24 @@ async def fly_on_truth(
             t0, h0 = ref[0]
             p = [getattr(truth, a) - s0 + hh for a, s0, hh in zip(("pn", "pe", "pd"), t0, h0, strict=True)]
             if all(math.isfinite(x) for x in p):
-                path_d.append(float(m.path.distance_to_path(m.frame.point_from_ned(np.array(p)))))
+                if scorer is None:
+                    # the true pad in the autopilot's local frame, through the same fixed mapping
+                    scorer = PathScorer((pad_ne[0] - t0[0] + h0[0], pad_ne[1] - t0[1] + h0[1]))
+                path_d.append(scorer.distance(m, out.phase, p))
+                p_i = m.frame.point_from_ned(np.array(p))
+                est = shell.estimate
+                e_i = m.frame.point_from_ned(est.position_ned) if est is not None else np.full(3, math.nan)
+                trace.append(
+                    (
+                        time.monotonic() - t_start,
+                        out.phase.value,
+                        int(m.path.sector(p_i)),
+                        path_d[-1],
+                        float(m.path.distance_to_path(e_i)),
+                        tuple(float(x) for x in p_i),
+                        tuple(float(x) for x in e_i),
+                    )
+                )
                 if out.phase is Phase.OUTBOUND:
                     path_out.append(path_d[-1])
         st = tel.status
@@ -127,4 +156,7 @@ async def fly_on_truth(
         path_max_truth_m=max(path_d) if path_d else math.nan,
         path_rms_outbound_m=rms(path_out),
         path_max_outbound_m=max(path_out) if path_out else math.nan,
+        tracking_rms_m=rms([row[4] for row in trace]),
+        tracking_max_m=max((row[4] for row in trace), default=math.nan),
+        path_trace=tuple(trace),
     )

@@ -118,6 +118,8 @@ class DeliveryMission:
         self.path: DeliveryPath | None = None
         self.field: VectorField | None = None
         self.z_start = 0.0
+        self._start_ned: np.ndarray | None = None  # where the outbound started (home, on the ground)
+        self._return_planned = False
         self.summary = MissionSummary()
         self._next_id = 1
         self._pending: _Pending | None = None
@@ -278,6 +280,7 @@ class DeliveryMission:
                 self._emit(EventKind.WARNING, self.summary.failure)
                 self._goto(Phase.FAILED)
                 return None, None, math.nan
+            self._start_ned = np.array(est.position_ned, dtype=float)
             self.field = VectorField(self.path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
             self._emit(
                 EventKind.PHASE,
@@ -307,6 +310,8 @@ class DeliveryMission:
         est = inp.estimate
         if est is None or self.field is None or self.frame is None:
             return None, None, math.nan
+        if s == -1 and not self._return_planned:
+            self._plan_return(est)
         if inp.time_s - self._phase_t0 > self.cfg.takeoff_timeout_s:
             self.abort(inp.time_s, f"takeoff did not reach {self.cfg.takeoff_alt_m} m in time")
             return None, None, math.nan
@@ -323,6 +328,37 @@ class DeliveryMission:
         if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
             self._goto(nxt)
         return sp, req, lyap
+
+    def _plan_return(self, est: StateEstimate) -> None:
+        """The way home starts where the vehicle stands (the pad as it was found, which can lie metres
+        from the configured one: GPS bias, a displaced pad), not at the configured pad: otherwise the
+        vector field pulls the climb sideways onto the outbound path. Same h and r, home as before."""
+        self._return_planned = True
+        if not self.cfg.return_from_landing_point or self._start_ned is None or self.frame is None:
+            return
+        # horizontally where the vehicle is (it has just armed there); the ground at the pad's level
+        land = np.array([est.position_ned[0], est.position_ned[1], self.frame.pad_ned[2]], dtype=float)
+        try:
+            frame = MissionFrame.from_start_and_pad(self._start_ned, land)
+            path = DeliveryPath(
+                h=self.cfg.height_m, r=self.cfg.arc_radius_m, d=math.hypot(*(land - self._start_ned)[:2])
+            )
+            z_start = float(frame.point_from_ned(self._start_ned)[2])
+            if z_start >= self.cfg.height_m - self.cfg.arc_radius_m:
+                raise PathGeometryError(f"home is {z_start:.1f} m above the landing point, at or above the arcs")
+        except (PathGeometryError, ValueError) as err:
+            self._emit(
+                EventKind.WARNING, f"return path from the landing point failed ({err}): flying the outbound path back"
+            )
+            return
+        moved = math.hypot(*(land[:2] - self.frame.pad_ned[:2]))
+        self.frame, self.path, self.z_start = frame, path, z_start
+        self.field = VectorField(path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
+        self._emit(
+            EventKind.PHASE,
+            f"return path planned from the landing point ({moved:.2f} m from the planned pad): d = {path.d:.2f} m, "
+            f"heading {math.degrees(frame.heading_rad):.1f} deg",
+        )
 
     def _takeoff_done(self, inp: MissionInputs, est: StateEstimate) -> bool:
         """At 90 % of the takeoff height by our estimate, or once the autopilot has finished its

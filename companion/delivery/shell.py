@@ -36,6 +36,7 @@ from companion.events import MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
+from companion.guidance.velocity_bias import VelocityBiasEstimator
 from companion.scheduling import LoopClock, RateLoop
 
 log = logging.getLogger(__name__)
@@ -109,6 +110,12 @@ class DeliveryShell:
         self.autopilot = autopilot
         self.mission = DeliveryMission(config.mission, config.landing.controller)
         self.estimator = AutopilotPoseEstimator()
+        mc = config.mission
+        self._velocity_bias = (
+            VelocityBiasEstimator(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s)
+            if mc.velocity_bias_tau_s > 0
+            else None
+        )
         self.flight_log = flight_log
         self.on_tick = on_tick
         self.stats = ShellStats()
@@ -216,9 +223,12 @@ class DeliveryShell:
                 level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
                 log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
             clamped = False
+            if self._velocity_bias is not None:
+                self._velocity_bias.update(tc.position_ned)
             if out.setpoint is not None:
                 pos = self.estimate.position_ned if self.estimate else None
-                res = clamp_velocity(out.setpoint, self.config.limits, pos)
+                sp_out = self._velocity_bias.correct(out.setpoint) if self._velocity_bias is not None else out.setpoint
+                res = clamp_velocity(sp_out, self.config.limits, pos)
                 clamped = res.clamped
                 if res.clamped:
                     self.stats.setpoints_clamped += 1

@@ -176,3 +176,44 @@ def test_takeoff_counts_as_done_once_the_autopilot_holds_in_the_air_short_of_our
     holding = status(t, armed=True, mode=FlightMode.HOLD, landed=LandedState.IN_AIR)
     out = m.step(MissionInputs(t + 2 * DT, est(t + 2 * DT, 60.0, 80.0, -alt), holding, HOME))
     assert out.setpoint is not None  # the field takes over
+
+
+def _armed_for_return(m, t, n, e):
+    """Tick RELEASE -> ARMING -> TAKEOFF_RETURN with the vehicle on the ground at (n, e)."""
+    released = lambda tt: status(tt, released=True)  # noqa: E731
+    while m.phase is not Phase.TAKEOFF_RETURN:
+        t += DT
+        out = m.step(MissionInputs(t, est(t, n, e), released(t), HOME))
+        if out.request is not None:
+            m.on_result(RequestResult(out.request.id, True))
+    out = m.step(MissionInputs(t + DT, est(t + DT, n, e), status(t, armed=True), HOME))
+    return out
+
+
+def test_the_way_home_is_planned_from_where_the_vehicle_landed():
+    """Landed 1.5 m from the configured pad (the pad as the camera found it): the return path starts
+    there, so the climb goes straight up instead of sideways onto the outbound path."""
+    m, t = on_the_pad()
+    planned_pad = m.frame.pad_ned.copy() if m.frame is not None else None
+    assert planned_pad is not None
+    home_d = m.path.d
+    landed = (planned_pad[0] + 1.2, planned_pad[1] - 0.9)
+    out = _armed_for_return(m, t, *landed)
+    assert m.frame.pad_ned[0] == landed[0] and m.frame.pad_ned[1] == landed[1]
+    assert m.frame.pad_ned[2] == planned_pad[2]  # the ground at the pad's level
+    # home sits at x = -d, y = 0 of the new frame: same home, new length
+    home = m.frame.point_from_ned(m._start_ned)
+    assert abs(home[0] + m.path.d) < 1e-9 and abs(home[1]) < 1e-9
+    assert abs(m.path.d - math.hypot(landed[0], landed[1] - 0.0)) < 1e-9  # the start was (0, 0)
+    assert m.path.d != home_d
+    # on the ground at the landing point the vehicle is on the new path (sector 5, the descent line)
+    assert m.path.distance_to_path(m.frame.point_from_ned([landed[0], landed[1], planned_pad[2]])) < 1e-9
+    assert any("return path planned from the landing point (1.50 m" in ev.detail for ev in m.summary.events)
+    assert out.phase is Phase.TAKEOFF_RETURN
+
+
+def test_the_papers_return_along_the_outbound_path_is_kept_as_an_option():
+    m, t = on_the_pad(return_from_landing_point=False)
+    frame = m.frame
+    _armed_for_return(m, t, frame.pad_ned[0] + 1.2, frame.pad_ned[1] - 0.9)
+    assert m.frame is frame

@@ -35,6 +35,9 @@ def test_relay_forwards_both_ways_and_drops_everything_while_cut():
         time.sleep(0.3)
         autopilot.sendto(b"hb2", ("127.0.0.1", port))
         assert companion.recvfrom(100)[0] == b"hb2"  # nothing of the outage arrives late
+        deadline = time.monotonic() + 1.0  # the relay thread counts just after its send returns
+        while relay.forwarded < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert relay.forwarded == 3
     autopilot.close()
     companion.close()

@@ -139,20 +139,27 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     # 31 and 36 cm in two runs after (not yet understood; GPS alone: 1.5 m). Landing accuracy is what
     # test_px4_campaign.py measures (the campaign from 30 m: 8 cm mean over 10)
     assert r.pad_landing_error_m < 0.45, r
-    # path tracking on the firmware against the embedded simulator on the same path (issue 12),
-    # the true vehicle against the configured path; with field_lookahead_s = 0.5 (sitl_short)
-    sim = config.model_copy(update={"sim": config.sim.model_copy(update={"pad_offset_m": PAD_OFFSET_M})})
-    embedded = await asyncio.to_thread(run_demo, sim)
+    # path tracking on the firmware against the embedded simulator on the same path and tuning
+    # (issue 12), scored on truth against the configured path or the path to the true pad on the
+    # way out, the path home planned from the landing point on the way back (sitl/path_scoring.py)
+    embedded = {}
+    for profile in ("ideal", "px4-sih"):
+        sim = config.model_copy(
+            update={"sim": config.sim.model_copy(update={"pad_offset_m": PAD_OFFSET_M, "profile": profile})}
+        )
+        embedded[profile] = await asyncio.to_thread(run_demo, sim)
     print(
-        f"path RMS / max: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (way out "
-        f"{r.path_rms_outbound_m:.2f} / {r.path_max_outbound_m:.2f} m), embedded (ideal) "
-        f"{embedded.path_rms_truth_m:.2f} / {embedded.path_max_truth_m:.2f} m"
+        f"path RMS / max on truth: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate flown on: "
+        f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded "
+        + ", ".join(f"{k} {e.path_rms_truth_m:.2f} / {e.path_max_truth_m:.2f} m" for k, e in embedded.items())
     )
-    # measured 1.10 / 2.46 m against 0.56 / 1.34 m: the 1.5x of issue 12 is not met yet (PX4 SIH
-    # drifts on its velocity estimate, see docs/profiles.md); what must hold is that the vehicle
-    # follows the path at all
-    assert r.path_rms_truth_m < 2.5 * embedded.path_rms_truth_m, (r.path_rms_truth_m, embedded.path_rms_truth_m)
-    assert r.path_max_truth_m < 4.0, r.path_max_truth_m
+    # measured with the velocity-bias correction (px4_sih_quad.toml): PX4 0.56 / 1.17 and 0.67 / 1.28 m,
+    # estimate 0.42 / 0.97 and 0.42 / 1.05 m; embedded ideal 0.14 / 0.38 m, px4-sih 0.44 / 0.70 m. The
+    # 1.5x of the ideal simulator is not met: PX4 SIH's velocity loop reaches ~70 % of a 4 m/s
+    # cruise setpoint and overshoots the turn into the descent by ~0.9 m (docs/firmware-px4.md)
+    assert r.path_rms_truth_m < 2.0 * embedded["px4-sih"].path_rms_truth_m, (r, embedded["px4-sih"])
+    assert r.path_max_truth_m < 2.0, r.path_max_truth_m
+    assert r.tracking_rms_m < 0.7, r.tracking_rms_m
 
 
 async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):

@@ -1,0 +1,49 @@
+"""Path tracking scored on truth against the path the vehicle should fly.
+
+On the way out the vehicle follows the configured path until its landing sensors find the pad,
+then the path to the pad as found: a pad lying 1.5 m from its configured position (or a GPS bias)
+moves the vehicle 1.5 m off the configured path *correctly*. The reference on the way out is
+therefore the nearer of the configured path and the path from home to the true pad; on the way
+back the mission's own path (planned from where the vehicle landed, `return_from_landing_point`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from companion.delivery.mission import DeliveryMission
+from companion.events import Phase
+from companion.geometry.mission_frame import MissionFrame
+from companion.guidance.path import DeliveryPath
+
+REFERENCE = "outbound: nearer of the configured path and the path to the true pad; inbound: the mission's path home"
+
+
+class PathScorer:
+    """Distance of a true position (in the autopilot's local NED frame) to the reference path."""
+
+    def __init__(self, true_pad_local_ne: tuple[float, float] | None):
+        self.true_pad_local_ne = true_pad_local_ne
+        self._true: tuple[MissionFrame, DeliveryPath] | None = None
+
+    def _true_pad_path(self, m: DeliveryMission) -> tuple[MissionFrame, DeliveryPath] | None:
+        start = m._start_ned
+        if self._true is None and self.true_pad_local_ne is not None and start is not None and m.frame is not None:
+            pad = np.array([*self.true_pad_local_ne, m.frame.pad_ned[2]])
+            d = math.hypot(pad[0] - start[0], pad[1] - start[1])
+            if d > 1e-3 and m.path is not None:
+                self._true = (MissionFrame.from_start_and_pad(start, pad), DeliveryPath(m.path.h, m.path.r, d))
+        return self._true
+
+    def distance(self, m: DeliveryMission, phase: Phase, p_local_ned: ArrayLike) -> float:
+        assert m.frame is not None and m.path is not None
+        p = np.asarray(p_local_ned, dtype=float)
+        d = float(m.path.distance_to_path(m.frame.point_from_ned(p)))
+        if phase is Phase.OUTBOUND:
+            tp = self._true_pad_path(m)
+            if tp is not None:
+                d = min(d, float(tp[1].distance_to_path(tp[0].point_from_ned(p))))
+        return d
