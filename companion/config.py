@@ -197,6 +197,9 @@ class RuntimeConfig(_Section):
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )
     link_timeout_s: float = _f(1.0, "s", "no heartbeat for this long is a lost link", gt=0.1, le=30.0)
+    connect_timeout_s: float = _f(
+        10.0, "s", "start-up: give up when no autopilot answers on the connection within this time", gt=0.0, le=600.0
+    )
     log_rate_hz: float = _f(20.0, "Hz", "flight-log sampling rate of the shell state", gt=0.0, le=200.0)
 
 

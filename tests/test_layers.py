@@ -44,6 +44,7 @@ ALLOWED: dict[str, set[str]] = {
     "cli": BASE
     | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
     | {"companion_sitl"},
+    "__main__": {"cli"},  # `python -m companion`: the command line and nothing else
 }
 SIMULATOR = "companion_sitl"
 
