@@ -324,7 +324,7 @@ class ArduPilotAutopilot(Autopilot):
         self._reader = threading.Thread(target=self._read_loop, name="ardupilot-reader", daemon=True)
         self._reader.start()
         try:
-            await asyncio.wait_for(self._first_hb, max(deadline - self._loop.time(), 1.0))
+            await asyncio.wait_for(self._first_hb, max(deadline - self._loop.time(), min(timeout_s, 1.0)))
         except TimeoutError:
             await self.close()
             raise AutopilotUnreachable(
