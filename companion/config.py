@@ -215,6 +215,9 @@ class RuntimeConfig(_Section):
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )
     link_timeout_s: float = _f(1.0, "s", "no heartbeat for this long is a lost link", gt=0.1, le=30.0)
+    connect_timeout_s: float = _f(
+        10.0, "s", "start-up: give up when no autopilot answers on the connection within this time", gt=0.0, le=600.0
+    )
     log_rate_hz: float = _f(20.0, "Hz", "flight-log sampling rate of the shell state", gt=0.0, le=200.0)
 
 
@@ -414,17 +417,34 @@ class CompanionConfig(_Section):
 DEFAULT_PARAMS = "delivery_paper.toml"
 
 
+def _describe_loc(loc: tuple[int | str, ...]) -> str:
+    """A pydantic error location as a dotted key: ``anchors[0].position_m``."""
+    return "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).removeprefix(".")
+
+
+def _value_at(data: Any, loc: tuple[int | str, ...]) -> Any:
+    for p in loc:
+        try:
+            data = data[p]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return data
+
+
 def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
     problems = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
+        loc = _describe_loc(e["loc"])
         if e["type"] == "extra_forbidden":
             problems.append(
                 f"{loc}: unknown key (value {e['input']!r}); allowed keys are listed by `companion params show`"
             )
             continue
         msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "missing":
+        if e["type"] == "missing" and e["loc"] and isinstance(e["loc"][-1], int):  # a list one item short
+            parent = _describe_loc(e["loc"][:-1])
+            problems.append(f"{parent} = {_value_at(data, e['loc'][:-1])!r}: item [{e['loc'][-1]}] is missing")
+        elif e["type"] == "missing":
             problems.append(f"{loc}: required key is missing")
         elif loc:
             problems.append(f"{loc} = {e['input']!r}: {msg}")
@@ -486,6 +506,20 @@ def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> 
     return config_from_dict(data, " + ".join(sources) or "<defaults>")
 
 
+def _describe_field(key: str, value: Any, f: Any) -> str:
+    extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
+    unit = extra.get("unit", "")
+    limits = []
+    for m in f.metadata:
+        for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            v = getattr(m, attr, None)
+            if v is not None:
+                limits.append(f"{sym} {v}")
+    lim = f" ({', '.join(limits)})" if limits else ""
+    val = list(value) if isinstance(value, tuple) else value
+    return f"{key} = {val!r} [{unit}]{lim}  {f.description or ''}"
+
+
 def describe_parameters(cfg: BaseModel, prefix: str = "") -> list[str]:
     """One line per parameter: dotted key = value [unit] (limits) description."""
     lines = []
@@ -496,15 +530,29 @@ def describe_parameters(cfg: BaseModel, prefix: str = "") -> list[str]:
             lines.append(f"[{key}]")
             lines.extend(describe_parameters(value, key + "."))
             continue
-        extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
-        unit = extra.get("unit", "")
-        limits = []
-        for m in f.metadata:
-            for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
-                v = getattr(m, attr, None)
-                if v is not None:
-                    limits.append(f"{sym} {v}")
-        lim = f" ({', '.join(limits)})" if limits else ""
-        val = list(value) if isinstance(value, tuple) else value
-        lines.append(f"{key} = {val!r} [{unit}]{lim}  {f.description or ''}")
+        if isinstance(value, tuple) and value and all(isinstance(v, BaseModel) for v in value):
+            lines.append(_describe_field(key, f"{len(value)} tables", f))
+            for i, item in enumerate(value):  # an array of tables, e.g. [[anchors]]
+                lines.append(f"[{key}[{i}]]")
+                lines.extend(describe_parameters(item, f"{key}[{i}]."))
+            continue
+        lines.append(_describe_field(key, value, f))
+    return lines
+
+
+def describe_schema(schema: type[BaseModel], prefix: str = "") -> list[str]:
+    """:func:`describe_parameters` of a schema's defaults; a key without one shows as required."""
+    lines = []
+    for name, f in schema.model_fields.items():
+        key = f"{prefix}{name}"
+        ann = f.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            lines.append(f"[{key}]")
+            if f.is_required():
+                lines.extend(describe_schema(ann, key + "."))
+            else:  # the table's default as built (a default_factory may set its own values)
+                lines.extend(describe_parameters(f.get_default(call_default_factory=True), key + "."))
+            continue
+        value = "<required>" if f.is_required() else f.get_default(call_default_factory=True)
+        lines.append(_describe_field(key, value, f))
     return lines

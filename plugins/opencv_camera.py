@@ -50,7 +50,14 @@ class OpenCvCamera:
         src = self.source
         if isinstance(src, str) and src.isdigit():
             src = int(src)
-        cap = cv2.VideoCapture(src, cv2.CAP_GSTREAMER) if isinstance(src, str) and "!" in src else cv2.VideoCapture(src)
+        # OpenCV prints each backend's failed attempt as a WARN line on stderr; the error below says it once
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
+        try:
+            gst = isinstance(src, str) and "!" in src
+            cap = cv2.VideoCapture(src, cv2.CAP_GSTREAMER) if gst else cv2.VideoCapture(src)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
         if not cap.isOpened():
             raise PluginError(f"camera {self.source!r}: cannot open (no such device/file, or no backend for it)")
         if self.width_px:

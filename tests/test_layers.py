@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "companion"
 
 # Lowest first. "companion" is the package's own __init__ (the version string).
-BASE = {"companion", "geometry", "config", "events", "scheduling", "plugin_api"}
+BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling", "plugin_api"}
 
 # package -> the packages it may import (besides itself). The layer picture, written once:
 #   6  cli
@@ -24,11 +24,12 @@ BASE = {"companion", "geometry", "config", "events", "scheduling", "plugin_api"}
 #   4  telemetry  flightlog
 #   3  autopilot
 #   2  vision  uwb  estimation  guidance
-#   1  geometry  config  events  scheduling  plugin_api
+#   1  geometry  config (param_kinds)  events  scheduling  plugin_api
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
     "geometry": set(),
     "config": set(),
+    "param_kinds": {"config"},
     "events": set(),
     "scheduling": set(),
     "plugin_api": set(),
@@ -44,6 +45,7 @@ ALLOWED: dict[str, set[str]] = {
     "cli": BASE
     | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
     | {"companion_sitl"},
+    "__main__": {"cli"},  # `python -m companion`: the command line and nothing else
 }
 SIMULATOR = "companion_sitl"
 

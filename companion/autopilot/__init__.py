@@ -1,6 +1,14 @@
 """Autopilot interface, telemetry types, the MAVSDK (PX4) and pymavlink (ArduPilot) backends and MAVLink codecs."""
 
-from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected, TelemetryCache
+from companion.autopilot.interface import (
+    Autopilot,
+    AutopilotError,
+    AutopilotUnreachable,
+    CommandRejected,
+    ConnectionUrlError,
+    LinkDeviceMissing,
+    TelemetryCache,
+)
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -19,13 +27,16 @@ __all__ = [
     "Attitude",
     "Autopilot",
     "AutopilotError",
+    "AutopilotUnreachable",
     "CommandRejected",
+    "ConnectionUrlError",
     "FlightMode",
     "GlobalPosition",
     "GpsRaw",
     "HomePosition",
     "Imu",
     "LandedState",
+    "LinkDeviceMissing",
     "PositionNed",
     "StatusText",
     "TelemetryCache",

@@ -42,7 +42,10 @@ from companion.autopilot.interface import (
     NO_ANSWER,
     Autopilot,
     AutopilotError,
+    AutopilotUnreachable,
     CommandRejected,
+    ConnectionUrlError,
+    LinkDeviceMissing,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -172,7 +175,7 @@ def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
     """
     u = url.strip()
     if not u:
-        raise AutopilotError("empty connection URL")
+        raise ConnectionUrlError("empty connection URL")
     scheme, sep, rest = u.partition(":")
     scheme = scheme.lower()
     if sep and scheme in ("udpin", "udpout", "udp", "tcp", "tcpout", "tcpin", "serial"):
@@ -182,7 +185,7 @@ def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
             return dev, int(b) if b else baud, "serial"
         host, _, port = rest.rpartition(":")
         if not port.isdigit():
-            raise AutopilotError(f"connection {url!r}: expected {scheme}:HOST:PORT")
+            raise ConnectionUrlError(f"connection {url!r}: expected {scheme}:HOST:PORT")
         if scheme == "udp":  # MAVSDK style udp://:14540 listens
             scheme = "udpin"
         if scheme == "tcpout":
@@ -293,13 +296,21 @@ class ArduPilotAutopilot(Autopilot):
         self._loop = asyncio.get_running_loop()
         device, baud, kind = parse_connection(self.connection, self.baud)
         if kind == "serial" and not os.path.exists(device):
-            raise AutopilotError(f"serial device {device} does not exist (connection {self.connection!r})")
-        try:
-            self._conn = await self._loop.run_in_executor(None, self._open, device, baud)
-        except AutopilotError:
-            raise
-        except Exception as err:  # pymavlink raises plain OSError / SerialException / socket errors
-            raise AutopilotError(f"cannot open {self.connection!r}: {err}") from None
+            raise LinkDeviceMissing(f"serial device {device} does not exist (connection {self.connection!r})")
+        deadline = self._loop.time() + timeout_s
+        while True:
+            try:
+                self._conn = await self._loop.run_in_executor(None, self._open, device, baud, kind)
+                break
+            except AutopilotError:
+                raise
+            except Exception as err:  # pymavlink raises plain OSError / SerialException / socket errors
+                # a TCP autopilot (SITL) may not listen yet: retry each second within the timeout
+                if kind == "tcp" and isinstance(err, ConnectionError) and self._loop.time() + 1.0 < deadline:
+                    log.debug("%s: %s, retrying", self.connection, err)
+                    await asyncio.sleep(1.0)
+                    continue
+                raise AutopilotUnreachable(f"cannot open {self.connection!r}: {err}") from None
         if self.open_tlog is not None:
             try:
                 self.tlog = self.open_tlog(self._tlog_opened)
@@ -313,16 +324,16 @@ class ArduPilotAutopilot(Autopilot):
         self._reader = threading.Thread(target=self._read_loop, name="ardupilot-reader", daemon=True)
         self._reader.start()
         try:
-            await asyncio.wait_for(self._first_hb, timeout_s)
+            await asyncio.wait_for(self._first_hb, max(deadline - self._loop.time(), min(timeout_s, 1.0)))
         except TimeoutError:
             await self.close()
-            raise AutopilotError(
+            raise AutopilotUnreachable(
                 f"no heartbeat from an autopilot on {self.connection!r} within {timeout_s:.1f} s"
             ) from None
         log.info("ArduPilot system %d on %s", self.target_system, self.connection)
         await self._request_streams()
 
-    def _open(self, device: str, baud: int) -> Any:
+    def _open(self, device: str, baud: int, kind: str = "") -> Any:
         conn = mavutil.mavlink_connection(
             device,
             baud=baud,
@@ -331,7 +342,12 @@ class ArduPilotAutopilot(Autopilot):
             dialect="ardupilotmega",
             robust_parsing=True,
             autoreconnect=True,
+            # TCP: one attempt here (connect() retries within its timeout; pymavlink's own retries
+            # print to stdout), pymavlink's usual retries for reconnects in flight
+            **({"retries": 0} if kind == "tcp" else {}),
         )
+        if kind == "tcp":
+            conn.retries = 3
         conn.mav.robust_parsing = True
         return conn
 

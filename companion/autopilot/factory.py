@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import logging
+import os
 from typing import Any
 
-from companion.autopilot.interface import Autopilot, AutopilotError
+from companion.autopilot.interface import Autopilot, AutopilotError, LinkDeviceMissing
 from companion.config import CompanionConfig
 
 log = logging.getLogger(__name__)
@@ -30,3 +31,20 @@ def make_autopilot(config: CompanionConfig, **kwargs: Any) -> Autopilot:
 
         return ArduPilotAutopilot.from_config(config, **kwargs)
     raise AutopilotError(f"unknown autopilot backend {kind!r} (sim, px4, ardupilot)")
+
+
+def check_connection(config: CompanionConfig) -> None:
+    """Check ``config.connection`` for the backend ``config.autopilot`` names without opening it:
+    :class:`~companion.autopilot.interface.ConnectionUrlError` when malformed,
+    :class:`~companion.autopilot.interface.LinkDeviceMissing` when its serial device does not
+    exist. Lets a command fail before it starts anything else."""
+    if config.autopilot == "px4":
+        from companion.autopilot.px4 import check_connection_url
+
+        check_connection_url(config.connection)
+    elif config.autopilot == "ardupilot":
+        from companion.autopilot.ardupilot import parse_connection
+
+        device, _, kind = parse_connection(config.connection)
+        if kind == "serial" and not os.path.exists(device):
+            raise LinkDeviceMissing(f"serial device {device} does not exist (connection {config.connection!r})")

@@ -52,6 +52,19 @@ class AutopilotError(RuntimeError):
     """A command was refused, timed out, or the link is unusable."""
 
 
+class ConnectionUrlError(AutopilotError):
+    """The connection setting is malformed (unknown scheme, no port): a configuration error."""
+
+
+class LinkDeviceMissing(AutopilotError):
+    """The serial device the connection names does not exist (unplugged, wrong path)."""
+
+
+class AutopilotUnreachable(AutopilotError):
+    """The link could not be opened (refused, address unusable) or no autopilot answered on it
+    within the connect timeout."""
+
+
 # MAV_RESULT names a command can end with, plus the two outcomes that carry no COMMAND_ACK.
 NO_ANSWER = "NO_ANSWER"  # no COMMAND_ACK at all (PX4 ignores commands no module handles)
 LINK_DOWN = "LINK_DOWN"

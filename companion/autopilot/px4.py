@@ -59,7 +59,10 @@ from companion.autopilot.interface import (
     AttitudeTarget,
     Autopilot,
     AutopilotError,
+    AutopilotUnreachable,
     CommandRejected,
+    ConnectionUrlError,
+    LinkDeviceMissing,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -221,20 +224,50 @@ def intercept_messages_json(mavsdk: Any, direction: str, fn: Callable[[Any], Non
     return unsubscribe
 
 
+_mavsdk_log = logging.getLogger(__name__ + ".mavsdk")
+_MAVSDK_LOG_LEVELS = (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR)  # mavsdk LogLevel 0..3
+_mavsdk_log_routed = False
+#: while a connect is waiting for the autopilot: MAVSDK's warnings and errors, kept for the error
+#: message (and logged at debug) instead of printed one per retry
+_mavsdk_connect_problems: list[str] | None = None
+
+
+def route_mavsdk_log() -> None:
+    """Send MAVSDK's own log lines (its C++ core prints them to stderr) to Python logging, logger
+    ``companion.autopilot.px4.mavsdk``, so ``-v`` shows them and a failed start-up prints only
+    its one error line. Once per process."""
+    global _mavsdk_log_routed
+    if _mavsdk_log_routed:
+        return
+    from mavsdk.logging import log_subscribe
+
+    def on_log(level: Any, message: str, file: str | None, line: int) -> bool:
+        lvl = _MAVSDK_LOG_LEVELS[min(max(int(level), 0), 3)]
+        problems = _mavsdk_connect_problems
+        if problems is not None and lvl >= logging.WARNING:
+            problems.append(message)
+            lvl = logging.DEBUG
+        _mavsdk_log.log(lvl, "%s (%s:%d)", message, file or "?", line)
+        return True  # handled: MAVSDK does not print it
+
+    log_subscribe(on_log)
+    _mavsdk_log_routed = True
+
+
 def check_connection_url(url: str) -> str:
     """Validate a MAVSDK connection URL; a serial device must exist. Returns the URL."""
     u = url.strip()
     scheme, sep, rest = u.partition("://")
     if not sep:
-        raise AutopilotError(
+        raise ConnectionUrlError(
             f"connection {url!r}: expected a MAVSDK URL (udpin://HOST:PORT, udpout://, tcpout://, serial:///dev/X:BAUD)"
         )
     if scheme == "serial":
         dev = rest.rsplit(":", 1)[0] if rest.rsplit(":", 1)[-1].isdigit() else rest
         if not os.path.exists(dev):
-            raise AutopilotError(f"serial device {dev} does not exist (connection {url!r})")
+            raise LinkDeviceMissing(f"serial device {dev} does not exist (connection {url!r})")
     elif scheme not in ("udp", "udpin", "udpout", "tcp", "tcpin", "tcpout", "raw"):
-        raise AutopilotError(f"connection {url!r}: unknown scheme {scheme!r}")
+        raise ConnectionUrlError(f"connection {url!r}: unknown scheme {scheme!r}")
     return u
 
 
@@ -329,6 +362,7 @@ class Px4Autopilot(Autopilot):
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+        route_mavsdk_log()
         self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
         if self.open_tlog is not None:
             try:
@@ -336,15 +370,23 @@ class Px4Autopilot(Autopilot):
             except OSError as err:
                 self._destroy()
                 raise AutopilotError(str(err)) from None
-        try:
-            await self._mavsdk.add_any_connection(url)
-        except Exception as err:
-            self._destroy()
-            raise AutopilotError(f"cannot open {url!r}: {err}") from None
-        system = await self._mavsdk.first_autopilot(timeout_s=timeout_s)
-        if system is None:
-            self._destroy()
-            raise AutopilotError(f"no PX4 autopilot answered on {url!r} within {timeout_s:.1f} s")
+        global _mavsdk_connect_problems
+        problems: list[str] = []
+        _mavsdk_connect_problems = problems
+        try:  # until MAVSDK is up or destroyed: its retries' complaints go into the error, not stderr
+            try:
+                await self._mavsdk.add_any_connection(url)
+            except Exception as err:
+                self._destroy()
+                raise AutopilotUnreachable(f"cannot open {url!r}: {err}") from None
+            system = await self._mavsdk.first_autopilot(timeout_s=timeout_s)
+            if system is None:
+                self._destroy()
+                seen = [p for p in dict.fromkeys(problems) if "sending message failed" not in p.lower()]
+                why = f" (MAVSDK: {'; '.join(seen[-2:])})" if seen else ""
+                raise AutopilotUnreachable(f"no PX4 autopilot answered on {url!r} within {timeout_s:.1f} s{why}")
+        finally:
+            _mavsdk_connect_problems = None
         self._system = system
         self.system_id = await system.get_system_id()
         self._action = ActionAsync(system)

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from companion.autopilot import factory
-from companion.autopilot.interface import Autopilot
+from companion.autopilot.interface import Autopilot, AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
+from companion.cli import exits
+from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
 from companion.delivery.mission import MissionSummary
 from companion.delivery.shell import DeliveryShell
@@ -94,24 +96,79 @@ async def run_delivery(
                 recorder.close()
 
 
+def _stop_sensors(kit: Any) -> None:
+    """Stop the landing sensors (idempotent: the shell stops them too when it ran)."""
+    if kit is None:
+        return
+    for dev in (kit.camera, kit.uwb):
+        if dev is not None:
+            try:
+                dev.stop()
+            except Exception as err:  # keep closing the rest
+                log.error("stopping %s failed: %s", type(dev).__name__, err)
+
+
 def cmd_fly(args: argparse.Namespace) -> int:
+    """Fly the delivery. A start-up failure raises :class:`StartupError` (one line, an exit code of
+    :mod:`companion.cli.exits`); whatever was started is closed first."""
     overrides = {"connection": args.connection} if args.connection else None
     config = load_config(args.params, overrides=overrides)
+    where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
     if config.autopilot == "sim":
-        print("autopilot = 'sim' in the parameters: use `companion demo` for the embedded simulator")
-        return 2
-    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+        raise StartupError(
+            f"autopilot = 'sim' in {args.params}: use `companion demo` for the embedded simulator, "
+            "or set autopilot = 'px4' or 'ardupilot'",
+            exits.BAD_INPUT,
+        )
+    try:
+        factory.check_connection(config)  # before anything is started
+    except ConnectionUrlError as err:
+        raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
+    except LinkDeviceMissing as err:
+        raise StartupError(f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING) from None
 
-    try:  # the landing sensors are set up and started on the ground: a missing one stops us here
-        kit = build_landing_kit(config)
-        if kit is not None:
-            start_sensors(kit)
-    except LandingSetupError as err:
-        print(f"companion fly: {err}")
-        return 2
-    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
-    autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
-    summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+    from companion.telemetry.session import SessionOpenError
+
+    kit = None
+    try:
+        try:  # the landing sensors are set up and started on the ground: a missing one stops us here
+            kit = build_landing_kit(config)
+            if kit is not None:
+                start_sensors(kit)
+        except LandingSetupError as err:
+            code = exits.DEVICE_MISSING if err.device_missing else exits.BAD_INPUT
+            raise StartupError(f"{args.params}: {err}", code) from None
+        run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise StartupError(
+                f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
+            ) from None
+        try:
+            autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
+            summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+        except AutopilotUnreachable as err:
+            raise StartupError(
+                f"{err}; check the autopilot is on and sending there, or change connection {where} "
+                f"(runtime.connect_timeout_s = {config.runtime.connect_timeout_s:g} s)",
+                exits.AUTOPILOT_UNREACHABLE,
+            ) from None
+        except LinkDeviceMissing as err:
+            raise StartupError(
+                f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING
+            ) from None
+        except ConnectionUrlError as err:
+            raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
+        except SessionOpenError as err:
+            raise StartupError(
+                f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) "
+                f"in {args.params}, or set telemetry.enabled = false",
+                exits.TELEMETRY_UNAVAILABLE,
+            ) from None
+    finally:
+        _stop_sensors(kit)
     print(
         json.dumps(
             {
@@ -122,7 +179,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
             }
         )
     )
-    return 0 if summary.delivered and not summary.failure else 1
+    return exits.OK if summary.delivered and not summary.failure else exits.FAILED
 
 
 def cmd_bench_link(args: argparse.Namespace) -> int:

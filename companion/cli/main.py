@@ -10,7 +10,8 @@ from collections.abc import Callable
 from typing import Any
 
 from companion import __version__
-from companion.cli import params, plugins, sim
+from companion.cli import exits, params, plugins, sim
+from companion.cli.exits import StartupError
 from companion.config import ConfigError
 
 log = logging.getLogger(__name__)
@@ -70,17 +71,18 @@ def main(argv: list[str] | None = None) -> int:
         log.error("command module failed to load: %s", f)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return exits.BAD_INPUT
     try:
         return int(args.func(args))
-    except ConfigError as err:
-        print(f"companion: bad configuration: {err.source}", file=sys.stderr)
-        for p in err.problems:
-            print(f"  {p}", file=sys.stderr)
-        return 2
+    except ConfigError as err:  # one line: the file, then each key, value and rule
+        print(f"companion {args.command}: bad configuration: {err.source}: {'; '.join(err.problems)}", file=sys.stderr)
+        return exits.BAD_INPUT
+    except StartupError as err:
+        print(f"companion {args.command}: {err}", file=sys.stderr)
+        return err.code
     except KeyboardInterrupt:
-        print("companion: interrupted", file=sys.stderr)
-        return 130
+        print(f"companion {args.command}: interrupted", file=sys.stderr)
+        return exits.INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -8,30 +8,44 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
 import cv2
 
 from companion.vision.camera import CalibrationPattern, calibrate, save_camera
-from companion.vision.pad import PadLayout, load_pad, pad_side_px, save_pad_png
+from companion.vision.pad import PadLayout, load_pad, pad_side_px, save_pad_pdf, save_pad_png
 
 log = logging.getLogger(__name__)
 
 
 def _cmd_pad(args: argparse.Namespace) -> int:
+    outs: list[Path] = args.out or [Path("pad.pdf"), Path("pad.png")]
     try:
         layout = load_pad(args.params) if args.params else PadLayout()
-        out = save_pad_png(layout, args.out, args.dpi)
+        for out in outs:
+            if out.suffix.lower() not in (".pdf", ".png"):
+                raise ValueError(f"--out {out}: must end in .pdf (vector, true size) or .png (raster at --dpi)")
+        written = []
+        for out in outs:
+            if out.suffix.lower() == ".pdf":
+                save_pad_pdf(layout, out)
+                side_mm = layout.pad_size_m * 1000
+                written.append(f"{out}: vector PDF, page {side_mm:.0f} x {side_mm:.0f} mm")
+            else:
+                save_pad_png(layout, out, args.dpi)
+                side = pad_side_px(layout, args.dpi)
+                written.append(f"{out}: {side}x{side} px at {args.dpi:g} dpi (stored in the file)")
     except (ValueError, OSError) as exc:
-        print(f"error: {exc}")
+        print(f"companion pad: {exc}", file=sys.stderr)
         return 2
-    side = pad_side_px(layout, args.dpi)
+    for line in written:
+        print(f"wrote {line}")
     print(
-        f"wrote {out}: {side}x{side} px at {args.dpi:g} dpi = {layout.pad_size_m:g} m; "
-        f"outer {layout.outer_dict} id {layout.outer_id} {layout.outer_size_m:g} m, "
+        f"pad {layout.pad_size_m:g} m; outer {layout.outer_dict} id {layout.outer_id} {layout.outer_size_m:g} m, "
         f"inner {layout.inner_dict} id {layout.inner_id} {layout.inner_size_m:g} m. "
-        "Print at 100 % scale and check the outer marker measures "
+        "Print at 100 % scale (no fit to page) and check the outer marker measures "
         f"{layout.outer_size_m * 1000:.0f} mm."
     )
     return 0
@@ -75,9 +89,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 def register(subparsers: Any) -> None:
     """Add the ``pad`` and ``calibrate`` subcommands to an argparse subparsers object."""
-    p = subparsers.add_parser("pad", help="render the nested ArUco landing pad to a PNG at true scale")
-    p.add_argument("--out", type=Path, default=Path("pad.png"), help="output PNG (default pad.png)")
-    p.add_argument("--dpi", type=float, default=150.0, help="print resolution (default 150)")
+    p = subparsers.add_parser("pad", help="write the nested ArUco landing pad at true size (vector PDF, PNG)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        action="append",
+        help="output file, .pdf (vector, page = pad size) or .png (at --dpi, DPI stored); repeatable "
+        "(default: pad.pdf and pad.png)",
+    )
+    p.add_argument("--dpi", type=float, default=150.0, help="PNG resolution (default 150; at most ~240 for a 1 m pad)")
     p.add_argument(
         "--params",
         type=Path,

@@ -22,7 +22,13 @@ log = logging.getLogger(__name__)
 
 
 class LandingSetupError(RuntimeError):
-    """A landing sensor or file could not be set up (the message says which and how to fly without)."""
+    """A landing sensor or file could not be set up (the message says which and how to fly without).
+    ``device_missing``: the device itself did not start (unplugged, wrong path), as opposed to a
+    setting or file that is wrong."""
+
+    def __init__(self, message: str, device_missing: bool = False) -> None:
+        super().__init__(message)
+        self.device_missing = device_missing
 
 
 def resolve_params_file(name: str, key: str) -> Path:
@@ -40,11 +46,11 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
     """The kit for ``config.landing``, or None when fusion is off (GPS-only)."""
     from companion.geometry.mounts import downward_mount
     from companion.geometry.se3 import Transform
-    from companion.uwb.anchors import load_anchor_layout
+    from companion.uwb.anchors import AnchorLayoutError, load_anchor_layout
     from companion.uwb.multilateration import Multilaterator
-    from companion.vision.camera import load_camera
+    from companion.vision.camera import CameraConfigError, load_camera
     from companion.vision.detector import PadDetector
-    from companion.vision.pad import load_pad
+    from companion.vision.pad import PadConfigError, load_pad
 
     lc = config.landing
     if not lc.fusion:
@@ -53,8 +59,14 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
     uwb: Any = None
     detector = multi = None
     if lc.use_camera:
-        model = load_camera(resolve_params_file(lc.camera_calibration, "camera_calibration"))
-        layout = load_pad(resolve_params_file(lc.pad_file, "pad_file"))
+        try:
+            model = load_camera(resolve_params_file(lc.camera_calibration, "camera_calibration"))
+        except CameraConfigError as err:
+            raise LandingSetupError(f"landing.camera_calibration = {lc.camera_calibration!r}: {err}") from None
+        try:
+            layout = load_pad(resolve_params_file(lc.pad_file, "pad_file"))
+        except PadConfigError as err:
+            raise LandingSetupError(f"landing.pad_file = {lc.pad_file!r}: {err}") from None
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
         detector = PadDetector(model, layout, markers=markers)
         source: str | int = int(lc.camera_source) if lc.camera_source.isdigit() else lc.camera_source
@@ -74,7 +86,10 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
                 "set landing.use_camera = false to fly without the camera"
             ) from err
     if lc.use_uwb:
-        anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
+        try:
+            anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
+        except AnchorLayoutError as err:
+            raise LandingSetupError(f"landing.uwb_anchors = {lc.uwb_anchors!r}: {err}") from None
         multi = Multilaterator(anchors)
         try:
             uwb = create("companion.uwb", lc.uwb_plugin, port=lc.uwb_port)
@@ -113,8 +128,11 @@ def start_sensors(kit: LandingKit) -> None:
                     d.stop()
                 except Exception as stop_err:
                     log.debug("stop after a failed start: %s", stop_err)
+            setting = "camera_source" if name == "camera" else "uwb_port"
             raise LandingSetupError(
-                f"{name} {type(dev).__name__} does not start: {err}; set landing.use_{name} = false to fly without it"
+                f"{name} {type(dev).__name__} does not start: {err}; check landing.{setting}, "
+                f"or set landing.use_{name} = false to fly without it",
+                device_missing=True,
             ) from err
         started.append(dev)
     kit.sensors_started = True

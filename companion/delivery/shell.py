@@ -154,15 +154,16 @@ class DeliveryShell:
         if self.recorder is not None:
             # first listener: every sample gets a seq
             self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)
-        if self._want_telemetry:
-            from companion.delivery.telemetry import ShellTelemetry, command_handler, make_publisher
+        stream: asyncio.Task[None] | None = None
+        try:  # everything started here is stopped in the finally, a failed start-up included
+            if self._want_telemetry:
+                from companion.delivery.telemetry import ShellTelemetry, command_handler, make_publisher
 
-            pub = make_publisher(self.config, command_handler(loop, self))
-            pub.start()
-            self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
-        await self.autopilot.connect()
-        stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
-        try:
+                pub = make_publisher(self.config, command_handler(loop, self))
+                pub.start()
+                self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
+            await self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s)
+            stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
             if timeout_s is None:
                 await self._guidance_loop()
             else:
@@ -172,9 +173,10 @@ class DeliveryShell:
                     self.mission.summary.failure = f"mission did not finish within {timeout_s} s"
                     log.error(self.mission.summary.failure)
         finally:
-            stream.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await stream
+            if stream is not None:
+                stream.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await stream
             if self._sensor_task is not None:
                 self._sensor_task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
@@ -182,7 +184,10 @@ class DeliveryShell:
             if self.landing is not None:
                 for dev in (self.landing.camera, self.landing.uwb):
                     if dev is not None:
-                        dev.stop()
+                        try:
+                            dev.stop()
+                        except Exception as err:  # the rest must still be closed
+                            log.error("stopping %s failed: %s", type(dev).__name__, err)
             if self._request_task is not None:
                 self._request_task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):

@@ -42,7 +42,7 @@ from companion.telemetry.schema import (
     decode,
     encode,
 )
-from companion.telemetry.session import SettingsError, ZenohSettings, load_settings
+from companion.telemetry.session import SessionOpenError, SettingsError, ZenohSettings, load_settings
 
 __all__ = [
     "SCHEMA",
@@ -62,6 +62,7 @@ __all__ = [
     "RejectionCount",
     "SchemaError",
     "SensorHealth",
+    "SessionOpenError",
     "SettingsError",
     "StateMessage",
     "TaskHealth",

@@ -222,8 +222,30 @@ class TelemetryPublisher:
             return self
         if self._session is None:
             assert self._zenoh_settings is not None
-            self._session = self._zenoh_settings.open()
+            self._session = self._zenoh_settings.open_or_explain()
+        try:
+            self._declare()
+        except BaseException:  # a half-declared start leaves no session (and its threads) behind
+            self._undeclare_all()
+            if self._owns_session and self._session is not None:
+                self._session.close()
+                self._session = None
+            raise
+        self._started_unix_s = self._wall()
+        self._stopping = False
+        self._running = True
+        self._worker = threading.Thread(target=self._run, name=f"telemetry-{self.vehicle_id}", daemon=True)
+        self._worker.start()
+        log.info(
+            "telemetry for %s started (commands %s)",
+            self.vehicle_id,
+            "ENABLED" if self.settings.commands.enabled else "disabled",
+        )
+        return self
+
+    def _declare(self) -> None:
         s = self._session
+        assert s is not None
         for topic in Topic:
             block = topic in _FIFO_TOPICS
             self._publishers[topic] = s.declare_publisher(
@@ -238,17 +260,20 @@ class TelemetryPublisher:
         self._declared.append(s.declare_queryable(command_key(self.vehicle_id), self._on_command_query))
         # The token last: the ground sees the vehicle once everything above answers.
         self._declared.append(s.liveliness().declare_token(alive_key(self.vehicle_id)))
-        self._started_unix_s = self._wall()
-        self._stopping = False
-        self._running = True
-        self._worker = threading.Thread(target=self._run, name=f"telemetry-{self.vehicle_id}", daemon=True)
-        self._worker.start()
-        log.info(
-            "telemetry for %s started (commands %s)",
-            self.vehicle_id,
-            "ENABLED" if self.settings.commands.enabled else "disabled",
-        )
-        return self
+
+    def _undeclare_all(self) -> None:
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception:  # already gone with a closed session
+                log.debug("undeclare failed", exc_info=True)
+        self._declared.clear()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:
+                log.debug("undeclare failed", exc_info=True)
+        self._publishers.clear()
 
     def stop(self, flush_timeout_s: float = 2.0) -> None:
         """Send what is queued (up to ``flush_timeout_s``), withdraw presence, close."""
@@ -262,18 +287,7 @@ class TelemetryPublisher:
             if self._worker.is_alive():
                 log.warning("telemetry worker for %s did not flush in time", self.vehicle_id)
         self._running = False
-        for entity in reversed(self._declared):
-            try:
-                entity.undeclare()
-            except Exception:  # already gone with a closed session
-                log.debug("undeclare failed", exc_info=True)
-        self._declared.clear()
-        for pub in self._publishers.values():
-            try:
-                pub.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
-        self._publishers.clear()
+        self._undeclare_all()
         if self._owns_session and self._session is not None:
             self._session.close()
             self._session = None

@@ -39,6 +39,16 @@ class SettingsError(ValueError):
     """A Zenoh setting is invalid (the message names the key and the reason)."""
 
 
+class SessionOpenError(RuntimeError):
+    """Zenoh refused to open a session with valid settings (endpoint in use, router unreachable
+    with ``connect_exit_on_failure``); the message names the endpoints and Zenoh's reason."""
+
+
+def _zenoh_reason(err: Exception) -> str:
+    """Zenoh's error text without the Rust source locations it appends (`` at .../x.rs:12.``)."""
+    return re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(err)).strip()
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to open the Zenoh session.
@@ -137,8 +147,18 @@ class ZenohSettings:
         return items
 
     def open(self) -> zenoh.Session:
-        """Open a session with these settings."""
+        """Open a session with these settings (raises ``zenoh.ZError`` when Zenoh refuses)."""
         return zenoh.open(self.to_config())
+
+    def open_or_explain(self) -> zenoh.Session:
+        """:meth:`open`, with Zenoh's refusal as a :class:`SessionOpenError` naming the endpoints."""
+        try:
+            return self.open()
+        except zenoh.ZError as err:
+            raise SessionOpenError(
+                f"cannot open the Zenoh session (mode {self.mode}, listen {list(self.listen or ())}, "
+                f"connect {list(self.all_connect_endpoints)}): {_zenoh_reason(err)}"
+            ) from None
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], source: str = "zenoh") -> ZenohSettings:

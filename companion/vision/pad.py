@@ -168,16 +168,112 @@ def render_pad(layout: PadLayout, dpi: float = 150.0) -> NDArray[np.uint8]:
     return render_pad_px(layout, pad_side_px(layout, dpi))
 
 
+def max_png_dpi(layout: PadLayout) -> float:
+    """Highest ``dpi`` whose PNG stays within Pillow's decompression-bomb limit
+    (``PIL.Image.MAX_IMAGE_PIXELS``, 89.5 Mpx): larger images make Pillow-based viewers and
+    print tools warn or refuse to open them."""
+    from PIL import Image
+
+    limit = Image.MAX_IMAGE_PIXELS or 89_478_485
+    return math.floor(math.sqrt(limit) * INCH_M / layout.pad_size_m)
+
+
 def save_pad_png(layout: PadLayout, path: str | Path, dpi: float = 150.0) -> Path:
-    """Render the pad at true scale and write it as PNG (with the DPI noted in the log)."""
+    """Render the pad at true scale and write it as PNG with its DPI in the file (pHYs), so a
+    print dialog at 100 % scale prints it at ``pad_size_m``. ``dpi`` above :func:`max_png_dpi`
+    is refused (the image would exceed Pillow's decompression-bomb limit)."""
+    from PIL import Image
+
     p = Path(path)
     if p.suffix.lower() != ".png":
         raise ValueError(f"pad output {p}: must end in .png")
-    p.parent.mkdir(parents=True, exist_ok=True)
+    top = max_png_dpi(layout)
+    if not (math.isfinite(dpi) and 0 < dpi <= top):
+        raise ValueError(
+            f"dpi = {dpi!r}: must be > 0 and <= {top} for a {layout.pad_size_m:g} m pad "
+            "(larger PNGs exceed Pillow's decompression-bomb limit; print the PDF instead)"
+        )
     img = render_pad(layout, dpi)
-    if not cv2.imwrite(str(p), img):
-        raise OSError(f"{p}: cv2.imwrite failed")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img, mode="L").save(p, format="PNG", dpi=(dpi, dpi))
     log.info("wrote pad %s: %d px at %.0f dpi = %.3f m", p, img.shape[0], dpi, layout.pad_size_m)
+    return p
+
+
+#: a PDF page side is at most 14 400 user units (200 in = 5.08 m; PDF 1.7 annex C)
+PDF_MAX_PAGE_M = 200.0 * INCH_M
+
+
+def marker_cells_m(layout: PadLayout, which: str) -> list[tuple[float, float, float, float]]:
+    """The black cells of one marker as rectangles ``(x0, y0, x1, y1)`` in the pad frame
+    (metres, origin at the pad centre, x right, y up); a row's adjacent cells are merged."""
+    dname = layout.outer_dict if which == "outer" else layout.inner_dict
+    mid = layout.outer_id if which == "outer" else layout.inner_id
+    dictionary = aruco_dictionary(dname)
+    n = dictionary.markerSize + 2  # data bits and the one-cell black border
+    bits = cv2.aruco.generateImageMarker(dictionary, mid, n)  # one pixel per cell
+    size = layout.marker_size_m(which)
+    cell = size / n
+    half = size / 2.0
+    rects = []
+    for r in range(n):
+        y1 = half - r * cell
+        c = 0
+        while c < n:
+            if bits[r, c] >= 128:
+                c += 1
+                continue
+            start = c
+            while c < n and bits[r, c] < 128:
+                c += 1
+            rects.append((-half + start * cell, y1 - cell, -half + c * cell, y1))
+    return rects
+
+
+def save_pad_pdf(layout: PadLayout, path: str | Path) -> Path:
+    """Write the pad as a one-page vector PDF whose page is the pad at true size
+    (``pad_size_m`` square) with the markers drawn as filled paths (matplotlib's PDF backend);
+    printed at 100 % scale (no "fit to page") the markers measure exactly their configured size."""
+    from matplotlib.backends.backend_pdf import FigureCanvasPdf
+    from matplotlib.figure import Figure
+    from matplotlib.patches import PathPatch, Rectangle
+    from matplotlib.path import Path as MplPath
+
+    p = Path(path)
+    if p.suffix.lower() != ".pdf":
+        raise ValueError(f"pad output {p}: must end in .pdf")
+    if layout.pad_size_m > PDF_MAX_PAGE_M:
+        raise ValueError(
+            f"pad_size_m = {layout.pad_size_m:g}: a PDF page is at most {PDF_MAX_PAGE_M:.2f} m wide; "
+            "print the pad in tiles from the PNG"
+        )
+    side_in = layout.pad_size_m / INCH_M
+    fig = Figure(figsize=(side_in, side_in), facecolor="white")
+    FigureCanvasPdf(fig)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    half = layout.pad_size_m / 2.0
+    ax.set_xlim(-half, half)
+    ax.set_ylim(-half, half)
+    ax.set_axis_off()
+
+    square = [int(MplPath.MOVETO), *[int(MplPath.LINETO)] * 3, int(MplPath.CLOSEPOLY)]
+
+    def black(which: str) -> PathPatch:
+        verts: list[tuple[float, float]] = []
+        codes: list[int] = []
+        for x0, y0, x1, y1 in marker_cells_m(layout, which):
+            verts += [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]
+            codes += square
+        # one compound path per marker: same-orientation squares, non-zero fill, no seams between cells
+        return PathPatch(MplPath(verts, codes), facecolor="black", edgecolor="none", linewidth=0, antialiased=False)
+
+    q = layout.inner_quiet_size_m / 2.0
+    ax.add_patch(black("outer"))
+    ax.add_patch(Rectangle((-q, -q), 2 * q, 2 * q, facecolor="white", edgecolor="none", linewidth=0))
+    ax.add_patch(black("inner"))
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, format="pdf", metadata={"Title": f"companion landing pad {layout.pad_size_m:g} m"})
+    log.info("wrote pad %s: %.1f x %.1f pt = %.3f m", p, side_in * 72, side_in * 72, layout.pad_size_m)
     return p
 
 

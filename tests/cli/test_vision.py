@@ -40,7 +40,23 @@ def test_pad_command_with_params_and_bad_params(tmp_path: Path, capsys: pytest.C
     bad.write_text("[pad]\nouter_size_m = 'big'\n")
     args = _parser().parse_args(["pad", "--out", str(out), "--params", str(bad)])
     assert args.func(args) == 2
-    assert "pad.outer_size_m" in capsys.readouterr().out
+    assert "pad.outer_size_m" in capsys.readouterr().err
+
+
+def test_pad_command_writes_pdf_and_png_by_default(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    args = _parser().parse_args(["pad", "--dpi", "20"])
+    assert args.func(args) == 0
+    assert (tmp_path / "pad.pdf").read_bytes().startswith(b"%PDF")
+    png = cv2.imread(str(tmp_path / "pad.png"), cv2.IMREAD_GRAYSCALE)
+    assert png is not None and png.shape[0] == pad_side_px(PadLayout(), 20)
+    out = capsys.readouterr().out
+    assert "page 1000 x 1000 mm" in out and "800 mm" in out
+    args = _parser().parse_args(["pad", "--out", "pad.svg"])
+    assert args.func(args) == 2
+    assert "--out pad.svg: must end in .pdf (vector, true size) or .png" in capsys.readouterr().err
 
 
 def test_calibrate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

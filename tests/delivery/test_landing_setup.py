@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.cli import exits
 from companion.cli.main import main
 from companion.config import load_config, shipped_params_path
 from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
@@ -42,19 +43,30 @@ def test_kit_from_config_sees_the_pad_in_a_real_image_through_the_camera_plugin(
 
 def test_missing_camera_fails_on_the_ground_and_says_how_to_fly_without(tmp_path):
     kit = build_landing_kit(_cfg(tmp_path, camera_source=str(tmp_path / "no_such_video.mp4"), use_uwb=False))
-    with pytest.raises(LandingSetupError, match="use_camera = false"):
+    with pytest.raises(LandingSetupError, match=r"landing\.camera_source, or set landing\.use_camera = false") as info:
         start_sensors(kit)
+    assert info.value.device_missing
 
 
 def test_missing_uwb_port_fails_on_the_ground(tmp_path):
     kit = build_landing_kit(_cfg(tmp_path, use_camera=False, uwb_port=str(tmp_path / "ttyNOPE")))
-    with pytest.raises(LandingSetupError, match="use_uwb = false"):
+    with pytest.raises(LandingSetupError, match=r"landing\.uwb_port, or set landing\.use_uwb = false") as info:
         start_sensors(kit)
+    assert info.value.device_missing
 
 
 def test_bad_files_and_plugins_are_named(tmp_path):
-    with pytest.raises(LandingSetupError, match="camera_calibration"):
+    with pytest.raises(LandingSetupError, match="camera_calibration") as info:
         build_landing_kit(_cfg(tmp_path, camera_calibration="nope.toml"))
+    assert not info.value.device_missing  # a setting to change, not a device to plug in
+    bad_pad = tmp_path / "pad_bad.toml"
+    bad_pad.write_text("[pad]\nouter_size_m = -1.0\n")
+    with pytest.raises(LandingSetupError, match=r"landing.pad_file = '.*pad_bad.toml': .*'pad.outer_size_m' = -1.0"):
+        build_landing_kit(_cfg(tmp_path, pad_file=str(bad_pad), use_uwb=False))
+    bad_anchors = tmp_path / "anchors_bad.toml"
+    bad_anchors.write_text('frame = "pad"\n')
+    with pytest.raises(LandingSetupError, match=r"landing.uwb_anchors = '.*anchors_bad.toml'"):
+        build_landing_kit(_cfg(tmp_path, uwb_anchors=str(bad_anchors), use_camera=False))
     with pytest.raises(LandingSetupError, match=r"no plugin companion\.cameras/nosuch"):
         build_landing_kit(_cfg(tmp_path, camera_plugin="nosuch", use_uwb=False))
     with pytest.raises(LandingSetupError, match="nothing to fuse"):
@@ -68,6 +80,6 @@ def test_fly_refuses_to_start_without_its_camera(tmp_path, capsys):
         'autopilot = "px4"\nconnection = "udpin://127.0.0.1:9"\n'
         f'[landing]\nfusion = true\nuse_uwb = false\ncamera_source = "{tmp_path / "missing.mp4"}"\n'
     )
-    assert main(["fly", "--params", str(p), "--out", str(tmp_path / "run")]) == 2
-    assert "use_camera = false" in capsys.readouterr().out
+    assert main(["fly", "--params", str(p), "--out", str(tmp_path / "run")]) == exits.DEVICE_MISSING
+    assert "use_camera = false" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()  # nothing flew, nothing logged

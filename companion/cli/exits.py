@@ -1,0 +1,33 @@
+"""Exit codes of the ``companion`` command line (the README's "Exit codes" table) and the
+start-up error that carries one.
+
+A start-up failure ends the process with one line on stderr, ``companion COMMAND: what failed;
+the setting to change``, and one of these codes; nothing is left running.
+"""
+
+from __future__ import annotations
+
+OK = 0
+#: the command ran but its result is a failure: mission not delivered, a check found problems,
+#: a replay differs
+FAILED = 1
+#: bad input: command-line usage (argparse exits 2 too), a parameter file, key or value
+BAD_INPUT = 2
+#: the autopilot link could not be opened (refused, unusable address) or no autopilot answered
+#: within ``runtime.connect_timeout_s``
+AUTOPILOT_UNREACHABLE = 3
+#: a device is missing: the autopilot's serial port, the camera, the UWB tag's port
+DEVICE_MISSING = 4
+#: the Zenoh telemetry session could not be opened (endpoint in use, no router)
+TELEMETRY_UNAVAILABLE = 5
+#: Ctrl-C before the command finished
+INTERRUPTED = 130
+
+
+class StartupError(Exception):
+    """A command could not start; ``str(err)`` is the one line naming what failed and the setting
+    to change, ``code`` the exit code."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code

@@ -1,0 +1,219 @@
+"""Every kind of parameter file has a schema; every shipped file passes `params check`; a broken
+copy of each kind fails naming the file, the key, the value and what is expected."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from companion.cli.main import main
+from companion.config import describe_schema
+from companion.dart.mission import DartMissionConfig
+from companion.dart.params import DartControlGains, DartRuntimeConfig
+from companion.param_kinds import (
+    KINDS,
+    AnchorsFile,
+    CameraTable,
+    DartControlTable,
+    DartMissionTable,
+    DartRuntimeTable,
+    DartSimTable,
+    PadTable,
+    ZenohTable,
+    detect_kind,
+)
+from companion.telemetry.session import ZenohSettings
+from companion.vision.pad import PadLayout
+from companion_sitl.dart_sim import DartSimConfig
+
+PARAMS = Path(__file__).resolve().parents[1] / "params"
+SHIPPED = sorted(PARAMS.glob("*.toml"))
+
+KIND_OF = {
+    "ardupilot_quad.toml": "vehicle",
+    "delivery_paper.toml": "vehicle",
+    "landing_campaign.toml": "vehicle",
+    "landing_campaign_short.toml": "vehicle",
+    "px4_sih_quad.toml": "vehicle",
+    "sitl_short.toml": "vehicle",
+    "dart_hover.toml": "dart",
+    "camera_rpi_v2.toml": "camera",
+    "pad_delivery.toml": "pad",
+    "uwb_anchors_pad.toml": "anchors",
+    "zenoh_fleet_router.toml": "zenoh",
+    "zenoh_fleet_vehicle.toml": "zenoh",
+    "zenoh_loopback.toml": "zenoh",
+    "zenoh_peer.toml": "zenoh",
+}
+
+
+def test_every_shipped_file_passes_params_check(capsys: pytest.CaptureFixture[str]) -> None:
+    assert sorted(p.name for p in SHIPPED) == sorted(KIND_OF)  # a new file gets its kind written here
+    assert main(["params", "check", *map(str, SHIPPED)]) == 0
+    out = capsys.readouterr().out
+    for p in SHIPPED:
+        assert f"{p}: OK ({KIND_OF[p.name]})" in out
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_the_kind_is_told_from_the_keys(path: Path) -> None:
+    with path.open("rb") as fh:
+        assert detect_kind(tomllib.load(fh)) == KIND_OF[path.name]
+
+
+# (shipped file, text replaced, replacement, what the one problem line must say)
+BROKEN = [
+    (
+        "delivery_paper.toml",
+        "height_m = 45.0",
+        "height_m = 500.0",
+        ["mission.height_m = 500.0", "less than or equal to 120"],
+    ),
+    (
+        "dart_hover.toml",
+        "max_speed_m_s = 0.1",
+        "max_speed_m_s = -0.1",
+        ["mission.max_speed_m_s = -0.1", "greater than 0"],
+    ),
+    (
+        "dart_hover.toml",
+        "horizontal_kp = 400.0",
+        "horizontal_kp = 'strong'",
+        ["control.horizontal_kp = 'strong'", "valid number"],
+    ),
+    ("dart_hover.toml", "hover_s = 25.0", "hover_secs = 25.0", ["mission.hover_secs: unknown key (value 25.0)"]),
+    (
+        "dart_hover.toml",
+        'throttle_mode = "climb_rate"',
+        'throttle_mode = "auto"',
+        ["sim.throttle_mode = 'auto'", "'climb_rate' or 'thrust'"],
+    ),
+    ("camera_rpi_v2.toml", "fx = 530.0", "fx = 'wide'", ["camera.fx = 'wide'", "valid number"]),
+    (
+        "camera_rpi_v2.toml",
+        "cx = 319.5",
+        "cx = 900.0",
+        ["principal point (900.0, 239.5) must lie inside the image 640 x 480"],
+    ),
+    ("camera_rpi_v2.toml", 'kind = "opencv"', 'kind = "fisheye"', ["camera.kind = 'fisheye'", "'opencv' or 'dart'"]),
+    ("pad_delivery.toml", "outer_size_m = 0.8", "outer_size_m = -0.8", ["pad.outer_size_m = -0.8", "greater than 0"]),
+    ("pad_delivery.toml", "inner_id = 0", "inner_id = 0\ncolour = 'red'", ["pad.colour: unknown key (value 'red')"]),
+    # a rule that ties keys together, checked by the pad's own loader after the schema
+    (
+        "pad_delivery.toml",
+        "inner_size_m = 0.09",
+        "inner_size_m = 0.5",
+        ["pad inner_size_m = 0.5", "half the outer marker"],
+    ),
+    (
+        "uwb_anchors_pad.toml",
+        "position_m = [3.0, 3.0, 0.3]",
+        "position_m = [3.0, 3.0]",
+        ["anchors[0].position_m = [3.0, 3.0]: item [2] is missing"],
+    ),
+    (
+        "uwb_anchors_pad.toml",
+        'base_anchor = "1A01"',
+        'base_anchor = "9Z99"',
+        ["base_anchor = '9Z99': must be one of the anchor ids"],
+    ),
+    ("uwb_anchors_pad.toml", "max_range_m = 10.0", "max_range_m = 0.0", ["max_range_m = 0.0", "greater than 0"]),
+    ("zenoh_peer.toml", 'mode = "peer"', 'mode = "server"', ["zenoh.mode = 'server'", "'peer', 'client' or 'router'"]),
+    (
+        "zenoh_peer.toml",
+        'listen = ["tcp/0.0.0.0:7447"]',
+        'listen = ["0.0.0.0:7447"]',
+        ["endpoints ['0.0.0.0:7447']", "like 'tcp/127.0.0.1:7447'"],
+    ),
+    (
+        "zenoh_loopback.toml",
+        "multicast_scouting = false",
+        "multicast_scouting = 'no'",
+        ["zenoh.multicast_scouting = 'no'", "valid boolean"],
+    ),
+]
+
+
+@pytest.mark.parametrize("name, old, new, words", BROKEN, ids=[f"{b[0]}:{b[2][:24]}" for b in BROKEN])
+def test_a_broken_copy_fails_naming_file_key_value_and_rule(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, old: str, new: str, words: list[str]
+) -> None:
+    text = (PARAMS / name).read_text()
+    assert text.count(old) == 1, f"{name} no longer holds {old!r}"
+    broken = tmp_path / f"broken_{name}"
+    broken.write_text(text.replace(old, new))
+    assert main(["params", "check", str(PARAMS / name), str(broken)]) == 1
+    captured = capsys.readouterr()
+    assert f"{PARAMS / name}: OK ({KIND_OF[name]})" in captured.out
+    err = captured.err.splitlines()
+    assert err[0] == f"{broken}:"
+    problems = "\n".join(err[1:])
+    for w in words:
+        assert w in problems, problems
+
+
+def test_kind_can_be_forced(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pad = PARAMS / "pad_delivery.toml"
+    assert main(["params", "check", "--kind", "camera", str(pad)]) == 1
+    err = capsys.readouterr().err
+    assert "camera: required key is missing" in err and "pad: unknown key" in err
+
+
+def test_show_says_which_kind_of_defaults_it_prints(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["params", "show", "--kind", "pad"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("# defaults of kind pad, nested ArUco landing pad")
+    assert "pad.outer_size_m = 0.8 [m] (> 0.0)  outer marker side, black border included" in lines
+    assert main(["params", "show"]) == 0
+    assert capsys.readouterr().out.startswith("# defaults of kind vehicle")
+    assert main(["params", "show", str(PARAMS / "dart_hover.toml")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"# {PARAMS / 'dart_hover.toml'}: kind dart")
+    assert "mission.start_distance_m = 4.0 [m]" in out and "control.horizontal_kp = 400.0 [us/m]" in out
+    assert main(["params", "show", "--kind", "camera"]) == 0
+    assert "camera.fx = '<required>' [px] (> 0.0" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_every_key_of_every_kind_has_a_unit_and_a_description(kind: str) -> None:
+    for line in describe_schema(KINDS[kind].schema):
+        if line.startswith("["):
+            continue  # a table
+        # key = value [unit] (limits)  description
+        assert re.search(r" \[[^\[\]]+\](?: \([^)]*\))?  \S", line), line
+
+
+def _defaults(cls: type) -> dict[str, object]:
+    return {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
+
+
+@pytest.mark.parametrize(
+    "schema, loader_class",
+    [
+        (DartSimTable, DartSimConfig),
+        (DartControlTable, DartControlGains),
+        (DartMissionTable, DartMissionConfig),
+        (DartRuntimeTable, DartRuntimeConfig),
+        (PadTable, PadLayout),
+    ],
+    ids=["dart.sim", "dart.control", "dart.mission", "dart.runtime", "pad"],
+)
+def test_schema_keys_and_defaults_are_the_loaders(schema: type, loader_class: type) -> None:
+    assert schema().model_dump() == _defaults(loader_class)
+
+
+def test_zenoh_and_camera_and_anchor_schemas_know_the_loaders_keys() -> None:
+    zenoh_defaults = _defaults(ZenohSettings)
+    table = ZenohTable().model_dump()
+    assert set(table) == set(zenoh_defaults)
+    assert table["overrides"] == dict(zenoh_defaults.pop("overrides"))  # type: ignore[call-overload]
+    assert {k: v for k, v in table.items() if k != "overrides"} == zenoh_defaults
+    from companion.vision.camera import _CAMERA_KEYS, _META_KEYS
+
+    assert set(CameraTable.model_fields) == _CAMERA_KEYS
+    assert set(KINDS["camera"].schema.model_fields["calibration"].annotation.model_fields) == _META_KEYS  # type: ignore[union-attr]
+    assert set(AnchorsFile.model_fields) == {"frame", "base_anchor", "max_range_m", "anchors"}
