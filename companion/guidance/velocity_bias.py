@@ -17,9 +17,30 @@ brings the estimate to setpoint - bias and the vehicle to the setpoint. Not in t
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
-from companion.autopilot.types import PositionNed
 from companion.guidance.setpoint import VelocitySetpoint
+
+
+class PositionNed(Protocol):
+    """What the estimator reads of the autopilot's local position (autopilot.types.PositionNed:
+    MAVLink LOCAL_POSITION_NED; guidance sits below the autopilot layer, so only its shape here)."""
+
+    @property
+    def time_s(self) -> float: ...
+    @property
+    def north_m(self) -> float: ...
+    @property
+    def east_m(self) -> float: ...
+    @property
+    def down_m(self) -> float: ...
+    @property
+    def north_m_s(self) -> float: ...
+    @property
+    def east_m_s(self) -> float: ...
+    @property
+    def down_m_s(self) -> float: ...
+
 
 MAX_GAP_S = 1.0  # a longer gap between samples (link loss) restarts the estimate
 
