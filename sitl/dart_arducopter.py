@@ -177,10 +177,15 @@ async def fly_dart_arducopter(
     start_alt_m: float = 2.0,
     seed: int = 0,
     pilot_roll_us: int = 1500,
+    mode: str = "ALT_HOLD",
 ) -> ArduDartResult:
     """Boot ArduCopter, take off in GUIDED to ``start_alt_m``, hand over in ALT_HOLD with the
     switch on, fly the Dart shell for ``duration_s``; at ``release_after_s`` (shell time) the pilot
-    switches it off with the roll stick at ``pilot_roll_us``; then land. Needs the SITL build."""
+    switches it off with the roll stick at ``pilot_roll_us``; then land. ``mode``: the pilot's
+    ALT_HOLD (mid throttle holds the height) or STABILIZE (mid throttle is ArduCopter's hover
+    throttle; the cyber-pilot's vertical PID adds to it). Needs the SITL build."""
+    if mode not in ("ALT_HOLD", "STABILIZE"):
+        raise ValueError(f"mode {mode!r}: the Dart flies ALT_HOLD or STABILIZE")
     p = params or DartParams()
     log_dir.mkdir(parents=True, exist_ok=True)
     truth_port = _free_udp_port()
@@ -214,6 +219,7 @@ async def fly_dart_arducopter(
                     seed,
                     pilot_roll_us,
                     notes,
+                    mode,
                 )
             finally:
                 await ap.close()
@@ -234,6 +240,7 @@ async def _fly(
     seed: int,
     pilot_roll_us: int,
     notes: list[str],
+    mode: str,
 ) -> ArduDartResult:
     rt = p.runtime
     await ap.arm()  # GUIDED; refused until EKF3 uses GPS (~40 s), retried by the backend
@@ -248,8 +255,8 @@ async def _fly(
     sticks[2] = int(NEUTRAL_US)
     rc.set(_pilot_channels(p, sticks, SWITCH_OFF_US))
     await asyncio.sleep(0.3)
-    await ap.set_mode("ALT_HOLD")
-    await _until(lambda: ap.copter_mode == COPTER_MODES["ALT_HOLD"], 5.0, "ALT_HOLD")
+    await ap.set_mode(mode)
+    await _until(lambda: ap.copter_mode == COPTER_MODES[mode], 5.0, mode)
     # the wall marker ahead of the vehicle along its true heading (the paper's pilot has flown there)
     heading = float(truth.yaw)
     R_wm = np.array(wall_marker(heading), dtype=float)
