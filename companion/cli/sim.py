@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from companion.config import (
     load_config,
     shipped_params_path,
 )
+from companion.units import format_cm, format_m
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -55,7 +55,11 @@ def _parse_vec(text: str, opt: str) -> list[float]:
 
 
 def _fmt_m(v: float) -> str:
-    return "n/a" if not math.isfinite(v) else f"{v:.2f} m"
+    return format_m(v)
+
+
+def _fmt_rms_max(rms_m: float, max_m: float) -> str:
+    return f"{format_m(rms_m)} / {format_m(max_m)}"
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -118,8 +122,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     rows = [
         ("flight time", f"{result.flight_time_s:.1f} s"),
-        ("path RMS distance (truth, while following the field)", _fmt_m(result.path_rms_truth_m)),
-        ("path max distance (truth)", _fmt_m(result.path_max_truth_m)),
+        (
+            "path RMS / max distance (truth, to the scored reference)",
+            _fmt_rms_max(result.path_rms_truth_m, result.path_max_truth_m),
+        ),
+        (
+            "path RMS / max distance (truth, to the mission's own path)",
+            _fmt_rms_max(result.path_rms_planned_m, result.path_max_planned_m),
+        ),
         ("path RMS distance (estimate, sqrt(2V), delivery Fig. 9)", _fmt_m(result.path_rms_estimate_m)),
         ("landing error on the pad (truth)", _fmt_m(result.pad_landing_error_m)),
         ("landing error at home (truth)", _fmt_m(result.home_landing_error_m)),
@@ -135,7 +145,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ),
     ]
     for k, v in rows:
-        console.print(f"  {k:<58} {v}")
+        console.print(f"  {k:<62} {v}")
+    console.print(f"  scored reference: {result.path_reference}")
     return 0 if ok else 1
 
 
@@ -269,7 +280,7 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     for v, s in result["summary"].items():
         table.add_row(
             v,
-            *(f"{s[k] * 100:.1f} cm" for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
+            *(format_cm(s[k]) for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
             f"{s['on_pad_pct']:.0f} %",
         )
     console.print(table)
@@ -294,7 +305,7 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
             table.add_column(col, justify="right" if col else "left")
         for name in ("predicted", "real"):
             f = c[name]
-            table.add_row(name, *(f"{f[k] * 100:.1f} cm" for k in ("mean_m", "p90_m", "max_m")))
+            table.add_row(name, *(format_cm(f[k]) for k in ("mean_m", "p90_m", "max_m")))
         r = c["ratio_predicted_to_real"]
         table.add_row("ratio", *(f"{r[k]:.2f}" for k in ("mean_m", "p90_m", "max_m")))
         console.print(table)
