@@ -168,6 +168,36 @@ def test_landing_fields_match_the_sensor_logs_and_truth(flight):
     assert row.landing_error_m is not None
 
 
+def test_estimate_fields_match_the_ekf_log(flight):
+    _r, run, rec, _row = flight
+    ekf = read_csv(run / "ekf.csv")
+    rows = {float(t): i for i, t in enumerate(ekf["time_s"])}
+    states = ("north_m", "east_m", "down_m", "roll_rad", "pitch_rad", "yaw_rad")
+    biases = {"gps_bias_north_m": "bias_north_m", "gps_bias_east_m": "bias_east_m", "gps_bias_down_m": "bias_down_m"}
+    gyro = ("gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s")
+    var_cols = [h for h in ekf if h.startswith("var_")]
+    estimates = _messages(rec, "estimate")
+    assert len(estimates) > 10
+    for m in estimates:
+        assert m["source"] == "ekf"
+        i = rows[m["time_s"]]
+        for k in states + gyro:
+            assert m[k] == pytest.approx(float(ekf[k][i]), abs=1e-12), k
+        for k, col in biases.items():
+            assert m[k] == pytest.approx(float(ekf[col][i]), abs=1e-12), k
+        assert m["covariance_diag"] == pytest.approx([float(ekf[c][i]) for c in var_cols], rel=1e-12)
+        # every accepted marker and UWB fix is counted among the fused measurements
+        assert m["fused_count"] >= int(ekf["markers_used"][i]) + int(ekf["uwb_used"][i])
+
+
+def test_log_messages_are_the_autopilot_status_texts(flight):
+    _r, run, rec, _row = flight
+    texts = read_csv(run / "ap_statustext.csv")
+    logged = list(zip(map(float, texts["time_s"]), map(int, texts["severity"]), texts["text"], strict=True))
+    published = [(m["time_s"], m["severity"], m["text"]) for m in _messages(rec, "log") if m["source"] == "autopilot"]
+    assert published and published == logged  # never dropped, in order
+
+
 def test_health_and_the_ground_row_of_a_finished_vehicle(flight):
     _r, run, rec, row = flight
     fl = read_csv(run / "flight.csv")
