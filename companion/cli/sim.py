@@ -184,11 +184,23 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_value(key: str, value: Any) -> str:
+    """A distance (``*_m``) in units that never read 0.00 for a non-zero error, a count as an
+    integer, other figures with two decimals."""
+    if not isinstance(value, float):
+        return str(value)
+    if key.endswith("_m"):
+        return format_m(value)
+    if value.is_integer() and key.startswith(("n_", "ours_full", "ours_roi")):
+        return str(int(value))
+    return f"{value:.2f}"
+
+
 def _print_bench(title: str, result: dict[str, Any]) -> None:
     print(title)
     width = max(len(k) for k in result) if result else 0
     for k, v in result.items():
-        print(f"  {k:<{width}}  {v:.2f}" if isinstance(v, float) else f"  {k:<{width}}  {v}")
+        print(f"  {k:<{width}}  {_bench_value(k, v)}")
 
 
 def cmd_bench_campaign(args: argparse.Namespace) -> int:

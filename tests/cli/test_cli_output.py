@@ -114,3 +114,11 @@ def test_campaign_dart_json_into_a_new_folder(tmp_path, capsys):
     assert main([*args, "--json", str(dest), "--quiet"]) == 0
     assert json.loads(dest.read_text())["estimators"]
     assert f"wrote {dest}" in capsys.readouterr().out
+
+
+def test_bench_distances_are_not_rounded_to_zero():
+    from companion.cli.sim import _bench_value
+
+    assert _bench_value("ours_median_position_error_m", 0.0022) == "2.2 mm"
+    assert _bench_value("ours/raw", 0.38) == "0.38"
+    assert _bench_value("n_frames", 12.0) == "12"
