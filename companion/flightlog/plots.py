@@ -69,6 +69,17 @@ def _pads(summary: dict[str, Any]) -> tuple[np.ndarray, np.ndarray | None, np.nd
     return configured, true_pad, touchdown
 
 
+def _estimate_in_outbound_frame(p: dict[str, Any], flight: dict[str, list[str]]) -> tuple[np.ndarray, np.ndarray]:
+    """The estimate's x and z in the outbound F_I. flight.csv's mission columns are in the
+    mission's frame of the moment, which the way home re-plans; the NED estimate is not."""
+    if "pad_ned_m" not in p or "est_north_m" not in flight:
+        return _floats(flight["mission_x_m"]), _floats(flight["mission_z_m"])
+    frame = MissionFrame(np.asarray(p["pad_ned_m"], dtype=float), float(p["heading_rad"]))
+    ned = np.column_stack([_floats(flight[k]) for k in ("est_north_m", "est_east_m", "est_down_m")])
+    pts = (frame.R_ned_mission.T @ (ned - frame.pad_ned).T).T
+    return pts[:, 0], pts[:, 2]
+
+
 def path_figure(run_dir: str | Path) -> Figure:
     """Delivery Fig. 8: the planned path, the path from home to the true pad and the flown one
     in F_I (3D and side view), and a top view of the pad: both pads and the true touchdown."""
@@ -107,7 +118,7 @@ def path_figure(run_dir: str | Path) -> Figure:
     if show_ref and reference is not None:
         ax2.plot(reference[:, 0], reference[:, 2], "m-.", lw=0.8, label=TRUE_PAD_PATH_LABEL)
     ax2.plot(tx, tz, "g-", lw=1.2, label="flown (truth)")
-    ex, ez = _floats(flight["mission_x_m"]), _floats(flight["mission_z_m"])
+    ex, ez = _estimate_in_outbound_frame(p, flight)
     ax2.plot(ex, ez, "b:", lw=1, label="flown (estimate)")
     ax2.plot([configured[0]], [0.0], "ks", label=CONFIGURED_PAD_LABEL)
     if true_pad is not None:

@@ -85,6 +85,11 @@ def test_fused_path_figure_draws_the_path_to_the_true_pad(demo_run):
         # it ends on the true pad, the planned one on the configured pad
         assert ref[-1] == pytest.approx([summary["true_pad_mission_m"][0], 0.0], abs=0.3)
         assert _line(side, "planned").get_xydata()[-1] == pytest.approx([0.0, 0.0], abs=0.3)
+        # the estimate is drawn in the outbound F_I all the way home: it ends where it started
+        est = _line(side, "flown (estimate)").get_xydata()
+        est = est[np.isfinite(est).all(axis=1)]
+        assert est[-1] == pytest.approx(est[0], abs=1.0)
+        assert est[0][0] == pytest.approx(-summary["path"]["d_m"], abs=1.0)
     finally:
         plt.close(fig)
 
