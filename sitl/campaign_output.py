@@ -17,70 +17,94 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from companion.flightlog.reader import LogFormatError
 from companion.flightlog.recorder import META_FILE
 from companion.flightlog.report import DPI, ExtraFigure, FigureSkipped
+from companion.units import format_cm
+
+COLOURS = {
+    "fusion": "tab:red",
+    "gps_only": "tab:blue",
+    "no_camera": "tab:green",
+    "no_uwb": "tab:orange",
+    "outer_only": "tab:purple",
+    "inner_only": "tab:brown",
+}
+#: Half-width of the pad view (right panel) at least, metres.
+PAD_VIEW_HALF_M = 0.75
+
+
+def ellipse_2sigma(pts: np.ndarray) -> tuple[np.ndarray, float, float, float, np.ndarray] | None:
+    """(centre, width, height, angle_deg, half-extent along east/north) of the 2-sigma ellipse
+    of (east, north) points; None below 3 points."""
+    if len(pts) < 3:
+        return None
+    cov = np.cov(pts.T)
+    w, vecs = np.linalg.eigh(cov)
+    ang = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
+    half = 2.0 * np.sqrt(np.maximum(np.diag(cov), 0.0))  # the ellipse's bounding box
+    return pts.mean(axis=0), 4 * math.sqrt(max(w[1], 0)), 4 * math.sqrt(max(w[0], 0)), ang, half
+
+
+def landing_scatter(result: dict[str, Any]) -> Figure:
+    """Delivery Fig. 15: true touchdowns per variant with their 2-sigma ellipses, on the whole
+    spread (left) and on the pad (right), limits set so no point or ellipse is clipped; the
+    legend sits below the panels, covering nothing."""
+    from matplotlib.patches import Ellipse, Rectangle
+
+    fig, (ax, ax_pad) = plt.subplots(1, 2, figsize=(12, 6.8))
+    for a in (ax, ax_pad):
+        a.add_patch(
+            Rectangle((-0.5, -0.5), 1.0, 1.0, fill=False, lw=1.5, color="k", label="1 x 1 m pad" if a is ax else None)
+        )
+    lo, hi = np.array([-0.6, -0.6]), np.array([0.6, 0.6])  # the pad, with a margin
+    pad_lo, pad_hi = np.array([-PAD_VIEW_HALF_M] * 2), np.array([PAD_VIEW_HALF_M] * 2)
+    for v, ls in result["landings"].items():
+        pts = np.array(
+            [(x["east_m"], x["north_m"]) for x in ls if x["north_m"] is not None and math.isfinite(x["north_m"])]
+        )
+        if pts.size == 0:
+            continue
+        c = COLOURS.get(v, "gray")
+        s = result["summary"][v]
+        label = f"{v}: mean {format_cm(s['mean_m'])}, on pad {s['on_pad_pct']:.0f} %"
+        ax.scatter(pts[:, 0], pts[:, 1], marker="x", color=c, label=label)
+        ax_pad.scatter(pts[:, 0], pts[:, 1], marker="x", color=c)
+        lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
+        e = ellipse_2sigma(pts)
+        if e is None:
+            continue
+        centre, width, height, ang, half = e
+        lo, hi = np.minimum(lo, centre - half), np.maximum(hi, centre + half)
+        for a in (ax, ax_pad):
+            a.add_patch(Ellipse(tuple(centre), width, height, angle=ang, fill=False, color=c, ls="--", lw=1.5))
+        if np.all(np.abs(centre) + half <= 2.0):  # a tight cluster: make the pad view hold all of it
+            pad_lo, pad_hi = np.minimum(pad_lo, centre - half), np.maximum(pad_hi, centre + half)
+    # square views around everything (equal scale on both axes), 8 % margin
+    for a, (low, high) in ((ax, (lo, hi)), (ax_pad, (pad_lo, pad_hi))):
+        mid, span = (low + high) / 2.0, float(np.max(high - low)) / 2.0 * 1.08
+        a.set_xlim(mid[0] - span, mid[0] + span)
+        a.set_ylim(mid[1] - span, mid[1] + span)
+        a.set_aspect("equal", adjustable="box")
+        a.set_xlabel("east of the pad centre [m]")
+        a.grid(True, alpha=0.3)
+    ax.set_ylabel("north of the pad centre [m]")
+    ax.set_title(f"True touchdowns, {result['n']} landings per variant", fontsize=10)
+    ax_pad.set_title("On the pad (same data, zoomed)", fontsize=10)
+    ax.plot([], [], "k--", lw=1.5, label="2-sigma ellipse per variant (cf. delivery Fig. 15)")
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.12, 1.0, 1.0))
+    return fig
 
 
 def write_outputs(result: dict[str, Any], out_dir: Path) -> list[Path]:
-    """summary.json and a scatter like delivery Fig. 15 (true touchdowns, 2-sigma ellipses)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Ellipse, Rectangle
-
+    """landing_campaign.json and landing_scatter.png (delivery Fig. 15) into ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     js = out_dir / "landing_campaign.json"
     js.write_text(json.dumps(result, indent=1, default=lambda o: None))
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.add_patch(Rectangle((-0.5, -0.5), 1.0, 1.0, fill=False, lw=1.5, color="k", label="1 x 1 m pad"))
-    colours = {
-        "fusion": "tab:red",
-        "gps_only": "tab:blue",
-        "no_camera": "tab:green",
-        "no_uwb": "tab:orange",
-        "outer_only": "tab:purple",
-        "inner_only": "tab:brown",
-    }
-    for v, ls in result["landings"].items():
-        pts = np.array([(x["east_m"], x["north_m"]) for x in ls if math.isfinite(x["north_m"])])
-        if pts.size == 0:
-            continue
-        c = colours.get(v, "gray")
-        s = result["summary"][v]
-        ax.scatter(
-            pts[:, 0],
-            pts[:, 1],
-            marker="x",
-            color=c,
-            label=f"{v}: mean {s['mean_m'] * 100:.1f} cm, on pad {s['on_pad_pct']:.0f} %",
-        )
-        if len(pts) >= 3:
-            cov = np.cov(pts.T)
-            w, vecs = np.linalg.eigh(cov)
-            ang = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
-            ax.add_patch(
-                Ellipse(
-                    pts.mean(axis=0),
-                    4 * math.sqrt(max(w[1], 0)),
-                    4 * math.sqrt(max(w[0], 0)),
-                    angle=ang,
-                    fill=False,
-                    color=c,
-                    ls="--",
-                )
-            )
-    ax.set_xlabel("east of the pad centre [m]")
-    ax.set_ylabel("north of the pad centre [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.set_title(
-        f"True touchdowns, {result['n']} landings per variant\n(2-sigma ellipses; cf. delivery Fig. 15)", fontsize=10
-    )
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    fig = landing_scatter(result)
     png = out_dir / "landing_scatter.png"
     fig.savefig(png, dpi=110)
     plt.close(fig)

@@ -31,7 +31,7 @@ from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
-from companion_sitl.path_scoring import PathScorer
+from companion_sitl.path_scoring import REFERENCE, PathScorer
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -47,6 +47,7 @@ TRUTH_COLUMNS = (
     "true_mission_z_m",
     "true_path_distance_m",
     "est_lyapunov_m2",
+    "true_planned_path_distance_m",
 )
 
 
@@ -68,6 +69,12 @@ class DemoResult:
     setpoints_sent: int
     setpoints_clamped: int
     guidance_overruns: int
+    # path_*_truth_m are scored against REFERENCE; these against the mission's own path (the planned
+    # one, and on the way home the one planned from the landing point), which counts the correct
+    # move to a pad lying away from its configured position as error
+    path_rms_planned_m: float = math.nan
+    path_max_planned_m: float = math.nan
+    path_reference: str = REFERENCE
     run_dir: str = ""
     events: list[tuple[float, str, str, str]] = field(default_factory=list)
 
@@ -88,7 +95,9 @@ class _Scorer:
         self.path_scorer: PathScorer | None = None
         self.truth_log = truth_log
         self.truth_d: list[float] = []
+        self.planned_d: list[float] = []
         self.est_d: list[float] = []
+        self.outbound: tuple[Any, Any, float] | None = None  # (frame, path, z_start) as first planned
 
     def __call__(self, shell: DeliveryShell, out: MissionOutput) -> None:
         m = shell.mission
@@ -98,17 +107,53 @@ class _Scorer:
         off = getattr(v, "_home_offset", (0.0, 0.0, 0.0))
         # the plan lives in the autopilot's local frame, whose origin is the home estimate
         p_local_truth = np.array([v.pn - off[0], v.pe - off[1], v.pd - off[2]])
-        p_i = m.frame.point_from_ned(p_local_truth)
+        if self.outbound is None:
+            self.outbound = (m.frame, m.path, m.z_start)
+        # truth in the outbound F_I throughout (the mission re-plans the way home in a frame of its own)
+        p_i = self.outbound[0].point_from_ned(p_local_truth)
+        d_planned = float(m.path.distance_to_path(m.frame.point_from_ned(p_local_truth)))
         if self.path_scorer is None:
             tp = self.true_pad_ne
             self.path_scorer = PathScorer((tp[0] - off[0], tp[1] - off[1]) if tp is not None else None)
         d_truth = self.path_scorer.distance(m, out.phase, p_local_truth)
         if out.phase in self.FOLLOW:
             self.truth_d.append(d_truth)
+            self.planned_d.append(d_planned)
             if math.isfinite(out.lyapunov):
                 self.est_d.append(math.sqrt(2.0 * out.lyapunov))
         if self.truth_log is not None:
-            self.truth_log.write((v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov))
+            self.truth_log.write(
+                (v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov, d_planned)
+            )
+
+
+def path_summary(config: CompanionConfig, scorer: _Scorer) -> dict[str, Any]:
+    """summary.json's path figures: the outbound path as planned (``path``, in its F_I), the true
+    pad in that F_I and the path to the true pad that the way out is scored against."""
+    if scorer.outbound is None:
+        return {"path": None}
+    frame, path, z_start = scorer.outbound
+    out: dict[str, Any] = {
+        "path": {
+            "h_m": path.h,
+            "r_m": path.r,
+            "d_m": path.d,
+            "z_start_m": z_start,
+            "heading_rad": frame.heading_rad,
+            "pad_ned_m": [float(x) for x in frame.pad_ned],
+            "pad_size_m": config.mission.pad.size_m,
+        }
+    }
+    ref = scorer.path_scorer.true_pad_path if scorer.path_scorer is not None else None
+    if ref is not None:
+        ref_frame, ref_path = ref
+        out["true_pad_mission_m"] = [float(x) for x in frame.point_from_ned(ref_frame.pad_ned)]
+        out["reference_path"] = {
+            "pad_ned_m": [float(x) for x in ref_frame.pad_ned],
+            "heading_rad": ref_frame.heading_rad,
+            "d_m": ref_path.d,
+        }
+    return out
 
 
 def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
@@ -237,6 +282,8 @@ async def fly(
         setpoints_sent=shell.stats.setpoints_sent,
         setpoints_clamped=shell.stats.setpoints_clamped,
         guidance_overruns=shell.stats.guidance_overruns,
+        path_rms_planned_m=rms(scorer.planned_d),
+        path_max_planned_m=max(scorer.planned_d) if scorer.planned_d else math.nan,
         run_dir=str(run_dir or ""),
         events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
     )
@@ -244,17 +291,7 @@ async def fly(
         summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]
-        summary_json["path"] = (
-            {
-                "h_m": shell.mission.path.h,
-                "r_m": shell.mission.path.r,
-                "d_m": shell.mission.path.d,
-                "z_start_m": shell.mission.z_start,
-                "heading_rad": shell.mission.frame.heading_rad,
-            }
-            if shell.mission.path is not None and shell.mission.frame is not None
-            else None
-        )
+        summary_json.update(path_summary(config, scorer))
         (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
     return result
 

@@ -29,6 +29,11 @@ class PathScorer:
         self.true_pad_local_ne = true_pad_local_ne
         self._true: tuple[MissionFrame, DeliveryPath] | None = None
 
+    @property
+    def true_pad_path(self) -> tuple[MissionFrame, DeliveryPath] | None:
+        """The path from home to the true pad (its frame and path), once the mission has planned."""
+        return self._true
+
     def _true_pad_path(self, m: DeliveryMission) -> tuple[MissionFrame, DeliveryPath] | None:
         start = m._start_ned
         if self._true is None and self.true_pad_local_ne is not None and start is not None and m.frame is not None:

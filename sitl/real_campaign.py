@@ -31,6 +31,7 @@ import numpy as np
 from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.geometry.earth import GeoPoint
+from companion.units import format_cm
 from companion_sitl.landing_campaign import VARIANTS, Draw, _stats, draw_scenarios, on_pad, run_landing_campaign
 from companion_sitl.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_sitl.truth_harness import fly_on_truth
@@ -294,8 +295,8 @@ def parity_figure(result: dict[str, Any], dest: Path) -> Path:
         ax.set_xticks([0, 1], [f"embedded\n{result['profile']} profile", f"real {result['autopilot']}\nSITL"])
         ax.set_ylabel("landing error on truth (cm)")
         ax.set_ylim(bottom=0)
-        pm, rm = c["predicted"]["mean_m"] * 100, c["real"]["mean_m"] * 100
-        ax.set_title(f"{v}: mean {pm:.1f} vs {rm:.1f} cm, n = {len(rows)}", fontsize=10)
+        pm, rm = format_cm(c["predicted"]["mean_m"]), format_cm(c["real"]["mean_m"])
+        ax.set_title(f"{v}: mean {pm} vs {rm}, n = {len(rows)}", fontsize=10)
         ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     dest.parent.mkdir(parents=True, exist_ok=True)

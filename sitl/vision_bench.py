@@ -90,7 +90,7 @@ def bench_vision(n_frames: int = 120, seed: int = 0) -> dict[str, float]:
         "n_frames": float(n_frames),
         "raw_ms_per_frame": 1000.0 * raw_s / n_frames,
         "ours_ms_per_frame": 1000.0 * ours_s / n_frames,
-        "ratio": ours_s / raw_s,
+        "ours/raw": ours_s / raw_s,
         "raw_detection_rate": sum(raw_hits) / n_frames,
         "ours_detection_rate": sum(o is not None for o in obs) / n_frames,
         "ours_ambiguous_rate": sum(o is not None and o.ambiguous for o in obs) / n_frames,

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "companion"
 
 # Lowest first. "companion" is the package's own __init__ (the version string).
-BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling", "plugin_api"}
+BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling", "plugin_api", "units"}
 
 # package -> the packages it may import (besides itself). The layer picture, written once:
 #   6  cli
@@ -24,7 +24,7 @@ BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling"
 #   4  telemetry  flightlog
 #   3  autopilot
 #   2  vision  uwb  estimation  guidance
-#   1  geometry  config (param_kinds)  events  scheduling  plugin_api
+#   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
     "geometry": set(),
@@ -33,13 +33,14 @@ ALLOWED: dict[str, set[str]] = {
     "events": set(),
     "scheduling": set(),
     "plugin_api": set(),
+    "units": set(),
     "vision": {"geometry"},
     "uwb": {"geometry"},
     "estimation": {"geometry"},
     "guidance": {"geometry", "config"},
     "autopilot": {"geometry", "config", "estimation", "guidance"},
-    "telemetry": {"companion", "config", "events", "autopilot", "estimation"},
-    "flightlog": {"geometry", "autopilot", "guidance"},
+    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation"},
+    "flightlog": {"geometry", "units", "autopilot", "guidance"},
     "delivery": BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog"},
     "dart": BASE | {"vision", "estimation", "autopilot", "flightlog"},
     "cli": BASE

@@ -21,15 +21,16 @@ import logging
 import math
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 log = logging.getLogger(__name__)
 
 
 def _cmd_campaign_dart(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.progress import Progress
 
+    from companion.cli.console import make_console
     from companion.dart.mission import DartParamsError
 
     try:
@@ -42,9 +43,13 @@ def _cmd_campaign_dart(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}")
         return 2
-    console = Console()
-    if not console.is_terminal:  # piped: wide enough for the whole table
-        console = Console(width=max(console.width, 120))
+    if args.json:  # its folder first: an hour of campaign must not end on a missing folder
+        try:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"error: --json {args.json}: {exc}")
+            return 2
+    console = make_console()
     try:
         with Progress(console=console, transient=True, disable=args.quiet) as bar:
             task = bar.add_task("dart hover campaign", total=len(names) * args.n)
@@ -88,10 +93,14 @@ def register_campaign(csub: Any) -> None:
     )
     d.add_argument("--n", type=int, default=3, help="runs per estimator (default 3)")
     d.add_argument("--seed", type=int, default=0, help="seed of the first run (run k uses seed + k)")
-    d.add_argument("--duration", type=float, default=25.0, help="simulated hover per run, s (default 25)")
-    d.add_argument("--settle", type=float, default=8.0, help="left out at the start of each run, s (default 8)")
+    d.add_argument("--duration", type=float, default=25.0, help="simulated hover per run, s (default: %(default)s)")
+    d.add_argument(
+        "--settle", type=float, default=8.0, help="left out at the start of each run, s (default: %(default)s)"
+    )
     d.add_argument("--params", help="Dart parameter file (default: the shipped params/dart_hover.toml)")
-    d.add_argument("--json", help="also write the result as JSON to this file")
+    d.add_argument(
+        "--json", help="also write the result as JSON to this file, creating its folder (default: not written)"
+    )
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_campaign_dart)
 
@@ -292,7 +301,11 @@ def register(subparsers: Any) -> None:
         "dart",
         help="fly the Dart cyber-pilot (hover, approach to 1.5 m) against an autopilot, or --sim ardupilot",
     )
-    d.add_argument("--params", help="Dart parameter file: [control], [mission], [runtime] (and [sim] for --sim)")
+    d.add_argument(
+        "--params",
+        help="Dart parameter file: [control], [mission], [runtime] (and [sim] for --sim); "
+        "default with --sim: the shipped dart_hover.toml, required otherwise",
+    )
     d.add_argument(
         "--connection",
         help="autopilot link (ArduPilot default udpin:0.0.0.0:14550, or /dev/ttyACM0:115200; "
@@ -308,15 +321,19 @@ def register(subparsers: Any) -> None:
         "--sim",
         choices=("ardupilot", "px4"),
         help="fly against the MAVLink sim vehicle on loopback UDP, in real time, through the ArduPilot "
-        "(RC override) or the PX4 (offboard attitude) backend",
+        "(RC override) or the PX4 (offboard attitude) backend (default: a real autopilot at --connection)",
     )
-    d.add_argument("--estimator", help="FCF-CF, FCF-MF, SCF-MF-2DOF or SCF-MF-3DOF (overrides [runtime])")
+    d.add_argument(
+        "--estimator", help="FCF-CF, FCF-MF, SCF-MF-2DOF or SCF-MF-3DOF (default: [runtime] of the parameters)"
+    )
     d.add_argument(
         "--duration", type=float, help="seconds to fly (default: until Ctrl-C; with --sim the mission plus 10 s)"
     )
     d.add_argument("--hover-only", action="store_true", help="hover at the start point, no approach")
-    d.add_argument("--hover-s", type=float, help="hover before the approach, s (overrides [mission])")
-    d.add_argument("--max-speed", type=float, help="peak speed of the approach, m/s (overrides [mission])")
+    d.add_argument("--hover-s", type=float, help="hover before the approach, s (default: [mission] of the parameters)")
+    d.add_argument(
+        "--max-speed", type=float, help="peak speed of the approach, m/s (default: [mission] of the parameters)"
+    )
     d.add_argument("--seed", type=int, default=0, help="--sim: seed of the simulated world")
     d.add_argument(
         "--pilot-test",
@@ -324,5 +341,5 @@ def register(subparsers: Any) -> None:
         help="--sim: the pilot deflects the stick and flips the switch off 5 times; prints the "
         "time until the overrides are released at the vehicle",
     )
-    d.add_argument("--log", help="CSV flight log of the shell (20 Hz)")
+    d.add_argument("--log", help="CSV flight log of the shell, 20 Hz (default: none)")
     d.set_defaults(func=_cmd_dart)

@@ -52,7 +52,7 @@ def register(subparsers: Any) -> None:
     """Add ``fly`` to the CLI's subparsers (``bench link``: :func:`register_bench`)."""
     p = subparsers.add_parser("fly", help="fly the delivery mission on the configured real autopilot")
     p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
-    p.add_argument("--connection", help="override the MAVLink connection URL")
+    p.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
     p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds")
     p.add_argument("--out", help="run folder for flight.tlog and the per-stream CSV logs (default runs/fly-<time>)")
     p.set_defaults(func=cmd_fly)

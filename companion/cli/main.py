@@ -12,6 +12,7 @@ from typing import Any
 from companion import __version__
 from companion.cli import exits, params, plugins, sim
 from companion.cli.exits import StartupError
+from companion.cli.helptext import show_defaults
 from companion.config import ConfigError
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
             register(sub)
         except Exception as err:  # a broken capability must not take the CLI down
             failed.append(f"{mod}: {type(err).__name__}: {err}")
+    show_defaults(parser)
     return parser, failed
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from companion.config import (
     load_config,
     shipped_params_path,
 )
+from companion.units import format_cm, format_m
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -55,18 +55,29 @@ def _parse_vec(text: str, opt: str) -> list[float]:
 
 
 def _fmt_m(v: float) -> str:
-    return "n/a" if not math.isfinite(v) else f"{v:.2f} m"
+    return format_m(v)
+
+
+def _fmt_rms_max(rms_m: float, max_m: float) -> str:
+    return f"{format_m(rms_m)} / {format_m(max_m)}"
+
+
+def flight_time_s(shell: Any) -> float:
+    """Time since take-off on the shell's clock (0 before it). In real time that clock is the
+    machine's monotonic clock, whose absolute value is the machine's uptime, not the flight's."""
+    t0 = shell.mission.summary.takeoff_time_s
+    return float(shell._clock.now() - t0) if t0 is not None else 0.0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from companion.cli.console import make_console
     from companion.flightlog.plots import plot_run
     from companion_sitl.demo import run_demo
 
     cfg = _load_demo_config(args)
-    console = Console()
+    console = make_console()
     run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     m = cfg.mission
     console.print(
@@ -91,7 +102,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     with Progress(
         TextColumn("{task.description:<16}"),
         BarColumn(),
-        TextColumn("sim t = {task.fields[t]:6.1f} s"),
+        TextColumn("flight t = {task.fields[t]:6.1f} s"),
         TextColumn("{task.fields[where]}"),
         TimeElapsedColumn(),
         console=console,
@@ -104,7 +115,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             done = phases.index(ph) if ph in phases else progress.tasks[0].completed
             e = shell.estimate
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
-            progress.update(task, description=ph, completed=done, t=shell._clock.now(), where=where)
+            progress.update(task, description=ph, completed=done, t=flight_time_s(shell), where=where)
 
         result = run_demo(
             cfg, run_dir, realtime=args.realtime, on_tick=on_tick, telemetry=args.telemetry, mavlink=args.mavlink
@@ -118,8 +129,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     rows = [
         ("flight time", f"{result.flight_time_s:.1f} s"),
-        ("path RMS distance (truth, while following the field)", _fmt_m(result.path_rms_truth_m)),
-        ("path max distance (truth)", _fmt_m(result.path_max_truth_m)),
+        (
+            "path RMS / max distance (truth, to the scored reference)",
+            _fmt_rms_max(result.path_rms_truth_m, result.path_max_truth_m),
+        ),
+        (
+            "path RMS / max distance (truth, to the mission's own path)",
+            _fmt_rms_max(result.path_rms_planned_m, result.path_max_planned_m),
+        ),
         ("path RMS distance (estimate, sqrt(2V), delivery Fig. 9)", _fmt_m(result.path_rms_estimate_m)),
         ("landing error on the pad (truth)", _fmt_m(result.pad_landing_error_m)),
         ("landing error at home (truth)", _fmt_m(result.home_landing_error_m)),
@@ -135,7 +152,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ),
     ]
     for k, v in rows:
-        console.print(f"  {k:<58} {v}")
+        console.print(f"  {k:<62} {v}")
+    console.print(f"  scored reference: {result.path_reference}")
     return 0 if ok else 1
 
 
@@ -166,11 +184,23 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_value(key: str, value: Any) -> str:
+    """A distance (``*_m``) in units that never read 0.00 for a non-zero error, a count as an
+    integer, other figures with two decimals."""
+    if not isinstance(value, float):
+        return str(value)
+    if key.endswith("_m"):
+        return format_m(value)
+    if value.is_integer() and key.startswith(("n_", "ours_full", "ours_roi")):
+        return str(int(value))
+    return f"{value:.2f}"
+
+
 def _print_bench(title: str, result: dict[str, Any]) -> None:
     print(title)
     width = max(len(k) for k in result) if result else 0
     for k, v in result.items():
-        print(f"  {k:<{width}}  {v:.2f}" if isinstance(v, float) else f"  {k:<{width}}  {v}")
+        print(f"  {k:<{width}}  {_bench_value(k, v)}")
 
 
 def cmd_bench_campaign(args: argparse.Namespace) -> int:
@@ -221,17 +251,17 @@ def cmd_bench_vision(args: argparse.Namespace) -> int:
 
 
 def cmd_campaign_landing(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
+    from companion.cli.console import make_console
     from companion_sitl.campaign_output import write_outputs
     from companion_sitl.landing_campaign import FAILURE_VARIANTS, run_landing_campaign
 
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
     if args.variants:
         variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-    console = Console()
+    console = make_console()
     with Progress(
         TextColumn("{task.description:<12}"),
         BarColumn(),
@@ -269,7 +299,7 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     for v, s in result["summary"].items():
         table.add_row(
             v,
-            *(f"{s[k] * 100:.1f} cm" for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
+            *(format_cm(s[k]) for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
             f"{s['on_pad_pct']:.0f} %",
         )
     console.print(table)
@@ -278,15 +308,15 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
 
 
 def cmd_campaign_parity(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.table import Table
 
+    from companion.cli.console import make_console
     from companion_sitl.real_campaign import run_parity
 
     variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
     out = Path(args.out) if args.out else None
     result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants)
-    console = Console()
+    console = make_console()
     for v, c in result["comparison"].items():
         title = f"{v}: {result['profile']} profile vs real {args.autopilot} SITL, same {len(c['seeds'])} draws"
         table = Table(title=title)
@@ -294,9 +324,9 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
             table.add_column(col, justify="right" if col else "left")
         for name in ("predicted", "real"):
             f = c[name]
-            table.add_row(name, *(f"{f[k] * 100:.1f} cm" for k in ("mean_m", "p90_m", "max_m")))
+            table.add_row(name, *(format_cm(f[k]) for k in ("mean_m", "p90_m", "max_m")))
         r = c["ratio_predicted_to_real"]
-        table.add_row("ratio", *(f"{r[k]:.2f}" for k in ("mean_m", "p90_m", "max_m")))
+        table.add_row("predicted/real", *(f"{r[k]:.2f}" for k in ("mean_m", "p90_m", "max_m")))
         console.print(table)
         console.print(
             f"mean and p90 within {c['within_factor']}x: {'yes' if c['mean_and_p90_within_factor'] else 'NO'}; "
@@ -322,18 +352,24 @@ def register_demo(sub: Any) -> None:
     """Add ``companion demo``."""
     demo = sub.add_parser("demo", help="fly the delivery paper's experiment on the embedded simulator")
     demo.add_argument("--params", action="append", help="parameter file(s) (default: the shipped delivery_paper.toml)")
-    demo.add_argument("--seed", type=int, help="random seed of the scenario")
-    demo.add_argument("--wind", type=float, help="mean wind speed, m/s")
-    demo.add_argument("--wind-from", type=float, help="direction the wind blows from, deg (0 = north)")
-    demo.add_argument("--gps-bias", help="constant GPS error in metres: north[,east[,down]]")
-    demo.add_argument("--pad-offset", help="the pad lies this far from its configured position: north,east (m)")
+    demo.add_argument("--seed", type=int, help="random seed of the scenario (default: [sim] seed of the parameters)")
+    demo.add_argument("--wind", type=float, help="mean wind speed, m/s (default: [sim] wind_speed_m_s)")
+    demo.add_argument(
+        "--wind-from", type=float, help="direction the wind blows from, deg, 0 = north (default: [sim] wind_from_deg)"
+    )
+    demo.add_argument("--gps-bias", help="constant GPS error, m: north[,east[,down]] (default: [sim] gps_bias_m)")
+    demo.add_argument(
+        "--pad-offset",
+        help="the pad lies this far from its configured position: north,east, m (default: [sim] pad_offset_m)",
+    )
     demo.add_argument("--gps-only", action="store_true", help="GPS-only baseline: no camera/UWB fusion")
     demo.add_argument("--realtime", action="store_true", help="run in real time instead of lock-step")
     demo.add_argument(
         "--mavlink",
         choices=("px4", "ardupilot"),
         help="serve the simulator over MAVLink on loopback UDP and fly it through the PX4 (MAVSDK) or "
-        "ArduPilot (pymavlink) backend, in real time (use --params params/sitl_short.toml for a short flight)",
+        "ArduPilot (pymavlink) backend, in real time (use --params params/sitl_short.toml for a short flight; "
+        "default: the in-process simulator, lock-step)",
     )
     demo.add_argument("--out", help="run folder (default: runs/demo-<time>)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -342,39 +378,47 @@ def register_demo(sub: Any) -> None:
         action="store_true",
         help="publish telemetry over Zenoh (session from [telemetry] zenoh_config; see `companion ground`)",
     )
-    demo.add_argument("--zenoh-config", help="Zenoh session file for --telemetry (e.g. params/zenoh_loopback.toml)")
+    demo.add_argument(
+        "--zenoh-config",
+        help="Zenoh session file for --telemetry, e.g. params/zenoh_loopback.toml (default: [telemetry] zenoh_config)",
+    )
     demo.set_defaults(func=cmd_demo)
 
 
 def register_bench(bsub: Any) -> None:
     """Add ``companion bench sim`` and ``bench estimation``."""
     bs = bsub.add_parser("sim", help="how many times faster than real time the demo flight runs")
-    bs.add_argument("--repeat", type=int, default=2)
-    bs.add_argument("--seed", type=int, default=1)
+    bs.add_argument("--repeat", type=int, default=2, help="flights per configuration (the best one is reported)")
+    bs.add_argument("--seed", type=int, default=1, help="random seed of the scenario")
     bs.set_defaults(func=cmd_bench_sim)
     bc = bsub.add_parser(
         "campaign", help="how many times faster than real time the landing campaign flies on a profile"
     )
-    bc.add_argument("--profile", choices=("ideal", "px4-sih", "arducopter-sitl"), default="px4-sih")
+    bc.add_argument(
+        "--profile",
+        choices=("ideal", "px4-sih", "arducopter-sitl"),
+        default="px4-sih",
+        help="autopilot profile of the embedded simulator",
+    )
     bc.add_argument("--n", type=int, default=5, help="fused landings (default 5)")
-    bc.add_argument("--seed", type=int, default=1)
+    bc.add_argument("--seed", type=int, default=1, help="seed of the first draw")
     bc.set_defaults(func=cmd_bench_campaign)
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
-    be.add_argument("--n", type=int, default=5000)
+    be.add_argument("--n", type=int, default=5000, help="calls timed per filter and estimator")
     be.set_defaults(func=cmd_bench_estimation)
 
 
 def register_bench_micro(bsub: Any) -> None:
     """Add ``companion bench ekf``, ``bench uwb`` and ``bench vision``."""
     bk = bsub.add_parser("ekf", help="microseconds per EKF predict and per update of each sensor")
-    bk.add_argument("--n", type=int, default=2000)
+    bk.add_argument("--n", type=int, default=2000, help="calls timed per step")
     bk.set_defaults(func=cmd_bench_ekf)
     bu = bsub.add_parser("uwb", help="microseconds per TWR / TDoA multilateration solve")
-    bu.add_argument("--n", type=int, default=300)
+    bu.add_argument("--n", type=int, default=300, help="solves timed per method")
     bu.set_defaults(func=cmd_bench_uwb)
     bv = bsub.add_parser("vision", help="raw full-frame ArUco detection vs our ROI pipeline on the same frames")
-    bv.add_argument("--frames", type=int, default=120)
-    bv.add_argument("--seed", type=int, default=0)
+    bv.add_argument("--frames", type=int, default=120, help="rendered frames of the descent")
+    bv.add_argument("--seed", type=int, default=0, help="seed of the rendering noise")
     bv.set_defaults(func=cmd_bench_vision)
 
 
@@ -382,12 +426,16 @@ def register_campaign(csub: Any) -> None:
     """Add ``companion campaign landing``."""
     cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
     cl.add_argument("--n", type=int, default=100, help="landings per variant")
-    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--seed", type=int, default=1, help="seed of the draws")
     cl.add_argument("--failures", action="store_true", help="also: no_camera, no_uwb, outer_only, inner_only")
-    cl.add_argument("--variants", help="comma-separated variants (overrides --failures)")
+    cl.add_argument(
+        "--variants",
+        help="comma-separated variants, overrides --failures (default: fusion,gps_only, and the failure "
+        "variants with --failures)",
+    )
     cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
     cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
-    cl.add_argument("--quiet", action="store_true")
+    cl.add_argument("--quiet", action="store_true", help="no progress bar")
     where = cl.add_mutually_exclusive_group()
     where.add_argument(
         "--profile",
@@ -398,16 +446,17 @@ def register_campaign(csub: Any) -> None:
     where.add_argument(
         "--autopilot",
         choices=("px4", "ardupilot"),
-        help="fly the landings on the real SITL build (PX4_DIR / ARDUPILOT_DIR), in real time",
+        help="fly the landings on the real SITL build (PX4_DIR / ARDUPILOT_DIR), in real time "
+        "(default: the embedded simulator)",
     )
     cl.set_defaults(func=cmd_campaign_landing)
     cp = csub.add_parser(
         "parity",
         help="the embedded campaign with the firmware's profile against the real SITL on the same draws",
     )
-    cp.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True)
+    cp.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True, help="the real SITL to compare with")
     cp.add_argument("--n", type=int, default=10, help="landings (each real one takes about a minute)")
-    cp.add_argument("--seed", type=int, default=1)
+    cp.add_argument("--seed", type=int, default=1, help="seed of the draws")
     cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
     cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
     cp.add_argument("--out", help="output folder (default runs/parity-<autopilot>-<time>)")
@@ -416,6 +465,6 @@ def register_campaign(csub: Any) -> None:
         "probe",
         help="measure a real SITL for its autopilot profile: estimate errors, velocity step, land detector",
     )
-    pr.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True)
+    pr.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True, help="the real SITL to measure")
     pr.add_argument("--out", help="output folder (default runs/probe-<autopilot>-<time>)")
     pr.set_defaults(func=cmd_campaign_probe)

@@ -31,20 +31,30 @@ def register(subparsers: Any) -> None:
         "record every message as JSON lines under --out.",
     )
     p.add_argument(
-        "--listen", action="append", metavar="EP", help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable)"
+        "--listen",
+        action="append",
+        metavar="EP",
+        help="listen endpoint, e.g. tcp/0.0.0.0:7447, repeatable (default: none, or the session file's)",
     )
     p.add_argument(
-        "--connect", action="append", metavar="EP", help="connect endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)"
+        "--connect",
+        action="append",
+        metavar="EP",
+        help="connect endpoint, e.g. tcp/10.0.0.2:7447, repeatable (default: none, or the session file's)",
     )
     p.add_argument(
         "--router",
         action="store_true",
         help=f"run as the fleet's Zenoh router (listens on {DEFAULT_ROUTER_LISTEN} unless --listen)",
     )
-    p.add_argument("--out", metavar="DIR", help="record to this folder (JSON lines per vehicle and topic)")
+    p.add_argument(
+        "--out", metavar="DIR", help="record to this folder, JSON lines per vehicle and topic (default: not recording)"
+    )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument(
-        "--zenoh-config", metavar="FILE", help="TOML file with a [zenoh] table (params/zenoh_*.toml); flags override it"
+        "--zenoh-config",
+        metavar="FILE",
+        help="TOML file with a [zenoh] table (params/zenoh_*.toml); flags override it (default: Zenoh's defaults)",
     )
     p.add_argument("--no-multicast", action="store_true", help="disable multicast scouting")
     p.add_argument("--refresh", type=float, default=4.0, help="table refreshes per second")
@@ -54,7 +64,7 @@ def register(subparsers: Any) -> None:
 def register_bench(bench_subparsers: Any) -> None:
     """Add ``telemetry`` to the ``bench`` subcommands."""
     p = bench_subparsers.add_parser("telemetry", help="N vehicles x rate to one ground station over loopback Zenoh")
-    p.add_argument("--vehicles", type=int, default=20)
+    p.add_argument("--vehicles", type=int, default=20, help="simulated vehicles publishing")
     p.add_argument("--rate", type=float, default=50.0, help="state messages per second per vehicle")
     p.add_argument("--duration", type=float, default=5.0, help="seconds of publishing")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -79,8 +89,7 @@ def ground_settings(args: argparse.Namespace) -> ZenohSettings:
 
 
 def cmd_ground(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
+    from companion.cli.console import make_console
     from companion.telemetry.ground import GroundStation, run_live
 
     try:
@@ -91,7 +100,7 @@ def cmd_ground(args: argparse.Namespace) -> int:
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         print("companion ground: --duration must be > 0", file=sys.stderr)
         return 2
-    console = Console()
+    console = make_console()
     station = GroundStation(settings, out_dir=Path(args.out) if args.out else None)
     try:
         station.start()

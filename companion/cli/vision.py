@@ -97,7 +97,9 @@ def register(subparsers: Any) -> None:
         help="output file, .pdf (vector, page = pad size) or .png (at --dpi, DPI stored); repeatable "
         "(default: pad.pdf and pad.png)",
     )
-    p.add_argument("--dpi", type=float, default=150.0, help="PNG resolution (default 150; at most ~240 for a 1 m pad)")
+    p.add_argument(
+        "--dpi", type=float, default=150.0, help="PNG resolution, at most ~240 for a 1 m pad (default: %(default)s)"
+    )
     p.add_argument(
         "--params",
         type=Path,

@@ -22,6 +22,7 @@ from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
+from companion.geometry.rotations import euler_to_rotmat
 from companion.geometry.se3 import Transform
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,17 @@ class FusionCounters:
         self.outcomes[k] = self.outcomes.get(k, 0) + 1
 
 
+@dataclass(frozen=True)
+class PadSighting:
+    """The last pad observation the EKF accepted: exposure time, the markers used and the pad
+    centre relative to the vehicle in world NED axes (the camera's measurement turned by the
+    EKF attitude), metres."""
+
+    time_s: float
+    markers: tuple[str, ...]
+    pad_rel_ned_m: tuple[float, float, float]
+
+
 class LandingFusion:
     def __init__(self, setup: FusionSetup, start_time_s: float):
         self.setup = setup
@@ -60,6 +72,8 @@ class LandingFusion:
         self._euler: np.ndarray | None = None
         self._last_marker_s = -np.inf
         self._last_uwb_s = -np.inf
+        self.last_sighting: PadSighting | None = None
+        self.last_uwb_fix: object | None = None  # the last accepted uwb.UwbFix
 
     # ---- inputs --------------------------------------------------------------------------
     def on_sample(self, sample: TelemetrySample) -> None:
@@ -88,7 +102,19 @@ class LandingFusion:
         if out is UpdateOutcome.ACCEPTED:
             self.counters.markers_used += 1
             self._last_marker_s = obs.time_s  # type: ignore[attr-defined]
+            self.last_sighting = self._sighting(obs)
         return out
+
+    def _sighting(self, obs: object) -> PadSighting:
+        T_camera_pad: Transform = obs.T_camera_pad  # type: ignore[attr-defined]
+        p_body = self.setup.T_body_camera.R @ T_camera_pad.t + self.setup.T_body_camera.t
+        x = self.ekf.x
+        rel = euler_to_rotmat(float(x[3]), float(x[4]), float(x[5])) @ p_body
+        return PadSighting(
+            float(obs.time_s),  # type: ignore[attr-defined]
+            tuple(getattr(obs, "markers", ())),
+            (float(rel[0]), float(rel[1]), float(rel[2])),
+        )
 
     def on_uwb(self, fix: object) -> UpdateOutcome:
         out = self.buffer.update_uwb(fix, self.T_world_anchors)  # type: ignore[arg-type]
@@ -96,6 +122,7 @@ class LandingFusion:
         if out is UpdateOutcome.ACCEPTED:
             self.counters.uwb_used += 1
             self._last_uwb_s = fix.time_s  # type: ignore[attr-defined]
+            self.last_uwb_fix = fix
         return out
 
     # ---- outputs -------------------------------------------------------------------------
@@ -111,3 +138,21 @@ class LandingFusion:
 
     def pad_data_age_s(self, now_s: float) -> float:
         return now_s - max(self._last_marker_s, self._last_uwb_s)
+
+    def marker_age_s(self, now_s: float) -> float:
+        """Since the exposure of the last accepted pad observation (inf: none yet)."""
+        return now_s - self._last_marker_s
+
+    def uwb_age_s(self, now_s: float) -> float:
+        """Since the last accepted UWB fix (inf: none yet)."""
+        return now_s - self._last_uwb_s
+
+    def horizontal_error_to_pad_m(self) -> float | None:
+        """Estimated horizontal distance from the vehicle to the pad centre: the fused position
+        against the configured pad, which the fused frame puts where the camera/UWB see it.
+        None until pad data has been fused (before that it would be the GPS-only guess)."""
+        est = self.estimate()
+        if est is None or not self.pad_locked:
+            return None
+        pad = self.setup.T_world_pad.t
+        return float(np.hypot(est.north_m - pad[0], est.east_m - pad[1]))

@@ -100,7 +100,7 @@ class ShellTelemetry:
         pub, tc = self.publisher, self._tc
         est = shell.estimate
         if est is not None:
-            pub.publish(StateMessage.from_samples(est, tc.global_position, tc.status, tc.gps))
+            pub.publish(StateMessage.from_samples(est, tc.global_position, tc.status, tc.gps, now_s=now))
         fusion = getattr(shell, "fusion", None)
         if fusion is not None and fusion.ekf.initialized:
             fe = fusion.estimate()
@@ -129,15 +129,8 @@ class ShellTelemetry:
                     rejected,
                 )
             )
-            age = fusion.pad_data_age_s(now)
-            pub.publish(
-                LandingMessage(
-                    now,
-                    pad_visible=math.isfinite(age) and age < 0.5,
-                    observation_age_s=age if math.isfinite(age) else None,
-                    uwb_fix_ok=c.uwb_used > 0,
-                )
-            )
+            detector = getattr(getattr(shell, "landing", None), "detector", None)
+            pub.publish(landing_message(now, fusion, detector, towards_pad=phase in TOWARDS_PAD))
         v = None if not math.isfinite(lyapunov) else lyapunov
         pub.publish(MissionMessage(now, phase, sector or None, v))
         for ev in events:
@@ -158,6 +151,48 @@ class ShellTelemetry:
                     telemetry_dropped=pub.counters().dropped,
                 )
             )
+
+
+#: A pad observation / UWB fix fused more recently than this counts as current.
+FRESH_S = 0.5
+
+
+def _age(age_s: float) -> float | None:
+    return max(0.0, age_s) if math.isfinite(age_s) else None
+
+
+#: The phases in which the pad is where the vehicle is going (or standing): the landing error
+#: is published in these only (on the way home the distance to the pad is no landing error).
+TOWARDS_PAD = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.RELEASE)
+
+
+def landing_message(now: float, fusion: Any, detector: Any = None, towards_pad: bool = True) -> LandingMessage:
+    """The landing topic from the fusion's last accepted pad observation and UWB fix, each with
+    its age; fields with no source yet are absent, and so is the landing error when the vehicle
+    is not ``towards_pad``."""
+    obs_age = _age(fusion.marker_age_s(now))
+    uwb_age = _age(fusion.uwb_age_s(now))
+    seen = fusion.last_sighting
+    fix = fusion.last_uwb_fix
+    layout = getattr(detector, "layout", None)
+    ids: tuple[int, ...] = ()
+    if seen is not None and layout is not None:
+        ids = tuple(int(getattr(layout, f"{name}_id")) for name in seen.markers if name in ("outer", "inner"))
+    return LandingMessage(
+        now,
+        pad_visible=obs_age is not None and obs_age < FRESH_S,
+        markers_seen=ids,
+        marker_names=seen.markers if seen is not None else (),
+        pad_rel_north_m=seen.pad_rel_ned_m[0] if seen is not None else None,
+        pad_rel_east_m=seen.pad_rel_ned_m[1] if seen is not None else None,
+        pad_rel_down_m=seen.pad_rel_ned_m[2] if seen is not None else None,
+        observation_age_s=obs_age,
+        landing_error_m=fusion.horizontal_error_to_pad_m() if towards_pad else None,
+        uwb_fix_ok=uwb_age is not None and uwb_age < FRESH_S,
+        uwb_anchors_used=len(fix.anchors_used) if fix is not None else 0,
+        uwb_residual_m=float(fix.residual_rms_m) if fix is not None else None,
+        uwb_fix_age_s=uwb_age,
+    )
 
 
 def command_handler(loop: asyncio.AbstractEventLoop, shell: Any) -> Callable[[GroundCommand], Any]:

@@ -54,6 +54,7 @@ from companion.telemetry.schema import (
     parse_key,
 )
 from companion.telemetry.session import ZenohSettings
+from companion.units import format_m
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +69,7 @@ class VehicleRow:
     alive: bool
     phase: Phase | None = None
     mode: str | None = None
+    status_age_s: float | None = None  # age of the autopilot status behind mode/armed when sent
     armed: bool | None = None
     north_m: float | None = None
     east_m: float | None = None
@@ -263,7 +265,8 @@ class GroundStation:
         msg = env.msg
         if isinstance(msg, StateMessage):
             changes.update(
-                mode=msg.mode.value,
+                mode=msg.mode.value if msg.status_age_s is not None or msg.mode.value != "unknown" else None,
+                status_age_s=msg.status_age_s,
                 armed=msg.armed,
                 north_m=msg.north_m,
                 east_m=msg.east_m,
@@ -284,7 +287,8 @@ class GroundStation:
                 heartbeat_age_s=msg.heartbeat_age_s,
                 telemetry_dropped=msg.telemetry_dropped,
             )
-        elif isinstance(msg, LandingMessage):
+        elif isinstance(msg, LandingMessage) and msg.landing_error_m is not None:
+            # the last estimate stays shown after the landing
             changes.update(landing_error_m=msg.landing_error_m)
         self._rows[vid] = replace(row, **changes)
 
@@ -364,6 +368,10 @@ class GroundStation:
 # ---- rendering ---------------------------------------------------------------------------------
 
 
+#: An autopilot status older than this when it was published is shown with its age.
+STALE_S = 2.0
+
+
 def _fmt(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
@@ -381,18 +389,24 @@ def render_table(rows: dict[str, VehicleRow], now_unix_s: float | None = None) -
     for vid in sorted(rows):
         r = rows[vid]
         pos = "-" if r.north_m is None else f"{r.north_m:.1f}/{r.east_m:.1f}/{r.alt_m:.1f}"
-        link = "-" if r.link_ok is None else ("[green]ok" if r.link_ok else "[red]LOST")
+        # a vanished vehicle's last link state and mode are history, not its present state
+        link = "-" if r.link_ok is None or not r.alive else ("[green]ok" if r.link_ok else "[red]LOST")
+        mode = r.mode or "-"
+        if r.mode and not r.alive:
+            mode = f"[dim]{r.mode} (last)"
+        elif r.mode and r.status_age_s is not None and r.status_age_s > STALE_S:
+            mode = f"{r.mode} ({r.status_age_s:.0f}s old)"
         age = None if r.last_rx_unix_s is None else now - r.last_rx_unix_s
         lost = str(r.lost) if r.lost == 0 else f"[red]{r.lost}[/red]"
         table.add_row(
             f"[green]{vid}" if r.alive else f"[red]{vid} (gone)",
             r.phase.value if r.phase else "-",
-            r.mode or "-",
+            mode,
             pos,
             _fmt(r.ground_speed_m_s, ".1f"),
             "-" if r.battery_pct is None else f"{r.battery_pct:.0f}%",
             link,
-            "-" if r.landing_error_m is None else f"{r.landing_error_m:.2f} m",
+            "-" if r.landing_error_m is None else format_m(r.landing_error_m),
             f"{r.received}/{lost}",
             "-" if age is None else f"{age:.1f}s",
             r.last_event,

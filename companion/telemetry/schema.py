@@ -129,7 +129,12 @@ def parse_key(key: str) -> tuple[str, str]:
 @dataclass(frozen=True, slots=True)
 class StateMessage:
     """Vehicle state at ``time_s`` (the shell's monotonic clock): world NED pose and velocity,
-    attitude, the autopilot's global position and GPS quality, arming, mode and battery."""
+    attitude, the autopilot's global position and GPS quality, arming, mode and battery.
+
+    ``*_age_s``: how old the autopilot sample behind those fields was when the message was
+    built (``status_age_s``: armed, mode, landed, battery; ``gps_age_s``: the GPS fields;
+    ``global_position_age_s``: lat/lon/alt). None when the sample never arrived; then its fields
+    keep their defaults (mode ``unknown``, GPS fix 0, None)."""
 
     time_s: float
     north_m: float
@@ -153,6 +158,9 @@ class StateMessage:
     landed: LandedState = LandedState.UNKNOWN
     battery_pct: float | None = None
     source: str = "autopilot"
+    status_age_s: float | None = None
+    gps_age_s: float | None = None
+    global_position_age_s: float | None = None
 
     @property
     def ground_speed_m_s(self) -> float:
@@ -165,7 +173,13 @@ class StateMessage:
         position: GlobalPosition | None = None,
         status: VehicleStatus | None = None,
         gps: GpsRaw | None = None,
+        now_s: float | None = None,
     ) -> StateMessage:
+        """``now_s`` (the shell's clock when the message is built) fills the ``*_age_s`` fields."""
+
+        def age(sample: GlobalPosition | VehicleStatus | GpsRaw | None) -> float | None:
+            return None if sample is None or now_s is None else max(0.0, now_s - sample.time_s)
+
         return cls(
             time_s=estimate.time_s,
             north_m=estimate.north_m,
@@ -189,6 +203,9 @@ class StateMessage:
             landed=status.landed if status else LandedState.UNKNOWN,
             battery_pct=status.battery_pct if status else None,
             source=estimate.source,
+            status_age_s=age(status),
+            gps_age_s=age(gps),
+            global_position_age_s=age(position),
         )
 
 
@@ -285,8 +302,16 @@ class MissionMessage:
 
 @dataclass(frozen=True, slots=True)
 class LandingMessage:
-    """Landing: the pad as last observed (relative to the vehicle, world NED axes, metres),
-    marker ids seen, the estimated horizontal landing error and the UWB fix quality."""
+    """Landing, published while the landing fusion runs (absent with GPS only).
+
+    ``pad_visible``: an observation of the pad was fused within the last 0.5 s.
+    ``markers_seen`` (ArUco ids) / ``marker_names`` ("outer", "inner"), ``pad_rel_*_m`` (the pad
+    centre relative to the vehicle, world NED axes, metres) describe the last *fused* pad
+    observation, ``observation_age_s`` old (all absent before the first one).
+    ``landing_error_m``: the estimated horizontal distance from the vehicle to the pad centre
+    (fused estimate), absent until pad data (camera or UWB) has been fused.
+    ``uwb_fix_ok``: a UWB fix was fused within the last 0.5 s; ``uwb_anchors_used`` and
+    ``uwb_residual_m`` describe the last fused fix, ``uwb_fix_age_s`` old (absent/0 before one)."""
 
     time_s: float
     pad_visible: bool
@@ -300,6 +325,7 @@ class LandingMessage:
     uwb_anchors_used: int = 0
     uwb_residual_m: float | None = None
     uwb_fix_age_s: float | None = None
+    marker_names: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

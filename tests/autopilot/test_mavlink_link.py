@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import socket
 
@@ -157,3 +158,19 @@ def test_sim_vehicle_rejects_an_unknown_dialect():
 
     with pytest.raises(ValueError, match="dialect"):
         MavlinkSimVehicle(SimConfig(), "inav")  # type: ignore[arg-type]
+
+
+async def test_mavsdk_own_log_lines_go_to_python_logging_not_stdout(mav, caplog, capfd):
+    """MAVSDK prints its lines (debug included) to stdout itself; the backend routes them to the
+    ``companion.autopilot.px4.mavsdk`` logger, so ``companion -vv`` shows its debug lines and the
+    default level none."""
+    port = mav.free_udp_port()
+    with (
+        caplog.at_level(logging.DEBUG, logger="companion.autopilot.px4.mavsdk"),
+        pytest.raises(AutopilotError, match="no PX4 autopilot answered"),
+    ):
+        await Px4Autopilot(f"udpin://127.0.0.1:{port}").connect(timeout_s=0.3)
+    lines = [r for r in caplog.records if r.name == "companion.autopilot.px4.mavsdk"]
+    assert any("MAVSDK version" in r.getMessage() and r.levelno == logging.INFO for r in lines)
+    out = capfd.readouterr()
+    assert "MAVSDK version" not in out.out and "MAVSDK version" not in out.err

@@ -60,7 +60,7 @@ def test_vision_commands_are_wired(tmp_path, capsys):
     assert main(["pad", "--out", str(out), "--dpi", "30"]) == 0
     assert out.stat().st_size > 1000
     assert main(["bench", "vision", "--frames", "12"]) == 0
-    assert "ratio" in capsys.readouterr().out
+    assert "ours/raw" in capsys.readouterr().out
 
 
 def test_bench_ekf_and_uwb_are_wired(capsys):

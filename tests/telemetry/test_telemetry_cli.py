@@ -195,3 +195,17 @@ def test_bench_small_run() -> None:
     assert "lost 0" in text and "p99" in text
     with pytest.raises(ValueError):
         bench_telemetry(vehicles=0, rate_hz=10, duration_s=1)
+
+
+def test_render_table_shows_a_gone_vehicle_as_history() -> None:
+    from rich.console import Console
+
+    console = Console(width=200, record=True)
+    gone = VehicleRow("d3", False, mode="offboard", link_ok=True, landing_error_m=0.004, status_age_s=0.0)
+    stale = VehicleRow("d4", True, mode="hold", link_ok=True, landing_error_m=1.234, status_age_s=5.0)
+    console.print(render_table({"d3": gone, "d4": stale}))
+    text = console.export_text().splitlines()
+    lines = {vid: next(line for line in text if vid in line) for vid in ("d3", "d4")}
+    assert "ok" not in lines["d3"] and "offboard (last)" in lines["d3"]  # no live link on a vanished vehicle
+    assert "4.0 mm" in lines["d3"]  # never "0.00 m" for a non-zero error
+    assert "ok" in lines["d4"] and "hold (5s old)" in lines["d4"] and "1.23 m" in lines["d4"]
