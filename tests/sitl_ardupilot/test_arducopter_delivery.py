@@ -6,10 +6,13 @@ waiting for GPS before arming."""
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.config import load_config, shipped_params_path
+from companion_sitl.demo import run_demo
 from companion_sitl.truth_harness import fly_on_truth
 
 from .conftest import GRIPPER_SERVO9, arducopter
@@ -59,6 +62,22 @@ async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_disp
     assert ap.releases_unconfirmed == 0  # the gripper's output was seen at GRIP_RELEASE
     assert r.uwb_used > 50
     assert r.pad_landing_error_m < 0.6, r
+    # path tracking on the firmware against the embedded simulator on the same path (issue 12):
+    # truth against the configured path or the path to the true pad on the way out, the path
+    # planned from the landing point on the way back (companion_sitl.path_scoring)
+    config = _config("tcp:127.0.0.1:5760")
+    embedded = {}
+    for profile in ("ideal", "arducopter-sitl"):
+        sim = config.model_copy(
+            update={"sim": config.sim.model_copy(update={"pad_offset_m": PAD_OFFSET, "profile": profile})}
+        )
+        embedded[profile] = await asyncio.to_thread(run_demo, sim)
+    print(
+        f"path RMS / max on truth: ArduCopter {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate "
+        f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded "
+        + ", ".join(f"{k} {e.path_rms_truth_m:.2f} / {e.path_max_truth_m:.2f} m" for k, e in embedded.items())
+    )
+    assert r.path_rms_truth_m < 1.5 * embedded["ideal"].path_rms_truth_m, (r, embedded["ideal"])
 
 
 async def test_arducopter_precision_landing_fed_our_landing_target(ardupilot_root, tmp_path):
