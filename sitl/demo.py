@@ -282,7 +282,9 @@ class _ThreadedTruth:
 
 
 def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: tuple[float, float]) -> LandingKit:
-    """Simulated camera and UWB around the *true* pad, with the real detector and solver."""
+    """Simulated camera and UWB around the *true* pad, with the real detector and solver; the
+    anchors are ``landing.uwb_anchors`` (as on the vehicle)."""
+    from companion.delivery.landing_setup import resolve_params_file
     from companion.geometry.mounts import downward_mount, pad_pose_ned
     from companion.uwb.anchors import load_anchor_layout
     from companion.uwb.multilateration import Multilaterator
@@ -305,7 +307,7 @@ def sim_landing_kit(config: CompanionConfig, vehicle: SimVehicle, true_pad_ne: t
         camera = SimCameraSource(vehicle, sim_cam, lc.camera_rate_hz, lc.camera_latency_s)
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
         detector = PadDetector(cam_model, layout, markers=markers)
-    anchors = load_anchor_layout()
+    anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
     if lc.use_uwb:
         uwb = SimUwbSource(vehicle, SimulatedUwb(anchors, seed=seed + 1), T_world_pad_true, lc.uwb_rate_hz)
         multi = Multilaterator(anchors)
