@@ -230,3 +230,18 @@ def test_ekf_gets_the_weak_vertical_and_the_isotropic_case_is_unchanged() -> Non
     expected = P0[0, 0] - P0[0, 0] ** 2 / (P0[0, 0] + r)
     assert e_iso.P[0, 0] == pytest.approx(expected, rel=1e-6)
     assert e_iso.P[2, 2] == pytest.approx(e_iso.P[0, 0], rel=1e-6)
+
+
+def test_nearly_coplanar_tripods_are_exact_too() -> None:
+    """Tripods set up 'at one height' differ by a few cm: still coplanar (below 0.1 m of spread);
+    the side comes from the best-fit plane and the fit uses the true anchor heights."""
+    pos = SQUARE + np.array([[0, 0, 0.0], [0, 0, 0.05], [0, 0, -0.03], [0, 0, 0.02]])
+    layout = layout_from_positions(pos)
+    assert layout.coplanar
+    m = Multilaterator(layout)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        p = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(1.7, 7.0)])
+        d = np.linalg.norm(pos - p, axis=1)
+        f = _fix(m.solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
+        np.testing.assert_allclose(f.position_m, p, atol=1e-6)
