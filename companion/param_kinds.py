@@ -121,6 +121,9 @@ class AnchorsFile(_Section):
     frame: str = _s("pad", "-", "name of the anchor frame (pad: origin at the pad centre, x east, y north, z up)")
     base_anchor: str | None = _s(None, "-", "TDoA base anchor (delivery eq 2, index 1); default the first anchor")
     max_range_m: float = _s(10.0, "m", "ranges beyond this are not used (DWM1001: 10 m)", gt=0.0, le=100.0)
+    tag_side: Literal["above", "below"] = _f(
+        "above", "-", "anchors at one height (coplanar): the side of their plane the tag flies on"
+    )
     anchors: tuple[AnchorEntry, ...] = _f(..., "-", "the [[anchors]] tables, at least 4", min_length=4)
 
     @model_validator(mode="after")

@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 
 import serial
 
+from companion.uwb.anchors import AnchorLayout
 from companion.uwb.multilateration import TwrMeasurement
 
 log = logging.getLogger(__name__)
@@ -68,6 +69,22 @@ class DwmReading:
             tuple(a.anchor_id for a in self.anchors),
             tuple(a.distance_m for a in self.anchors),
         )
+
+
+def anchor_layout_from_reading(reading: DwmReading, tag_side: str = "above", frame: str = "pad") -> AnchorLayout:
+    """The anchor layout a ``lec`` line reports (each anchor's configured position, as PANS
+    stores it on the anchor). Four anchors at one height -- the usual DWM1001 set-up -- give a
+    coplanar layout; ``tag_side`` says which side of their plane the tag is on.
+
+    Raises ``companion.uwb.AnchorLayoutError`` for too few or degenerate anchors.
+    """
+    return AnchorLayout(
+        tuple(a.anchor_id for a in reading.anchors),
+        tuple((a.x_m, a.y_m, a.z_m) for a in reading.anchors),
+        frame,
+        "",
+        tag_side=tag_side,
+    )
 
 
 class LineKind(Enum):

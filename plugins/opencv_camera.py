@@ -2,21 +2,59 @@
 
 A capture thread keeps only the newest frame (bounded, keep-newest), stamped at capture on the
 monotonic clock minus the configured exposure latency; ``read()`` never blocks the event loop.
+
+Playback of a recorded flight (``playback=True``, hardware-in-the-loop with a camera file): no
+thread; the file's frames are played at their *own* times on the injected clock (the shell's,
+virtual in simulation). Frame i was exposed at ``frame_times[i] + time_offset_s`` -- the times
+from a CSV written beside the video (:class:`CameraFileWriter`, columns ``frame,time_s``) or,
+without one, from the container's timestamps -- and becomes readable ``latency_s`` later.
+``read()`` returns the newest frame that is readable and not yet returned; frames it passed are
+dropped, as a live camera's keep-newest buffer drops them. :class:`CameraFileWriter` records
+frames with their exposure times in that format.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import ClassVar
 
 import cv2
 
+from companion.flightlog.camera_file import (
+    CODECS,
+    TIMES_COLUMNS,
+    CameraFileError,
+    CameraFileWriter,
+    RecordingCamera,
+    times_path_for,
+)
+from companion.flightlog.camera_file import load_frame_times as _load_frame_times
 from companion.plugin_api import Frame, PluginError
 
+__all__ = [
+    "CODECS",
+    "TIMES_COLUMNS",
+    "CameraFileWriter",
+    "OpenCvCamera",
+    "RecordingCamera",
+    "load_frame_times",
+    "times_path_for",
+]
+
 log = logging.getLogger(__name__)
+
+
+def load_frame_times(path: str | Path) -> list[float]:
+    """:func:`companion.flightlog.camera_file.load_frame_times`, its errors as :class:`PluginError`."""
+    try:
+        return _load_frame_times(path)
+    except CameraFileError as err:
+        raise PluginError(str(err)) from None
 
 
 class OpenCvCamera:
@@ -31,12 +69,25 @@ class OpenCvCamera:
         latency_s: float = 0.0,
         loop_file: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        playback: bool = False,
+        frame_times: str | Path | Sequence[float] | None = None,
+        time_offset_s: float = 0.0,
     ):
         self.source = source
         self.width_px, self.height_px, self.fps = width_px, height_px, fps
         self.latency_s = latency_s
         self.loop_file = loop_file
         self._clock = clock
+        self.playback = playback
+        if frame_times is not None and not playback:
+            raise PluginError(f"camera {source!r}: frame_times given without playback=True")
+        if not math.isfinite(time_offset_s):
+            raise PluginError(f"camera {source!r}: time_offset_s = {time_offset_s!r}: expected a finite number")
+        self.time_offset_s = float(time_offset_s)
+        self._frame_times_arg = frame_times
+        self._times: list[float] | None = None
+        self._pending: Frame | None = None  # playback: the next decoded frame, not yet due
+        self.dropped = 0  # playback: frames passed over by a newer readable one
         self._cap: cv2.VideoCapture | None = None
         self._lock = threading.Lock()
         self._latest: Frame | None = None
@@ -69,6 +120,9 @@ class OpenCvCamera:
         return cap
 
     def start(self) -> None:
+        if self.playback:
+            self._start_playback()
+            return
         if self._thread is not None:
             return
         self._cap = self._open()
@@ -97,7 +151,89 @@ class OpenCvCamera:
                 self._latest = Frame(t, img, self.frames)
             self.frames += 1
 
+    # ---- playback of a recorded file ----------------------------------------------------------
+    def _start_playback(self) -> None:
+        if self._cap is not None:
+            return
+        if not isinstance(self.source, str) or self.source.isdigit() or "!" in self.source:
+            raise PluginError(f"camera {self.source!r}: playback needs a video file, not a device or pipeline")
+        arg = self._frame_times_arg
+        if isinstance(arg, str | Path):
+            self._times = load_frame_times(arg)
+        elif arg is not None:
+            self._times = [float(t) for t in arg]
+            if not all(math.isfinite(t) for t in self._times) or any(
+                b <= a for a, b in zip(self._times, self._times[1:], strict=False)
+            ):
+                raise PluginError(f"camera {self.source!r}: frame_times must be finite and increasing")
+        self._cap = self._open_file()
+        n = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        if self._times is not None and n > 0 and n != len(self._times):
+            where = str(arg) if isinstance(arg, str | Path) else "frame_times"
+            raise PluginError(
+                f"camera {self.source!r}: the video has {n} frames but {where} lists {len(self._times)} times: "
+                "expected one time per frame"
+            )
+        self._pending = self._decode_next()
+        if self._pending is None:
+            raise PluginError(f"camera {self.source!r}: no frame could be read from the file")
+        h, w = self._pending.image.shape[:2]
+        if (self.width_px and w != self.width_px) or (self.height_px and h != self.height_px):
+            raise PluginError(
+                f"camera {self.source!r}: frames are {w}x{h} px but the calibration expects "
+                f"{self.width_px}x{self.height_px}: expected the recording's own calibration"
+            )
+        log.info(
+            "camera %r: playing back %s frames from t = %.3f s (times from %s)",
+            self.source,
+            n if n > 0 else "?",
+            self._pending.time_s,
+            "the frame-times file" if self._times is not None else "the container",
+        )
+
+    def _open_file(self) -> cv2.VideoCapture:
+        cap = cv2.VideoCapture(str(self.source))
+        if not cap.isOpened():
+            raise PluginError(f"camera {self.source!r}: cannot open the video file")
+        return cap
+
+    def _decode_next(self) -> Frame | None:
+        assert self._cap is not None
+        i = self.frames
+        if self._times is None:
+            # the container's timestamp of the frame about to be decoded
+            ok = self._cap.grab()
+            t_file = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+            ok, img = self._cap.retrieve() if ok else (False, None)
+        else:
+            if i >= len(self._times):
+                self.eof = True
+                return None
+            ok, img = self._cap.read()
+            t_file = self._times[i]
+        if not ok or img is None:
+            self.eof = True
+            if self._times is not None and i < len(self._times):
+                log.warning("camera %r: the video ended after %d of %d timed frames", self.source, i, len(self._times))
+            return None
+        self.frames += 1
+        return Frame(t_file + self.time_offset_s, img, i)
+
+    def _read_playback(self) -> Frame | None:
+        if self._cap is None:
+            raise PluginError(f"camera {self.source!r}: read() before start()")
+        now = self._clock()
+        out: Frame | None = None
+        while self._pending is not None and self._pending.time_s + self.latency_s <= now:
+            if out is not None:
+                self.dropped += 1
+            out = self._pending
+            self._pending = self._decode_next()
+        return out
+
     def read(self) -> Frame | None:
+        if self.playback:
+            return self._read_playback()
         with self._lock:
             f, self._latest = self._latest, None
         return f

@@ -44,6 +44,7 @@ KIND_OF = {
     "camera_rpi_v2.toml": "camera",
     "pad_delivery.toml": "pad",
     "uwb_anchors_pad.toml": "anchors",
+    "uwb_anchors_one_height.toml": "anchors",
     "zenoh_fleet_router.toml": "zenoh",
     "zenoh_fleet_vehicle.toml": "zenoh",
     "zenoh_loopback.toml": "zenoh",
@@ -122,6 +123,12 @@ BROKEN = [
         ["base_anchor = '9Z99': must be one of the anchor ids"],
     ),
     ("uwb_anchors_pad.toml", "max_range_m = 10.0", "max_range_m = 0.0", ["max_range_m = 0.0", "greater than 0"]),
+    (
+        "uwb_anchors_one_height.toml",
+        'tag_side = "above"',
+        'tag_side = "up"',
+        ["tag_side = 'up'", "'above' or 'below'"],
+    ),
     ("zenoh_peer.toml", 'mode = "peer"', 'mode = "server"', ["zenoh.mode = 'server'", "'peer', 'client' or 'router'"]),
     (
         "zenoh_peer.toml",
@@ -216,4 +223,4 @@ def test_zenoh_and_camera_and_anchor_schemas_know_the_loaders_keys() -> None:
 
     assert set(CameraTable.model_fields) == _CAMERA_KEYS
     assert set(KINDS["camera"].schema.model_fields["calibration"].annotation.model_fields) == _META_KEYS  # type: ignore[union-attr]
-    assert set(AnchorsFile.model_fields) == {"frame", "base_anchor", "max_range_m", "anchors"}
+    assert set(AnchorsFile.model_fields) == {"frame", "base_anchor", "max_range_m", "tag_side", "anchors"}

@@ -55,6 +55,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
     p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds")
     p.add_argument("--out", help="run folder for flight.tlog and the per-stream CSV logs (default runs/fly-<time>)")
+    p.add_argument(
+        "--record-camera",
+        metavar="VIDEO",
+        help="record the landing camera's frames as the flight reads them to VIDEO (.avi MJPG, .mkv lossless, .mp4) "
+        "and their exposure times to VIDEO.csv, for `companion demo --camera-file` (default: not recorded)",
+    )
     p.set_defaults(func=cmd_fly)
 
 
@@ -127,13 +133,15 @@ def cmd_fly(args: argparse.Namespace) -> int:
     except LinkDeviceMissing as err:
         raise StartupError(f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING) from None
 
-    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, record_camera, start_sensors
     from companion.telemetry.session import SessionOpenError
 
     kit = None
     try:
         try:  # the landing sensors are set up and started on the ground: a missing one stops us here
             kit = build_landing_kit(config)
+            if kit is not None and getattr(args, "record_camera", None):
+                kit = record_camera(kit, Path(args.record_camera), config.landing.camera_rate_hz)
             if kit is not None:
                 start_sensors(kit)
         except LandingSetupError as err:

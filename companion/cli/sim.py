@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
 
+from companion.cli import exits
+from companion.cli.exits import StartupError
 from companion.config import (
     DEFAULT_PARAMS,
     CompanionConfig,
@@ -69,14 +72,55 @@ def flight_time_s(shell: Any) -> float:
     return float(shell._clock.now() - t0) if t0 is not None else 0.0
 
 
+def _camera_playback(args: argparse.Namespace, cfg: CompanionConfig) -> Any:
+    """``--camera-file`` and its options as a ``companion_sitl.demo.CameraPlayback`` (None without
+    it); misuse is a StartupError naming the option."""
+    from companion_sitl.demo import CameraPlayback
+
+    for opt in ("camera_times", "camera_time_offset", "camera_calibration"):
+        if getattr(args, opt) is not None and not args.camera_file:
+            raise StartupError(f"--{opt.replace('_', '-')} needs --camera-file VIDEO", exits.BAD_INPUT)
+    if args.camera_file and args.record_camera:
+        raise StartupError("--camera-file and --record-camera: play a recording or make one, not both", exits.BAD_INPUT)
+    if (args.camera_file or args.record_camera) and not (cfg.landing.fusion and cfg.landing.use_camera):
+        raise StartupError(
+            "--camera-file/--record-camera need the fused landing with the camera "
+            "(not --gps-only; landing.fusion and landing.use_camera true)",
+            exits.BAD_INPUT,
+        )
+    if args.mavlink and (args.camera_file or args.record_camera):
+        raise StartupError(
+            "--camera-file/--record-camera run on the lock-step simulator, not with --mavlink", exits.BAD_INPUT
+        )
+    if not args.camera_file:
+        return None
+    video = Path(args.camera_file)
+    if not video.is_file():
+        raise StartupError(f"--camera-file {video}: no such file", exits.BAD_INPUT)
+    times: Path | None
+    if args.camera_times is not None:
+        times = Path(args.camera_times)
+        if not times.is_file():
+            raise StartupError(f"--camera-times {times}: no such file", exits.BAD_INPUT)
+    else:  # the CSV a recording writes beside the video, else the container's timestamps
+        beside = Path(f"{video}.csv")
+        times = beside if beside.is_file() else None
+    offset = args.camera_time_offset if args.camera_time_offset is not None else 0.0
+    if not math.isfinite(offset):
+        raise StartupError(f"--camera-time-offset {offset!r}: expected a finite number of seconds", exits.BAD_INPUT)
+    return CameraPlayback(video, times, offset, args.camera_calibration)
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from companion.cli.console import make_console
+    from companion.delivery.landing_setup import LandingSetupError
     from companion.flightlog.plots import plot_run
     from companion_sitl.demo import run_demo
 
     cfg = _load_demo_config(args)
+    playback = _camera_playback(args, cfg)
     console = make_console()
     run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     m = cfg.mission
@@ -117,9 +161,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
             progress.update(task, description=ph, completed=done, t=flight_time_s(shell), where=where)
 
-        result = run_demo(
-            cfg, run_dir, realtime=args.realtime, on_tick=on_tick, telemetry=args.telemetry, mavlink=args.mavlink
-        )
+        try:
+            result = run_demo(
+                cfg,
+                run_dir,
+                realtime=args.realtime,
+                on_tick=on_tick,
+                telemetry=args.telemetry,
+                mavlink=args.mavlink,
+                camera_playback=playback,
+                record_camera=Path(args.record_camera) if args.record_camera else None,
+            )
+        except LandingSetupError as err:
+            raise StartupError(str(err), exits.BAD_INPUT) from None
     plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
@@ -381,6 +435,36 @@ def register_demo(sub: Any) -> None:
     demo.add_argument(
         "--zenoh-config",
         help="Zenoh session file for --telemetry, e.g. params/zenoh_loopback.toml (default: [telemetry] zenoh_config)",
+    )
+    demo.add_argument(
+        "--camera-file",
+        metavar="VIDEO",
+        help="hardware-in-the-loop with a recorded camera: play VIDEO through the OpenCV camera plugin at its own "
+        "frame times on the simulated clock instead of rendering the landing camera (default: rendered)",
+    )
+    demo.add_argument(
+        "--camera-times",
+        metavar="CSV",
+        help="exposure times of --camera-file's frames, columns frame,time_s (default: VIDEO.csv if it exists, "
+        "else the video container's timestamps)",
+    )
+    demo.add_argument(
+        "--camera-time-offset",
+        type=float,
+        metavar="S",
+        help="seconds added to the frame times to put them on the simulated clock (default 0)",
+    )
+    demo.add_argument(
+        "--camera-calibration",
+        metavar="TOML",
+        help="calibration of the recorded camera, e.g. from `companion calibrate` "
+        "(default: landing.camera_calibration)",
+    )
+    demo.add_argument(
+        "--record-camera",
+        metavar="VIDEO",
+        help="record the simulated landing camera's frames to VIDEO (.avi MJPG, .mkv lossless FFV1, .mp4) and their "
+        "exposure times to VIDEO.csv, for --camera-file (default: not recorded)",
     )
     demo.set_defaults(func=cmd_demo)
 

@@ -113,6 +113,22 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
     )
 
 
+def record_camera(kit: LandingKit, video: Path, fps: float) -> LandingKit:
+    """The kit with its camera recorded: every frame the flight reads is written to ``video`` and
+    its exposure time (the shell's clock) to ``<video>.csv``, for ``companion demo --camera-file``."""
+    import dataclasses
+
+    from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera
+
+    if kit.camera is None:
+        raise LandingSetupError(f"--record-camera {video}: no camera to record (landing.use_camera = false)")
+    try:
+        writer = CameraFileWriter(video, fps=fps)
+    except (CameraFileError, OSError) as err:
+        raise LandingSetupError(f"--record-camera {video}: {err}") from None
+    return dataclasses.replace(kit, camera=RecordingCamera(kit.camera, writer))
+
+
 def start_sensors(kit: LandingKit) -> None:
     """Start the sensors on the ground, before take-off, so a missing device fails there; the
     shell then leaves them running and stops them when the flight ends."""

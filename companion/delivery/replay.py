@@ -56,6 +56,9 @@ OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
     ("ap_home.csv", "north_m"): 0.0,
     ("ap_home.csv", "east_m"): 0.0,
     ("ap_home.csv", "down_m"): 0.0,
+    ("uwb.csv", "hdop"): math.nan,
+    ("uwb.csv", "vdop"): math.nan,
+    ("uwb.csv", "vertical_weak"): False,
 }
 
 
@@ -123,6 +126,13 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
             t.value(k, "residual_rms_m"),
             tuple(t.text(k, "anchors_used").split()),
             t.text(k, "frame"),
+            hdop=t.value(k, "hdop") if "hdop" in t.index else OPTIONAL_COLUMNS[("uwb.csv", "hdop")],
+            vdop=t.value(k, "vdop") if "vdop" in t.index else OPTIONAL_COLUMNS[("uwb.csv", "vdop")],
+            vertical_weak=(
+                t.value(k, "vertical_weak", bool)
+                if "vertical_weak" in t.index
+                else OPTIONAL_COLUMNS[("uwb.csv", "vertical_weak")]
+            ),
         )
         inputs.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
     t = table("requests.csv")

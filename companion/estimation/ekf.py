@@ -124,7 +124,9 @@ class EkfConfig:
     # h_UWB (eq 15)
     uwb_position_sigma_m: float = 0.10
     uwb_position_sigma_gain_m_per_m: float = 0.01
-    uwb_scale_with_pdop: bool = True  # per-axis sigma *= PDOP / sqrt(3) when the fix has one
+    # per-axis sigma *= PDOP / sqrt(3) when the fix has one; a fix from coplanar anchors
+    # (``vertical_weak``) gets sigma * HDOP / sqrt(2) horizontally and sigma * VDOP vertically
+    uwb_scale_with_pdop: bool = True
     # chi-square innovation gate
     gating_enabled: bool = True
     gate_probability: float = 0.9999
@@ -497,9 +499,25 @@ class DeliveryEkf:
         z = T_world_anchor.R @ p_a + T_world_anchor.t
         sigma = cfg.uwb_position_sigma_m + cfg.uwb_position_sigma_gain_m_per_m * self.height_above_pad_m
         pdop = float(fix.pdop)
-        if cfg.uwb_scale_with_pdop and math.isfinite(pdop) and pdop > 0.0:
-            sigma *= pdop / math.sqrt(3.0)
-        R = np.eye(3) * sigma * sigma  # isotropic: invariant under the anchor->world rotation
+        hdop = float(getattr(fix, "hdop", math.nan))
+        vdop = float(getattr(fix, "vdop", math.nan))
+        if (
+            cfg.uwb_scale_with_pdop
+            and bool(getattr(fix, "vertical_weak", False))
+            and math.isfinite(hdop)
+            and math.isfinite(vdop)
+            and hdop > 0.0
+            and vdop > 0.0
+        ):
+            # coplanar anchors: the vertical is weakly observed; per-axis variances in the anchor
+            # frame (x, y share HDOP^2; z gets VDOP^2; their sum is PDOP^2 as in the isotropic
+            # case), rotated into world NED
+            R_a = np.diag([hdop * hdop / 2.0, hdop * hdop / 2.0, vdop * vdop]) * sigma * sigma
+            R = T_world_anchor.R @ R_a @ T_world_anchor.R.T
+        else:
+            if cfg.uwb_scale_with_pdop and math.isfinite(pdop) and pdop > 0.0:
+                sigma *= pdop / math.sqrt(3.0)
+            R = np.eye(3) * sigma * sigma  # isotropic: invariant under the anchor->world rotation
         H = self._H_uwb
         return self._local_update("uwb", z, h_uwb, lambda x: H, R, False)
 

@@ -181,6 +181,9 @@ UWB_COLUMNS = (
     "residual_rms_m",
     "anchors_used",
     "frame",
+    "hdop",  # horizontal / vertical DOP in the anchor frame (NaN when the solver gave none)
+    "vdop",
+    "vertical_weak",  # coplanar anchors: the EKF weights the vertical by vdop
 )
 _AXES12 = (
     ("north", "m"),
@@ -307,6 +310,9 @@ def uwb_row(seq: int, arrival_s: float, fix: Any) -> tuple[object, ...]:
         float(getattr(fix, "residual_rms_m", _NAN)),
         " ".join(getattr(fix, "anchors_used", ())),
         str(getattr(fix, "frame", "")),
+        float(getattr(fix, "hdop", _NAN)),
+        float(getattr(fix, "vdop", _NAN)),
+        int(bool(getattr(fix, "vertical_weak", False))),
     )
 
 

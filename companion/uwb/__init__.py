@@ -17,6 +17,7 @@ from companion.uwb.multilateration import (
     TwrMeasurement,
     UwbFix,
     UwbRejection,
+    dilutions_of_precision,
     solve_tdoa,
     solve_twr,
 )
@@ -34,6 +35,7 @@ __all__ = [
     "UwbFix",
     "UwbRejection",
     "anchor_frame_to_ned",
+    "dilutions_of_precision",
     "load_anchor_layout",
     "solve_tdoa",
     "solve_twr",

@@ -7,6 +7,15 @@ frame together with ``T_world_anchorframe`` (see :func:`anchor_frame_to_ned`).
 
 The base anchor is the anchor the TDoA differences are taken against: index 1 in delivery
 eqs 2-4 (index 0 there is the tag).
+
+Anchors at one height (four DWM1001 anchors on the ground or on tripods around the pad, the
+paper's set-up) are *coplanar*: the ranges then fit the tag and its mirror image through the
+anchors' plane equally well, and the tag's distance from that plane is only weakly observed.
+Such a layout is accepted; ``tag_side`` ("above", the default, or "below") says on which side of
+the plane the tag flies, and the multilateration picks that side and reports the weak vertical
+(VDOP) so the EKF gets a larger vertical variance. Only truly degenerate geometry is refused:
+fewer than 3 distinct anchor positions, or anchors (nearly) on one line, where the tag's position
+around that line is unobservable.
 """
 
 from __future__ import annotations
@@ -32,8 +41,15 @@ MIN_ANCHORS = 4
 _ID_RE = re.compile(r"^[0-9A-Za-z_-]{1,16}$")
 _MAX_COORD_M = 1000.0
 #: the smallest singular value of the centred anchor positions: below this the anchors are
-#: (nearly) coplanar and the vertical coordinate of the tag is unobservable.
+#: (nearly) coplanar; the tag's side of their plane comes from ``tag_side`` and its distance
+#: from the plane is weakly observed.
 MIN_NONCOPLANARITY_M = 0.1
+#: the middle singular value: below this the anchors are (nearly) collinear -- refused.
+MIN_NONCOLLINEARITY_M = 0.1
+#: a coplanar layout's plane must be within 60 deg of horizontal (|normal_z| >= cos 60 deg) for
+#: "above"/"below" to name a side of it.
+MIN_PLANE_NORMAL_Z = 0.5
+TAG_SIDES = ("above", "below")
 
 
 class AnchorLayoutError(ValueError):
@@ -59,6 +75,7 @@ class AnchorLayout:
     frame: str = "pad"
     base_anchor_id: str = ""
     max_range_m: float = DWM1001_MAX_RANGE_M
+    tag_side: str = "above"
 
     def __post_init__(self) -> None:
         src = "AnchorLayout"
@@ -86,15 +103,11 @@ class AnchorLayout:
             raise AnchorLayoutError(src, "base_anchor_id", self.base_anchor_id, "must be one of the anchor ids")
         if not (math.isfinite(self.max_range_m) and 0.0 < self.max_range_m <= 100.0):
             raise AnchorLayoutError(src, "max_range_m", self.max_range_m, "must be in (0, 100] m")
-        sv = _noncoplanarity_m(self.positions_array())
-        if sv < MIN_NONCOPLANARITY_M:
-            raise AnchorLayoutError(
-                src,
-                "positions_m",
-                self.positions_m,
-                f"anchors are (nearly) coplanar (spread {sv:.3f} m < {MIN_NONCOPLANARITY_M} m); "
-                "place them at different heights so the vertical position is observable",
-            )
+        if self.tag_side not in TAG_SIDES:
+            raise AnchorLayoutError(src, "tag_side", self.tag_side, f"must be one of {list(TAG_SIDES)}")
+        problem = _geometry_problem(self.positions_array())
+        if problem is not None:
+            raise AnchorLayoutError(src, "positions_m", self.positions_m, problem)
 
     def positions_array(self) -> np.ndarray:
         """The positions as an (N, 3) float array (a fresh copy)."""
@@ -113,10 +126,26 @@ class AnchorLayout:
     def base_index(self) -> int:
         return self.index_of(self.base_anchor_id)
 
+    @property
+    def coplanar(self) -> bool:
+        """All anchors (nearly) in one plane: the tag's distance from it is weakly observed."""
+        return bool(_singular_values_m(self.positions_array())[2] < MIN_NONCOPLANARITY_M)
+
+    @property
+    def plane_point_m(self) -> np.ndarray:
+        """The anchors' centroid (a point of their plane when :attr:`coplanar`)."""
+        return self.positions_array().mean(axis=0)
+
+    @property
+    def tag_side_normal(self) -> np.ndarray:
+        """Unit normal of the anchors' best-fit plane pointing to the tag's side (``tag_side``):
+        +z-ish for "above", -z-ish for "below"."""
+        return _plane_normal(self.positions_array(), self.tag_side)
+
     @staticmethod
     def from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> AnchorLayout:
         """Build a layout from parsed TOML; every error names source, key, value and rule."""
-        allowed = {"frame", "base_anchor", "max_range_m", "anchors"}
+        allowed = {"frame", "base_anchor", "max_range_m", "tag_side", "anchors"}
         for key in data:
             if key not in allowed:
                 raise AnchorLayoutError(source, key, data[key], f"unknown key (allowed: {sorted(allowed)})")
@@ -128,6 +157,11 @@ class AnchorLayout:
             raise AnchorLayoutError(source, "max_range_m", max_range, "must be a number (metres)")
         if not (math.isfinite(max_range) and 0.0 < max_range <= 100.0):
             raise AnchorLayoutError(source, "max_range_m", max_range, "must be in (0, 100] m")
+        tag_side = data.get("tag_side", "above")
+        if tag_side not in TAG_SIDES:
+            raise AnchorLayoutError(
+                source, "tag_side", tag_side, f"must be one of {list(TAG_SIDES)} (the tag's side of coplanar anchors)"
+            )
         anchors = data.get("anchors")
         if not isinstance(anchors, list) or len(anchors) < MIN_ANCHORS:
             raise AnchorLayoutError(
@@ -166,16 +200,10 @@ class AnchorLayout:
         base = data.get("base_anchor", ids[0])
         if base not in ids:
             raise AnchorLayoutError(source, "base_anchor", base, f"must be one of the anchor ids {ids}")
-        sv = _noncoplanarity_m(np.array(positions))
-        if sv < MIN_NONCOPLANARITY_M:
-            raise AnchorLayoutError(
-                source,
-                "anchors.position_m",
-                positions,
-                f"anchors are (nearly) coplanar (spread {sv:.3f} m < {MIN_NONCOPLANARITY_M} m); "
-                "place them at different heights so the vertical position is observable",
-            )
-        return AnchorLayout(tuple(ids), tuple(positions), frame, base, float(max_range))
+        problem = _geometry_problem(np.array(positions))
+        if problem is not None:
+            raise AnchorLayoutError(source, "anchors.position_m", positions, problem)
+        return AnchorLayout(tuple(ids), tuple(positions), frame, base, float(max_range), str(tag_side))
 
     @staticmethod
     def from_toml(path: str | Path) -> AnchorLayout:
@@ -200,9 +228,38 @@ def load_anchor_layout(path: str | Path | None = None) -> AnchorLayout:
         return AnchorLayout.from_toml(real)
 
 
-def _noncoplanarity_m(positions: np.ndarray) -> float:
+def _singular_values_m(positions: np.ndarray) -> np.ndarray:
+    """The three singular values of the centred anchor positions (metres, descending)."""
     centred = positions - positions.mean(axis=0)
-    return float(np.linalg.svd(centred, compute_uv=False)[-1])
+    sv = np.linalg.svd(centred, compute_uv=False)
+    return np.concatenate([sv, np.zeros(3 - len(sv))]) if len(sv) < 3 else sv
+
+
+def _plane_normal(positions: np.ndarray, side: str) -> np.ndarray:
+    centred = positions - positions.mean(axis=0)
+    n = np.linalg.svd(centred)[2][-1]
+    if n[2] < 0.0:
+        n = -n
+    return n if side == "above" else -n
+
+
+def _geometry_problem(positions: np.ndarray) -> str | None:
+    """Why these anchors cannot fix a tag (None: they can; coplanar is allowed, see module doc)."""
+    distinct = len({tuple(np.round(p, 3)) for p in positions})
+    if distinct < 3:
+        return f"only {distinct} distinct anchor positions; at least 3 not on one line are needed"
+    sv = _singular_values_m(positions)
+    if sv[1] < MIN_NONCOLLINEARITY_M:
+        return (
+            f"anchors are (nearly) on one line (spread across it {sv[1]:.3f} m < {MIN_NONCOLLINEARITY_M} m); "
+            "the tag's position around that line is unobservable -- spread them around the pad"
+        )
+    if sv[2] < MIN_NONCOPLANARITY_M and abs(_plane_normal(positions, "above")[2]) < MIN_PLANE_NORMAL_Z:
+        return (
+            "anchors lie in a steep plane (more than 60 deg from horizontal), so tag_side above/below "
+            "does not name a side of it; put them at one height or at clearly different heights"
+        )
+    return None
 
 
 def anchor_frame_to_ned(origin_ned_m: ArrayLike, heading_rad: float = 0.0) -> Transform:
@@ -227,8 +284,9 @@ def layout_from_positions(
     ids: Sequence[str] | None = None,
     frame: str = "pad",
     max_range_m: float = DWM1001_MAX_RANGE_M,
+    tag_side: str = "above",
 ) -> AnchorLayout:
     """Convenience constructor (tests, simulation): ids default to A0, A1, ..."""
     pos = [tuple(float(c) for c in p) for p in np.asarray(positions_m, dtype=float)]
     names = tuple(ids) if ids is not None else tuple(f"A{i}" for i in range(len(pos)))
-    return AnchorLayout(names, tuple(pos), frame, names[0], max_range_m)  # type: ignore[arg-type]
+    return AnchorLayout(names, tuple(pos), frame, names[0], max_range_m, tag_side)  # type: ignore[arg-type]

@@ -28,6 +28,18 @@ With fewer than two redundant anchors (4 TWR / 5 TDoA anchors) an inconsistency 
 but not attributed, so the sample is refused. Fewer than 4 usable anchors, degenerate geometry
 or PDOP above the limit: a typed :class:`UwbRejection`, never a guess.
 
+Anchors at one height (coplanar layouts, :attr:`AnchorLayout.coplanar`): the linear seeds give
+the tag's position in the anchors' plane and its distance h from the plane up to sign (TWR:
+h^2 = d_i^2 - ||x_plane - a_i||^2, averaged; TDoA: the two roots of delivery eq 3's quadratic
+are the tag and its mirror image); the solution on the layout's ``tag_side`` is kept (a fix that
+converged to the mirror side is reflected back and re-refined). The fix reports HDOP and VDOP
+and ``vertical_weak``; the EKF then weights the vertical by VDOP instead of the isotropic PDOP.
+A tag in the plane itself (h -> 0) makes VDOP diverge and the fix is refused by ``max_pdop``.
+
+Four TWR anchors (the paper's set-up) leave one redundant range: an inconsistent range is
+detected (the sample is refused) but cannot be attributed to an anchor, so such fixes carry
+``outliers_checked = False`` and the first one is logged.
+
 Known limit: with the tag low, inside the anchors' height band (below ~1 m for the packaged
 layout), vertical geometry is weak and a 1-2 m NLOS error on one anchor can be absorbed by a
 different fix that fits every range within the threshold. The EKF's chi-square gate is the
@@ -92,6 +104,13 @@ class UwbFix:
     residual_rms_m: float
     anchors_used: tuple[str, ...]
     frame: str
+    #: horizontal / vertical dilution of precision in the anchor frame (z up); NaN when unknown
+    hdop: float = math.nan
+    vdop: float = math.nan
+    #: False when too few redundant anchors were left to reject an outlier (4 TWR / 5 TDoA)
+    outliers_checked: bool = True
+    #: the anchors are coplanar: the vertical is weakly observed (weight it by ``vdop``)
+    vertical_weak: bool = False
 
     @property
     def position_m(self) -> np.ndarray:
@@ -163,24 +182,42 @@ def model_jacobian(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> np.nda
     return np.hstack([u, -np.ones((len(anchors), 1))])
 
 
-def linear_twr_seed(anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
-    """Closed form: ||x||^2 - 2 a_i.x + ||a_i||^2 = d_i^2 minus the same for anchor 0."""
+def linear_twr_seed(
+    anchors: np.ndarray, ranges: np.ndarray, side_normal: np.ndarray | None = None
+) -> np.ndarray | None:
+    """Closed form: ||x||^2 - 2 a_i.x + ||a_i||^2 = d_i^2 minus the same for anchor 0.
+
+    ``side_normal`` (coplanar anchors: the unit normal of their plane towards the tag): the
+    linear system only fixes the in-plane position x_p; the distance from the plane is
+    h = sqrt(mean(d_i^2 - ||x_p - a_i||^2)) on the side of the normal.
+    """
     centre = anchors.mean(axis=0)
     a = anchors - centre
     k2 = np.sum(a**2, axis=1)
     A = 2.0 * (a[1:] - a[0])
     b = (ranges[0] ** 2 - ranges[1:] ** 2) + (k2[1:] - k2[0])
-    sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
-    if rank < 3:
+    if side_normal is None:
+        sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+        if rank < 3:
+            return None
+        return sol + centre
+    n = np.asarray(side_normal, dtype=float)
+    P = np.eye(3) - np.outer(n, n)  # projector onto the plane
+    sol, _, rank, _ = np.linalg.lstsq(A @ P, b, rcond=None)
+    if rank < 2:
         return None
-    return sol + centre
+    x_p = P @ sol
+    h2 = float(np.mean(ranges**2 - np.sum((x_p - a) ** 2, axis=1)))
+    return x_p + math.sqrt(max(h2, 0.0)) * n + centre
 
 
-def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0) -> list[np.ndarray]:
+def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0, coplanar: bool = False) -> list[np.ndarray]:
     """Delivery eq 3 with the reference anchor at the origin: unknowns (x', d_ref).
 
     Returns candidate theta = (x, y, z, c) with c the pseudo-range offset (c = d_ref - rho_ref).
-    Four anchors: the 3x4 system plus d_ref = ||x'|| gives up to two exact solutions.
+    Four anchors: the 3x4 system plus d_ref = ||x'|| gives up to two exact solutions. Coplanar
+    anchors (``coplanar``): the system has rank 3 for any number of anchors, its null vector is
+    the plane normal, and the same quadratic gives the tag and its mirror image.
     """
     a = anchors - anchors[ref]
     others = [i for i in range(len(anchors)) if i != ref]
@@ -191,13 +228,14 @@ def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0) -> lis
     M = np.hstack([2.0 * ai, 2.0 * rik[:, None]])
     b = K - rik**2
     thetas: list[np.ndarray] = []
-    if len(others) >= 4:
+    exact = len(others) < 4 or coplanar
+    if not exact:
         sol, _, rank, _ = np.linalg.lstsq(M, b, rcond=None)
         if rank < 4:
             return []
         cands = [sol]
     else:
-        U, s, Vt = np.linalg.svd(M)
+        U, s, Vt = np.linalg.svd(M, full_matrices=True)
         if len(s) < 3 or s[2] < 1e-9 * max(s[0], 1e-12):
             return []
         p = Vt[:3].T @ ((U.T @ b)[:3] / s[:3])
@@ -219,7 +257,7 @@ def linear_tdoa_seeds(anchors: np.ndarray, rho: np.ndarray, ref: int = 0) -> lis
             else:  # noise made it slightly complex: take the real part
                 roots = [-B2 / (2 * A2)]
         cands = [p + t * q for t in roots]
-    if len(others) >= 4:
+    if not exact:
         # over-determined: the d_1 estimate of the linear solution is noisy (and can come out
         # negative with an outlier); take only x from it and the offset from x
         x = cands[0][:3] + anchors[ref]
@@ -297,6 +335,20 @@ def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) ->
     return math.sqrt(tr) if tr > 0 and math.isfinite(tr) else math.inf
 
 
+def dilutions_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> tuple[float, float, float]:
+    """(PDOP, HDOP, VDOP) from the position block of (J^T J)^-1 (see :func:`dilution_of_precision`):
+    HDOP = sqrt(var_x + var_y), VDOP = sqrt(var_z) in the anchor frame (z up), per unit range error."""
+    J = model_jacobian(theta, anchors, tdoa)
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return math.inf, math.inf, math.inf
+    d = np.diag(cov)[:3]
+    if not (np.all(np.isfinite(d)) and np.all(d > 0.0)):
+        return math.inf, math.inf, math.inf
+    return math.sqrt(float(d.sum())), math.sqrt(float(d[0] + d[1])), math.sqrt(float(d[2]))
+
+
 # --------------------------------------------------------------------------------------------
 
 
@@ -321,6 +373,17 @@ class Multilaterator:
         self.counters = MultilaterationCounters()
         self._rng = np.random.default_rng(self.config.seed)
         self._positions = layout.positions_array()
+        self._coplanar = layout.coplanar
+        self._side_normal = layout.tag_side_normal if self._coplanar else None
+        self._plane_point = layout.plane_point_m
+        self._logged_unchecked = False
+        if self._coplanar:
+            log.info(
+                "uwb: anchors of layout %r are coplanar: fixes are taken %s their plane, the vertical is weakly "
+                "observed (VDOP reported)",
+                layout.frame,
+                layout.tag_side,
+            )
 
     # public API ---------------------------------------------------------------------------
 
@@ -422,14 +485,34 @@ class Multilaterator:
                 return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
             if not self._consistent(anchors[keep], obs[keep], tdoa, sol)[0]:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
-        pdop = dilution_of_precision(sol.theta, anchors[keep], tdoa)
+        pdop, hdop, vdop = dilutions_of_precision(sol.theta, anchors[keep], tdoa)
         if not pdop <= cfg.max_pdop:
             return self._reject(time_s, RejectReason.BAD_GEOMETRY, f"PDOP {pdop:.1f} > {cfg.max_pdop}", len(keep))
         self.counters.fixes += 1
+        checked = len(keep) - n_unknowns >= 2
+        if not checked and not self._logged_unchecked:
+            self._logged_unchecked = True
+            log.info(
+                "uwb: %d %s anchors leave one redundant measurement: fixes are accepted without outlier rejection "
+                "(an inconsistent sample is refused, not repaired), as in delivery 4.2.2",
+                len(keep),
+                "TDoA" if tdoa else "TWR",
+            )
         rms = float(np.sqrt(np.mean(sol.residuals**2)))
         x = sol.theta
         return UwbFix(
-            time_s, float(x[0]), float(x[1]), float(x[2]), pdop, rms, tuple(ids[i] for i in keep), self.layout.frame
+            time_s,
+            float(x[0]),
+            float(x[1]),
+            float(x[2]),
+            pdop,
+            rms,
+            tuple(ids[i] for i in keep),
+            self.layout.frame,
+            hdop,
+            vdop,
+            checked,
+            self._coplanar,
         )
 
     def _fit(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None) -> _Solution | None:
@@ -451,12 +534,12 @@ class Multilaterator:
         cfg = self.config
         seeds: list[np.ndarray] = []
         if tdoa:
-            seeds.extend(linear_tdoa_seeds(anchors, obs, ref=0))
+            seeds.extend(linear_tdoa_seeds(anchors, obs, ref=0, coplanar=self._coplanar))
             if prior is not None:
                 c = float(np.mean(np.sqrt(np.sum((prior - anchors) ** 2, axis=1)) - obs))
                 seeds.append(np.array([prior[0], prior[1], prior[2], c]))
         else:
-            s = linear_twr_seed(anchors, obs)
+            s = linear_twr_seed(anchors, obs, self._side_normal)
             if s is not None:
                 seeds.append(s)
             if prior is not None:
@@ -465,15 +548,35 @@ class Multilaterator:
         for seed in seeds:
             if not np.all(np.isfinite(seed)):
                 continue
+            seed = self._on_tag_side(seed)
             if refine:
                 theta, cost = levenberg_marquardt(seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m)
+                if self._side_normal is not None and float((theta[:3] - self._plane_point) @ self._side_normal) < 0:
+                    # converged to the mirror image: reflect it to the tag's side and refine there
+                    theta, cost = levenberg_marquardt(
+                        self._on_tag_side(theta), anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m
+                    )
             else:  # an exactly determined closed-form solution (minimal TDoA subset)
                 theta = seed
                 r0 = model_residuals(seed, anchors, obs, tdoa)
                 cost = float(r0 @ r0)
             if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
                 continue
+            if self._side_normal is not None and float((theta[:3] - self._plane_point) @ self._side_normal) < 0:
+                continue  # still on the wrong side: not a solution for this layout
             out.append(_Solution(theta, cost, model_residuals(theta, anchors, obs, tdoa)))
+        return out
+
+    def _on_tag_side(self, theta: np.ndarray) -> np.ndarray:
+        """Coplanar layouts: reflect theta's position through the anchors' plane when it is on
+        the side opposite ``tag_side`` (the ranges cannot tell the two apart)."""
+        if self._side_normal is None or not np.all(np.isfinite(theta)):
+            return theta
+        h = float((theta[:3] - self._plane_point) @ self._side_normal)
+        if h >= 0.0:
+            return theta
+        out = theta.astype(float).copy()
+        out[:3] = out[:3] - 2.0 * h * self._side_normal
         return out
 
     def _consistent(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, sol: _Solution) -> tuple[bool, np.ndarray]:

@@ -83,3 +83,30 @@ def test_fly_refuses_to_start_without_its_camera(tmp_path, capsys):
     assert main(["fly", "--params", str(p), "--out", str(tmp_path / "run")]) == exits.DEVICE_MISSING
     assert "use_camera = false" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()  # nothing flew, nothing logged
+
+
+def test_record_camera_wraps_the_kit_camera_and_writes_the_frames_it_reads(tmp_path):
+    from companion.delivery.landing_setup import record_camera
+    from companion.flightlog.camera_file import load_frame_times, times_path_for
+
+    cfg = _cfg(tmp_path, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
+    kit = build_landing_kit(cfg)
+    assert kit is not None
+    with pytest.raises(LandingSetupError, match=r"--record-camera .*x\.gif: .*extension '\.gif'"):
+        record_camera(kit, tmp_path / "x.gif", 30.0)
+    video = tmp_path / "cam.mkv"
+    rec = record_camera(kit, video, 30.0)
+    start_sensors(rec)
+    try:
+        frame = None
+        t_end = time.monotonic() + 5.0
+        while frame is None and time.monotonic() < t_end:
+            frame = rec.camera.read()
+            time.sleep(0.01)
+        assert frame is not None
+    finally:
+        rec.camera.stop()
+    assert load_frame_times(times_path_for(video)) == [frame.time_s]
+    no_cam = build_landing_kit(_cfg(tmp_path, use_camera=False))
+    with pytest.raises(LandingSetupError, match="no camera to record"):
+        record_camera(no_cam, video, 30.0)

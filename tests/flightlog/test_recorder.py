@@ -32,7 +32,7 @@ UNITLESS = {
     "seq", "phase", "sector", "mode", "armed", "landed", "healthy", "payload_released", "fix_type", "satellites",
     "severity", "text", "ambiguous", "markers", "anchors_used", "frame", "pdop", "xi", "markers_used", "uwb_used",
     "link_ok", "est_source", "clamped", "request", "request_id", "id", "kind", "ok", "error", "permanent", "source",
-    "detail", "reply", *(f"r{i}{j}" for i in range(3) for j in range(3)),
+    "detail", "reply", "hdop", "vdop", "vertical_weak", *(f"r{i}{j}" for i in range(3) for j in range(3)),
 }  # fmt: skip
 
 

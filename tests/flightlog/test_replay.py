@@ -117,3 +117,35 @@ def test_fly_logs_an_operator_ctrl_c_and_replays_it(tmp_path):
     assert r.streams["ekf.csv"].recorded_rows == 0  # GPS-only: no fusion on this vehicle
     kinds = [Table(run / "events.csv").text(k, "kind") for k in range(len(Table(run / "events.csv")))]
     assert "abort" in kinds
+
+
+def test_replay_of_a_flight_on_anchors_at_one_height_is_identical(tmp_path):
+    """uwb.csv carries HDOP/VDOP and vertical_weak: the replayed EKF weights the weak vertical as
+    the flight did (without them the replay would fuse the fixes isotropically and differ)."""
+    from companion.config import load_config, shipped_params_path
+    from companion_sitl.demo import run_demo
+
+    config = load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]},
+            "landing": {"use_camera": False, "uwb_anchors": "uwb_anchors_one_height.toml"},
+        },
+    )
+    run = tmp_path / "run"
+    r = run_demo(config, run_dir=run)
+    assert r.delivered and r.returned, r.failure
+    uwb = Table(run / "uwb.csv")
+    assert len(uwb) > 50
+    assert all(uwb.value(k, "vertical_weak", bool) for k in range(len(uwb)))
+    assert all(uwb.value(k, "vdop") > 0.0 for k in range(len(uwb)))
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    # and the recorded weights matter: flipping the flag changes the replayed estimates
+    rows = list(csv.reader((run / "uwb.csv").open(newline="")))
+    i = rows[0].index("vertical_weak")
+    for row in rows[1:]:
+        row[i] = "0"
+    with (run / "uwb.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    assert not replay_run(run, tmp_path / "replayed2").identical

@@ -72,10 +72,14 @@ def test_good_file_loads(tmp_path: Path) -> None:
         (lambda t: t.replace("[3.0, -3.0, 1.8]", '[3.0, "x", 1.8]'), "anchors[3].position_m", "three finite"),
         (lambda t: t.replace('base_anchor = "A2"', 'base_anchor = "B7"'), "base_anchor", "one of the anchor ids"),
         (lambda t: t.replace("max_range_m = 10.0", "max_range_m = -1.0"), "max_range_m", "(0, 100]"),
-        (
-            lambda t: t.replace("0.3]", "1.0]").replace("2.2]", "1.0]").replace("0.5]", "1.0]").replace("1.8]", "1.0]"),
+        (  # all four on the diagonal x = y: collinear (coplanar is accepted, see test_coplanar_anchors)
+            lambda t: (
+                t.replace("[-3.0, 3.0, 2.2]", "[-3.0, -3.0, 0.3]")
+                .replace("[-3.0, -3.0, 0.5]", "[1.0, 1.0, 0.3]")
+                .replace("[3.0, -3.0, 1.8]", "[-1.0, -1.0, 0.3]")
+            ),
             "anchors.position_m",
-            "coplanar",
+            "on one line",
         ),
         (lambda t: t.split('[[anchors]]\nid = "A4"')[0], "anchors", "at least 4"),
         (lambda t: t.replace('id = "A3"\n', 'id = "A3"\nheight = 2\n'), "anchors[2].height", "unknown key"),
@@ -102,8 +106,9 @@ def test_unreadable_and_invalid_toml(tmp_path: Path) -> None:
 def test_direct_construction_validates() -> None:
     with pytest.raises(AnchorLayoutError, match="at least 4"):
         layout_from_positions([[0, 0, 0], [1, 0, 0], [0, 1, 1]])
-    with pytest.raises(AnchorLayoutError, match="coplanar"):
-        layout_from_positions([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    with pytest.raises(AnchorLayoutError, match="on one line"):
+        layout_from_positions([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.01]])
+    assert layout_from_positions([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]).coplanar
     with pytest.raises(AnchorLayoutError, match="finite"):
         layout_from_positions([[0, 0, math.nan], [1, 0, 0], [0, 1, 0], [1, 1, 1]])
 
