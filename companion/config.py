@@ -89,6 +89,23 @@ class MissionConfig(_Section):
         ge=0.0,
         le=3.0,
     )
+    autopilot_accel_xy_m_s2: float = _f(
+        0.0,
+        "m/s^2",
+        "the autopilot's horizontal acceleration limit for velocity setpoints (ArduCopter WPNAV_ACCEL, "
+        "PX4 MPC_ACC_HOR): the field's speed is kept within it at the arcs and before slower sectors "
+        "(not in the papers; 0 = off, the paper's speeds)",
+        ge=0.0,
+        le=20.0,
+    )
+    autopilot_accel_z_m_s2: float = _f(
+        0.0,
+        "m/s^2",
+        "the autopilot's vertical acceleration limit (ArduCopter WPNAV_ACCEL_Z, PX4 MPC_ACC_UP_MAX / "
+        "MPC_ACC_DOWN_MAX), used on the climb, the descents and the arcs (0 = off)",
+        ge=0.0,
+        le=20.0,
+    )
     velocity_bias_tau_s: float = _f(
         0.0,
         "s",

@@ -45,7 +45,13 @@ FIRMWARE_OF_PROFILE = {v: k for k, v in PROFILE_FOR.items()}
 FIRMWARE_PARAMS = {"px4": "px4_sih_quad.toml", "ardupilot": "ardupilot_quad.toml"}
 FIRMWARE_TUNING_KEYS = {
     "landing": ("ekf_position_process_sigma_m_per_sqrt_s", "ekf_gate_reset_after_rejections"),
-    "mission": ("landing_xy_gain_1_s", "landing_touchdown_height_m", "velocity_bias_tau_s"),
+    "mission": (
+        "landing_xy_gain_1_s",
+        "landing_touchdown_height_m",
+        "velocity_bias_tau_s",
+        "autopilot_accel_xy_m_s2",
+        "autopilot_accel_z_m_s2",
+    ),
 }
 LANDING_TIMEOUT_S = 300.0
 MAV_CMD_DO_SET_HOME = 179

@@ -27,6 +27,7 @@ from companion.geometry.earth import GeoPoint
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath, PathGeometryError
 from companion.guidance.setpoint import VelocitySetpoint
+from companion.guidance.speed_schedule import speed_scale as schedule_speed
 from companion.guidance.vector_field import VectorField
 
 log = logging.getLogger(__name__)
@@ -674,6 +675,21 @@ class DeliveryMission:
         assert self.frame is not None and self.field is not None and self.path is not None
         p_i = self.frame.point_from_ned(est.position_ned)
         s_dir = s if not force_descent else (1 if self._sector_of(est) == 5 else -1)
+        c = self.cfg
+        if c.autopilot_accel_xy_m_s2 > 0.0 or c.autopilot_accel_z_m_s2 > 0.0:
+            # not in the paper: keep v_r within the autopilot's acceleration limits (speed_schedule)
+            speed_scale *= schedule_speed(
+                self.path,
+                float(p_i[0]),
+                float(p_i[2]),
+                self.path.sector(p_i),
+                s_dir,
+                tuple(c.sector_speed_m_s),
+                c.autopilot_accel_xy_m_s2,
+                c.autopilot_accel_z_m_s2,
+                c.land_speed_m_s,
+                (c.final_descent_alt_m, self.z_start + c.final_descent_alt_m),
+            )
         la = self.cfg.field_lookahead_s
         if la > 0.0:
             # Not in the paper: the autopilot's velocity loop lags the setpoint by about 1/k_v

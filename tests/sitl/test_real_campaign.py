@@ -36,9 +36,16 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     # the firmware's own landing tuning comes from its shipped parameters (params/px4_sih_quad.toml)
     assert firmware_tuning("px4") == {
         "landing": {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5},
-        "mission": {"landing_xy_gain_1_s": 5.0, "landing_touchdown_height_m": 0.0, "velocity_bias_tau_s": 1.0},
+        "mission": {
+            "landing_xy_gain_1_s": 5.0,
+            "landing_touchdown_height_m": 0.0,
+            "velocity_bias_tau_s": 1.0,
+            "autopilot_accel_xy_m_s2": 0.0,
+            "autopilot_accel_z_m_s2": 0.0,
+        },
     }
     assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
+    assert firmware_tuning("ardupilot")["mission"]["autopilot_accel_z_m_s2"] == 0.5  # GUIDED's limits
     assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
     assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
     assert real_config(base, "px4", "gps_only").landing.fusion is False
