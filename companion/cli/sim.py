@@ -275,6 +275,30 @@ def cmd_bench_campaign(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_log(args: argparse.Namespace) -> int:
+    from companion_sitl.log_bench import bench_log
+
+    cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
+    r = bench_log(config=cfg)
+    print(f"bench log: the GPS-only demo flight ({r['sim_time_s']:.0f} s simulated), flown 4 times in this run")
+    print(f"  no logs                                 {r['bare_wall_s']:.2f} s wall")
+    print(
+        f"  CSV logs (recorder streams, flight.csv, truth.csv)  {r['csv_logs_wall_s']:.2f} s wall: "
+        f"logging share {100 * r['csv_logging_share']:+.1f} % (target <= 10 %)"
+    )
+    print(
+        f"  whole run folder (CSV logs + flight.tlog)           {r['full_run_folder_wall_s']:.2f} s wall: "
+        f"logging share {100 * r['full_logging_share']:+.1f} %"
+    )
+    print(f"  per stream (recorder hook + queueing + batched write; {r['rows']} rows):")
+    for k, v in r.items():
+        if k.endswith("_us_per_row") and k != "all_streams_us_per_row":
+            name = k.removesuffix("_us_per_row")
+            print(f"    {name:<20} {r[name + '_rows']:>7} rows  {v:6.2f} us/row")
+    print(f"    {'all streams':<20} {r['rows']:>7} rows  {r['all_streams_us_per_row']:6.2f} us/row")
+    return 0
+
+
 def cmd_bench_estimation(args: argparse.Namespace) -> int:
     from companion.dart.bench import bench_estimation
 
@@ -470,7 +494,7 @@ def register_demo(sub: Any) -> None:
 
 
 def register_bench(bsub: Any) -> None:
-    """Add ``companion bench sim`` and ``bench estimation``."""
+    """Add ``companion bench sim``, ``bench campaign``, ``bench log`` and ``bench estimation``."""
     bs = bsub.add_parser("sim", help="how many times faster than real time the demo flight runs")
     bs.add_argument("--repeat", type=int, default=2, help="flights per configuration (the best one is reported)")
     bs.add_argument("--seed", type=int, default=1, help="random seed of the scenario")
@@ -487,6 +511,11 @@ def register_bench(bsub: Any) -> None:
     bc.add_argument("--n", type=int, default=5, help="fused landings (default 5)")
     bc.add_argument("--seed", type=int, default=1, help="seed of the first draw")
     bc.set_defaults(func=cmd_bench_campaign)
+    bl = bsub.add_parser(
+        "log", help="the flight logs' share of the GPS-only demo's time and microseconds per row and stream"
+    )
+    bl.add_argument("--seed", type=int, default=1, help="random seed of the scenario")
+    bl.set_defaults(func=cmd_bench_log)
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000, help="calls timed per filter and estimator")
     be.set_defaults(func=cmd_bench_estimation)

@@ -265,6 +265,9 @@ def corrected_sample_std(errors: Sequence[float]) -> float:
 
 
 # ----------------------------------------------------------------------------- estimators
+_I3 = np.eye(3)
+
+
 def _nearest(history: deque[tuple[float, ...]], t: float) -> tuple[float, ...] | None:
     """The history entry closest in time to t (entries in increasing time)."""
     if not history:
@@ -334,7 +337,7 @@ class DartEstimator(ABC):
         if not (math.isfinite(t) and np.isfinite(R).all() and np.isfinite(q).all()):
             self.rejected_observations += 1
             return None
-        if float(np.abs(R @ R.T - np.eye(3)).max()) > self.config.max_rotation_error or not (q[2] > 0.0):
+        if float(np.abs(R @ R.T - _I3).max()) > self.config.max_rotation_error or not (q[2] > 0.0):
             self.rejected_observations += 1
             return None
         if self._history and t < self._history[0][0] - 0.5 / self.config.madgwick.nominal_rate_hz:
@@ -412,6 +415,29 @@ class FcfCfEstimator(DartEstimator):
             self._record((time_s, a[0], a[1], a[2]))
         return True
 
+    def _shift_history(self, t: float, jump: tuple[float, ...]) -> None:
+        """Add ``jump`` to the filtered angles of every history entry at or after ``t``. The
+        history is in time order, so only its tail (the frame's delay, a few entries) is visited,
+        from the newest back, and replaced in place."""
+        j0, j1, j2 = jump
+        pi, two_pi = math.pi, 2.0 * math.pi
+        h = self._history
+        i = len(h) - 1
+        while i >= 0:
+            e = h[i]
+            if e[0] < t:
+                break
+            # wrap_angle(e[k] + j), inlined (the same arithmetic: exact for angles in range)
+            a0, a1, a2 = e[1] + j0, e[2] + j1, e[3] + j2
+            if not -pi <= a0 < pi:
+                a0 = (a0 + pi) % two_pi - pi
+            if not -pi <= a1 < pi:
+                a1 = (a1 + pi) % two_pi - pi
+            if not -pi <= a2 < pi:
+                a2 = (a2 + pi) % two_pi - pi
+            h[i] = (e[0], a0, a1, a2)
+            i -= 1
+
     def update_vision(self, obs: MarkerPoseLike) -> DartPositionEstimate | None:
         checked = self._check(obs)
         if checked is None:
@@ -432,11 +458,7 @@ class FcfCfEstimator(DartEstimator):
             new = cf.angles
             jump = tuple(wrap_angle(new[i] - now[i]) for i in range(3))
             # the correction holds from the exposure on: shift the later history with it
-            j0, j1, j2 = jump
-            self._history = deque(
-                (e[0], wrap_angle(e[1] + j0), wrap_angle(e[2] + j1), wrap_angle(e[3] + j2)) if e[0] >= t else e
-                for e in self._history
-            )
+            self._shift_history(t, jump)
             phi_obs = tuple(wrap_angle(new[i] - delta[i]) for i in range(3))
         R_mc = euler_to_rotmat(*phi_obs)  # R(Phi_hat) = R_marker_cam (dart eq 17's role)
         p = -(R_mc @ (q_m + self._q_off))  # dart eqs 16, 18: Q_hat = R(Phi_hat)(Q_m + Q_off)

@@ -9,6 +9,7 @@ import numpy as np
 
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig
+from companion.estimation.ekf_reference import DenseDeliveryEkf
 from companion.geometry import Transform, euler_to_rotmat
 
 
@@ -20,6 +21,8 @@ class _Fix:
 
 
 def _per_call_us(fn, n: int) -> float:  # type: ignore[no-untyped-def]
+    for i in range(min(n, 100)):  # warm up (caches, CPU clock) before timing
+        fn(i)
     t0 = time.perf_counter()
     for i in range(n):
         fn(i)
@@ -29,7 +32,10 @@ def _per_call_us(fn, n: int) -> float:  # type: ignore[no-untyped-def]
 def bench_ekf(n: int = 2000) -> dict[str, float]:
     """Microseconds per EKF step: predict, each sensor update, and a delayed (replayed) update.
 
-    Gating is disabled so every update runs the full correction. ``n`` calls of each.
+    Gating is disabled so every update runs the full correction. ``n`` calls of each. The
+    ``dense_*`` figures time the same predict and ArUco update in their straightforward dense
+    form (:class:`~companion.estimation.ekf_reference.DenseDeliveryEkf`) in the same run, and
+    ``speedup_predict_plus_aruco`` is their ratio (target: predict + ArUco <= 50 us).
     """
     if n < 1:
         raise ValueError("n must be >= 1")
@@ -63,4 +69,13 @@ def bench_ekf(n: int = 2000) -> dict[str, float]:
         buf.update_aruco(t - 0.05, Transform(T_cm.R, T_cm.t + noise[i % n]), T_wm)
 
     out["delayed_aruco_50ms_us"] = _per_call_us(delayed, m)
+    # the same predict + ArUco update in the straightforward dense form, in this run
+    dense = DenseDeliveryEkf(EkfConfig(gating_enabled=False), T_body_camera=T_bc, x0=x0)
+    out["dense_predict_us"] = _per_call_us(lambda i: dense.predict(u, 0.005), n)
+    out["dense_update_aruco_us"] = _per_call_us(
+        lambda i: dense.update_aruco(Transform(T_cm.R, T_cm.t + noise[i]), T_wm), n
+    )
+    out["predict_plus_aruco_us"] = out["predict_us"] + out["update_aruco_us"]
+    out["dense_predict_plus_aruco_us"] = out["dense_predict_us"] + out["dense_update_aruco_us"]
+    out["speedup_predict_plus_aruco"] = out["dense_predict_plus_aruco_us"] / out["predict_plus_aruco_us"]
     return out  # n is the caller's; every value is microseconds per call

@@ -1,12 +1,16 @@
 """CSV flight logs: time in seconds first, units in the headers (PlotJuggler-friendly).
 
-Rows are handed to a writer thread through a bounded queue so disk I/O never runs on the
-control path (a full queue drops the row and counts it). The writer wakes every
-``flush_period_s`` (20 ms), writes what has arrived and flushes it to the OS, so a process that
-dies loses at most the rows of that last moment, and a busy control loop is not woken once per
-row. ``close()`` writes everything queued and closes the file (also on exceptions, via
-``with``); logs still open when the interpreter exits (an uncaught exception, Ctrl-C) are closed
-by an ``atexit`` hook, so their queues are written too.
+Rows are handed through a bounded queue to one writer thread shared by every open log, so disk
+I/O and number formatting never run on the control path (a full queue drops the row and counts
+it). The writer wakes every ``flush_period_s`` (:data:`FLUSH_PERIOD_S`, 0.2 s), writes each
+log's rows as one batch (``csv.writer.writerows``) and flushes it to the OS. A process that
+dies without closing its logs (``kill -9``, ``os._exit``) therefore loses at most the rows of the
+last 0.2 s of wall time per stream (never more than ``max_queue`` rows). ``close()`` writes
+everything queued and closes the file (also on exceptions, via ``with``); logs still open when
+the interpreter exits (an uncaught exception, Ctrl-C) are closed by an ``atexit`` hook, so their
+queues are written too. One thread waking five times a second (instead of one per file at
+50 Hz) keeps the logging's share of a simulated flight small: every wake-up of a Python thread
+costs the busy control loop a GIL hand-over (``companion bench log``).
 
 Floats are written as their shortest round-trip decimal (``repr``): reading a value back with
 ``float()`` gives the very same double, which replay needs.
@@ -18,13 +22,17 @@ import atexit
 import collections
 import csv
 import logging
+import os
 import threading
 import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
+from typing import ClassVar
 
 log = logging.getLogger(__name__)
+
+FLUSH_PERIOD_S = 0.2  # the shared writer's period: what a hard crash can lose, in wall time
 
 _OPEN: weakref.WeakSet[CsvLog] = weakref.WeakSet()
 
@@ -35,63 +43,112 @@ def _close_open_logs() -> None:
         lg.close()
 
 
+class _SharedWriter:
+    """The one writer thread of every :class:`CsvLog` with the same period."""
+
+    _writers: ClassVar[dict[float, _SharedWriter]] = {}
+    _lock = threading.Lock()
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.logs: set[CsvLog] = set()
+        self._cond = threading.Condition()
+        self._thread: threading.Thread | None = None
+
+    @classmethod
+    def attach(cls, lg: CsvLog, period_s: float) -> _SharedWriter:
+        with cls._lock:
+            w = cls._writers.get(period_s)
+            if w is None:
+                w = cls._writers[period_s] = _SharedWriter(period_s)
+            with w._cond:
+                w.logs.add(lg)
+                if w._thread is None:
+                    w._thread = threading.Thread(target=w._run, name=f"csvlog-writer-{period_s:g}s", daemon=True)
+                    w._thread.start()
+        return w
+
+    def detach(self, lg: CsvLog) -> None:
+        with self._cond:
+            self.logs.discard(lg)
+
+    @classmethod
+    def _forget_after_fork(cls) -> None:
+        """A forked child has none of its parent's threads: its logs get writers of their own."""
+        cls._writers = {}
+        cls._lock = threading.Lock()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait(self.period_s)
+                logs = list(self.logs)
+            for lg in logs:
+                lg._drain()
+
+
+os.register_at_fork(after_in_child=_SharedWriter._forget_after_fork)
+
+
 class CsvLog:
-    def __init__(self, path: str | Path, columns: Sequence[str], max_queue: int = 10000, flush_period_s: float = 0.02):
+    def __init__(
+        self,
+        path: str | Path,
+        columns: Sequence[str],
+        max_queue: int = 10000,
+        flush_period_s: float = FLUSH_PERIOD_S,
+    ):
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.columns = tuple(columns)
+        self._n = len(self.columns)
         self.dropped = 0
         self.written = 0
         self._max = int(max_queue)
-        self._period = float(flush_period_s)
         self._q: collections.deque[tuple[object, ...]] = collections.deque()  # append/popleft are thread-safe
-        self._stop = threading.Event()
+        self._io = threading.Lock()  # the writer thread and close() take turns on the file
+        self._failed: OSError | None = None
         self._fh = self.path.open("w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._fh)
         self._writer.writerow(self.columns)
         self._fh.flush()
-        self._thread = threading.Thread(target=self._drain, name=f"csvlog-{self.path.name}", daemon=True)
         self._closed = False
-        self._thread.start()
+        self._shared = _SharedWriter.attach(self, float(flush_period_s))
         _OPEN.add(self)
 
     def write(self, row: Sequence[object]) -> None:
         if self._closed:
             raise RuntimeError(f"{self.path}: log already closed")
-        if len(row) != len(self.columns):
-            raise ValueError(f"{self.path}: row has {len(row)} fields, header has {len(self.columns)}")
+        if len(row) != self._n:
+            raise ValueError(f"{self.path}: row has {len(row)} fields, header has {self._n}")
         if len(self._q) >= self._max:
             self.dropped += 1
             return
         self._q.append(tuple(row))
 
     def _drain(self) -> None:
-        failed: OSError | None = None
-        q = self._q
-        while True:
-            stopping = self._stop.wait(self._period)
+        """Write (one batch) and flush what has been queued so far."""
+        with self._io:
+            q = self._q
             n = len(q)
-            if failed is not None:
-                for _ in range(n):  # keep emptying the queue so memory stays bounded
-                    q.popleft()
+            if not n or self._fh.closed:
+                return
+            batch = [q.popleft() for _ in range(n)]
+            if self._failed is not None:  # keep emptying the queue so memory stays bounded
                 self.dropped += n
-            elif n:
-                done = 0
-                try:
-                    # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
-                    for _ in range(n):
-                        self._writer.writerow(q.popleft())
-                        done += 1
-                    self._fh.flush()
-                except OSError as err:
-                    failed = err
-                    self.dropped += n - done
-                    log.error("%s: cannot write the log any more: %s", self.path, err)
-                self.written += done
-            if stopping and not q:
-                break
+                return
+            try:
+                # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
+                self._writer.writerows(batch)
+                self._fh.flush()
+            except OSError as err:
+                self._failed = err
+                self.dropped += n
+                log.error("%s: cannot write the log any more: %s", self.path, err)
+                return
+            self.written += n
 
     @property
     def closed(self) -> bool:
@@ -102,12 +159,13 @@ class CsvLog:
             return
         self._closed = True
         _OPEN.discard(self)
-        self._stop.set()
-        self._thread.join()
-        try:
-            self._fh.close()
-        except OSError as err:
-            log.error("%s: closing the log failed: %s", self.path, err)
+        self._shared.detach(self)
+        self._drain()
+        with self._io:
+            try:
+                self._fh.close()
+            except OSError as err:
+                log.error("%s: closing the log failed: %s", self.path, err)
         if self.dropped:
             log.warning("%s: %d rows dropped (writer could not keep up)", self.path, self.dropped)
 

@@ -4,7 +4,7 @@
 listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
 calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
 ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
-(writer thread, flushed as it goes; time in seconds first, units in the headers), so PlotJuggler
+(one shared writer thread, batches flushed every 0.2 s; time in seconds first, units in the headers), so PlotJuggler
 opens every file as is:
 
 =====================  ==========================================================================

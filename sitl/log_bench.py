@@ -1,0 +1,144 @@
+"""``companion bench log``: what the flight logs cost a simulated flight.
+
+Two measurements of the GPS-only demo flight, in one run:
+
+* the logging's share: the same seeded flight flown without a run folder, with the CSV logs
+  (the recorder's per-stream CSVs plus ``flight.csv`` and ``truth.csv``), and with the whole run
+  folder (the CSVs and the MAVLink ``flight.tlog``); shares are (logged - bare) / bare wall time;
+* microseconds per row and stream, from a further flight with the CSVs in which the recorder's
+  hooks (row building and queueing on the control loop) and each log's batched writes
+  (formatting and I/O on the writer thread) are timed. A hook is charged to its stream (a
+  guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it writes);
+  ``flight.csv`` and ``truth.csv`` are charged their queueing and writing. Times are CPU time
+  of the thread doing the work (``time.thread_time``), so waiting for the GIL is not counted.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import tempfile
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.flightlog import recorder as rec
+from companion.flightlog.csvlog import CsvLog
+from companion_sitl import demo
+
+log = logging.getLogger(__name__)
+
+# recorder hooks and the stream each is charged to (on_sample: the sample's own file)
+_HOOK_STREAM = {
+    "on_marker": "camera.csv",
+    "on_uwb": "uwb.csv",
+    "on_result": "requests.csv",
+    "on_abort": "commands.csv",
+    "on_command": "commands.csv",
+    "on_tick": "guidance.csv",
+    "on_setpoint": "setpoints.csv",
+}
+
+
+@contextmanager
+def _no_tlog() -> Iterator[None]:
+    """Fly the in-process simulator without its MAVLink .tlog."""
+    orig = demo.SimAutopilot
+
+    def make(cfg: Any, vehicle: Any, tlog_path: Any = None) -> Any:
+        return orig(cfg, vehicle, tlog_path=None)
+
+    demo.SimAutopilot = make  # type: ignore[assignment,misc]
+    try:
+        yield
+    finally:
+        demo.SimAutopilot = orig  # type: ignore[misc]
+
+
+@contextmanager
+def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator[None]:
+    """Charge the recorder's hooks and every log's queueing and batched writes to streams."""
+    saved: list[tuple[type, str, Any]] = []
+
+    def patch(cls: type, name: str, wrapper: Callable[[Any], Any]) -> None:
+        orig = cls.__dict__[name]
+        saved.append((cls, name, orig))
+        setattr(cls, name, wrapper(orig))
+
+    def hook(name: str, orig: Any) -> Any:
+        @functools.wraps(orig)
+        def timed(self: Any, *args: Any) -> None:
+            t0 = time.thread_time()
+            orig(self, *args)
+            stream = rec.SAMPLE_FILES.get(type(args[0]), "") if name == "on_sample" else _HOOK_STREAM[name]
+            hook_s[stream] += time.thread_time() - t0
+
+        return timed
+
+    for name in ("on_sample", *_HOOK_STREAM):
+        patch(rec.FlightRecorder, name, functools.partial(hook, name))
+
+    def write(orig: Any) -> Any:
+        def timed(self: CsvLog, row: Any) -> None:
+            if self.path.name in ("flight.csv", "truth.csv"):  # no recorder hook builds these rows
+                t0 = time.thread_time()
+                orig(self, row)
+                write_s[self.path.name] += time.thread_time() - t0
+            else:
+                orig(self, row)
+
+        return timed
+
+    def drain(orig: Any) -> Any:
+        def timed(self: CsvLog) -> None:
+            t0 = time.thread_time()
+            orig(self)
+            write_s[self.path.name] += time.thread_time() - t0
+
+        return timed
+
+    patch(CsvLog, "write", write)
+    patch(CsvLog, "_drain", drain)
+    try:
+        yield
+    finally:
+        for cls, name, orig in reversed(saved):
+            setattr(cls, name, orig)
+
+
+def bench_log(seed: int = 1, config: CompanionConfig | None = None) -> dict[str, Any]:
+    """Wall times of the GPS-only demo bare / with CSV logs / with the whole run folder, the
+    logging shares, and per stream rows and microseconds per row (see the module doc)."""
+    cfg = config or load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": seed}})
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-log-") as tmp:
+        root = Path(tmp)
+        bare = demo.run_demo(cfg, fusion=False)
+        with _no_tlog():
+            csv_run = demo.run_demo(cfg, fusion=False, run_dir=root / "csv")
+        full = demo.run_demo(cfg, fusion=False, run_dir=root / "full")
+        hook_s: dict[str, float] = defaultdict(float)
+        write_s: dict[str, float] = defaultdict(float)
+        with _no_tlog(), _timed_logs(hook_s, write_s):
+            demo.run_demo(cfg, fusion=False, run_dir=root / "timed")
+        rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
+    out["sim_time_s"] = bare.sim_time_s
+    out["bare_wall_s"] = bare.wall_time_s
+    out["csv_logs_wall_s"] = csv_run.wall_time_s
+    out["full_run_folder_wall_s"] = full.wall_time_s
+    out["csv_logging_share"] = (csv_run.wall_time_s - bare.wall_time_s) / bare.wall_time_s
+    out["full_logging_share"] = (full.wall_time_s - bare.wall_time_s) / bare.wall_time_s
+    out["rows"] = sum(rows.values())
+    total = 0.0
+    for name in sorted(rows):
+        spent = hook_s.get(name, 0.0) + write_s.get(name, 0.0)
+        total += spent
+        if rows[name]:
+            out[f"{name}_us_per_row"] = spent / rows[name] * 1e6
+            out[f"{name}_rows"] = rows[name]
+    out["all_streams_us_per_row"] = total / max(1, out["rows"]) * 1e6
+    return out

@@ -1,0 +1,32 @@
+"""``companion bench log`` on the short flight: every figure present and consistent."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.flightlog.recorder import STREAM_FILES
+from companion_sitl.log_bench import bench_log
+
+from .conftest import short_config
+
+pytestmark = pytest.mark.slow
+
+
+def test_bench_log_reports_shares_and_per_stream_costs():
+    r = bench_log(config=short_config())
+    for k in ("bare_wall_s", "csv_logs_wall_s", "full_run_folder_wall_s"):
+        assert r[k] > 0.0
+    assert r["csv_logging_share"] == pytest.approx((r["csv_logs_wall_s"] - r["bare_wall_s"]) / r["bare_wall_s"])
+    per_stream = {k.removesuffix("_us_per_row") for k in r if k.endswith("_us_per_row")} - {"all_streams"}
+    # the busy streams of a GPS-only flight, and the simulator's two
+    assert {
+        "ap_position.csv",
+        "ap_attitude.csv",
+        "guidance.csv",
+        "setpoints.csv",
+        "flight.csv",
+        "truth.csv",
+    } <= per_stream
+    assert per_stream <= set(STREAM_FILES) | {"flight.csv", "truth.csv"}
+    assert sum(r[f"{s}_rows"] for s in per_stream) == r["rows"]
+    assert all(r[f"{s}_us_per_row"] > 0.0 for s in per_stream)
