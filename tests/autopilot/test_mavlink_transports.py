@@ -101,8 +101,10 @@ def pty_relay(sim, udp_port):
         os.close(slave)
 
 
-async def _exercise(ap, mav, sim) -> None:
-    """connect, telemetry, an acknowledged command each way (arm, disarm)."""
+async def _exercise(ap, mav, sim, relay=None) -> None:
+    """connect, telemetry, an acknowledged command each way (arm, disarm); with ``relay``, until
+    more than a few messages went each way through it (a fast run on a loaded machine can finish
+    the commands within the first kilobyte)."""
     try:
         await ap.connect(timeout_s=15.0)
         await mav.wait_for(lambda: ap.telemetry.position_ned is not None, 10.0, "local position")
@@ -114,6 +116,10 @@ async def _exercise(ap, mav, sim) -> None:
         # EXTENDED_SYS_STATE streams at its own rate after the intervals are requested
         await mav.wait_for(lambda: ap.telemetry.status.landed is LandedState.ON_GROUND, 5.0, "landed state reported")
         assert ap.link_ok
+        if relay is not None:
+            await mav.wait_for(
+                lambda: relay.bytes_up > 100 and relay.bytes_down > 1000, 5.0, "traffic through the relay"
+            )
     finally:
         await ap.close()
 
@@ -133,7 +139,7 @@ async def test_tcp_link(mav, udp_port, dialect):
             if dialect == "px4"
             else ArduPilotAutopilot(f"tcpout://127.0.0.1:{port}")
         )
-        await _exercise(ap, mav, sim)
+        await _exercise(ap, mav, sim, relay)
     assert relay.bytes_up > 100 and relay.bytes_down > 1000
     assert sim.stats.bad_data == 0
 
@@ -151,5 +157,5 @@ async def test_serial_link_over_a_pseudo_terminal(mav, udp_port, dialect):
         ap = (
             Px4Autopilot(f"serial://{dev}:921600") if dialect == "px4" else ArduPilotAutopilot(f"serial://{dev}:921600")
         )
-        await _exercise(ap, mav, sim)
+        await _exercise(ap, mav, sim, relay)
     assert relay.bytes_up > 100 and relay.bytes_down > 1000
