@@ -46,6 +46,7 @@ from companion.geometry import Transform, euler_to_rotmat
 from .ardupilot_sitl import ArduCopterSitl
 from .dart_link import ESTIMATOR_GIMBAL, DartLinkCamera
 from .dart_sim import NEUTRAL_US, SWITCH_OFF_US, SWITCH_ON_US, DartParams
+from .demo import free_udp_port
 from .truth_feed import MavlinkTruth
 
 log = logging.getLogger(__name__)
@@ -188,7 +189,7 @@ async def fly_dart_arducopter(
         raise ValueError(f"mode {mode!r}: the Dart flies ALT_HOLD or STABILIZE")
     p = params or DartParams()
     log_dir.mkdir(parents=True, exist_ok=True)
-    truth_port = _free_udp_port()
+    truth_port = free_udp_port()
     sitl = ArduCopterSitl(
         root,
         extra_params=dict(DART_ARDUCOPTER_PARAMS),
@@ -362,12 +363,6 @@ async def _fly(
         landed = False
         notes.append(str(err))
     return ArduDartResult(summary, track, modes, latency, matched, len(engaged), landed, notes)
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 __all__ = [
