@@ -133,9 +133,20 @@ async def test_pilot_takeover_ardupilot_rc_mode_switch(mav, udp_port):
         _shell, summary = await mav.fly(config, ap, monitor, timeout_s=40.0)
         copter_mode = sim.copter_mode
         rc5 = sim.rc_channels[4]
+        # The shell ends on the HEARTBEAT's mode, which may come before the next RC_CHANNELS (5 Hz):
+        # read the override back on a fresh link to the same vehicle instead of racing the stream.
+        reader = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        try:
+            await reader.connect(timeout_s=10.0)
+            await mav.wait_for(
+                lambda: bool(reader.rc_channels) and reader.rc_channels[4] == 1425,
+                5.0,
+                "RC_CHANNELS carrying the override",
+            )
+        finally:
+            await reader.close()
     assert "pilot took over (position)" in summary.failure
     assert copter_mode == 5 and rc5 == 1425
-    assert ap.rc_channels and ap.rc_channels[4] == 1425  # override reflected in RC_CHANNELS
 
 
 async def test_link_loss_and_reconnect_px4(mav, udp_port):
