@@ -1,7 +1,7 @@
 """The Dart cyber-pilot (dart secs. 3-5) on a real ArduCopter SITL: RC_CHANNELS_OVERRIDE added to
-the pilot's sticks in ALT_HOLD, the pilot's switch giving control back, measured at the vehicle.
+the pilot's sticks in ALT_HOLD or STABILIZE, the pilot's switch giving control back, measured at the vehicle.
 
-What is real: ArduCopter 4.7 (its ALT_HOLD attitude and altitude controllers, its RC input path,
+What is real: ArduCopter 4.7 (its ALT_HOLD and STABILIZE attitude and altitude controllers, its RC input path,
 RC_CHANNELS_OVERRIDE handling, its IMU/ATTITUDE/RC_CHANNELS streams), reached through the normal
 ArduPilot backend. What is simulated: the pilot's transmitter, sent to the SITL's RC input (UDP
 ``5501 + 10 x instance``, sixteen little-endian uint16 PWM values, ArduPilot's
