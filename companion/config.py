@@ -253,6 +253,15 @@ class VehicleSimConfig(_Section):
     takeoff_speed_m_s: float = _f(1.5, "m/s", "autopilot takeoff climb rate", gt=0.1, le=5.0)
     land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
     offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
+    offboard_max_horizontal_m_s: float = _f(
+        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, horizontal (MPC_XY_VEL_MAX)", gt=0.0
+    )
+    offboard_max_up_m_s: float = _f(
+        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, up (MPC_Z_VEL_MAX_UP)", gt=0.0
+    )
+    offboard_max_down_m_s: float = _f(
+        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, down (MPC_Z_VEL_MAX_DN)", gt=0.0
+    )
     physics_rate_hz: float = _f(200.0, "Hz", "integration rate", ge=50.0, le=2000.0)
     release_delay_s: float = _f(0.5, "s", "payload actuator travel time", ge=0.0, le=10.0)
     command_latency_s: float = _f(0.02, "s", "time for a command to be acknowledged", ge=0.0, le=5.0)
@@ -278,6 +287,14 @@ class SimConfig(_Section):
     gps_noise_m: float = _f(0.05, "m", "white GPS noise (std, horizontal)", ge=0.0, le=10.0)
     gps_walk_m: float = _f(0.15, "m", "slow GPS error wander (std, horizontal, Gauss-Markov)", ge=0.0, le=10.0)
     gps_walk_time_constant_s: float = _f(20.0, "s", "correlation time of the GPS wander", gt=0.0, le=3600.0)
+    height_estimate_scale_error: float = _f(
+        0.0,
+        "-",
+        "the autopilot's height estimate reads (1 + this) x the true height above home (PX4 v1.16 SIH in flight: "
+        "+0.10 to +0.14, companion_sitl/profiles.py)",
+        ge=-0.5,
+        le=0.5,
+    )
     gps_rate_hz: float = _f(8.0, "Hz", "GPS fix rate", gt=0.5, le=50.0)
     position_rate_hz: float = _f(30.0, "Hz", "LOCAL/GLOBAL_POSITION stream rate", gt=1.0, le=200.0)
     attitude_rate_hz: float = _f(50.0, "Hz", "ATTITUDE stream rate", gt=1.0, le=500.0)

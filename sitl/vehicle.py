@@ -279,9 +279,10 @@ class SimVehicle:
             self._step(self._dt)
 
     def _estimate(self) -> tuple[float, float, float]:
-        """The autopilot's own local position estimate (truth + GPS wander)."""
+        """The autopilot's own local position estimate (truth + GPS wander; the height off by the
+        profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
-        return (self.pn + w[0].x, self.pe + w[1].x, self.pd + w[2].x)
+        return (self.pn + w[0].x, self.pe + w[1].x, self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x)
 
     def _step(self, dt: float) -> None:
         c = self.cfg
@@ -323,6 +324,13 @@ class SimVehicle:
                 else:
                     sp_n, sp_e, sp_d = self._sp.north_m_s, self._sp.east_m_s, self._sp.down_m_s
                     self._yaw_sp = self._sp.yaw_rad
+                    # the autopilot cuts each axis on its own (PX4's position control: horizontal
+                    # norm to MPC_XY_VEL_MAX, down / up to MPC_Z_VEL_MAX_DN / _UP)
+                    h = math.hypot(sp_n, sp_e)
+                    if h > vc.offboard_max_horizontal_m_s:
+                        k_h = vc.offboard_max_horizontal_m_s / h
+                        sp_n, sp_e = sp_n * k_h, sp_e * k_h
+                    sp_d = min(max(sp_d, -vc.offboard_max_up_m_s), vc.offboard_max_down_m_s)
             if self.mode is FlightMode.TAKEOFF:
                 assert self._hold_target is not None
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)

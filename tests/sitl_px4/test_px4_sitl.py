@@ -142,24 +142,28 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     # path tracking on the firmware against the embedded simulator on the same path and tuning
     # (issue 12), scored on truth against the configured path or the path to the true pad on the
     # way out, the path home planned from the landing point on the way back (sitl/path_scoring.py)
-    embedded = {}
-    for profile in ("ideal", "px4-sih"):
-        sim = config.model_copy(
-            update={"sim": config.sim.model_copy(update={"pad_offset_m": PAD_OFFSET_M, "profile": profile})}
-        )
-        embedded[profile] = await asyncio.to_thread(run_demo, sim)
+    embedded: dict[str, list] = {"ideal": [], "px4-sih": []}
+    for profile, seeds in (("ideal", (1,)), ("px4-sih", (1, 2, 3))):
+        for seed in seeds:
+            scenario = {"pad_offset_m": PAD_OFFSET_M, "profile": profile, "seed": seed}
+            sim = config.model_copy(update={"sim": config.sim.model_copy(update=scenario)})
+            embedded[profile].append(await asyncio.to_thread(run_demo, sim))
+    pred_rms = sum(e.path_rms_truth_m for e in embedded["px4-sih"]) / 3
+    pred_max = sum(e.path_max_truth_m for e in embedded["px4-sih"]) / 3
+    ideal = embedded["ideal"][0]
     print(
         f"path RMS / max on truth: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate flown on: "
-        f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded "
-        + ", ".join(f"{k} {e.path_rms_truth_m:.2f} / {e.path_max_truth_m:.2f} m" for k, e in embedded.items())
+        f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded px4-sih (3 seeds) {pred_rms:.2f} / "
+        f"{pred_max:.2f} m, ideal {ideal.path_rms_truth_m:.2f} / {ideal.path_max_truth_m:.2f} m"
     )
-    # measured with the velocity-bias correction (px4_sih_quad.toml), six runs: PX4 0.47-0.74 m RMS,
-    # 0.85-1.44 m max (the estimate PX4 flies on: 0.39-0.42 / 0.81-1.05 m); embedded ideal 0.16 / 0.48 m,
-    # px4-sih 0.33 / 0.62 m. The 1.5x of the ideal simulator is not met: PX4 SIH's velocity loop reaches
-    # ~70 % of a 4 m/s cruise setpoint and overshoots the turn into the descent by ~0.9 m, and its altitude
-    # estimate reads up to 1 m above truth in the cruise (docs/firmware-px4.md). What must hold: the vehicle
-    # follows the path within what the px4-sih profile allows for this firmware, with a margin for its spread
-    assert r.path_rms_truth_m < 3.0 * embedded["px4-sih"].path_rms_truth_m, (r, embedded["px4-sih"])
+    # Issue 12 item 5 against the embedded simulator standing in for this firmware (issue 17): the
+    # px4-sih profile carries what PX4 SIH does to a path: its velocity loop (PI on a drag-heavy
+    # airframe, ~70 % of a 4 m/s cruise, the integrator carrying it ~1 m past the turn into the
+    # descent), its cut of the descent setpoint at MPC_Z_VEL_MAX_DN and its height estimate reading
+    # ~12 % high in flight (profiles.py). Measured: PX4 0.47-0.76 m RMS / 0.85-1.44 m max in eight
+    # runs; px4-sih 0.58 / 1.04 m (seeds 1-3); ideal 0.16 / 0.48 m: real / predicted 0.8-1.3.
+    assert r.path_rms_truth_m < 1.5 * pred_rms, (r.path_rms_truth_m, pred_rms)
+    assert r.path_max_truth_m < 1.5 * pred_max, (r.path_max_truth_m, pred_max)
     assert r.path_rms_truth_m < 1.0 and r.path_max_truth_m < 2.0, (r.path_rms_truth_m, r.path_max_truth_m)
     assert r.tracking_rms_m < 0.7, r.tracking_rms_m
 
