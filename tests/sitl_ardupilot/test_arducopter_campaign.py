@@ -1,7 +1,6 @@
-"""`companion campaign parity --autopilot ardupilot` for two seeds on the real ArduCopter SITL
-(two to keep CI short; the command runs 10+ for the figures): one SITL flies the two landings
-(home reset to where each starts, SIM_WIND_* from the draw), against the embedded campaign with
-the arducopter-sitl profile on the same draws."""
+"""`companion campaign parity --autopilot ardupilot` for three seeds on the real ArduCopter SITL:
+one SITL flies the three landings (home reset to where each starts, SIM_WIND_* from the draw),
+against the embedded campaign with the arducopter-sitl profile on the same draws."""
 
 from __future__ import annotations
 
@@ -15,8 +14,8 @@ from companion_sitl.real_campaign import run_parity
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
 
 
-def test_parity_on_two_seeds(ardupilot_root, tmp_path):
-    r = run_parity("ardupilot", 2, 1, shipped_params_path("landing_campaign_short.toml"), tmp_path)
+def test_parity_on_three_seeds(ardupilot_root, tmp_path):
+    r = run_parity("ardupilot", 3, 1, shipped_params_path("landing_campaign_short.toml"), tmp_path)
     real = r["real"]["landings"]["fusion"]
     pred = r["predicted"]["landings"]["fusion"]
     print("\nreal", [round(x["error_m"], 3) for x in real], "predicted", [round(x["error_m"], 3) for x in pred])
