@@ -369,6 +369,10 @@ class ArduPilotAutopilot(Autopilot):
         self._acks.clear()
 
     @property
+    def heartbeat_age_s(self) -> float | None:
+        return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
+
+    @property
     def link_ok(self) -> bool:
         if self._conn is None:
             return False

@@ -253,6 +253,12 @@ class Autopilot(abc.ABC):
     def link_ok(self) -> bool:
         """A heartbeat arrived within the link timeout."""
 
+    @property
+    def heartbeat_age_s(self) -> float | None:
+        """Seconds since the autopilot's last HEARTBEAT; None before the first one, or for a
+        backend without heartbeats (the embedded simulator)."""
+        return None
+
     @abc.abstractmethod
     async def arm(self) -> None: ...
 

@@ -657,6 +657,10 @@ class Px4Autopilot(Autopilot):
         self._destroy()
 
     @property
+    def heartbeat_age_s(self) -> float | None:
+        return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
+
+    @property
     def link_ok(self) -> bool:
         """Telemetry within ``link_timeout_s`` and MAVSDK connected; after a loss, only once a
         fresh HEARTBEAT (and so a fresh mode) has arrived."""

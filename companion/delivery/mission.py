@@ -118,8 +118,11 @@ class DeliveryMission:
         self.frame: MissionFrame | None = None
         self.path: DeliveryPath | None = None
         self.field: VectorField | None = None
+        self.speed_ref_m_s: float | None = None  # v_r of the last field evaluation (this tick), else None
+        self.sense = 0  # s of that evaluation (+1 towards the pad, -1 home), else 0
         self.z_start = 0.0
         self._start_ned: np.ndarray | None = None  # where the outbound started (home, on the ground)
+        self.pad_ned: np.ndarray | None = None  # the configured pad (NED), once planned
         self._return_planned = False
         self.summary = MissionSummary()
         self._next_id = 1
@@ -245,6 +248,9 @@ class DeliveryMission:
         setpoint: VelocitySetpoint | None = None
         request: Request | None = None
         lyap = math.nan
+        # what the field is evaluated with this tick (telemetry): absent outside the vector field
+        self.speed_ref_m_s = None
+        self.sense = 0
 
         if not self._check_link(inp):
             return self._out(None, None, lyap)
@@ -282,6 +288,7 @@ class DeliveryMission:
                 self._goto(Phase.FAILED)
                 return None, None, math.nan
             self._start_ned = np.array(est.position_ned, dtype=float)
+            self.pad_ned = np.array(self.frame.pad_ned, dtype=float)  # kept when the way home is replanned
             self.field = VectorField(self.path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
             self._emit(
                 EventKind.PHASE,
@@ -703,6 +710,8 @@ class DeliveryMission:
         else:
             fs = self.field(p_i, s_dir, speed_scale)  # delivery eq 19
             lyap = fs.lyapunov
+        self.speed_ref_m_s = fs.speed_ref_m_s
+        self.sense = s_dir
         if fs.sector != self._sector:
             self._sector = fs.sector
             self._emit(EventKind.SECTOR, f"S{fs.sector}")

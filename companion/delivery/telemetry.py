@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -85,6 +86,7 @@ class ShellTelemetry:
         self.publisher = publisher
         self._tc = telemetry
         self._last_health = -math.inf
+        self._cpu_mark: tuple[float, float] | None = None  # (monotonic, process_time) at the last health
         telemetry.add_listener(self._on_sample)
 
     def _on_sample(self, sample: TelemetrySample) -> None:
@@ -132,17 +134,31 @@ class ShellTelemetry:
             detector = getattr(getattr(shell, "landing", None), "detector", None)
             pub.publish(landing_message(now, fusion, detector, towards_pad=phase in TOWARDS_PAD))
         v = None if not math.isfinite(lyapunov) else lyapunov
-        pub.publish(MissionMessage(now, phase, sector or None, v))
+        mission = shell.mission
+        speed_ref = getattr(mission, "speed_ref_m_s", None)
+        sense = int(getattr(mission, "sense", 0))
+        to_pad = None
+        pad = getattr(mission, "pad_ned", None)
+        if est is not None and pad is not None:
+            to_pad = math.hypot(est.north_m - float(pad[0]), est.east_m - float(pad[1]))
+        pub.publish(MissionMessage(now, phase, sector or None, v, speed_ref, sense, to_pad))
         for ev in events:
-            pub.publish(MissionMessage(now, phase, sector or None, v, event=ev))
+            pub.publish(MissionMessage(now, phase, sector or None, v, speed_ref, sense, to_pad, event=ev))
         if now - self._last_health >= 1.0:
             self._last_health = now
             st = shell.stats
             rt = shell.config.runtime
+            wall, cpu = time.monotonic(), time.process_time()
+            cpu_pct = None
+            if self._cpu_mark is not None and wall > self._cpu_mark[0]:
+                cpu_pct = 100.0 * (cpu - self._cpu_mark[1]) / (wall - self._cpu_mark[0])
+            self._cpu_mark = (wall, cpu)
             pub.publish(
                 HealthMessage(
                     now,
                     link_ok=shell.autopilot.link_ok,
+                    heartbeat_age_s=shell.autopilot.heartbeat_age_s,
+                    cpu_pct=cpu_pct,
                     tasks=(
                         TaskHealth("guidance", rt.guidance_rate_hz, st.guidance_overruns),
                         TaskHealth("setpoint_stream", rt.setpoint_rate_hz, st.setpoint_overruns),

@@ -283,8 +283,11 @@ class EstimateMessage:
 class MissionMessage:
     """Mission progress: phase, path sector S1..S5 (None outside the vector field), the
     vector field's Lyapunov value V = (a1^2 + a2^2)/2 (delivery eq 18), the sector reference
-    speed v_i, the sense s (+1 outbound, -1 inbound, 0 otherwise) and, when the message carries
-    one, a mission event. Messages with an ``event`` are never dropped."""
+    speed v_i, the sense s (+1 outbound, -1 inbound, 0 otherwise), the horizontal distance from
+    the position estimate the mission flies on to the *configured* pad (the fused distance to the pad as
+    found is ``LandingMessage.landing_error_m``) and, when the message carries one, a mission
+    event. Fields the mission has no value for this tick are absent (None); messages with an
+    ``event`` are never dropped."""
 
     time_s: float
     phase: Phase
@@ -353,7 +356,9 @@ class RejectionCount:
 @dataclass(frozen=True, slots=True)
 class HealthMessage:
     """Link and sensor health, task overruns, rejected measurements, and the telemetry
-    publisher's own dropped-sample count."""
+    publisher's own dropped-sample count. ``heartbeat_age_s``: since the autopilot's last
+    HEARTBEAT (absent without one); ``cpu_pct``: the companion process's CPU time over wall time
+    since the previous health message, in % of one core (absent in the first)."""
 
     time_s: float
     link_ok: bool

@@ -87,6 +87,13 @@ def test_mission_fields_match_the_flight_log(flight):
     _r, run, rec, _row = flight
     fl = read_csv(run / "flight.csv")
     ticks = {float(t): i for i, t in enumerate(fl["time_s"])}
+    meta = json.loads((run / "run.json").read_text())
+    conf_pad = meta["mission"]["pad_ned_m"]
+    speeds = load_config(shipped_params_path("sitl_short.toml")).mission.sector_speed_m_s
+    gl = read_csv(run / "guidance.csv")
+    guidance_at = {float(t): i for i, t in enumerate(gl["time_s"])}
+    senses: dict[str, set[int]] = {}
+    distances = 0
     for m in _messages(rec, "mission"):
         if m["event"] is not None:
             continue
@@ -97,6 +104,35 @@ def test_mission_fields_match_the_flight_log(flight):
         assert (m["lyapunov_v_m2"] is None) == (not math.isfinite(v))
         if m["lyapunov_v_m2"] is not None:
             assert m["lyapunov_v_m2"] == v
+        # the field's v_r and s of that tick: absent / 0 outside the vector field
+        if m["speed_ref_m_s"] is None:
+            assert m["sense"] == 0
+        else:
+            assert m["sense"] in (1, -1) and m["sector"] is not None
+            assert 0.0 < m["speed_ref_m_s"] <= speeds[m["sector"] - 1] + 1e-9
+            senses.setdefault(m["phase"], set()).add(m["sense"])
+        # distance to the configured pad from the estimate flown on at that tick
+        g = guidance_at[m["time_s"]]  # the estimate the mission flew on at that tick (fused near the pad)
+        est = (float(gl["est_north_m"][g]), float(gl["est_east_m"][g]))
+        if not math.isfinite(est[0]):  # no estimate at that tick: absent
+            assert m["distance_to_pad_m"] is None
+        else:
+            d = math.hypot(est[0] - conf_pad[0], est[1] - conf_pad[1])
+            assert m["distance_to_pad_m"] == pytest.approx(d, abs=1e-9), (m["phase"], m["time_s"])
+            distances += 1
+    assert distances > 20
+    assert senses["outbound"] == {1} and senses["inbound"] == {-1}, senses
+
+
+def test_health_carries_the_process_cpu_and_no_heartbeat_in_the_embedded_simulator(flight):
+    _r, _run, rec, _row = flight
+    health = _messages(rec, "health")
+    assert len(health) >= 3
+    assert health[0]["cpu_pct"] is None  # no interval before the first message
+    cpu = [m["cpu_pct"] for m in health[1:]]
+    assert all(c is not None and c > 0.0 for c in cpu), cpu
+    # the embedded simulator has no HEARTBEAT: the field is absent, not a made-up age
+    assert all(m["heartbeat_age_s"] is None for m in health)
 
 
 def test_landing_fields_match_the_sensor_logs_and_truth(flight):
