@@ -24,7 +24,7 @@ from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
 from companion.delivery.mission import MissionSummary
-from companion.delivery.shell import DeliveryShell
+from companion.delivery.shell import AbortedBeforeFlight, DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
@@ -157,6 +157,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         try:
             autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
             summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+        except AbortedBeforeFlight as err:
+            raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
         except AutopilotUnreachable as err:
             raise StartupError(
                 f"{err}; check the autopilot is on and sending there, or change connection {where} "

@@ -66,6 +66,11 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
+class AbortedBeforeFlight(Exception):
+    """The operator aborted (SIGINT/SIGTERM) while the shell was still waiting for the autopilot:
+    nothing was commanded; ``str(err)`` says so."""
+
+
 @dataclass
 class LandingKit:
     """What precision landing needs: sensor plugins (api_version 1), the detector and solver, and
@@ -126,6 +131,7 @@ class DeliveryShell:
         self._request_task: asyncio.Task[None] | None = None
         self._streaming = False
         self._abort_reason: str | None = None
+        self._connecting: asyncio.Task[None] | None = None
         self._want_telemetry = telemetry
         self.landing = landing
         self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
@@ -146,8 +152,11 @@ class DeliveryShell:
         return reply
 
     def abort(self, reason: str) -> None:
-        """Ask the mission to abort (hold, then land) at its next tick."""
+        """Ask the mission to abort (hold, then land) at its next tick; while the shell is still
+        waiting for the autopilot, stop waiting (nothing has been commanded)."""
         self._abort_reason = reason
+        if self._connecting is not None and not self._connecting.done():
+            self._connecting.cancel()
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
         loop = asyncio.get_running_loop()
@@ -162,7 +171,17 @@ class DeliveryShell:
                 pub = make_publisher(self.config, command_handler(loop, self))
                 pub.start()
                 self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
-            await self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s)
+            self._connecting = loop.create_task(
+                self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s), name="connect"
+            )
+            try:
+                await self._connecting
+            except asyncio.CancelledError:
+                if self._abort_reason is None:
+                    raise
+                raise AbortedBeforeFlight(f"{self._abort_reason} while waiting for the autopilot") from None
+            finally:
+                self._connecting = None
             stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
             if timeout_s is None:
                 await self._guidance_loop()

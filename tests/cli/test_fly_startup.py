@@ -4,9 +4,11 @@ and the setting to change, and no traceback."""
 
 from __future__ import annotations
 
+import signal
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -85,6 +87,37 @@ def test_no_autopilot_answering(tmp_path: Path, zenoh_file: Path, silent_udp_por
     assert code == exits.AUTOPILOT_UNREACHABLE == 3
     assert f"'{url}' within 1.5 s" in line
     assert "change connection in" in line and "runtime.connect_timeout_s = 1.5 s" in line
+
+
+@pytest.mark.parametrize(
+    "autopilot, url",
+    [("px4", "udpin://127.0.0.1:{port}"), ("ardupilot", "udpin:127.0.0.1:{port}")],
+)
+def test_ctrl_c_while_waiting_for_the_autopilot_ends_at_once(
+    tmp_path: Path, zenoh_file: Path, silent_udp_port: int, autopilot: str, url: str
+):
+    """SIGINT during the connect wait (30 s here) ends the process at once with 130, not when the
+    wait runs out; nothing was commanded."""
+    f = tmp_path / "vehicle.toml"
+    f.write_text(_vehicle(autopilot, url.format(port=silent_udp_port), zenoh_file).replace("= 1.5", "= 30.0"))
+    cmd = [sys.executable, "-m", "companion", "fly", "--params", str(f), "--out", str(tmp_path / "run")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        # wait until the run folder exists: the command is past its start-up, in the connect wait
+        deadline = time.monotonic() + TIME_LIMIT_S
+        while not (tmp_path / "run").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=15.0)  # far below the 30 s connect timeout
+        took = time.monotonic() - t0
+    finally:
+        proc.kill()
+    line = _one_line(err, out)
+    assert proc.returncode == exits.INTERRUPTED == 130
+    assert "operator abort (SIGINT) while waiting for the autopilot: nothing was commanded" in line
+    assert took < 10.0, took
 
 
 @pytest.mark.parametrize(
