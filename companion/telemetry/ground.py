@@ -82,6 +82,7 @@ class VehicleRow:
     heartbeat_age_s: float | None = None
     telemetry_dropped: int | None = None
     landing_error_m: float | None = None
+    distance_to_pad_m: float | None = None  # from the estimate flown on to the configured pad
     sector: int | None = None
     last_event: str = ""
     received: int = 0
@@ -277,7 +278,7 @@ class GroundStation:
                 battery_pct=msg.battery_pct,
             )
         elif isinstance(msg, MissionMessage):
-            changes.update(phase=msg.phase, sector=msg.sector)
+            changes.update(phase=msg.phase, sector=msg.sector, distance_to_pad_m=msg.distance_to_pad_m)
             if msg.event is not None:
                 ev = msg.event
                 changes["last_event"] = ev.kind.value + (f": {ev.detail}" if ev.detail else "")
@@ -382,7 +383,7 @@ def render_table(rows: dict[str, VehicleRow], now_unix_s: float | None = None) -
     table = Table(title="companion fleet", expand=False, pad_edge=False)
     for name, justify in (
         ("vehicle", "left"), ("phase", "left"), ("mode", "left"), ("N/E/alt m", "right"),
-        ("m/s", "right"), ("batt", "right"), ("link", "center"), ("land err", "right"),
+        ("m/s", "right"), ("to pad", "right"), ("batt", "right"), ("link", "center"), ("land err", "right"),
         ("rx/lost", "right"), ("age", "right"), ("last event", "left"),
     ):  # fmt: skip
         table.add_column(name, justify=justify, no_wrap=name != "last event")  # type: ignore[arg-type]
@@ -391,6 +392,8 @@ def render_table(rows: dict[str, VehicleRow], now_unix_s: float | None = None) -
         pos = "-" if r.north_m is None else f"{r.north_m:.1f}/{r.east_m:.1f}/{r.alt_m:.1f}"
         # a vanished vehicle's last link state and mode are history, not its present state
         link = "-" if r.link_ok is None or not r.alive else ("[green]ok" if r.link_ok else "[red]LOST")
+        if r.alive and r.link_ok is not None and r.heartbeat_age_s is not None:
+            link += f" ({r.heartbeat_age_s:.1f}s)"  # since the autopilot's last HEARTBEAT
         mode = r.mode or "-"
         if r.mode and not r.alive:
             mode = f"[dim]{r.mode} (last)"
@@ -404,6 +407,7 @@ def render_table(rows: dict[str, VehicleRow], now_unix_s: float | None = None) -
             mode,
             pos,
             _fmt(r.ground_speed_m_s, ".1f"),
+            "-" if r.distance_to_pad_m is None else format_m(r.distance_to_pad_m),
             "-" if r.battery_pct is None else f"{r.battery_pct:.0f}%",
             link,
             "-" if r.landing_error_m is None else format_m(r.landing_error_m),

@@ -186,6 +186,20 @@ def test_render_table() -> None:
     assert "-/2" not in text and "0/2" in text  # received / lost
 
 
+def test_render_table_shows_the_distance_to_the_pad_and_the_heartbeat_age() -> None:
+    from rich.console import Console
+
+    console = Console(width=200, record=True)
+    row = VehicleRow("d1", True, link_ok=True, heartbeat_age_s=0.25, distance_to_pad_m=0.034)
+    console.print(render_table({"d1": row}))
+    text = console.export_text()
+    assert "to pad" in text and "34 mm" in text  # millimetres under 10 cm, never 0.03 m
+    assert "ok (0.2s)" in text or "ok (0.3s)" in text
+    console = Console(width=200, record=True)
+    console.print(render_table({"d1": VehicleRow("d1", True, link_ok=True)}))  # no heartbeat (simulator)
+    assert "ok (" not in console.export_text()
+
+
 def test_bench_small_run() -> None:
     result = bench_telemetry(vehicles=3, rate_hz=20.0, duration_s=0.5)
     assert result["submitted"] == 30 and result["delivered"] == 30 and result["lost"] == 0
