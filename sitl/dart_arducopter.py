@@ -180,13 +180,47 @@ async def fly_dart_arducopter(
     pilot_roll_us: int = 1500,
     mode: str = "ALT_HOLD",
 ) -> ArduDartResult:
-    """Boot ArduCopter, take off in GUIDED to ``start_alt_m``, hand over in ALT_HOLD with the
+    """Boot ArduCopter, take off in GUIDED to ``start_alt_m``, hand over in ``mode`` with the
     switch on, fly the Dart shell for ``duration_s``; at ``release_after_s`` (shell time) the pilot
     switches it off with the roll stick at ``pilot_roll_us``; then land. ``mode``: the pilot's
     ALT_HOLD (mid throttle holds the height) or STABILIZE (mid throttle is ArduCopter's hover
     throttle; the cyber-pilot's vertical PID adds to it). Needs the SITL build."""
-    if mode not in ("ALT_HOLD", "STABILIZE"):
-        raise ValueError(f"mode {mode!r}: the Dart flies ALT_HOLD or STABILIZE")
+    results = await fly_dart_arducopter_modes(
+        root,
+        log_dir,
+        params,
+        (mode,),
+        duration_s=duration_s,
+        release_after_s=release_after_s,
+        start_alt_m=start_alt_m,
+        seed=seed,
+        pilot_roll_us=pilot_roll_us,
+    )
+    return results[0]
+
+
+async def fly_dart_arducopter_modes(
+    root: Path,
+    log_dir: Path,
+    params: DartParams | None,
+    modes: Sequence[str],
+    *,
+    duration_s: float,
+    release_after_s: float | None = None,
+    start_alt_m: float = 2.0,
+    seed: int = 0,
+    pilot_roll_us: int = 1500,
+) -> list[ArduDartResult]:
+    """:func:`fly_dart_arducopter` once per mode in ``modes``, on one boot and one take-off: after
+    each flight the pilot has the sticks back (switch off), centres them, selects the next mode and
+    switches the cyber-pilot on again, with the wall marker placed ahead of where the vehicle
+    hovers then (as the paper's pilot flies to it). The vehicle lands after the last; only the
+    last result has ``landed`` set from the landing (the others carry True: it was still flying)."""
+    for mode in modes:
+        if mode not in ("ALT_HOLD", "STABILIZE"):
+            raise ValueError(f"mode {mode!r}: the Dart flies ALT_HOLD or STABILIZE")
+    if not modes:
+        raise ValueError("modes: at least one")
     p = params or DartParams()
     log_dir.mkdir(parents=True, exist_ok=True)
     truth_port = free_udp_port()
@@ -200,28 +234,34 @@ async def fly_dart_arducopter(
     sticks = [int(NEUTRAL_US), int(NEUTRAL_US), 1000, int(NEUTRAL_US)]  # throttle low on the ground
     rc.set(_pilot_channels(p, sticks, SWITCH_OFF_US))
     rc.start()
-    notes: list[str] = []
     try:
         with sitl, MavlinkTruth(f"udpin:127.0.0.1:{truth_port}", message="SIM_STATE") as truth:
             await asyncio.to_thread(truth.wait, 15.0)
             ap = ArduPilotAutopilot(sitl.connection, stream_rates_hz=DART_STREAM_RATES_HZ, arm_timeout_s=90.0)
             await ap.connect(timeout_s=20.0)
             try:
-                return await _fly(
-                    ap,
-                    truth,
-                    rc,
-                    p,
-                    sticks,
-                    log_dir,
-                    duration_s,
-                    release_after_s,
-                    start_alt_m,
-                    seed,
-                    pilot_roll_us,
-                    notes,
-                    mode,
-                )
+                await _take_off(ap, truth, start_alt_m)
+                results = []
+                for k, mode in enumerate(modes):
+                    sticks[:] = [int(NEUTRAL_US), int(NEUTRAL_US), int(NEUTRAL_US), int(NEUTRAL_US)]
+                    results.append(
+                        await _fly(
+                            ap,
+                            truth,
+                            rc,
+                            p,
+                            sticks,
+                            log_dir / f"{k}-{mode.lower()}" if len(modes) > 1 else log_dir,
+                            duration_s,
+                            release_after_s,
+                            seed + k,
+                            pilot_roll_us,
+                            [],
+                            mode,
+                        )
+                    )
+                results[-1].landed = await _land(ap, results[-1].notes)
+                return results
             finally:
                 await ap.close()
     finally:
@@ -237,23 +277,15 @@ async def _fly(
     log_dir: Path,
     duration_s: float,
     release_after_s: float | None,
-    start_alt_m: float,
     seed: int,
     pilot_roll_us: int,
     notes: list[str],
     mode: str,
 ) -> ArduDartResult:
     rt = p.runtime
-    await ap.arm()  # GUIDED; refused until EKF3 uses GPS (~40 s), retried by the backend
-    await ap.takeoff(start_alt_m)
-    await _until(
-        lambda: -truth.pd > start_alt_m - 0.2,  # (the Dart streams leave GLOBAL_POSITION_INT out)
-        30.0,
-        f"take off to {start_alt_m} m",
-    )
-    await asyncio.sleep(2.0)  # settle
-    # the pilot's hover: throttle mid (ALT_HOLD holds the height), then the mode
-    sticks[2] = int(NEUTRAL_US)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    # the pilot's hover: sticks centred, throttle mid (ALT_HOLD holds the height, STABILIZE's mid
+    # is the hover throttle), switch off, then the mode
     rc.set(_pilot_channels(p, sticks, SWITCH_OFF_US))
     await asyncio.sleep(0.3)
     await ap.set_mode(mode)
@@ -352,17 +384,31 @@ async def _fly(
                 break
         if not math.isfinite(latency):
             notes.append("the vehicle never flew the radio's sticks after the switch went off")
-    # the pilot lands it
+    return ArduDartResult(summary, track, modes, latency, matched, len(engaged), True, notes)
+
+
+async def _take_off(ap: ArduPilotAutopilot, truth: MavlinkTruth, start_alt_m: float) -> None:
+    await ap.arm()  # GUIDED; refused until EKF3 uses GPS (~40 s), retried by the backend
+    await ap.takeoff(start_alt_m)
+    await _until(
+        lambda: -truth.pd > start_alt_m - 0.2,  # (the Dart streams leave GLOBAL_POSITION_INT out)
+        30.0,
+        f"take off to {start_alt_m} m",
+    )
+    await asyncio.sleep(2.0)  # settle
+
+
+async def _land(ap: ArduPilotAutopilot, notes: list[str]) -> bool:
+    """The pilot lands it."""
     await ap.land()
-    landed = True
     try:
         await _until(
             lambda: (st := ap.telemetry.status) is not None and st.landed is LandedState.ON_GROUND, 40.0, "landed"
         )
     except TimeoutError as err:
-        landed = False
         notes.append(str(err))
-    return ArduDartResult(summary, track, modes, latency, matched, len(engaged), landed, notes)
+        return False
+    return True
 
 
 __all__ = [
@@ -372,4 +418,5 @@ __all__ = [
     "SitlRcInput",
     "TruthWallCamera",
     "fly_dart_arducopter",
+    "fly_dart_arducopter_modes",
 ]
