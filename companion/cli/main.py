@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "companion.cli.fly",
     "companion.cli.logs",
     "companion.cli.dart",
+    "companion.cli.signing",
 )
 
 
