@@ -291,8 +291,8 @@ class MavlinkSimVehicle(abc.ABC):
         sig.sign_outgoing = True
         sig.allow_unsigned_callback = accept_everything if self.trusted_link else accept_unsigned_ardupilot
         # 60 s past the stored timestamp, then up to the GPS clock (update_signing_timestamp)
+        # (a second SETUP_SIGNING with the same timestamp turns it back, as on ArduPilot)
         sig.timestamp = max(initial_timestamp + AP_KEY_LOAD_OFFSET, clock_timestamp())
-        sig.stream_timestamps.clear()
         log.info("sim vehicle: signing on")
 
     def _setup_signing(self, m: Any) -> None:

@@ -150,6 +150,7 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
+TRY_PERIOD_TS = 100_000  # 1 s in signing timestamp units (10 us)
 HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
 
 
@@ -181,6 +182,7 @@ class LinkCounters:
     stream_requests: int = 0
     signature_rejects: int = 0  # packets dropped by our signing check (unsigned or another key)
     signed_heartbeats: int = 0  # heartbeats of the vehicle whose signature our key verified
+    signed_from_vehicle: int = 0  # any packet of the vehicle whose signature our key verified
     sends_held: int = 0  # signing.timestamp = "vehicle": sends dropped until the vehicle's timestamp is known
 
 
@@ -552,19 +554,24 @@ class ArduPilotAutopilot(Autopilot):
             allow_unsigned=old.allow_unsigned if old else False,
             timestamp=old.timestamp if old else "clock",
         )
+        # one SETUP_SIGNING per try, each with a later timestamp: ArduPilot sets its timestamp to
+        # the pushed one + 60 s, so the same message again would turn its clock back and we would
+        # drop its packets as replays
+        deadline = loop.time() + timeout_s
         for attempt in range(tries):
+            if attempt:
+                ts = max(ts + TRY_PERIOD_TS, clock_timestamp())
+                msg = setup_signing_message(conn.mav, self.target_system, self.target_component, key, ts)
             with self._send_lock:
                 conn.mav.send(msg)  # with the link's current signing (none at first)
+                # the vehicle starts 60 s past the pushed timestamp; start there too
+                apply_to_mavlink(conn.mav, setup, max(clock_timestamp(), ts + AP_KEY_LOAD_OFFSET))
             if attempt == 0:
-                with self._send_lock:
-                    # the vehicle starts 60 s past the pushed timestamp; start there too
-                    apply_to_mavlink(conn.mav, setup, max(clock_timestamp(), ts + AP_KEY_LOAD_OFFSET))
-                    conn.mav.signing.goodsig_count = 0
                 self.signing = setup
-            seen = self.counters.signed_heartbeats
-            deadline = loop.time() + timeout_s / tries
-            while loop.time() < deadline:
-                if self.counters.signed_heartbeats > seen:
+            seen = self.counters.signed_from_vehicle
+            try_end = min(deadline, loop.time() + timeout_s / tries)
+            while loop.time() < try_end:
+                if self.counters.signed_from_vehicle > seen:
                     log.info("vehicle %d signs with key %s", self.target_system, key.fingerprint)
                     return
                 await asyncio.sleep(0.05)
@@ -889,6 +896,7 @@ class ArduPilotAutopilot(Autopilot):
             self._vehicle_signs = len(buf) > 2 and buf[0] == 0xFD and bool(buf[2] & 0x01)  # MAVLINK_IFLAG_SIGNED
             if m.get_signed():
                 self.counters.signed_heartbeats += 1
+                self.counters.signed_from_vehicle += 1
             self._last_hb = now
             self._last_rx = now
             self.copter_mode = m.custom_mode
@@ -902,6 +910,7 @@ class ArduPilotAutopilot(Autopilot):
         if self.target_system is None or src != self.target_system:
             return
         self.counters.messages += 1
+        self.counters.signed_from_vehicle += m.get_signed()
         self._last_rx = now
         if t == "ATTITUDE":
             self._last_attitude = now
