@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import os
+from typing import Any
 
 import pytest
 
@@ -18,10 +19,10 @@ KEY = SigningKey(hashlib.sha256(b"companion test key").digest(), "<test>")
 OTHER = SigningKey(hashlib.sha256(b"another key").digest(), "<other>")
 FEW_STREAMS = {30: 20.0, 33: 10.0}  # ATTITUDE, GLOBAL_POSITION_INT: a short connect
 # a vehicle that ignores us streams nothing but its 1 Hz heartbeat: a link timeout above that
-IGNORED = {"stream_rates_hz": FEW_STREAMS, "link_timeout_s": 3.0}
+IGNORED: dict[str, Any] = {"stream_rates_hz": FEW_STREAMS, "link_timeout_s": 3.0}
 
 
-def _ap(port: int, setup: SigningSetup | None = None, **kwargs) -> ArduPilotAutopilot:
+def _ap(port: int, setup: SigningSetup | None = None, **kwargs: Any) -> ArduPilotAutopilot:
     return ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", signing=setup, **kwargs)
 
 
