@@ -55,6 +55,95 @@ def register(subparsers: Any) -> None:
     pu.set_defaults(func=cmd_push)
 
 
+def register_bench(bench_subparsers: Any) -> None:
+    """Add ``companion bench signing``."""
+    b = bench_subparsers.add_parser("signing", help="cost of MAVLink 2 signing: pack and parse, unsigned vs signed")
+    b.add_argument("--n", type=int, default=5000, help="messages per timed batch")
+    b.add_argument("--rounds", type=int, default=5, help="alternating batches per variant (median reported)")
+    b.set_defaults(func=cmd_bench_signing)
+
+
+def bench_signing(n: int, rounds: int) -> dict[str, float]:
+    """Microseconds per SET_POSITION_TARGET_LOCAL_NED packed and parsed, unsigned and signed
+    (the variants alternate in each round; the medians and their ratios come from one run)."""
+    import os
+    import statistics
+    import time
+
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from companion.autopilot.mavlink_messages import velocity_setpoint_message
+    from companion.autopilot.signing import SigningSetup, apply_to_mavlink
+    from companion.guidance.setpoint import VelocitySetpoint
+
+    key = generate_key()
+
+    class _Sink:
+        def __init__(self) -> None:
+            self.chunks: list[bytes] = []
+
+        def write(self, b: bytes) -> None:
+            self.chunks.append(bytes(b))
+
+    def pack(signed: bool) -> tuple[float, list[bytes]]:
+        sink = _Sink()
+        mav = mavlink.MAVLink(sink, srcSystem=255, srcComponent=191)
+        if signed:
+            apply_to_mavlink(mav, SigningSetup(key, allow_unsigned=False), initial_timestamp=1)
+        msgs = [velocity_setpoint_message(i, 1, 1, VelocitySetpoint(1.0, 0.5, -0.2, 0.1)) for i in range(n)]
+        t0 = time.perf_counter()
+        for m in msgs:
+            mav.send(m)
+        return (time.perf_counter() - t0) / n * 1e6, sink.chunks
+
+    def parse(packets: list[bytes], signed: bool) -> float:
+        rx = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        if signed:
+            apply_to_mavlink(rx, SigningSetup(key, allow_unsigned=False), initial_timestamp=0)
+        t0 = time.perf_counter()
+        got = 0
+        for p in packets:
+            got += len(rx.parse_buffer(p) or [])
+        dt = (time.perf_counter() - t0) / n * 1e6
+        if got != n or (signed and rx.signing.goodsig_count != n):
+            raise RuntimeError(f"bench signing: {got} of {n} parsed, {rx.signing.goodsig_count} verified")
+        return dt
+
+    res: dict[str, list[float]] = {k: [] for k in ("pack_us", "pack_signed_us", "parse_us", "parse_verify_us")}
+    sizes = (0, 0)
+    for _ in range(rounds):
+        t_u, pk_u = pack(False)
+        t_s, pk_s = pack(True)
+        res["pack_us"].append(t_u)
+        res["pack_signed_us"].append(t_s)
+        res["parse_us"].append(parse(pk_u, False))
+        res["parse_verify_us"].append(parse(pk_s, True))
+        sizes = (len(pk_u[0]), len(pk_s[0]))
+    out = {k: statistics.median(v) for k, v in res.items()}
+    out["pack_ratio_signed_over_unsigned"] = out["pack_signed_us"] / out["pack_us"]
+    out["parse_ratio_verify_over_unsigned"] = out["parse_verify_us"] / out["parse_us"]
+    out["bytes_unsigned"], out["bytes_signed"] = float(sizes[0]), float(sizes[1])
+    return out
+
+
+def cmd_bench_signing(args: argparse.Namespace) -> int:
+    if args.n < 100 or args.rounds < 1:
+        raise StartupError(f"--n {args.n} / --rounds {args.rounds}: need n >= 100 and rounds >= 1", exits.BAD_INPUT)
+    r = bench_signing(args.n, args.rounds)
+    print(f"MAVLink 2 signing, SET_POSITION_TARGET_LOCAL_NED, {args.n} messages x {args.rounds} rounds (median)")
+    print(f"  packet size        {r['bytes_unsigned']:.0f} B unsigned, {r['bytes_signed']:.0f} B signed")
+    print(
+        f"  pack (encode+send) {r['pack_us']:.1f} us unsigned, {r['pack_signed_us']:.1f} us signed "
+        f"(x{r['pack_ratio_signed_over_unsigned']:.2f})"
+    )
+    print(
+        f"  parse              {r['parse_us']:.1f} us unsigned, {r['parse_verify_us']:.1f} us verified "
+        f"(x{r['parse_ratio_verify_over_unsigned']:.2f})"
+    )
+    return exits.OK
+
+
 def cmd_keygen(args: argparse.Namespace) -> int:
     try:
         if args.passphrase:
@@ -133,7 +222,7 @@ def cmd_push(args: argparse.Namespace) -> int:
         ) from None
     if args.off:
         print("sent SETUP_SIGNING with the zero key: the vehicle's signing is off")
-    else:
+    elif config.signing.key_file:  # checked above
         key = read_key_file(config.signing.key_file, config.signing.key_format)
         print(f"the vehicle signs with key {key.fingerprint}")
     sys.stdout.flush()

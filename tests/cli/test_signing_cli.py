@@ -109,3 +109,10 @@ def test_fly_with_a_missing_key_file_is_bad_input(tmp_path):
     assert proc.returncode == exits.BAD_INPUT, proc.stderr
     assert "nope.key: not found (make one with `companion signing keygen" in proc.stderr
     assert "fix signing.key_file in" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_bench_signing_reports_both_variants_from_one_run(capsys):
+    assert main(["bench", "signing", "--n", "300", "--rounds", "1"]) == exits.OK
+    out = capsys.readouterr().out
+    assert "65 B unsigned, 78 B signed" in out  # the 13-byte signature block
+    assert "us signed (x" in out and "us verified (x" in out
