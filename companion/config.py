@@ -413,11 +413,11 @@ class SigningConfig(_Section):
         "true: sign outgoing only and accept unsigned packets; false: drop unsigned or wrongly signed "
         "packets (RADIO_STATUS/RADIO excepted, as ArduPilot)",
     )
-    timestamp: Literal["clock", "vehicle"] = _f(
-        "clock",
+    timestamp_file: str | None = _f(
+        None,
         "-",
-        "first outgoing signing timestamp: clock (system clock, must be set) or vehicle (send nothing "
-        "until a signed packet from the vehicle sets ours; for a companion without a real-time clock)",
+        "file keeping our signing timestamp across restarts (saved every 30 s and on close; start 60 s "
+        "past it, as ArduPilot): replay protection when the clock is not set; none: the clock only",
     )
 
     @model_validator(mode="after")
@@ -426,11 +426,6 @@ class SigningConfig(_Section):
             raise ValueError(
                 "signing.enabled needs signing.key_file (64 hex digits, 32 raw bytes or a passphrase file; "
                 "`companion signing keygen FILE` writes one)"
-            )
-        if self.timestamp == "vehicle" and self.allow_unsigned:
-            raise ValueError(
-                "signing.timestamp = 'vehicle' needs signing.allow_unsigned = false: our timestamp is taken "
-                "from the vehicle's verified signed packets"
             )
         return self
 

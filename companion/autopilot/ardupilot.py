@@ -38,6 +38,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
@@ -67,7 +68,9 @@ from companion.autopilot.signing import (
     apply_to_mavlink,
     clock_timestamp,
     read_key_file,
+    read_timestamp_file,
     setup_signing_message,
+    write_timestamp_file,
 )
 from companion.autopilot.types import (
     Attitude,
@@ -151,6 +154,7 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
 TRY_PERIOD_TS = 100_000  # 1 s in signing timestamp units (10 us)
+TIMESTAMP_SAVE_PERIOD_S = 30.0  # as ArduPilot saves its signing timestamp
 HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
 
 
@@ -183,7 +187,6 @@ class LinkCounters:
     signature_rejects: int = 0  # packets dropped by our signing check (unsigned or another key)
     signed_heartbeats: int = 0  # heartbeats of the vehicle whose signature our key verified
     signed_from_vehicle: int = 0  # any packet of the vehicle whose signature our key verified
-    sends_held: int = 0  # signing.timestamp = "vehicle": sends dropped until the vehicle's timestamp is known
 
 
 def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
@@ -314,7 +317,10 @@ class ArduPilotAutopilot(Autopilot):
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)
-            kwargs["signing"] = SigningSetup(key, sc.link_id, sc.allow_unsigned, sc.timestamp)
+            ts_file = Path(sc.timestamp_file) if sc.timestamp_file else None
+            if ts_file is not None:
+                read_timestamp_file(ts_file)  # a bad file stops us here, before any link is opened
+            kwargs["signing"] = SigningSetup(key, sc.link_id, sc.allow_unsigned, ts_file)
             log.info(
                 "MAVLink signing on: key %s (%s), link id %d, %s",
                 key.fingerprint,
@@ -401,6 +407,7 @@ class ArduPilotAutopilot(Autopilot):
         reader, self._reader = self._reader, None
         if reader is not None and reader is not threading.current_thread():
             await asyncio.get_running_loop().run_in_executor(None, reader.join, 2.0)
+        self._save_signing_timestamp()
         conn, self._conn = self._conn, None
         if conn is not None:
             with contextlib.suppress(Exception):
@@ -430,10 +437,6 @@ class ArduPilotAutopilot(Autopilot):
     def _send(self, fn: Callable[[Any], None]) -> bool:
         conn = self._conn
         if conn is None:
-            return False
-        s = self.signing
-        if s is not None and s.timestamp == "vehicle" and conn.mav.signing.goodsig_count == 0:
-            self.counters.sends_held += 1  # our timestamp is not known yet: the vehicle would drop it
             return False
         try:
             with self._send_lock:
@@ -552,7 +555,7 @@ class ArduPilotAutopilot(Autopilot):
             key,
             old.link_id if old else 1,
             allow_unsigned=old.allow_unsigned if old else False,
-            timestamp=old.timestamp if old else "clock",
+            timestamp_file=old.timestamp_file if old else None,
         )
         # one SETUP_SIGNING per try, each with a later timestamp: ArduPilot sets its timestamp to
         # the pushed one + 60 s, so the same message again would turn its clock back and we would
@@ -814,13 +817,27 @@ class ArduPilotAutopilot(Autopilot):
     def _push_status(self) -> None:
         self._push(self._status())
 
+    def _save_signing_timestamp(self) -> None:
+        """Keep our signing timestamp in ``signing.timestamp_file`` (every 30 s and on close)."""
+        s, conn = self.signing, self._conn
+        if s is None or s.timestamp_file is None or conn is None or not conn.mav.signing.sign_outgoing:
+            return
+        try:
+            write_timestamp_file(s.timestamp_file, conn.mav.signing.timestamp)
+        except SigningError as err:
+            log.warning("%s", err)
+
     def _read_loop(self) -> None:
         next_hb = 0.0
+        next_save = time.monotonic() + TIMESTAMP_SAVE_PERIOD_S
         while self._running:
             conn = self._conn
             if conn is None:
                 break
             now = time.monotonic()
+            if now >= next_save:
+                next_save = now + TIMESTAMP_SAVE_PERIOD_S
+                self._save_signing_timestamp()
             if now >= next_hb:
                 next_hb = now + 1.0
                 self._send(

@@ -61,7 +61,6 @@ MSG_ID_SETUP_SIGNING = 256
 ACCEPT_UNSIGNED_IDS = frozenset({MSG_ID_RADIO_STATUS, MSG_ID_RADIO})
 
 KeyFormat = Literal["auto", "hex", "raw", "passphrase"]
-TimestampSource = Literal["clock", "vehicle"]
 
 
 class SigningError(AutopilotError):
@@ -99,20 +98,27 @@ class SigningKey:
 
 @dataclass(frozen=True)
 class SigningSetup:
-    """How a link signs: the key, our link id, whether unsigned packets are accepted, and where
-    the first outgoing timestamp comes from ("clock": the system clock; "vehicle": send nothing
-    until a correctly signed packet from the vehicle has set our timestamp to its own)."""
+    """How a link signs: the key, our link id, whether unsigned packets are accepted, and the
+    file our signing timestamp is kept in across restarts (None: start from the clock only)."""
 
     key: SigningKey
     link_id: int = 1
     allow_unsigned: bool = False
-    timestamp: TimestampSource = "clock"
+    timestamp_file: Path | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.link_id <= 255:
             raise SigningKeyError(f"signing.link_id = {self.link_id}: must be 0..255")
-        if self.timestamp not in ("clock", "vehicle"):
-            raise SigningKeyError(f"signing.timestamp = {self.timestamp!r}: must be 'clock' or 'vehicle'")
+
+    def initial_timestamp(self) -> int:
+        """Where our timestamp starts: the clock, or 60 s past the one kept in ``timestamp_file``
+        if that is later (as ArduPilot restarts from its stored timestamp)."""
+        ts = clock_timestamp()
+        if self.timestamp_file is not None:
+            stored = read_timestamp_file(self.timestamp_file)
+            if stored is not None:
+                ts = max(ts, min(stored + AP_KEY_LOAD_OFFSET, TIMESTAMP_MAX))
+        return ts
 
 
 def passphrase_key(passphrase: str, source: str = "<passphrase>") -> SigningKey:
@@ -238,15 +244,48 @@ def timestamp_from_unix(unix_s: float) -> int:
 def clock_timestamp() -> int:
     """The signing timestamp of the system clock now; warns when the clock is clearly not set
     (a companion without a real-time clock boots in the past, and the vehicle would drop a new
-    stream more than 60 s behind its own timestamp: use signing.timestamp = 'vehicle')."""
+    stream more than 60 s behind its own timestamp: keep one in signing.timestamp_file)."""
     now = time.time()
     if now < CLOCK_SANE_AFTER_UNIX_S:
         log.warning(
             "system clock reads %s: signed packets will carry an old timestamp the vehicle may drop; "
-            "set the clock or use signing.timestamp = 'vehicle'",
+            "set the clock or keep the timestamp in signing.timestamp_file",
             time.strftime("%Y-%m-%d", time.gmtime(now)),
         )
     return timestamp_from_unix(now)
+
+
+def read_timestamp_file(path: str | Path) -> int | None:
+    """The signing timestamp kept in ``path`` (one integer, 10 us units since 2015-01-01); None
+    when the file does not exist yet. Anything else unreadable is a :class:`SigningKeyError`."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="ascii")
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SigningKeyError(f"signing timestamp file {p}: cannot read: {err}") from None
+    try:
+        value = int(text.strip())
+    except ValueError:
+        raise SigningKeyError(
+            f"signing timestamp file {p}: {text.strip()[:40]!r} is not an integer "
+            "(expected the signing timestamp in 10 us units since 2015-01-01)"
+        ) from None
+    if not 0 <= value <= TIMESTAMP_MAX:
+        raise SigningKeyError(f"signing timestamp file {p}: {value} is outside 0..2^48-1")
+    return value
+
+
+def write_timestamp_file(path: str | Path, timestamp: int) -> None:
+    """Keep ``timestamp`` in ``path`` (written to a temporary file, then renamed: never half a number)."""
+    p = Path(path)
+    tmp = p.with_name(p.name + ".tmp")
+    try:
+        tmp.write_text(f"{int(timestamp)}\n", encoding="ascii")
+        os.replace(tmp, p)
+    except OSError as err:
+        raise SigningKeyError(f"signing timestamp file {p}: cannot write: {err.strerror}") from None
 
 
 def accept_unsigned_ardupilot(_mav: Any, msg_id: int) -> bool:
@@ -268,7 +307,7 @@ def apply_to_mavlink(mav: Any, setup: SigningSetup, initial_timestamp: int | Non
     signing.sign_outgoing = True
     signing.allow_unsigned_callback = accept_everything if setup.allow_unsigned else accept_unsigned_ardupilot
     if initial_timestamp is None:
-        initial_timestamp = clock_timestamp() if setup.timestamp == "clock" else 0
+        initial_timestamp = setup.initial_timestamp()
     signing.timestamp = max(int(signing.timestamp or 0), initial_timestamp)
 
 

@@ -12,7 +12,15 @@ import pytest
 from companion.autopilot import AutopilotError, FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.interface import CommandRejected
-from companion.autopilot.signing import SigningError, SigningKey, SigningSetup, setup_signing_message
+from companion.autopilot.signing import (
+    TIMESTAMP_UNITS_PER_S,
+    SigningError,
+    SigningKey,
+    SigningSetup,
+    clock_timestamp,
+    read_timestamp_file,
+    setup_signing_message,
+)
 from companion.guidance.setpoint import VelocitySetpoint
 
 KEY = SigningKey(hashlib.sha256(b"companion test key").digest(), "<test>")
@@ -39,11 +47,10 @@ async def _arm_takeoff_velocity_land(mav, ap, sim) -> None:
     await mav.wait_for(lambda: sim.vehicle.mode is FlightMode.LAND, 2.0, "LAND")
 
 
-@pytest.mark.parametrize("timestamp", ["clock", "vehicle"])
-async def test_signed_companion_flies_a_signing_vehicle(mav, udp_port, timestamp):
+async def test_signed_companion_flies_a_signing_vehicle(mav, udp_port):
     config = mav.short_config()
     with mav.sim_vehicle(config, "ardupilot", udp_port, signing_key=KEY.secret) as sim:
-        ap = _ap(udp_port, SigningSetup(KEY, link_id=7, timestamp=timestamp))
+        ap = _ap(udp_port, SigningSetup(KEY, link_id=7))
         await ap.connect(timeout_s=3.0)
         await _arm_takeoff_velocity_land(mav, ap, sim)
         await ap.close()
@@ -51,8 +58,36 @@ async def test_signed_companion_flies_a_signing_vehicle(mav, udp_port, timestamp
     assert sim.stats.signature_rejects == 0 and ap.counters.signature_rejects == 0
     assert sim.stats.signed_in == sim.stats.messages_in and sim.stats.setpoints >= 20
     assert ap.counters.signed_heartbeats == ap.counters.heartbeats > 0
-    if timestamp == "vehicle":
-        assert ap.counters.sends_held >= 0  # held until the first verified packet (may be none on loopback)
+
+
+async def test_a_kept_timestamp_lets_a_restarted_companion_start_where_it_left_off(mav, udp_port, tmp_path):
+    """The vehicle's signing timestamp is an hour ahead of our clock (a companion without a
+    real-time clock is behind): a new stream more than 60 s behind it is dropped. Our first
+    heartbeat is; pymavlink then takes the vehicle's timestamp from its first verified packet and
+    the rest pass. Kept in signing.timestamp_file, the next start begins 60 s past it: nothing is
+    dropped."""
+    config = mav.short_config()
+    ahead = clock_timestamp() + 3600 * TIMESTAMP_UNITS_PER_S
+    ts_file = tmp_path / "signing.ts"
+    with mav.sim_vehicle(config, "ardupilot", udp_port, signing_key=KEY.secret, signing_timestamp=ahead) as sim:
+        vehicle = f"udpout:127.0.0.1:{sim.address[1]}"  # udpout: we speak first
+        for start in range(2):
+            rejects = sim.stats.signature_rejects
+            ap = ArduPilotAutopilot(
+                vehicle, signing=SigningSetup(KEY, timestamp_file=ts_file), stream_rates_hz=FEW_STREAMS
+            )
+            await ap.connect(timeout_s=3.0)
+            await mav.wait_for(lambda: sim.vehicle.healthy, 5.0, "healthy")
+            await ap.arm()
+            await ap.disarm()
+            assert ap._conn.mav.signing.timestamp > ahead  # ours followed the vehicle's
+            await ap.close()
+            kept = read_timestamp_file(ts_file)
+            assert kept is not None and kept > ahead
+            if start == 0:
+                assert sim.stats.signature_rejects - rejects >= 1  # the first heartbeat, behind
+            else:
+                assert sim.stats.signature_rejects == rejects  # started 60 s past the kept one
 
 
 async def test_unsigned_companion_is_ignored_by_a_signing_vehicle(mav, udp_port):
@@ -176,7 +211,13 @@ def test_config_builds_the_signed_backend(mav, tmp_path):
     data = config.model_dump()
     data["signing"] = {"enabled": True, "key_file": str(path), "link_id": 9}
     ap = ArduPilotAutopilot.from_config(config_from_dict(data))
-    assert ap.signing == SigningSetup(SigningKey(KEY.secret, str(path)), 9, False, "clock")
+    assert ap.signing == SigningSetup(SigningKey(KEY.secret, str(path)), 9, False, None)
+    bad_ts = tmp_path / "bad.ts"
+    bad_ts.write_text("yesterday\n")
+    data["signing"]["timestamp_file"] = str(bad_ts)
+    with pytest.raises(AutopilotError, match=r"bad\.ts: 'yesterday' is not an integer"):
+        ArduPilotAutopilot.from_config(config_from_dict(data))  # before any link is opened
+    data["signing"]["timestamp_file"] = None
     data["signing"]["key_file"] = str(tmp_path / "missing.hex")
     with pytest.raises(AutopilotError, match=r"missing\.hex: not found"):
         ArduPilotAutopilot.from_config(config_from_dict(data))

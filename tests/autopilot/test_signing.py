@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 import random
+import time
 
 import pytest
 
@@ -18,8 +19,10 @@ from companion.autopilot.signing import (
     generate_passphrase,
     passphrase_key,
     read_key_file,
+    read_timestamp_file,
     timestamp_from_unix,
     write_key_file,
+    write_timestamp_file,
 )
 from companion.config import ConfigError, config_from_dict
 
@@ -144,11 +147,29 @@ def test_signing_section_rules():
         config_from_dict({"signing": {"enabled": True}})
     with pytest.raises(ConfigError, match=r"signing.link_id = 300: Input should be less than or equal to 255"):
         config_from_dict({"signing": {"link_id": 300}})
-    with pytest.raises(ConfigError, match=r"signing.timestamp = 'vehicle' needs signing.allow_unsigned = false"):
-        config_from_dict(
-            {"signing": {"enabled": True, "key_file": "k", "timestamp": "vehicle", "allow_unsigned": True}}
-        )
     with pytest.raises(ConfigError, match=r"signing.key_format = 'base64'"):
         config_from_dict({"signing": {"key_format": "base64"}})
     cfg = config_from_dict({"autopilot": "ardupilot", "signing": {"enabled": True, "key_file": "k.hex"}})
-    assert cfg.signing.link_id == 1 and not cfg.signing.allow_unsigned and cfg.signing.timestamp == "clock"
+    assert cfg.signing.link_id == 1 and not cfg.signing.allow_unsigned and cfg.signing.timestamp_file is None
+
+
+def test_the_timestamp_file_keeps_our_timestamp_and_names_bad_contents(tmp_path):
+    f = tmp_path / "signing.ts"
+    assert read_timestamp_file(f) is None  # not there yet: the clock alone
+    key = SigningKey(SECRET, "k")
+    now = SigningSetup(key, timestamp_file=f).initial_timestamp()
+    assert abs(now - timestamp_from_unix(time.time())) < 10 * 100_000
+    ahead = now + 3600 * 100_000
+    write_timestamp_file(f, ahead)
+    assert read_timestamp_file(f) == ahead and not (tmp_path / "signing.ts.tmp").exists()
+    assert SigningSetup(key, timestamp_file=f).initial_timestamp() == ahead + 60 * 100_000  # as ArduPilot
+    write_timestamp_file(f, 5)  # far behind the clock: the clock wins
+    assert abs(SigningSetup(key, timestamp_file=f).initial_timestamp() - now) < 10 * 100_000
+    f.write_text("12ab\n")
+    with pytest.raises(SigningKeyError, match=r"signing.ts: '12ab' is not an integer \(expected the signing timestamp"):
+        read_timestamp_file(f)
+    f.write_text(str(1 << 48))
+    with pytest.raises(SigningKeyError, match=r"281474976710656 is outside 0..2\^48-1"):
+        read_timestamp_file(f)
+    with pytest.raises(SigningKeyError, match=r"cannot write"):
+        write_timestamp_file(tmp_path / "no" / "dir" / "ts", 1)
