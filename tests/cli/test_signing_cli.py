@@ -116,3 +116,41 @@ def test_bench_signing_reports_both_variants_from_one_run(capsys):
     out = capsys.readouterr().out
     assert "65 B unsigned, 78 B signed" in out  # the 13-byte signature block
     assert "us signed (x" in out and "us verified (x" in out
+
+
+def test_dart_signing_key_errors_stop_before_anything_starts(tmp_path, capsys):
+    dart_params = str(shipped_params_path("dart_hover.toml"))
+    missing = tmp_path / "nope.key"
+    assert main(["dart", "--params", dart_params, "--signing-key", str(missing)]) == exits.BAD_INPUT
+    assert f"error: --signing-key: signing key file {missing}: not found" in capsys.readouterr().out
+    assert main(["dart", "--params", dart_params, "--autopilot", "px4", "--signing-key", str(missing)]) == 2
+    assert "the PX4 backend cannot sign" in capsys.readouterr().out
+    assert main(["dart", "--sim", "ardupilot", "--signing-key", str(missing)]) == 2
+    assert "--sim flies unsigned" in capsys.readouterr().out
+
+
+def test_fly_against_a_vehicle_that_does_not_sign_stops_naming_signing(tmp_path):
+    key_file = tmp_path / "link.key"
+    assert main(["signing", "keygen", str(key_file)]) == exits.OK
+    port = _free_udp_port()
+    params = tmp_path / "vehicle.toml"
+    params.write_text(
+        f'autopilot = "ardupilot"\nconnection = "udpin:127.0.0.1:{port}"\n'
+        f'[signing]\nenabled = true\nkey_file = "{key_file}"\n[runtime]\nconnect_timeout_s = 2.0\n'
+        "[landing]\nfusion = false\nuse_camera = false\nuse_uwb = false\n[telemetry]\nenabled = false\n"
+    )
+    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    sim = MavlinkSimVehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "companion", "fly", "--params", str(params), "--out", str(tmp_path / "run")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=tmp_path,
+        )
+    finally:
+        sim.stop()
+    assert proc.returncode == exits.AUTOPILOT_UNREACHABLE, proc.stderr
+    assert "MAVLink signing refused" in proc.stderr and "companion signing push" in proc.stderr
+    assert "Traceback" not in proc.stderr and not sim.vehicle.armed
