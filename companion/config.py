@@ -407,6 +407,46 @@ class LandingConfig(_Section):
     )
 
 
+class SigningConfig(_Section):
+    """MAVLink 2 message signing on the autopilot link (ArduPilot backend; mavsdk 4.1 has no
+    signing API, see docs/signing.md). The key file is read when the backend is built."""
+
+    enabled: bool = _f(False, "-", "sign every packet we send and check the vehicle's signatures")
+    key_file: str | None = _f(
+        None, "-", "file with the 32-byte secret: 64 hex digits, 32 raw bytes, or a passphrase (key_format)"
+    )
+    key_format: Literal["auto", "hex", "raw", "passphrase"] = _f(
+        "auto",
+        "-",
+        "auto: 64 hex digits or 32 raw bytes; passphrase: one line, secret = SHA-256 of it "
+        "(MAVProxy `signing setup PASSPHRASE`)",
+    )
+    link_id: int = _f(
+        1, "-", "our link id in the signature (stream key with system/component; differ from the GCS)", ge=0, le=255
+    )
+    allow_unsigned: bool = _f(
+        False,
+        "-",
+        "true: sign outgoing only and accept unsigned packets; false: drop unsigned or wrongly signed "
+        "packets (RADIO_STATUS/RADIO excepted, as ArduPilot)",
+    )
+    timestamp_file: str | None = _f(
+        None,
+        "-",
+        "file keeping our signing timestamp across restarts (saved every 30 s and on close; start 60 s "
+        "past it, as ArduPilot): replay protection when the clock is not set; none: the clock only",
+    )
+
+    @model_validator(mode="after")
+    def _key(self) -> SigningConfig:
+        if self.enabled and not self.key_file:
+            raise ValueError(
+                "signing.enabled needs signing.key_file (64 hex digits, 32 raw bytes or a passphrase file; "
+                "`companion signing keygen FILE` writes one)"
+            )
+        return self
+
+
 class CompanionConfig(_Section):
     vehicle_id: str = _f(
         "drone1",
@@ -418,6 +458,7 @@ class CompanionConfig(_Section):
     )
     autopilot: Literal["sim", "px4", "ardupilot"] = _f("sim", "-", "which autopilot backend to use")
     connection: str = _f("udpin://0.0.0.0:14540", "-", "MAVLink connection URL for px4/ardupilot")
+    signing: SigningConfig = Field(default_factory=SigningConfig)
     mission: MissionConfig = Field(default_factory=MissionConfig)
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
     runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
@@ -432,6 +473,11 @@ class CompanionConfig(_Section):
             raise ValueError(
                 f"runtime.link_timeout_s ({self.runtime.link_timeout_s}) must be < mission.estimate_timeout_s "
                 f"({self.mission.estimate_timeout_s}): a lost link must be noticed before the estimate goes stale"
+            )
+        if self.signing.enabled and self.autopilot == "px4":
+            raise ValueError(
+                "signing.enabled = true with autopilot = 'px4': the MAVSDK backend cannot sign (mavsdk 4.1's "
+                "Python API and libcmavsdk have no MAVLink signing call); sign with autopilot = 'ardupilot'"
             )
         lc = self.landing
         if lc.controller == "autopilot" and (lc.landing_target_output == "off" or not lc.use_camera):

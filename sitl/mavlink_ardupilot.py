@@ -90,6 +90,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
 
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
+    SIGNING: ClassVar[bool] = True  # SETUP_SIGNING as GCS_Signing.cpp (see MavlinkSimVehicle)
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._ap_mode = COPTER_STABILIZE

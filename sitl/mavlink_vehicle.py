@@ -25,6 +25,13 @@ A background thread steps the vehicle on ``time.monotonic`` and speaks one of tw
 The vehicle sends to a configured remote address (as PX4 SITL sends to 14540) and to every
 peer it has heard from. Malformed bytes on the socket are counted and ignored. Ground truth goes
 out as HIL_STATE_QUATERNION when requested.
+
+MAVLink 2 signing (ArduPilot dialect), as ArduPilot's GCS_Signing.cpp: SETUP_SIGNING stores the
+key (refused while armed, with "ERROR: Won't setup signing when armed"), the vehicle's timestamp
+starts 60 s past the pushed one (raised to the clock, as ArduPilot does on a GPS fix), and from then
+on every packet it sends is signed and unsigned or wrongly signed packets are dropped, except
+RADIO_STATUS and RADIO, or everything on a ``trusted_link`` (ArduPilot's channel 0: USB, SITL TCP
+5760). The all-zero key with timestamp 0 turns signing off. ``signing_key`` starts with a key.
 """
 
 from __future__ import annotations
@@ -45,6 +52,13 @@ from typing import Any, ClassVar, Literal
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.autopilot.signing import (
+    AP_KEY_LOAD_OFFSET,
+    KEY_LEN,
+    accept_everything,
+    accept_unsigned_ardupilot,
+    clock_timestamp,
+)
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
@@ -131,6 +145,8 @@ class LinkStats:
     setpoints: int = 0
     setpoints_rejected: int = 0
     landing_targets: int = 0
+    signature_rejects: int = 0  # dropped by the signing check (unsigned, or another key)
+    signed_in: int = 0  # accepted with a verified signature
     commands: Counter[int] = field(default_factory=Counter)
     unsupported_commands: Counter[int] = field(default_factory=Counter)
     by_type_in: Counter[str] = field(default_factory=Counter)
@@ -164,6 +180,7 @@ class MavlinkSimVehicle(abc.ABC):
     HOME_ALWAYS: ClassVar[bool] = False  # send HOME_POSITION on change even when not streamed
     LOCAL_Z_OFFSET_M: ClassVar[float] = 0.0  # added to LOCAL_POSITION_NED z
     SOFTWARE_VERSION: ClassVar[int] = 0  # AUTOPILOT_VERSION flight_sw_version
+    SIGNING: ClassVar[bool] = False  # handles SETUP_SIGNING and signs (the ArduPilot dialect)
 
     def __new__(cls, cfg: SimConfig, dialect: Dialect = "px4", **kwargs: Any) -> MavlinkSimVehicle:
         if cls is MavlinkSimVehicle:
@@ -193,6 +210,9 @@ class MavlinkSimVehicle(abc.ABC):
         release_pwm: int = 1900,
         rc_override_timeout_s: float = -1.0,
         params: dict[str, float] | None = None,
+        signing_key: bytes | None = None,
+        signing_timestamp: int | None = None,
+        trusted_link: bool = False,
     ):
         if dialect is not None and dialect != self.dialect:
             raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
@@ -219,6 +239,12 @@ class MavlinkSimVehicle(abc.ABC):
         self._enc = mavlink.MAVLink(_Writer(), srcSystem=system_id, srcComponent=self.component_id)
         self._rx = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=self.component_id)
         self._rx.robust_parsing = True
+        self._enc.signing = self._rx.signing  # one signing state: the timestamp grows both ways
+        self.trusted_link = trusted_link
+        if signing_key is not None:
+            if not self.SIGNING:
+                raise ValueError(f"signing_key: the {self.dialect!r} sim vehicle does not sign (ardupilot does)")
+            self._set_signing(signing_key, clock_timestamp() if signing_timestamp is None else signing_timestamp)
         self._hb_period = 1.0 / heartbeat_hz
         self._hb_next = 0.0
         # message id -> [interval_s, next_due]
@@ -241,6 +267,41 @@ class MavlinkSimVehicle(abc.ABC):
             self.vehicle.mode = self.BOOT_MODE
         self._ltp = LocalTangentPlane(GeoPoint(cfg.home.lat_deg, cfg.home.lon_deg, cfg.home.alt_amsl_m))
         self.on_message: Callable[[Any], None] | None = None  # test hook: every decoded message
+
+    # ------------------------------------------------------------------ signing
+    @property
+    def signing_key(self) -> bytes | None:
+        """The key the vehicle signs with (None: not signing)."""
+        key = self._rx.signing.secret_key
+        return bytes(key) if key is not None else None
+
+    def _set_signing(self, key: bytes, initial_timestamp: int) -> None:
+        """ArduPilot's load_signing_key: the all-zero key with timestamp 0 turns signing off."""
+        if len(key) != KEY_LEN:
+            raise ValueError(f"signing key: {KEY_LEN} bytes expected, got {len(key)}")
+        sig = self._rx.signing
+        if initial_timestamp == 0 and not any(key):
+            sig.secret_key = None
+            sig.sign_outgoing = False
+            sig.allow_unsigned_callback = None
+            log.info("sim vehicle: signing off")
+            return
+        sig.secret_key = bytes(key)
+        sig.link_id = 0  # ArduPilot: its channel number
+        sig.sign_outgoing = True
+        sig.allow_unsigned_callback = accept_everything if self.trusted_link else accept_unsigned_ardupilot
+        # 60 s past the stored timestamp, then up to the GPS clock (update_signing_timestamp)
+        # (a second SETUP_SIGNING with the same timestamp turns it back, as on ArduPilot)
+        sig.timestamp = max(initial_timestamp + AP_KEY_LOAD_OFFSET, clock_timestamp())
+        log.info("sim vehicle: signing on")
+
+    def _setup_signing(self, m: Any) -> None:
+        if not self.SIGNING or m.target_system not in (0, self.system_id):
+            return
+        if self.vehicle.armed:
+            self._statustext("ERROR: Won't setup signing when armed", mavlink.MAV_SEVERITY_WARNING)
+            return
+        self._set_signing(bytes(m.secret_key), int(m.initial_timestamp))
 
     # ------------------------------------------------------------------ dialect hooks
     def _vehicle_config(self, cfg: SimConfig, guided_timeout_s: float, ekf_delay_s: float | None) -> SimConfig:
@@ -451,12 +512,16 @@ class MavlinkSimVehicle(abc.ABC):
             rx.expected_length = mavlink.HEADER_LEN_V1 + 2
         for m in msgs:
             if m.get_type() == "BAD_DATA":
+                if getattr(m, "reason", "") == "Invalid signature":
+                    self.stats.signature_rejects += 1
+                    continue
                 self.stats.bad_data += 1
                 self.stats.garbage_bytes += len(m.data)
                 continue
             if m.get_srcSystem() == self.system_id and m.get_srcComponent() == self.component_id:
                 continue
             self.stats.messages_in += 1
+            self.stats.signed_in += m.get_signed()
             self.stats.by_type_in[m.get_type()] += 1
             if self.on_message is not None:
                 self.on_message(m)
@@ -704,6 +769,9 @@ class MavlinkSimVehicle(abc.ABC):
     def _handle(self, m: Any) -> None:
         t = m.get_type()
         if t == "HEARTBEAT":
+            return
+        if t == "SETUP_SIGNING":
+            self._setup_signing(m)
             return
         if t in ("COMMAND_LONG", "COMMAND_INT"):
             if m.target_system not in (0, self.system_id) or m.target_component not in (0, self.component_id):

@@ -15,6 +15,12 @@ retries until ``arm_timeout_s``), takeoff is MAV_CMD_NAV_TAKEOFF in GUIDED, hold
 LOITER), land is LAND mode, and the parcel is released with MAV_CMD_DO_GRIPPER or
 MAV_CMD_DO_SET_SERVO.
 
+With ``signing`` (a :class:`~companion.autopilot.signing.SigningSetup`, from ``[signing]``) every
+packet sent is MAVLink 2 signed, and unless ``allow_unsigned`` the vehicle's unsigned or wrongly
+signed packets are dropped (RADIO_STATUS / RADIO excepted, as ArduPilot does): a vehicle that does
+not sign with our key is then never heard, and connect() fails naming signing.
+:meth:`ArduPilotAutopilot.push_signing_key` gives the vehicle the key with SETUP_SIGNING.
+
 With ``tlog`` (a :data:`~companion.autopilot.interface.OpenPacketSink`, e.g. a MAVLink ``.tlog``
 writer with its own thread), every packet received (as it arrived, from any system on the link)
 and every packet sent goes into the sink.
@@ -32,6 +38,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 os.environ["MAVLINK20"] = "1"  # before mavutil picks its dialect module
@@ -53,6 +60,18 @@ from companion.autopilot.interface import (
     TelemetryCache,
 )
 from companion.autopilot.mavlink_messages import velocity_setpoint_message
+from companion.autopilot.signing import (
+    AP_KEY_LOAD_OFFSET,
+    SigningError,
+    SigningKey,
+    SigningSetup,
+    apply_to_mavlink,
+    clock_timestamp,
+    read_key_file,
+    read_timestamp_file,
+    setup_signing_message,
+    write_timestamp_file,
+)
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -134,6 +153,8 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
+TRY_PERIOD_TS = 100_000  # 1 s in signing timestamp units (10 us)
+TIMESTAMP_SAVE_PERIOD_S = 30.0  # as ArduPilot saves its signing timestamp
 HEARTBEAT_GRACE_S = 3.5  # 1 Hz heartbeats: telemetry proves liveness in between (MAVSDK uses 3 s)
 
 
@@ -163,6 +184,9 @@ class LinkCounters:
     setpoints_dropped: int = 0
     commands_sent: int = 0
     stream_requests: int = 0
+    signature_rejects: int = 0  # packets dropped by our signing check (unsigned or another key)
+    signed_heartbeats: int = 0  # heartbeats of the vehicle whose signature our key verified
+    signed_from_vehicle: int = 0  # any packet of the vehicle whose signature our key verified
 
 
 def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
@@ -220,8 +244,10 @@ class ArduPilotAutopilot(Autopilot):
         command_retries: int = 3,
         stream_rates_hz: dict[int, float] | None = None,
         tlog: OpenPacketSink | None = None,
+        signing: SigningSetup | None = None,
     ):
         self.connection = connection
+        self.signing = signing
         self.baud = baud
         self.link_timeout_s = link_timeout_s
         self.source_system = source_system
@@ -273,6 +299,7 @@ class ArduPilotAutopilot(Autopilot):
         self._servo_outputs_time = -math.inf
         self._gripper_output: tuple[int, int] | bool | None = False  # False: not looked up yet
         self.releases_unconfirmed = 0
+        self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
@@ -287,6 +314,20 @@ class ArduPilotAutopilot(Autopilot):
         kwargs.setdefault("release", pl.release)
         kwargs.setdefault("release_servo", pl.servo_channel)
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
+        sc = getattr(config, "signing", None)
+        if sc is not None and sc.enabled and "signing" not in kwargs:
+            key = read_key_file(sc.key_file, sc.key_format)
+            ts_file = Path(sc.timestamp_file) if sc.timestamp_file else None
+            if ts_file is not None:
+                read_timestamp_file(ts_file)  # a bad file stops us here, before any link is opened
+            kwargs["signing"] = SigningSetup(key, sc.link_id, sc.allow_unsigned, ts_file)
+            log.info(
+                "MAVLink signing on: key %s (%s), link id %d, %s",
+                key.fingerprint,
+                sc.key_file,
+                sc.link_id,
+                "unsigned accepted" if sc.allow_unsigned else "unsigned refused",
+            )
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     # ------------------------------------------------------------------ link
@@ -326,7 +367,15 @@ class ArduPilotAutopilot(Autopilot):
         try:
             await asyncio.wait_for(self._first_hb, max(deadline - self._loop.time(), min(timeout_s, 1.0)))
         except TimeoutError:
+            rejects = self.counters.signature_rejects
             await self.close()
+            if rejects and self.signing is not None:
+                raise SigningError(
+                    f"no heartbeat from an autopilot on {self.connection!r} within {timeout_s:.1f} s: MAVLink "
+                    f"signing refused {rejects} packets (unsigned, or signed with another key than "
+                    f"{self.signing.key.fingerprint} from {self.signing.key.source}); give the vehicle our key "
+                    "(`companion signing push`) or set signing.allow_unsigned = true"
+                ) from None
             raise AutopilotUnreachable(
                 f"no heartbeat from an autopilot on {self.connection!r} within {timeout_s:.1f} s"
             ) from None
@@ -349,6 +398,8 @@ class ArduPilotAutopilot(Autopilot):
         if kind == "tcp":
             conn.retries = 3
         conn.mav.robust_parsing = True
+        if self.signing is not None:
+            apply_to_mavlink(conn.mav, self.signing)
         return conn
 
     async def close(self) -> None:
@@ -356,6 +407,7 @@ class ArduPilotAutopilot(Autopilot):
         reader, self._reader = self._reader, None
         if reader is not None and reader is not threading.current_thread():
             await asyncio.get_running_loop().run_in_executor(None, reader.join, 2.0)
+        self._save_signing_timestamp()
         conn, self._conn = self._conn, None
         if conn is not None:
             with contextlib.suppress(Exception):
@@ -458,10 +510,83 @@ class ArduPilotAutopilot(Autopilot):
                 # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
                 reason = self._last_text if self._texts_seen != texts_before else ""
                 raise CommandRejected(name, result_name(result), reason)
-            raise CommandRejected(name, NO_ANSWER, f"no COMMAND_ACK after {tries} tries")
+            raise CommandRejected(name, NO_ANSWER, f"no COMMAND_ACK after {tries} tries{self._signing_hint()}")
         finally:
             if self._acks.get(cmd) is fut:
                 del self._acks[cmd]
+
+    def _signing_hint(self) -> str:
+        """Why a vehicle may ignore our commands although we hear it: signing."""
+        conn = self._conn
+        if self.signing is None and self._vehicle_signs:
+            return (
+                "; the vehicle signs its packets (MAVLink 2 signing) and ignores our unsigned ones: "
+                "set signing.enabled with its key"
+            )
+        if self.signing is not None and conn is not None and conn.mav.signing.badsig_count > 0:
+            return (
+                f"; the vehicle's signatures fail our key {self.signing.key.fingerprint} "
+                f"({conn.mav.signing.badsig_count} packets): it signs with another key and ignores ours"
+            )
+        return ""
+
+    async def push_signing_key(
+        self, key: SigningKey | None, *, initial_timestamp: int | None = None, timeout_s: float = 3.0, tries: int = 3
+    ) -> None:
+        """Give the vehicle a signing key with SETUP_SIGNING (``key`` None: the all-zero key that
+        turns signing off), then sign with it ourselves and wait for a heartbeat its signature
+        verifies. ArduPilot does not acknowledge SETUP_SIGNING, refuses it while armed, and once it
+        signs drops an unsigned SETUP_SIGNING except on channel 0 (SERIAL0: USB, SITL TCP 5760).
+        Raises :class:`SigningError` when the vehicle does not take the key."""
+        conn, loop = self._conn, self._loop
+        if conn is None or loop is None or self.target_system is None:
+            raise SigningError("push_signing_key: not connected to a vehicle")
+        if self._armed:
+            raise SigningError("push_signing_key: the vehicle is armed (ArduPilot refuses SETUP_SIGNING when armed)")
+        ts = clock_timestamp() if initial_timestamp is None else initial_timestamp
+        msg = setup_signing_message(conn.mav, self.target_system, self.target_component, key, ts)
+        if key is None:
+            for _ in range(tries):
+                self._send(lambda mav: mav.send(msg))
+                await asyncio.sleep(0.1)
+            with self._send_lock:
+                conn.disable_signing()
+            self.signing = None
+            log.info("sent SETUP_SIGNING with the zero key: signing off on the vehicle and here")
+            return
+        old = self.signing
+        setup = SigningSetup(
+            key,
+            old.link_id if old else 1,
+            allow_unsigned=old.allow_unsigned if old else False,
+            timestamp_file=old.timestamp_file if old else None,
+        )
+        # one SETUP_SIGNING per try, each with a later timestamp: ArduPilot sets its timestamp to
+        # the pushed one + 60 s, so the same message again would turn its clock back and we would
+        # drop its packets as replays
+        deadline = loop.time() + timeout_s
+        for attempt in range(tries):
+            if attempt:
+                ts = max(ts + TRY_PERIOD_TS, clock_timestamp())
+                msg = setup_signing_message(conn.mav, self.target_system, self.target_component, key, ts)
+            with self._send_lock:
+                conn.mav.send(msg)  # with the link's current signing (none at first)
+                # the vehicle starts 60 s past the pushed timestamp; start there too
+                apply_to_mavlink(conn.mav, setup, max(clock_timestamp(), ts + AP_KEY_LOAD_OFFSET))
+            if attempt == 0:
+                self.signing = setup
+            seen = self.counters.signed_from_vehicle
+            try_end = min(deadline, loop.time() + timeout_s / tries)
+            while loop.time() < try_end:
+                if self.counters.signed_from_vehicle > seen:
+                    log.info("vehicle %d signs with key %s", self.target_system, key.fingerprint)
+                    return
+                await asyncio.sleep(0.05)
+        raise SigningError(
+            f"the vehicle did not start signing with key {key.fingerprint} within {timeout_s:.1f} s after "
+            f"SETUP_SIGNING ({tries} sent): ArduPilot ignores it while armed, and once signing drops an "
+            "unsigned one off channel 0 (SERIAL0/USB; SITL TCP 5760)"
+        )
 
     async def _request_streams(self) -> None:
         async def one(mid: int, hz: float) -> None:
@@ -696,13 +821,27 @@ class ArduPilotAutopilot(Autopilot):
     def _push_status(self) -> None:
         self._push(self._status())
 
+    def _save_signing_timestamp(self) -> None:
+        """Keep our signing timestamp in ``signing.timestamp_file`` (every 30 s and on close)."""
+        s, conn = self.signing, self._conn
+        if s is None or s.timestamp_file is None or conn is None or not conn.mav.signing.sign_outgoing:
+            return
+        try:
+            write_timestamp_file(s.timestamp_file, conn.mav.signing.timestamp)
+        except SigningError as err:
+            log.warning("%s", err)
+
     def _read_loop(self) -> None:
         next_hb = 0.0
+        next_save = time.monotonic() + TIMESTAMP_SAVE_PERIOD_S
         while self._running:
             conn = self._conn
             if conn is None:
                 break
             now = time.monotonic()
+            if now >= next_save:
+                next_save = now + TIMESTAMP_SAVE_PERIOD_S
+                self._save_signing_timestamp()
             if now >= next_hb:
                 next_hb = now + 1.0
                 self._send(
@@ -753,6 +892,14 @@ class ArduPilotAutopilot(Autopilot):
     def _on_message(self, m: Any) -> None:
         t = m.get_type()
         if t == "BAD_DATA":
+            if getattr(m, "reason", "") == "Invalid signature":
+                self.counters.signature_rejects += 1
+                if self.counters.signature_rejects in (1, 100) or self.counters.signature_rejects % 1000 == 0:
+                    log.warning(
+                        "MAVLink signing: %d packets dropped (unsigned, or signed with another key)",
+                        self.counters.signature_rejects,
+                    )
+                return
             self.counters.bad_data += 1
             self.counters.garbage_bytes += len(getattr(m, "data", b""))
             return
@@ -766,6 +913,11 @@ class ArduPilotAutopilot(Autopilot):
             if src != self.target_system or m.get_srcComponent() != self.target_component:
                 return
             self.counters.heartbeats += 1
+            buf = m.get_msgbuf()
+            self._vehicle_signs = len(buf) > 2 and buf[0] == 0xFD and bool(buf[2] & 0x01)  # MAVLINK_IFLAG_SIGNED
+            if m.get_signed():
+                self.counters.signed_heartbeats += 1
+                self.counters.signed_from_vehicle += 1
             self._last_hb = now
             self._last_rx = now
             self.copter_mode = m.custom_mode
@@ -779,6 +931,7 @@ class ArduPilotAutopilot(Autopilot):
         if self.target_system is None or src != self.target_system:
             return
         self.counters.messages += 1
+        self.counters.signed_from_vehicle += m.get_signed()
         self._last_rx = now
         if t == "ATTITUDE":
             self._last_attitude = now

@@ -202,6 +202,9 @@ def _cmd_dart(args: argparse.Namespace) -> int:
         print(f"error: {exc}")
         return 2
     try:
+        if args.sim and getattr(args, "signing_key", None):
+            print("error: --signing-key signs the link to a real autopilot; --sim flies unsigned")
+            return 2
         return _fly_sim(args, params) if args.sim else _fly(args, params)
     except AutopilotError as exc:
         print(f"error: {exc}")
@@ -257,8 +260,19 @@ def _fly_sim(args: argparse.Namespace, params: Any) -> int:
 def _fly(args: argparse.Namespace, params: Any) -> int:
     from companion import plugin_api
     from companion.autopilot.interface import Autopilot
+    from companion.autopilot.signing import SigningKeyError, SigningSetup, read_key_file
     from companion.dart.shell import DART_STREAM_RATES_HZ, DartShell
 
+    signing = None  # read before anything is started: a bad key file stops us here
+    if getattr(args, "signing_key", None):
+        if args.autopilot == "px4":
+            print("error: --signing-key: the PX4 backend cannot sign (mavsdk 4.1 has no signing API)")
+            return 2
+        try:
+            signing = SigningSetup(read_key_file(args.signing_key))
+        except SigningKeyError as exc:
+            print(f"error: --signing-key: {exc}")
+            return 2
     rt = params.runtime
     try:
         camera = plugin_api.create(
@@ -275,7 +289,9 @@ def _fly(args: argparse.Namespace, params: Any) -> int:
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
 
-        ap = ArduPilotAutopilot(args.connection or "udpin:0.0.0.0:14550", stream_rates_hz=DART_STREAM_RATES_HZ)
+        ap = ArduPilotAutopilot(
+            args.connection or "udpin:0.0.0.0:14550", stream_rates_hz=DART_STREAM_RATES_HZ, signing=signing
+        )
 
     async def fly() -> Any:
         await ap.connect(timeout_s=15.0)
@@ -342,4 +358,10 @@ def register(subparsers: Any) -> None:
         "time until the overrides are released at the vehicle",
     )
     d.add_argument("--log", help="CSV flight log of the shell, 20 Hz (default: none)")
+    d.add_argument(
+        "--signing-key",
+        metavar="FILE",
+        help="ArduPilot: sign the link with this MAVLink 2 key file and drop the vehicle's unsigned packets "
+        "(64 hex digits or 32 bytes; see docs/signing.md; default: unsigned)",
+    )
     d.set_defaults(func=_cmd_dart)

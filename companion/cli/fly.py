@@ -20,6 +20,7 @@ from typing import Any
 
 from companion.autopilot import factory
 from companion.autopilot.interface import Autopilot, AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
+from companion.autopilot.signing import SigningError, SigningKeyError
 from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
@@ -159,6 +160,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
             summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
         except AbortedBeforeFlight as err:
             raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
+        except SigningKeyError as err:
+            raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
+        except SigningError as err:
+            raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
         except AutopilotUnreachable as err:
             raise StartupError(
                 f"{err}; check the autopilot is on and sending there, or change connection {where} "

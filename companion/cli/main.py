@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "companion.cli.fly",
     "companion.cli.logs",
     "companion.cli.dart",
+    "companion.cli.signing",
 )
 
 
@@ -44,7 +45,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
         importlib.import_module("companion.cli.dart").register_campaign(csub)
     except ImportError as err:
         log.error("campaign dart unavailable: %s", err)
-    for mod in ("companion.cli.telemetry", "companion.cli.fly"):
+    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing"):
         try:
             importlib.import_module(mod).register_bench(bsub)
         except ImportError as err:
