@@ -166,7 +166,13 @@ def format_bench_result(result: dict[str, Any]) -> str:
             f" (superseded {r['superseded']}, late submissions {r['late_submissions']})",
             f"  latency p50 {r['latency_p50_ms']:.2f} ms, p99 {r['latency_p99_ms']:.2f} ms,"
             f" max {r['latency_max_ms']:.2f} ms",
-            f"  CPU {r['cpu_us_per_msg']:.0f} us/msg (whole process), "
+            f"  CPU {r['cpu_us_per_msg']:.0f} us/msg ("
+            + (
+                f"bench process + router, the router {r['router_cpu_us_per_msg']:.0f}"
+                if r.get("router_cpu_us_per_msg") is not None
+                else "whole process"
+            )
+            + "), "
             f"{r['cpu_pct_of_one_core']:.0f} % of one core, {r['throughput_msg_s']:.0f} msg/s",
             f"  target (0 lost, p99 <= 10 ms): {'MET' if target_ok else 'NOT MET'}",
         ]
