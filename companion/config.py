@@ -355,6 +355,12 @@ class LandingConfig(_Section):
     fusion: bool = _f(True, "-", "use the EKF (GPS + camera + UWB); false = GPS-only baseline")
     use_camera: bool = _f(True, "-", "fuse pad observations from the downward camera")
     use_uwb: bool = _f(True, "-", "fuse UWB fixes from the anchors around the pad")
+    vision_attitude: bool = _f(
+        False,
+        "-",
+        "resolve the IPPE mirror pair of a lone marker with the autopilot's attitude (the pose whose "
+        "pad normal agrees with it; neither agreeing: not fused)",
+    )
     camera_rate_hz: float = _f(30.0, "Hz", "camera frame rate", ge=1.0, le=240.0)
     camera_latency_s: float = _f(0.05, "s", "exposure-to-delivery latency of a frame", ge=0.0, le=1.0)
     camera_offset_body_m: tuple[float, float, float] = _f(

@@ -79,7 +79,7 @@ from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, atti
 from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables
 from companion.geometry import Transform, euler_to_rotmat
 from companion.vision.camera import CameraModel, load_default_camera
-from companion.vision.detector import MarkerObservation, PadDetector
+from companion.vision.detector import MarkerObservation, PadDetector, marker_normal_in_camera, rotation_angle
 from companion.vision.pad import PadLayout
 
 from .camera import SimCameraConfig, SimulatedCamera
@@ -330,6 +330,43 @@ class DartSample:
     command: DartCommand
 
 
+@dataclass(frozen=True)
+class AttitudeAid:
+    """The attitude the vehicle knows, handed to the detector to resolve the IPPE mirror pair
+    (``PadDetector.detect(normal_cam=...)``): the true body roll / pitch / yaw plus a constant
+    bias (roll +, pitch -, yaw +) and white noise per frame (1 sigma), degrees, as an autopilot or
+    Madgwick estimate would be off. The camera attitude follows from it through the nominal
+    mount and gimbal (level for a gimbal; its residual error is unknown to the vehicle)."""
+
+    bias_deg: float = 0.5
+    noise_deg: float = 1.0
+    yaw_bias_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("bias_deg", "noise_deg", "yaw_bias_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"AttitudeAid.{name} = {v!r}: must be finite and >= 0 (degrees)")
+
+
+@dataclass(frozen=True)
+class DetectionRecord:
+    """One detection against the rendered truth: fused (not ambiguous), the position error of the
+    chosen pose (marker in the camera frame, m), the error of the camera position in the marker
+    frame it implies (-R^T t: what FCF-CF fuses, the rotation error times the distance included),
+    its rotation error (deg) and whether it is the wrong one of the mirror pair (farther from the
+    true rotation than the alternative by > 2 deg)."""
+
+    time_s: float
+    fused: bool
+    position_error_m: float
+    camera_position_error_m: float
+    rotation_error_deg: float
+    wrong_choice: bool
+    resolved_by: str
+    markers: tuple[str, ...]
+
+
 @dataclass
 class DartRunStats:
     frames: int = 0
@@ -390,8 +427,12 @@ class DartSim:
         controller: DartControllerConfig | None = None,
         rates: DartTaskRates | None = None,
         camera: CameraModel | None = None,
+        attitude_aid: AttitudeAid | None = None,
     ) -> None:
         self.config = c = config or DartSimConfig()
+        self.attitude_aid = attitude_aid
+        self._rng_aid = np.random.default_rng(np.random.SeedSequence([seed, 0xA77]))
+        self.detection_log: list[DetectionRecord] = []
         self.rates = rates or DartTaskRates()
         self.pilot = pilot
         self.seed = seed
@@ -649,9 +690,50 @@ class DartSim:
             oy, ox = (int(v) for v in self._rng_cam.integers(0, 64, 2))
             img = np.clip(img.astype(np.float32) + self._noise_img[oy : oy + h, ox : ox + w], 0, 255).astype(np.uint8)
         self.stats.frames += 1
-        obs = self.detector.detect(img, t_exp)
+        if self.attitude_aid is None:
+            obs = self.detector.detect(img, t_exp)
+        else:
+            obs = self.detector.detect(img, t_exp, normal_cam=self._normal_cam_from_attitude())
+        if obs is not None:
+            self._record_detection(obs, frame.T_camera_pad)
         cobs = self._to_estimator(obs)
         self._pending.append((frame.available_time_s, cobs))
+
+    def _normal_cam_from_attitude(self) -> FloatArray:
+        """The wall marker's normal in the camera frame from the attitude the vehicle knows."""
+        aid = self.attitude_aid
+        assert aid is not None
+        roll, pitch, yaw = self.attitude()
+        b, sd = math.radians(aid.bias_deg), math.radians(aid.noise_deg)
+        n = self._rng_aid.standard_normal(3)
+        roll_e = roll + b + sd * float(n[0])
+        pitch_e = pitch - b + sd * float(n[1])
+        yaw_e = yaw + math.radians(aid.yaw_bias_deg) + sd * float(n[2])
+        if self.gimbal is GimbalKind.NONE:
+            R_wc = euler_to_rotmat(roll_e, pitch_e, yaw_e) @ self._R_bc
+        elif self.gimbal is GimbalKind.TWO_DOF:
+            R_wc = euler_to_rotmat(0.0, 0.0, yaw_e) @ self._R_bc
+        else:
+            R_wc = euler_to_rotmat(0.0, 0.0, 0.0) @ self._R_bc
+        return marker_normal_in_camera(R_wc, self._R_wm[:, 2])
+
+    def _record_detection(self, obs: MarkerObservation, truth: Transform) -> None:
+        err_R = rotation_angle(obs.T_camera_pad.R, truth.R)
+        wrong = obs.alternative is not None and err_R > rotation_angle(obs.alternative.R, truth.R) + math.radians(2.0)
+        self.detection_log.append(
+            DetectionRecord(
+                time_s=obs.time_s,
+                fused=not obs.ambiguous,
+                position_error_m=float(np.linalg.norm(obs.T_camera_pad.t - truth.t)),
+                camera_position_error_m=float(
+                    np.linalg.norm(obs.T_camera_pad.R.T @ obs.T_camera_pad.t - truth.R.T @ truth.t)
+                ),
+                rotation_error_deg=math.degrees(err_R),
+                wrong_choice=bool(wrong),
+                resolved_by=obs.resolved_by,
+                markers=tuple(obs.markers),
+            )
+        )
 
     def _to_estimator(self, obs: MarkerObservation | None) -> CameraMarkerObservation | None:
         if obs is None:

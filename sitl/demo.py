@@ -421,7 +421,16 @@ def sim_landing_kit(
         multi = Multilaterator(anchors)
     from companion.geometry.se3 import Transform
 
-    return LandingKit(camera, uwb, detector, multi, mount, Transform.identity(), vision_in_thread=False)
+    return LandingKit(
+        camera,
+        uwb,
+        detector,
+        multi,
+        mount,
+        Transform.identity(),
+        vision_in_thread=False,
+        vision_attitude=lc.vision_attitude,
+    )
 
 
 def free_udp_port() -> int:

@@ -323,8 +323,73 @@ def cmd_bench_uwb(args: argparse.Namespace) -> int:
 def cmd_bench_vision(args: argparse.Namespace) -> int:
     from companion_sitl.vision_bench import bench_vision
 
-    r = bench_vision(args.frames, args.seed)
-    _print_bench(f"bench vision ({args.frames} rendered 640x480 frames of a descent, same frames in one run):", r)
+    if args.range or args.ambiguity:
+        return _bench_vision_extra(args)
+    frames = 120 if args.frames is None else args.frames
+    r = bench_vision(frames, args.seed)
+    _print_bench(f"bench vision ({frames} rendered 640x480 frames of a descent, same frames in one run):", r)
+    return 0
+
+
+def format_range_result(r: dict[str, Any]) -> str:
+    """``companion bench vision --range`` as a table."""
+
+    def m(v: float | None) -> str:
+        return "-" if v is None else f"{v:g} m"
+
+    lines = [
+        f"detection range of the nested pad (outer {r['outer_size_m']:g} m, inner {r['inner_size_m']:g} m): "
+        f"largest height with the marker found in >= {100 * r['min_rate']:.0f} % of {r['frames_per_height']} "
+        f"seeded frames (seed {r['seed']}), full-frame search",
+        f"{'resolution':>10} {'tilt':>6} {'outer found':>16} {'inner found':>16}",
+    ]
+    for x in r["runs"]:
+        outer = f"{m(x['outer_from_m'])} - {m(x['outer_range_m'])}"
+        inner = f"{m(x['inner_from_m'])} - {m(x['inner_range_m'])}"
+        lines.append(f"{x['resolution']:>10} {x['tilt_deg']:>4g} d {outer:>16} {inner:>16}")
+    return "\n".join(lines)
+
+
+def format_ambiguity_result(title: str, r: dict[str, Any]) -> str:
+    """``companion bench vision --ambiguity``: before / after the attitude rule, one column each."""
+    keys = [k for k in r["before"] if k != "resolved_by"]
+    lines = [title, f"  {'':<36} {'before':>12} {'after':>12}"]
+    for k in keys:
+        lines.append(f"  {k:<36} {_bench_value(k, r['before'][k]):>12} {_bench_value(k, r['after'][k]):>12}")
+    for name in ("before", "after"):
+        how = ", ".join(f"{k} {v}" for k, v in r[name]["resolved_by"].items())
+        lines.append(f"  resolved by ({name}): {how}")
+    lines.append(f"  extra detections fused: {r['extra_fused']:+d}")
+    return "\n".join(lines)
+
+
+def _bench_vision_extra(args: argparse.Namespace) -> int:
+    from companion_sitl.vision_bench import bench_ambiguity, bench_dart_ambiguity, bench_vision_range
+
+    out: dict[str, Any] = {}
+    text: list[str] = []
+    if args.range:
+        out["range"] = rr = bench_vision_range(args.range_frames, args.seed)
+        text.append(format_range_result(rr))
+    if args.ambiguity:
+        out["ambiguity_pad"] = ra = bench_ambiguity(300 if args.frames is None else args.frames, args.seed)
+        text.append(
+            format_ambiguity_result(
+                f"IPPE ambiguity, rendered approach to the pad 15 -> 3 m ({ra['n_frames']} frames, seed "
+                f"{ra['seed']}): before = no attitude, after = attitude {ra['attitude_bias_deg']:g} deg bias "
+                f"+ {ra['attitude_noise_deg']:g} deg noise",
+                ra,
+            )
+        )
+        out["ambiguity_dart"] = rd = bench_dart_ambiguity("FCF-CF", args.seed, args.dart_duration)
+        text.append(
+            format_ambiguity_result(
+                f"IPPE ambiguity, Dart hover 1.5 m from the wall marker ({rd['estimator']}, "
+                f"{rd['duration_s']:g} s, seed {rd['seed']}), two flights: before / after the attitude aid",
+                rd,
+            )
+        )
+    print(json.dumps(out, indent=2) if args.json else "\n\n".join(text))
     return 0
 
 
@@ -530,8 +595,22 @@ def register_bench_micro(bsub: Any) -> None:
     bu.add_argument("--n", type=int, default=300, help="solves timed per method")
     bu.set_defaults(func=cmd_bench_uwb)
     bv = bsub.add_parser("vision", help="raw full-frame ArUco detection vs our ROI pipeline on the same frames")
-    bv.add_argument("--frames", type=int, default=120, help="rendered frames of the descent")
+    bv.add_argument("--frames", type=int, help="rendered frames of the descent (default: 120; 300 with --ambiguity)")
     bv.add_argument("--seed", type=int, default=0, help="seed of the rendering noise")
+    bv.add_argument(
+        "--range",
+        action="store_true",
+        help="detection range of each marker at 640x480 and 1280x720, straight down and tilted 10 deg",
+    )
+    bv.add_argument("--range-frames", type=int, default=20, help="seeded frames per height with --range")
+    bv.add_argument(
+        "--ambiguity",
+        action="store_true",
+        help="IPPE mirror pairs resolved by the attitude: detections fused and their error against truth, "
+        "before / after (rendered approach; --frames, default 300 here) and on the Dart hover",
+    )
+    bv.add_argument("--dart-duration", type=float, default=10.0, help="seconds of Dart hover with --ambiguity")
+    bv.add_argument("--json", action="store_true", help="print --range / --ambiguity results as JSON")
     bv.set_defaults(func=cmd_bench_vision)
 
 

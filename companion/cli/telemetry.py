@@ -4,7 +4,8 @@
   ``companion ground [--listen EP]... [--connect EP]... [--router] [--out DIR] [--duration S]
   [--zenoh-config FILE] [--no-multicast]``
 - ``register_bench(bench_subparsers)`` adds ``companion bench telemetry``:
-  ``companion bench telemetry [--vehicles 20] [--rate 50] [--duration 5]``
+  ``companion bench telemetry [--vehicles 20 | --vehicles 10,50,100] [--rate-hz 50]
+  [--duration-s 5] [--router] [--json]``
 """
 
 from __future__ import annotations
@@ -64,11 +65,40 @@ def register(subparsers: Any) -> None:
 def register_bench(bench_subparsers: Any) -> None:
     """Add ``telemetry`` to the ``bench`` subcommands."""
     p = bench_subparsers.add_parser("telemetry", help="N vehicles x rate to one ground station over loopback Zenoh")
-    p.add_argument("--vehicles", type=int, default=20, help="simulated vehicles publishing")
-    p.add_argument("--rate", type=float, default=50.0, help="state messages per second per vehicle")
-    p.add_argument("--duration", type=float, default=5.0, help="seconds of publishing")
+    p.add_argument(
+        "--vehicles",
+        type=vehicle_counts,
+        default=(20,),
+        metavar="N[,N...]",
+        help="simulated vehicles publishing; a comma list runs each fleet size in turn (default: 20)",
+    )
+    p.add_argument(
+        "--rate-hz", "--rate", dest="rate", type=float, default=50.0, help="state messages per second per vehicle"
+    )
+    p.add_argument("--duration-s", "--duration", dest="duration", type=float, default=5.0, help="seconds of publishing")
+    p.add_argument(
+        "--router",
+        action="store_true",
+        help="route everything through a Zenoh router process (vehicles and ground are its clients)",
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_bench_telemetry)
+
+
+def vehicle_counts(text: str) -> tuple[int, ...]:
+    """``--vehicles``: one fleet size or a comma list, each in [1, 200]."""
+    out: list[int] = []
+    for part in text.split(","):
+        try:
+            n = int(part.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"--vehicles: {part.strip()!r} in {text!r} is not an integer (expected e.g. 20 or 10,50,100)"
+            ) from None
+        if not 1 <= n <= 200:
+            raise argparse.ArgumentTypeError(f"--vehicles: {n} in {text!r} is outside [1, 200]")
+        out.append(n)
+    return tuple(out)
 
 
 def ground_settings(args: argparse.Namespace) -> ZenohSettings:
@@ -129,25 +159,68 @@ def format_bench_result(result: dict[str, Any]) -> str:
     target_ok = r["lost"] == 0 and r["latency_p99_ms"] <= 10.0
     return "\n".join(
         [
-            f"telemetry bench: {r['vehicles']} vehicles x {r['rate_hz']:g} Hz for {r['duration_s']:g} s",
+            f"telemetry bench ({r.get('topology', 'direct')}): {r['vehicles']} vehicles x {r['rate_hz']:g} Hz"
+            f" for {r['duration_s']:g} s",
             f"  submitted {r['submitted']}, delivered {r['delivered']}, lost {r['lost']}"
+            f" (by sequence number {r['lost_by_seq']}, {r['vehicles_with_loss']} vehicles with loss)"
             f" (superseded {r['superseded']}, late submissions {r['late_submissions']})",
             f"  latency p50 {r['latency_p50_ms']:.2f} ms, p99 {r['latency_p99_ms']:.2f} ms,"
             f" max {r['latency_max_ms']:.2f} ms",
-            f"  CPU {r['cpu_us_per_msg']:.0f} us/msg (whole process), "
+            f"  CPU {r['cpu_us_per_msg']:.0f} us/msg ("
+            + (
+                f"bench process + router, the router {r['router_cpu_us_per_msg']:.0f}"
+                if r.get("router_cpu_us_per_msg") is not None
+                else "whole process"
+            )
+            + "), "
             f"{r['cpu_pct_of_one_core']:.0f} % of one core, {r['throughput_msg_s']:.0f} msg/s",
             f"  target (0 lost, p99 <= 10 ms): {'MET' if target_ok else 'NOT MET'}",
         ]
     )
 
 
-def cmd_bench_telemetry(args: argparse.Namespace) -> int:
-    from companion.telemetry.bench import bench_telemetry
+def format_fleet_result(fleet: dict[str, Any]) -> str:
+    """:func:`bench_fleet`'s result as a table, one row per fleet size."""
+    lines = [
+        f"telemetry fleet bench ({fleet['topology']}): {fleet['rate_hz']:g} Hz per vehicle, "
+        f"{fleet['duration_s']:g} s per fleet size",
+        f"{'vehicles':>8} {'msgs':>7} {'lost':>5} {'lost/seq':>8} {'dup':>4} {'p50 ms':>7} {'p99 ms':>7} "
+        f"{'max ms':>7} {'us/msg':>7} {'router':>7} {'core %':>7} {'late':>5}",
+    ]
+    for r in fleet["runs"]:
+        router = r["router_cpu_us_per_msg"]
+        lines.append(
+            f"{r['vehicles']:>8} {r['delivered']:>7} {r['lost']:>5} {r['lost_by_seq']:>8} {r['duplicates']:>4} "
+            f"{r['latency_p50_ms']:>7.2f} {r['latency_p99_ms']:>7.2f} {r['latency_max_ms']:>7.2f} "
+            f"{r['cpu_us_per_msg']:>7.0f} {'-' if router is None else f'{router:.0f}':>7} "
+            f"{r['cpu_pct_of_one_core']:>7.0f} {r['late_submissions']:>5}"
+        )
+    ratio = fleet["cpu_per_msg_ratio_largest_to_smallest"]
+    if ratio is not None:
+        first, last = fleet["runs"][0], fleet["runs"][-1]
+        lines.append(f"CPU per message, {last['vehicles']} vs {first['vehicles']} vehicles: x{ratio:.2f}")
+    lines.append(
+        "lost: submitted - delivered (includes samples superseded in the keep-newest slot before sending); "
+        "lost/seq: sequence numbers published but never received; us/msg: CPU of every process "
+        "(vehicles + ground, and the router) per delivered message; router: the router process's share; "
+        "core %: CPU / wall time; late: submissions more than one period behind schedule"
+    )
+    return "\n".join(lines)
 
+
+def cmd_bench_telemetry(args: argparse.Namespace) -> int:
+    from companion.telemetry.bench import bench_fleet, bench_telemetry
+
+    counts: tuple[int, ...] = args.vehicles
     try:
-        result = bench_telemetry(args.vehicles, args.rate, args.duration)
+        if len(counts) == 1:
+            result = bench_telemetry(counts[0], args.rate, args.duration, via_router=args.router)
+            text = format_bench_result(result)
+        else:
+            result = bench_fleet(counts, args.rate, args.duration, via_router=args.router)
+            text = format_fleet_result(result)
     except ValueError as e:
         print(f"companion bench telemetry: {e}", file=sys.stderr)
         return 2
-    print(json.dumps(result, indent=2) if args.json else format_bench_result(result))
+    print(json.dumps(result, indent=2) if args.json else text)
     return 0

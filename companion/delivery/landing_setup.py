@@ -110,6 +110,7 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
         multi,
         downward_mount(lc.camera_offset_body_m),
         Transform.identity(),  # anchor coordinates are given in the pad frame
+        vision_attitude=lc.vision_attitude,
     )
 
 

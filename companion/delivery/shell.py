@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -86,6 +87,9 @@ class LandingKit:
     vision_in_thread: bool = True  # off the event loop in flight; inline under virtual time (deterministic)
     poll_rate_hz: float = 60.0
     sensors_started: bool = False  # started before take-off (a real vehicle); else at fusion start
+    # hand the detector the autopilot's attitude (through the camera mount) to resolve the IPPE
+    # mirror pair of a lone marker (vision.detector.resolve_ambiguity(attitude=True)); off by default
+    vision_attitude: bool = False
 
 
 @dataclass
@@ -321,10 +325,12 @@ class DeliveryShell:
             if kit.camera is not None and kit.detector is not None and self._vision_wanted():
                 frame = kit.camera.read()
                 if frame is not None:
+                    down_cam = self._down_in_camera() if kit.vision_attitude else None
+                    detect = functools.partial(kit.detector.detect, down_cam=down_cam)
                     if kit.vision_in_thread:
-                        obs = await loop.run_in_executor(None, kit.detector.detect, frame.image, frame.time_s)
+                        obs = await loop.run_in_executor(None, detect, frame.image, frame.time_s)
                     else:
-                        obs = kit.detector.detect(frame.image, frame.time_s)
+                        obs = detect(frame.image, frame.time_s)
                     if obs is not None:
                         if self.recorder is not None:
                             self.recorder.on_marker(self._clock.now(), obs)
@@ -339,6 +345,17 @@ class DeliveryShell:
                         if self.recorder is not None:
                             self.recorder.on_uwb(self._clock.now(), res)
                         self.fusion.on_uwb(res)
+
+    def _down_in_camera(self) -> Any:
+        """World down in the camera frame from the autopilot's latest attitude (None without one)."""
+        from companion.geometry import euler_to_rotmat
+        from companion.vision.detector import down_in_camera
+
+        att = self.autopilot.telemetry.attitude
+        if att is None or self.landing is None:
+            return None
+        R_wb = euler_to_rotmat(att.roll_rad, att.pitch_rad, att.yaw_rad)
+        return down_in_camera(R_wb, self.landing.T_body_camera.R)
 
     def _send_landing_target(self, obs: Any) -> None:
         """LANDING_TARGET for the autopilot's own precision landing (ambiguous poses never sent)."""

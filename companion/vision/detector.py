@@ -23,7 +23,9 @@ Pipeline per frame (``PadDetector.detect``):
    expected "down" direction, the error ratio err_best/err_second < threshold, and a prior (the
    previous accepted estimate when fresh, else the camera-looking-down prior). If the error ratio
    and the prior disagree, or neither decides, the observation is flagged ``ambiguous`` and
-   carries both poses.
+   carries both poses. Given the vehicle attitude (``detect(down_cam=...)``) the attitude decides
+   instead: the candidate whose pad normal agrees with it (and with a fresh previous pose), none
+   when neither agrees.
 
 Output: :class:`MarkerObservation` with ``T_camera_pad`` (pose of the pad in the camera frame),
 timestamped with the exposure time the caller passes in (DESIGN.md: time is an input).
@@ -122,6 +124,12 @@ class DetectorConfig:
     min_marker_px: float = 12.0  # smallest marker side searched for in a full frame
     edge_refinement: bool = True  # corners from fitted border lines (refine_corners_by_edges)
     min_pose_marker_px: float = 20.0  # a lone marker smaller than this gives no pose
+    # With a measured attitude (detect(down_cam=...)): a candidate's pad normal within this of the
+    # attitude's "up" agrees with the attitude (resolve_ambiguity(attitude=True))
+    attitude_agree_rad: float = math.radians(8.0)
+    # ... and when both agree, the closer normal wins only by this much (else the previous pose)
+    attitude_margin_rad: float = math.radians(3.0)
+    attitude_resolution: bool = True  # use the attitude rule whenever detect() is given down_cam
 
     def __post_init__(self) -> None:
         if not 0.0 < self.err_ratio_threshold <= 1.0:
@@ -136,6 +144,8 @@ class DetectorConfig:
             "roi_target_marker_px",
             "min_marker_px",
             "min_pose_marker_px",
+            "attitude_agree_rad",
+            "attitude_margin_rad",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -226,18 +236,37 @@ def resolve_ambiguity(
     *,
     up_cam: FloatArray,
     prior_R: FloatArray | None = None,
+    attitude: bool = False,
 ) -> Resolution:
     """Choose between the (<= 2) planar pose candidates, sorted by error.
 
     ``up_cam`` is the expected pad normal (world up) in the camera frame; ``prior_R`` the rotation
     of the previous accepted ``T_camera_pad`` if it is fresh.
+
+    ``attitude=True`` says ``up_cam`` comes from a measured attitude (autopilot or Madgwick, the
+    camera mount applied), not from the looking-down assumption; it then replaces the
+    looking-down prior (:func:`_resolve_by_attitude`). A candidate *agrees* with the attitude
+    when its pad normal is within ``cfg.attitude_agree_rad`` of ``up_cam``, i.e. the camera roll
+    and pitch it implies (the marker where it is known to be) match the attitude's; the rotation
+    about the normal is not compared, the mirror pair differs in tilt. The attitude prefers the
+    only agreeing candidate, or of two the one closer by ``cfg.attitude_margin_rad``; the fresh
+    previous pose prefers the candidate closer to it by ``cfg.prior_margin_rad``. Neither
+    candidate agreeing: ambiguous (never fused), whatever the error ratio says, also when the
+    two candidates are the same pose or there is only one (a bad fit the attitude exposes). A decisive error
+    ratio is kept unless the attitude or the previous pose prefers the other (then ambiguous);
+    otherwise the attitude's preference, else the previous pose's, decides, and a disagreement
+    between the two, or no preference at all, leaves the observation ambiguous.
     """
     if not cands:
         raise ValueError("resolve_ambiguity: no candidates")
+    e0 = cands[0].error_px
+    e1 = cands[1].error_px if len(cands) > 1 else float("inf")
+    ratio = e0 / e1 if len(cands) > 1 and e1 > 0 else (0.0 if len(cands) == 1 else 1.0)
+    if attitude and all(_angle(c.R[:, 2], up_cam) > cfg.attitude_agree_rad for c in cands[:2]):
+        # no solution matches the attitude (both alike but wrong: a bad fit of the corners)
+        return Resolution(0, True, "attitude_disagrees", ratio)
     if len(cands) == 1:
         return Resolution(0, False, "single", 0.0)
-    e0, e1 = cands[0].error_px, cands[1].error_px
-    ratio = e0 / e1 if e1 > 0 else 1.0
     # tilt gate: the pad normal (pad z) must point roughly towards the expected up direction
     tilts = [_angle(c.R[:, 2], up_cam) for c in cands[:2]]
     ok = [tl <= cfg.max_tilt_rad for tl in tilts]
@@ -247,6 +276,8 @@ def resolve_ambiguity(
         return Resolution(0, True, "tilt_gate_failed", ratio)
     if rotation_angle(cands[0].R, cands[1].R) < cfg.agree_angle_rad:
         return Resolution(0, False, "agree", ratio)
+    if attitude:
+        return _resolve_by_attitude(cands, cfg, tilts, prior_R, ratio)
     # prior preference: the previous estimate when fresh, else the camera-looking-down prior
     pref: int | None = None
     pref_name = ""
@@ -263,6 +294,64 @@ def resolve_ambiguity(
     if pref is not None:
         return Resolution(pref, False, pref_name, ratio)
     return Resolution(0, True, "unresolved", ratio)
+
+
+def down_in_camera(R_world_body: FloatArray, R_body_camera: FloatArray) -> FloatArray:
+    """World "down" (NED z) in the camera frame, for ``PadDetector.detect(down_cam=...)``, from
+    the vehicle attitude ``R_world_body`` (body FRD to NED) and the camera mount."""
+    R_wc = np.asarray(R_world_body, dtype=float) @ np.asarray(R_body_camera, dtype=float)
+    if R_wc.shape != (3, 3) or not np.all(np.isfinite(R_wc)):
+        raise ValueError(f"down_in_camera: expected finite 3x3 rotations, got shape {R_wc.shape}")
+    return np.asarray(R_wc.T @ np.array([0.0, 0.0, 1.0]), dtype=float)
+
+
+def marker_normal_in_camera(R_world_camera: FloatArray, normal_world: FloatArray) -> FloatArray:
+    """A marker's normal (out of its printed face, world frame) in the camera frame, for
+    ``PadDetector.detect(normal_cam=...)``, from the camera attitude ``R_world_camera``."""
+    R = np.asarray(R_world_camera, dtype=float)
+    n = np.asarray(normal_world, dtype=float).reshape(-1)
+    if R.shape != (3, 3) or n.shape != (3,) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(n))):
+        raise ValueError(
+            f"marker_normal_in_camera: expected a finite 3x3 rotation and 3-vector, got {R.shape}, {n.shape}"
+        )
+    return np.asarray(R.T @ (n / np.linalg.norm(n)), dtype=float)
+
+
+def _resolve_by_attitude(
+    cands: Sequence[PoseCandidate],
+    cfg: DetectorConfig,
+    tilts: Sequence[float],
+    prior_R: FloatArray | None,
+    ratio: float,
+) -> Resolution:
+    """The attitude rule of :func:`resolve_ambiguity` (two candidates that differ).
+
+    ``tilts``: each candidate's pad normal against the attitude's expected normal (rad).
+    """
+    agree = [tl <= cfg.attitude_agree_rad for tl in tilts[:2]]
+    if not (agree[0] or agree[1]):
+        return Resolution(0, True, "attitude_disagrees", ratio)
+    att: int | None = None  # the attitude's preference
+    if agree[0] != agree[1]:
+        att = 0 if agree[0] else 1
+    elif abs(tilts[0] - tilts[1]) > cfg.attitude_margin_rad:
+        att = int(np.argmin(tilts[:2]))
+    prev: int | None = None  # the fresh previous pose's preference
+    if prior_R is not None:
+        d = [rotation_angle(c.R, prior_R) for c in cands[:2]]
+        if abs(d[0] - d[1]) > cfg.prior_margin_rad:
+            prev = int(np.argmin(d))
+    if ratio < cfg.err_ratio_threshold:  # the reprojection error prefers candidate 0
+        if att in (None, 0) and prev in (None, 0):
+            return Resolution(0, False, "error_ratio", ratio)
+        return Resolution(0, True, "conflict_attitude" if att == 1 else "conflict_previous", ratio)
+    if att is not None:
+        if prev is not None and prev != att:
+            return Resolution(att, True, "conflict_attitude_previous", ratio)
+        return Resolution(att, False, "attitude", ratio)
+    if prev is not None:  # both agree with the attitude: the previous pose decides
+        return Resolution(prev, False, "previous", ratio)
+    return Resolution(0, True, "attitude_both", ratio)
 
 
 def check_image(image: Any, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
@@ -538,11 +627,18 @@ class PadDetector:
             self._roi_corners = None
         return found, how
 
-    def detect(self, image: Any, time_s: float, *, down_cam: Any = None) -> MarkerObservation | None:
+    def detect(
+        self, image: Any, time_s: float, *, down_cam: Any = None, normal_cam: Any = None
+    ) -> MarkerObservation | None:
         """Detect the pad in ``image`` exposed at ``time_s``; None when it is not seen.
 
         ``down_cam``: world "down" in the camera frame from the attitude estimate (unit vector);
-        default (0, 0, 1), a level vehicle with the camera looking straight down.
+        default (0, 0, 1), a level vehicle with the camera looking straight down. Given (and
+        ``config.attitude_resolution``), the IPPE mirror pair is resolved by the attitude
+        (:func:`resolve_ambiguity` with ``attitude=True``; see :func:`down_in_camera`).
+        ``normal_cam``: instead of ``down_cam`` for a marker that does not lie level (the Dart's
+        wall marker), its normal (pointing out of the printed face) in the camera frame from the
+        attitude (:func:`marker_normal_in_camera`); same use.
         Raises :class:`ImageError` (ValueError) for an unusable frame, ValueError for a
         non-finite time or prior.
         """
@@ -552,19 +648,24 @@ class PadDetector:
             if isinstance(time_s, bool) or not isinstance(time_s, numbers.Real) or not math.isfinite(float(time_s)):
                 raise ValueError(f"time_s = {time_s!r}: must be a finite number")
             up = np.array([0.0, 0.0, -1.0])
-            if down_cam is not None:
-                d = np.asarray(down_cam, dtype=float).reshape(-1)
+            if down_cam is not None and normal_cam is not None:
+                raise ValueError("detect: give down_cam (a level pad) or normal_cam (any marker), not both")
+            for name, vec, sign in (("down_cam", down_cam, -1.0), ("normal_cam", normal_cam, 1.0)):
+                if vec is None:
+                    continue
+                d = np.asarray(vec, dtype=float).reshape(-1)
                 n = float(np.linalg.norm(d)) if d.shape == (3,) else float("nan")
                 if not (math.isfinite(n) and n > 0.5):
-                    raise ValueError(f"down_cam = {down_cam!r}: must be a finite unit 3-vector")
-                up = -d / n
+                    raise ValueError(f"{name} = {vec!r}: must be a finite unit 3-vector")
+                up = sign * d / n
         except ValueError:
             self._counts["bad_frames"] += 1
             raise
         found, _ = self.detect_markers(gray)
         if not found:
             return None
-        return self._estimate(found, gray, float(time_s), up)
+        attitude = (down_cam is not None or normal_cam is not None) and self.config.attitude_resolution
+        return self._estimate(found, gray, float(time_s), up, attitude)
 
     # ------------------------------------------------------------------ pose
     def _ideal_corners(
@@ -579,7 +680,12 @@ class PadDetector:
         return np.vstack(out)
 
     def _estimate(
-        self, found: dict[str, FloatArray], gray: NDArray[np.uint8], time_s: float, up_cam: FloatArray
+        self,
+        found: dict[str, FloatArray],
+        gray: NDArray[np.uint8],
+        time_s: float,
+        up_cam: FloatArray,
+        attitude: bool = False,
     ) -> MarkerObservation | None:
         cfg = self.config
         names = tuple(m for m in MARKERS if m in found)
@@ -599,7 +705,7 @@ class PadDetector:
         prior_R = None
         if self._prior is not None and 0.0 <= time_s - self._prior[0] <= cfg.prior_max_age_s:
             prior_R = self._prior[1]
-        res = resolve_ambiguity(cands, cfg, up_cam=up_cam, prior_R=prior_R)
+        res = resolve_ambiguity(cands, cfg, up_cam=up_cam, prior_R=prior_R, attitude=attitude)
         best = cands[res.chosen]
         if best.error_px > cfg.max_reprojection_error_px:
             self._counts["rejected_poses"] += 1

@@ -110,3 +110,8 @@ def test_record_camera_wraps_the_kit_camera_and_writes_the_frames_it_reads(tmp_p
     no_cam = build_landing_kit(_cfg(tmp_path, use_camera=False))
     with pytest.raises(LandingSetupError, match="no camera to record"):
         record_camera(no_cam, video, 30.0)
+
+
+def test_vision_attitude_reaches_the_kit(tmp_path):
+    assert build_landing_kit(_cfg(tmp_path, use_camera=False)).vision_attitude is False  # off by default
+    assert build_landing_kit(_cfg(tmp_path, use_camera=False, vision_attitude=True)).vision_attitude is True

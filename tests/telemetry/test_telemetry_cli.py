@@ -114,7 +114,14 @@ def test_ground_arguments() -> None:
     args = p.parse_args(["ground", "--zenoh-config", str(PARAMS / "zenoh_fleet_router.toml")])
     assert ground_settings(args).mode == "router"
     args = p.parse_args(["bench", "telemetry", "--vehicles", "3", "--rate", "10"])
-    assert (args.vehicles, args.rate, args.duration) == (3, 10.0, 5.0) and callable(args.func)
+    assert (args.vehicles, args.rate, args.duration) == ((3,), 10.0, 5.0) and callable(args.func)
+    args = p.parse_args(
+        ["bench", "telemetry", "--router", "--vehicles", "10,50,100", "--rate-hz", "20", "--duration-s", "2"]
+    )
+    assert (args.vehicles, args.rate, args.duration, args.router) == ((10, 50, 100), 20.0, 2.0, True)
+    for bad in ("10,x", "0"):
+        with pytest.raises(SystemExit):
+            p.parse_args(["bench", "telemetry", "--vehicles", bad])
 
 
 def test_cmd_ground_records_a_vehicle(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
