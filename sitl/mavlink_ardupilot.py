@@ -90,6 +90,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
 
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
+    RC_OVERRIDE_TIMEOUT_S: ClassVar[float] = 3.0  # RC_OVERRIDE_TIME, copter.parm default
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._ap_mode = COPTER_STABILIZE
@@ -116,6 +117,9 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             "FLTMODE_CH": 5.0,
             "GUID_TIMEOUT": guided_timeout_s,
             "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
+            "FS_GCS_ENABLE": 0.0,  # copter.parm: GCS failsafe off
+            # outputs 1-4 drive the motors (33-36), the others have no function
+            **{f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)},
             "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
             "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
             **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},

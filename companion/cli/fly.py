@@ -61,6 +61,12 @@ def register(subparsers: Any) -> None:
         help="record the landing camera's frames as the flight reads them to VIDEO (.avi MJPG, .mkv lossless, .mp4) "
         "and their exposure times to VIDEO.csv, for `companion demo --camera-file` (default: not recorded)",
     )
+    p.add_argument(
+        "--no-preflight",
+        action="store_true",
+        help="skip the pre-flight check of the autopilot's parameters, sensors and clock (default: checked "
+        "after connecting, before arming; see `companion preflight`)",
+    )
     p.set_defaults(func=cmd_fly)
 
 
@@ -100,6 +106,37 @@ async def run_delivery(
         finally:
             if recorder is not None:
                 recorder.close()
+
+
+async def _checked_delivery(
+    config: CompanionConfig,
+    autopilot: Autopilot,
+    timeout_s: float,
+    run_dir: Path,
+    kit: Any,
+    params_file: str,
+    preflight: bool = True,
+) -> MissionSummary:
+    """The pre-flight check on the connected autopilot (unless ``preflight`` is false), then the
+    delivery on the same link. A wrong check closes the link and raises :class:`StartupError`
+    (exit :data:`~companion.cli.exits.PREFLIGHT_FAILED`) before anything is armed."""
+    if preflight:
+        from companion.autopilot.preflight import requirements_from_config
+        from companion.cli.preflight import check_before_flight, probe_sensors, report_line, sensor_requirements
+
+        try:
+            req = sensor_requirements(config, requirements_from_config(config), kit)
+            cam, uwb = await asyncio.to_thread(probe_sensors, kit, True)  # the sensors run already
+            report = await check_before_flight(config, autopilot, req, cam, uwb)
+        except BaseException:
+            await autopilot.close()
+            raise
+        for c in report.checks:
+            log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)
+        if not report.passed:
+            await autopilot.close()
+            raise StartupError(report_line(report, params_file), exits.PREFLIGHT_FAILED)
+    return await run_delivery(config, autopilot, timeout_s, run_dir, landing=kit)
 
 
 def _stop_sensors(kit: Any) -> None:
@@ -156,7 +193,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
             ) from None
         try:
             autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
-            summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+            checked = not getattr(args, "no_preflight", False)
+            summary = asyncio.run(
+                _checked_delivery(config, autopilot, args.timeout, run_dir, kit, args.params, checked)
+            )
         except AutopilotUnreachable as err:
             raise StartupError(
                 f"{err}; check the autopilot is on and sending there, or change connection {where} "
