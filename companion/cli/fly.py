@@ -15,6 +15,7 @@ import signal
 import socket
 import statistics
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -85,12 +86,21 @@ async def run_delivery(
     timeout_s: float = 1800.0,
     run_dir: Path | None = None,
     landing: Any = None,
+    before_flight: Callable[[], Awaitable[None]] | None = None,
 ) -> MissionSummary:
     """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land).
-    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash)."""
+    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash);
+    ``before_flight`` is awaited once connected, before the mission starts (the pre-flight check)."""
     recorder = FlightRecorder(run_dir, config) if run_dir is not None else None
     # the ground link publishes by default (DESIGN safety contract); [telemetry] enabled = false turns it off
-    shell = DeliveryShell(config, autopilot, telemetry=config.telemetry.enabled, recorder=recorder, landing=landing)
+    shell = DeliveryShell(
+        config,
+        autopilot,
+        telemetry=config.telemetry.enabled,
+        recorder=recorder,
+        landing=landing,
+        before_flight=before_flight,
+    )
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -108,35 +118,26 @@ async def run_delivery(
                 recorder.close()
 
 
-async def _checked_delivery(
-    config: CompanionConfig,
-    autopilot: Autopilot,
-    timeout_s: float,
-    run_dir: Path,
-    kit: Any,
-    params_file: str,
-    preflight: bool = True,
-) -> MissionSummary:
-    """The pre-flight check on the connected autopilot (unless ``preflight`` is false), then the
-    delivery on the same link. A wrong check closes the link and raises :class:`StartupError`
-    (exit :data:`~companion.cli.exits.PREFLIGHT_FAILED`) before anything is armed."""
-    if preflight:
-        from companion.autopilot.preflight import requirements_from_config
-        from companion.cli.preflight import check_before_flight, probe_sensors, report_line, sensor_requirements
+def preflight_hook(
+    config: CompanionConfig, autopilot: Autopilot, kit: Any, params_file: str
+) -> Callable[[], Awaitable[None]]:
+    """The pre-flight check as the shell's ``before_flight``: run on the connected autopilot (and
+    the started landing sensors) before anything is armed; a wrong check raises
+    :class:`StartupError` (exit :data:`~companion.cli.exits.PREFLIGHT_FAILED`)."""
 
-        try:
-            req = sensor_requirements(config, requirements_from_config(config), kit)
-            cam, uwb = await asyncio.to_thread(probe_sensors, kit, True)  # the sensors run already
-            report = await check_before_flight(config, autopilot, req, cam, uwb)
-        except BaseException:
-            await autopilot.close()
-            raise
+    async def check() -> None:
+        from companion.autopilot.preflight import preflight, requirements_from_config
+        from companion.cli.preflight import probe_sensors, report_line, sensor_requirements
+
+        req = sensor_requirements(config, requirements_from_config(config), kit)
+        cam, uwb = await asyncio.to_thread(probe_sensors, kit, True)  # the sensors run already
+        report = await preflight(autopilot, req, camera=cam, uwb=uwb)
         for c in report.checks:
             log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)
         if not report.passed:
-            await autopilot.close()
             raise StartupError(report_line(report, params_file), exits.PREFLIGHT_FAILED)
-    return await run_delivery(config, autopilot, timeout_s, run_dir, landing=kit)
+
+    return check
 
 
 def _stop_sensors(kit: Any) -> None:
@@ -193,9 +194,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
             ) from None
         try:
             autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
-            checked = not getattr(args, "no_preflight", False)
+            skip = getattr(args, "no_preflight", False)
+            check = None if skip else preflight_hook(config, autopilot, kit, args.params)
             summary = asyncio.run(
-                _checked_delivery(config, autopilot, args.timeout, run_dir, kit, args.params, checked)
+                run_delivery(config, autopilot, args.timeout, run_dir, landing=kit, before_flight=check)
             )
         except AutopilotUnreachable as err:
             raise StartupError(

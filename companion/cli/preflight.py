@@ -1,7 +1,7 @@
 """CLI of the pre-flight check: ``companion preflight --params FILE`` reads the autopilot's
 parameters (and probes the landing camera, the UWB tag and the clock) and prints one row per
 check: ok, wrong (with what to set) or unknown (with why). ``companion fly`` runs the same check
-after connecting, before it arms (:func:`check_before_flight`)."""
+after connecting, before it arms (:func:`companion.cli.fly.preflight_hook`)."""
 
 from __future__ import annotations
 

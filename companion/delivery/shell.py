@@ -14,7 +14,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -104,8 +104,12 @@ class DeliveryShell:
         telemetry: bool = False,
         landing: LandingKit | None = None,
         recorder: Any | None = None,
+        before_flight: Callable[[], Awaitable[None]] | None = None,
     ):
         self.config = config
+        # awaited once connected, before the setpoint stream and the mission start (nothing armed
+        # yet): `companion fly`'s pre-flight check, which raises to stop the start-up
+        self.before_flight = before_flight
         self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
         self.mission = DeliveryMission(config.mission, config.landing.controller)
@@ -163,6 +167,8 @@ class DeliveryShell:
                 pub.start()
                 self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
             await self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s)
+            if self.before_flight is not None:
+                await self.before_flight()
             stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
             if timeout_s is None:
                 await self._guidance_loop()

@@ -37,8 +37,8 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
         seen.update(kwargs, backend=config.autopilot, connection=config.connection)
         return object()
 
-    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None):
-        seen["run_dir"], seen["landing"] = run_dir, landing
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None):
+        seen["run_dir"], seen["landing"], seen["before_flight"] = run_dir, landing, before_flight
         return MissionSummary(delivered=True, returned=True)
 
     monkeypatch.setattr(commands, "make_autopilot", make_autopilot)
@@ -50,3 +50,4 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
     assert seen["run_dir"] == tmp_path / "run" and seen["tlog_path"] == tmp_path / "run" / "flight.tlog"
     assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")
     assert '"delivered": true' in capsys.readouterr().out
+    assert seen["before_flight"] is None  # --no-preflight
