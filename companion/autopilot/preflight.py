@@ -28,6 +28,7 @@ Firmware assumptions (parameter names, meanings and defaults):
 
 from __future__ import annotations
 
+import asyncio
 import enum
 import logging
 import math
@@ -101,6 +102,15 @@ class ClockProbe:
 
 
 @dataclass(frozen=True)
+class StreamProbe:
+    """Telemetry samples the backend accepted per second over ``window_s``, by sample type
+    (``PositionNed``: LOCAL_POSITION_NED / PX4's position-velocity, ``Attitude``)."""
+
+    rates_hz: Mapping[str, float]
+    window_s: float
+
+
+@dataclass(frozen=True)
 class Requirements:
     """What the companion's configuration needs from the vehicle (from :func:`requirements_from_config`)."""
 
@@ -116,6 +126,7 @@ class Requirements:
     camera_size_px: tuple[int, int] | None = None  # (width, height) from the calibration, when the camera is used
     uwb_anchor_ids: frozenset[str] | None = None  # from the anchor layout, when UWB is used
     clock_tolerance_s: float = 1.0
+    guidance_rate_hz: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -160,6 +171,7 @@ def requirements_from_config(config: Any) -> Requirements:
     return Requirements(
         autopilot=config.autopilot,
         setpoint_rate_hz=config.runtime.setpoint_rate_hz,
+        guidance_rate_hz=config.runtime.guidance_rate_hz,
         link_loss_resume_modes=tuple(config.mission.link_loss_resume_modes),
         landing_controller=lc.controller,
         landing_target_output=lc.landing_target_output,
@@ -700,6 +712,41 @@ def check_clock(req: Requirements, probe: ClockProbe | None) -> CheckResult:
     )
 
 
+#: the streams the delivery flies on, and what raises their rate on each firmware
+STREAMS = {"PositionNed": "local position", "Attitude": "attitude"}
+STREAM_FIX = {
+    "px4": "raise MAV_x_RATE of the companion's MAVLink instance (0 = as fast as the link allows) "
+    "or the link's baud rate",
+    "ardupilot": "raise SRn_POSITION / SRn_EXTRA1 of the companion's serial port or its baud rate",
+}
+
+
+def check_streams(req: Requirements, probe: StreamProbe | None) -> list[CheckResult]:
+    """Position and attitude arrive at least at half the guidance rate (each guidance tick then
+    uses a sample at most two ticks old)."""
+    if probe is None:
+        return [CheckResult("telemetry rate", Status.UNKNOWN, "-", "not measured")]
+    need = req.guidance_rate_hz / 2.0
+    out: list[CheckResult] = []
+    for kind, what in STREAMS.items():
+        hz = probe.rates_hz.get(kind, 0.0)
+        name = f"{what} rate"
+        if hz < need:
+            out.append(
+                CheckResult(
+                    name,
+                    Status.WRONG,
+                    f"{hz:.1f} Hz",
+                    f"{what} arrives at {hz:.1f} Hz over {probe.window_s:.1f} s, under half of "
+                    f"runtime.guidance_rate_hz = {_fmt(req.guidance_rate_hz)} ({need:g} Hz): "
+                    f"{STREAM_FIX[req.autopilot]}",
+                )
+            )
+        else:
+            out.append(CheckResult(name, Status.OK, f"{hz:.1f} Hz", f">= {need:g} Hz (half the guidance rate)"))
+    return out
+
+
 def run_checks(
     req: Requirements,
     params: Mapping[str, ParamValue],
@@ -707,8 +754,11 @@ def run_checks(
     camera: CameraProbe | None = None,
     uwb: UwbProbe | None = None,
     clock: ClockProbe | None = None,
+    streams: StreamProbe | None = None,
 ) -> PreflightReport:
     rows = check_px4(req, params) if req.autopilot == "px4" else check_ardupilot(req, params)
+    if streams is not None:
+        rows += check_streams(req, streams)
     rows += check_camera(req, camera)
     rows += check_uwb(req, uwb)
     rows.append(check_clock(req, clock))
@@ -816,14 +866,41 @@ def _anchor_ids(reading: Any) -> Sequence[str]:
     return [str(getattr(a, "anchor_id", a)) for a in anchors]
 
 
+def stream_rate_hz(arrivals: Sequence[float]) -> float:
+    """Samples per second between the first and the last arrival (a stream that starts late in
+    the window is measured while it runs); 0 with fewer than two."""
+    if len(arrivals) < 2 or arrivals[-1] <= arrivals[0]:
+        return 0.0
+    return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+
+
 async def preflight(
     autopilot: Any,
     req: Requirements,
     *,
     camera: CameraProbe | None = None,
     uwb: UwbProbe | None = None,
+    stream_window_s: float = 1.5,
 ) -> PreflightReport:
-    """Read the parameters and the clock from the connected ``autopilot`` and run every check."""
-    params = await read_params(autopilot, req)
-    clock = await probe_clock(autopilot)
-    return run_checks(req, params, camera=camera, uwb=uwb, clock=clock)
+    """Read the parameters and the clock from the connected ``autopilot``, measure its position and
+    attitude rates meanwhile (over ``stream_window_s`` at least), and run every check."""
+    arrivals: dict[str, list[float]] = {k: [] for k in STREAMS}
+
+    def on_sample(sample: Any) -> None:
+        times = arrivals.get(type(sample).__name__)
+        if times is not None:
+            times.append(time.monotonic())
+
+    tc = autopilot.telemetry
+    tc.add_listener(on_sample)
+    try:
+        t0 = time.monotonic()
+        params = await read_params(autopilot, req)
+        clock = await probe_clock(autopilot)
+        rest = stream_window_s - (time.monotonic() - t0)
+        if rest > 0:
+            await asyncio.sleep(rest)
+    finally:
+        tc.remove_listener(on_sample)
+    streams = StreamProbe({k: stream_rate_hz(v) for k, v in arrivals.items()}, time.monotonic() - t0)
+    return run_checks(req, params, camera=camera, uwb=uwb, clock=clock, streams=streams)

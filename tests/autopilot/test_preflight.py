@@ -335,3 +335,19 @@ def test_requirements_from_the_shipped_files() -> None:
     assert req.setpoint_rate_hz == cfg.runtime.setpoint_rate_hz
     with pytest.raises(ValueError, match="needs 'px4' or 'ardupilot'"):
         pf.requirements_from_config(load_config(str(shipped_params_path("delivery_paper.toml"))))
+
+
+def test_stream_rates_against_the_guidance_rate() -> None:
+    rows = pf.check_streams(PX4, pf.StreamProbe({"PositionNed": 30.0, "Attitude": 50.0}, 1.5))
+    assert [(r.name, r.status) for r in rows] == [("local position rate", Status.OK), ("attitude rate", Status.OK)]
+    rows = pf.check_streams(PX4, pf.StreamProbe({"PositionNed": 4.0, "Attitude": 50.0}, 1.5))
+    assert rows[0].status is Status.WRONG and "runtime.guidance_rate_hz = 20 (10 Hz)" in rows[0].detail
+    assert "MAV_x_RATE" in rows[0].detail
+    (_, row) = pf.check_streams(AP, pf.StreamProbe({"PositionNed": 30.0}, 1.5))  # no attitude at all
+    assert row.status is Status.WRONG and row.value == "0.0 Hz" and "SRn_EXTRA1" in row.detail
+    assert pf.check_streams(PX4, None)[0].status is Status.UNKNOWN
+
+
+def test_stream_rate_counts_from_the_first_sample() -> None:
+    assert pf.stream_rate_hz([]) == 0.0 and pf.stream_rate_hz([1.0]) == 0.0
+    assert pf.stream_rate_hz([1.0 + 0.1 * i for i in range(11)]) == pytest.approx(10.0)

@@ -119,6 +119,19 @@ def test_clock_off_by_seconds_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) 
     assert clock["status"] == "wrong" and "30.0 s behind" in clock["detail"]
 
 
+def test_a_slow_position_stream_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
+    from companion_sitl.mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ
+
+    slow = {**PX4_DEFAULT_STREAMS_HZ, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4.0}
+    v = _start(vehicle, "px4", stream_rates_hz=slow)
+    proc = _run(tmp_path, "preflight", "--params", str(v.params_file(tmp_path)), "--json")
+    assert proc.returncode == exits.PREFLIGHT_FAILED, proc.stdout + proc.stderr
+    rows = {c["check"]: c for c in json.loads(proc.stdout)["checks"]}
+    assert rows["local position rate"]["status"] == "wrong" and "MAV_x_RATE" in rows["local position rate"]["detail"]
+    assert 3.0 <= float(rows["local position rate"]["value"].split()[0]) <= 5.0
+    assert rows["attitude rate"]["status"] == "ok"
+
+
 def test_no_vehicle_is_exit_3(tmp_path: Path) -> None:
     port = _free_udp_port()
     f = tmp_path / "v.toml"
