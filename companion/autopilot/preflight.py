@@ -796,8 +796,9 @@ async def probe_clock(autopilot: Any, timeout_s: float = 2.0) -> ClockProbe:
 
 
 def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> CameraProbe:
-    """Read a started ``companion.cameras`` driver for ``seconds``: frame size and rate (distinct
-    frames over the time between the first and the last)."""
+    """Read a ``companion.cameras`` driver for ``seconds``: frame size and rate (distinct frames
+    over the span of their exposure times, so a video file played faster than real time still
+    gives its own rate)."""
     times: list[float] = []
     size: tuple[int, int] | None = None
     last_index = None
@@ -811,7 +812,7 @@ def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> Ca
                 time.sleep(0.002)
                 continue
             last_index = f.index
-            times.append(time.monotonic())
+            times.append(float(f.time_s))
             h, w = f.image.shape[:2]
             size = (int(w), int(h))
     except Exception as err:
@@ -824,8 +825,8 @@ def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> Ca
                 log.debug("camera stop: %s", err)
     if size is None:
         return CameraProbe(error=f"no frame from the camera within {seconds:g} s")
-    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 3 and times[-1] > times[0] else None
-    return CameraProbe(size[0], size[1], fps, len(times))
+    fps = stream_rate_hz(times) if len(times) >= 3 else None
+    return CameraProbe(size[0], size[1], fps or None, len(times))
 
 
 def probe_uwb(uwb: Any, seconds: float = 2.0, started: bool = False) -> UwbProbe:

@@ -295,7 +295,8 @@ class _FakeCamera:
 
     def read(self) -> Frame:
         self.i += 1
-        return Frame(float(self.i), np.zeros(self.shape, np.uint8), self.i // 2)  # each frame read twice
+        n = self.i // 2  # each frame read twice
+        return Frame(n / 25.0, np.zeros(self.shape, np.uint8), n)  # exposed at 25 Hz
 
     def stop(self) -> None:
         self.stopped = True
@@ -305,7 +306,7 @@ def test_probe_camera_reads_size_and_rate() -> None:
     cam = _FakeCamera(320, 240)
     probe = pf.probe_camera(cam, seconds=0.1)
     assert (probe.width_px, probe.height_px, probe.error) == (320, 240, "")
-    assert probe.frames >= 3 and probe.fps is not None and probe.fps > 0
+    assert probe.frames >= 3 and probe.fps == pytest.approx(25.0)  # from the exposure times, not the reads
     assert cam.started and cam.stopped
     probe = pf.probe_camera(_FakeCamera(320, 240, fail=True), seconds=0.1)
     assert "cannot open /dev/video7" in probe.error
