@@ -158,13 +158,14 @@ class PreflightReport:
 MIN_SETPOINT_PERIODS = 3.0
 #: longest time the vehicle may fly on a stalled companion's last setpoint
 MAX_SETPOINT_TIMEOUT_S = 5.0
-#: camera frame rate measured may fall short of the configured rate by this much before it is wrong
+#: share of ``landing.camera_rate_hz`` the measured camera rate must reach
 CAMERA_RATE_TOLERANCE = 0.8
 
 
 def requirements_from_config(config: Any) -> Requirements:
     """The :class:`Requirements` of a :class:`companion.config.CompanionConfig` (``autopilot`` must
-    be px4 or ardupilot); camera and anchor files are loaded when the landing uses them."""
+    be px4 or ardupilot). The camera size and the anchor ids are added by the caller from the
+    landing kit it builds (``companion.cli.preflight.sensor_requirements``)."""
     if config.autopilot not in ("px4", "ardupilot"):
         raise ValueError(f"autopilot = {config.autopilot!r}: the pre-flight check needs 'px4' or 'ardupilot'")
     lc = config.landing
