@@ -118,6 +118,8 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             "GUID_TIMEOUT": guided_timeout_s,
             "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
             "FS_GCS_ENABLE": 0.0,  # copter.parm: GCS failsafe off
+            "PLND_ENABLED": 0.0,  # copter.parm: no precision landing (LAND ignores LANDING_TARGET)
+            "PLND_TYPE": 0.0,
             # outputs 1-4 drive the motors (33-36), the others have no function
             **{f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)},
             "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
@@ -191,7 +193,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
         elif mode == COPTER_BRAKE:
             v.hold()
         elif mode == COPTER_LAND:
-            if v.armed and self._params.get("PLND_ENABLED", 1.0):
+            if v.armed and self._params.get("PLND_ENABLED", 0.0) >= 0.5:
                 v.precision_land()  # PLND_ENABLED = 1, PLND_TYPE = 1: steered by LANDING_TARGET if any
             elif v.armed:
                 v.land()

@@ -45,11 +45,11 @@ class _Vehicle:
         if m.get_type() == "COMMAND_LONG":
             self.commands.append(m.command)
 
-    def params_file(self, tmp_path: Path, extra: str = "") -> Path:
+    def params_file(self, tmp_path: Path, landing: str = "fusion = false") -> Path:
         f = tmp_path / "vehicle.toml"
         f.write_text(
             f'autopilot = "{self.dialect}"\nconnection = "{URLS[self.dialect].format(port=self.port)}"\n'
-            "[runtime]\nconnect_timeout_s = 5\n[landing]\nfusion = false\n[telemetry]\nenabled = false\n" + extra
+            f"[runtime]\nconnect_timeout_s = 5\n[landing]\n{landing}\n[telemetry]\nenabled = false\n"
         )
         return f
 
@@ -109,6 +109,20 @@ def test_a_wrong_parameter_fails_with_what_to_set(
     assert report["passed"] is False
     wrong = {c["check"]: c for c in report["checks"] if c["status"] == "wrong"}
     assert name in wrong and what_to_set in wrong[name]["detail"], wrong
+
+
+def test_ardupilot_precision_landing_needs_plnd(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
+    """landing.controller = 'autopilot' on copter.parm's PLND_ENABLED = 0: wrong; set, it passes."""
+    landing = 'fusion = true\nuse_uwb = false\ncontroller = "autopilot"\nlanding_target_output = "body_angles"'
+    for plnd, code in ((0.0, exits.PREFLIGHT_FAILED), (1.0, exits.OK)):
+        v = _start(vehicle, "ardupilot", {**GRIPPER_SERVO9, "PLND_ENABLED": plnd, "PLND_TYPE": plnd})
+        proc = _run(tmp_path, "preflight", "--params", str(v.params_file(tmp_path, landing)), "--json", "--no-sensors")
+        assert proc.returncode == code, proc.stdout + proc.stderr
+        rows = {c["check"]: c for c in json.loads(proc.stdout)["checks"]}
+        want = "ok" if plnd else "wrong"
+        assert rows["PLND_ENABLED"]["status"] == rows["PLND_TYPE"]["status"] == want
+        if not plnd:
+            assert "set PLND_ENABLED = 1" in rows["PLND_ENABLED"]["detail"]
 
 
 def test_clock_off_by_seconds_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
