@@ -796,7 +796,7 @@ async def probe_clock(autopilot: Any, timeout_s: float = 2.0) -> ClockProbe:
     return clock_probe_from(st)
 
 
-def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> CameraProbe:
+def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False, what: str = "") -> CameraProbe:
     """Read a ``companion.cameras`` driver for ``seconds``: frame size and rate (distinct frames
     over the span of their exposure times, so a video file played faster than real time still
     gives its own rate)."""
@@ -817,7 +817,7 @@ def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> Ca
             h, w = f.image.shape[:2]
             size = (int(w), int(h))
     except Exception as err:
-        return CameraProbe(error=f"camera {type(camera).__name__}: {err}")
+        return CameraProbe(error=f"{what or 'camera'} ({type(camera).__name__}): {err}")
     finally:
         if not started:
             try:
@@ -825,12 +825,12 @@ def probe_camera(camera: Any, seconds: float = 2.0, started: bool = False) -> Ca
             except Exception as err:
                 log.debug("camera stop: %s", err)
     if size is None:
-        return CameraProbe(error=f"no frame from the camera within {seconds:g} s")
+        return CameraProbe(error=f"{what or 'camera'}: no frame within {seconds:g} s")
     fps = stream_rate_hz(times) if len(times) >= 3 else None
     return CameraProbe(size[0], size[1], fps or None, len(times))
 
 
-def probe_uwb(uwb: Any, seconds: float = 2.0, started: bool = False) -> UwbProbe:
+def probe_uwb(uwb: Any, seconds: float = 2.0, started: bool = False, what: str = "") -> UwbProbe:
     """Read a ``companion.uwb`` driver for ``seconds``: the anchor ids it reported ranges to."""
     seen: set[str] = set()
     n = 0
@@ -848,7 +848,7 @@ def probe_uwb(uwb: Any, seconds: float = 2.0, started: bool = False) -> UwbProbe
                 n += 1
                 seen.update(_anchor_ids(item))
     except Exception as err:
-        return UwbProbe(error=f"UWB {type(uwb).__name__}: {err}")
+        return UwbProbe(error=f"{what or 'UWB'} ({type(uwb).__name__}): {err}")
     finally:
         if not started:
             try:
@@ -856,7 +856,7 @@ def probe_uwb(uwb: Any, seconds: float = 2.0, started: bool = False) -> UwbProbe
             except Exception as err:
                 log.debug("uwb stop: %s", err)
     if n == 0:
-        return UwbProbe(error=f"no reading from the UWB tag within {seconds:g} s")
+        return UwbProbe(error=f"{what or 'UWB'}: no reading within {seconds:g} s")
     return UwbProbe(frozenset(seen), n)
 
 

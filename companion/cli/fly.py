@@ -130,7 +130,7 @@ def preflight_hook(
         from companion.cli.preflight import probe_sensors, report_line, sensor_requirements
 
         req = sensor_requirements(config, requirements_from_config(config), kit)
-        cam, uwb = await asyncio.to_thread(probe_sensors, kit, True)  # the sensors run already
+        cam, uwb = await asyncio.to_thread(probe_sensors, config, kit, True)  # the sensors run already
         report = await preflight(autopilot, req, camera=cam, uwb=uwb)
         for c in report.checks:
             log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)

@@ -62,9 +62,18 @@ def sensor_requirements(config: CompanionConfig, req: Requirements, kit: Any) ->
     return dataclasses.replace(req, **upd)
 
 
-def probe_sensors(kit: Any, started: bool) -> tuple[CameraProbe | None, UwbProbe | None]:
-    cam = probe_camera(kit.camera, SENSOR_PROBE_S, started=started) if kit is not None and kit.camera else None
-    uwb = probe_uwb(kit.uwb, SENSOR_PROBE_S, started=started) if kit is not None and kit.uwb else None
+def probe_sensors(config: CompanionConfig, kit: Any, started: bool) -> tuple[CameraProbe | None, UwbProbe | None]:
+    """Read the landing kit's camera and UWB tag for :data:`SENSOR_PROBE_S` each (``started``: they
+    run already, as in ``fly``; else each is started and stopped here)."""
+    if kit is None:
+        return None, None
+    lc = config.landing
+    cam = uwb = None
+    if kit.camera is not None:
+        what = f"landing.camera_source = {lc.camera_source!r}"
+        cam = probe_camera(kit.camera, SENSOR_PROBE_S, started=started, what=what)
+    if kit.uwb is not None:
+        uwb = probe_uwb(kit.uwb, SENSOR_PROBE_S, started=started, what=f"landing.uwb_port = {lc.uwb_port!r}")
     return cam, uwb
 
 
@@ -134,7 +143,7 @@ def cmd_preflight(args: argparse.Namespace) -> int:
             code = exits.DEVICE_MISSING if err.device_missing else exits.BAD_INPUT
             raise StartupError(f"{args.params}: {err}", code) from None
         req = sensor_requirements(config, req, kit)
-        cam, uwb = probe_sensors(kit, started=False)
+        cam, uwb = probe_sensors(config, kit, started=False)
     try:
         autopilot = factory.make_autopilot(config)
     except Exception as err:  # the backend refuses the configuration (e.g. release 'actuator' on ArduPilot)

@@ -125,6 +125,20 @@ def test_ardupilot_precision_landing_needs_plnd(tmp_path: Path, vehicle: list[_V
             assert "set PLND_ENABLED = 1" in rows["PLND_ENABLED"]["detail"]
 
 
+def test_sensors_that_cannot_be_opened_are_unknown_naming_the_setting(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
+    v = _start(vehicle, "px4")
+    landing = 'fusion = true\ncamera_source = "/nonexistent/cam.avi"\nuwb_port = "/dev/companion-no-such-uwb"'
+    proc = _run(tmp_path, "preflight", "--params", str(v.params_file(tmp_path, landing)), "--json")
+    assert proc.returncode == exits.OK, proc.stdout + proc.stderr  # unknown does not fail the check
+    rows = {c["check"]: c for c in json.loads(proc.stdout)["checks"]}
+    assert (
+        rows["camera"]["status"] == "unknown"
+        and "landing.camera_source = '/nonexistent/cam.avi'" in rows["camera"]["detail"]
+    )
+    assert rows["UWB anchors"]["status"] == "unknown"
+    assert "landing.uwb_port = '/dev/companion-no-such-uwb'" in rows["UWB anchors"]["detail"]
+
+
 def test_clock_off_by_seconds_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
     v = _start(vehicle, "px4", clock_offset_s=30.0)
     proc = _run(tmp_path, "preflight", "--params", str(v.params_file(tmp_path)), "--json")
