@@ -222,6 +222,8 @@ async def fly(
         port = free_udp_port()
         # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
         grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
+        if grip is not None and config.landing.controller == "autopilot":
+            grip |= {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}  # LAND by LANDING_TARGET, as on the real SITL
         mav_sim = MavlinkSimVehicle(
             config.sim,
             mavlink,  # type: ignore[arg-type]

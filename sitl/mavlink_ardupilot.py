@@ -91,6 +91,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
     SIGNING: ClassVar[bool] = True  # SETUP_SIGNING as GCS_Signing.cpp (see MavlinkSimVehicle)
+    RC_OVERRIDE_TIMEOUT_S: ClassVar[float] = 3.0  # RC_OVERRIDE_TIME, copter.parm default
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._ap_mode = COPTER_STABILIZE
@@ -117,6 +118,11 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             "FLTMODE_CH": 5.0,
             "GUID_TIMEOUT": guided_timeout_s,
             "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
+            "FS_GCS_ENABLE": 0.0,  # copter.parm: GCS failsafe off
+            "PLND_ENABLED": 0.0,  # copter.parm: no precision landing (LAND ignores LANDING_TARGET)
+            "PLND_TYPE": 0.0,
+            # outputs 1-4 drive the motors (33-36), the others have no function
+            **{f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)},
             "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
             "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
             **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
@@ -188,7 +194,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
         elif mode == COPTER_BRAKE:
             v.hold()
         elif mode == COPTER_LAND:
-            if v.armed and self._params.get("PLND_ENABLED", 1.0):
+            if v.armed and self._params.get("PLND_ENABLED", 0.0) >= 0.5:
                 v.precision_land()  # PLND_ENABLED = 1, PLND_TYPE = 1: steered by LANDING_TARGET if any
             elif v.armed:
                 v.land()

@@ -79,6 +79,10 @@ class Px4SimVehicle(MavlinkSimVehicle):
     HOME_ALWAYS: ClassVar[bool] = True
     LOCAL_Z_OFFSET_M: ClassVar[float] = 0.04  # PX4's EKF reports a few cm, not 0, for z at rest on the ground
     SOFTWARE_VERSION: ClassVar[int] = (1 << 24) | (16 << 16) | (0 << 8) | 0xFF  # 1.16.0 release
+    INT_PARAMS: ClassVar[frozenset[str]] = frozenset(
+        {"COM_OBL_RC_ACT", "COM_RC_OVERRIDE", "EKF2_GPS_CTRL", "EKF2_HGT_REF", "SYS_AUTOSTART"}
+    )
+    PARAM_BYTEWISE: ClassVar[bool] = True  # PX4 sends int32 parameters byte-wise
 
     def _default_params(self, cfg: SimConfig, system_id: int, guided_timeout_s: float) -> dict[str, float]:
         return {
@@ -89,6 +93,12 @@ class Px4SimVehicle(MavlinkSimVehicle):
             "MPC_LAND_SPEED": cfg.vehicle.land_speed_m_s,
             "MPC_TKO_SPEED": cfg.vehicle.takeoff_speed_m_s,
             "SYS_AUTOSTART": 10040.0,
+            # PX4 v1.16 defaults of what `companion preflight` checks
+            "COM_RC_OVERRIDE": 1.0,
+            "EKF2_GPS_CTRL": 7.0,
+            "EKF2_HGT_REF": 1.0,
+            "PLD_BTOUT": 5.0,
+            "PLD_HACC_RAD": 0.2,
         }
 
     # PX4 v1.16 SIH, measured over MAVLink (see companion/autopilot/px4.py):

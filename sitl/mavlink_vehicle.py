@@ -42,6 +42,7 @@ import math
 import os
 import select
 import socket
+import struct
 import threading
 import time
 from collections import Counter
@@ -181,6 +182,12 @@ class MavlinkSimVehicle(abc.ABC):
     LOCAL_Z_OFFSET_M: ClassVar[float] = 0.0  # added to LOCAL_POSITION_NED z
     SOFTWARE_VERSION: ClassVar[int] = 0  # AUTOPILOT_VERSION flight_sw_version
     SIGNING: ClassVar[bool] = False  # handles SETUP_SIGNING and signs (the ArduPilot dialect)
+    # parameters the firmware types as integers (the rest are REAL32), and how it sends them:
+    # byte-wise in the float field (PX4) or cast to a float (ArduPilot)
+    INT_PARAMS: ClassVar[frozenset[str]] = frozenset()
+    PARAM_BYTEWISE: ClassVar[bool] = False
+    #: RC_OVERRIDE_TIME when none is given (< 0: overrides never lapse)
+    RC_OVERRIDE_TIMEOUT_S: ClassVar[float] = -1.0
 
     def __new__(cls, cfg: SimConfig, dialect: Dialect = "px4", **kwargs: Any) -> MavlinkSimVehicle:
         if cls is MavlinkSimVehicle:
@@ -208,11 +215,12 @@ class MavlinkSimVehicle(abc.ABC):
         guided_timeout_s: float = 3.0,
         release_servo: int = 9,
         release_pwm: int = 1900,
-        rc_override_timeout_s: float = -1.0,
+        rc_override_timeout_s: float | None = None,
         params: dict[str, float] | None = None,
         signing_key: bytes | None = None,
         signing_timestamp: int | None = None,
         trusted_link: bool = False,
+        clock_offset_s: float = 0.0,
     ):
         if dialect is not None and dialect != self.dialect:
             raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
@@ -260,7 +268,11 @@ class MavlinkSimVehicle(abc.ABC):
         self._radio = list(self._rc)
         self._ovr: list[int | None] = [None] * 18
         self._ovr_at = [-math.inf] * 18
-        self.rc_override_timeout_s = rc_override_timeout_s  # RC_OVERRIDE_TIME; < 0: never lapses
+        # RC_OVERRIDE_TIME; < 0: never lapses
+        self.rc_override_timeout_s = (
+            self.RC_OVERRIDE_TIMEOUT_S if rc_override_timeout_s is None else rc_override_timeout_s
+        )
+        self.clock_offset_s = clock_offset_s  # added to the UTC this vehicle reports (SYSTEM_TIME)
         self._params: dict[str, float] = self._default_params(cfg, system_id, guided_timeout_s)
         self._params.update(params or {})  # the vehicle's own configuration (e.g. GRIP_ENABLE = 1)
         if self.BOOT_MODE is not None and not self.vehicle.armed:
@@ -711,6 +723,8 @@ class MavlinkSimVehicle(abc.ABC):
                 -1,
                 int(v.battery_pct),
             )
+        if mid == mavlink.MAVLINK_MSG_ID_SYSTEM_TIME:  # the host's UTC, as a SITL reports it
+            return e.system_time_encode(int((time.time() + self.clock_offset_s) * 1e6), t_ms)
         if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
             h = v.home()
             if h is None:
@@ -760,6 +774,8 @@ class MavlinkSimVehicle(abc.ABC):
                 | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
             )
+            if self.PARAM_BYTEWISE:
+                caps |= mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
             sw = self.SOFTWARE_VERSION
             uid = 0x5349_4D00 + self.system_id
             return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
@@ -827,8 +843,9 @@ class MavlinkSimVehicle(abc.ABC):
         if t == "PARAM_SET":
             pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode(errors="replace")
             pid = pid.rstrip("\x00")
-            if math.isfinite(m.param_value):
-                self._params[pid] = float(m.param_value)
+            value = self._param_decode(pid, m.param_value)
+            if math.isfinite(value):
+                self._params[pid] = value
             self._param_value(pid, list(self._params).index(pid) if pid in self._params else 65535)
             return
         if t == "MISSION_REQUEST_LIST":
@@ -840,11 +857,18 @@ class MavlinkSimVehicle(abc.ABC):
 
     def _param_value(self, name: str, index: int) -> None:
         val = self._params.get(name, math.nan)
-        self._send(
-            self._enc.param_value_encode(
-                name.encode()[:16], val, mavlink.MAV_PARAM_TYPE_REAL32, len(self._params), index
-            )
-        )
+        ptype = mavlink.MAV_PARAM_TYPE_REAL32
+        if name in self.INT_PARAMS and math.isfinite(val):
+            ptype = mavlink.MAV_PARAM_TYPE_INT32
+            if self.PARAM_BYTEWISE:  # the int32's bytes in the float field
+                val = struct.unpack("<f", struct.pack("<i", int(val)))[0]
+        self._send(self._enc.param_value_encode(name.encode()[:16], val, ptype, len(self._params), index))
+
+    def _param_decode(self, name: str, value: float) -> float:
+        """A PARAM_SET value as the firmware reads it (byte-wise int32 for PX4's integers)."""
+        if name in self.INT_PARAMS and self.PARAM_BYTEWISE:
+            return float(struct.unpack("<i", struct.pack("<f", value))[0])
+        return float(value)
 
     def _reply(self, text: str, ok: bool) -> int:
         self._statustext(text, mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_CRITICAL)

@@ -94,6 +94,7 @@ mavutil.set_dialect("ardupilotmega")
 mavlink: Any = mavutil.mavlink
 
 G = 9.80665
+MAV_CMD_REQUEST_MESSAGE = 512
 
 COPTER_MODES: dict[str, int] = {
     "STABILIZE": 0,
@@ -298,6 +299,9 @@ class ArduPilotAutopilot(Autopilot):
         self.servo_outputs: tuple[int, ...] = ()  # SERVO_OUTPUT_RAW port 0, index 0 = output 1, us
         self._servo_outputs_time = -math.inf
         self._gripper_output: tuple[int, int] | bool | None = False  # False: not looked up yet
+        # last SYSTEM_TIME: (time_unix_usec, our wall clock at arrival)
+        self._system_time: tuple[int, float] | None = None
+        self._system_time_waiters: list[asyncio.Future[tuple[int, float]]] = []
         self.releases_unconfirmed = 0
         self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
 
@@ -790,6 +794,32 @@ class ArduPilotAutopilot(Autopilot):
         self._param_waiters.pop(name, None)
         return None
 
+    async def system_time(self, timeout_s: float = 2.0) -> tuple[int, float] | None:
+        """A fresh SYSTEM_TIME as ``(time_unix_usec, our wall clock at its arrival)``, requested with
+        MAV_CMD_REQUEST_MESSAGE (ArduPilot also streams it); None without one within ``timeout_s``."""
+        if self._loop is None or self._conn is None:
+            return None
+        fut: asyncio.Future[tuple[int, float]] = self._loop.create_future()
+        self._system_time_waiters.append(fut)
+        ts, tc = self.target_system or 1, self.target_component
+        request = functools.partial(
+            _command_long, ts=ts, tc=tc, cmd=MAV_CMD_REQUEST_MESSAGE, confirmation=0, params=(2, 0, 0, 0, 0, 0, 0)
+        )
+        self._send(request)  # its COMMAND_ACK is not waited for: the message itself answers
+        try:
+            return await asyncio.wait_for(fut, timeout_s)
+        except TimeoutError:
+            return None
+        finally:
+            if fut in self._system_time_waiters:
+                self._system_time_waiters.remove(fut)
+
+    def _resolve_system_time(self, value: tuple[int, float]) -> None:
+        waiters, self._system_time_waiters = self._system_time_waiters, []
+        for fut in waiters:
+            if not fut.done():
+                fut.set_result(value)
+
     def _resolve_param(self, name: str, value: float) -> None:
         fut = self._param_waiters.get(name)
         if fut is not None and not fut.done():
@@ -986,6 +1016,9 @@ class ArduPilotAutopilot(Autopilot):
             if math.isfinite(m.param_value):
                 self.params[pid] = float(m.param_value)
                 self._post(self._resolve_param, pid, float(m.param_value))
+        elif t == "SYSTEM_TIME":
+            self._system_time = (int(m.time_unix_usec), time.time())
+            self._post(self._resolve_system_time, self._system_time)
         elif t == "RC_CHANNELS":
             self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
             self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))

@@ -93,6 +93,7 @@ MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_DO_SET_SERVO = 183
 MAV_CMD_DO_GRIPPER = 211
 GRIPPER_ACTION_RELEASE = 0
@@ -317,6 +318,7 @@ class Px4Autopilot(Autopilot):
         self._offboard: Any = None
         self._direct: Any = None
         self._direct_sync: Any = None
+        self._param: Any = None
         self._offboard_sync: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._leaked: list[Any] = []
@@ -395,6 +397,7 @@ class Px4Autopilot(Autopilot):
         self._offboard_sync = self._offboard._plugin
         self._direct = MavlinkDirectAsync(system)
         self._direct_sync = self._direct._plugin
+        self._param = None  # built on the first read_params
         self._connected = True
         self._last_rx = time.monotonic()
         self._start_streams()
@@ -669,6 +672,75 @@ class Px4Autopilot(Autopilot):
         now = time.monotonic()
         fresh = self._connected and now - self._last_rx <= self.link_timeout_s
         return self._latch.check(now, fresh, self._last_hb)
+
+    # ------------------------------------------------------------------ parameters and clock
+    async def read_params(
+        self, names: dict[str, Literal["int", "float"]], timeout_s: float = 5.0
+    ) -> dict[str, float | Any]:
+        """Parameters by name through MAVSDK's Param plugin (PX4 sends int32 parameters byte-wise;
+        the plugin decodes them by their type). ``names`` maps each name to its PX4 type; a
+        WRONG_TYPE answer is retried as the other type. Each value is a float, or a
+        :class:`companion.autopilot.preflight.ParamUnavailable` with MAVSDK's reason."""
+        from mavsdk.asyncio.plugins.param import ParamAsync
+        from mavsdk.plugins.param import ParamError, ParamResult
+
+        from companion.autopilot.preflight import ParamUnavailable
+
+        if self._system is None:
+            return {n: ParamUnavailable("not connected") for n in names}
+        if self._param is None:
+            self._param = ParamAsync(self._system)
+        param = self._param
+        out: dict[str, float | Any] = {}
+        for name, kind in names.items():
+            getters = [param.get_param_int, param.get_param_float]
+            if kind == "float":
+                getters.reverse()
+            for i, get in enumerate(getters):
+                try:
+                    out[name] = float(await asyncio.wait_for(get(name), timeout_s))
+                except TimeoutError:
+                    self.calls_unanswered += 1
+                    out[name] = ParamUnavailable(f"no answer within {timeout_s:g} s")
+                except ParamError as err:
+                    if err.result == ParamResult.WRONG_TYPE and i == 0:
+                        continue
+                    out[name] = ParamUnavailable(f"MAVSDK {err.result.name}")
+                break
+        return out
+
+    async def system_time(self, timeout_s: float = 2.0) -> tuple[int, float] | None:
+        """A fresh SYSTEM_TIME as ``(time_unix_usec, our wall clock at its arrival)``, requested
+        with MAV_CMD_REQUEST_MESSAGE through MavlinkDirect; None without one within ``timeout_s``."""
+        if self._system is None:
+            return None
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[tuple[int, float]] = loop.create_future()
+
+        def on_time(m: Any) -> None:
+            if m.system_id != self.system_id or fut.done():
+                return
+            try:
+                usec = int(json.loads(m.fields_json)["time_unix_usec"])
+            except (ValueError, TypeError, KeyError) as err:
+                log.warning("SYSTEM_TIME not understood (%s): %s", err, m.fields_json)
+                return
+            fut.set_result((usec, time.time()))
+
+        task = loop.create_task(self._consume(lambda: self._direct.subscribe_message("SYSTEM_TIME"), on_time))
+        try:
+            await asyncio.sleep(0.05)  # subscribed before the request goes out
+            try:
+                await self._direct_command("request SYSTEM_TIME", MAV_CMD_REQUEST_MESSAGE, 2)
+            except CommandRejected as err:
+                log.info("SYSTEM_TIME request: %s (waiting for the stream)", err)
+            return await asyncio.wait_for(fut, timeout_s)
+        except TimeoutError:
+            return None
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
 
     # ------------------------------------------------------------------ commands
     async def _call(self, name: str, fn: Callable[[], Awaitable[Any]]) -> Any:

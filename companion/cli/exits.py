@@ -20,6 +20,9 @@ AUTOPILOT_UNREACHABLE = 3
 DEVICE_MISSING = 4
 #: the Zenoh telemetry session could not be opened (endpoint in use, no router)
 TELEMETRY_UNAVAILABLE = 5
+#: the pre-flight check found the vehicle configured wrong (``companion preflight``, and ``companion
+#: fly`` before it arms): a parameter to set, a sensor or a clock out of line
+PREFLIGHT_FAILED = 6
 #: Ctrl-C before the command finished
 INTERRUPTED = 130
 

@@ -15,6 +15,7 @@ import signal
 import socket
 import statistics
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,12 @@ def register(subparsers: Any) -> None:
         help="record the landing camera's frames as the flight reads them to VIDEO (.avi MJPG, .mkv lossless, .mp4) "
         "and their exposure times to VIDEO.csv, for `companion demo --camera-file` (default: not recorded)",
     )
+    p.add_argument(
+        "--no-preflight",
+        action="store_true",
+        help="skip the pre-flight check of the autopilot's parameters, sensors and clock (default: checked "
+        "after connecting, before arming; see `companion preflight`)",
+    )
     p.set_defaults(func=cmd_fly)
 
 
@@ -80,12 +87,21 @@ async def run_delivery(
     timeout_s: float = 1800.0,
     run_dir: Path | None = None,
     landing: Any = None,
+    before_flight: Callable[[], Awaitable[None]] | None = None,
 ) -> MissionSummary:
     """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land).
-    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash)."""
+    With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash);
+    ``before_flight`` is awaited once connected, before the mission starts (the pre-flight check)."""
     recorder = FlightRecorder(run_dir, config) if run_dir is not None else None
     # the ground link publishes by default (DESIGN safety contract); [telemetry] enabled = false turns it off
-    shell = DeliveryShell(config, autopilot, telemetry=config.telemetry.enabled, recorder=recorder, landing=landing)
+    shell = DeliveryShell(
+        config,
+        autopilot,
+        telemetry=config.telemetry.enabled,
+        recorder=recorder,
+        landing=landing,
+        before_flight=before_flight,
+    )
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -101,6 +117,28 @@ async def run_delivery(
         finally:
             if recorder is not None:
                 recorder.close()
+
+
+def preflight_hook(
+    config: CompanionConfig, autopilot: Autopilot, kit: Any, params_file: str
+) -> Callable[[], Awaitable[None]]:
+    """The pre-flight check as the shell's ``before_flight``: run on the connected autopilot (and
+    the started landing sensors) before anything is armed; a wrong check raises
+    :class:`StartupError` (exit :data:`~companion.cli.exits.PREFLIGHT_FAILED`)."""
+
+    async def check() -> None:
+        from companion.autopilot.preflight import preflight, requirements_from_config
+        from companion.cli.preflight import probe_sensors, report_line, sensor_requirements
+
+        req = sensor_requirements(config, requirements_from_config(config), kit)
+        cam, uwb = await asyncio.to_thread(probe_sensors, config, kit, True)  # the sensors run already
+        report = await preflight(autopilot, req, camera=cam, uwb=uwb)
+        for c in report.checks:
+            log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)
+        if not report.passed:
+            raise StartupError(report_line(report, params_file), exits.PREFLIGHT_FAILED)
+
+    return check
 
 
 def _stop_sensors(kit: Any) -> None:
@@ -157,7 +195,11 @@ def cmd_fly(args: argparse.Namespace) -> int:
             ) from None
         try:
             autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
-            summary = asyncio.run(run_delivery(config, autopilot, args.timeout, run_dir, landing=kit))
+            skip = getattr(args, "no_preflight", False)
+            check = None if skip else preflight_hook(config, autopilot, kit, args.params)
+            summary = asyncio.run(
+                run_delivery(config, autopilot, args.timeout, run_dir, landing=kit, before_flight=check)
+            )
         except AbortedBeforeFlight as err:
             raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
         except SigningKeyError as err:

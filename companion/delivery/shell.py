@@ -15,7 +15,7 @@ import contextlib
 import functools
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -113,8 +113,12 @@ class DeliveryShell:
         telemetry: bool = False,
         landing: LandingKit | None = None,
         recorder: Any | None = None,
+        before_flight: Callable[[], Awaitable[None]] | None = None,
     ):
         self.config = config
+        # awaited once connected, before the setpoint stream and the mission start (nothing armed
+        # yet): `companion fly`'s pre-flight check, which raises to stop the start-up
+        self.before_flight = before_flight
         self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
         self.mission = DeliveryMission(config.mission, config.landing.controller)
@@ -186,6 +190,8 @@ class DeliveryShell:
                 raise AbortedBeforeFlight(f"{self._abort_reason} while waiting for the autopilot") from None
             finally:
                 self._connecting = None
+            if self.before_flight is not None:
+                await self.before_flight()
             stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
             if timeout_s is None:
                 await self._guidance_loop()

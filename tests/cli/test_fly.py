@@ -37,16 +37,17 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
         seen.update(kwargs, backend=config.autopilot, connection=config.connection)
         return object()
 
-    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None):
-        seen["run_dir"], seen["landing"] = run_dir, landing
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None):
+        seen["run_dir"], seen["landing"], seen["before_flight"] = run_dir, landing, before_flight
         return MissionSummary(delivered=True, returned=True)
 
     monkeypatch.setattr(commands, "make_autopilot", make_autopilot)
     monkeypatch.setattr(commands, "run_delivery", run_delivery)
     parser, _ = build_parser()
     params = str(shipped_params_path("ardupilot_quad.toml"))
-    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run")])
+    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run"), "--no-preflight"])
     assert args.func(args) == 0
     assert seen["run_dir"] == tmp_path / "run" and seen["tlog_path"] == tmp_path / "run" / "flight.tlog"
     assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")
     assert '"delivered": true' in capsys.readouterr().out
+    assert seen["before_flight"] is None  # --no-preflight
