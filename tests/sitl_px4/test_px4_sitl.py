@@ -66,6 +66,47 @@ async def test_commands_are_answered_the_way_px4_answers_and_close_never_hangs(p
             t0 = time.monotonic()
             await ap.close()
             assert time.monotonic() - t0 < ap.destroy_timeout_s + 1.0
+        # the pre-flight check (issue 13) on the same boot: PX4 v1.16's defaults pass with the
+        # shipped parameters (measured: every row ok, clock within a few ms)
+        code, rows = await asyncio.to_thread(_preflight, "params/px4_sih_quad.toml", "udpin://127.0.0.1:14540")
+        assert code == 0, rows
+        assert {r["check"]: r["status"] for r in rows} == {
+            "COM_OF_LOSS_T": "ok",
+            "COM_OBL_RC_ACT": "ok",
+            "COM_RC_OVERRIDE": "ok",
+            "EKF2_GPS_CTRL": "ok",
+            "EKF2_HGT_REF": "ok",
+            "local position rate": "ok",
+            "attitude rate": "ok",
+            "clock": "ok",
+        }, rows
+
+
+def _preflight(params: str, connection: str) -> tuple[int, list[dict]]:
+    """`companion preflight --json` as a user runs it, against the SITL."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "companion",
+            "preflight",
+            "--params",
+            str(root / params),
+            "--connection",
+            connection,
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    return proc.returncode, json.loads(proc.stdout)["checks"]
 
 
 async def test_offboard_loss_failsafe_acts_when_the_companion_stalls(px4_root, tmp_path):
