@@ -25,10 +25,10 @@ import logging
 import os
 import threading
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import ClassVar
+from typing import ClassVar, Protocol
 
 log = logging.getLogger(__name__)
 
@@ -43,20 +43,25 @@ def _close_open_logs() -> None:
         lg.close()
 
 
+class _Drainable(Protocol):
+    def _drain(self) -> None: ...
+
+
 class _SharedWriter:
-    """The one writer thread of every :class:`CsvLog` with the same period."""
+    """The one writer thread of every :class:`CsvLog` (and :class:`~companion.flightlog.mcaplog.McapFlightLog`)
+    with the same period."""
 
     _writers: ClassVar[dict[float, _SharedWriter]] = {}
     _lock = threading.Lock()
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
-        self.logs: set[CsvLog] = set()
+        self.logs: set[_Drainable] = set()
         self._cond = threading.Condition()
         self._thread: threading.Thread | None = None
 
     @classmethod
-    def attach(cls, lg: CsvLog, period_s: float) -> _SharedWriter:
+    def attach(cls, lg: _Drainable, period_s: float) -> _SharedWriter:
         with cls._lock:
             w = cls._writers.get(period_s)
             if w is None:
@@ -68,7 +73,7 @@ class _SharedWriter:
                     w._thread.start()
         return w
 
-    def detach(self, lg: CsvLog) -> None:
+    def detach(self, lg: _Drainable) -> None:
         with self._cond:
             self.logs.discard(lg)
 
@@ -97,7 +102,10 @@ class CsvLog:
         columns: Sequence[str],
         max_queue: int = 10000,
         flush_period_s: float = FLUSH_PERIOD_S,
+        sink: Callable[[list[tuple[object, ...]]], None] | None = None,
     ):
+        """``sink``: also handed every batch once it is written (on the writer thread, e.g. the
+        MCAP of the run); it must not raise."""
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
@@ -115,6 +123,7 @@ class CsvLog:
         self._writer.writerow(self.columns)
         self._fh.flush()
         self._closed = False
+        self._sink = sink
         self._shared = _SharedWriter.attach(self, float(flush_period_s))
         _OPEN.add(self)
 
@@ -149,6 +158,8 @@ class CsvLog:
                 log.error("%s: cannot write the log any more: %s", self.path, err)
                 return
             self.written += n
+            if self._sink is not None:
+                self._sink(batch)
 
     @property
     def closed(self) -> bool:
