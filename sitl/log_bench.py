@@ -3,13 +3,14 @@
 Two measurements of the GPS-only demo flight, in one run:
 
 * the logging's share: the same seeded flight flown without a run folder, with the CSV logs
-  (the recorder's per-stream CSVs plus ``flight.csv`` and ``truth.csv``), and with the whole run
-  folder (the CSVs and the MAVLink ``flight.tlog``); shares are (logged - bare) / bare wall time;
+  (the recorder's per-stream CSVs plus ``flight.csv`` and ``truth.csv``) but no ``flight.mcap``,
+  with the CSV logs and ``flight.mcap``, and with the whole run folder (the CSVs, the MCAP and
+  the MAVLink ``flight.tlog``); shares are (logged - bare) / bare wall time;
 * microseconds per row and stream, from a further flight with the CSVs in which the recorder's
   hooks (row building and queueing on the control loop) and each log's batched writes
-  (formatting and I/O on the writer thread) are timed. A hook is charged to its stream (a
-  guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it writes);
-  ``flight.csv`` and ``truth.csv`` are charged their queueing and writing. Times are CPU time
+  (formatting and I/O on the writer thread, the batch's MCAP messages included) are timed. A
+  hook is charged to its stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the
+  ekf/events rows it writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and writing. Times are CPU time
   of the thread doing the work (``time.thread_time``), so waiting for the GIL is not counted.
 """
 
@@ -57,6 +58,17 @@ def _no_tlog() -> Iterator[None]:
         yield
     finally:
         demo.SimAutopilot = orig  # type: ignore[misc]
+
+
+@contextmanager
+def _no_mcap() -> Iterator[None]:
+    """Fly with the recorder's CSVs only."""
+    orig = rec.FlightRecorder.write_mcap
+    rec.FlightRecorder.write_mcap = False
+    try:
+        yield
+    finally:
+        rec.FlightRecorder.write_mcap = orig
 
 
 @contextmanager
@@ -118,8 +130,11 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None) -> dict[str,
     with tempfile.TemporaryDirectory(prefix="bench-log-") as tmp:
         root = Path(tmp)
         bare = demo.run_demo(cfg, fusion=False)
-        with _no_tlog():
+        with _no_tlog(), _no_mcap():
             csv_run = demo.run_demo(cfg, fusion=False, run_dir=root / "csv")
+        with _no_tlog():
+            mcap_run = demo.run_demo(cfg, fusion=False, run_dir=root / "mcap")
+        mcap_bytes = (root / "mcap" / rec.MCAP_FILE).stat().st_size
         full = demo.run_demo(cfg, fusion=False, run_dir=root / "full")
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
@@ -129,8 +144,11 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None) -> dict[str,
     out["sim_time_s"] = bare.sim_time_s
     out["bare_wall_s"] = bare.wall_time_s
     out["csv_logs_wall_s"] = csv_run.wall_time_s
+    out["csv_mcap_logs_wall_s"] = mcap_run.wall_time_s
     out["full_run_folder_wall_s"] = full.wall_time_s
     out["csv_logging_share"] = (csv_run.wall_time_s - bare.wall_time_s) / bare.wall_time_s
+    out["csv_mcap_logging_share"] = (mcap_run.wall_time_s - bare.wall_time_s) / bare.wall_time_s
+    out["mcap_bytes"] = mcap_bytes
     out["full_logging_share"] = (full.wall_time_s - bare.wall_time_s) / bare.wall_time_s
     out["rows"] = sum(rows.values())
     total = 0.0

@@ -4,9 +4,10 @@ Written by :class:`McapFlightLog`, which the :class:`~companion.flightlog.record
 owns. Nothing is encoded on the control path: every CSV stream hands the batch the shared writer
 thread has just written to its file to :meth:`McapFlightLog.stream_sink` too, and the camera
 frames and the planned path are queued and encoded (JPEG, JSON) when the same thread wakes. The
-file is written without chunks and flushed after every batch, so a hard crash loses what the
-CSVs lose (the last 0.2 s) and leaves a readable file without its summary (the reader stops at
-the torn record).
+file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd chunks) into a
+context of its own; the writer thread ends the chunk and flushes it every time it wakes, so a
+hard crash loses at most the last 0.4 s (two periods) and leaves a readable file without its
+summary (the reader stops at the torn record).
 
 Channels (JSON message encoding, JSON schemas):
 
@@ -37,6 +38,7 @@ import collections
 import json
 import logging
 import math
+import re
 import threading
 import weakref
 from collections.abc import Callable, Mapping, Sequence
@@ -166,6 +168,29 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE},
     },
+    "foxglove.LocationFix": {
+        "title": "foxglove.LocationFix",
+        "description": "A navigation satellite fix for any Global Navigation Satellite System",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "frame_id": {"type": "string"},
+            "latitude": {"type": "number"},
+            "longitude": {"type": "number"},
+            "altitude": {"type": "number"},
+            "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
+            "position_covariance_type": {
+                "title": "foxglove.PositionCovarianceType",
+                "type": "integer",
+                "oneOf": [
+                    {"title": "UNKNOWN", "const": 0},
+                    {"title": "APPROXIMATED", "const": 1},
+                    {"title": "DIAGONAL_KNOWN", "const": 2},
+                    {"title": "KNOWN", "const": 3},
+                ],
+            },
+        },
+    },
     "foxglove.FrameTransform": {
         "title": "foxglove.FrameTransform",
         "description": "A transform between two reference frames in 3D space",
@@ -250,7 +275,7 @@ EKF_SIGMA_SCHEMA: dict[str, Any] = {
 }
 
 # world (ENU, z up: Foxglove's 3D view) -> ned: swap x/y, flip z (180 deg about (1, 1, 0)/sqrt 2)
-_ENU_FROM_NED_QUAT = {"x": math.sqrt(0.5), "y": math.sqrt(0.5), "z": 0.0, "w": 0.0}
+ENU_FROM_NED_QUAT = {"x": math.sqrt(0.5), "y": math.sqrt(0.5), "z": 0.0, "w": 0.0}
 
 
 def row_schema(stream: str, columns: Sequence[str]) -> dict[str, Any]:
@@ -303,15 +328,38 @@ def _finite_or_text(v: object) -> object:
     return v
 
 
+_ENCODER = json.JSONEncoder(allow_nan=False, default=_json_default, separators=(",", ":"))
+_NOT_A_NUMBER = re.compile(r"[^0-9eE.+\-,]")  # anything but the reprs of finite ints and floats
+
+
 def encode_row(columns: Sequence[str], row: Sequence[object]) -> bytes:
     """One CSV row as a JSON object (floats as shortest round-trip decimals)."""
     obj = dict(zip(columns, row, strict=True))
     try:
-        text = json.dumps(obj, allow_nan=False, default=_json_default, separators=(",", ":"))
+        text = _ENCODER.encode(obj)
     except ValueError:  # a NaN or infinity among the floats
-        obj = {k: _finite_or_text(v) for k, v in obj.items()}
-        text = json.dumps(obj, allow_nan=False, default=_json_default, separators=(",", ":"))
+        text = _ENCODER.encode({k: _finite_or_text(v) for k, v in obj.items()})
     return text.encode()
+
+
+def row_encoder(columns: Sequence[str]) -> Callable[[tuple[object, ...]], bytes]:
+    """A faster :func:`encode_row` for one stream, same output: a row of finite Python ints and
+    floats (most rows: samples, EKF, setpoints) is formatted once with ``%r`` (their shortest
+    round-trip reprs, which are valid JSON numbers) into a template of the keys; any other row
+    (text, NaN, numpy scalars, flags as bools) goes through the JSON encoder."""
+    cols = tuple(columns)
+    n = len(cols)
+    values = ",".join(["%r"] * n)
+    template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
+
+    def encode(row: tuple[object, ...]) -> bytes:
+        if len(row) == n:
+            text = values % row
+            if _NOT_A_NUMBER.search(text) is None:
+                return (template % tuple(text.split(","))).encode()
+        return encode_row(cols, row)
+
+    return encode
 
 
 def cell_text(v: object) -> str:
@@ -345,44 +393,60 @@ class McapFlightLog:
     counted in ``errors``); the CSVs go on."""
 
     def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]]):
-        from mcap.writer import CompressionType, Writer
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
         from companion.flightlog import csvlog
 
         self.path = Path(path)
         self._lock = threading.Lock()
-        self._fh = self.path.open("wb")
-        self._writer = Writer(self._fh, use_chunking=False, compression=CompressionType.NONE, enable_crcs=True)
-        self._writer.start(profile=PROFILE, library="companion.flightlog")
+        # a context of its own: the flight's channels reach this file only (not a live server)
+        self._context = foxglove.Context()
+        self._writer = foxglove.open_mcap(
+            self.path,
+            allow_overwrite=True,
+            context=self._context,
+            writer_options=MCAPWriteOptions(
+                profile=PROFILE, compression=MCAPCompression.Zstd, compression_threads=0
+            ),
+        )
         self._columns = {name: tuple(cols) for name, cols in streams.items()}
-        self._channels: dict[str, int] = {}
+        self._channels: dict[str, Any] = {}
         self.errors = 0
         self.dropped_images = 0
         self.messages = 0
         self._failed = False
         self._closed = False
+        self._dirty = False
         self._images: collections.deque[tuple[float, np.ndarray, dict[str, np.ndarray]]] = collections.deque()
         self._pending: collections.deque[Callable[[], None]] = collections.deque()
+
+        def channel(topic: str, schema_name: str, schema: dict[str, Any], metadata: dict[str, str] | None) -> None:
+            self._channels[topic] = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=schema_name, encoding="jsonschema", data=_dumps(schema)),
+                message_encoding="json",
+                context=self._context,
+                metadata=metadata,
+            )
+
         for name, cols in self._columns.items():
-            sid = self._writer.register_schema(
-                f"companion.{name.removesuffix('.csv')}",
-                "jsonschema",
-                _dumps(row_schema(name.removesuffix(".csv"), cols)),
+            stem = name.removesuffix(".csv")
+            channel(
+                stream_topic(name),
+                f"companion.{stem}",
+                row_schema(stem, cols),
+                {"csv": name, "columns": json.dumps(list(cols))},
             )
-            self._channels[stream_topic(name)] = self._writer.register_channel(
-                stream_topic(name), "json", sid, metadata={"csv": name, "columns": json.dumps(list(cols))}
-            )
-        fox = {n: self._writer.register_schema(n, "jsonschema", _dumps(s)) for n, s in FOXGLOVE_SCHEMAS.items()}
-        sigma = self._writer.register_schema("companion.ekf_sigma", "jsonschema", _dumps(EKF_SIGMA_SCHEMA))
-        for topic, sid in (
-            ("/camera/image", fox["foxglove.CompressedImage"]),
-            ("/camera/markers", fox["foxglove.ImageAnnotations"]),
-            ("/ekf/pose", fox["foxglove.PoseInFrame"]),
-            ("/ekf/sigma", sigma),
-            ("/mission/path", fox["foxglove.SceneUpdate"]),
-            ("/tf", fox["foxglove.FrameTransform"]),
+        for topic, schema_name in (
+            ("/camera/image", "foxglove.CompressedImage"),
+            ("/camera/markers", "foxglove.ImageAnnotations"),
+            ("/ekf/pose", "foxglove.PoseInFrame"),
+            ("/mission/path", "foxglove.SceneUpdate"),
+            ("/tf", "foxglove.FrameTransform"),
         ):
-            self._channels[topic] = self._writer.register_channel(topic, "json", sid)
+            channel(topic, schema_name, FOXGLOVE_SCHEMAS[schema_name], None)
+        channel("/ekf/sigma", "companion.ekf_sigma", EKF_SIGMA_SCHEMA, None)
         self._add(
             "/tf",
             0.0,
@@ -392,19 +456,19 @@ class McapFlightLog:
                     "parent_frame_id": "world",
                     "child_frame_id": "ned",
                     "translation": {"x": 0.0, "y": 0.0, "z": 0.0},
-                    "rotation": _ENU_FROM_NED_QUAT,
+                    "rotation": ENU_FROM_NED_QUAT,
                 }
             ),
         )
-        self._fh.flush()
+        self._writer.flush()
         self._shared = csvlog._SharedWriter.attach(self, csvlog.FLUSH_PERIOD_S)
         _OPEN.add(self)
 
     # ---- writing (the shared writer thread, or close()) -------------------------------------
     def _add(self, topic: str, t_s: float, data: bytes) -> None:
-        ns = time_ns(t_s)
-        self._writer.add_message(self._channels[topic], log_time=ns, data=data, publish_time=ns)
+        self._channels[topic].log(data, log_time=time_ns(t_s))
         self.messages += 1
+        self._dirty = True
 
     def _fail(self, err: BaseException) -> None:
         self.errors += 1
@@ -417,6 +481,8 @@ class McapFlightLog:
         columns = self._columns[name]
         ekf = name == "ekf.csv"
         idx = {c: i for i, c in enumerate(columns)}
+        encode = row_encoder(columns)
+        channel = self._channels[stream_topic(name)]
 
         def sink(batch: list[tuple[object, ...]]) -> None:
             with self._lock:
@@ -425,10 +491,11 @@ class McapFlightLog:
                 try:
                     for row in batch:
                         t = float(row[0])  # type: ignore[arg-type]
-                        self._add(stream_topic(name), t, encode_row(columns, row))
+                        channel.log(encode(row), log_time=time_ns(t))
                         if ekf:
                             self._ekf_messages(idx, row, t)
-                    self._fh.flush()
+                    self.messages += len(batch)
+                    self._dirty = True
                 except Exception as err:
                     self._fail(err)
 
@@ -456,8 +523,9 @@ class McapFlightLog:
         self._add("/ekf/sigma", t, _dumps(sig))
 
     def _drain(self) -> None:
-        """Encode the queued frames and path updates (called by the shared writer thread)."""
-        if not self._images and not self._pending:
+        """Encode the queued frames and path updates, then end the chunk and flush it to the OS
+        (called by the shared writer thread every 0.2 s)."""
+        if not self._images and not self._pending and not self._dirty:
             return
         with self._lock:
             if self._closed:
@@ -467,7 +535,9 @@ class McapFlightLog:
                     self._pending.popleft()()
                 while self._images:
                     self._write_image(*self._images.popleft())
-                self._fh.flush()
+                if self._dirty and not self._failed:
+                    self._dirty = False
+                    self._writer.flush()
             except Exception as err:
                 self._images.clear()
                 self._pending.clear()
@@ -569,7 +639,7 @@ class McapFlightLog:
         """``run.json`` as metadata (the reader keeps the last)."""
 
         def write() -> None:
-            self._writer.add_metadata("run.json", {"json": meta_json})
+            self._writer.write_metadata("run.json", {"json": meta_json})
 
         self._pending.append(write)
 
@@ -584,14 +654,11 @@ class McapFlightLog:
         with self._lock:
             self._closed = True
             try:
-                if not self._failed:
-                    self._writer.finish()
+                for ch in self._channels.values():
+                    ch.close()
+                self._writer.close()
             except Exception as err:
                 self._fail(err)
-            try:
-                self._fh.close()
-            except OSError as err:
-                log.error("%s: closing the MCAP failed: %s", self.path, err)
         if self.dropped_images:
             log.warning(
                 "%s: %d camera frames dropped (JPEG encoding could not keep up)", self.path, self.dropped_images

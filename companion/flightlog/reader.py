@@ -245,5 +245,13 @@ def open_table(run_dir: str | Path, name: str, required: Sequence[str] = ()) -> 
     m = read_mcap(mcap_path)
     rows = m.streams.get(name)
     if rows is None:
-        raise LogFormatError(f"{path}: file not found, and {mcap_path} has no channel for it")
+        # a stream without messages has no channel in the file: its columns are in run.json
+        streams = m.meta.get("streams") if isinstance(m.meta, dict) else None
+        columns = streams.get(name) if isinstance(streams, dict) else None
+        if not isinstance(columns, list):
+            raise LogFormatError(
+                f"{path}: file not found, and {mcap_path} has neither a channel for it nor its columns "
+                f"(metadata {META_FILE!r}, key 'streams')"
+            )
+        rows = [[str(c) for c in columns]]
     return Table(Path(f"{mcap_path}:{name}"), required, rows=[list(r) for r in rows])
