@@ -25,7 +25,7 @@ import logging
 import os
 import threading
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import ClassVar, Protocol
@@ -45,6 +45,15 @@ def _close_open_logs() -> None:
 
 class _Drainable(Protocol):
     def _drain(self) -> None: ...
+
+
+class BatchSink(Protocol):
+    """A second consumer of a log's batches (on the writer thread): ``encode`` gives the CSV
+    text ``csv.writer`` would write and one message per row; ``publish`` must not raise."""
+
+    def encode(self, batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]: ...
+
+    def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None: ...
 
 
 class _SharedWriter:
@@ -102,10 +111,10 @@ class CsvLog:
         columns: Sequence[str],
         max_queue: int = 10000,
         flush_period_s: float = FLUSH_PERIOD_S,
-        sink: Callable[[list[tuple[object, ...]]], None] | None = None,
+        sink: BatchSink | None = None,
     ):
-        """``sink``: also handed every batch once it is written (on the writer thread, e.g. the
-        MCAP of the run); it must not raise."""
+        """``sink``: formats each batch (its CSV text plus messages of its own, e.g. the run's
+        MCAP) and is handed the batch and its messages once the CSV text is written."""
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
@@ -148,9 +157,21 @@ class CsvLog:
             if self._failed is not None:  # keep emptying the queue so memory stays bounded
                 self.dropped += n
                 return
+            payloads: list[bytes] | None = None
             try:
-                # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
-                self._writer.writerows(batch)
+                if self._sink is not None:
+                    try:
+                        text, payloads = self._sink.encode(batch)
+                    except Exception:
+                        log.exception("%s: the batch encoder failed; written by csv.writer", self.path)
+                        text = ""
+                    if payloads is not None:
+                        self._fh.write(text)
+                    else:
+                        self._writer.writerows(batch)
+                else:
+                    # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
+                    self._writer.writerows(batch)
                 self._fh.flush()
             except OSError as err:
                 self._failed = err
@@ -159,7 +180,7 @@ class CsvLog:
                 return
             self.written += n
             if self._sink is not None:
-                self._sink(batch)
+                self._sink.publish(batch, payloads)
 
     @property
     def closed(self) -> bool:

@@ -35,6 +35,7 @@ from __future__ import annotations
 import atexit
 import base64
 import collections
+import csv
 import json
 import logging
 import math
@@ -362,6 +363,44 @@ def row_encoder(columns: Sequence[str]) -> Callable[[tuple[object, ...]], bytes]
     return encode
 
 
+class _ListWriter:
+    def __init__(self) -> None:
+        self.parts: list[str] = []
+
+    def write(self, text: str) -> None:
+        self.parts.append(text)
+
+
+def batch_encoder(columns: Sequence[str]) -> Callable[[list[tuple[object, ...]]], tuple[str, list[bytes]]]:
+    """For a batch of rows: the CSV text ``csv.writer`` would write (``\r\n`` line ends) and
+    each row's JSON message, formatting every number once. A row of finite Python ints and
+    floats is ``%r``-formatted into one string, which is its CSV line as is and, split at the
+    commas, the values of its JSON template; other rows go through ``csv.writer`` and
+    :func:`encode_row`."""
+    cols = tuple(columns)
+    n = len(cols)
+    values = ",".join(["%r"] * n)
+    template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
+    search = _NOT_A_NUMBER.search
+
+    def encode(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
+        out = _ListWriter()
+        slow = csv.writer(out)
+        payloads: list[bytes] = []
+        for row in batch:
+            if len(row) == n:
+                text = values % row
+                if search(text) is None:
+                    out.parts.append(text + "\r\n")
+                    payloads.append((template % tuple(text.split(","))).encode())
+                    continue
+            slow.writerow(row)
+            payloads.append(encode_row(cols, row))
+        return "".join(out.parts), payloads
+
+    return encode
+
+
 def cell_text(v: object) -> str:
     """A decoded JSON value as the CSV writer wrote it (``str(v)``; None as empty)."""
     if v is None:
@@ -401,8 +440,8 @@ class McapFlightLog:
         self.path = Path(path)
         self._lock = threading.Lock()
         # a context of its own: the flight's channels reach this file only (not a live server)
-        self._context = foxglove.Context()
-        self._writer = foxglove.open_mcap(
+        self._context: Any = foxglove.Context()
+        self._writer: Any = foxglove.open_mcap(
             self.path,
             allow_overwrite=True,
             context=self._context,
@@ -476,30 +515,9 @@ class McapFlightLog:
             log.error("%s: cannot write the MCAP any more (the CSVs go on): %s", self.path, err)
         self._failed = True
 
-    def stream_sink(self, name: str) -> Callable[[list[tuple[object, ...]]], None]:
-        """The callable a CSV stream hands each written batch to."""
-        columns = self._columns[name]
-        ekf = name == "ekf.csv"
-        idx = {c: i for i, c in enumerate(columns)}
-        encode = row_encoder(columns)
-        channel = self._channels[stream_topic(name)]
-
-        def sink(batch: list[tuple[object, ...]]) -> None:
-            with self._lock:
-                if self._failed or self._closed:
-                    return
-                try:
-                    for row in batch:
-                        t = float(row[0])  # type: ignore[arg-type]
-                        channel.log(encode(row), log_time=time_ns(t))
-                        if ekf:
-                            self._ekf_messages(idx, row, t)
-                    self.messages += len(batch)
-                    self._dirty = True
-                except Exception as err:
-                    self._fail(err)
-
-        return sink
+    def stream_sink(self, name: str) -> McapStreamSink:
+        """What a CSV stream hands its batches to (see :class:`McapStreamSink`)."""
+        return McapStreamSink(self, name)
 
     def _ekf_messages(self, idx: dict[str, int], row: tuple[object, ...], t: float) -> None:
         def f(c: str) -> float:
@@ -659,7 +677,44 @@ class McapFlightLog:
                 self._writer.close()
             except Exception as err:
                 self._fail(err)
+            # drop the SDK's objects here, not in some later garbage collection
+            self._channels.clear()
+            self._writer = self._context = None
         if self.dropped_images:
             log.warning(
                 "%s: %d camera frames dropped (JPEG encoding could not keep up)", self.path, self.dropped_images
             )
+
+
+class McapStreamSink:
+    """One CSV stream's link to the MCAP: :meth:`encode` formats a batch once into the CSV text
+    and the JSON messages (the CSV writer writes the text), :meth:`publish` logs the messages
+    (and, for ``ekf.csv``, the pose and sigma messages) once the CSV has them."""
+
+    def __init__(self, owner: McapFlightLog, name: str):
+        self._owner = owner
+        self.name = name
+        self.columns = owner._columns[name]
+        self.encode = batch_encoder(self.columns)
+        self._ekf = name == "ekf.csv"
+        self._idx = {c: i for i, c in enumerate(self.columns)}
+        self._channel = owner._channels[stream_topic(name)]
+
+    def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None:
+        m = self._owner
+        with m._lock:
+            if m._failed or m._closed:
+                return
+            try:
+                if payloads is None:  # the batch encoder failed: the CSV was written without it
+                    payloads = [encode_row(self.columns, row) for row in batch]
+                log_ = self._channel.log
+                for row, data in zip(batch, payloads, strict=True):
+                    t = float(row[0])  # type: ignore[arg-type]
+                    log_(data, log_time=time_ns(t))
+                    if self._ekf:
+                        m._ekf_messages(self._idx, row, t)
+                m.messages += len(batch)
+                m._dirty = True
+            except Exception as err:
+                m._fail(err)
