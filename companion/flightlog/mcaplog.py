@@ -333,14 +333,14 @@ _ENCODER = json.JSONEncoder(allow_nan=False, default=_json_default, separators=(
 _NOT_A_NUMBER = re.compile(r"[^0-9eE.+\-,]")  # anything but the reprs of finite ints and floats
 
 
+_INFINITIES = (math.inf, -math.inf)
+
+
 def encode_row(columns: Sequence[str], row: Sequence[object]) -> bytes:
-    """One CSV row as a JSON object (floats as shortest round-trip decimals)."""
-    obj = dict(zip(columns, row, strict=True))
-    try:
-        text = _ENCODER.encode(obj)
-    except ValueError:  # a NaN or infinity among the floats
-        text = _ENCODER.encode({k: _finite_or_text(v) for k, v in obj.items()})
-    return text.encode()
+    """One CSV row as a JSON object (floats as shortest round-trip decimals, non-finite ones as
+    the strings the CSV holds)."""
+    vals = [str(v) if v != v or v in _INFINITIES else v for v in row]  # v != v: NaN
+    return _ENCODER.encode(dict(zip(columns, vals, strict=True))).encode()
 
 
 def row_encoder(columns: Sequence[str]) -> Callable[[tuple[object, ...]], bytes]:
@@ -382,13 +382,14 @@ def batch_encoder(columns: Sequence[str]) -> Callable[[list[tuple[object, ...]]]
     values = ",".join(["%r"] * n)
     template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
     search = _NOT_A_NUMBER.search
+    numeric = not TEXT_COLUMNS.intersection(cols)  # streams with text columns never take the fast path
 
     def encode(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
         out = _ListWriter()
         slow = csv.writer(out)
         payloads: list[bytes] = []
         for row in batch:
-            if len(row) == n:
+            if numeric and len(row) == n:
                 text = values % row
                 if search(text) is None:
                     out.parts.append(text + "\r\n")
@@ -445,9 +446,7 @@ class McapFlightLog:
             self.path,
             allow_overwrite=True,
             context=self._context,
-            writer_options=MCAPWriteOptions(
-                profile=PROFILE, compression=MCAPCompression.Zstd, compression_threads=0
-            ),
+            writer_options=MCAPWriteOptions(profile=PROFILE, compression=MCAPCompression.Zstd, compression_threads=0),
         )
         self._columns = {name: tuple(cols) for name, cols in streams.items()}
         self._channels: dict[str, Any] = {}
