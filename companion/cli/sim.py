@@ -280,14 +280,22 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
 
     cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
     r = bench_log(config=cfg)
-    print(f"bench log: the GPS-only demo flight ({r['sim_time_s']:.0f} s simulated), flown 4 times in this run")
+    print(
+        f"bench log: the GPS-only demo flight ({r['sim_time_s']:.0f} s simulated), each variant flown "
+        f"{r['rounds']} times interleaved in this run (fastest counts), plus one timed flight"
+    )
     print(f"  no logs                                 {r['bare_wall_s']:.2f} s wall")
     print(
         f"  CSV logs (recorder streams, flight.csv, truth.csv)  {r['csv_logs_wall_s']:.2f} s wall: "
         f"logging share {100 * r['csv_logging_share']:+.1f} % (target <= 10 %)"
     )
     print(
-        f"  whole run folder (CSV logs + flight.tlog)           {r['full_run_folder_wall_s']:.2f} s wall: "
+        f"  CSV logs + flight.mcap                              {r['csv_mcap_logs_wall_s']:.2f} s wall: "
+        f"logging share {100 * r['csv_mcap_logging_share']:+.1f} % "
+        f"(MCAP vs CSV logs alone {100 * r['mcap_vs_csv_share']:+.1f} %; {r['mcap_bytes'] / 1e6:.1f} MB MCAP)"
+    )
+    print(
+        f"  whole run folder (CSV logs + MCAP + flight.tlog)    {r['full_run_folder_wall_s']:.2f} s wall: "
         f"logging share {100 * r['full_logging_share']:+.1f} %"
     )
     print(f"  per stream (recorder hook + queueing + batched write; {r['rows']} rows):")

@@ -59,6 +59,20 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-multicast", action="store_true", help="disable multicast scouting")
     p.add_argument("--refresh", type=float, default=4.0, help="table refreshes per second")
+    p.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="also serve the live fleet over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)",
+    )
+    p.add_argument(
+        "--foxglove-port", type=int, default=8765, metavar="N", help="Foxglove WebSocket port (default 8765; 0: any)"
+    )
+    p.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address the Foxglove WebSocket server binds (default 127.0.0.1; 0.0.0.0 for other machines)",
+    )
     p.set_defaults(func=cmd_ground)
 
 
@@ -130,12 +144,34 @@ def cmd_ground(args: argparse.Namespace) -> int:
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         print("companion ground: --duration must be > 0", file=sys.stderr)
         return 2
+    bridge = None
+    if args.foxglove:
+        from companion.telemetry.foxglove_bridge import FoxgloveBridge
+
+        if not 0 <= args.foxglove_port <= 65535:
+            print(f"companion ground: --foxglove-port {args.foxglove_port}: expected 0..65535", file=sys.stderr)
+            return 2
+        try:
+            bridge = FoxgloveBridge(host=args.foxglove_host, port=args.foxglove_port).start()
+        except Exception as e:  # port in use, bad address
+            print(
+                f"companion ground: cannot start the Foxglove WebSocket server on "
+                f"{args.foxglove_host}:{args.foxglove_port}: {e}",
+                file=sys.stderr,
+            )
+            return 1
     console = make_console()
-    station = GroundStation(settings, out_dir=Path(args.out) if args.out else None)
+    station = GroundStation(
+        settings,
+        out_dir=Path(args.out) if args.out else None,
+        listener=bridge.on_envelope if bridge is not None else None,
+    )
     try:
         station.start()
     except Exception as e:  # zenoh.ZError: bad endpoint, port in use, router unreachable
         print(f"companion ground: cannot open the Zenoh session: {e}", file=sys.stderr)
+        if bridge is not None:
+            bridge.stop()
         return 1
     where = ", ".join(settings.listen or ()) or "-"
     console.print(
@@ -143,10 +179,14 @@ def cmd_ground(args: argparse.Namespace) -> int:
         f"connect {', '.join(settings.all_connect_endpoints) or '-'}, "
         f"recording to {args.out or '(not recording)'}"
     )
+    if bridge is not None:
+        console.print(f"Foxglove: open ws://{args.foxglove_host}:{bridge.port} (Open connection -> Foxglove WebSocket)")
     try:
         run_live(station, duration_s=args.duration, refresh_hz=args.refresh, console=console)
     finally:
         station.stop()
+        if bridge is not None:
+            bridge.stop()
     c = station.counters()
     console.print()
     console.print(f"received {c.received}, lost {c.lost}, malformed {c.malformed}, recorded {c.recorded}")

@@ -32,7 +32,7 @@ from typing import Any, cast
 import numpy as np
 
 from companion.flightlog.csvlog import CsvLog, format_cell
-from companion.flightlog.reader import LogFormatError, Table, read_meta
+from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
 from companion.flightlog.recorder import (
     EKF_COLUMNS,
     EVENT_COLUMNS,
@@ -89,7 +89,7 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
     def table(name: str) -> Table:
         # logs written before a column was added still replay (with its default)
         required = [c for c in STREAM_FILES[name] if (name, c) not in OPTIONAL_COLUMNS]
-        tables[name] = Table(run_dir / name, required)
+        tables[name] = open_table(run_dir, name, required)
         return tables[name]
 
     for cls, name in SAMPLE_FILES.items():

@@ -339,7 +339,7 @@ class DeliveryShell:
                         obs = detect(frame.image, frame.time_s)
                     if obs is not None:
                         if self.recorder is not None:
-                            self.recorder.on_marker(self._clock.now(), obs)
+                            self.recorder.on_marker(self._clock.now(), obs, frame.image)
                         self.fusion.on_marker(obs)
                         if self._landing_target is not None:
                             self._send_landing_target(obs)

@@ -28,7 +28,7 @@ import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import ClassVar
+from typing import ClassVar, Protocol
 
 log = logging.getLogger(__name__)
 
@@ -43,20 +43,34 @@ def _close_open_logs() -> None:
         lg.close()
 
 
+class _Drainable(Protocol):
+    def _drain(self) -> None: ...
+
+
+class BatchSink(Protocol):
+    """A second consumer of a log's batches (on the writer thread): ``encode`` gives the CSV
+    text ``csv.writer`` would write and one message per row; ``publish`` must not raise."""
+
+    def encode(self, batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]: ...
+
+    def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None: ...
+
+
 class _SharedWriter:
-    """The one writer thread of every :class:`CsvLog` with the same period."""
+    """The one writer thread of every :class:`CsvLog` (and :class:`~companion.flightlog.mcaplog.McapFlightLog`)
+    with the same period."""
 
     _writers: ClassVar[dict[float, _SharedWriter]] = {}
     _lock = threading.Lock()
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
-        self.logs: set[CsvLog] = set()
+        self.logs: set[_Drainable] = set()
         self._cond = threading.Condition()
         self._thread: threading.Thread | None = None
 
     @classmethod
-    def attach(cls, lg: CsvLog, period_s: float) -> _SharedWriter:
+    def attach(cls, lg: _Drainable, period_s: float) -> _SharedWriter:
         with cls._lock:
             w = cls._writers.get(period_s)
             if w is None:
@@ -68,7 +82,7 @@ class _SharedWriter:
                     w._thread.start()
         return w
 
-    def detach(self, lg: CsvLog) -> None:
+    def detach(self, lg: _Drainable) -> None:
         with self._cond:
             self.logs.discard(lg)
 
@@ -97,7 +111,10 @@ class CsvLog:
         columns: Sequence[str],
         max_queue: int = 10000,
         flush_period_s: float = FLUSH_PERIOD_S,
+        sink: BatchSink | None = None,
     ):
+        """``sink``: formats each batch (its CSV text plus messages of its own, e.g. the run's
+        MCAP) and is handed the batch and its messages once the CSV text is written."""
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
@@ -115,6 +132,7 @@ class CsvLog:
         self._writer.writerow(self.columns)
         self._fh.flush()
         self._closed = False
+        self._sink = sink
         self._shared = _SharedWriter.attach(self, float(flush_period_s))
         _OPEN.add(self)
 
@@ -139,9 +157,21 @@ class CsvLog:
             if self._failed is not None:  # keep emptying the queue so memory stays bounded
                 self.dropped += n
                 return
+            payloads: list[bytes] | None = None
             try:
-                # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
-                self._writer.writerows(batch)
+                if self._sink is not None:
+                    try:
+                        text, payloads = self._sink.encode(batch)
+                    except Exception:
+                        log.exception("%s: the batch encoder failed; written by csv.writer", self.path)
+                        text = ""
+                    if payloads is not None:
+                        self._fh.write(text)
+                    else:
+                        self._writer.writerows(batch)
+                else:
+                    # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
+                    self._writer.writerows(batch)
                 self._fh.flush()
             except OSError as err:
                 self._failed = err
@@ -149,6 +179,8 @@ class CsvLog:
                 log.error("%s: cannot write the log any more: %s", self.path, err)
                 return
             self.written += n
+            if self._sink is not None:
+                self._sink.publish(batch, payloads)
 
     @property
     def closed(self) -> bool:

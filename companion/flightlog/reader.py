@@ -1,17 +1,24 @@
-"""Reading a run folder written by the flight recorder: its CSV streams and ``meta.json``, with
-errors that name the file, line, column and value (:class:`LogFormatError`)."""
+"""Reading a run folder written by the flight recorder: its CSV streams and ``run.json``, with
+errors that name the file, line, column and value (:class:`LogFormatError`).
+
+A folder that holds only ``flight.mcap`` (or lacks some CSVs) is read from the MCAP: its
+``/log/<stream>`` channels give the same rows, cell for cell the same text (:func:`open_table`,
+:func:`read_meta`)."""
 
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from companion.flightlog.mcaplog import MCAP_FILE, PROFILE, STREAM_TOPIC_PREFIX, cell_text
 from companion.flightlog.recorder import FORMAT, META_FILE, decode_value
 
 log = logging.getLogger(__name__)
@@ -26,15 +33,18 @@ class Table:
     demand with errors naming file, line, column and value. A torn last line (a hard crash in the
     middle of a write) is dropped with a warning; any other short row is an error."""
 
-    def __init__(self, path: Path, required: Sequence[str] = ()):
+    def __init__(self, path: Path, required: Sequence[str] = (), rows: list[list[str]] | None = None):
+        """``rows``: header and body already read (from an MCAP, ``path`` then names the file
+        and channel); otherwise the CSV at ``path`` is read."""
         self.path = path
-        try:
-            with path.open(newline="", encoding="utf-8") as fh:
-                rows = list(csv.reader(fh))
-        except FileNotFoundError:
-            raise LogFormatError(f"{path}: file not found") from None
-        except (OSError, UnicodeDecodeError, csv.Error) as err:
-            raise LogFormatError(f"{path}: cannot read: {err}") from None
+        if rows is None:
+            try:
+                with path.open(newline="", encoding="utf-8") as fh:
+                    rows = list(csv.reader(fh))
+            except FileNotFoundError:
+                raise LogFormatError(f"{path}: file not found") from None
+            except (OSError, UnicodeDecodeError, csv.Error) as err:
+                raise LogFormatError(f"{path}: cannot read: {err}") from None
         if not rows:
             raise LogFormatError(f"{path}: empty file (expected a header line starting with time_s)")
         self.header = rows[0]
@@ -78,16 +88,170 @@ class Table:
 
 
 def read_meta(run_dir: Path) -> dict[str, Any]:
+    """``run.json`` of a run folder, or the last one stored in its ``flight.mcap``."""
     p = run_dir / META_FILE
+    mcap_path = run_dir / MCAP_FILE
     try:
         meta = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise LogFormatError(
-            f"{p}: file not found: {run_dir} is not a run folder written by the flight recorder"
-        ) from None
+        if not mcap_path.exists():
+            raise LogFormatError(
+                f"{p}: file not found (nor {MCAP_FILE}): {run_dir} is not a run folder written by the flight recorder"
+            ) from None
+        meta = read_mcap(mcap_path).meta
+        if meta is None:
+            raise LogFormatError(f"{mcap_path}: no {META_FILE!r} metadata (and no {p})") from None
+        p = Path(f"{mcap_path}:{META_FILE}")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise LogFormatError(f"{p}: cannot read: {err}") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
         raise LogFormatError(f"{p}: format {got!r}, expected {FORMAT!r}")
     return meta
+
+
+# ---------------------------------------------------------------------------------------------
+# flight.mcap
+
+
+@dataclass(frozen=True)
+class McapRun:
+    """What a ``flight.mcap`` holds for replay and reports: each CSV stream's header and rows (as
+    the CSV's text), the last ``run.json`` stored, the message count per topic, and whether the
+    file ends in a torn record (a hard crash: no summary)."""
+
+    path: Path
+    streams: dict[str, list[list[str]]]  # CSV name -> [header, *rows]
+    meta: dict[str, Any] | None
+    message_counts: dict[str, int]
+    torn: bool
+
+
+def read_mcap(path: str | Path) -> McapRun:
+    """Read ``flight.mcap`` (cached while the file is unchanged)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise LogFormatError(f"{p}: file not found") from None
+    return _read_mcap(p, st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _read_mcap(p: Path, _mtime_ns: int, _size: int) -> McapRun:
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    channels: dict[int, Channel] = {}
+    streams: dict[int, tuple[str, list[str], list[list[str]]]] = {}
+    counts: dict[str, int] = {}
+    meta_text: str | None = None
+    torn = False
+    profile: str | None = None
+    try:
+        fh = p.open("rb")
+    except OSError as err:
+        raise LogFormatError(f"{p}: cannot read: {err}") from None
+    with fh:
+        records = StreamReader(fh, validate_crcs=True).records
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                break
+            except Exception as err:
+                if profile is None:
+                    raise LogFormatError(f"{p}: not an MCAP file ({type(err).__name__}: {err})") from None
+                log.warning("%s: torn record at the end dropped (%s: %s): a crashed run", p, type(err).__name__, err)
+                torn = True
+                break
+            if isinstance(rec, Header):
+                profile = rec.profile
+                if profile != PROFILE:
+                    raise LogFormatError(f"{p}: MCAP profile {profile!r}, expected {PROFILE!r} (a companion flight)")
+            elif isinstance(rec, Schema):
+                pass
+            elif isinstance(rec, Channel):
+                if rec.id in channels:  # the summary section repeats the channels
+                    continue
+                channels[rec.id] = rec
+                if rec.topic.startswith(STREAM_TOPIC_PREFIX):
+                    name = rec.metadata.get("csv", "")
+                    try:
+                        header = json.loads(rec.metadata["columns"])
+                    except (KeyError, json.JSONDecodeError) as err:
+                        raise LogFormatError(
+                            f"{p}: channel {rec.topic!r}: metadata 'columns' missing or not a JSON list ({err})"
+                        ) from None
+                    if not name.endswith(".csv") or not isinstance(header, list):
+                        raise LogFormatError(
+                            f"{p}: channel {rec.topic!r}: metadata csv={name!r}, columns={header!r}: "
+                            "expected a CSV file name and a list of column names"
+                        )
+                    streams[rec.id] = (name, [str(c) for c in header], [])
+            elif isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is None:
+                    raise LogFormatError(f"{p}: a message on channel id {rec.channel_id}, which was never declared")
+                counts[ch.topic] = counts.get(ch.topic, 0) + 1
+                stream = streams.get(rec.channel_id)
+                if stream is None:
+                    continue
+                name, header, rows = stream
+                try:
+                    obj = json.loads(rec.data)
+                except (json.JSONDecodeError, UnicodeDecodeError) as err:
+                    raise LogFormatError(
+                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: not JSON ({err})"
+                    ) from None
+                if not isinstance(obj, dict):
+                    raise LogFormatError(
+                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: expected a JSON object, "
+                        f"got {type(obj).__name__}"
+                    )
+                try:
+                    rows.append([cell_text(obj[c]) for c in header])
+                except KeyError as err:
+                    raise LogFormatError(
+                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: key {err.args[0]!r} missing"
+                    ) from None
+            elif isinstance(rec, Metadata) and rec.name == META_FILE:
+                meta_text = rec.metadata.get("json")
+    if profile is None:
+        raise LogFormatError(f"{p}: empty or not an MCAP file")
+    meta: dict[str, Any] | None = None
+    if meta_text is not None:
+        try:
+            meta = json.loads(meta_text)
+        except json.JSONDecodeError as err:
+            raise LogFormatError(f"{p}: metadata {META_FILE!r}: not JSON ({err})") from None
+    return McapRun(
+        path=p,
+        streams={name: [header, *rows] for name, header, rows in streams.values()},
+        meta=meta,
+        message_counts=counts,
+        torn=torn,
+    )
+
+
+def open_table(run_dir: str | Path, name: str, required: Sequence[str] = ()) -> Table:
+    """Stream ``name`` (e.g. ``"ekf.csv"``) of a run folder: the CSV if it is there, else the
+    same rows from ``flight.mcap``."""
+    run = Path(run_dir)
+    path = run / name
+    mcap_path = run / MCAP_FILE
+    if path.exists() or not mcap_path.exists():
+        return Table(path, required)
+    m = read_mcap(mcap_path)
+    rows = m.streams.get(name)
+    if rows is None:
+        # a stream without messages has no channel in the file: its columns are in run.json
+        streams = m.meta.get("streams") if isinstance(m.meta, dict) else None
+        columns = streams.get(name) if isinstance(streams, dict) else None
+        if not isinstance(columns, list):
+            raise LogFormatError(
+                f"{path}: file not found, and {mcap_path} has neither a channel for it nor its columns "
+                f"(metadata {META_FILE!r}, key 'streams')"
+            )
+        rows = [[str(c) for c in columns]]
+    return Table(Path(f"{mcap_path}:{name}"), required, rows=[list(r) for r in rows])

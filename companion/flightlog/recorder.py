@@ -24,6 +24,9 @@ opens every file as is:
 ``commands.csv``       operator aborts (Ctrl-C) and ground commands as applied to the mission
 ``events.csv``         mission events as they happen
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
+``flight.mcap``        every stream above, plus the camera frames the pad was detected in (JPEG)
+                       with the marker corners, the EKF pose and its 1-sigma, and the planned
+                       path, for Foxglove (:mod:`companion.flightlog.mcaplog`)
 =====================  ==========================================================================
 
 Replay (:mod:`companion.delivery.replay`) needs every input in the order the core saw it: every
@@ -46,7 +49,7 @@ import os
 import typing
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -62,6 +65,7 @@ from companion.autopilot.types import (
     VehicleStatus,
 )
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.mcaplog import MCAP_FILE, McapFlightLog
 from companion.geometry.rotations import rotmat_to_euler
 from companion.geometry.se3 import Transform
 from companion.guidance.setpoint import VelocitySetpoint
@@ -431,9 +435,13 @@ class FlightRecorder:
     replay). The shell attaches it when it starts (:meth:`attach`). Close it in a
     ``finally`` (or use it as a context manager): every stream is flushed and closed, and
     ``run.json`` records the row counts. Calls after :meth:`close` are ignored.
+
+    ``mcap``: also write ``flight.mcap`` (default :attr:`write_mcap`, True).
     """
 
-    def __init__(self, run_dir: str | Path, config: Any, max_queue: int = 200_000):
+    write_mcap: ClassVar[bool] = True
+
+    def __init__(self, run_dir: str | Path, config: Any, max_queue: int = 200_000, mcap: bool | None = None):
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self._seq = itertools.count()
@@ -450,14 +458,23 @@ class FlightRecorder:
             "mission": None,
             "streams": {name: list(cols) for name, cols in STREAM_FILES.items()},
             "closed": False,
+            "mcap": None,
         }
+        self.mcap: McapFlightLog | None = None
+        self._planned_path: Any = None
         try:
+            if self.write_mcap if mcap is None else mcap:
+                self.mcap = McapFlightLog(self.run_dir / MCAP_FILE, STREAM_FILES)
+                self.meta["mcap"] = MCAP_FILE
             for name, cols in STREAM_FILES.items():
-                self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue)
+                sink = self.mcap.stream_sink(name) if self.mcap is not None else None
+                self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
             self._write_meta()
         except BaseException:
             for lg in self.logs.values():
                 lg.close()
+            if self.mcap is not None:
+                self.mcap.close()
             raise
 
     # ---- attachment ---------------------------------------------------------------------
@@ -496,9 +513,12 @@ class FlightRecorder:
         self._write(name, _ENCODERS[cls](next(self._seq), sample))
 
     @_guarded
-    def on_marker(self, now_s: float, obs: Any) -> None:
-        """A pad observation about to be handed to the fusion."""
+    def on_marker(self, now_s: float, obs: Any, image: Any = None) -> None:
+        """A pad observation about to be handed to the fusion; ``image``: the frame it was
+        detected in (to the MCAP, JPEG-encoded on the writer thread, with ``obs.corners_px``)."""
         self._write("camera.csv", camera_row(next(self._seq), now_s, obs))
+        if image is not None and self.mcap is not None and not self._closed:
+            self.mcap.add_image(float(obs.time_s), image, getattr(obs, "corners_px", {}))
 
     @_guarded
     def on_uwb(self, now_s: float, fix: Any) -> None:
@@ -549,6 +569,13 @@ class FlightRecorder:
                 self._write("ekf.csv", row)
             if self.meta["fusion"] is None:
                 self._record_fusion(fusion, inp.time_s)
+        if self.mcap is not None and mission.path is not None and mission.path is not self._planned_path:
+            self._planned_path = mission.path
+            if mission.frame is not None:
+                frame, path, z_start = mission.frame, mission.path, float(mission.z_start)  # replaced, never mutated
+                self.mcap.add_path(
+                    float(inp.time_s), lambda: [frame.point_to_ned(p) for p in path.sample(0.25, z_start)]
+                )
         if self.meta["mission"] is None and mission.frame is not None and mission.path is not None:
             self.meta["mission"] = {
                 "pad_ned_m": [float(v) for v in mission.frame.pad_ned],
@@ -581,8 +608,11 @@ class FlightRecorder:
     # ---- closing --------------------------------------------------------------------------
     def _write_meta(self) -> None:
         tmp = self.run_dir / (META_FILE + ".tmp")
-        tmp.write_text(json.dumps(_json_safe(self.meta), indent=1), encoding="utf-8")
+        text = json.dumps(_json_safe(self.meta), indent=1)
+        tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, self.run_dir / META_FILE)
+        if self.mcap is not None:
+            self.mcap.add_meta(text)
 
     def close(self) -> None:
         """Flush and close every stream (idempotent); ``run.json`` gets the row counts."""
@@ -600,10 +630,15 @@ class FlightRecorder:
         self.meta["errors"] = self.errors
         self.meta["rows"] = {name: lg.written for name, lg in self.logs.items()}
         self.meta["dropped"] = {name: lg.dropped for name, lg in self.logs.items() if lg.dropped}
+        if self.mcap is not None:
+            self.meta["mcap_errors"] = self.mcap.errors
+            self.meta["mcap_dropped_images"] = self.mcap.dropped_images
         try:
             self._write_meta()
         except OSError as err:
             errors.append(f"{self.run_dir / META_FILE}: {err}")
+        if self.mcap is not None:
+            self.mcap.close()
         for e in errors:
             log.error("flight log: %s", e)
 

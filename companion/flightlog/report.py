@@ -33,7 +33,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from companion.flightlog.reader import LogFormatError, Table, read_meta
+from companion.flightlog.mcaplog import MCAP_FILE
+from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
 from companion.flightlog.recorder import META_FILE, STREAM_FILES, transform_from_json
 
 log = logging.getLogger(__name__)
@@ -67,9 +68,14 @@ class ExtraFigure:
 
 def _table(run: Path, name: str, required: tuple[str, ...] = ()) -> Table:
     p = run / name
-    if not p.exists():
+    if not p.exists() and not (run / MCAP_FILE).exists():
         raise FigureSkipped(f"{name} not found")
-    return Table(p, required or STREAM_FILES.get(name, ("time_s",)))
+    try:
+        return open_table(run, name, required or STREAM_FILES.get(name, ("time_s",)))
+    except LogFormatError as err:
+        if p.exists():
+            raise
+        raise FigureSkipped(f"{name} not found ({err})") from None
 
 
 def _frame(meta: dict[str, Any]) -> Any:
@@ -153,9 +159,8 @@ def _sources(run: Path, meta: dict[str, Any]) -> _Sources:
         p_uwb = np.zeros((0, 3))
 
     touchdown = None
-    ev_path = run / "events.csv"
-    if ev_path.exists():
-        ev = Table(ev_path, ("time_s", "kind", "detail"))
+    if (run / "events.csv").exists() or (run / MCAP_FILE).exists():
+        ev = open_table(run, "events.csv", ("time_s", "kind", "detail"))
         for k in range(len(ev)):
             if ev.text(k, "kind") == "touchdown" and ev.text(k, "detail") == "pad":
                 touchdown = float(ev.value(k, "time_s"))
@@ -367,10 +372,10 @@ def make_report(
     results: list[FigureResult] = []
     meta: dict[str, Any] | None = None
     meta_skip = ""
-    if (run / META_FILE).exists():
+    if (run / META_FILE).exists() or (run / MCAP_FILE).exists():
         meta = read_meta(run)
     else:
-        meta_skip = f"no {META_FILE} (not written by the flight recorder)"
+        meta_skip = f"no {META_FILE} nor {MCAP_FILE} (not written by the flight recorder)"
 
     def attempt(names: list[str], titles: list[str], fn: Any) -> None:
         try:

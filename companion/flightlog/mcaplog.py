@@ -1,0 +1,719 @@
+"""The flight as one MCAP file (``flight.mcap``) beside the CSVs, for Foxglove.
+
+Written by :class:`McapFlightLog`, which the :class:`~companion.flightlog.recorder.FlightRecorder`
+owns. Nothing is encoded on the control path: every CSV stream hands the batch the shared writer
+thread has just written to its file to :meth:`McapFlightLog.stream_sink` too, and the camera
+frames and the planned path are queued and encoded (JPEG, JSON) when the same thread wakes. The
+file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd chunks) into a
+context of its own; the writer thread ends the chunk and flushes it every time it wakes, so a
+hard crash loses at most the last 0.4 s (two periods) and leaves a readable file without its
+summary (the reader stops at the torn record).
+
+Channels (JSON message encoding, JSON schemas):
+
+==========================  ===============================  =====================================
+``/log/<stream>``           ``companion.<stream>``            one message per CSV row, the CSV's
+                                                              columns as keys (``/log/ekf``:
+                                                              pose, velocity, covariance diagonal)
+``/camera/image``           ``foxglove.CompressedImage``      the frames the pad was detected in
+``/camera/markers``         ``foxglove.ImageAnnotations``     the detected marker corners
+``/ekf/pose``               ``foxglove.PoseInFrame``          the fused pose, frame ``ned``
+``/ekf/sigma``              ``companion.ekf_sigma``           1-sigma of position (m) and attitude
+                                                              (deg) from the covariance diagonal
+``/mission/path``           ``foxglove.SceneUpdate``          the planned path (line), frame ``ned``
+``/tf``                     ``foxglove.FrameTransform``       ``world`` (ENU, z up) -> ``ned``
+==========================  ===============================  =====================================
+
+``run.json`` is stored as metadata ``run.json`` (key ``json``) every time the recorder rewrites
+it; the last one is the final one. Floats are JSON numbers written with ``repr`` (shortest
+round-trip), non-finite ones as the strings ``"nan"``, ``"inf"``, ``"-inf"``: a cell read back
+(:func:`cell_text`) is the very text the CSV holds, so replay from the MCAP is bit for bit.
+"""
+
+from __future__ import annotations
+
+import atexit
+import base64
+import collections
+import csv
+import json
+import logging
+import math
+import re
+import threading
+import weakref
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+_OPEN: weakref.WeakSet[McapFlightLog] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_mcaps() -> None:
+    """At interpreter exit: the CSV logs first (their last batches reach the MCAP), then the MCAPs."""
+    from companion.flightlog import csvlog
+
+    csvlog._close_open_logs()
+    for m in list(_OPEN):
+        m.close()
+
+
+MCAP_FILE = "flight.mcap"
+PROFILE = "companion"
+STREAM_TOPIC_PREFIX = "/log/"
+MAX_QUEUED_IMAGES = 64  # frames waiting for JPEG encoding; beyond that a frame is dropped and counted
+JPEG_QUALITY = 90
+
+# Columns that hold text (everything else is a number; flags are 0/1).
+TEXT_COLUMNS = frozenset(
+    {
+        "markers",
+        "anchors_used",
+        "frame",
+        "est_source",
+        "phase",
+        "request",
+        "kind",
+        "error",
+        "source",
+        "detail",
+        "reply",
+        "mode",
+        "landed_state",
+        "text",
+        "severity",
+    }
+)
+
+_TIME = {
+    "type": "object",
+    "title": "time",
+    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}},
+}
+_VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in ("x", "y", "z")}}
+_VEC2 = {"type": "object", "properties": {k: {"type": "number"} for k in ("x", "y")}}
+_QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in ("x", "y", "z", "w")}}
+_POSE = {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}}
+_COLOR = {"type": "object", "properties": {k: {"type": "number", "minimum": 0, "maximum": 1} for k in "rgba"}}
+
+# The Foxglove JSON schemas of the message types used (https://docs.foxglove.dev/docs/sdk/schemas).
+FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
+    "foxglove.CompressedImage": {
+        "title": "foxglove.CompressedImage",
+        "description": "A compressed image",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "frame_id": {"type": "string"},
+            "data": {"type": "string", "contentEncoding": "base64"},
+            "format": {"type": "string"},
+        },
+    },
+    "foxglove.ImageAnnotations": {
+        "title": "foxglove.ImageAnnotations",
+        "description": "Array of annotations for a 2D image",
+        "type": "object",
+        "properties": {
+            "circles": {"type": "array", "items": {"type": "object"}},
+            "points": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "title": "foxglove.PointsAnnotation",
+                    "properties": {
+                        "timestamp": _TIME,
+                        "type": {
+                            "title": "foxglove.PointsAnnotationType",
+                            "type": "integer",
+                            "oneOf": [
+                                {"title": "UNKNOWN", "const": 0},
+                                {"title": "POINTS", "const": 1},
+                                {"title": "LINE_LOOP", "const": 2},
+                                {"title": "LINE_STRIP", "const": 3},
+                                {"title": "LINE_LIST", "const": 4},
+                            ],
+                        },
+                        "points": {"type": "array", "items": _VEC2},
+                        "outline_color": _COLOR,
+                        "outline_colors": {"type": "array", "items": _COLOR},
+                        "fill_color": _COLOR,
+                        "thickness": {"type": "number"},
+                    },
+                },
+            },
+            "texts": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "title": "foxglove.TextAnnotation",
+                    "properties": {
+                        "timestamp": _TIME,
+                        "position": _VEC2,
+                        "text": {"type": "string"},
+                        "font_size": {"type": "number"},
+                        "text_color": _COLOR,
+                        "background_color": _COLOR,
+                    },
+                },
+            },
+        },
+    },
+    "foxglove.PoseInFrame": {
+        "title": "foxglove.PoseInFrame",
+        "description": "A timestamped pose for an object or reference frame in 3D space",
+        "type": "object",
+        "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE},
+    },
+    "foxglove.LocationFix": {
+        "title": "foxglove.LocationFix",
+        "description": "A navigation satellite fix for any Global Navigation Satellite System",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "frame_id": {"type": "string"},
+            "latitude": {"type": "number"},
+            "longitude": {"type": "number"},
+            "altitude": {"type": "number"},
+            "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
+            "position_covariance_type": {
+                "title": "foxglove.PositionCovarianceType",
+                "type": "integer",
+                "oneOf": [
+                    {"title": "UNKNOWN", "const": 0},
+                    {"title": "APPROXIMATED", "const": 1},
+                    {"title": "DIAGONAL_KNOWN", "const": 2},
+                    {"title": "KNOWN", "const": 3},
+                ],
+            },
+        },
+    },
+    "foxglove.FrameTransform": {
+        "title": "foxglove.FrameTransform",
+        "description": "A transform between two reference frames in 3D space",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "parent_frame_id": {"type": "string"},
+            "child_frame_id": {"type": "string"},
+            "translation": _VEC3,
+            "rotation": _QUAT,
+        },
+    },
+    "foxglove.SceneUpdate": {
+        "title": "foxglove.SceneUpdate",
+        "description": "An update to the entities displayed in a 3D scene",
+        "type": "object",
+        "properties": {
+            "deletions": {"type": "array", "items": {"type": "object"}},
+            "entities": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "title": "foxglove.SceneEntity",
+                    "properties": {
+                        "timestamp": _TIME,
+                        "frame_id": {"type": "string"},
+                        "id": {"type": "string"},
+                        "lifetime": _TIME,
+                        "frame_locked": {"type": "boolean"},
+                        "metadata": {"type": "array", "items": {"type": "object"}},
+                        "lines": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "title": "foxglove.LinePrimitive",
+                                "properties": {
+                                    "type": {
+                                        "title": "foxglove.LineType",
+                                        "type": "integer",
+                                        "oneOf": [
+                                            {"title": "LINE_STRIP", "const": 0},
+                                            {"title": "LINE_LOOP", "const": 1},
+                                            {"title": "LINE_LIST", "const": 2},
+                                        ],
+                                    },
+                                    "pose": _POSE,
+                                    "thickness": {"type": "number", "minimum": 0},
+                                    "scale_invariant": {"type": "boolean"},
+                                    "points": {"type": "array", "items": _VEC3},
+                                    "color": _COLOR,
+                                    "colors": {"type": "array", "items": _COLOR},
+                                    "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+                                },
+                            },
+                        },
+                        "spheres": {"type": "array", "items": {"type": "object"}},
+                    },
+                },
+            },
+        },
+    },
+}
+
+EKF_SIGMA_SCHEMA: dict[str, Any] = {
+    "title": "companion.ekf_sigma",
+    "description": "1-sigma of the EKF position (m) and attitude (deg), from the covariance diagonal",
+    "type": "object",
+    "properties": {
+        "time_s": {"type": "number"},
+        **{
+            f"sigma_{a}_{u}": {"type": "number"}
+            for a, u in (
+                ("north", "m"),
+                ("east", "m"),
+                ("down", "m"),
+                ("roll", "deg"),
+                ("pitch", "deg"),
+                ("yaw", "deg"),
+            )
+        },
+    },
+}
+
+# world (ENU, z up: Foxglove's 3D view) -> ned: swap x/y, flip z (180 deg about (1, 1, 0)/sqrt 2)
+ENU_FROM_NED_QUAT = {"x": math.sqrt(0.5), "y": math.sqrt(0.5), "z": 0.0, "w": 0.0}
+
+
+def row_schema(stream: str, columns: Sequence[str]) -> dict[str, Any]:
+    """The JSON schema of one CSV stream's messages: its columns as properties."""
+    props: dict[str, Any] = {}
+    for c in columns:
+        if c in TEXT_COLUMNS:
+            props[c] = {"type": "string"}
+        else:
+            props[c] = {
+                "type": ["number", "string"],
+                "description": "a number; non-finite values as the strings nan, inf, -inf",
+            }
+    return {
+        "title": f"companion.{stream}",
+        "description": f"one row of {stream}.csv (same columns, same units)",
+        "type": "object",
+        "properties": props,
+        "required": list(columns),
+    }
+
+
+def stream_topic(csv_name: str) -> str:
+    return STREAM_TOPIC_PREFIX + csv_name.removesuffix(".csv")
+
+
+def time_ns(t_s: float) -> int:
+    """Seconds to the MCAP's unsigned nanoseconds (negative or non-finite times become 0)."""
+    return round(t_s * 1e9) if math.isfinite(t_s) and t_s > 0.0 else 0
+
+
+def foxglove_time(t_s: float) -> dict[str, int]:
+    ns = time_ns(t_s)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return _finite_or_text(float(o))
+    if isinstance(o, np.bool_):
+        return bool(o)
+    raise TypeError(f"{type(o).__name__} is not a JSON value")
+
+
+def _finite_or_text(v: object) -> object:
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)  # "nan", "inf", "-inf": what the CSV holds
+    return v
+
+
+_ENCODER = json.JSONEncoder(allow_nan=False, default=_json_default, separators=(",", ":"))
+_NOT_A_NUMBER = re.compile(r"[^0-9eE.+\-,]")  # anything but the reprs of finite ints and floats
+
+
+_INFINITIES = (math.inf, -math.inf)
+
+
+def encode_row(columns: Sequence[str], row: Sequence[object]) -> bytes:
+    """One CSV row as a JSON object (floats as shortest round-trip decimals, non-finite ones as
+    the strings the CSV holds)."""
+    vals = [str(v) if v != v or v in _INFINITIES else v for v in row]  # v != v: NaN
+    return _ENCODER.encode(dict(zip(columns, vals, strict=True))).encode()
+
+
+def row_encoder(columns: Sequence[str]) -> Callable[[tuple[object, ...]], bytes]:
+    """A faster :func:`encode_row` for one stream, same output: a row of finite Python ints and
+    floats (most rows: samples, EKF, setpoints) is formatted once with ``%r`` (their shortest
+    round-trip reprs, which are valid JSON numbers) into a template of the keys; any other row
+    (text, NaN, numpy scalars, flags as bools) goes through the JSON encoder."""
+    cols = tuple(columns)
+    n = len(cols)
+    values = ",".join(["%r"] * n)
+    template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
+
+    def encode(row: tuple[object, ...]) -> bytes:
+        if len(row) == n:
+            text = values % row
+            if _NOT_A_NUMBER.search(text) is None:
+                return (template % tuple(text.split(","))).encode()
+        return encode_row(cols, row)
+
+    return encode
+
+
+class _ListWriter:
+    def __init__(self) -> None:
+        self.parts: list[str] = []
+
+    def write(self, text: str) -> None:
+        self.parts.append(text)
+
+
+def batch_encoder(columns: Sequence[str]) -> Callable[[list[tuple[object, ...]]], tuple[str, list[bytes]]]:
+    """For a batch of rows: the CSV text ``csv.writer`` would write (``\r\n`` line ends) and
+    each row's JSON message, formatting every number once. A row of finite Python ints and
+    floats is ``%r``-formatted into one string, which is its CSV line as is and, split at the
+    commas, the values of its JSON template; other rows go through ``csv.writer`` and
+    :func:`encode_row`."""
+    cols = tuple(columns)
+    n = len(cols)
+    values = ",".join(["%r"] * n)
+    template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
+    search = _NOT_A_NUMBER.search
+    numeric = not TEXT_COLUMNS.intersection(cols)  # streams with text columns never take the fast path
+
+    def encode(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
+        out = _ListWriter()
+        slow = csv.writer(out)
+        payloads: list[bytes] = []
+        for row in batch:
+            if numeric and len(row) == n:
+                text = values % row
+                if search(text) is None:
+                    out.parts.append(text + "\r\n")
+                    payloads.append((template % tuple(text.split(","))).encode())
+                    continue
+            slow.writerow(row)
+            payloads.append(encode_row(cols, row))
+        return "".join(out.parts), payloads
+
+    return encode
+
+
+def cell_text(v: object) -> str:
+    """A decoded JSON value as the CSV writer wrote it (``str(v)``; None as empty)."""
+    if v is None:
+        return ""
+    if isinstance(v, str):
+        return v
+    return str(v)
+
+
+def quat_from_euler_zyx(roll: float, pitch: float, yaw: float) -> dict[str, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return {
+        "x": sr * cp * cy - cr * sp * sy,
+        "y": cr * sp * cy + sr * cp * sy,
+        "z": cr * cp * sy - sr * sp * cy,
+        "w": cr * cp * cy + sr * sp * sy,
+    }
+
+
+def _dumps(obj: object) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+
+
+class McapFlightLog:
+    """``flight.mcap`` of one run (see the module doc). Thread-safe: the shared writer thread
+    and ``close()`` on the loop thread take turns. A write error disables the MCAP (logged once,
+    counted in ``errors``); the CSVs go on."""
+
+    def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]]):
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        from companion.flightlog import csvlog
+
+        self.path = Path(path)
+        self._lock = threading.Lock()
+        # a context of its own: the flight's channels reach this file only (not a live server)
+        self._context: Any = foxglove.Context()
+        self._writer: Any = foxglove.open_mcap(
+            self.path,
+            allow_overwrite=True,
+            context=self._context,
+            writer_options=MCAPWriteOptions(profile=PROFILE, compression=MCAPCompression.Zstd, compression_threads=0),
+        )
+        self._columns = {name: tuple(cols) for name, cols in streams.items()}
+        self._channels: dict[str, Any] = {}
+        self.errors = 0
+        self.dropped_images = 0
+        self.messages = 0
+        self._failed = False
+        self._closed = False
+        self._dirty = False
+        self._images: collections.deque[tuple[float, np.ndarray, dict[str, np.ndarray]]] = collections.deque()
+        self._pending: collections.deque[Callable[[], None]] = collections.deque()
+
+        def channel(topic: str, schema_name: str, schema: dict[str, Any], metadata: dict[str, str] | None) -> None:
+            self._channels[topic] = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=schema_name, encoding="jsonschema", data=_dumps(schema)),
+                message_encoding="json",
+                context=self._context,
+                metadata=metadata,
+            )
+
+        for name, cols in self._columns.items():
+            stem = name.removesuffix(".csv")
+            channel(
+                stream_topic(name),
+                f"companion.{stem}",
+                row_schema(stem, cols),
+                {"csv": name, "columns": json.dumps(list(cols))},
+            )
+        for topic, schema_name in (
+            ("/camera/image", "foxglove.CompressedImage"),
+            ("/camera/markers", "foxglove.ImageAnnotations"),
+            ("/ekf/pose", "foxglove.PoseInFrame"),
+            ("/mission/path", "foxglove.SceneUpdate"),
+            ("/tf", "foxglove.FrameTransform"),
+        ):
+            channel(topic, schema_name, FOXGLOVE_SCHEMAS[schema_name], None)
+        channel("/ekf/sigma", "companion.ekf_sigma", EKF_SIGMA_SCHEMA, None)
+        self._add(
+            "/tf",
+            0.0,
+            _dumps(
+                {
+                    "timestamp": foxglove_time(0.0),
+                    "parent_frame_id": "world",
+                    "child_frame_id": "ned",
+                    "translation": {"x": 0.0, "y": 0.0, "z": 0.0},
+                    "rotation": ENU_FROM_NED_QUAT,
+                }
+            ),
+        )
+        self._writer.flush()
+        self._shared = csvlog._SharedWriter.attach(self, csvlog.FLUSH_PERIOD_S)
+        _OPEN.add(self)
+
+    # ---- writing (the shared writer thread, or close()) -------------------------------------
+    def _add(self, topic: str, t_s: float, data: bytes) -> None:
+        self._channels[topic].log(data, log_time=time_ns(t_s))
+        self.messages += 1
+        self._dirty = True
+
+    def _fail(self, err: BaseException) -> None:
+        self.errors += 1
+        if not self._failed:
+            log.error("%s: cannot write the MCAP any more (the CSVs go on): %s", self.path, err)
+        self._failed = True
+
+    def stream_sink(self, name: str) -> McapStreamSink:
+        """What a CSV stream hands its batches to (see :class:`McapStreamSink`)."""
+        return McapStreamSink(self, name)
+
+    def _ekf_messages(self, idx: dict[str, int], row: tuple[object, ...], t: float) -> None:
+        def f(c: str) -> float:
+            return float(row[idx[c]])  # type: ignore[arg-type]
+
+        stamp = foxglove_time(t)
+        pose = {
+            "timestamp": stamp,
+            "frame_id": "ned",
+            "pose": {
+                "position": {"x": f("north_m"), "y": f("east_m"), "z": f("down_m")},
+                "orientation": quat_from_euler_zyx(f("roll_rad"), f("pitch_rad"), f("yaw_rad")),
+            },
+        }
+        self._add("/ekf/pose", t, _dumps(pose))
+        sig: dict[str, float] = {"time_s": t}
+        for a in ("north", "east", "down"):
+            sig[f"sigma_{a}_m"] = math.sqrt(max(0.0, f(f"var_{a}_m2")))
+        for a in ("roll", "pitch", "yaw"):
+            sig[f"sigma_{a}_deg"] = math.degrees(math.sqrt(max(0.0, f(f"var_{a}_rad2"))))
+        self._add("/ekf/sigma", t, _dumps(sig))
+
+    def _drain(self) -> None:
+        """Encode the queued frames and path updates, then end the chunk and flush it to the OS
+        (called by the shared writer thread every 0.2 s)."""
+        if not self._images and not self._pending and not self._dirty:
+            return
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                while self._pending:
+                    self._pending.popleft()()
+                while self._images:
+                    self._write_image(*self._images.popleft())
+                if self._dirty and not self._failed:
+                    self._dirty = False
+                    self._writer.flush()
+            except Exception as err:
+                self._images.clear()
+                self._pending.clear()
+                self._fail(err)
+
+    def _write_image(self, t: float, image: np.ndarray, corners: dict[str, np.ndarray]) -> None:
+        import cv2
+
+        if self._failed:
+            return
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            raise ValueError(f"JPEG encoding of a {image.shape} {image.dtype} frame failed")
+        stamp = foxglove_time(t)
+        msg = {
+            "timestamp": stamp,
+            "frame_id": "camera",
+            "data": base64.b64encode(buf.tobytes()).decode("ascii"),
+            "format": "jpeg",
+        }
+        self._add("/camera/image", t, _dumps(msg))
+        colors = {"outer": {"r": 0.1, "g": 0.9, "b": 0.2, "a": 1.0}, "inner": {"r": 1.0, "g": 0.5, "b": 0.0, "a": 1.0}}
+        points = []
+        texts = []
+        for name, pts in sorted(corners.items()):
+            xy = np.asarray(pts, dtype=float).reshape(-1, 2)
+            color = colors.get(name, {"r": 0.2, "g": 0.6, "b": 1.0, "a": 1.0})
+            points.append(
+                {
+                    "timestamp": stamp,
+                    "type": 2,  # LINE_LOOP
+                    "points": [{"x": float(x), "y": float(y)} for x, y in xy],
+                    "outline_color": color,
+                    "outline_colors": [],
+                    "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0},
+                    "thickness": 2.0,
+                }
+            )
+            texts.append(
+                {
+                    "timestamp": stamp,
+                    "position": {"x": float(xy[0, 0]), "y": float(xy[0, 1])},
+                    "text": name,
+                    "font_size": 14.0,
+                    "text_color": color,
+                    "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.5},
+                }
+            )
+        self._add("/camera/markers", t, _dumps({"circles": [], "points": points, "texts": texts}))
+
+    # ---- queueing (the loop thread) -------------------------------------------------------
+    def add_image(self, time_s: float, image: Any, corners_px: dict[str, Any]) -> None:
+        """A frame the pad was detected in (encoded later, on the writer thread)."""
+        if self._closed or self._failed:
+            return
+        if len(self._images) >= MAX_QUEUED_IMAGES:
+            self.dropped_images += 1
+            return
+        self._images.append(
+            (float(time_s), np.array(image, copy=True), {k: np.array(v, dtype=float) for k, v in corners_px.items()})
+        )
+
+    def add_path(self, time_s: float, points_ned: Callable[[], Any]) -> None:
+        """The planned path as a SceneUpdate line; a replan replaces it. ``points_ned`` gives the
+        N x 3 NED points (called on the writer thread)."""
+
+        def write() -> None:
+            pts = np.asarray(points_ned(), dtype=float).reshape(-1, 3)
+            stamp = foxglove_time(time_s)
+            entity = {
+                "timestamp": stamp,
+                "frame_id": "ned",
+                "id": "planned_path",
+                "lifetime": {"sec": 0, "nsec": 0},
+                "frame_locked": False,
+                "metadata": [],
+                "lines": [
+                    {
+                        "type": 0,  # LINE_STRIP
+                        "pose": {
+                            "position": {"x": 0.0, "y": 0.0, "z": 0.0},
+                            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+                        },
+                        "thickness": 3.0,
+                        "scale_invariant": True,
+                        "points": [{"x": float(n), "y": float(e), "z": float(d)} for n, e, d in pts],
+                        "color": {"r": 0.2, "g": 0.8, "b": 1.0, "a": 1.0},
+                        "colors": [],
+                        "indices": [],
+                    }
+                ],
+                "spheres": [],
+            }
+            self._add("/mission/path", time_s, _dumps({"deletions": [], "entities": [entity]}))
+
+        self._pending.append(write)
+
+    def add_meta(self, meta_json: str) -> None:
+        """``run.json`` as metadata (the reader keeps the last)."""
+
+        def write() -> None:
+            self._writer.write_metadata("run.json", {"json": meta_json})
+
+        self._pending.append(write)
+
+    # ---- closing ----------------------------------------------------------------------------
+    def close(self) -> None:
+        """Encode what is queued, write the summary and close the file (idempotent)."""
+        if self._closed:
+            return
+        _OPEN.discard(self)
+        self._shared.detach(self)
+        self._drain()
+        with self._lock:
+            self._closed = True
+            try:
+                for ch in self._channels.values():
+                    ch.close()
+                self._writer.close()
+            except Exception as err:
+                self._fail(err)
+            # drop the SDK's objects here, not in some later garbage collection
+            self._channels.clear()
+            self._writer = self._context = None
+        if self.dropped_images:
+            log.warning(
+                "%s: %d camera frames dropped (JPEG encoding could not keep up)", self.path, self.dropped_images
+            )
+
+
+class McapStreamSink:
+    """One CSV stream's link to the MCAP: :meth:`encode` formats a batch once into the CSV text
+    and the JSON messages (the CSV writer writes the text), :meth:`publish` logs the messages
+    (and, for ``ekf.csv``, the pose and sigma messages) once the CSV has them."""
+
+    def __init__(self, owner: McapFlightLog, name: str):
+        self._owner = owner
+        self.name = name
+        self.columns = owner._columns[name]
+        self.encode = batch_encoder(self.columns)
+        self._ekf = name == "ekf.csv"
+        self._idx = {c: i for i, c in enumerate(self.columns)}
+        self._channel = owner._channels[stream_topic(name)]
+
+    def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None:
+        m = self._owner
+        with m._lock:
+            if m._failed or m._closed:
+                return
+            try:
+                if payloads is None:  # the batch encoder failed: the CSV was written without it
+                    payloads = [encode_row(self.columns, row) for row in batch]
+                log_ = self._channel.log
+                for row, data in zip(batch, payloads, strict=True):
+                    t = float(row[0])  # type: ignore[arg-type]
+                    log_(data, log_time=time_ns(t))
+                    if self._ekf:
+                        m._ekf_messages(self._idx, row, t)
+                m.messages += len(batch)
+                m._dirty = True
+            except Exception as err:
+                m._fail(err)
