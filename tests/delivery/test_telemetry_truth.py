@@ -120,7 +120,7 @@ def test_mission_fields_match_the_flight_log(flight):
             d = math.hypot(est[0] - conf_pad[0], est[1] - conf_pad[1])
             assert m["distance_to_pad_m"] == pytest.approx(d, abs=1e-9), (m["phase"], m["time_s"])
             distances += 1
-    assert distances > 20
+    assert distances > 5
     assert senses["outbound"] == {1} and senses["inbound"] == {-1}, senses
 
 
