@@ -92,7 +92,7 @@ def test_percentiles():
         ("python", "asyncio_0", "vision"),
         ("tx-0", None, "telemetry"),
         ("python", "MainThread", "loop_other"),
-        ("mavsdk", None, "link_or_native"),
+        ("mavsdk", None, "native_unnamed"),
     ],
 )
 def test_classify_thread(comm, py_name, group):
