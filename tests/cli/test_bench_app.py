@@ -11,7 +11,15 @@ import time
 
 import pytest
 
-from companion.cli.bench_app import TASKS, CpuAccount, LatencyTracker, classify_thread, percentiles, thread_cpu_s
+from companion.cli.bench_app import (
+    DART_TASKS,
+    TASKS,
+    CpuAccount,
+    LatencyTracker,
+    classify_thread,
+    percentiles,
+    thread_cpu_s,
+)
 
 
 def _spin(seconds: float) -> None:
@@ -90,6 +98,8 @@ def test_percentiles():
         ("python", "telemetry-sitl1", "telemetry"),
         ("python", "ardupilot-reader", "link"),
         ("python", "asyncio_0", "vision"),
+        ("python", "dart-vision_0", "vision"),
+        ("python", "dart-link-camera", "sim"),
         ("tx-0", None, "telemetry"),
         ("python", "MainThread", "loop_other"),
         ("mavsdk", None, "native_unnamed"),
@@ -131,7 +141,7 @@ def test_bench_app_report_structure_and_sanity():
     assert cpu["tasks_pct"]["vision"] > 0 and cpu["tasks_pct"]["fusion"] > 0 and cpu["tasks_pct"]["guidance"] > 0
     assert sum(cpu["tasks_pct"].values()) <= cpu["companion_total_pct"] + 2.0  # /proc ticks are 10 ms
     assert cpu["companion_total_pct"] <= cpu["process_total_pct"]
-    assert cpu["excluded_simulator_pct"]["sim_vehicle_thread"] > 0
+    assert cpu["excluded_simulator_pct"]["sim_threads"] > 0
     assert r["peak_rss_mib"] > 0
     cam = r["camera"]
     assert cam["rate_hz"] == 30.0
@@ -152,3 +162,32 @@ def test_bench_app_report_structure_and_sanity():
     assert set(r["targets"]) == {"non_vision_cpu_pct", "exposure_to_setpoint_p99_ms", "loop_overruns"}
     for t in r["targets"].values():
         assert isinstance(t["ok"], bool) and t["target"]
+
+
+@pytest.mark.slow
+def test_bench_app_dart_report_structure_and_sanity():
+    duration_s = 6.0
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--dart", "--duration-s", f"{duration_s:g}", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout)
+    assert r["app"] == "dart"
+    assert duration_s - 0.5 <= r["duration_s"] <= duration_s + 1.0
+    cpu = r["cpu"]
+    for task in DART_TASKS:
+        assert task in cpu["tasks_pct"] and cpu["tasks_pct"][task] >= 0.0, task
+    assert cpu["tasks_pct"]["vision"] > 0 and cpu["tasks_pct"]["imu"] > 0 and cpu["tasks_pct"]["control"] > 0
+    assert sum(cpu["tasks_pct"].values()) <= cpu["companion_total_pct"] + 2.0
+    assert cpu["excluded_simulator_pct"]["sim_threads"] > 0  # the link sim and its rendering camera
+    cam = r["camera"]
+    assert 0.5 * 30 * duration_s <= cam["frames_processed"] <= 1.1 * 30 * duration_s
+    assert cam["frames_with_detection"] > 0  # the wall marker is in view from the start
+    p = r["exposure_to_setpoint_ms"]
+    assert p["n"] > 0 and cam["capture_latency_ms"] <= p["p50"] <= p["p99"] <= p["max"]
+    rates = sorted(lp["rate_hz"] for lp in r["loops"])
+    assert rates == [20.0, 22.0, 44.0, 200.0]
+    assert r["commands_sent"] > 0.5 * 44 * duration_s
