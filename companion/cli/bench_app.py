@@ -691,7 +691,7 @@ def register_bench(bench_subparsers: Any) -> None:
     p = bench_subparsers.add_parser(
         "app", help="the whole delivery app in real time against the MAVLink sim vehicle: CPU per task, latency"
     )
-    p.add_argument("--duration-s", type=float, default=60.0, help="seconds of real time (default 60)")
+    p.add_argument("--duration-s", type=float, default=60.0, help="seconds of real time")
     p.add_argument("--backend", choices=("ardupilot", "px4"), default="ardupilot", help="MAVLink backend")
     p.add_argument("--params", help="parameter file (default: the shipped delivery_paper.toml)")
     p.add_argument(
