@@ -481,7 +481,7 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
                 lat.setpoint_sent(loop.time())
 
             shell._send_command = send_command  # type: ignore[method-assign]
-            acct.patch(ap, "send_rc_override", "link")
+            acct.patch(ap, "send_rc_override" if backend == "ardupilot" else "set_attitude_target", "link")
             proc0 = time.process_time()
             wall0 = time.monotonic()
             threads0 = thread_cpu_s()
@@ -497,7 +497,7 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
             await ap.close()
     r = _report(acct, lat, threads0, end, proc0, wall0, DART_TASKS, p.sim.camera_latency_s * 1e3)
     r["camera"]["rate_hz"] = p.runtime.rates.vision_hz
-    r["commands_sent"] = summary.stats.overrides_sent
+    r["commands_sent"] = summary.stats.overrides_sent + summary.stats.attitude_targets_sent
     return {"app": "dart", "backend": backend, "mission_phase_at_end": summary.phase.value, **r}
 
 
@@ -675,6 +675,12 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
         if args.params:
             raise StartupError(
                 "--params: the Dart bench flies the shipped Dart parameters; drop --params", exits.BAD_INPUT
+            )
+        if args.backend != "ardupilot":
+            raise StartupError(
+                f"--backend {args.backend} with --dart: the Dart bench runs the ArduPilot RC-override path only "
+                "(over PX4 the cyber-pilot did not engage in this bench); use --backend ardupilot",
+                exits.BAD_INPUT,
             )
         r = bench_dart(args.duration_s, args.backend)
     else:
