@@ -46,7 +46,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
         importlib.import_module("companion.cli.dart").register_campaign(csub)
     except ImportError as err:
         log.error("campaign dart unavailable: %s", err)
-    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing"):
+    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing", "companion.cli.bench_app"):
         try:
             importlib.import_module(mod).register_bench(bsub)
         except ImportError as err:
