@@ -82,7 +82,7 @@ def register_bench(bench_subparsers: Any) -> None:
     p.add_argument(
         "--vehicles",
         type=vehicle_counts,
-        default=(20,),
+        default="20",  # argparse applies vehicle_counts to a string default
         metavar="N[,N...]",
         help="simulated vehicles publishing; a comma list runs each fleet size in turn (default: 20)",
     )
