@@ -324,9 +324,9 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
         acct.patch(kit.multilaterator, "solve_twr", "fusion")
     detect = acct.wrap("vision", kit.detector.detect)
 
-    def timed_detect(image: Any, exposure_s: float) -> Any:
+    def timed_detect(image: Any, exposure_s: float, **kwargs: Any) -> Any:
         t0 = time.thread_time()
-        obs = detect(image, exposure_s)
+        obs = detect(image, exposure_s, **kwargs)
         dt = time.thread_time() - t0
         loop.call_soon_threadsafe(lambda: lat.frame_processed(exposure_s, obs is not None, dt, loop.time()))
         return obs
@@ -455,9 +455,9 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
             sim.set_pilot(switch_on=True)
             detect = acct.wrap("vision", shell.detector.detect)
 
-            def timed_detect(image: Any, exposure_s: float) -> Any:
+            def timed_detect(image: Any, exposure_s: float, **kwargs: Any) -> Any:
                 t0 = time.thread_time()
-                det = detect(image, exposure_s)
+                det = detect(image, exposure_s, **kwargs)
                 dt = time.thread_time() - t0
                 loop.call_soon_threadsafe(lambda: lat.frame_processed(exposure_s, det is not None, dt, loop.time()))
                 return det

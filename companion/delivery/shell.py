@@ -67,6 +67,18 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
+def _report_sensor_task_end(task: asyncio.Task[None]) -> None:
+    """Say at once when the landing-sensor task dies (the flight goes on without camera and UWB:
+    the fusion coasts on the autopilot's estimate), instead of only when the shell ends."""
+    if task.cancelled():
+        return
+    err = task.exception()
+    if err is not None:
+        log.error(
+            "landing sensors stopped: %s: %s; no more camera or UWB measurements this flight", type(err).__name__, err
+        )
+
+
 class AbortedBeforeFlight(Exception):
     """The operator aborted (SIGINT/SIGTERM) while the shell was still waiting for the autopilot:
     nothing was commanded; ``str(err)`` says so."""
@@ -313,6 +325,7 @@ class DeliveryShell:
             if dev is not None and not kit.sensors_started:
                 dev.start()
         self._sensor_task = asyncio.get_running_loop().create_task(self._sensor_loop(), name="landing-sensors")
+        self._sensor_task.add_done_callback(_report_sensor_task_end)
         log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
 
     def _vision_wanted(self) -> bool:
