@@ -16,7 +16,17 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "companion"
 
 # Lowest first. "companion" is the package's own __init__ (the version string).
-BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling", "plugin_api", "units"}
+BASE = {
+    "companion",
+    "geometry",
+    "config",
+    "param_kinds",
+    "events",
+    "scheduling",
+    "plugin_api",
+    "units",
+    "foxglove_schemas",
+}
 
 # package -> the packages it may import (besides itself). The layer picture, written once:
 #   6  cli
@@ -24,7 +34,7 @@ BASE = {"companion", "geometry", "config", "param_kinds", "events", "scheduling"
 #   4  telemetry  flightlog
 #   3  autopilot
 #   2  vision  uwb  estimation  guidance
-#   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units
+#   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units  foxglove_schemas
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
     "geometry": set(),
@@ -34,13 +44,14 @@ ALLOWED: dict[str, set[str]] = {
     "scheduling": set(),
     "plugin_api": set(),
     "units": set(),
+    "foxglove_schemas": set(),  # Foxglove schemas and conventions, shared by flightlog and telemetry
     "vision": {"geometry"},
     "uwb": {"geometry"},
     "estimation": {"geometry"},
     "guidance": {"geometry", "config"},
     "autopilot": {"geometry", "config", "estimation", "guidance"},
-    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation"},
-    "flightlog": {"geometry", "units", "autopilot", "guidance"},
+    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation", "foxglove_schemas"},
+    "flightlog": {"geometry", "units", "autopilot", "guidance", "foxglove_schemas"},
     "delivery": BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog"},
     "dart": BASE | {"vision", "estimation", "autopilot", "flightlog"},
     "cli": BASE

@@ -28,7 +28,7 @@ import types
 import typing
 from typing import Any
 
-from companion.flightlog.mcaplog import (
+from companion.foxglove_schemas import (
     ENU_FROM_NED_QUAT,
     FOXGLOVE_SCHEMAS,
     foxglove_time,
