@@ -271,6 +271,20 @@ def _wait_port(port: int, timeout_s: float, proc: subprocess.Popen[bytes]) -> No
     raise StartupError(f"the ground station did not listen on 127.0.0.1:{port} within {timeout_s:g} s", exits.FAILED)
 
 
+def _timed_detector(detect: Callable[..., Any], lat: Any, loop: asyncio.AbstractEventLoop) -> Callable[..., Any]:
+    """``detect`` wrapped to hand each frame's detection time to the latency account on ``loop``
+    (the detector may run on an executor thread)."""
+
+    def timed_detect(image: Any, exposure_s: float, **kwargs: Any) -> Any:
+        t0 = time.thread_time()
+        obs = detect(image, exposure_s, **kwargs)
+        dt = time.thread_time() - t0
+        loop.call_soon_threadsafe(lambda: lat.frame_processed(exposure_s, obs is not None, dt, loop.time()))
+        return obs
+
+    return timed_detect
+
+
 async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str, run_dir: Path) -> dict[str, Any]:
     from companion.autopilot.ardupilot import ArduPilotAutopilot
     from companion.autopilot.px4 import Px4Autopilot
@@ -324,14 +338,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
         acct.patch(kit.multilaterator, "solve_twr", "fusion")
     detect = acct.wrap("vision", kit.detector.detect)
 
-    def timed_detect(image: Any, exposure_s: float, **kwargs: Any) -> Any:
-        t0 = time.thread_time()
-        obs = detect(image, exposure_s, **kwargs)
-        dt = time.thread_time() - t0
-        loop.call_soon_threadsafe(lambda: lat.frame_processed(exposure_s, obs is not None, dt, loop.time()))
-        return obs
-
-    kit.detector.detect = timed_detect
+    kit.detector.detect = _timed_detector(detect, lat, loop)
 
     recorder = FlightRecorder(run_dir, config)
     for name in ("on_sample", "on_marker", "on_uwb", "on_tick", "on_setpoint", "on_result"):
@@ -455,14 +462,8 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
             sim.set_pilot(switch_on=True)
             detect = acct.wrap("vision", shell.detector.detect)
 
-            def timed_detect(image: Any, exposure_s: float, **kwargs: Any) -> Any:
-                t0 = time.thread_time()
-                det = detect(image, exposure_s, **kwargs)
-                dt = time.thread_time() - t0
-                loop.call_soon_threadsafe(lambda: lat.frame_processed(exposure_s, det is not None, dt, loop.time()))
-                return det
-
-            setattr(shell.detector, "detect", timed_detect)  # noqa: B010  (an instance attribute shadows it)
+            timed = _timed_detector(detect, lat, loop)
+            setattr(shell.detector, "detect", timed)  # noqa: B010  (an instance attribute shadows it)
             acct.patch(shell.estimator, "update_imu", "imu")
             acct.patch(shell.estimator, "update_vision", "vision")
             acct.patch(shell, "_on_sample", "imu")  # queues the autopilot's IMU samples

@@ -34,3 +34,18 @@ class StartupError(Exception):
     def __init__(self, message: str, code: int) -> None:
         super().__init__(message)
         self.code = code
+
+
+def link_startup_error(err: Exception, where: str, connect_timeout_s: float) -> StartupError:
+    """The one line for an autopilot link that could not be used at start-up (``fly``,
+    ``preflight``): a missing device (exit 4) or no answer / refused (exit 3). ``where``: the
+    parameter file the connection comes from, as the commands name it."""
+    from companion.autopilot.interface import LinkDeviceMissing
+
+    if isinstance(err, LinkDeviceMissing):
+        return StartupError(f"{err}; plug the autopilot in or change connection {where}", DEVICE_MISSING)
+    return StartupError(
+        f"{err}; check the autopilot is on and sending there, or change connection {where} "
+        f"(runtime.connect_timeout_s = {connect_timeout_s:g} s)",
+        AUTOPILOT_UNREACHABLE,
+    )

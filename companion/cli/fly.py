@@ -206,16 +206,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
             raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
         except SigningError as err:
             raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
-        except AutopilotUnreachable as err:
-            raise StartupError(
-                f"{err}; check the autopilot is on and sending there, or change connection {where} "
-                f"(runtime.connect_timeout_s = {config.runtime.connect_timeout_s:g} s)",
-                exits.AUTOPILOT_UNREACHABLE,
-            ) from None
-        except LinkDeviceMissing as err:
-            raise StartupError(
-                f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING
-            ) from None
+        except (AutopilotUnreachable, LinkDeviceMissing) as err:
+            raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
         except ConnectionUrlError as err:
             raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
         except SessionOpenError as err:

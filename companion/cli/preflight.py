@@ -157,14 +157,8 @@ def cmd_preflight(args: argparse.Namespace) -> int:
 
     try:
         report = asyncio.run(run())
-    except AutopilotUnreachable as err:
-        raise StartupError(
-            f"{err}; check the autopilot is on and sending there, or change connection {where} "
-            f"(runtime.connect_timeout_s = {config.runtime.connect_timeout_s:g} s)",
-            exits.AUTOPILOT_UNREACHABLE,
-        ) from None
-    except LinkDeviceMissing as err:
-        raise StartupError(f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING) from None
+    except (AutopilotUnreachable, LinkDeviceMissing) as err:
+        raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
     if args.json:
         print(json.dumps(report.to_json(), indent=2))
     else:
