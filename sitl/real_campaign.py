@@ -108,11 +108,26 @@ async def _one_landing(
         await ap.connect(timeout_s=20.0)
         r = await fly_on_truth(config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne)
         err, td, delivered, failure = r.pad_landing_error_m, r.touchdown_truth_ne_m, r.delivered, r.failure
-        used = {"markers_used": r.markers_used, "uwb_used": r.uwb_used, "fusion_outcomes": r.fusion_outcomes}
+        used = {
+            "markers_used": r.markers_used,
+            "uwb_used": r.uwb_used,
+            "fusion_outcomes": r.fusion_outcomes,
+            "believed_offset_m": r.believed_offset_m,
+            "estimate_error_m": r.estimate_error_m,
+            "guidance_overruns": r.guidance_overruns,
+            "setpoint_overruns": r.setpoint_overruns,
+        }
     except Exception as exc:  # a landing that cannot be flown is a result, not the end of the campaign
         log.exception("landing seed %d failed", d.seed)
         err, td, delivered, failure = math.nan, (math.nan, math.nan), False, f"{type(exc).__name__}: {exc}"
-        used = {"markers_used": 0, "uwb_used": 0}
+        used = {
+            "markers_used": 0,
+            "uwb_used": 0,
+            "believed_offset_m": math.nan,
+            "estimate_error_m": math.nan,
+            "guidance_overruns": 0,
+            "setpoint_overruns": 0,
+        }
     finally:
         await ap.close()
         rv.landings_flown += 1

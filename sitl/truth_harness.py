@@ -58,6 +58,13 @@ class HarnessResult:
     # per tick while following: time s, phase, sector of the true position, distance of truth and of
     # the estimate flown on to the path m, truth and estimate in the mission frame F_I m
     path_trace: tuple[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]], ...] = ()
+    # at touchdown (the autopilot's first ON_GROUND in the landing): where the companion believed the
+    # vehicle was from the pad (its own control error) and how far that belief was from the truth
+    # (the estimation error); the landing error is at most their sum
+    believed_offset_m: float = math.nan
+    estimate_error_m: float = math.nan
+    guidance_overruns: int = 0
+    setpoint_overruns: int = 0
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -84,6 +91,7 @@ async def fly_on_truth(
     kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
     kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
+    believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
     path_d: list[float] = []
     path_out: list[float] = []
     trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
@@ -135,11 +143,17 @@ async def fly_on_truth(
             and truth.age_s < 1.0
         ):
             touchdown.append((truth.pn, truth.pe))
+            est, pad_cfg = shell.estimate, shell.mission.pad_ned
+            if est is not None and pad_cfg is not None:
+                believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
 
     shell = DeliveryShell(config, autopilot, on_tick=tick, landing=kit, recorder=recorder)
     summary = await shell.run(timeout_s=timeout_s)
     td = touchdown[0] if touchdown else (math.nan, math.nan)
     err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])
+    # both offsets from the pad are frame-free (the truth and autopilot frames differ by a shift)
+    b = believed[0] if believed else (math.nan, math.nan)
+    est_err = math.hypot(b[0] - (td[0] - pad_ne[0]), b[1] - (td[1] - pad_ne[1]))
     fusion: Any = shell.fusion
     return HarnessResult(
         delivered=summary.delivered,
@@ -159,4 +173,8 @@ async def fly_on_truth(
         tracking_rms_m=rms([row[4] for row in trace]),
         tracking_max_m=max((row[4] for row in trace), default=math.nan),
         path_trace=tuple(trace),
+        believed_offset_m=math.hypot(*b),
+        estimate_error_m=est_err,
+        guidance_overruns=shell.stats.guidance_overruns,
+        setpoint_overruns=shell.stats.setpoint_overruns,
     )

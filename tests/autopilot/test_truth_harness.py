@@ -87,3 +87,11 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
     assert r.markers_used > 20 and r.uwb_used > 5
     # GPS only would land ~0.75 m off (the displacement); the fused landing is on the true pad
     assert math.isfinite(r.pad_landing_error_m) and r.pad_landing_error_m < 0.3, r
+    # the landing error splits into the companion's control error (where it believed it was from
+    # the pad) and its estimation error; the first is small once it lands on its own estimate, and
+    # the triangle inequality ties the three together
+    assert math.isfinite(r.believed_offset_m) and math.isfinite(r.estimate_error_m), r
+    assert r.believed_offset_m < 0.3, r
+    assert r.pad_landing_error_m <= r.believed_offset_m + r.estimate_error_m + 1e-9, r
+    assert r.estimate_error_m <= r.pad_landing_error_m + r.believed_offset_m + 1e-9, r
+    assert r.guidance_overruns >= 0 and r.setpoint_overruns >= 0
