@@ -7,7 +7,8 @@ SITL cannot bias its GPS, so each draw's GPS bias joins its pad displacement: th
 geometry for everything that lands (the vehicle arrives on its GPS at the configured pad; the
 landing sensors see the true one). The pad is placed relative to where the vehicle starts (the
 firmware sets home at arming), so one ArduCopter SITL flies every landing of a campaign (it
-needs ~41 s to become armable); PX4 SIH is restarted from clean parameters for each (~6 s).
+needs ~41 s of simulated time to become armable, ~4 s at its boot speed-up); PX4 SIH is
+restarted from clean parameters for each (~6 s).
 Wind: ArduCopter's SIM_WIND_SPD / SIM_WIND_DIR from the draw (SIM_WIND_TURB = 0); PX4 SIH v1.16
 has no wind model, so its landings fly in still air (the ``px4-sih`` profile drops wind too).
 
@@ -181,7 +182,7 @@ async def run_real_landing_campaign_async(
                 progress(v, done, total)
 
     jobs = [(d, v) for d in draws for v in variants]
-    if autopilot == "ardupilot":  # one SITL for the campaign (41 s to become armable)
+    if autopilot == "ardupilot":  # one SITL for the campaign (41 s of simulated time to become armable)
         async with real_vehicle("ardupilot", logs) as rv:
             await fly_all(rv, jobs)
     else:  # PX4 SIH: a clean start for each landing

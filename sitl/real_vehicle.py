@@ -5,7 +5,8 @@ PX4 SIH and ArduCopter SITL are started, where truth comes from and which backen
 - ``px4``: :class:`Px4Sitl` (clean parameters), MAVSDK on udp 14540, HIL_STATE_QUATERNION truth
   on the GCS link 14550.
 - ``ardupilot``: :class:`ArduCopterSitl` (clean eeprom), pymavlink on tcp 5760, SIM_STATE truth
-  on SERIAL1 (udp). Arming waits for EKF3 on GPS (~41 s after boot).
+  on SERIAL1 (udp). Arming waits for EKF3 on GPS (~41 s of simulated time
+  after boot, spent at 10x: ~4 s).
 """
 
 from __future__ import annotations

@@ -9,6 +9,8 @@ import math
 import time
 
 import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20.ardupilotmega import MAV_CMD_SET_MESSAGE_INTERVAL
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.types import FlightMode, LandedState
@@ -30,6 +32,33 @@ def test_find_ardupilot_reports_where_it_looked(tmp_path):
 def copter(ardupilot_root, tmp_path_factory):
     with arducopter(ardupilot_root, tmp_path_factory.mktemp("arducopter")) as (sitl, truth):
         yield sitl, truth
+
+
+def test_fast_boot_leaves_a_real_time_sitl_on_the_wall_clock(copter):
+    """ArduCopterSitl boots at 10x until EKF3 uses GPS (41 s of simulated time in ~4 s), then runs
+    in real time with its UTC on the wall clock (started early by what the boot gains)."""
+    sitl, _truth = copter
+    assert abs(sitl.clock_offset_s) < 1.0, sitl.clock_offset_s
+    link = mavutil.mavlink_connection(sitl.connection, source_system=251)
+    try:
+        assert link.wait_heartbeat(timeout=5.0) is not None
+        sysid, compid = link.target_system, link.target_component
+        link.mav.command_long_send(sysid, compid, MAV_CMD_SET_MESSAGE_INTERVAL, 0, 2, 100_000, 0, 0, 0, 0, 0)
+        samples = []
+        t_end = time.monotonic() + 3.0
+        while time.monotonic() < t_end:
+            m = link.recv_match(type="SYSTEM_TIME", blocking=True, timeout=1.0)
+            if m is not None:
+                samples.append((time.monotonic(), time.time(), m.time_boot_ms * 1e-3, m.time_unix_usec * 1e-6))
+        link.mav.command_long_send(sysid, compid, MAV_CMD_SET_MESSAGE_INTERVAL, 0, 2, 0, 0, 0, 0, 0, 0)
+    finally:
+        link.close()
+    assert len(samples) > 10
+    (w0, _, b0, _), (w1, wall1, b1, utc1) = samples[0], samples[-1]
+    # simulated time runs at the wall clock's rate (SIM_SPEEDUP back to 1) and reads the same UTC
+    assert (b1 - b0) / (w1 - w0) == pytest.approx(1.0, abs=0.05)
+    assert b0 > 40.0  # booted past the EKF's GPS wait
+    assert abs(utc1 - wall1) < 1.0
 
 
 async def _airborne(ap: ArduPilotAutopilot, alt_m: float) -> None:
