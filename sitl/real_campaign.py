@@ -22,6 +22,8 @@ import asyncio
 import json
 import logging
 import math
+import os
+import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -207,6 +209,31 @@ def run_real_landing_campaign(*args: Any, **kwargs: Any) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- parity
+
+
+def landing_diagnostics(rows: list[dict[str, Any]]) -> str:
+    """One line per real landing: its error split into where the companion believed it was from
+    the pad (its control error) and how far that belief was from the truth (its estimation
+    error), loop overruns and sensor use; with the machine it ran on (real landings depend on it)."""
+    model = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="ascii", errors="replace").splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    lines = [f"{model} x{os.cpu_count()}, load {load:.2f}"]
+    for x in rows:
+        lines.append(
+            f"seed {x['seed']}: {x['error_m']:.3f} m (N {x['north_m']:+.3f} E {x['east_m']:+.3f}), believed "
+            f"{x.get('believed_offset_m', math.nan):.3f} m, "
+            f"estimate error {x.get('estimate_error_m', math.nan):.3f} m, "
+            f"overruns {x.get('guidance_overruns', 0)}/{x.get('setpoint_overruns', 0)}, "
+            f"markers {x['markers_used']}, uwb {x['uwb_used']}"
+        )
+    return "; ".join(lines)
 
 
 def _figures(errs: list[float]) -> dict[str, float]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import matplotlib.image as mpimg
 import pytest
@@ -17,6 +18,7 @@ from companion_sitl.landing_campaign import Draw, draw_scenarios, run_landing_ca
 from companion_sitl.real_campaign import (
     compare,
     firmware_tuning,
+    landing_diagnostics,
     parity_figure,
     real_config,
     real_pad_displacement,
@@ -104,3 +106,30 @@ def test_campaign_command_with_a_profile(tmp_path, capsys):
     assert "px4-sih profile" in capsys.readouterr().out
     with pytest.raises(SystemExit):  # a profile and a real autopilot are two different campaigns
         main([*args, "--autopilot", "px4"])
+
+
+def test_landing_diagnostics_names_the_machine_and_splits_each_error():
+    rows = [
+        {
+            "seed": 7,
+            "error_m": 0.0412,
+            "north_m": 0.03,
+            "east_m": -0.0283,
+            "believed_offset_m": 0.02,
+            "estimate_error_m": 0.05,
+            "guidance_overruns": 2,
+            "setpoint_overruns": 0,
+            "markers_used": 300,
+            "uwb_used": 200,
+        },
+        # a landing that could not be flown has no split
+        {"seed": 8, "error_m": math.nan, "north_m": math.nan, "east_m": math.nan, "markers_used": 0, "uwb_used": 0},
+    ]
+    text = landing_diagnostics(rows)
+    machine, first, second = text.split("; ")
+    assert f"x{os.cpu_count()}, load " in machine
+    assert first == (
+        "seed 7: 0.041 m (N +0.030 E -0.028), believed 0.020 m, estimate error 0.050 m, "
+        "overruns 2/0, markers 300, uwb 200"
+    )
+    assert second.startswith("seed 8: nan m") and "believed nan m" in second

@@ -6,30 +6,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import warnings
-from pathlib import Path
 
 import pytest
 
 from companion.config import shipped_params_path
-from companion_sitl.real_campaign import run_parity
+from companion_sitl.real_campaign import landing_diagnostics, run_parity
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
-
-
-def _machine() -> str:
-    """The CPU and its load, for the figures printed to CI."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text(encoding="ascii", errors="replace").splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model} x{os.cpu_count()}, load {os.getloadavg()[0]:.2f}"
 
 
 def test_parity_on_three_seeds(px4_root, tmp_path):
@@ -39,16 +23,10 @@ def test_parity_on_three_seeds(px4_root, tmp_path):
     assert (tmp_path / "parity.png").stat().st_size > 10_000
     real = r["real"]["landings"]["fusion"]
     pred = r["predicted"]["landings"]["fusion"]
-    figures = "; ".join(
-        f"seed {x['seed']}: {x['error_m']:.3f} m (N {x['north_m']:+.3f} E {x['east_m']:+.3f}), believed "
-        f"{x['believed_offset_m']:.3f} m, estimate error {x['estimate_error_m']:.3f} m, overruns "
-        f"{x['guidance_overruns']}/{x['setpoint_overruns']}, markers {x['markers_used']}, uwb {x['uwb_used']}"
-        for x in real
-    )
     # the figures go into CI's output (a warning is printed even when the test passes): the real
     # landings depend on the machine (below), and this is how a CI run says why
     warnings.warn(
-        f"PX4 SIH parity on {_machine()}: real {figures}; predicted {[round(x['error_m'], 3) for x in pred]}",
+        f"PX4 SIH parity: real on {landing_diagnostics(real)}; predicted {[round(x['error_m'], 3) for x in pred]}",
         stacklevel=1,
     )
     for x in real:
