@@ -32,7 +32,10 @@ def test_parity_on_three_seeds(px4_root, tmp_path):
     for x in real:
         assert x["delivered"] and x["failure"] == "", x
         assert x["markers_used"] > 20 and x["uwb_used"] > 20, x
-        assert x["on_pad"] and x["error_m"] < 0.3, x
+        # on a free machine 2-11 cm; a CI machine 17-25 cm, and here with PX4 and the companion on
+        # one core (taskset) 4.9 / 3.8 / 22.4 cm, mostly control error (believed 19 cm). GPS
+        # alone lands the displacement off (> 1 m, below)
+        assert x["on_pad"] and x["error_m"] < 0.4, x
     # the draws put the pad up to several metres from where GPS leads: fusion found it each time
     assert max(math.hypot(*x["pad_displacement_m"]) for x in real) > 1.0
     c = r["comparison"]["fusion"]
