@@ -594,6 +594,8 @@ class DeliveryMission:
     _land_requested = False
     _reenter = False
     _link_restored_at = -math.inf
+    _restore_undecided = False  # the link is back, no status from after the loss yet
+    _status_t_at_loss = -math.inf  # the time of the last status before the link was lost
     _retry_tries = 2
     _touchdown_land_requested = False
     _disarm_not_before = -math.inf
@@ -725,18 +727,25 @@ class DeliveryMission:
             if not self._link_lost:
                 self._link_lost = True
                 self._link_lost_mode = st.mode if st is not None else None
+                self._status_t_at_loss = st.time_s if st is not None else -math.inf
                 self._emit(EventKind.LINK_LOST, "no heartbeat: stopped commanding, autopilot failsafe acts")
             return False
         if self._link_lost:
             self._link_lost = False
             self._link_restored_at = inp.time_s
+            self._restore_undecided = True
             self._emit(EventKind.LINK_RESTORED, "resuming from where the vehicle is")
+        if self._restore_undecided:
             # The autopilot's offboard-loss failsafe will have switched to its failsafe mode (HOLD;
             # POSCTL on PX4 v1.16 with COM_OBL_RC_ACT = 0, measured): that is not the pilot, so
-            # re-enter offboard and let the (path-based) field resume.
+            # re-enter offboard and let the (path-based) field resume. Decided on a status the
+            # autopilot sent after the link came back: the link can return (a heartbeat) before
+            # the mode does, and the last status from before the loss still says OFFBOARD.
+            if st is None or st.time_s <= self._status_t_at_loss:
+                return True
+            self._restore_undecided = False
             if (
                 self.phase in FOLLOW_PHASES
-                and st is not None
                 and st.mode is not FlightMode.OFFBOARD
                 and st.mode.value in self.cfg.link_loss_resume_modes
             ):
@@ -748,7 +757,7 @@ class DeliveryMission:
 
     def _check_pilot(self, inp: MissionInputs) -> None:
         st = inp.status
-        if st is None or self._expect_mode_change or self._pending is not None:
+        if st is None or self._expect_mode_change or self._pending is not None or self._restore_undecided:
             return
         if st.mode is not FlightMode.OFFBOARD and st.armed:
             self._emit(EventKind.PILOT_TAKEOVER, f"mode switched to {st.mode.value}: autonomy ended")

@@ -104,3 +104,63 @@ def test_field_lookahead_evaluates_the_field_one_lag_ahead_and_reports_v_where_t
     sp0, _ = m0._field_setpoint(e, 1)
     f0 = m0.field(m0.frame.point_from_ned(np.array([1.0, 2.0, -10.0])), 1)
     assert (sp0.north_m_s, sp0.east_m_s, sp0.down_m_s) == tuple(float(x) for x in m0.frame.vector_to_ned(f0.velocity))
+
+
+def _outbound_mission(resume_modes=("hold", "position")):
+    """A mission driven into OUTBOUND (offboard accepted) at t = 1.0 s."""
+    m = DeliveryMission(cfg(link_loss_resume_modes=list(resume_modes)))
+    t = 0.0
+    m.on_result(RequestResult(m.step(MissionInputs(t, est(t), status(t), HOME)).request.id, True))
+    out = m.step(MissionInputs(t, est(t), status(t, armed=True), HOME))
+    m.on_result(RequestResult(out.request.id, True))
+    flying = dict(armed=True, landed=LandedState.IN_AIR)
+    mode = FlightMode.TAKEOFF
+    while m.phase is not Phase.OUTBOUND:
+        t += 0.05
+        out = m.step(MissionInputs(t, est(t, d=-3.0), status(t, mode=mode, **flying), HOME))
+        if out.request is not None:
+            assert out.request.kind is RequestKind.START_OFFBOARD
+            m.on_result(RequestResult(out.request.id, True))
+            mode = FlightMode.OFFBOARD
+        assert t < 30
+    return m, t
+
+
+def test_a_reconnect_is_decided_on_a_status_sent_after_the_link_came_back():
+    """The link returns (a heartbeat) before a fresh status does: the last status from before the
+    loss still says OFFBOARD. The mission must not decide on it, or the failsafe's HOLD that the
+    next status shows looks like the pilot's switch and ends the mission."""
+    m, t = _outbound_mission()
+    flying = dict(armed=True, landed=LandedState.IN_AIR)
+    last = status(t, mode=FlightMode.OFFBOARD, **flying)
+    m.step(MissionInputs(t + 0.05, est(t), last, HOME, link_ok=False))  # lost; status frozen
+    t += 3.0
+    out = m.step(MissionInputs(t, est(t), last, HOME, link_ok=True))  # back, status still stale
+    assert m.phase is Phase.OUTBOUND and EventKind.LINK_RESTORED in [e.kind for e in out.events]
+    assert out.request is None
+    t += 0.05
+    hold = status(t, mode=FlightMode.HOLD, **flying)  # the autopilot's failsafe mode, now reported
+    reqs = []
+    for _ in range(40):
+        out = m.step(MissionInputs(t, est(t, d=-3.0), hold, HOME))
+        if out.request is not None:
+            reqs.append(out.request.kind)
+            m.on_result(RequestResult(out.request.id, True))
+            break
+        t += 0.05
+        hold = status(t, mode=FlightMode.HOLD, **flying)
+    assert m.phase is Phase.OUTBOUND, m.summary.failure
+    assert reqs == [RequestKind.START_OFFBOARD]
+
+
+def test_a_reconnect_into_a_mode_the_failsafe_does_not_pick_is_the_pilot():
+    m, t = _outbound_mission(resume_modes=("hold",))
+    flying = dict(armed=True, landed=LandedState.IN_AIR)
+    last = status(t, mode=FlightMode.OFFBOARD, **flying)
+    m.step(MissionInputs(t + 0.05, est(t), last, HOME, link_ok=False))
+    t += 3.0
+    m.step(MissionInputs(t, est(t), last, HOME, link_ok=True))
+    assert m.phase is Phase.OUTBOUND  # undecided on the stale status
+    t += 0.05
+    m.step(MissionInputs(t, est(t, d=-3.0), status(t, mode=FlightMode.POSITION, **flying), HOME))
+    assert m.phase is Phase.PILOT and "position" in m.summary.failure
