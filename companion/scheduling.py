@@ -8,6 +8,7 @@ in flight, the simulated clock under ``companion_sitl.clock.VirtualTimeEventLoop
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 from typing import Protocol
 
@@ -46,16 +47,46 @@ class RateLoop:
         self._k = 0
         self.overruns = 0
         self.ticks = 0
+        self.early_ticks = 0
 
-    async def tick(self) -> float:
-        self._k += 1
-        deadline = self._t0 + self._k * self.period_s
+    def _next_deadline(self) -> tuple[int, float, int]:
+        """The next tick's index and deadline, skipping ticks missed by more than a period, and
+        how many were skipped (counted in ``overruns`` when the tick is taken)."""
+        k = self._k + 1
+        deadline = self._t0 + k * self.period_s
         now = self.clock.now()
+        missed = 0
         if now > deadline + self.period_s:
             missed = math.floor((now - deadline) / self.period_s)
-            self.overruns += missed
-            self._k += missed
-            deadline = self._t0 + self._k * self.period_s
+            k += missed
+            deadline = self._t0 + k * self.period_s
+        return k, deadline, missed
+
+    async def tick(self) -> float:
+        self._k, deadline, missed = self._next_deadline()
+        self.overruns += missed
         await self.clock.sleep_until(deadline)
         self.ticks += 1
         return deadline
+
+    async def tick_or(self, event: asyncio.Event) -> tuple[float, bool]:
+        """The next tick, or earlier if ``event`` is set first: ``(time, early)``. An early tick
+        returns the clock's time and leaves the schedule as it was (the periodic tick still comes
+        at its deadline); ``event`` is cleared."""
+        k, deadline, missed = self._next_deadline()
+        if not event.is_set():
+            timeout = deadline - self.clock.now()
+            if timeout > 0:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(event.wait(), timeout)
+        if event.is_set():
+            event.clear()
+            now = self.clock.now()
+            if now < deadline:
+                self.early_ticks += 1
+                return now, True
+        self._k = k
+        self.overruns += missed
+        await self.clock.sleep_until(deadline)
+        self.ticks += 1
+        return deadline, False

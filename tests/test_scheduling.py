@@ -62,3 +62,63 @@ def test_virtual_time_runs_fast_and_in_order():
     assert abs(now - 10.0) < 1e-6 and len(order) == 140
     times = [t for t, _ in order]
     assert times == sorted(times)
+
+
+def test_tick_or_ticks_early_on_the_event_and_keeps_the_schedule():
+    async def go():
+        clock = LoopClock()
+        r = RateLoop(clock, 20.0)  # t0 = 0, deadlines 0.05, 0.10, ...
+        ev = asyncio.Event()
+        got = []
+
+        async def fire(at_s):
+            await asyncio.sleep(at_s - clock.now())
+            ev.set()
+
+        asyncio.get_running_loop().create_task(fire(0.062))
+        for _ in range(4):
+            got.append(await r.tick_or(ev))
+        return got, r
+
+    got, r = run_virtual(go())
+    times = [round(t, 9) for t, _ in got]
+    assert times == [0.05, 0.062, 0.1, 0.15]  # the early tick in between; the grid unchanged
+    assert [e for _, e in got] == [False, True, False, False]
+    assert r.early_ticks == 1 and r.ticks == 3 and r.overruns == 0
+
+
+def test_tick_or_with_the_event_set_at_a_deadline_ticks_once():
+    """An event already set when the deadline is reached is consumed by that tick (no extra tick)."""
+    c = FakeClock()
+    r = RateLoop(c, 10.0)
+
+    async def go():
+        ev = asyncio.Event()
+        c.t = 0.1  # exactly at the first deadline
+        ev.set()
+        first = await r.tick_or(ev)
+        second = await r.tick_or(ev)
+        return first, second, ev.is_set()
+
+    first, second, still_set = asyncio.run(go())
+    assert first == (0.1, False) and second == (0.2, False) and not still_set
+    assert r.early_ticks == 0 and r.ticks == 2
+
+
+def test_tick_or_counts_overruns_once():
+    c = FakeClock()
+    r = RateLoop(c, 10.0)
+
+    async def go():
+        ev = asyncio.Event()
+        await r.tick_or(ev)  # 0.1
+        c.t += 0.35  # stalled 3.5 periods
+        ev.set()  # the early path must not count the missed ticks, the taken tick counts them once
+        t1, early = await r.tick_or(ev)
+        t2, _ = await r.tick_or(ev)
+        return t1, early, t2
+
+    t1, early, t2 = asyncio.run(go())
+    assert not early  # the event came after the (missed) deadline: a periodic tick
+    assert r.overruns == 2
+    assert abs(t2 - t1 - 0.1) < 1e-9
