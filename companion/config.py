@@ -227,7 +227,20 @@ class RuntimeConfig(_Section):
     """Task rates (DESIGN: floors, not ceilings) and watchdogs."""
 
     guidance_rate_hz: float = _f(20.0, "Hz", "guidance and mission rate", ge=20.0, le=200.0)
-    setpoint_rate_hz: float = _f(20.0, "Hz", "setpoint stream rate (PX4 needs > 2 Hz)", ge=5.0, le=200.0)
+    setpoint_rate_hz: float = _f(
+        20.0,
+        "Hz",
+        "least rate of setpoints to the autopilot (PX4 needs > 2 Hz): each guidance tick sends its own, the "
+        "stream resends the latest when none was sent for this period",
+        ge=5.0,
+        le=200.0,
+    )
+    guidance_on_marker: bool = _f(
+        True,
+        "-",
+        "tick guidance as soon as a camera observation of the pad is fused while the fused estimate steers, so the "
+        "setpoint that uses it leaves at once instead of at the next guidance_rate_hz tick (false: fixed rate only)",
+    )
     setpoint_stale_s: float = _f(
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )

@@ -2,10 +2,14 @@
 
 Tasks: the guidance/mission loop (>= 20 Hz) and the setpoint stream (>= 20 Hz), both on
 absolute deadlines of the running loop's clock (real, or virtual under the simulator). Autopilot
-requests run as their own tasks so a slow acknowledgement never stalls guidance. The setpoint
-stream is a watchdog too: if the guidance task stops refreshing the setpoint, streaming stops,
-so the autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent
-forever, cf. MAVSDK-Python issue 374).
+requests run as their own tasks so a slow acknowledgement never stalls guidance. Each guidance
+tick sends the setpoint it computed at once (the estimate it used, a camera frame's included,
+reaches the autopilot in the same tick instead of up to one stream period later). The setpoint
+stream, half a period out of phase with guidance, only resends the latest setpoint when guidance
+has sent none for a stream period (guidance slower than the stream, or a late tick), and it is the
+watchdog: if the guidance task stops refreshing the setpoint, streaming stops, so the
+autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent forever, cf.
+MAVSDK-Python issue 374).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from companion.delivery.mission import (
     RequestResult,
 )
 from companion.delivery.passthrough import AutopilotPoseEstimator
+from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
@@ -148,6 +153,10 @@ class DeliveryShell:
         self.events: list[MissionEvent] = []
         self._clock = LoopClock()
         self._setpoint: tuple[float, VelocitySetpoint] | None = None
+        self._last_sent_s = -math.inf  # when a setpoint last went to the autopilot
+        # set when a camera observation is fused while the fused estimate steers: guidance ticks
+        # at once instead of at its next deadline ([runtime] guidance_on_marker)
+        self._marker_fused = asyncio.Event()
         self._request_task: asyncio.Task[None] | None = None
         self._streaming = False
         self._abort_reason: str | None = None
@@ -246,7 +255,7 @@ class DeliveryShell:
         tc = self.autopilot.telemetry
         mission = self.mission
         while not mission.phase.terminal:
-            now = await rate.tick()
+            now, _early = await rate.tick_or(self._marker_fused)
             self.stats.guidance_overruns = rate.overruns
             if self._abort_reason is not None:
                 if self.recorder is not None:
@@ -279,6 +288,7 @@ class DeliveryShell:
                 if res.clamped:
                     self.stats.setpoints_clamped += 1
                 self._setpoint = (now, res.setpoint)
+                self._send_setpoint(now, res.setpoint)
             else:
                 self._setpoint = None
             if out.request is not None:
@@ -353,7 +363,8 @@ class DeliveryShell:
                     if obs is not None:
                         if self.recorder is not None:
                             self.recorder.on_marker(self._clock.now(), obs, frame.image)
-                        self.fusion.on_marker(obs)
+                        if self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED and self._fused_steers():
+                            self._marker_fused.set()
                         if self._landing_target is not None:
                             self._send_landing_target(obs)
             if kit.uwb is not None and kit.multilaterator is not None:
@@ -364,6 +375,12 @@ class DeliveryShell:
                         if self.recorder is not None:
                             self.recorder.on_uwb(self._clock.now(), res)
                         self.fusion.on_uwb(res)
+
+    def _fused_steers(self) -> bool:
+        """The fused estimate is what guidance flies on (the way out and the landing on the pad),
+        and a fused observation is to reach a setpoint at once ([runtime] guidance_on_marker)."""
+        m = self.mission
+        return self.config.runtime.guidance_on_marker and not m.summary.delivered and not m.returning
 
     def _down_in_camera(self) -> Any:
         """World down in the camera frame from the autopilot's latest attitude (None without one)."""
@@ -388,19 +405,29 @@ class DeliveryShell:
             return
         self.landing_targets_sent += 1
 
+    def _send_setpoint(self, now: float, sp: VelocitySetpoint) -> None:
+        self.autopilot.set_velocity_ned(sp)
+        self.stats.setpoints_sent += 1
+        self._last_sent_s = now
+        if self.recorder is not None:
+            self.recorder.on_setpoint(now, sp)
+        self._streaming = True
+
     async def _setpoint_stream(self) -> None:
         rt = self.config.runtime
-        rate = RateLoop(self._clock, rt.setpoint_rate_hz)
+        period = 1.0 / rt.setpoint_rate_hz
+        # half a period after the guidance ticks (same rate by default): a resend is decided on a
+        # clock instant guidance never ticks on, so the order of two tasks due at once plays no part
+        rate = RateLoop(self._clock, rt.setpoint_rate_hz, start_s=self._clock.now() + period / 2.0)
         while True:
             now = await rate.tick()
             self.stats.setpoint_overruns = rate.overruns
             sp = self._setpoint
             if sp is not None and now - sp[0] <= rt.setpoint_stale_s:
-                self.autopilot.set_velocity_ned(sp[1])
-                self.stats.setpoints_sent += 1
-                if self.recorder is not None:
-                    self.recorder.on_setpoint(now, sp[1])
-                self._streaming = True
+                # guidance sends every setpoint it computes; resend only what a stream period
+                # without a send would otherwise leave the autopilot without
+                if now - self._last_sent_s >= period * (1.0 - 1e-9):
+                    self._send_setpoint(now, sp[1])
             elif self._streaming:
                 self._streaming = False
                 if sp is not None:  # stale, not merely finished

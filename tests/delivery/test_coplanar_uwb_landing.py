@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from companion.autopilot.types import LandedState
 from companion.config import load_config, shipped_params_path
+from companion.events import Phase
 from companion_sitl.demo import run_demo
 
 
@@ -23,6 +25,16 @@ def test_uwb_only_landing_with_anchors_at_one_height() -> None:
         if shell.fusion is not None:
             seen["fusion"] = shell.fusion
             seen["multi"] = shell.landing.multilaterator
+            st = shell.autopilot.telemetry.status
+            now = shell._clock.now()
+            if (
+                out.phase in (Phase.OUTBOUND, Phase.LANDING_PAD)
+                and st is not None
+                and st.landed is not LandedState.ON_GROUND
+            ):
+                seen.setdefault("snapshots", []).append((now, dict(shell.fusion.counters.outcomes)))
+            elif out.phase is Phase.LANDING_PAD and "touchdown_s" not in seen:
+                seen["touchdown_s"] = now  # the land detector's ON_GROUND
 
     r = run_demo(config, on_tick=tick)
     assert r.delivered and r.returned, r.failure
@@ -30,6 +42,11 @@ def test_uwb_only_landing_with_anchors_at_one_height() -> None:
     fusion, multi = seen["fusion"], seen["multi"]
     assert multi.layout.coplanar
     assert fusion.counters.uwb_used > 100
-    accepted = fusion.counters.outcomes.get("uwb.accepted", 0)
-    gated = fusion.counters.outcomes.get("uwb.rejected_gate", 0)
-    assert gated < 0.05 * accepted  # the larger vertical variance keeps honest fixes inside the gate
+    # in the air the larger vertical variance keeps honest fixes inside the gate. In the last second
+    # (touchdown, then the land detector's wait), at the anchors' height (VDOP > 2) and with the
+    # vehicle stopped on the ground, the EKF rejects some (seeds 1-4: 0-10 of ~85 in that second,
+    # 0-41 more on the pad until the release), which no longer steer the landing
+    airborne = [c for t, c in seen["snapshots"] if t < seen["touchdown_s"] - 1.0][-1]
+    accepted = airborne.get("uwb.accepted", 0)
+    gated = airborne.get("uwb.rejected_gate", 0)
+    assert accepted > 50 and gated < 0.05 * accepted, airborne
