@@ -543,6 +543,11 @@ def _report(
     ]
     det = percentiles(lat.detect_ms)
     lat_all = percentiles(lat.all_ms)
+    lat_det = percentiles(lat.detected_ms)
+    # "the setpoint that used it": a frame in which the pad was found moves the estimate; one without
+    # changes nothing a setpoint could use, so the target is judged on the detected frames when
+    # there are any (a run that never sees the pad is judged on every frame)
+    judged, judged_on = (lat_det, "frames with the pad detected") if lat_det["n"] else (lat_all, "all frames")
     target_ms = LATENCY_BUDGET_MS + (det["p99"] or 0.0) + capture_latency_ms
     non_vision = pct(companion_s - per_task.get("vision", 0.0))
     overruns = sum(rl.overruns for _, rl in _CountedRateLoop.registry)
@@ -565,7 +570,7 @@ def _report(
         },
         "detect_ms": det,
         "exposure_to_setpoint_ms": lat_all,
-        "exposure_to_setpoint_detected_ms": percentiles(lat.detected_ms),
+        "exposure_to_setpoint_detected_ms": lat_det,
         "stages_ms": {
             "exposure_to_processed": percentiles(lat.to_processed_ms),
             "processed_to_guidance_tick": percentiles(lat.to_guidance_ms),
@@ -581,8 +586,9 @@ def _report(
             "exposure_to_setpoint_p99_ms": {
                 "target": f"<= {LATENCY_BUDGET_MS:g} ms + detection p99 + the camera's capture latency "
                 f"= {target_ms:.1f} ms",
-                "measured": lat_all["p99"],
-                "ok": lat_all["p99"] is not None and float(lat_all["p99"]) <= target_ms,
+                "judged_on": judged_on,
+                "measured": judged["p99"],
+                "ok": judged["p99"] is not None and float(judged["p99"]) <= target_ms,
             },
             "loop_overruns": {"target": "0", "measured": overruns, "ok": overruns == 0},
         },
@@ -665,7 +671,8 @@ def print_report(r: dict[str, Any]) -> None:
         print(f"  loop {lp['loop']:<22} ticks {lp['ticks']:6d}  overruns {lp['overruns']}")
     print("  targets:")
     for name, t in r["targets"].items():
-        print(f"    {name:<30} {t['target']:<60} measured {t['measured']}  {_ok(t['ok'])}")
+        on = f" ({t['judged_on']})" if "judged_on" in t else ""
+        print(f"    {name:<30} {t['target']:<60} measured {t['measured']}{on}  {_ok(t['ok'])}")
     print("  method: " + cpu["method"].replace("\n", " "))
 
 
