@@ -508,11 +508,11 @@ class Multilaterator:
         if not self._consistent(anchors, obs, tdoa, sol)[0]:
             if len(ids) - n_unknowns < 2:
                 why = (
-                    "no position fits them (exactly determined: no redundant anchor)"
-                    if len(ids) <= n_unknowns
-                    else "too few anchors to tell which one is wrong"
+                    ": no position fits them (exactly determined: no redundant anchor)"
+                    if len(ids) <= n_unknowns and not tdoa  # 3 TWR anchors at one height
+                    else " and too few anchors to tell which one is wrong"  # the text as it always was
                 )
-                return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m: {why}", len(ids))
+                return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m{why}", len(ids))
             robust = self._consensus(anchors, obs, tdoa, prior_arr)
             if robust is None:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
