@@ -35,6 +35,10 @@ from companion_sitl.vehicle import SimVehicle
 log = logging.getLogger(__name__)
 
 
+#: the path's two arcs (companion.guidance.path.DeliveryPath.sector, delivery eq 1)
+ARC_SECTORS = (2, 4)
+
+
 @dataclass(frozen=True)
 class HarnessResult:
     delivered: bool
@@ -52,6 +56,9 @@ class HarnessResult:
     path_max_truth_m: float = math.nan
     path_rms_outbound_m: float = math.nan  # the way out only (before any pad was seen)
     path_max_outbound_m: float = math.nan
+    # the largest distance to the path while the true vehicle is in an arc (sectors 2 and 4, delivery
+    # eq 1): how far the vehicle overshoots a turn (issue 12: at most 0.5 m)
+    path_max_arcs_m: float = math.nan
     # the estimate the autopilot flies on against the mission's path: what the guidance controls
     tracking_rms_m: float = math.nan
     tracking_max_m: float = math.nan
@@ -170,6 +177,7 @@ async def fly_on_truth(
         path_max_truth_m=max(path_d) if path_d else math.nan,
         path_rms_outbound_m=rms(path_out),
         path_max_outbound_m=max(path_out) if path_out else math.nan,
+        path_max_arcs_m=max((row[3] for row in trace if row[2] in ARC_SECTORS), default=math.nan),
         tracking_rms_m=rms([row[4] for row in trace]),
         tracking_max_m=max((row[4] for row in trace), default=math.nan),
         path_trace=tuple(trace),

@@ -78,6 +78,7 @@ async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_disp
         f"path RMS / max on truth: ArduCopter {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate "
         f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded "
         + ", ".join(f"{k} {e.path_rms_truth_m:.2f} / {e.path_max_truth_m:.2f} m" for k, e in embedded.items())
+        + f"; largest distance in the arcs {r.path_max_arcs_m:.2f} m"
     )
     # measured 0.18 / 0.72 and 0.17 / 0.71 m against ideal 0.19-0.21 / 0.60-0.69 m (1.40 / 3.06 m
     # before the accel limits)

@@ -193,7 +193,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     print(
         f"path RMS / max on truth: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate flown on: "
         f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded px4-sih (3 seeds) {pred_rms:.2f} / "
-        f"{pred_max:.2f} m"
+        f"{pred_max:.2f} m; largest distance in the arcs {r.path_max_arcs_m:.2f} m"
     )
     # Issue 12 item 5 against the embedded simulator standing in for this firmware (issue 17): the
     # px4-sih profile carries what PX4 SIH does to a path: its velocity loop (PI on a drag-heavy
