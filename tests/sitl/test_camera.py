@@ -248,3 +248,41 @@ def test_pad_warp_extent() -> None:
     behind = scaled_to(200.0, 150.0)
     behind[2] = [0.0, -0.002, 1.0]  # the far side of the texture behind the camera
     assert _transparent_warp_extent(behind, 1024, (cw, ch)) is None
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SimCameraConfig(),
+        SimCameraConfig(noise_std=0.0),
+        SimCameraConfig(gain=1.3, offset=-7.5),
+        SimCameraConfig(noise_std=0.0, gain=0.8),
+        SimCameraConfig(noise_std=5.0, gain_jitter=0.1, offset_jitter=6.0),
+    ],
+    ids=["noise", "none", "lighting-noise", "lighting", "jitter-noise"],
+)
+def test_exposure_in_place_equals_the_float32_formula(config: SimCameraConfig) -> None:
+    """The exposure works in a float32 buffer it keeps; the frames are those of
+    clip(float32(img) * gain + offset + noise, 0, 255) -> uint8, the same draws consumed."""
+    import copy
+
+    sim = SimulatedCamera(CAM, LAYOUT, config, seed=9)
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        img = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+        draws = copy.deepcopy(sim._rng)
+        got = sim._expose(img)
+        gain, offset = config.gain, config.offset
+        if config.gain_jitter > 0:
+            gain = max(0.05, gain + float(draws.normal(0.0, config.gain_jitter)))
+        if config.offset_jitter > 0:
+            offset = offset + float(draws.normal(0.0, config.offset_jitter))
+        want = img.astype(np.float32)
+        if gain != 1.0 or offset != 0.0:
+            want = want * np.float32(gain) + np.float32(offset)
+        if config.noise_std > 0:
+            dy, dx = (int(x) for x in draws.integers(0, 64, 2))
+            want = want + sim._noise[dy : dy + 480, dx : dx + 640]
+        assert np.array_equal(got, np.clip(want, 0, 255).astype(np.uint8))
+        assert got is not sim._expose(img)  # a new array every frame
+        sim._rng = draws  # the same draws consumed as the formula's
