@@ -191,6 +191,48 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
     return ground
 
 
+_Distortion = tuple[tuple[float, float], tuple[int, int], tuple[NDArray, NDArray] | None]
+_DISTORTION_CACHE: dict[str, _Distortion] = {}
+_DISTORTION_CACHE_SIZE = 8
+
+
+def _distortion_setup(cam: CameraModel) -> _Distortion:
+    """The undistorted canvas (offset of the image in it, its size) and the ``cv2.remap`` maps
+    (distorted pixel -> canvas) of a camera model; None for the maps of an undistorted camera.
+
+    The maps depend on the model alone, and every landing of a campaign builds a camera of the same
+    model: they are computed once per model (keyed by its repr, which tells every float apart)
+    and shared read-only.
+    """
+    key = repr(cam)
+    hit = _DISTORTION_CACHE.get(key)
+    if hit is not None:
+        return hit
+    w, h = cam.size
+    out: _Distortion
+    if not cam.is_distorted:
+        out = ((0.0, 0.0), (w, h), None)
+    else:
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        ideal = cam.undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1))
+        if not np.all(np.isfinite(ideal)):
+            raise ValueError("camera distortion is not invertible over the whole image")
+        mx = ideal[:, 0].reshape(h, w)
+        my = ideal[:, 1].reshape(h, w)
+        ox = max(0.0, math.ceil(-mx.min()) + 2.0)
+        oy = max(0.0, math.ceil(-my.min()) + 2.0)
+        cw = math.ceil(mx.max() + ox) + 3
+        ch = math.ceil(my.max() + oy) + 3
+        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32), cv2.CV_16SC2)
+        m1.flags.writeable = False
+        m2.flags.writeable = False
+        out = ((ox, oy), (cw, ch), (m1, m2))
+    if len(_DISTORTION_CACHE) >= _DISTORTION_CACHE_SIZE:
+        del _DISTORTION_CACHE[next(iter(_DISTORTION_CACHE))]  # the oldest
+    _DISTORTION_CACHE[key] = out
+    return out
+
+
 # Columns of a warp's destination are processed in SIMD blocks from x = 0 (OpenCV: 2x the float32
 # lanes, 8 to 32 pixels), the last partial block by scalar code that rounds differently; a
 # destination narrowed to a multiple of 64 columns keeps every pixel in the same kind of block.
@@ -293,27 +335,7 @@ class SimulatedCamera:
 
     # ------------------------------------------------------------------ setup
     def _setup_distortion(self) -> None:
-        cam = self.camera
-        w, h = cam.size
-        if not cam.is_distorted:
-            self._offset = (0.0, 0.0)
-            self._canvas_size = (w, h)
-            self._maps: tuple[NDArray, NDArray] | None = None
-            return
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        ideal = cam.undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1))
-        if not np.all(np.isfinite(ideal)):
-            raise ValueError("camera distortion is not invertible over the whole image")
-        mx = ideal[:, 0].reshape(h, w)
-        my = ideal[:, 1].reshape(h, w)
-        ox = max(0.0, math.ceil(-mx.min()) + 2.0)
-        oy = max(0.0, math.ceil(-my.min()) + 2.0)
-        cw = math.ceil(mx.max() + ox) + 3
-        ch = math.ceil(my.max() + oy) + 3
-        self._offset = (ox, oy)
-        self._canvas_size = (cw, ch)
-        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32), cv2.CV_16SC2)
-        self._maps = (m1, m2)
+        self._offset, self._canvas_size, self._maps = _distortion_setup(self.camera)
 
     def _make_blur_kernel(self) -> NDArray[np.float32] | None:
         L = self.config.blur_px

@@ -286,3 +286,22 @@ def test_exposure_in_place_equals_the_float32_formula(config: SimCameraConfig) -
         assert np.array_equal(got, np.clip(want, 0, 255).astype(np.uint8))
         assert got is not sim._expose(img)  # a new array every frame
         sim._rng = draws  # the same draws consumed as the formula's
+
+
+def test_distortion_maps_are_computed_once_per_camera_model_and_equal_a_fresh_computation() -> None:
+    from companion_sitl import camera as sim_camera
+
+    dart = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, kind="dart", k_ud=0.25)
+    a = SimulatedCamera(CAM, LAYOUT, seed=1)
+    b = SimulatedCamera(CAM, LAYOUT, seed=2)
+    assert a._maps is b._maps and a._maps is not None and not a._maps[0].flags.writeable
+    assert SimulatedCamera(dart, LAYOUT, seed=1)._maps is not a._maps  # another model, its own maps
+    cached = sim_camera._distortion_setup(CAM)
+    sim_camera._DISTORTION_CACHE.clear()
+    fresh = sim_camera._distortion_setup(CAM)
+    assert fresh is not cached and fresh[:2] == cached[:2]
+    assert fresh[2] is not None and cached[2] is not None
+    assert all(np.array_equal(x, y) for x, y in zip(fresh[2], cached[2], strict=True))
+    for k in range(12):  # the cache stays small
+        sim_camera._distortion_setup(CameraModel(64, 48, 50.0 + k, 50.0, 32.0, 24.0, dist=(0.05, 0.0, 0.0, 0.0, 0.0)))
+    assert len(sim_camera._DISTORTION_CACHE) <= sim_camera._DISTORTION_CACHE_SIZE
