@@ -84,6 +84,9 @@ async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_disp
     # before the accel limits)
     assert r.path_rms_truth_m < 1.5 * embedded["ideal"].path_rms_truth_m, (r, embedded["ideal"])
     assert r.path_max_truth_m < 1.2, r.path_max_truth_m
+    # issue 12: no overshoot past 0.5 m at the arcs, within the path's plane (the largest whole
+    # distance, 0.70 m, is the move onto the displaced pad in the arc into the descent); measured 0.19 m
+    assert r.path_max_arcs_m < 0.5, r.path_max_arcs_m
 
 
 async def test_arducopter_precision_landing_fed_our_landing_target(ardupilot_root, tmp_path):
