@@ -464,20 +464,13 @@ class SimulatedCamera:
             offset = offset + float(self._rng.normal(0.0, cfg.offset_jitter))
         h, w = img.shape
         # in the float32 buffer, in place: the same operations as img.astype(float32), *, +, clip
-        # (uint8 -> float32 is exact, so a ufunc that takes img directly computes the same floats)
         out = self._exposure if self._exposure.shape == img.shape else np.empty(img.shape, np.float32)
-        lit = gain != 1.0 or offset != 0.0
-        if lit:
-            np.multiply(img, np.float32(gain), out=out)
+        out[...] = img  # uint8 -> float32, exact
+        if gain != 1.0 or offset != 0.0:
+            out *= np.float32(gain)
             out += np.float32(offset)
         if cfg.noise_std > 0:
             dy, dx = (int(x) for x in self._rng.integers(0, self._noise_margin, 2))
-            noise = self._noise[dy : dy + h, dx : dx + w]
-            if lit:
-                out += noise
-            else:
-                np.add(img, noise, out=out)
-        elif not lit:
-            out[...] = img
+            out += self._noise[dy : dy + h, dx : dx + w]
         np.clip(out, 0, 255, out=out)
         return out.astype(np.uint8)
