@@ -141,9 +141,7 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
     coarse = rng.normal(0.0, 1.0, (24, 24)).astype(np.float32)
     low = cv2.resize(coarse, (n, n), interpolation=cv2.INTER_CUBIC)
     mid = np.asarray(
-        cv2.resize(
-            rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR
-        ),
+        cv2.resize(rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR),
         dtype=np.float32,
     )
     # 105 + 22 low + 10 mid + 6 N(0, 1), evaluated left to right in float32 as that expression
