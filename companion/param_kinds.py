@@ -124,7 +124,12 @@ class AnchorsFile(_Section):
     tag_side: Literal["above", "below"] = _f(
         "above", "-", "anchors at one height (coplanar): the side of their plane the tag flies on"
     )
-    anchors: tuple[AnchorEntry, ...] = _f(..., "-", "the [[anchors]] tables, at least 4", min_length=4)
+    anchors: tuple[AnchorEntry, ...] = _f(
+        ...,
+        "-",
+        "the [[anchors]] tables: at least 3 at one height (with tag_side), 4 at different heights",
+        min_length=3,
+    )
 
     @model_validator(mode="after")
     def _ids(self) -> AnchorsFile:

@@ -12,7 +12,8 @@ the tag's own location engine is on, ``POS,<x>,<y>,<z>,<quality 0-100>``. Sendin
 stops the stream.
 
 :func:`parse_lec_line` is a pure parser; :class:`LecParser` adds counters. Malformed, partial
-(truncated), binary or unexpected lines are counted and dropped, never raised.
+(truncated), binary or unexpected lines are counted and dropped, never raised;
+:func:`explain_lec_line` (and ``LecParser.last_drop_reason``) says why, naming the field.
 :class:`Dwm1001Driver` owns the serial port; readings are stamped with the injected clock when
 their line is complete (arrival time; the device's own latency is not modelled).
 """
@@ -74,9 +75,10 @@ class DwmReading:
 def anchor_layout_from_reading(reading: DwmReading, tag_side: str = "above", frame: str = "pad") -> AnchorLayout:
     """The anchor layout a ``lec`` line reports (each anchor's configured position, as PANS
     stores it on the anchor). Four anchors at one height -- the usual DWM1001 set-up -- give a
-    coplanar layout; ``tag_side`` says which side of their plane the tag is on.
+    coplanar layout; ``tag_side`` says which side of their plane the tag is on. A line with three
+    anchors gives a 3-anchor (always coplanar) layout, which fixes the tag exactly determined.
 
-    Raises ``companion.uwb.AnchorLayoutError`` for too few or degenerate anchors.
+    Raises ``companion.uwb.AnchorLayoutError`` for fewer than 3 anchors or degenerate ones.
     """
     return AnchorLayout(
         tuple(a.anchor_id for a in reading.anchors),
@@ -96,11 +98,11 @@ class LineKind(Enum):
 
 
 class _Partial(Exception):
-    pass
+    """The line ended early; the message says where."""
 
 
 class _Malformed(Exception):
-    pass
+    """The line cannot be a ``lec`` line; the message says which field is wrong."""
 
 
 def _num(tok: str) -> float:
@@ -113,18 +115,19 @@ def _num(tok: str) -> float:
     return v
 
 
-def classify_lec_line(line: str | bytes, time_s: float = math.nan) -> tuple[LineKind, DwmReading | None]:
-    """Classify and parse one line (with or without its line ending)."""
+def explain_lec_line(line: str | bytes, time_s: float = math.nan) -> tuple[LineKind, DwmReading | None, str]:
+    """:func:`classify_lec_line` with the reason a line is dropped ("" for readings and ignored
+    lines), naming the field (counted from 0 in the comma-separated line) and its text."""
     if isinstance(line, bytes | bytearray):
         try:
             line = bytes(line).decode("ascii")
         except UnicodeDecodeError:
-            return LineKind.BINARY, None
+            return LineKind.BINARY, None, "not ASCII"
     text = line.strip("\r\n \t")
     if any(not (32 <= ord(ch) < 127) for ch in text):
-        return LineKind.BINARY, None
+        return LineKind.BINARY, None, "non-printable characters"
     if not text or text.startswith("dwm>") or text == "lec":
-        return LineKind.IGNORED, None
+        return LineKind.IGNORED, None, ""
     tokens = text.split(",")
     try:
         if tokens[0] == "DIST":
@@ -132,15 +135,21 @@ def classify_lec_line(line: str | bytes, time_s: float = math.nan) -> tuple[Line
         elif tokens[0] == "POS":
             pos, qf, used = _parse_pos(tokens, 0)
             if used != len(tokens):
-                raise _Malformed("trailing tokens")
+                raise _Malformed(f"extra fields after POS's quality factor (from field {used})")
             reading = DwmReading(time_s, (), pos, qf)
         else:
-            return LineKind.MALFORMED, None
-    except _Partial:
-        return LineKind.PARTIAL, None
-    except _Malformed:
-        return LineKind.MALFORMED, None
-    return LineKind.READING, reading
+            return LineKind.MALFORMED, None, f"starts with {tokens[0][:16]!r}, not DIST or POS"
+    except _Partial as exc:
+        return LineKind.PARTIAL, None, str(exc)
+    except _Malformed as exc:
+        return LineKind.MALFORMED, None, str(exc)
+    return LineKind.READING, reading, ""
+
+
+def classify_lec_line(line: str | bytes, time_s: float = math.nan) -> tuple[LineKind, DwmReading | None]:
+    """Classify and parse one line (with or without its line ending)."""
+    kind, reading, _ = explain_lec_line(line, time_s)
+    return kind, reading
 
 
 def parse_lec_line(line: str, time_s: float = math.nan) -> DwmReading | None:
@@ -149,69 +158,75 @@ def parse_lec_line(line: str, time_s: float = math.nan) -> DwmReading | None:
     return reading if kind is LineKind.READING else None
 
 
-def _take(tokens: list[str], i: int) -> str:
+def _take(tokens: list[str], i: int, what: str) -> str:
     if i >= len(tokens):
-        raise _Partial()
+        raise _Partial(f"line ends before {what} (field {i})")
     return tokens[i]
 
 
-def _bad(tokens: list[str], i: int, expected_prefix_ok: bool) -> Exception:
+def _bad(tokens: list[str], i: int, expected_prefix_ok: bool, what: str, expected: str) -> Exception:
     """A bad token: a truncated line if it is the last token and a prefix of what was expected."""
     if i == len(tokens) - 1 and expected_prefix_ok:
-        return _Partial()
-    return _Malformed(tokens[i])
+        return _Partial(f"line ends inside {what} ({tokens[i]!r}, field {i})")
+    return _Malformed(f"{what} (field {i}) is {tokens[i][:16]!r}: {expected} expected")
 
 
-def _num_at(tokens: list[str], i: int) -> float:
-    tok = _take(tokens, i)
+def _num_at(tokens: list[str], i: int, what: str) -> float:
+    tok = _take(tokens, i, what)
     try:
         return _num(tok)
     except _Malformed:
-        raise _bad(tokens, i, tok in ("", "-", "+", ".", "-.")) from None
+        raise _bad(tokens, i, tok in ("", "-", "+", ".", "-."), what, "a finite number") from None
 
 
 def _parse_pos(tokens: list[str], i: int) -> tuple[tuple[float, float, float], int, int]:
     """Parse ``POS,x,y,z,qf`` starting at tokens[i] == "POS"; returns (pos, qf, next index)."""
-    x = _num_at(tokens, i + 1)
-    y = _num_at(tokens, i + 2)
-    z = _num_at(tokens, i + 3)
-    qf_tok = _take(tokens, i + 4)
+    x = _num_at(tokens, i + 1, "POS x")
+    y = _num_at(tokens, i + 2, "POS y")
+    z = _num_at(tokens, i + 3, "POS z")
+    qf_tok = _take(tokens, i + 4, "POS quality factor")
     if not qf_tok.isdigit() or int(qf_tok) > 100:
-        raise _bad(tokens, i + 4, qf_tok == "")
+        raise _bad(tokens, i + 4, qf_tok == "", "POS quality factor", "an integer 0-100")
     return (x, y, z), int(qf_tok), i + 5
 
 
 def _parse_dist(tokens: list[str], time_s: float) -> DwmReading:
-    n_tok = _take(tokens, 1)
+    n_tok = _take(tokens, 1, "the anchor count")
     if not n_tok.isdigit() or int(n_tok) > MAX_ANCHORS_PER_LINE:
-        raise _Malformed(n_tok)
+        raise _Malformed(f"anchor count {n_tok[:16]!r} (field 1): 0-{MAX_ANCHORS_PER_LINE} expected")
     n = int(n_tok)
     anchors: list[DwmAnchorRange] = []
     i = 2
     for k in range(n):
-        tag = _take(tokens, i)
+        tag = _take(tokens, i, f"AN{k}")
         m = _AN_TAG.match(tag)
         if not m or int(m.group(1)) != k:
-            raise _bad(tokens, i, f"AN{k}".startswith(tag))
-        aid = _take(tokens, i + 1)
+            raise _bad(tokens, i, f"AN{k}".startswith(tag), f"the AN{k} tag", f"'AN{k}'")
+        aid = _take(tokens, i + 1, f"AN{k} id")
         if not _HEX_ID.match(aid):
-            raise _bad(tokens, i + 1, aid == "")
-        x = _num_at(tokens, i + 2)
-        y = _num_at(tokens, i + 3)
-        z = _num_at(tokens, i + 4)
-        d = _num_at(tokens, i + 5)
+            raise _bad(tokens, i + 1, aid == "", f"AN{k} id", "1-8 hex digits")
+        x = _num_at(tokens, i + 2, f"AN{k} x")
+        y = _num_at(tokens, i + 3, f"AN{k} y")
+        z = _num_at(tokens, i + 4, f"AN{k} z")
+        d = _num_at(tokens, i + 5, f"AN{k} distance")
         if d < 0.0:
-            raise _Malformed(d)
+            raise _Malformed(f"AN{k} distance {d} (field {i + 5}) is negative")
         anchors.append(DwmAnchorRange(aid.upper(), x, y, z, d))
         i += 6
     pos = None
     qf = None
     if i < len(tokens):
         if tokens[i] != "POS":
-            raise _bad(tokens, i, "POS".startswith(tokens[i]) and tokens[i] != "")
+            raise _bad(
+                tokens,
+                i,
+                "POS".startswith(tokens[i]) and tokens[i] != "",
+                f"the field after AN{n - 1}",
+                "'POS' or the end",
+            )
         pos, qf, i = _parse_pos(tokens, i)
         if i != len(tokens):
-            raise _Malformed("trailing tokens")
+            raise _Malformed(f"extra fields after POS's quality factor (from field {i})")
     return DwmReading(time_s, tuple(anchors), pos, qf)
 
 
@@ -235,10 +250,12 @@ class LecParser:
 
     def __init__(self) -> None:
         self.stats = LecStats()
+        #: why the last dropped line was dropped (:func:`explain_lec_line`); "" before any
+        self.last_drop_reason = ""
 
     def feed(self, line: str | bytes, time_s: float = math.nan) -> DwmReading | None:
         self.stats.lines += 1
-        kind, reading = classify_lec_line(line, time_s)
+        kind, reading, reason = explain_lec_line(line, time_s)
         if kind is LineKind.READING:
             self.stats.readings += 1
         elif kind is LineKind.IGNORED:
@@ -250,7 +267,8 @@ class LecParser:
         else:
             self.stats.binary += 1
         if kind in (LineKind.MALFORMED, LineKind.PARTIAL, LineKind.BINARY):
-            log.debug("dwm1001: dropped %s line %r", kind.value, line[:80])
+            self.last_drop_reason = f"{kind.value}: {reason}"
+            log.debug("dwm1001: dropped %s line %r: %s", kind.value, line[:80], reason)
         return reading
 
 

@@ -140,11 +140,21 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
     n = -(-round(cfg.ground_size_m / cfg.ground_texel_m) // 64) * 64  # exact 2x pyramid levels
     coarse = rng.normal(0.0, 1.0, (24, 24)).astype(np.float32)
     low = cv2.resize(coarse, (n, n), interpolation=cv2.INTER_CUBIC)
-    mid = cv2.resize(
-        rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR
+    mid = np.asarray(
+        cv2.resize(rng.normal(0.0, 1.0, (n // 16, n // 16)).astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR),
+        dtype=np.float32,
     )
-    img = 105.0 + 22.0 * low + 10.0 * mid + 6.0 * rng.standard_normal((n, n), dtype=np.float32)
-    ground = np.clip(img, 0, 255).astype(np.uint8)
+    # 105 + 22 low + 10 mid + 6 N(0, 1), evaluated left to right in float32 as that expression
+    # is, in place (each step the same single rounding; + commutes exactly): no 21 MB temporaries
+    img = np.asarray(low, dtype=np.float32)
+    img *= 22.0
+    img += 105.0
+    mid *= 10.0
+    img += mid
+    noise = rng.standard_normal((n, n), dtype=np.float32)
+    noise *= 6.0
+    img += noise
+    ground = np.clip(img, 0, 255, out=img).astype(np.uint8)
     px_per_m = 1.0 / cfg.ground_texel_m
     c0 = n / 2.0
 
@@ -191,12 +201,94 @@ def _ground_texture(cfg: SimCameraConfig, rng: np.random.Generator) -> U8Image:
     return ground
 
 
+_Distortion = tuple[tuple[float, float], tuple[int, int], tuple[NDArray, NDArray] | None]
+_DISTORTION_CACHE: dict[str, _Distortion] = {}
+_DISTORTION_CACHE_SIZE = 8
+
+
+def _distortion_setup(cam: CameraModel) -> _Distortion:
+    """The undistorted canvas (offset of the image in it, its size) and the ``cv2.remap`` maps
+    (distorted pixel -> canvas) of a camera model; None for the maps of an undistorted camera.
+
+    The maps depend on the model alone, and every landing of a campaign builds a camera of the same
+    model: they are computed once per model (keyed by its repr, which tells every float apart)
+    and shared read-only.
+    """
+    key = repr(cam)
+    hit = _DISTORTION_CACHE.get(key)
+    if hit is not None:
+        return hit
+    w, h = cam.size
+    out: _Distortion
+    if not cam.is_distorted:
+        out = ((0.0, 0.0), (w, h), None)
+    else:
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        ideal = cam.undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1))
+        if not np.all(np.isfinite(ideal)):
+            raise ValueError("camera distortion is not invertible over the whole image")
+        mx = ideal[:, 0].reshape(h, w)
+        my = ideal[:, 1].reshape(h, w)
+        ox = max(0.0, math.ceil(-mx.min()) + 2.0)
+        oy = max(0.0, math.ceil(-my.min()) + 2.0)
+        cw = math.ceil(mx.max() + ox) + 3
+        ch = math.ceil(my.max() + oy) + 3
+        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32), cv2.CV_16SC2)
+        m1.flags.writeable = False
+        m2.flags.writeable = False
+        out = ((ox, oy), (cw, ch), (m1, m2))
+    if len(_DISTORTION_CACHE) >= _DISTORTION_CACHE_SIZE:
+        del _DISTORTION_CACHE[next(iter(_DISTORTION_CACHE))]  # the oldest
+    _DISTORTION_CACHE[key] = out
+    return out
+
+
+# Columns of a warp's destination are processed in SIMD blocks from x = 0 (OpenCV: 2x the float32
+# lanes, 8 to 32 pixels), the last partial block by scalar code that rounds differently; a
+# destination narrowed to a multiple of 64 columns keeps every pixel in the same kind of block.
+_WARP_COLUMN_BLOCK = 64
+
+
+def _transparent_warp_extent(H: NDArray, tex_side: int, canvas_size: tuple[int, int]) -> tuple[int, int] | None:
+    """(width, height) of the top-left part of the canvas outside of which a BORDER_TRANSPARENT
+    ``cv2.warpPerspective`` of a square ``tex_side``-texel texture through ``H`` (texel -> canvas
+    pixel) writes nothing; (0, 0) when it misses the canvas; None when a texture corner is not in
+    front of the camera (then warp the whole canvas).
+
+    Each destination pixel's source position depends only on its own (x, y) and ``H``, so warping
+    into ``canvas[:height, :width]`` gives the same pixels there as warping the whole canvas (the
+    width is a multiple of :data:`_WARP_COLUMN_BLOCK` or the canvas width, see there); pixels
+    outside are left as they are, as the whole-canvas warp leaves them.
+    """
+    cw, ch = canvas_size
+    lo, hi = -2.0, tex_side + 1.0  # bilinear taps reach a texel past the outer texel centres; one more spare
+    xs, ys = [], []
+    for c, r in ((lo, lo), (hi, lo), (hi, hi), (lo, hi)):
+        w = H[2, 0] * c + H[2, 1] * r + H[2, 2]
+        if not w > 1e-9:  # also NaN
+            return None
+        xs.append((H[0, 0] * c + H[0, 1] * r + H[0, 2]) / w)
+        ys.append((H[1, 0] * c + H[1, 1] * r + H[1, 2]) / w)
+    # w > 0 at every corner, so over the whole square: its image is the convex hull of the corners
+    margin = 2.0
+    x_max, y_max = max(xs) + margin, max(ys) + margin
+    if x_max < 0.0 or y_max < 0.0 or min(xs) - margin > cw or min(ys) - margin > ch:
+        return (0, 0)
+    width = min(cw, -(-(math.ceil(x_max) + 1) // _WARP_COLUMN_BLOCK) * _WARP_COLUMN_BLOCK)
+    height = min(ch, math.ceil(y_max) + 1)
+    return width, height
+
+
 class SimulatedCamera:
     """A downward camera over the pad; deterministic for a given ``seed``.
 
     ``capture(T_world_body, exposure_time_s)`` renders what the camera mounted at
     ``T_body_camera`` sees; ``render(T_camera_pad)`` renders from a relative pose directly.
     """
+
+    #: warp the pad only into the part of the canvas it can reach (same pixels; False: the whole
+    #: canvas, the reference the tests compare against)
+    crop_pad_warp: bool = True
 
     def __init__(
         self,
@@ -235,31 +327,25 @@ class SimulatedCamera:
             np.float32
         ) * np.float32(cfg.noise_std)
         self._blur_kernel = self._make_blur_kernel()
+        # per-frame constants, computed once: the canvas intrinsics and their inverse (sky test),
+        # the mean focal length (texture levels), and the buffers a frame is built in (canvas and
+        # undistorted image are overwritten whole every frame, exposure works in float32; the
+        # frame handed out is a new array): one camera renders one frame at a time
+        ox, oy = self._offset
+        self._Kc = camera.K.copy()
+        self._Kc[0, 2] += ox
+        self._Kc[1, 2] += oy
+        self._Kc_inv = np.linalg.inv(self._Kc)
+        self._f = 0.5 * (camera.fx + camera.fy)
+        cw, ch = self._canvas_size
+        self._canvas: U8Image = np.empty((ch, cw), np.uint8)
+        self._undistorted: U8Image = np.empty((h, w), np.uint8)
+        self._exposure = np.empty((h, w), np.float32)
         self.frames_rendered = 0
 
     # ------------------------------------------------------------------ setup
     def _setup_distortion(self) -> None:
-        cam = self.camera
-        w, h = cam.size
-        if not cam.is_distorted:
-            self._offset = (0.0, 0.0)
-            self._canvas_size = (w, h)
-            self._maps: tuple[NDArray, NDArray] | None = None
-            return
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        ideal = cam.undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1))
-        if not np.all(np.isfinite(ideal)):
-            raise ValueError("camera distortion is not invertible over the whole image")
-        mx = ideal[:, 0].reshape(h, w)
-        my = ideal[:, 1].reshape(h, w)
-        ox = max(0.0, math.ceil(-mx.min()) + 2.0)
-        oy = max(0.0, math.ceil(-my.min()) + 2.0)
-        cw = math.ceil(mx.max() + ox) + 3
-        ch = math.ceil(my.max() + oy) + 3
-        self._offset = (ox, oy)
-        self._canvas_size = (cw, ch)
-        m1, m2 = cv2.convertMaps((mx + ox).astype(np.float32), (my + oy).astype(np.float32), cv2.CV_16SC2)
-        self._maps = (m1, m2)
+        self._offset, self._canvas_size, self._maps = _distortion_setup(self.camera)
 
     def _make_blur_kernel(self) -> NDArray[np.float32] | None:
         L = self.config.blur_px
@@ -317,43 +403,48 @@ class SimulatedCamera:
         if cam_in_pad[2] <= 1e-3:
             raise ValueError(f"T_camera_pad: camera is {cam_in_pad[2]:.3f} m above the pad plane; must be above it")
         cfg = self.config
-        ox, oy = self._offset
         cw, ch = self._canvas_size
-        Kc = self.camera.K.copy()
-        Kc[0, 2] += ox
-        Kc[1, 2] += oy
+        Kc = self._Kc
         P = Kc @ np.column_stack([R[:, 0], R[:, 1], t])  # pad plane (X, Y, 1) -> canvas pixels
 
         # depth of the ground under the optical axis, for the ground's texture level
         ray_pad = R.T @ np.array([0.0, 0.0, 1.0])
         depth = cam_in_pad[2] / max(-ray_pad[2], 0.1)
-        f = 0.5 * (self.camera.fx + self.camera.fy)
+        f = self._f
         lg = self._level_for(self._ground, f * cfg.ground_texel_m / depth)
         gimg = self._ground.level(lg)
-        canvas: U8Image = np.asarray(
-            cv2.warpPerspective(
-                gimg,
-                P @ self._ground.texel_to_plane(gimg),
-                (cw, ch),
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=self._ground_mean,
-            ),
-            dtype=np.uint8,
+        canvas = self._canvas
+        cv2.warpPerspective(
+            gimg,
+            P @ self._ground.texel_to_plane(gimg),
+            (cw, ch),
+            dst=canvas,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=self._ground_mean,
         )
         z_pad = max(float(t[2]), 1e-3)  # depth of the pad centre
         lp = self._level_for(self._pad, f * cfg.pad_texel_m / z_pad)
         pimg = self._pad.level(lp)
-        cv2.warpPerspective(
-            pimg,
-            P @ self._pad.texel_to_plane(pimg),
-            (cw, ch),
-            dst=canvas,
-            flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_TRANSPARENT,
-        )
+        H_pad = P @ self._pad.texel_to_plane(pimg)
+        # the pad covers a small part of the canvas: warp only the top-left-anchored part it can
+        # reach (same pixels, see _transparent_warp_extent), or nothing when it misses the canvas
+        ext = _transparent_warp_extent(H_pad, pimg.shape[0], (cw, ch)) if self.crop_pad_warp else None
+        pw, ph = ext if ext is not None else (cw, ch)
+        if pw > 0 and ph > 0:
+            cv2.warpPerspective(
+                pimg,
+                H_pad,
+                (pw, ph),
+                dst=canvas[:ph, :pw],
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_TRANSPARENT,
+            )
         self._paint_sky(canvas, R, Kc)
-        img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR) if self._maps is not None else canvas
+        if self._maps is not None:
+            img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR, dst=self._undistorted)
+        else:
+            img = canvas
         if self._blur_kernel is not None:
             img = cv2.filter2D(img, -1, self._blur_kernel, borderType=cv2.BORDER_REPLICATE)
         img = self._expose(img)
@@ -364,7 +455,8 @@ class SimulatedCamera:
         """Pixels whose ray does not reach the ground (above the horizon) get the sky level."""
         ch, cw = canvas.shape
         # ray direction z in the pad frame is linear in the pixel: n . [u, v, 1]
-        n = (R.T @ np.linalg.inv(Kc))[2]
+        Kc_inv = self._Kc_inv if Kc is self._Kc else np.linalg.inv(Kc)
+        n = (R.T @ Kc_inv)[2]
         corners = np.array([[0, 0, 1], [cw - 1, 0, 1], [0, ch - 1, 1], [cw - 1, ch - 1, 1]], float)
         if np.all(corners @ n < -1e-3):
             return
@@ -381,11 +473,14 @@ class SimulatedCamera:
         if cfg.offset_jitter > 0:
             offset = offset + float(self._rng.normal(0.0, cfg.offset_jitter))
         h, w = img.shape
-        out = img.astype(np.float32)
+        # in the float32 buffer, in place: the same operations as img.astype(float32), *, +, clip
+        out = self._exposure if self._exposure.shape == img.shape else np.empty(img.shape, np.float32)
+        out[...] = img  # uint8 -> float32, exact
         if gain != 1.0 or offset != 0.0:
             out *= np.float32(gain)
             out += np.float32(offset)
         if cfg.noise_std > 0:
             dy, dx = (int(x) for x in self._rng.integers(0, self._noise_margin, 2))
             out += self._noise[dy : dy + h, dx : dx + w]
-        return np.clip(out, 0, 255).astype(np.uint8)
+        np.clip(out, 0, 255, out=out)
+        return out.astype(np.uint8)

@@ -78,10 +78,18 @@ class SimCameraSource:
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
         now = self._clock.now()
-        ready = [(t, T) for t, T in self._poses if t + self.latency_s <= now and t > self._last_read_t]
-        if not ready:
+        # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
+        # the scan from the newest stops at the first one already read
+        pose = None
+        for p in reversed(self._poses):
+            if p[0] <= self._last_read_t:
+                break
+            if p[0] + self.latency_s <= now:
+                pose = p
+                break
+        if pose is None:
             return None
-        t, T = ready[-1]
+        t, T = pose
         self._last_read_t = t
         if not self._in_view(T):
             self.out_of_view += 1

@@ -52,3 +52,22 @@ class PathScorer:
             if tp is not None:
                 d = min(d, float(tp[1].distance_to_path(tp[0].point_from_ned(p))))
         return d
+
+    def in_plane_distance(self, m: DeliveryMission, phase: Phase, p_local_ned: ArrayLike) -> float:
+        """The distance within the path's vertical plane (along the path and up; the lateral
+        alpha_1 of delivery eq 16 left out): how far the vehicle leaves a climb, an arc or a
+        descent, apart from a sideways move such as the one onto a displaced pad. Against the
+        same reference as :meth:`distance`."""
+        assert m.frame is not None and m.path is not None
+
+        def planar(frame: MissionFrame, path: DeliveryPath) -> float:
+            q = np.array(frame.point_from_ned(np.asarray(p_local_ned, dtype=float)), dtype=float)
+            q[1] = 0.0
+            return float(path.distance_to_path(q))
+
+        d = planar(m.frame, m.path)
+        if phase is Phase.OUTBOUND:
+            tp = self._true_pad_path(m)
+            if tp is not None:
+                d = min(d, planar(*tp))
+        return d

@@ -77,10 +77,15 @@ class _GaussMarkov:
     sigma: float
     tau: float
     x: float = 0.0
+    # (dt, sigma, tau) -> (a, sigma * sqrt(1 - a^2)) of the last step: the physics steps at one dt
+    _coef: tuple[float, float, float, float, float] | None = field(default=None, repr=False, compare=False)
 
     def step(self, dt: float, n: float) -> float:
-        a = math.exp(-dt / self.tau)
-        self.x = a * self.x + self.sigma * math.sqrt(1.0 - a * a) * n
+        c = self._coef
+        if c is None or c[0] != dt or c[1] != self.sigma or c[2] != self.tau:
+            a = math.exp(-dt / self.tau)
+            c = self._coef = (dt, self.sigma, self.tau, a, self.sigma * math.sqrt(1.0 - a * a))
+        self.x = c[3] * self.x + c[4] * n
         return self.x
 
 

@@ -38,11 +38,18 @@ class _Finite:
     __slots__ = ()
 
     def validate(self) -> Self:
-        for f in fields(self):  # type: ignore[arg-type]
-            v = getattr(self, f.name)
+        cls = type(self)
+        names = _FIELD_NAMES.get(cls)
+        if names is None:  # the dataclass's fields, in order, looked up once per class
+            names = _FIELD_NAMES[cls] = tuple(f.name for f in fields(self))  # type: ignore[arg-type]
+        for name in names:
+            v = getattr(self, name)
             if isinstance(v, float) and not math.isfinite(v):
-                raise ValueError(f"{type(self).__name__}.{f.name} is not finite ({v})")
+                raise ValueError(f"{cls.__name__}.{name} is not finite ({v})")
         return self
+
+
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,9 +13,12 @@ paper's set-up) are *coplanar*: the ranges then fit the tag and its mirror image
 anchors' plane equally well, and the tag's distance from that plane is only weakly observed.
 Such a layout is accepted; ``tag_side`` ("above", the default, or "below") says on which side of
 the plane the tag flies, and the multilateration picks that side and reports the weak vertical
-(VDOP) so the EKF gets a larger vertical variance. Only truly degenerate geometry is refused:
-fewer than 3 distinct anchor positions, or anchors (nearly) on one line, where the tag's position
-around that line is unobservable.
+(VDOP) so the EKF gets a larger vertical variance. With the side known, three anchors at one height
+(not on a line) determine a TWR fix exactly, so a layout may have as few as 3 anchors
+(:data:`MIN_COPLANAR_ANCHORS`; three anchors are always coplanar); anchors at different heights
+need 4 (:data:`MIN_ANCHORS`). Only truly degenerate geometry is refused: fewer than 3 distinct
+anchor positions, or anchors (nearly) on one line, where the tag's position around that line is
+unobservable.
 """
 
 from __future__ import annotations
@@ -37,7 +40,10 @@ from companion.geometry import Transform
 DEFAULT_LAYOUT_FILE = "uwb_anchors_pad.toml"
 #: The Decawave DWM1001 working range the paper keeps between tag and anchors (delivery 4.2.2).
 DWM1001_MAX_RANGE_M = 10.0
+#: anchors at different heights (and any TDoA layout): x, y, z (and the TDoA offset) from 4 anchors
 MIN_ANCHORS = 4
+#: anchors at one height with a known ``tag_side``: TWR is exactly determined by 3 of them
+MIN_COPLANAR_ANCHORS = 3
 _ID_RE = re.compile(r"^[0-9A-Za-z_-]{1,16}$")
 _MAX_COORD_M = 1000.0
 #: the smallest singular value of the centred anchor positions: below this the anchors are
@@ -50,6 +56,10 @@ MIN_NONCOLLINEARITY_M = 0.1
 #: "above"/"below" to name a side of it.
 MIN_PLANE_NORMAL_Z = 0.5
 TAG_SIDES = ("above", "below")
+_TOO_FEW_RULE = (
+    f"at least {MIN_COPLANAR_ANCHORS} anchors at one height (with tag_side) or {MIN_ANCHORS} at different "
+    "heights are needed (delivery 4.2.2)"
+)
 
 
 class AnchorLayoutError(ValueError):
@@ -83,10 +93,8 @@ class AnchorLayout:
             raise AnchorLayoutError(
                 src, "positions_m", len(self.positions_m), f"need one position per id ({len(self.anchor_ids)} ids)"
             )
-        if len(self.anchor_ids) < MIN_ANCHORS:
-            raise AnchorLayoutError(
-                src, "anchor_ids", self.anchor_ids, f"at least {MIN_ANCHORS} anchors are needed (delivery 4.2.2)"
-            )
+        if len(self.anchor_ids) < MIN_COPLANAR_ANCHORS:
+            raise AnchorLayoutError(src, "anchor_ids", self.anchor_ids, _TOO_FEW_RULE)
         if len(set(self.anchor_ids)) != len(self.anchor_ids):
             raise AnchorLayoutError(src, "anchor_ids", self.anchor_ids, "anchor ids must be unique")
         for i, aid in enumerate(self.anchor_ids):
@@ -163,10 +171,8 @@ class AnchorLayout:
                 source, "tag_side", tag_side, f"must be one of {list(TAG_SIDES)} (the tag's side of coplanar anchors)"
             )
         anchors = data.get("anchors")
-        if not isinstance(anchors, list) or len(anchors) < MIN_ANCHORS:
-            raise AnchorLayoutError(
-                source, "anchors", anchors, f"need a list of at least {MIN_ANCHORS} [[anchors]] tables"
-            )
+        if not isinstance(anchors, list) or len(anchors) < MIN_COPLANAR_ANCHORS:
+            raise AnchorLayoutError(source, "anchors", anchors, f"need a list of [[anchors]] tables: {_TOO_FEW_RULE}")
         ids: list[str] = []
         positions: list[tuple[float, float, float]] = []
         for i, entry in enumerate(anchors):

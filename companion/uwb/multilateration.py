@@ -25,8 +25,9 @@ search (hypotheses from the full fit, every leave-one-out fit and every -- or a 
 of -- 4-anchor subset) finds the largest agreeing set; it is re-fitted, agreeing anchors are
 taken back, and the worst anchor is dropped and the fix re-solved while still inconsistent.
 With fewer than two redundant anchors (4 TWR / 5 TDoA anchors) an inconsistency can be detected
-but not attributed, so the sample is refused. Fewer than 4 usable anchors, degenerate geometry
-or PDOP above the limit: a typed :class:`UwbRejection`, never a guess.
+but not attributed, so the sample is refused. Fewer than 4 usable anchors (3 for TWR on coplanar
+anchors, below), degenerate geometry or PDOP above the limit: a typed :class:`UwbRejection`,
+never a guess.
 
 Anchors at one height (coplanar layouts, :attr:`AnchorLayout.coplanar`): the linear seeds give
 the tag's position in the anchors' plane and its distance h from the plane up to sign (TWR:
@@ -34,11 +35,22 @@ h^2 = d_i^2 - ||x_plane - a_i||^2, averaged; TDoA: the two roots of delivery eq 
 are the tag and its mirror image); the solution on the layout's ``tag_side`` is kept (a fix that
 converged to the mirror side is reflected back and re-refined). The fix reports HDOP and VDOP
 and ``vertical_weak``; the EKF then weights the vertical by VDOP instead of the isotropic PDOP.
-A tag in the plane itself (h -> 0) makes VDOP diverge and the fix is refused by ``max_pdop``.
+Such a fix is gated on the dilution in the anchors' plane (HDOP for anchors at one height), not
+on PDOP: a tag at (or near) the plane, or ranges slightly too short for any height so that the
+fitted height collapses onto the plane, still has a well-determined horizontal. There the
+linearised VDOP diverges; the reported VDOP is a second-order bound instead (h enters the ranges
+as h^2, see ``Multilaterator._geometry``), so the EKF hardly uses that vertical. A fix whose
+horizontal is poor (HDOP above ``max_pdop``) is still refused. This is TWR only: TDoA on coplanar
+anchors keeps the PDOP gate (its unknown offset absorbs the height wherever the anchors are about
+equidistant, at any height).
 
 Four TWR anchors (the paper's set-up) leave one redundant range: an inconsistent range is
 detected (the sample is refused) but cannot be attributed to an anchor, so such fixes carry
-``outliers_checked = False`` and the first one is logged.
+``outliers_checked = False`` and the first one is logged. With the tag's side known, three
+coplanar anchors (a 3-anchor layout, or 3 of a coplanar layout's anchors heard) determine a TWR
+fix exactly: ``redundancy = 0``, ``outliers_checked = False``, and nothing is checked beyond a
+solution existing (ranges that do not meet on the tag's side within ``residual_threshold_m`` are
+refused). Anchors at different heights, and TDoA, still need 4.
 
 Known limit: with the tag low, inside the anchors' height band (below ~1 m for the packaged
 layout), vertical geometry is weak and a 1-2 m NLOS error on one anchor can be absorbed by a
@@ -58,11 +70,14 @@ from enum import Enum
 import numpy as np
 from numpy.typing import ArrayLike
 
-from companion.uwb.anchors import MIN_ANCHORS, AnchorLayout
+from companion.uwb.anchors import MIN_ANCHORS, MIN_COPLANAR_ANCHORS, AnchorLayout
 
 log = logging.getLogger(__name__)
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
+#: coplanar anchors: a refined fix this close to the wrong side of their plane is taken as at the
+#: plane (reflected to the tag's side) rather than dropped
+_IN_PLANE_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -111,6 +126,11 @@ class UwbFix:
     outliers_checked: bool = True
     #: the anchors are coplanar: the vertical is weakly observed (weight it by ``vdop``)
     vertical_weak: bool = False
+    #: measurements beyond the unknowns (None: not known, e.g. a replayed fix). 0: exactly
+    #: determined (3 TWR anchors at one height, 4 TDoA anchors), nothing is checked beyond a
+    #: solution existing; 1 (4 TWR / 5 TDoA anchors): an inconsistent sample is refused, not
+    #: repaired; 2 or more: outliers are rejected (``outliers_checked``)
+    redundancy: int | None = None
 
     @property
     def position_m(self) -> np.ndarray:
@@ -140,7 +160,12 @@ class MultilaterationConfig:
 
     max_range_m: float | None = None
     residual_threshold_m: float = 0.30
+    #: the largest PDOP accepted; for coplanar anchors (whose vertical is weak by design) the
+    #: same limit applies to the dilution in the anchors' plane (HDOP for anchors at one height)
     max_pdop: float = 20.0
+    #: the ranging noise (DWM1001 TWR: +-10 cm) used only to bound the reported VDOP of a fix at
+    #: or near the anchors' plane, where the linearised VDOP diverges (``Multilaterator._geometry``)
+    range_sigma_m: float = 0.10
     max_iterations: int = 30
     step_tolerance_m: float = 1e-7  # converged: the next step is ~(1e-7)^2, far below noise
     max_subsets: int = 100
@@ -359,6 +384,19 @@ class _Solution:
     residuals: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Geometry:
+    """Dilutions of a fix (anchor frame) and the Jacobian its consistency check uses."""
+
+    pdop: float
+    hdop: float
+    vdop: float
+    #: the gated figure: PDOP, or for coplanar anchors the dilution in their plane
+    gate_dop: float
+    gate_name: str
+    jacobian: np.ndarray
+
+
 class Multilaterator:
     """Robust TWR and TDoA multilateration for one :class:`AnchorLayout`.
 
@@ -376,7 +414,15 @@ class Multilaterator:
         self._coplanar = layout.coplanar
         self._side_normal = layout.tag_side_normal if self._coplanar else None
         self._plane_point = layout.plane_point_m
-        self._logged_unchecked = False
+        self._plane_basis: np.ndarray | None = None
+        if self._side_normal is not None:
+            n = self._side_normal
+            e1 = np.array([1.0, 0.0, 0.0]) - n[0] * n
+            if np.linalg.norm(e1) < 0.5:
+                e1 = np.array([0.0, 1.0, 0.0]) - n[1] * n
+            e1 = e1 / np.linalg.norm(e1)
+            self._plane_basis = np.column_stack([e1, np.cross(n, e1), n])  # in-plane e1, e2; normal
+        self._logged_unchecked: set[int] = set()
         if self._coplanar:
             log.info(
                 "uwb: anchors of layout %r are coplanar: fixes are taken %s their plane, the vertical is weakly "
@@ -442,9 +488,10 @@ class Multilaterator:
         self, time_s: float, ids: list[str], obs: np.ndarray, tdoa: bool, prior: ArrayLike | None
     ) -> UwbFix | UwbRejection:
         cfg = self.config
-        if len(ids) < MIN_ANCHORS:
+        min_anchors = self._min_anchors(tdoa)
+        if len(ids) < min_anchors:
             return self._reject(
-                time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(ids)} usable anchors, need {MIN_ANCHORS}", len(ids)
+                time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(ids)} usable anchors, need {min_anchors}", len(ids)
             )
         prior_arr = None
         if prior is not None:
@@ -460,12 +507,12 @@ class Multilaterator:
         keep = np.arange(len(ids))
         if not self._consistent(anchors, obs, tdoa, sol)[0]:
             if len(ids) - n_unknowns < 2:
-                return self._reject(
-                    time_s,
-                    RejectReason.INCONSISTENT,
-                    f"residuals exceed {thr} m and too few anchors to tell which one is wrong",
-                    len(ids),
+                why = (
+                    ": no position fits them (exactly determined: no redundant anchor)"
+                    if len(ids) <= n_unknowns and not tdoa  # 3 TWR anchors at one height
+                    else " and too few anchors to tell which one is wrong"  # the text as it always was
                 )
+                return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m{why}", len(ids))
             robust = self._consensus(anchors, obs, tdoa, prior_arr)
             if robust is None:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
@@ -476,7 +523,7 @@ class Multilaterator:
         if np.any(far):
             self.counters.out_of_range += int(np.sum(far))
             keep = keep[~far]
-            if len(keep) < MIN_ANCHORS:
+            if len(keep) < min_anchors:
                 return self._reject(
                     time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
                 )
@@ -485,19 +532,32 @@ class Multilaterator:
                 return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
             if not self._consistent(anchors[keep], obs[keep], tdoa, sol)[0]:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
-        pdop, hdop, vdop = dilutions_of_precision(sol.theta, anchors[keep], tdoa)
-        if not pdop <= cfg.max_pdop:
-            return self._reject(time_s, RejectReason.BAD_GEOMETRY, f"PDOP {pdop:.1f} > {cfg.max_pdop}", len(keep))
-        self.counters.fixes += 1
-        checked = len(keep) - n_unknowns >= 2
-        if not checked and not self._logged_unchecked:
-            self._logged_unchecked = True
-            log.info(
-                "uwb: %d %s anchors leave one redundant measurement: fixes are accepted without outlier rejection "
-                "(an inconsistent sample is refused, not repaired), as in delivery 4.2.2",
-                len(keep),
-                "TDoA" if tdoa else "TWR",
+        geo = self._geometry(sol.theta, anchors[keep], tdoa)
+        if not geo.gate_dop <= cfg.max_pdop:
+            return self._reject(
+                time_s, RejectReason.BAD_GEOMETRY, f"{geo.gate_name} {geo.gate_dop:.1f} > {cfg.max_pdop}", len(keep)
             )
+        pdop, hdop, vdop = geo.pdop, geo.hdop, geo.vdop
+        self.counters.fixes += 1
+        redundancy = len(keep) - n_unknowns
+        checked = redundancy >= 2
+        if not checked and redundancy not in self._logged_unchecked:
+            self._logged_unchecked.add(redundancy)
+            kind = "TDoA" if tdoa else "TWR"
+            if redundancy <= 0:
+                log.info(
+                    "uwb: %d %s anchors determine the fix exactly: no redundant measurement, fixes are accepted "
+                    "without any consistency or outlier check",
+                    len(keep),
+                    kind,
+                )
+            else:
+                log.info(
+                    "uwb: %d %s anchors leave one redundant measurement: fixes are accepted without outlier "
+                    "rejection (an inconsistent sample is refused, not repaired), as in delivery 4.2.2",
+                    len(keep),
+                    kind,
+                )
         rms = float(np.sqrt(np.mean(sol.residuals**2)))
         x = sol.theta
         return UwbFix(
@@ -513,6 +573,82 @@ class Multilaterator:
             vdop,
             checked,
             self._coplanar,
+            redundancy,
+        )
+
+    def _min_anchors(self, tdoa: bool) -> int:
+        """4 (x, y, z; TDoA: and the offset), or 3 for TWR on coplanar anchors with a known side."""
+        return MIN_COPLANAR_ANCHORS if self._coplanar and not tdoa else MIN_ANCHORS
+
+    def _plane_jacobian(self, theta: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+        """Coplanar anchors, TWR: the Jacobian in (e1, e2, u), e1/e2 spanning the anchors' plane and
+        u = h^2 the squared distance from it, with the anchors projected onto the plane.
+
+        d_i = sqrt(rho_i^2 + u) has dd_i/du = 1/(2 d_i), finite at h = 0, where the z column of
+        the usual Jacobian vanishes; for h > 0 this is a reparametrisation of the third
+        coordinate, so the in-plane block of the covariance and the leverages are unchanged.
+        """
+        assert self._plane_basis is not None
+        B = self._plane_basis
+        n = B[:, 2]
+        x = theta[:3]
+        h = float((x - self._plane_point) @ n)
+        q = (x - anchors) - np.outer((x - anchors) @ n, n)  # in-plane offsets to the projected anchors
+        d = np.maximum(np.sqrt(np.sum(q**2, axis=1) + h * h), 1e-9)
+        return np.column_stack([(q @ B[:, 0]) / d, (q @ B[:, 1]) / d, 0.5 / d])
+
+    def _geometry(self, theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> _Geometry:
+        """The fix's dilutions. Anchors at different heights: PDOP/HDOP/VDOP of the linearised
+        problem, gated on PDOP (unchanged; TDoA too). Coplanar anchors, TWR: gated on the dilution
+        in their plane (HDOP for anchors at one height); the vertical is weak by design and
+        reported by VDOP.
+
+        At the anchors' plane (h -> 0) the linearised VDOP diverges although the horizontal is
+        well determined: h enters the ranges only as u = h^2, whose standard deviation is
+        sigma_u = sigma_r sqrt(var_u) (``_plane_jacobian``); a range error of sigma_r therefore
+        moves the height by about sqrt(sigma_u) -- a distance that does not vanish at the plane.
+        The reported VDOP is the smaller of the linearised one and this second-order bound
+        sqrt(sigma_u)/sigma_r = sqrt(sqrt(var_u)/sigma_r) (sigma_r: ``range_sigma_m``). Away from
+        the plane the linearised figure is the smaller one and is kept bit for bit.
+        """
+        pdop, hdop, vdop = dilutions_of_precision(theta, anchors, tdoa)
+        if not self._coplanar or tdoa:
+            # TDoA on coplanar anchors keeps the PDOP gate: its pseudo-range offset absorbs a
+            # change of height wherever the anchors are about equidistant (near the layout's
+            # centre), at any height, not only at the plane
+            return _Geometry(pdop, hdop, vdop, pdop, "PDOP", model_jacobian(theta, anchors, tdoa))
+        assert self._plane_basis is not None
+        Ju = self._plane_jacobian(theta, anchors)
+        try:
+            cov_u = np.linalg.inv(Ju.T @ Ju)
+        except np.linalg.LinAlgError:
+            inf = math.inf
+            return _Geometry(inf, inf, inf, inf, "HDOP (in the anchors' plane)", Ju)
+        d = np.diag(cov_u)
+        if not (np.all(np.isfinite(d[:3])) and np.all(d[:3] > 0.0)):
+            inf = math.inf
+            return _Geometry(inf, inf, inf, inf, "HDOP (in the anchors' plane)", Ju)
+        plane_dop = math.sqrt(float(d[0] + d[1]))
+        bound = math.sqrt(math.sqrt(float(d[2])) / self.config.range_sigma_m)
+        if vdop <= bound:  # the linearisation holds: the figures as they always were
+            return _Geometry(
+                pdop, hdop, vdop, plane_dop, "HDOP (in the anchors' plane)", model_jacobian(theta, anchors, tdoa)
+            )
+        # at the plane: the in-plane block from (e1, e2, u), the normal direction from the bound,
+        # rotated into the anchor frame (z up)
+        C_plane = np.zeros((3, 3))
+        C_plane[:2, :2] = cov_u[:2, :2]
+        C_plane[2, 2] = bound * bound
+        B = self._plane_basis
+        C = B @ C_plane @ B.T
+        c = np.diag(C)
+        return _Geometry(
+            math.sqrt(float(c.sum())),
+            math.sqrt(float(c[0] + c[1])),
+            math.sqrt(float(c[2])),
+            plane_dop,
+            "HDOP (in the anchors' plane)",
+            Ju,
         )
 
     def _fit(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None) -> _Solution | None:
@@ -562,8 +698,17 @@ class Multilaterator:
                 cost = float(r0 @ r0)
             if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
                 continue
-            if self._side_normal is not None and float((theta[:3] - self._plane_point) @ self._side_normal) < 0:
-                continue  # still on the wrong side: not a solution for this layout
+            if self._side_normal is not None:
+                h = float((theta[:3] - self._plane_point) @ self._side_normal)
+                if h < (-_IN_PLANE_M if not tdoa else 0.0):
+                    continue  # still on the wrong side: not a solution for this layout
+                if h < 0.0:
+                    # at the plane the refinement steps across it and back (the height is not
+                    # observed there): take its mirror image on the tag's side, which fits the
+                    # same for anchors exactly at one height (within a few mm for near-coplanar)
+                    theta = self._on_tag_side(theta)
+                    r0 = model_residuals(theta, anchors, obs, tdoa)
+                    cost = float(r0 @ r0)
             out.append(_Solution(theta, cost, model_residuals(theta, anchors, obs, tdoa)))
         return out
 
@@ -589,7 +734,13 @@ class Multilaterator:
         are judged by their plain residual.
         """
         score = np.abs(sol.residuals)
-        J = model_jacobian(sol.theta, anchors, tdoa)
+        # coplanar anchors with the tag at their plane: the (e1, e2, h^2) Jacobian, whose leverages
+        # equal the usual ones away from the plane and stay defined at it
+        J = (
+            self._geometry(sol.theta, anchors, tdoa).jacobian
+            if self._coplanar and not tdoa
+            else model_jacobian(sol.theta, anchors, tdoa)
+        )
         try:
             inv = np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:

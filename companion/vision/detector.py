@@ -393,6 +393,28 @@ def _marker_side_px(c: FloatArray) -> float:
     return float(np.mean(np.linalg.norm(c - np.roll(c, 1, axis=0), axis=1)))
 
 
+_EDGE_FRACTIONS: dict[int, FloatArray] = {}
+
+
+def _edge_fractions(samples_per_side: int) -> FloatArray:
+    """Where along a side its edge profiles are sampled (computed once per count; never written)."""
+    f = _EDGE_FRACTIONS.get(samples_per_side)
+    if f is None:
+        f = _EDGE_FRACTIONS[samples_per_side] = np.linspace(0.12, 0.88, samples_per_side)
+        f.flags.writeable = False
+    return f
+
+
+def _cov_rows(x: FloatArray) -> FloatArray:
+    """``np.cov(x)`` for a (2, n) float64 ``x``, n >= 2, by the same operations without the
+    argument handling (bit for bit the same matrix)."""
+    X = np.array(x, ndmin=2, dtype=np.float64)
+    X -= X.mean(axis=1)[:, None]
+    c = np.dot(X, X.T.conj())
+    c *= np.true_divide(1, X.shape[1] - 1)
+    return c
+
+
 def refine_corners_by_edges(
     gray: NDArray[np.uint8],
     corners: FloatArray,
@@ -414,15 +436,15 @@ def refine_corners_by_edges(
     Returns None when an edge cannot be measured (the caller falls back to the detected corners).
     """
     c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    side_len = float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
+    p1s = np.roll(c, -1, axis=0)
+    side_len = float(np.mean(np.linalg.norm(c - p1s, axis=1)))
     half = min(6.0, EDGE_PROFILE_CELLS * side_len / cells)
     if half < 1.0:
         return None
     offs = np.linspace(-half, half, max(9, int(4 * half) | 1))
-    frac = np.linspace(0.12, 0.88, samples_per_side)
+    frac = _edge_fractions(samples_per_side)
     centroid = c.mean(axis=0)
     p0s = c
-    p1s = np.roll(c, -1, axis=0)
     d = p1s - p0s
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     n = np.stack([-d[:, 1], d[:, 0]], axis=1)
@@ -449,29 +471,34 @@ def refine_corners_by_edges(
     with np.errstate(divide="ignore", invalid="ignore"):
         s_off = offs[a] + (level - v0) / (v1 - v0) * (offs[1] - offs[0])
     edge = base.reshape(4 * S, 2) + s_off[:, None] * np.repeat(n, S, axis=0)
-    ideal_all = np.full((4 * S, 2), np.nan)
-    if np.any(good):
-        ideal_all[good] = camera.undistort_pixels(edge[good])
-    lines = []
     for i in range(4):
-        sel = good[i * S : (i + 1) * S]
-        if sel.sum() < 4:
+        if good[i * S : (i + 1) * S].sum() < 4:
             return None
-        ideal = ideal_all[i * S : (i + 1) * S][sel]
+    # the edge points and the detected corners undistorted in one call (point by point)
+    ideal_good_and_ref = camera.undistort_pixels(np.concatenate([edge[good], c]))
+    ideal_all = np.full((4 * S, 2), np.nan)
+    ideal_all[good] = ideal_good_and_ref[:-4]
+    ref = ideal_good_and_ref[-4:]
+    means, covs = [], np.empty((4, 2, 2))
+    for i in range(4):
+        ideal = ideal_all[i * S : (i + 1) * S][good[i * S : (i + 1) * S]]
         if not np.all(np.isfinite(ideal)):
             return None
         m = ideal.mean(axis=0)
-        _, vecs = np.linalg.eigh(np.cov((ideal - m).T))
-        normal = vecs[:, 0]  # smallest eigenvalue: the line's normal (total least squares)
-        lines.append((normal, float(normal @ m)))  # normal . x = c
-    out = np.empty((4, 2))
+        means.append(m)
+        covs[i] = _cov_rows((ideal - m).T)
+    # the four sides' eigen-decompositions in one call (LAPACK's per matrix, as four calls)
+    normals = np.linalg.eigh(covs)[1][:, :, 0]  # smallest eigenvalue: the line's normal (total least squares)
+    lines = [(normals[i], float(normals[i] @ means[i])) for i in range(4)]  # normal . x = c
+    A = np.empty((4, 2, 2))
+    b = np.empty((4, 2, 1))
     for i in range(4):
         (n0, c0), (n1, c1) = lines[(i - 1) % 4], lines[i]  # corner i joins sides i-1 and i
-        A = np.array([n0, n1])
-        if abs(np.linalg.det(A)) < 1e-9:
-            return None
-        out[i] = np.linalg.solve(A, [c0, c1])
-    ref = camera.undistort_pixels(c)
+        A[i] = (n0, n1)
+        b[i, :, 0] = (c0, c1)
+    if np.any(np.abs(np.linalg.det(A)) < 1e-9):
+        return None
+    out = np.asarray(np.linalg.solve(A, b)[:, :, 0], dtype=np.float64)
     if np.max(np.linalg.norm(out - ref, axis=1)) > max(1.5, 0.05 * side_len):
         return None  # refinement disagrees with the detector: do not trust it
     return out

@@ -1,6 +1,8 @@
 import math
 
-from companion.autopilot import PositionNed, StatusText, TelemetryCache
+import pytest
+
+from companion.autopilot import Attitude, GlobalPosition, PositionNed, StatusText, TelemetryCache
 
 
 def test_nan_sample_rejected_and_counted_last_good_kept():
@@ -27,3 +29,16 @@ def test_link_latch_needs_a_heartbeat_newer_than_the_loss():
     assert not latch.check(2.5, True, 1.9)  # telemetry again, but no heartbeat since the loss
     assert latch.check(3.0, True, 2.8)  # fresh heartbeat: up
     assert latch.check(3.1, True, 2.8)
+
+
+def test_validate_names_the_first_non_finite_field_of_each_sample_type():
+    """validate() looks each dataclass's fields up once per type: every type keeps its own."""
+    for _ in range(2):  # the second round runs on the names looked up in the first
+        with pytest.raises(ValueError, match=r"PositionNed\.east_m is not finite"):
+            PositionNed(1.0, 1.0, math.nan, 3.0, 0.0, 0.0, 0.0).validate()
+        with pytest.raises(ValueError, match=r"Attitude\.pitch_rad is not finite"):
+            Attitude(1.0, 0.0, math.inf, math.nan, 0.0, 0.0, 0.0).validate()
+        with pytest.raises(ValueError, match=r"GlobalPosition\.time_s is not finite"):
+            GlobalPosition(math.nan, 1.0, 2.0, 3.0, 4.0).validate()
+        ok = GlobalPosition(1.0, 1.0, 2.0, 3.0, 4.0)
+        assert ok.validate() is ok

@@ -95,3 +95,7 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
     assert r.pad_landing_error_m <= r.believed_offset_m + r.estimate_error_m + 1e-9, r
     assert r.estimate_error_m <= r.pad_landing_error_m + r.believed_offset_m + 1e-9, r
     assert r.guidance_overruns >= 0 and r.setpoint_overruns >= 0
+    # the arcs' overshoot: within the path's plane, in sectors 2 and 4; never more than the whole
+    # distance there (the lateral part left out)
+    arcs = [row[3] for row in r.path_trace if row[2] in (2, 4)]
+    assert arcs and 0.0 <= r.path_max_arcs_m <= max(arcs) + 1e-9, (r.path_max_arcs_m, max(arcs))

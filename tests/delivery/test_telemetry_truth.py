@@ -128,7 +128,11 @@ def test_health_carries_the_process_cpu_and_no_heartbeat_in_the_embedded_simulat
     _r, _run, rec, _row = flight
     health = _messages(rec, "health")
     assert len(health) >= 3
-    assert health[0]["cpu_pct"] is None  # no interval before the first message
+    # the first health message has no interval to measure over (cpu_pct None), but health is sent
+    # keep-newest at 1 Hz of wall time while the embedded demo runs ~20x real time, so the first can
+    # be replaced by the next before the worker sends it (seen on CI: seq 0 carried 53.7 %)
+    first = health[0]["cpu_pct"]
+    assert first is None or first > 0.0, first
     cpu = [m["cpu_pct"] for m in health[1:]]
     assert all(c is not None and c > 0.0 for c in cpu), cpu
     # the embedded simulator has no HEARTBEAT: the field is absent, not a made-up age

@@ -20,6 +20,7 @@ from companion_plugins.dwm1001 import (
     LecParser,
     LineKind,
     classify_lec_line,
+    explain_lec_line,
     parse_lec_line,
 )
 
@@ -79,6 +80,33 @@ def test_truncated_lines_are_partial(cut: int) -> None:
 def test_malformed_lines(line: str) -> None:
     kind, r = classify_lec_line(line)
     assert r is None and kind is LineKind.MALFORMED
+
+
+@pytest.mark.parametrize(
+    ("line", "reason"),
+    [
+        ("hello world", "starts with 'hello world', not DIST or POS"),
+        ("DIST,x,AN0", "anchor count 'x' (field 1): 0-16 expected"),
+        ("DIST,1,AN1,1151,0,0,0,3.2", "the AN0 tag (field 2) is 'AN1': 'AN0' expected"),
+        ("DIST,1,AN0,ZZZZ,0,0,0,3.2", "AN0 id (field 3) is 'ZZZZ': 1-8 hex digits expected"),
+        ("DIST,1,AN0,1151,0,0,0,-3.2", "AN0 distance -3.2 (field 7) is negative"),
+        ("DIST,1,AN0,1151,0,inf,0,3.2", "AN0 y (field 5) is 'inf': a finite number expected"),
+        ("DIST,1,AN0,1151,0,0,0,3.2,EXTRA", "the field after AN0 (field 8) is 'EXTRA': 'POS' or the end expected"),
+        (
+            "DIST,1,AN0,1151,0,0,0,3.2,POS,1,2,3,150",
+            "POS quality factor (field 12) is '150': an integer 0-100 expected",
+        ),
+        ("DIST,1,AN0,1151,0,0,0,3.2,POS,1,2,3,50,9", "extra fields after POS's quality factor (from field 13)"),
+        ("DIST,1,AN0,1151,0,0,0,3.2,POS,1,2", "line ends before POS z (field 11)"),
+        ("DIST,1,AN0,1151,0,0,0,3.2,PO", "line ends inside the field after AN0 ('PO', field 8)"),
+        ("DIST,2,AN0,1151,0,0,0,3.2", "line ends before AN1 (field 8)"),
+    ],
+)
+def test_dropped_lines_say_why(line: str, reason: str) -> None:
+    kind, r, why = explain_lec_line(line)
+    assert r is None and why == reason
+    p = LecParser()
+    assert p.feed(line) is None and p.last_drop_reason == f"{kind.value}: {reason}"
 
 
 def test_binary_and_ignored_lines() -> None:

@@ -192,3 +192,116 @@ def test_render_speed() -> None:
         sim.capture(p, k / 30)
     ms = (time.perf_counter() - t0) / len(poses) * 1000.0
     assert ms < 15.0, f"{ms:.1f} ms per 640x480 frame"
+
+
+def _poses_around_the_pad(n: int, seed: int) -> list[Transform]:
+    """Vehicle poses from 0.3 m to 40 m over and beside the pad, level to steeply tilted: the pad
+    fills the frame, sits at an edge or a corner, lies partly or wholly outside the frame."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        alt = float(np.exp(rng.uniform(np.log(0.3), np.log(40.0))))
+        off = alt * rng.uniform(-0.9, 0.9, 2)  # up to ~ the edge of the view and beyond it
+        tilt = rng.uniform(-0.6, 0.6, 2) if rng.uniform() < 0.3 else rng.uniform(-0.08, 0.08, 2)
+        out.append(_vehicle(float(off[0]), float(off[1]), alt, float(tilt[0]), float(tilt[1]), rng.uniform(-3.1, 3.1)))
+    return out
+
+
+@pytest.mark.parametrize(
+    "camera, config",
+    [
+        (CAM, SimCameraConfig()),
+        (CAM, SimCameraConfig(noise_std=0.0, blur_px=3.0, gain=1.2, offset=-5.0, gain_jitter=0.05, offset_jitter=2.0)),
+        (CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0), SimCameraConfig()),  # no distortion: no remap
+        (CameraModel(352, 288, 300.0, 300.0, 170.0, 150.0, kind="dart", k_ud=0.25), SimCameraConfig()),
+    ],
+    ids=["default", "blur-lighting-jitter", "pinhole", "dart-odd-size"],
+)
+def test_pad_warp_into_the_reachable_canvas_gives_the_pixels_of_the_whole_canvas_warp(camera, config) -> None:
+    """The renderer warps the pad only into the top-left part of the canvas it can reach; the
+    frames are bit for bit those of the warp over the whole canvas (the reference path), for
+    every pose, noise and lighting draw included."""
+    cropped = SimulatedCamera(camera, LAYOUT, config, seed=11)
+    whole = SimulatedCamera(camera, LAYOUT, config, seed=11)
+    whole.crop_pad_warp = False
+    for k, pose in enumerate(_poses_around_the_pad(150, seed=3)):
+        a = cropped.capture(pose, k / 30).image
+        b = whole.capture(pose, k / 30).image
+        assert np.array_equal(a, b), f"pose {k}: {np.count_nonzero(a != b)} pixels differ"
+
+
+def test_pad_warp_extent() -> None:
+    from companion_sitl.camera import _WARP_COLUMN_BLOCK, _transparent_warp_extent
+
+    cw, ch = 650, 490
+
+    def scaled_to(x0: float, y0: float) -> np.ndarray:
+        """The pad's 1024 texels shown 100 px across with its top-left texel at canvas (x0, y0)."""
+        return np.array([[100 / 1024, 0.0, x0], [0.0, 100 / 1024, y0], [0.0, 0.0, 1.0]])
+
+    w, h = _transparent_warp_extent(scaled_to(200.0, 150.0), 1024, (cw, ch))
+    assert w % _WARP_COLUMN_BLOCK == 0 and 300 < w <= 300 + _WARP_COLUMN_BLOCK + 4 and 250 < h < 256
+    # reaching into the last, partial column block: the whole width
+    assert _transparent_warp_extent(scaled_to(600.0, 150.0), 1024, (cw, ch)) == (cw, h)
+    assert _transparent_warp_extent(scaled_to(-200.0, 150.0), 1024, (cw, ch)) == (0, 0)  # left of the canvas
+    assert _transparent_warp_extent(scaled_to(200.0, 600.0), 1024, (cw, ch)) == (0, 0)  # below it
+    behind = scaled_to(200.0, 150.0)
+    behind[2] = [0.0, -0.002, 1.0]  # the far side of the texture behind the camera
+    assert _transparent_warp_extent(behind, 1024, (cw, ch)) is None
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SimCameraConfig(),
+        SimCameraConfig(noise_std=0.0),
+        SimCameraConfig(gain=1.3, offset=-7.5),
+        SimCameraConfig(noise_std=0.0, gain=0.8),
+        SimCameraConfig(noise_std=5.0, gain_jitter=0.1, offset_jitter=6.0),
+    ],
+    ids=["noise", "none", "lighting-noise", "lighting", "jitter-noise"],
+)
+def test_exposure_in_place_equals_the_float32_formula(config: SimCameraConfig) -> None:
+    """The exposure works in a float32 buffer it keeps; the frames are those of
+    clip(float32(img) * gain + offset + noise, 0, 255) -> uint8, the same draws consumed."""
+    import copy
+
+    sim = SimulatedCamera(CAM, LAYOUT, config, seed=9)
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        img = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+        draws = copy.deepcopy(sim._rng)
+        got = sim._expose(img)
+        gain, offset = config.gain, config.offset
+        if config.gain_jitter > 0:
+            gain = max(0.05, gain + float(draws.normal(0.0, config.gain_jitter)))
+        if config.offset_jitter > 0:
+            offset = offset + float(draws.normal(0.0, config.offset_jitter))
+        want = img.astype(np.float32)
+        if gain != 1.0 or offset != 0.0:
+            want = want * np.float32(gain) + np.float32(offset)
+        if config.noise_std > 0:
+            dy, dx = (int(x) for x in draws.integers(0, 64, 2))
+            want = want + sim._noise[dy : dy + 480, dx : dx + 640]
+        assert np.array_equal(got, np.clip(want, 0, 255).astype(np.uint8))
+        assert got is not sim._expose(img)  # a new array every frame
+        sim._rng = draws  # the same draws consumed as the formula's
+
+
+def test_distortion_maps_are_computed_once_per_camera_model_and_equal_a_fresh_computation() -> None:
+    from companion_sitl import camera as sim_camera
+
+    dart = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, kind="dart", k_ud=0.25)
+    a = SimulatedCamera(CAM, LAYOUT, seed=1)
+    b = SimulatedCamera(CAM, LAYOUT, seed=2)
+    assert a._maps is b._maps and a._maps is not None and not a._maps[0].flags.writeable
+    assert SimulatedCamera(dart, LAYOUT, seed=1)._maps is not a._maps  # another model, its own maps
+    cached = sim_camera._distortion_setup(CAM)
+    sim_camera._DISTORTION_CACHE.clear()
+    fresh = sim_camera._distortion_setup(CAM)
+    assert fresh is not cached and fresh[:2] == cached[:2]
+    assert fresh[2] is not None and cached[2] is not None
+    assert all(np.array_equal(x, y) for x, y in zip(fresh[2], cached[2], strict=True))
+    for k in range(12):  # the cache stays small
+        sim_camera._distortion_setup(CameraModel(64, 48, 50.0 + k, 50.0, 32.0, 24.0, dist=(0.05, 0.0, 0.0, 0.0, 0.0)))
+    assert len(sim_camera._DISTORTION_CACHE) <= sim_camera._DISTORTION_CACHE_SIZE

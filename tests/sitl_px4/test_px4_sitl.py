@@ -193,7 +193,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     print(
         f"path RMS / max on truth: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate flown on: "
         f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded px4-sih (3 seeds) {pred_rms:.2f} / "
-        f"{pred_max:.2f} m"
+        f"{pred_max:.2f} m; largest distance in the arcs {r.path_max_arcs_m:.2f} m"
     )
     # Issue 12 item 5 against the embedded simulator standing in for this firmware (issue 17): the
     # px4-sih profile carries what PX4 SIH does to a path: its velocity loop (PI on a drag-heavy
@@ -206,6 +206,10 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     assert r.path_max_truth_m < 1.5 * pred_max, (r.path_max_truth_m, pred_max)
     assert r.path_rms_truth_m < 1.0 and r.path_max_truth_m < 2.0, (r.path_rms_truth_m, r.path_max_truth_m)
     assert r.tracking_rms_m < 0.7, r.tracking_rms_m
+    # the arcs' overshoot within the path's plane (issue 12 asks <= 0.5 m) is NOT held here: 0.71 and
+    # 1.34 m on PX4 SIH (the px4-sih profile 0.71-0.97 m), most of it PX4's height estimate reading
+    # ~12 % above the truth in flight (docs/profiles.md), which the companion flies on
+    assert math.isfinite(r.path_max_arcs_m), r
 
 
 async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):

@@ -1,6 +1,7 @@
 """Anchors at one height (the DWM1001 set-up of delivery 4.2.2): coplanar layouts are solved on
 the known side of the anchors' plane, the weak vertical is reported (VDOP) and handed to the EKF,
-only collinear or too few distinct anchors are refused."""
+a tag at the plane keeps its horizontal (gated on HDOP, VDOP bounded), three anchors with a known
+side fix the tag exactly, only collinear or too few distinct anchors are refused."""
 
 from __future__ import annotations
 
@@ -153,12 +154,135 @@ def test_vertical_error_follows_vdop_not_hdop() -> None:
     assert std_v == pytest.approx(sigma * vdop, rel=0.25)
 
 
-def test_tag_in_the_anchor_plane_is_refused_as_bad_geometry() -> None:
+#: the second-order VDOP bound at the centre of SQUARE, by hand: in (x, y, u = h^2) the Jacobian
+#: rows are (+-1/sqrt 2, +-1/sqrt 2, 1/(2 rho)), rho = sqrt 18 to every anchor, so J^T J =
+#: diag(2, 2, 4/(4 rho^2)) = diag(2, 2, 1/18): HDOP = sqrt(1/2 + 1/2) = 1, var_u = 18 per unit
+#: range error, VDOP = sqrt(sqrt(18) / 0.10) (range_sigma_m = 0.10)
+CENTRE_IN_PLANE_VDOP = math.sqrt(math.sqrt(18.0) / 0.10)
+
+
+@pytest.mark.parametrize("h", [0.0, 0.02])
+def test_tag_in_the_anchor_plane_gets_the_horizontal_and_a_weak_bounded_vertical(h: float) -> None:
+    """At the plane the linearised VDOP diverges (the fix used to be refused on PDOP); the
+    horizontal is as good as anywhere, so the fix is kept, gated on HDOP, with VDOP bounded."""
     layout = layout_from_positions(SQUARE)
-    p = np.array([0.0, 0.0, 1.2 + 0.02])
+    p = np.array([0.0, 0.0, 1.2 + h])
     d = np.linalg.norm(SQUARE - p, axis=1)
+    assert dilutions_of_precision(p, SQUARE, False)[0] > 20.0 or h == 0.0  # the old PDOP gate refused it
+    f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
+    np.testing.assert_allclose(f.position_m[:2], p[:2], atol=1e-6)
+    assert 1.2 <= f.z_m <= 1.2 + 0.05  # on the tag's side, at the plane: the height is not observed
+    assert f.vertical_weak and f.redundancy == 1
+    assert f.hdop == pytest.approx(1.0, rel=1e-3)
+    assert f.vdop == pytest.approx(CENTRE_IN_PLANE_VDOP, rel=1e-3)
+    assert f.pdop == pytest.approx(math.hypot(f.hdop, f.vdop), rel=1e-9)
+
+
+def test_ranges_too_short_for_any_height_collapse_onto_the_plane_with_the_horizontal_kept() -> None:
+    """Ranges a little shorter than the in-plane distances (as in a real PANS line, ranging
+    bias): no height fits, the least-squares height is 0; the horizontal is still right."""
+    layout = layout_from_positions(SQUARE, tag_side="below")
+    p = np.array([0.8, -0.5, 1.2])
+    d = np.linalg.norm(SQUARE - p, axis=1) - 0.05
+    f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
+    assert np.linalg.norm(f.position_m[:2] - p[:2]) < 0.02
+    assert 1.2 - 0.05 <= f.z_m <= 1.2  # the tag's side is below
+    assert f.hdop < 1.5 and f.vdop > 5.0
+    assert f.residual_rms_m == pytest.approx(0.05, abs=0.01)
+
+
+def test_a_poor_horizontal_is_still_refused() -> None:
+    """Anchors on a 0.6 m square, tag 9.5 m above: every range points the same way, the
+    horizontal is not determined (HDOP 22 > max_pdop 20) -- refused, naming the figure."""
+    small = np.array([[0.3, 0.3, 0.0], [-0.3, 0.3, 0.0], [-0.3, -0.3, 0.0], [0.3, -0.3, 0.0]])
+    layout = layout_from_positions(small)
+    d = np.linalg.norm(small - np.array([0.0, 0.0, 9.5]), axis=1)
     r = Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d)))
     assert isinstance(r, UwbRejection) and r.reason.value == "bad_geometry"
+    assert r.detail.startswith("HDOP (in the anchors' plane) 22.")
+
+
+#: three anchors on the floor; the tag at (1, 1, 2): ranges^2 = 6, 14, 9. By hand: d0^2 - d1^2 =
+#: 8x - 16 = -8 -> x = 1; d0^2 - d2^2 = 6y - 9 = -3 -> y = 1; h^2 = 6 - 1 - 1 = 4 -> h = 2.
+TRIANGLE = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
+
+
+@pytest.mark.parametrize(("side", "z"), [("above", 2.0), ("below", -2.0)])
+def test_three_anchors_at_one_height_determine_the_tag_exactly(side: str, z: float) -> None:
+    layout = layout_from_positions(TRIANGLE, tag_side=side)
+    assert layout.coplanar
+    m = Multilaterator(layout)
+    f = _fix(m.solve_twr(TwrMeasurement(0.0, layout.anchor_ids, (math.sqrt(6.0), math.sqrt(14.0), 3.0))))
+    np.testing.assert_allclose(f.position_m, [1.0, 1.0, z], atol=1e-9)
+    # exactly determined: no redundant range, so no outlier (nor consistency) check is possible
+    assert f.redundancy == 0 and not f.outliers_checked and f.vertical_weak
+    assert f.residual_rms_m < 1e-9
+    # TDoA has a fourth unknown: 3 anchors are not enough
+    r = m.solve_tdoa(TdoaMeasurement(0.0, "A0", ("A1", "A2"), (math.sqrt(14.0) - math.sqrt(6.0), 3.0 - math.sqrt(6.0))))
+    assert isinstance(r, UwbRejection) and r.reason.value == "too_few_anchors" and "need 4" in r.detail
+
+
+def test_three_anchor_ranges_that_do_not_meet_are_refused() -> None:
+    """In-plane distances sqrt(2), sqrt(10), sqrt(5) from (1, 1): ranges 0.5 m shorter fit no
+    point, the plain residuals (nothing is redundant) exceed the threshold."""
+    layout = layout_from_positions(TRIANGLE)
+    d = tuple(float(v) for v in np.sqrt([2.0, 10.0, 5.0]) - 0.5)
+    r = Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, d))
+    assert isinstance(r, UwbRejection) and r.reason.value == "inconsistent"
+    assert "exactly determined" in r.detail
+
+
+def test_three_heard_of_four_coplanar_anchors_give_a_fix_but_not_of_3d_anchors() -> None:
+    layout = layout_from_positions(SQUARE)
+    p = np.array([0.4, -0.7, 4.0])
+    d = np.linalg.norm(SQUARE - p, axis=1)
+    heard = layout.anchor_ids[:3]
+    f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, heard, tuple(d[:3]))))
+    np.testing.assert_allclose(f.position_m, p, atol=1e-8)
+    assert f.anchors_used == heard and f.redundancy == 0
+    shipped = load_anchor_layout()  # anchors at different heights: 3 ranges leave two mirror images
+    assert not shipped.coplanar
+    A = shipped.positions_array()
+    r = Multilaterator(shipped).solve_twr(
+        TwrMeasurement(0.0, shipped.anchor_ids[:3], tuple(np.linalg.norm(A[:3] - np.array([0.2, 0.1, 2.0]), axis=1)))
+    )
+    assert isinstance(r, UwbRejection) and r.reason.value == "too_few_anchors" and "need 4" in r.detail
+
+
+def test_a_three_anchor_file_loads_and_degenerate_three_are_refused(tmp_path: Path) -> None:
+    three = ONE_HEIGHT.split('[[anchors]]\nid = "A4"')[0]
+    layout = AnchorLayout.from_toml(_write(tmp_path, three))
+    assert len(layout.anchor_ids) == 3 and layout.coplanar
+    for edit, rule in [
+        (lambda t: t.replace("[-3.0, -3.0, 0.0]", "[0.0, 3.0, 0.0]"), "on one line"),
+        (lambda t: t.replace("[-3.0, -3.0, 0.0]", "[3.0, 3.0, 0.0]"), "2 distinct anchor positions"),
+    ]:
+        path = _write(tmp_path, edit(three))
+        with pytest.raises(AnchorLayoutError) as err:
+            AnchorLayout.from_toml(path)
+        assert err.value.key == "anchors.position_m" and rule in err.value.rule and str(path) in str(err.value)
+    two = ONE_HEIGHT.split('[[anchors]]\nid = "A3"')[0]
+    with pytest.raises(AnchorLayoutError) as err:
+        AnchorLayout.from_toml(_write(tmp_path, two))
+    assert err.value.key == "anchors" and "at least 3 anchors at one height" in err.value.rule
+
+
+def test_the_ekf_hardly_uses_the_vertical_of_an_in_plane_fix() -> None:
+    layout = layout_from_positions(SQUARE)
+    p = np.array([0.5, 0.3, 1.2])
+    f = _fix(
+        Multilaterator(layout).solve_twr(
+            TwrMeasurement(0.0, layout.anchor_ids, tuple(np.linalg.norm(SQUARE - p, axis=1)))
+        )
+    )
+    T = anchor_frame_to_ned(np.array([0.0, 0.0, 0.0]), math.pi / 2)
+    ekf = _ekf_at(T.apply(p))
+    P0 = ekf.P.copy()
+    assert ekf.update_uwb(f, T).value == "accepted"
+    # from a vague prior (10 m) the update leaves the vertical at ~(sigma VDOP)^2, sigma >= 0.1 m,
+    # i.e. the vertical the fix does not observe stays ~0.6 m uncertain, the horizontal ~7 cm
+    assert ekf.P[2, 2] > (0.1 * f.vdop) ** 2 and ekf.P[2, 2] > 50.0 * ekf.P[0, 0]
+    assert P0[0, 0] == P0[2, 2]
 
 
 def test_six_coplanar_anchors_still_reject_an_outlier() -> None:

@@ -81,7 +81,8 @@ def test_good_file_loads(tmp_path: Path) -> None:
             "anchors.position_m",
             "on one line",
         ),
-        (lambda t: t.split('[[anchors]]\nid = "A4"')[0], "anchors", "at least 4"),
+        # two anchors: even at one height a TWR fix needs 3 (see test_coplanar_anchors for 3)
+        (lambda t: t.split('[[anchors]]\nid = "A3"')[0], "anchors", "at least 3 anchors at one height"),
         (lambda t: t.replace('id = "A3"\n', 'id = "A3"\nheight = 2\n'), "anchors[2].height", "unknown key"),
     ],
 )
@@ -104,8 +105,8 @@ def test_unreadable_and_invalid_toml(tmp_path: Path) -> None:
 
 
 def test_direct_construction_validates() -> None:
-    with pytest.raises(AnchorLayoutError, match="at least 4"):
-        layout_from_positions([[0, 0, 0], [1, 0, 0], [0, 1, 1]])
+    with pytest.raises(AnchorLayoutError, match="at least 3 anchors at one height"):
+        layout_from_positions([[0, 0, 0], [1, 0, 1]])
     with pytest.raises(AnchorLayoutError, match="on one line"):
         layout_from_positions([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.01]])
     assert layout_from_positions([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]).coplanar
