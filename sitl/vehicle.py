@@ -296,21 +296,21 @@ class SimVehicle:
         t = self.time_s
         if self._home_reported is None and self.healthy:
             self._set_home()  # EKF origin and home at the first good GPS fix
-        rn = self._rng_wind.standard_normal(3)
+        rn = self._rng_wind.standard_normal(3).tolist()  # Python floats: the same values, no numpy scalars
         for i in range(3):
-            self._wind[i] = self._wind_mean[i] + self._gust[i].step(dt, float(rn[i]))
+            self._wind[i] = self._wind_mean[i] + self._gust[i].step(dt, rn[i])
         ramp = self.profile.wind_ramp_height_m
         if ramp > 0.0 and -self.pd < ramp:  # the SITL's wind fades towards the ground (profiles.py)
             k = math.sqrt(max(0.0, -self.pd) / ramp)
             for i in range(3):
                 self._wind[i] *= k
-        rg = self._rng_gps.standard_normal(3)
+        rg = self._rng_gps.standard_normal(3).tolist()
         for i in range(3):
-            self._walk[i].step(dt, float(rg[i]))
+            self._walk[i].step(dt, rg[i])
         if self._verr:
-            rv = self._rng_verr.standard_normal(3)
+            rv = self._rng_verr.standard_normal(3).tolist()
             for i in range(3):
-                self._verr[i].step(dt, float(rv[i]))
+                self._verr[i].step(dt, rv[i])
         if self._release_at is not None and t >= self._release_at:
             self.payload_released = True
             self._release_at = None
@@ -511,13 +511,13 @@ class SimVehicle:
 
     def position_ned(self) -> PositionNed:
         n, e, d = self._local()
-        r = self._rng_misc.standard_normal(3) * 0.03
+        r = [x * 0.03 for x in self._rng_misc.standard_normal(3).tolist()]
         vn, ve, vd = self.vn, self.ve, self.vd
         if self._verr:  # the reported velocity is the estimate the velocity loop flies on
             vn += self._verr[0].x
             ve += self._verr[1].x
             vd += self._verr[2].x
-        return PositionNed(self.time_s, n, e, d, vn + float(r[0]), ve + float(r[1]), vd + float(r[2]))
+        return PositionNed(self.time_s, n, e, d, vn + r[0], ve + r[1], vd + r[2])
 
     def global_position(self) -> GlobalPosition:
         est = self._estimate()
@@ -529,8 +529,8 @@ class SimVehicle:
     def gps_raw(self) -> GpsRaw:
         est = self._estimate()
         b = self._bias
-        r = self._rng_gps.standard_normal(3) * self.cfg.gps_noise_m
-        g = self._ltp.to_geo(est[0] + b[0] + float(r[0]), est[1] + b[1] + float(r[1]), est[2] + b[2] + float(r[2]))
+        r = [x * self.cfg.gps_noise_m for x in self._rng_gps.standard_normal(3).tolist()]
+        g = self._ltp.to_geo(est[0] + b[0] + r[0], est[1] + b[1] + r[1], est[2] + b[2] + r[2])
         return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, 3 if self.healthy else 1, 14, 0.8)
 
     def attitude(self) -> Attitude:
@@ -551,17 +551,17 @@ class SimVehicle:
             (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr),
         )
         fb = [R[i][0] * f[0] + R[i][1] * f[1] + R[i][2] * f[2] for i in range(3)]
-        na = self._rng_imu.standard_normal(6)
+        na = self._rng_imu.standard_normal(6).tolist()
         sa, sg = self.cfg.accel_noise_m_s2, self.cfg.gyro_noise_rad_s
         p, q, r = self._rates
         return Imu(
             self.time_s,
-            fb[0] + sa * float(na[0]),
-            fb[1] + sa * float(na[1]),
-            fb[2] + sa * float(na[2]),
-            p + sg * float(na[3]),
-            q + sg * float(na[4]),
-            r + sg * float(na[5]),
+            fb[0] + sa * na[0],
+            fb[1] + sa * na[1],
+            fb[2] + sa * na[2],
+            p + sg * na[3],
+            q + sg * na[4],
+            r + sg * na[5],
         )
 
     def status(self) -> VehicleStatus:
