@@ -44,30 +44,28 @@ class PathScorer:
         return self._true
 
     def distance(self, m: DeliveryMission, phase: Phase, p_local_ned: ArrayLike) -> float:
-        assert m.frame is not None and m.path is not None
-        p = np.asarray(p_local_ned, dtype=float)
-        d = float(m.path.distance_to_path(m.frame.point_from_ned(p)))
-        if phase is Phase.OUTBOUND:
-            tp = self._true_pad_path(m)
-            if tp is not None:
-                d = min(d, float(tp[1].distance_to_path(tp[0].point_from_ned(p))))
-        return d
+        return self._to_reference(m, phase, p_local_ned, in_plane=False)
 
     def in_plane_distance(self, m: DeliveryMission, phase: Phase, p_local_ned: ArrayLike) -> float:
         """The distance within the path's vertical plane (along the path and up; the lateral
         alpha_1 of delivery eq 16 left out): how far the vehicle leaves a climb, an arc or a
         descent, apart from a sideways move such as the one onto a displaced pad. Against the
         same reference as :meth:`distance`."""
-        assert m.frame is not None and m.path is not None
+        return self._to_reference(m, phase, p_local_ned, in_plane=True)
 
-        def planar(frame: MissionFrame, path: DeliveryPath) -> float:
-            q = np.array(frame.point_from_ned(np.asarray(p_local_ned, dtype=float)), dtype=float)
-            q[1] = 0.0
+    def _to_reference(self, m: DeliveryMission, phase: Phase, p_local_ned: ArrayLike, in_plane: bool) -> float:
+        assert m.frame is not None and m.path is not None
+        p = np.asarray(p_local_ned, dtype=float)
+
+        def to(frame: MissionFrame, path: DeliveryPath) -> float:
+            q = np.array(frame.point_from_ned(p), dtype=float)
+            if in_plane:
+                q[1] = 0.0  # alpha_1 = y (eq 16)
             return float(path.distance_to_path(q))
 
-        d = planar(m.frame, m.path)
+        d = to(m.frame, m.path)
         if phase is Phase.OUTBOUND:
             tp = self._true_pad_path(m)
             if tp is not None:
-                d = min(d, planar(*tp))
+                d = min(d, to(*tp))
         return d

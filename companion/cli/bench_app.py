@@ -391,7 +391,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
 
             def fused(obs: Any) -> Any:
                 out = on_marker(obs)
-                if out is UpdateOutcome.ACCEPTED and self._fused_steers():
+                if out is UpdateOutcome.ACCEPTED and self.fused_estimate_steers():
                     lat.frame_fused(obs.time_s)
                 return out
 

@@ -255,7 +255,7 @@ class DeliveryShell:
         tc = self.autopilot.telemetry
         mission = self.mission
         while not mission.phase.terminal:
-            now, _early = await rate.tick_or(self._marker_fused)
+            now, _ = await rate.tick_or(self._marker_fused)
             self.stats.guidance_overruns = rate.overruns
             if self._abort_reason is not None:
                 if self.recorder is not None:
@@ -269,7 +269,7 @@ class DeliveryShell:
                 # The fused frame puts the configured pad where the camera/UWB see it; home is a
                 # GPS point, so the way back (after the delivery) flies on the GPS-frame estimate.
                 fused = self.fusion.estimate() if self.fusion is not None else None
-                if fused is not None and not mission.summary.delivered and not mission.returning:
+                if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
             inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok)
             out = mission.step(inp)
@@ -363,7 +363,8 @@ class DeliveryShell:
                     if obs is not None:
                         if self.recorder is not None:
                             self.recorder.on_marker(self._clock.now(), obs, frame.image)
-                        if self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED and self._fused_steers():
+                        accepted = self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED
+                        if accepted and self.config.runtime.guidance_on_marker and self.fused_estimate_steers():
                             self._marker_fused.set()
                         if self._landing_target is not None:
                             self._send_landing_target(obs)
@@ -376,11 +377,11 @@ class DeliveryShell:
                             self.recorder.on_uwb(self._clock.now(), res)
                         self.fusion.on_uwb(res)
 
-    def _fused_steers(self) -> bool:
-        """The fused estimate is what guidance flies on (the way out and the landing on the pad),
-        and a fused observation is to reach a setpoint at once ([runtime] guidance_on_marker)."""
+    def fused_estimate_steers(self) -> bool:
+        """Guidance flies on the fused estimate (the way out and the landing on the pad); the way
+        back flies on the GPS-frame estimate (home is a GPS point)."""
         m = self.mission
-        return self.config.runtime.guidance_on_marker and not m.summary.delivered and not m.returning
+        return not m.summary.delivered and not m.returning
 
     def _down_in_camera(self) -> Any:
         """World down in the camera frame from the autopilot's latest attitude (None without one)."""
