@@ -63,6 +63,9 @@ class HarnessResult:
     # the estimate the autopilot flies on against the mission's path: what the guidance controls
     tracking_rms_m: float = math.nan
     tracking_max_m: float = math.nan
+    # the same in-plane distance in the arcs for the estimate flown on against the mission's path:
+    # the overshoot the guidance controls, apart from the autopilot's own estimation error
+    tracking_max_arcs_m: float = math.nan
     # per tick while following: time s, phase, sector of the true position, distance of truth and of
     # the estimate flown on to the path m, truth and estimate in the mission frame F_I m
     path_trace: tuple[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]], ...] = ()
@@ -103,6 +106,7 @@ async def fly_on_truth(
     path_d: list[float] = []
     path_out: list[float] = []
     arcs_in_plane: list[float] = []
+    arcs_tracking: list[float] = []
     trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
     t_start = time.monotonic()
     scorer: PathScorer | None = None
@@ -145,6 +149,9 @@ async def fly_on_truth(
                     path_out.append(path_d[-1])
                 if trace[-1][2] in ARC_SECTORS:
                     arcs_in_plane.append(scorer.in_plane_distance(m, out.phase, p))
+                    e_plane = np.array(e_i, dtype=float)
+                    e_plane[1] = 0.0  # alpha_1 = y (delivery eq 16), as PathScorer.in_plane_distance
+                    arcs_tracking.append(float(m.path.distance_to_path(e_plane)))
         st = tel.status
         if (
             not touchdown
@@ -184,6 +191,7 @@ async def fly_on_truth(
         path_max_arcs_m=max(arcs_in_plane, default=math.nan),
         tracking_rms_m=rms([row[4] for row in trace]),
         tracking_max_m=max((row[4] for row in trace), default=math.nan),
+        tracking_max_arcs_m=max(arcs_tracking, default=math.nan),
         path_trace=tuple(trace),
         believed_offset_m=math.hypot(*b),
         estimate_error_m=est_err,

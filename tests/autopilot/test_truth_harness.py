@@ -99,3 +99,6 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
     # distance there (the lateral part left out)
     arcs = [row[3] for row in r.path_trace if row[2] in (2, 4)]
     assert arcs and 0.0 <= r.path_max_arcs_m <= max(arcs) + 1e-9, (r.path_max_arcs_m, max(arcs))
+    # the same for the estimate flown on against the mission's path (the guidance's own overshoot)
+    arcs_est = [row[4] for row in r.path_trace if row[2] in (2, 4)]
+    assert 0.0 <= r.tracking_max_arcs_m <= max(arcs_est) + 1e-9, (r.tracking_max_arcs_m, max(arcs_est))

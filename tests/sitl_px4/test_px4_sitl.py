@@ -193,8 +193,13 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     print(
         f"path RMS / max on truth: PX4 {r.path_rms_truth_m:.2f} / {r.path_max_truth_m:.2f} m (estimate flown on: "
         f"{r.tracking_rms_m:.2f} / {r.tracking_max_m:.2f} m); embedded px4-sih (3 seeds) {pred_rms:.2f} / "
-        f"{pred_max:.2f} m; largest distance in the arcs {r.path_max_arcs_m:.2f} m"
+        f"{pred_max:.2f} m; largest distance in the arcs {r.path_max_arcs_m:.2f} m on truth, "
+        f"{r.tracking_max_arcs_m:.2f} m on the estimate flown on"
     )
+    # PX4's height error where truth is farthest from the path in the arcs (estimate - truth, F_I up)
+    worst = max((row for row in r.path_trace if row[2] in (2, 4)), key=lambda row: row[3])
+    dz = worst[6][2] - worst[5][2]
+    print(f"there (t = {worst[0]:.1f} s, {worst[1]}, S{worst[2]}) PX4's height estimate - truth: {dz:+.2f} m")
     # Issue 12 item 5 against the embedded simulator standing in for this firmware (issue 17): the
     # px4-sih profile carries what PX4 SIH does to a path: its velocity loop (PI on a drag-heavy
     # airframe, ~70 % of a 4 m/s cruise, the integrator carrying it ~1 m past the turn into the
@@ -206,9 +211,14 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     assert r.path_max_truth_m < 1.5 * pred_max, (r.path_max_truth_m, pred_max)
     assert r.path_rms_truth_m < 1.0 and r.path_max_truth_m < 2.0, (r.path_rms_truth_m, r.path_max_truth_m)
     assert r.tracking_rms_m < 0.7, r.tracking_rms_m
-    # the arcs' overshoot within the path's plane (issue 12 asks <= 0.5 m) is NOT held here: 0.71 and
-    # 1.34 m on PX4 SIH (the px4-sih profile 0.71-0.97 m), most of it PX4's height estimate reading
-    # ~12 % above the truth in flight (docs/profiles.md), which the companion flies on
+    # The arcs' overshoot within the path's plane (issue 12 asks <= 0.5 m). What the guidance
+    # controls, the estimate it flies on against its path, with the speed schedule PX4's tuning
+    # carries (autopilot_accel_* = 1.0 / 1.0): 0.27 / 0.37 / 0.28 m in three flights (0.46-0.74 m
+    # without, 0.30-0.68 m with 2.0 / 1.0, the largest past the descent line at home). On truth
+    # it is NOT held: 0.8-1.3 m, because PX4 SIH's own height estimate, which every companion
+    # flying on the autopilot's estimate flies on, reads 0.5-1.1 m above the truth in these flights
+    # (measured against HIL_STATE_QUATERNION: docs/profiles.md, "Path tracking").
+    assert r.tracking_max_arcs_m < 0.5, r.tracking_max_arcs_m
     assert math.isfinite(r.path_max_arcs_m), r
 
 
