@@ -106,7 +106,16 @@ def quat_conjugate(q: ArrayLike) -> FloatArray:
 
 
 def quat_to_rotmat(q: ArrayLike) -> FloatArray:
-    w, x, y, z = quat_normalize(q)
+    # quat_normalize on Python floats (numpy scalars cost ~0.1 us an operation): the norm as
+    # np.linalg.norm computes it (sqrt of v.dot(v)), then the same divisions and sign flip
+    v = np.asarray(q, dtype=float).reshape(4)
+    n = math.sqrt(float(v.dot(v)))
+    if not math.isfinite(n) or n == 0.0:
+        raise ValueError(f"cannot normalise quaternion {v!r}: norm is {n}")
+    w, x, y, z = v.tolist()
+    w, x, y, z = w / n, x / n, y / n, z / n
+    if not w >= 0.0:  # keep w >= 0 so equal rotations have one representation
+        w, x, y, z = -w, -x, -y, -z
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],

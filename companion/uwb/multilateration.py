@@ -69,6 +69,9 @@ from enum import Enum
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg.lapack import dgelsd as _gelsd
+from scipy.linalg.lapack import dgelsd_lwork as _gelsd_lwork
+from scipy.linalg.lapack import dgesv as _gesv
 
 from companion.uwb.anchors import MIN_ANCHORS, MIN_COPLANAR_ANCHORS, AnchorLayout
 
@@ -189,9 +192,58 @@ class MultilaterationCounters:
 # pure numerical helpers
 
 
+# Speed: these run a few dozen times per fix on arrays of 4-10 rows, where numpy's per-call
+# overhead is most of the cost. The arithmetic is kept as it was (the same reductions and LAPACK
+# routines, so the same floats) but called with less overhead: ``np.add.reduce`` is what ``np.sum``
+# calls, and LAPACK's gesv / gelsd are called directly (scipy.linalg.lapack), as ``np.linalg.solve``,
+# ``inv`` (gesv on the identity) and ``lstsq`` call them after their argument checks.
+
+
+_EPS = float(np.finfo(float).eps)
+_GELSD_SIZES: dict[tuple[int, int], tuple[int, int]] = {}
+
+
+def _sum_rows(a: np.ndarray) -> np.ndarray:
+    """Row sums, as ``np.sum(a, axis=1)`` (the same reduction without its Python wrapper)."""
+    return np.add.reduce(a, axis=1)
+
+
+def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """``np.linalg.solve(M, b)`` (LAPACK gesv, the same floats); None where it raises (singular)."""
+    _, _, x, info = _gesv(M, b)
+    return x if info == 0 else None
+
+
+def _inv(M: np.ndarray) -> np.ndarray | None:
+    """``np.linalg.inv(M)`` (numpy solves M X = I with gesv: the same floats); None when singular.
+
+    C-ordered like numpy's result (LAPACK returns it in Fortran order): products such as the
+    leverages' ``einsum`` sum in an order that follows the memory layout."""
+    x = _solve(M, np.eye(M.shape[0]))
+    return None if x is None else np.ascontiguousarray(x)
+
+
+def _lstsq(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
+    """(solution, rank) of ``np.linalg.lstsq(A, b, rcond=None)`` (LAPACK gelsd with numpy's default
+    rcond = eps * max(m, n), the same floats)."""
+    m, n = A.shape
+    rcond = _EPS * max(m, n)
+    sizes = _GELSD_SIZES.get((m, n))
+    if sizes is None:  # LAPACK's workspace query (the same answer for every call of one shape)
+        work, iwork, _ = _gelsd_lwork(m, n, 1, rcond)
+        sizes = _GELSD_SIZES[m, n] = (int(work), int(iwork))
+    bb = np.zeros(max(m, n))
+    bb[:m] = b
+    x, _, rank, info = _gelsd(A, bb, sizes[0], sizes[1], rcond)
+    if info != 0:
+        raise np.linalg.LinAlgError("SVD did not converge in linear least squares")
+    return x[:n], int(rank)
+
+
 def model_residuals(theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdoa: bool) -> np.ndarray:
     """TWR: ||x - a_i|| - d_i.  TDoA (pseudo-range form of eqs 2-4): ||x - a_i|| - c - rho_i."""
-    dist = np.sqrt(np.sum((theta[:3] - anchors) ** 2, axis=1))
+    diff = theta[:3] - anchors
+    dist = np.sqrt(_sum_rows(diff * diff))
     r = dist - obs
     if tdoa:
         r = r - theta[3]
@@ -200,11 +252,15 @@ def model_residuals(theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdo
 
 def model_jacobian(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> np.ndarray:
     diff = theta[:3] - anchors
-    dist = np.maximum(np.sqrt(np.sum(diff**2, axis=1)), 1e-9)
-    u = diff / dist[:, None]
+    return _jacobian_of(diff, np.sqrt(_sum_rows(diff * diff)), tdoa)
+
+
+def _jacobian_of(diff: np.ndarray, dist: np.ndarray, tdoa: bool) -> np.ndarray:
+    """:func:`model_jacobian` from x - a_i and ||x - a_i|| (the residuals' intermediates)."""
+    u = diff / np.maximum(dist, 1e-9)[:, None]
     if not tdoa:
         return u
-    return np.hstack([u, -np.ones((len(anchors), 1))])
+    return np.hstack([u, -np.ones((len(diff), 1))])
 
 
 def linear_twr_seed(
@@ -216,13 +272,13 @@ def linear_twr_seed(
     linear system only fixes the in-plane position x_p; the distance from the plane is
     h = sqrt(mean(d_i^2 - ||x_p - a_i||^2)) on the side of the normal.
     """
-    centre = anchors.mean(axis=0)
+    centre = np.add.reduce(anchors, axis=0) / len(anchors)  # the mean (as anchors.mean(axis=0))
     a = anchors - centre
-    k2 = np.sum(a**2, axis=1)
+    k2 = _sum_rows(a * a)
     A = 2.0 * (a[1:] - a[0])
     b = (ranges[0] ** 2 - ranges[1:] ** 2) + (k2[1:] - k2[0])
     if side_normal is None:
-        sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+        sol, rank = _lstsq(A, b)
         if rank < 3:
             return None
         return sol + centre
@@ -309,40 +365,60 @@ def levenberg_marquardt(
     Stops on a step below ``step_tolerance``, a relative cost decrease below 1e-12, or when
     no damped step lowers the cost any more (converged to rounding).
     """
-    theta = theta0.astype(float).copy()
-    r = model_residuals(theta, anchors, obs, tdoa)
-    cost = float(r @ r)
+    theta, cost, _ = _levenberg_marquardt(theta0, anchors, obs, tdoa, max_iterations, step_tolerance)
+    return theta, cost
+
+
+def _levenberg_marquardt(
+    theta0: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, max_iterations: int, step_tolerance: float
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """:func:`levenberg_marquardt`, also returning the residuals at the solution. The Jacobian at
+    an accepted point is built from the x - a_i and ||x - a_i|| its residuals were computed from
+    (as :func:`model_residuals` then :func:`model_jacobian` compute them)."""
+
+    def residuals(th: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # model_residuals
+        diff = th[:3] - anchors
+        dist = np.sqrt(_sum_rows(diff * diff))
+        res = dist - obs
+        if tdoa:
+            res = res - th[3]
+        return res, diff, dist
+
+    theta = theta0.astype(float)  # a copy
+    r, diff, dist = residuals(theta)
+    cost = float(r.dot(r))
     lam = 1e-6
     n = theta.size
-    diag = np.arange(n)
     for _ in range(max_iterations):
-        J = model_jacobian(theta, anchors, tdoa)
-        A = J.T @ J
-        g = J.T @ r
+        J = _jacobian_of(diff, dist, tdoa)
+        A = J.T.dot(J)  # J^T J (Gauss-Newton normal matrix)
+        g = J.T.dot(r)
         accepted = False
         step = np.zeros(n)
         for _try in range(8):
             M = A.copy()
-            M[diag, diag] *= 1.0 + lam
-            M[diag, diag] += 1e-12
-            try:
-                step = np.linalg.solve(M, -g)
-            except np.linalg.LinAlgError:
+            Md = M.reshape(-1)[:: n + 1]  # a view of the diagonal: (J^T J + lam diag(J^T J)) + 1e-12 I
+            Md *= 1.0 + lam
+            Md += 1e-12
+            solved = _solve(M, -g)
+            if solved is None:  # singular (np.linalg.solve raised)
                 lam *= 10.0
                 continue
+            step = solved
             cand = theta + step
-            r_new = model_residuals(cand, anchors, obs, tdoa)
-            c_new = float(r_new @ r_new)
+            r_new, diff_new, dist_new = residuals(cand)
+            c_new = float(r_new.dot(r_new))
             if c_new <= cost:
                 decrease = cost - c_new
-                theta, r, cost = cand, r_new, c_new
+                theta, r, cost, diff, dist = cand, r_new, c_new, diff_new, dist_new
                 lam = max(lam * 0.1, 1e-12)
                 accepted = True
                 break
             lam *= 10.0
-        if not accepted or float(np.max(np.abs(step))) < step_tolerance or cost < 1e-26 or decrease <= 1e-12 * cost:
+        # (an accepted step is finite, so the largest |step| on floats equals np.max(np.abs(step)))
+        if not accepted or max(map(abs, step.tolist())) < step_tolerance or cost < 1e-26 or decrease <= 1e-12 * cost:
             break
-    return theta, cost
+    return theta, cost, r
 
 
 def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> float:
@@ -352,9 +428,8 @@ def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) ->
     the PDOP of independent per-anchor timing errors, in units of that range error.
     """
     J = model_jacobian(theta, anchors, tdoa)
-    try:
-        cov = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
+    cov = _inv(J.T.dot(J))
+    if cov is None:  # singular
         return math.inf
     tr = float(np.trace(cov[:3, :3]))
     return math.sqrt(tr) if tr > 0 and math.isfinite(tr) else math.inf
@@ -364,14 +439,17 @@ def dilutions_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -
     """(PDOP, HDOP, VDOP) from the position block of (J^T J)^-1 (see :func:`dilution_of_precision`):
     HDOP = sqrt(var_x + var_y), VDOP = sqrt(var_z) in the anchor frame (z up), per unit range error."""
     J = model_jacobian(theta, anchors, tdoa)
-    try:
-        cov = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
+    return _dilutions_of_cov(_inv(J.T.dot(J)))
+
+
+def _dilutions_of_cov(cov: np.ndarray | None) -> tuple[float, float, float]:
+    """(PDOP, HDOP, VDOP) from (J^T J)^-1 (None: singular)."""
+    if cov is None:
         return math.inf, math.inf, math.inf
-    d = np.diag(cov)[:3]
-    if not (np.all(np.isfinite(d)) and np.all(d > 0.0)):
+    d0, d1, d2 = cov.diagonal()[:3].tolist()
+    if not (0.0 < d0 < math.inf and 0.0 < d1 < math.inf and 0.0 < d2 < math.inf):  # finite and > 0
         return math.inf, math.inf, math.inf
-    return math.sqrt(float(d.sum())), math.sqrt(float(d[0] + d[1])), math.sqrt(float(d[2]))
+    return math.sqrt(d0 + d1 + d2), math.sqrt(d0 + d1), math.sqrt(d2)
 
 
 # --------------------------------------------------------------------------------------------
@@ -423,6 +501,11 @@ class Multilaterator:
             e1 = e1 / np.linalg.norm(e1)
             self._plane_basis = np.column_stack([e1, np.cross(n, e1), n])  # in-plane e1, e2; normal
         self._logged_unchecked: set[int] = set()
+        # the last (J, (J^T J)^-1) at a fix: the consistency check and the dilutions of one fix
+        # need the same pair (keyed by the fix, the anchors and the kind)
+        self._jc_key: tuple[bytes, bytes, bool] | None = None
+        self._jc: tuple[np.ndarray, np.ndarray | None] = (np.zeros((0, 3)), None)
+        self._index = {a: i for i, a in enumerate(layout.anchor_ids)}  # layout.index_of, as a dict
         if self._coplanar:
             log.info(
                 "uwb: anchors of layout %r are coplanar: fixes are taken %s their plane, the vertical is weakly "
@@ -479,6 +562,16 @@ class Multilaterator:
 
     # internals ----------------------------------------------------------------------------
 
+    def _jacobian_cov(self, theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """J = :func:`model_jacobian` at ``theta`` and (J^T J)^-1 (None if singular), computed once
+        per fix (the same floats each time, so reusing them changes nothing)."""
+        key = (theta.tobytes(), anchors.tobytes(), tdoa)
+        if key != self._jc_key:
+            J = model_jacobian(theta, anchors, tdoa)
+            self._jc = (J, _inv(J.T.dot(J)))
+            self._jc_key = key
+        return self._jc
+
     def _reject(self, time_s: float, reason: RejectReason, detail: str, usable: int) -> UwbRejection:
         self.counters.rejections[reason.value] += 1
         log.debug("uwb fix rejected at %.3f: %s (%s)", time_s, reason.value, detail)
@@ -497,7 +590,7 @@ class Multilaterator:
         if prior is not None:
             p = np.asarray(prior, dtype=float).reshape(3)
             prior_arr = p if np.all(np.isfinite(p)) else None
-        anchors = self._positions[[self.layout.index_of(a) for a in ids]]
+        anchors = self._positions[[self._index[a] for a in ids]]
         n_unknowns = 4 if tdoa else 3
         thr = cfg.residual_threshold_m
 
@@ -518,21 +611,24 @@ class Multilaterator:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
             keep, sol = robust
         # the range limit (delivery 4.2.2): anchors too far from the fix are not trusted
-        dist = np.sqrt(np.sum((sol.theta[:3] - anchors[keep]) ** 2, axis=1))
+        kept = anchors if len(keep) == len(anchors) else anchors[keep]  # (all kept: the same values)
+        diff = sol.theta[:3] - kept
+        dist = np.sqrt(_sum_rows(diff * diff))
         far = dist > self.max_range_m
-        if np.any(far):
+        if far.any():
             self.counters.out_of_range += int(np.sum(far))
             keep = keep[~far]
+            kept = anchors[keep]
             if len(keep) < min_anchors:
                 return self._reject(
                     time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
                 )
-            sol = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
+            sol = self._fit(kept, obs[keep], tdoa, sol.theta[:3])
             if sol is None:
                 return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
-            if not self._consistent(anchors[keep], obs[keep], tdoa, sol)[0]:
+            if not self._consistent(kept, obs[keep], tdoa, sol)[0]:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
-        geo = self._geometry(sol.theta, anchors[keep], tdoa)
+        geo = self._geometry(sol.theta, kept, tdoa)
         if not geo.gate_dop <= cfg.max_pdop:
             return self._reject(
                 time_s, RejectReason.BAD_GEOMETRY, f"{geo.gate_name} {geo.gate_dop:.1f} > {cfg.max_pdop}", len(keep)
@@ -558,7 +654,8 @@ class Multilaterator:
                     len(keep),
                     kind,
                 )
-        rms = float(np.sqrt(np.mean(sol.residuals**2)))
+        res = sol.residuals
+        rms = math.sqrt(float(np.add.reduce(res * res)) / len(res))  # as np.sqrt(np.mean(r**2))
         x = sol.theta
         return UwbFix(
             time_s,
@@ -611,12 +708,13 @@ class Multilaterator:
         sqrt(sigma_u)/sigma_r = sqrt(sqrt(var_u)/sigma_r) (sigma_r: ``range_sigma_m``). Away from
         the plane the linearised figure is the smaller one and is kept bit for bit.
         """
-        pdop, hdop, vdop = dilutions_of_precision(theta, anchors, tdoa)
+        J, cov = self._jacobian_cov(theta, anchors, tdoa)
+        pdop, hdop, vdop = _dilutions_of_cov(cov)  # dilutions_of_precision(theta, anchors, tdoa)
         if not self._coplanar or tdoa:
             # TDoA on coplanar anchors keeps the PDOP gate: its pseudo-range offset absorbs a
             # change of height wherever the anchors are about equidistant (near the layout's
             # centre), at any height, not only at the plane
-            return _Geometry(pdop, hdop, vdop, pdop, "PDOP", model_jacobian(theta, anchors, tdoa))
+            return _Geometry(pdop, hdop, vdop, pdop, "PDOP", J)
         assert self._plane_basis is not None
         Ju = self._plane_jacobian(theta, anchors)
         try:
@@ -631,9 +729,7 @@ class Multilaterator:
         plane_dop = math.sqrt(float(d[0] + d[1]))
         bound = math.sqrt(math.sqrt(float(d[2])) / self.config.range_sigma_m)
         if vdop <= bound:  # the linearisation holds: the figures as they always were
-            return _Geometry(
-                pdop, hdop, vdop, plane_dop, "HDOP (in the anchors' plane)", model_jacobian(theta, anchors, tdoa)
-            )
+            return _Geometry(pdop, hdop, vdop, plane_dop, "HDOP (in the anchors' plane)", J)
         # at the plane: the in-plane block from (e1, e2, u), the normal direction from the bound,
         # rotated into the anchor frame (z up)
         C_plane = np.zeros((3, 3))
@@ -682,21 +778,23 @@ class Multilaterator:
                 seeds.append(prior.copy())
         out: list[_Solution] = []
         for seed in seeds:
-            if not np.all(np.isfinite(seed)):
+            if not all(map(math.isfinite, seed.tolist())):
                 continue
             seed = self._on_tag_side(seed)
             if refine:
-                theta, cost = levenberg_marquardt(seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m)
+                theta, cost, r0 = _levenberg_marquardt(
+                    seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m
+                )
                 if self._side_normal is not None and float((theta[:3] - self._plane_point) @ self._side_normal) < 0:
                     # converged to the mirror image: reflect it to the tag's side and refine there
-                    theta, cost = levenberg_marquardt(
+                    theta, cost, r0 = _levenberg_marquardt(
                         self._on_tag_side(theta), anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m
                     )
             else:  # an exactly determined closed-form solution (minimal TDoA subset)
                 theta = seed
                 r0 = model_residuals(seed, anchors, obs, tdoa)
                 cost = float(r0 @ r0)
-            if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
+            if not (all(map(math.isfinite, theta.tolist())) and math.isfinite(cost)):
                 continue
             if self._side_normal is not None:
                 h = float((theta[:3] - self._plane_point) @ self._side_normal)
@@ -709,7 +807,7 @@ class Multilaterator:
                     theta = self._on_tag_side(theta)
                     r0 = model_residuals(theta, anchors, obs, tdoa)
                     cost = float(r0 @ r0)
-            out.append(_Solution(theta, cost, model_residuals(theta, anchors, obs, tdoa)))
+            out.append(_Solution(theta, cost, r0))  # r0: model_residuals at theta
         return out
 
     def _on_tag_side(self, theta: np.ndarray) -> np.ndarray:
@@ -736,20 +834,21 @@ class Multilaterator:
         score = np.abs(sol.residuals)
         # coplanar anchors with the tag at their plane: the (e1, e2, h^2) Jacobian, whose leverages
         # equal the usual ones away from the plane and stay defined at it
-        J = (
-            self._geometry(sol.theta, anchors, tdoa).jacobian
-            if self._coplanar and not tdoa
-            else model_jacobian(sol.theta, anchors, tdoa)
-        )
-        try:
-            inv = np.linalg.inv(J.T @ J)
-        except np.linalg.LinAlgError:
+        if self._coplanar and not tdoa:
+            J = self._geometry(sol.theta, anchors, tdoa).jacobian
+            inv = _inv(J.T.dot(J))
+        else:
+            J, inv = self._jacobian_cov(sol.theta, anchors, tdoa)
+        if inv is None:  # singular (np.linalg.inv raised)
             return False, score
         h = np.einsum("ij,jk,ik->i", J, inv, J)
-        one_minus = 1.0 - h
-        ok_lev = one_minus > 1e-6
-        score = np.where(ok_lev, score / np.sqrt(np.where(ok_lev, one_minus, 1.0)), score)
-        return bool(np.all(score <= self.config.residual_threshold_m)), score
+        # score_i = |r_i| / sqrt(1 - h_ii) where 1 - h_ii > 1e-6, else |r_i| (on floats: the same
+        # IEEE operations as the array form, without its five temporaries)
+        scores = [
+            a / math.sqrt(1.0 - hi) if 1.0 - hi > 1e-6 else a for a, hi in zip(score.tolist(), h.tolist(), strict=True)
+        ]
+        thr = self.config.residual_threshold_m
+        return all(v <= thr for v in scores), np.array(scores)
 
     def _subsets(self, n: int) -> list[tuple[int, ...]]:
         total = math.comb(n, MIN_ANCHORS)

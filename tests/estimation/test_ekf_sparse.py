@@ -70,7 +70,7 @@ def test_propagation_blocks_and_sparse_covariance_equal_the_dense_eq_6(seed: int
         _close(G6, G[0:6])
         assert not np.any(G[6:])
         dense = F @ P @ F.T + G @ Qu @ G.T + np.diag(qf)  # eq 6
-        _close(propagate_covariance(P, F3, G6, Qu, qf), dense)
+        _close(propagate_covariance(P, F3, G6, np.diag(Qu), qf), dense)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -137,3 +137,96 @@ def test_filter_runs_equal_the_dense_filter(seed: int, gating: bool) -> None:
         _close(fast.P, dense.P)
     assert UpdateOutcome.ACCEPTED in outcomes
     assert fast.counters == dense.counters
+
+
+def _aruco_model_numpy(x: np.ndarray, T_bc: Transform, T_wm: Transform) -> tuple[np.ndarray, np.ndarray]:
+    """The one-pass h_ArUco + Jacobian with its 3x3 products as numpy matmuls (the form before the
+    products were written out on floats)."""
+    roll, pitch, yaw = (float(v) for v in x[3:6])
+    cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    C = T_bc.R.T @ euler_to_rotmat(roll, pitch, yaw).T
+    q = C @ (T_wm.t - x[0:3])
+    M = C @ T_wm.R
+    B = C @ np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+    hx = np.r_[q - T_bc.R.T @ T_bc.t, math.atan2(M[2, 1], M[2, 2]), -math.asin(M[2, 0]), math.atan2(M[1, 0], M[0, 0])]
+    H = np.zeros((6, 6))
+    H[0:3, 0:3] = -C
+    for k in range(3):
+        b = B[:, k]
+        H[0:3, 3 + k] = np.cross(q, b)
+        dM = -np.cross(b[:, None], M, axis=0)  # -[b]x M
+        H[3, 3 + k] = (M[2, 2] * dM[2, 1] - M[2, 1] * dM[2, 2]) / (M[2, 1] ** 2 + M[2, 2] ** 2)
+        H[4, 3 + k] = -dM[2, 0] / math.sqrt(1.0 - M[2, 0] ** 2)
+        H[5, 3 + k] = (M[0, 0] * dM[1, 0] - M[1, 0] * dM[0, 0]) / (M[1, 0] ** 2 + M[0, 0] ** 2)
+    return hx, H
+
+
+def test_aruco_model_on_floats_equals_the_numpy_products_to_1e_12() -> None:
+    """The written-out 3x3 products (summed in numpy's order; bit for bit where numpy's matmul
+    runs without FMA, as in the golden digests' pinned arithmetic) against the matmul form."""
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        x = _random_state(rng)
+        T_bc, T_wm = _transform(rng, 0.1), _transform(rng, 2.0)
+        hx, H = aruco_model(x, T_bc, T_wm)
+        hx_ref, H_ref = _aruco_model_numpy(x, T_bc, T_wm)
+        np.testing.assert_allclose(hx, hx_ref, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(hx_ref))))
+        np.testing.assert_allclose(H, H_ref, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(H_ref))))
+
+
+def test_covariance_with_the_diagonal_of_q_u_is_bit_for_bit_the_matrix_product() -> None:
+    """G Q_u with Q_u diagonal: every entry is one product, so scaling G's columns gives exactly
+    the floats of the product with the diagonal matrix (the form propagate_covariance had)."""
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        x, P = _random_state(rng), _random_cov(rng)
+        u, dt = rng.normal(0.0, 1.0, 6), float(rng.uniform(0.001, 0.05))
+        qu, qf = rng.uniform(0.01, 0.5, 6), rng.uniform(1e-6, 1e-2, 12) * dt
+        _, F3, G6 = propagation_blocks(x, u, dt)
+        ref = P.copy()
+        ref[3:6] = F3 @ P
+        ref[:, 3:6] = ref @ F3.T
+        ref[0:6, 0:6] += G6 @ np.diag(qu) @ G6.T
+        ref.reshape(-1)[::13] += qf
+        np.testing.assert_array_equal(propagate_covariance(P, F3, G6, qu, qf), ref)
+
+
+def test_predict_on_floats_is_bit_for_bit_the_block_functions() -> None:
+    """DeliveryEkf.predict (state kept as floats through sub-steps and the wrap) against
+    propagation_blocks + propagate_covariance + the wrap + symmetrisation, one step and sub-stepped."""
+    rng = np.random.default_rng(9)
+    cfg = EkfConfig()
+    for dt in (0.005, 0.12):
+        for _ in range(50):
+            x0, P0 = _random_state(rng), _random_cov(rng)
+            x0[5] = 3.14159  # near the wrap
+            u = rng.normal(0.0, 1.0, 6)
+            ekf = DeliveryEkf(cfg, x0=x0, P0=P0)
+            assert ekf.predict(u, dt)
+            n = max(1, math.ceil(dt / cfg.max_step_s - 1e-9))
+            h = dt / n
+            x, P = x0.copy(), P0.copy()
+            for _ in range(n):
+                x, F3, G6 = propagation_blocks(x, u, h)
+                P = propagate_covariance(P, F3, G6, ekf._Qu.diagonal(), ekf._qf_density * h)
+            x[3] = (x[3] + math.pi) % (2 * math.pi) - math.pi
+            x[5] = (x[5] + math.pi) % (2 * math.pi) - math.pi
+            np.testing.assert_array_equal(ekf.x, x)
+            np.testing.assert_array_equal(ekf.P, (P + P.T) * 0.5)
+
+
+def test_condition_repairs_small_variances_as_the_array_test_did() -> None:
+    """The float screen in _condition: a small variance is repaired and counted; NaN on the
+    diagonal is not 'small' (compares False, as before) but does not hide a small one elsewhere."""
+    ekf = DeliveryEkf(EkfConfig(), x0=np.zeros(12))
+    P = np.eye(12)
+    P[4, 4] = 1e-20
+    P[0, 0] = math.nan
+    ekf.P = P.copy()
+    ekf._condition()
+    assert ekf.counters["covariance.repairs"] == 1
+    assert ekf.P[4, 4] == ekf.config.min_variance and math.isnan(ekf.P[0, 0])
+    ekf.P = np.eye(12)
+    ekf.P[0, 0] = math.nan
+    ekf._condition()
+    assert ekf.counters["covariance.repairs"] == 1  # NaN alone: nothing to repair
