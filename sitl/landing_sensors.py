@@ -6,6 +6,11 @@ Both are fed by simulator truth. The true pose is snapshotted at each exposure /
 pixels show the vehicle where it was at exposure, and it becomes readable only after the capture
 latency. The camera skips exposures in which the pad is outside the field of view (the detector
 would find nothing; rendering them would only burn CPU in simulation).
+
+The camera offers the frame-listener capability (version 1, :mod:`companion.plugin_api`): with a
+listener attached it is called on the event loop when a frame's capture latency has elapsed (the
+frame is readable), as a real camera's capture thread calls it when a frame arrives. The
+lock-step simulation never attaches one (its shell polls), so it runs exactly as without.
 """
 
 from __future__ import annotations
@@ -15,12 +20,13 @@ import contextlib
 import logging
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
 
 from companion.geometry.se3 import Transform
-from companion.plugin_api import Frame
+from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot
 from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.multilateration import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera
@@ -36,6 +42,7 @@ def _truth_pose(v: SimVehicle) -> Transform:
 
 class SimCameraSource:
     api_version: ClassVar[int] = 1
+    frame_listener_version: ClassVar[int] = FRAME_LISTENER_VERSION
 
     def __init__(self, vehicle: SimVehicle, camera: SimulatedCamera, rate_hz: float = 30.0, latency_s: float = 0.05):
         self.vehicle = vehicle
@@ -47,6 +54,7 @@ class SimCameraSource:
         self._task: asyncio.Task[None] | None = None
         self._index = 0
         self._last_read_t = -math.inf
+        self._listener = FrameListenerSlot("simulated")
         self.exposures = 0
         self.rendered = 0
         self.out_of_view = 0
@@ -57,13 +65,30 @@ class SimCameraSource:
     def start(self) -> None:
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-camera")
 
+    def set_frame_listener(self, callback: Callable[[], None] | None) -> None:
+        """``callback()`` on the event loop when each frame becomes readable (None detaches)."""
+        self._listener.set(callback)
+
     async def _run(self) -> None:
         rate = RateLoop(self._clock, self.rate_hz)
+        loop = asyncio.get_running_loop()
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
             self._poses.append((t, _truth_pose(self.vehicle)))
             self.exposures += 1
+            if self._listener.attached:
+                loop.call_at(t + self.latency_s, self._frame_ready, t)
+
+    def _frame_ready(self, exposure_s: float) -> None:
+        """The frame exposed at ``exposure_s`` is readable now: tell the listener."""
+        if self._task is None:  # stopped meanwhile
+            return
+        ready_s = exposure_s + self.latency_s
+        if self._clock.now() < ready_s:  # asyncio may run a timer up to its clock resolution early
+            asyncio.get_running_loop().call_at(ready_s, self._frame_ready, exposure_s)
+            return
+        self._listener.notify()
 
     def _in_view(self, T_world_body: Transform) -> bool:
         p = self.camera.T_camera_pad(T_world_body).t
