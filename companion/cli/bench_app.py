@@ -432,6 +432,9 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
             recorder.close()
     r = _report(acct, lat, threads0, end, proc0, wall0, TASKS, config.landing.camera_latency_s * 1e3)
     r["camera"]["rate_hz"] = config.landing.camera_rate_hz
+    # "frame listener": the camera task woke when each frame became readable; "polled": at the poll rate
+    r["camera"]["read"] = shell.stats.camera_read
+    r["camera"]["frames_notified"] = shell.stats.frames_notified
     r["setpoints_sent"] = shell.stats.setpoints_sent
     return {
         "app": "delivery",
@@ -675,7 +678,7 @@ def print_report(r: dict[str, Any]) -> None:
     print(
         f"  camera: {cam['frames_processed']} frames processed "
         f"({cam['frames_with_detection']} with the pad detected), "
-        f"capture latency {cam['capture_latency_ms']:.0f} ms"
+        f"capture latency {cam['capture_latency_ms']:.0f} ms" + (f", read by {cam['read']}" if cam.get("read") else "")
     )
     for key in (
         "detect_ms",
