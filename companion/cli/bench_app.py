@@ -121,7 +121,7 @@ class CpuAccount:
 def classify_thread(comm: str, py_name: str | None) -> str:
     """The task a whole thread belongs to (for its CPU not covered by a wrapper)."""
     name = py_name or comm
-    if name.startswith("mavlink-sim") or name.startswith("dart-link-camera"):
+    if name.startswith(("mavlink-sim", "dart-link-camera", "sim-camera-render")):
         return "sim"
     if name.startswith("csvlog-writer") or name.startswith("tlog-"):
         return "logging"

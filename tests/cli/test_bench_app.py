@@ -100,6 +100,7 @@ def test_percentiles():
         ("python", "asyncio_0", "vision"),
         ("python", "dart-vision_0", "vision"),
         ("python", "dart-link-camera", "sim"),
+        ("python", "sim-camera-render_0", "sim"),
         ("tx-0", None, "telemetry"),
         ("python", "MainThread", "loop_other"),
         ("mavsdk", None, "native_unnamed"),
