@@ -10,11 +10,26 @@ Interface, version 1 (start / read or act / stop):
 - camera: ``start()``, ``read() -> Frame | None`` (newest frame, stamped at capture), ``stop()``
 - uwb: ``start()``, ``read() -> list`` of readings since the last call, ``stop()``
 - payload: ``start()``, ``async release()``, ``stop()``
+
+Optional capabilities, each versioned on its own (a plugin that lacks one still loads and works
+as before; one that declares a version this companion does not speak is used without it):
+
+- camera frame listener, version 1 (:data:`FRAME_LISTENER_VERSION`): the camera declares
+  ``frame_listener_version = 1`` and has ``set_frame_listener(callback)``. ``callback()`` (no
+  arguments) is called each time a new frame becomes readable, from whatever thread the camera
+  produces frames on (its capture thread); it returns at once and the app then calls ``read()``.
+  ``set_frame_listener(None)`` detaches: once it returns, the old callback is not called again.
+  An exception raised by the callback is logged by the camera and never ends its capture.
+  :class:`FrameListenerSlot` implements that contract for a plugin. A camera without the
+  capability (or which reports ``frame_listener_version = None``, e.g. a mode without a capture
+  thread) is polled at the landing kit's rate.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, ClassVar, Protocol, runtime_checkable
@@ -25,6 +40,7 @@ log = logging.getLogger(__name__)
 
 API_VERSION = 1
 GROUPS = ("companion.cameras", "companion.uwb", "companion.payloads")
+FRAME_LISTENER_VERSION = 1  # the camera frame-listener capability this companion speaks
 
 
 class PluginError(RuntimeError):
@@ -45,6 +61,78 @@ class Driver(Protocol):
     def start(self) -> None: ...
 
     def stop(self) -> None: ...
+
+
+@runtime_checkable
+class FrameNotifier(Protocol):
+    """A camera offering the frame-listener capability (see the module's docstring)."""
+
+    frame_listener_version: int | None
+
+    def set_frame_listener(self, callback: Callable[[], None] | None) -> None: ...
+
+
+def frame_listener_of(camera: Any) -> Callable[[Callable[[], None] | None], None] | None:
+    """``camera.set_frame_listener`` when the camera offers the frame-listener capability at
+    :data:`FRAME_LISTENER_VERSION`; None when it does not (poll it). A camera declaring another
+    version is logged once here and polled."""
+    version = getattr(camera, "frame_listener_version", None)
+    setter = getattr(camera, "set_frame_listener", None)
+    if version is None or not callable(setter):
+        return None
+    if version != FRAME_LISTENER_VERSION:
+        log.warning(
+            "camera %s declares frame_listener_version %r, this companion speaks %d: polling it instead",
+            type(camera).__name__,
+            version,
+            FRAME_LISTENER_VERSION,
+        )
+        return None
+    return setter  # type: ignore[no-any-return]
+
+
+class FrameListenerSlot:
+    """A camera plugin's frame listener (capability version 1): set from the app's thread, called
+    from the capture thread. :meth:`notify` never raises: a listener's exception is counted and
+    logged (the first, then every 100th) and capture goes on. Once :meth:`set` returns, a listener
+    it replaced is not called again (the call and the swap hold one lock, re-entrant so that a
+    listener may detach itself)."""
+
+    def __init__(self, owner: str) -> None:
+        self.owner = owner
+        self._callback: Callable[[], None] | None = None
+        self._lock = threading.RLock()
+        self.notified = 0
+        self.errors = 0
+
+    @property
+    def attached(self) -> bool:
+        return self._callback is not None
+
+    def set(self, callback: Callable[[], None] | None) -> None:
+        with self._lock:
+            self._callback = callback
+
+    def notify(self) -> None:
+        """Tell the listener, if any, that a new frame is readable."""
+        with self._lock:
+            cb = self._callback
+            if cb is None:
+                return
+            self.notified += 1
+            try:
+                cb()
+            except Exception as err:  # the listener's failure must not end the capture thread
+                self.errors += 1
+                if self.errors == 1 or self.errors % 100 == 0:
+                    log.error(
+                        "camera %s: frame listener raised %s: %s (%d so far); capture goes on",
+                        self.owner,
+                        type(err).__name__,
+                        err,
+                        self.errors,
+                        exc_info=self.errors == 1,
+                    )
 
 
 @dataclass(frozen=True)

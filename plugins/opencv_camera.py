@@ -2,6 +2,9 @@
 
 A capture thread keeps only the newest frame (bounded, keep-newest), stamped at capture on the
 monotonic clock minus the configured exposure latency; ``read()`` never blocks the event loop.
+It offers the frame-listener capability (version 1, see :mod:`companion.plugin_api`): the capture
+thread calls the listener after each new frame, so the app reads it at once instead of on its
+next poll.
 
 Playback of a recorded flight (``playback=True``, hardware-in-the-loop with a camera file): no
 thread; the file's frames are played at their *own* times on the injected clock (the shell's,
@@ -9,7 +12,8 @@ virtual in simulation). Frame i was exposed at ``frame_times[i] + time_offset_s`
 from a CSV written beside the video (:class:`CameraFileWriter`, columns ``frame,time_s``) or,
 without one, from the container's timestamps -- and becomes readable ``latency_s`` later.
 ``read()`` returns the newest frame that is readable and not yet returned; frames it passed are
-dropped, as a live camera's keep-newest buffer drops them. :class:`CameraFileWriter` records
+dropped, as a live camera's keep-newest buffer drops them. Playback has no capture thread and
+offers no frame listener (``frame_listener_version`` is None): it is polled. :class:`CameraFileWriter` records
 frames with their exposure times in that format.
 """
 
@@ -34,7 +38,7 @@ from companion.flightlog.camera_file import (
     times_path_for,
 )
 from companion.flightlog.camera_file import load_frame_times as _load_frame_times
-from companion.plugin_api import Frame, PluginError
+from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot, PluginError
 
 __all__ = [
     "CODECS",
@@ -93,9 +97,22 @@ class OpenCvCamera:
         self._latest: Frame | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._listener = FrameListenerSlot(repr(source))
         self.frames = 0
         self.read_failures = 0
         self.eof = False
+
+    @property
+    def frame_listener_version(self) -> int | None:
+        """The frame-listener capability: the live capture thread notifies, playback does not."""
+        return None if self.playback else FRAME_LISTENER_VERSION
+
+    def set_frame_listener(self, callback: Callable[[], None] | None) -> None:
+        """``callback()`` on the capture thread after each new frame (None detaches); see
+        :class:`companion.plugin_api.FrameListenerSlot`."""
+        if self.playback and callback is not None:
+            raise PluginError(f"camera {self.source!r}: playback has no capture thread to notify from; poll read()")
+        self._listener.set(callback)
 
     def _open(self) -> cv2.VideoCapture:
         src = self.source
@@ -150,6 +167,7 @@ class OpenCvCamera:
             with self._lock:
                 self._latest = Frame(t, img, self.frames)
             self.frames += 1
+            self._listener.notify()  # never raises
 
     # ---- playback of a recorded file ----------------------------------------------------------
     def _start_playback(self) -> None:

@@ -121,7 +121,7 @@ class CpuAccount:
 def classify_thread(comm: str, py_name: str | None) -> str:
     """The task a whole thread belongs to (for its CPU not covered by a wrapper)."""
     name = py_name or comm
-    if name.startswith("mavlink-sim") or name.startswith("dart-link-camera"):
+    if name.startswith(("mavlink-sim", "dart-link-camera", "sim-camera-render")):
         return "sim"
     if name.startswith("csvlog-writer") or name.startswith("tlog-"):
         return "logging"
@@ -432,6 +432,9 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
             recorder.close()
     r = _report(acct, lat, threads0, end, proc0, wall0, TASKS, config.landing.camera_latency_s * 1e3)
     r["camera"]["rate_hz"] = config.landing.camera_rate_hz
+    # "frame listener": the camera task woke when each frame became readable; "polled": at the poll rate
+    r["camera"]["read"] = shell.stats.camera_read
+    r["camera"]["frames_notified"] = shell.stats.frames_notified
     r["setpoints_sent"] = shell.stats.setpoints_sent
     return {
         "app": "delivery",
@@ -675,7 +678,7 @@ def print_report(r: dict[str, Any]) -> None:
     print(
         f"  camera: {cam['frames_processed']} frames processed "
         f"({cam['frames_with_detection']} with the pad detected), "
-        f"capture latency {cam['capture_latency_ms']:.0f} ms"
+        f"capture latency {cam['capture_latency_ms']:.0f} ms" + (f", read by {cam['read']}" if cam.get("read") else "")
     )
     for key in (
         "detect_ms",

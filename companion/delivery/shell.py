@@ -10,6 +10,15 @@ has sent none for a stream period (guidance slower than the stream, or a late ti
 watchdog: if the guidance task stops refreshing the setpoint, streaming stops, so the
 autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent forever, cf.
 MAVSDK-Python issue 374).
+
+Landing sensors (once fusion starts), in flight and in every real-time run: the camera and the UWB
+have a task each, so a detection waiting on the executor never holds a UWB reading back. A camera
+that offers the frame-listener capability (:mod:`companion.plugin_api`, version 1) wakes its task
+through an :class:`asyncio.Event` set from its capture thread (``loop.call_soon_threadsafe``): the
+frame is read and handed to the detector as soon as it is readable, not at the next poll tick. A
+camera without it is polled at :attr:`LandingKit.poll_rate_hz`, as is the UWB. The lock-step
+simulation (vision inline under virtual time, ``vision_in_thread = False``) keeps one polled loop,
+camera then UWB at each tick, so a seeded flight stays bit for bit what it was.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ from companion.flightlog.csvlog import CsvLog
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasEstimator
+from companion.plugin_api import frame_listener_of
 from companion.scheduling import LoopClock, RateLoop
 
 log = logging.getLogger(__name__)
@@ -72,15 +82,23 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
+_SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
+
+
 def _report_sensor_task_end(task: asyncio.Task[None]) -> None:
-    """Say at once when the landing-sensor task dies (the flight goes on without camera and UWB:
-    the fusion coasts on the autopilot's estimate), instead of only when the shell ends."""
+    """Say at once when a landing-sensor task dies (the flight goes on without its measurements:
+    the fusion coasts on the others and the autopilot's estimate), instead of only when the shell
+    ends."""
     if task.cancelled():
         return
     err = task.exception()
     if err is not None:
         log.error(
-            "landing sensors stopped: %s: %s; no more camera or UWB measurements this flight", type(err).__name__, err
+            "landing sensors stopped: %s: %s (task %s); no more %s measurements this flight",
+            type(err).__name__,
+            err,
+            task.get_name(),
+            _SENSOR_TASK_MEASUREMENTS.get(task.get_name(), "camera or UWB"),
         )
 
 
@@ -101,8 +119,10 @@ class LandingKit:
     T_body_camera: Any  # geometry.Transform
     T_pad_anchors: Any  # geometry.Transform: the UWB anchor frame in the pad frame
     ekf_config: Any = None  # estimation.EkfConfig (None: defaults)
-    vision_in_thread: bool = True  # off the event loop in flight; inline under virtual time (deterministic)
-    poll_rate_hz: float = 60.0
+    # off the event loop in flight (and camera and UWB on tasks of their own); inline under virtual
+    # time, in one polled loop (deterministic)
+    vision_in_thread: bool = True
+    poll_rate_hz: float = 60.0  # the UWB's poll, and the camera's when it offers no frame listener
     sensors_started: bool = False  # started before take-off (a real vehicle); else at fusion start
     # hand the detector the autopilot's attitude (through the camera mount) to resolve the IPPE
     # mirror pair of a lone marker (vision.detector.resolve_ambiguity(attitude=True)); off by default
@@ -118,6 +138,9 @@ class ShellStats:
     stream_stops: int = 0
     requests: int = 0
     requests_failed: int = 0
+    # how the camera is read: "" (no camera task), "frame listener", "polled"
+    camera_read: str = ""
+    frames_notified: int = 0  # wake-ups of the camera task by its frame listener
 
 
 class DeliveryShell:
@@ -164,7 +187,7 @@ class DeliveryShell:
         self._want_telemetry = telemetry
         self.landing = landing
         self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
-        self._sensor_task: asyncio.Task[None] | None = None
+        self._sensor_tasks: list[asyncio.Task[None]] = []
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
         self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
@@ -227,10 +250,7 @@ class DeliveryShell:
                 stream.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await stream
-            if self._sensor_task is not None:
-                self._sensor_task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await self._sensor_task
+            await self._stop_sensor_tasks()
             if self.landing is not None:
                 for dev in (self.landing.camera, self.landing.uwb):
                     if dev is not None:
@@ -334,48 +354,138 @@ class DeliveryShell:
         for dev in (kit.camera, kit.uwb):
             if dev is not None and not kit.sensors_started:
                 dev.start()
-        self._sensor_task = asyncio.get_running_loop().create_task(self._sensor_loop(), name="landing-sensors")
-        self._sensor_task.add_done_callback(_report_sensor_task_end)
+        self._start_sensor_tasks()
         log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
+
+    def _start_sensor_tasks(self) -> None:
+        """Lock-step: one loop for camera and UWB; real time: a task each (see the module's docstring)."""
+        kit = self.landing
+        assert kit is not None and self.fusion is not None
+        loop = asyncio.get_running_loop()
+        if not kit.vision_in_thread:
+            tasks = [loop.create_task(self._sensor_loop(), name="landing-sensors")]
+        else:
+            tasks = []
+            if kit.camera is not None and kit.detector is not None:
+                tasks.append(loop.create_task(self._camera_loop(), name="landing-camera"))
+            if kit.uwb is not None and kit.multilaterator is not None:
+                tasks.append(loop.create_task(self._uwb_loop(), name="landing-uwb"))
+        for task in tasks:
+            task.add_done_callback(_report_sensor_task_end)
+        self._sensor_tasks = tasks
+
+    async def _stop_sensor_tasks(self) -> None:
+        """Cancel the sensor tasks and wait for them: each detaches what it attached (the camera's
+        frame listener) on its way out. The devices themselves are stopped by :meth:`run`. A task
+        that died (logged when it did) raises its error here, once every task has ended."""
+        tasks, self._sensor_tasks = self._sensor_tasks, []
+        for task in tasks:
+            task.cancel()
+        errors: list[BaseException] = []
+        for task in tasks:
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+            except Exception as err:
+                errors.append(err)
+        if errors:
+            raise errors[0]
 
     def _vision_wanted(self) -> bool:
         m = self.mission
         return m.phase is Phase.LANDING_PAD or (m.phase is Phase.OUTBOUND and m._sector >= 5)
 
     async def _sensor_loop(self) -> None:
-        from companion.uwb.multilateration import UwbFix
-
+        """Lock-step (vision inline under virtual time): at each tick of the kit's poll rate, the
+        camera's newest frame, then the UWB's readings; nothing in a tick yields to the loop."""
         kit = self.landing
         assert kit is not None and self.fusion is not None
         rate = RateLoop(self._clock, kit.poll_rate_hz)
-        loop = asyncio.get_running_loop()
         while True:
             await rate.tick()
-            if kit.camera is not None and kit.detector is not None and self._vision_wanted():
-                frame = kit.camera.read()
-                if frame is not None:
-                    down_cam = self._down_in_camera() if kit.vision_attitude else None
-                    detect = functools.partial(kit.detector.detect, down_cam=down_cam)
-                    if kit.vision_in_thread:
-                        obs = await loop.run_in_executor(None, detect, frame.image, frame.time_s)
-                    else:
-                        obs = detect(frame.image, frame.time_s)
-                    if obs is not None:
-                        if self.recorder is not None:
-                            self.recorder.on_marker(self._clock.now(), obs, frame.image)
-                        accepted = self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED
-                        if accepted and self.config.runtime.guidance_on_marker and self.fused_estimate_steers():
-                            self._marker_fused.set()
-                        if self._landing_target is not None:
-                            self._send_landing_target(obs)
+            if kit.camera is not None and kit.detector is not None:
+                await self._camera_step()
             if kit.uwb is not None and kit.multilaterator is not None:
-                for m in kit.uwb.read():
-                    meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
-                    res = kit.multilaterator.solve_twr(meas)
-                    if isinstance(res, UwbFix):
-                        if self.recorder is not None:
-                            self.recorder.on_uwb(self._clock.now(), res)
-                        self.fusion.on_uwb(res)
+                self._uwb_step()
+
+    async def _camera_loop(self) -> None:
+        """The camera's task (real time): woken by the camera's frame listener when it offers one,
+        else polled at the kit's rate. The listener is detached when the task ends."""
+        kit = self.landing
+        assert kit is not None and self.fusion is not None
+        attach = frame_listener_of(kit.camera)
+        if attach is None:
+            self.stats.camera_read = "polled"
+            rate = RateLoop(self._clock, kit.poll_rate_hz)
+            while True:
+                await rate.tick()
+                await self._camera_step()
+        loop = asyncio.get_running_loop()
+        ready = asyncio.Event()
+
+        def on_frame() -> None:  # the camera's capture thread (or the loop's own, a simulated camera's)
+            loop.call_soon_threadsafe(ready.set)
+
+        self.stats.camera_read = "frame listener"
+        attach(on_frame)
+        try:
+            while True:
+                await ready.wait()
+                ready.clear()  # a frame notified from here on, during the detection too, wakes the next pass
+                self.stats.frames_notified += 1
+                await self._camera_step()
+        finally:
+            attach(None)
+
+    async def _uwb_loop(self) -> None:
+        """The UWB's task (real time): its readings at the kit's poll rate, whatever the camera does."""
+        kit = self.landing
+        assert kit is not None and self.fusion is not None
+        rate = RateLoop(self._clock, kit.poll_rate_hz)
+        while True:
+            await rate.tick()
+            self._uwb_step()
+
+    async def _camera_step(self) -> None:
+        """The camera's newest frame, when vision is wanted: detection (on the executor, or inline in
+        lock-step), then the observation to the recorder, the fusion and the landing target."""
+        kit = self.landing
+        assert kit is not None and kit.camera is not None and kit.detector is not None and self.fusion is not None
+        if not self._vision_wanted():
+            return
+        frame = kit.camera.read()
+        if frame is None:
+            return
+        down_cam = self._down_in_camera() if kit.vision_attitude else None
+        detect = functools.partial(kit.detector.detect, down_cam=down_cam)
+        if kit.vision_in_thread:
+            obs = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, frame.time_s)
+        else:
+            obs = detect(frame.image, frame.time_s)
+        if obs is None:
+            return
+        if self.recorder is not None:
+            self.recorder.on_marker(self._clock.now(), obs, frame.image)
+        accepted = self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED
+        if accepted and self.config.runtime.guidance_on_marker and self.fused_estimate_steers():
+            self._marker_fused.set()
+        if self._landing_target is not None:
+            self._send_landing_target(obs)
+
+    def _uwb_step(self) -> None:
+        """The UWB readings since the last call, multilaterated, to the recorder and the fusion."""
+        from companion.uwb.multilateration import UwbFix
+
+        kit = self.landing
+        assert kit is not None and kit.uwb is not None and kit.multilaterator is not None and self.fusion is not None
+        for m in kit.uwb.read():
+            meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
+            res = kit.multilaterator.solve_twr(meas)
+            if isinstance(res, UwbFix):
+                if self.recorder is not None:
+                    self.recorder.on_uwb(self._clock.now(), res)
+                self.fusion.on_uwb(res)
 
     def fused_estimate_steers(self) -> bool:
         """Guidance flies on the fused estimate (the way out and the landing on the pad); the way

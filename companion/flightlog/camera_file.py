@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import logging
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -142,6 +143,15 @@ class RecordingCamera:
         self.inner = inner
         self.writer = writer
         self.recorded = 0
+
+    @property
+    def frame_listener_version(self) -> Any:
+        """The wrapped camera's frame-listener capability (plugin_api), passed through: the frame
+        it notifies is the one the next ``read()`` records."""
+        return getattr(self.inner, "frame_listener_version", None)
+
+    def set_frame_listener(self, callback: Callable[[], None] | None) -> None:
+        self.inner.set_frame_listener(callback)
 
     def start(self) -> None:
         self.inner.start()

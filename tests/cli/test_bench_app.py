@@ -100,6 +100,7 @@ def test_percentiles():
         ("python", "asyncio_0", "vision"),
         ("python", "dart-vision_0", "vision"),
         ("python", "dart-link-camera", "sim"),
+        ("python", "sim-camera-render_0", "sim"),
         ("tx-0", None, "telemetry"),
         ("python", "MainThread", "loop_other"),
         ("mavsdk", None, "native_unnamed"),
@@ -145,6 +146,8 @@ def test_bench_app_report_structure_and_sanity():
     assert r["peak_rss_mib"] > 0
     cam = r["camera"]
     assert cam["rate_hz"] == 30.0
+    # the simulated camera offers the frame listener: its task wakes per frame, not on a poll tick
+    assert cam["read"] == "frame listener" and cam["frames_notified"] >= cam["frames_processed"]
     # fusion (and the camera) start once the mission has a frame, a second or two into the run
     assert 0.3 * 30 * duration_s <= cam["frames_processed"] <= 1.1 * 30 * duration_s
     for key in ("detect_ms", "exposure_to_setpoint_ms"):

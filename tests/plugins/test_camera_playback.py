@@ -4,6 +4,7 @@ and the recorder that writes the video with its ``frame,time_s`` CSV."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -166,3 +167,33 @@ def test_recording_camera_writes_what_it_hands_out_and_plays_back(tmp_path: Path
     cam = _player(tmp_path / "r.mkv", FakeClock(2.0), frame_times=str(times_path_for(tmp_path / "r.mkv")))
     f0 = cam.read()  # type: ignore[attr-defined]
     assert f0 is not None and f0.time_s == 1.5 and float(np.mean(f0.image)) == 90.0  # FFV1 is lossless
+
+
+def test_recording_camera_passes_the_frame_listener_through(tmp_path: Path) -> None:
+    from companion.plugin_api import FRAME_LISTENER_VERSION, FrameListenerSlot, frame_listener_of
+
+    class _Notifying(_Source):
+        frame_listener_version = FRAME_LISTENER_VERSION
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.queue = self.queue[1:]  # told only when a frame is there
+            self.listener = FrameListenerSlot("test")
+
+        def set_frame_listener(self, callback: Any) -> None:
+            self.listener.set(callback)
+
+    plain = RecordingCamera(_Source(), CameraFileWriter(tmp_path / "a.mkv", fps=2.0))
+    assert plain.frame_listener_version is None and frame_listener_of(plain) is None  # polled, as its camera
+    inner = _Notifying()
+    rec = RecordingCamera(inner, CameraFileWriter(tmp_path / "b.mkv", fps=2.0))
+    attach = frame_listener_of(rec)
+    assert rec.frame_listener_version == FRAME_LISTENER_VERSION and attach is not None
+    seen: list[Frame | None] = []
+    attach(lambda: seen.append(rec.read()))
+    inner.listener.notify()  # the inner camera's capture thread announces a frame: it is recorded
+    attach(None)
+    inner.listener.notify()
+    rec.stop()
+    plain.stop()
+    assert [f.time_s for f in seen if f is not None] == [1.0] and rec.recorded == 1
