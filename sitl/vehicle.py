@@ -367,11 +367,12 @@ class SimVehicle:
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
 
         # ---- velocity loop (P + I) -> acceleration setpoint, limits; it runs on the autopilot's
-        # velocity estimate (truth + the profile's error: PX4 SIH drifts on it, profiles.py)
+        # velocity estimate (truth + the profile's error: PX4 SIH drifts on it; ArduCopter holds a
+        # position target, so its error does not drive the vehicle: profiles.py)
         ve_n = self.vn
         ve_e = self.ve
         ve_d = self.vd
-        if self._verr:
+        if self._verr and self.profile.velocity_loop_on_estimate:
             ve_n += self._verr[0].x
             ve_e += self._verr[1].x
             ve_d += self._verr[2].x
