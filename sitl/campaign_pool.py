@@ -6,17 +6,20 @@ result is the sequential one, bit for bit.
 
 Workers are *spawned* (a fresh interpreter each): the parent may run threads (the progress bar's
 refresh, a telemetry session) that a fork would copy mid-operation. A worker ignores SIGINT:
-Ctrl-C is the parent's, which stops the workers and raises ``KeyboardInterrupt``. A landing that
+Ctrl-C is the parent's, which stops the workers and raises ``KeyboardInterrupt``; a worker ends
+with its parent however that ends (killed included). A landing that
 raises, or a worker that dies, ends the campaign with :class:`CampaignLandingError` naming the
 landing (index, seed, variant): each worker reports the landing it starts.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing
 import os
 import signal
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -33,8 +36,20 @@ log = logging.getLogger(__name__)
 _reports: SimpleQueue[tuple[int, int]] | None = None
 
 
-def _init_worker(level: int, reports: SimpleQueue[tuple[int, int]]) -> None:
+def _die_with_parent(parent_pid: int) -> None:
+    """A worker ends when its parent does, however that ends (Linux: PR_SET_PDEATHSIG)."""
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError) as err:
+            log.debug("worker %d: PR_SET_PDEATHSIG not set: %s", os.getpid(), err)
+    if os.getppid() != parent_pid:  # the parent ended before that
+        os._exit(1)
+
+
+def _init_worker(level: int, reports: SimpleQueue[tuple[int, int]], parent_pid: int) -> None:
     global _reports
+    _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent's to handle
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s[%(process)d]: %(message)s")
     _reports = reports
@@ -117,7 +132,7 @@ def fly_in_pool(
     t0 = time.perf_counter()
     log.info("flying %d landings in %d worker processes", len(tasks), jobs)
     workers = _Workers(reports)
-    pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker, initargs=(level, reports))
+    pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker, initargs=(level, reports, os.getpid()))
     try:
         # the landings that render the camera are the long ones: handed out first, the short ones
         # fill the end (the rows go back in the campaign's order whatever the order they fly in)
