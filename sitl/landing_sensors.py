@@ -2,10 +2,15 @@
 renders real images of the pad, and a DWM1001-like UWB tag ranging to the anchors around it.
 
 Both are fed by simulator truth. The true pose is snapshotted at each exposure / ranging instant
-(a cheap task on the shell's clock); a frame is rendered only when the shell reads it, so its
-pixels show the vehicle where it was at exposure, and it becomes readable only after the capture
-latency. The camera skips exposures in which the pad is outside the field of view (the detector
-would find nothing; rendering them would only burn CPU in simulation).
+(a cheap task on the shell's clock), so a frame's pixels show the vehicle where it was at
+exposure, and it becomes readable only after the capture latency. The camera skips exposures in
+which the pad is outside the field of view (the detector would find nothing; rendering them would
+only burn CPU in simulation).
+
+Once started, the camera renders each exposure's scene through the lens on a thread of its own as
+soon as the pose is known (OpenCV releases the GIL: the event loop runs on meanwhile); the frame
+is finished (gain, exposure noise from the camera's seeded generator) when the shell reads it, in
+the order the frames are read, so the frames are the ones rendered on read, bit for bit.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import contextlib
 import logging
 import math
 from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import ClassVar
 
 import numpy as np
@@ -23,7 +29,7 @@ from companion.geometry.se3 import Transform
 from companion.plugin_api import Frame
 from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.multilateration import TwrMeasurement
-from companion_sitl.camera import SimulatedCamera
+from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
 
@@ -45,6 +51,10 @@ class SimCameraSource:
         self._clock = LoopClock()
         self._poses: deque[tuple[float, Transform]] = deque(maxlen=64)
         self._task: asyncio.Task[None] | None = None
+        # the optics of the exposures in view, rendered ahead on one thread (the camera's buffers
+        # take one render at a time), by exposure time
+        self._renderer: ThreadPoolExecutor | None = None
+        self._renders: dict[float, Future[U8Image]] = {}
         self._index = 0
         self._last_read_t = -math.inf
         self.exposures = 0
@@ -55,6 +65,7 @@ class SimCameraSource:
         self._half_fov_y = math.atan2(cam.height_px / 2.0, cam.fy)
 
     def start(self) -> None:
+        self._renderer = ThreadPoolExecutor(1, thread_name_prefix="sim-camera-render")
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-camera")
 
     async def _run(self) -> None:
@@ -62,8 +73,13 @@ class SimCameraSource:
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
-            self._poses.append((t, _truth_pose(self.vehicle)))
+            T = _truth_pose(self.vehicle)
+            self._poses.append((t, T))
             self.exposures += 1
+            if self._renderer is not None and self._in_view(T):
+                self._renders[t] = self._renderer.submit(
+                    self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True
+                )
 
     def _in_view(self, T_world_body: Transform) -> bool:
         p = self.camera.T_camera_pad(T_world_body).t
@@ -91,18 +107,28 @@ class SimCameraSource:
             return None
         t, T = pose
         self._last_read_t = t
+        ahead = self._renders.pop(t, None)
+        for k in [k for k in self._renders if k < t]:  # exposures dropped unread
+            self._renders.pop(k).cancel()
         if not self._in_view(T):
             self.out_of_view += 1
             return None
-        frame = self.camera.capture(T, t)
+        if ahead is None and self._renderer is not None:  # (every exposure in view has one)
+            ahead = self._renderer.submit(self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True)
+        # not started (no renderer): rendered here, as capture() does
+        image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
         self.rendered += 1
         self._index += 1
-        return Frame(t, frame.image, self._index)
+        return Frame(t, image, self._index)
 
     def stop(self) -> None:
         if self._task is not None:
             self._task.cancel()
             self._task = None
+        if self._renderer is not None:
+            self._renderer.shutdown(wait=True, cancel_futures=True)
+            self._renderer = None
+        self._renders.clear()
 
 
 class SimUwbSource:
