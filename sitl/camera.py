@@ -396,6 +396,14 @@ class SimulatedCamera:
 
     def render(self, T_camera_pad: Transform) -> U8Image:
         """Greyscale uint8 image (height_px, width_px) of the scene seen from ``T_camera_pad``."""
+        return self.expose(self.render_optics(T_camera_pad))
+
+    def render_optics(self, T_camera_pad: Transform, *, fresh: bool = False) -> U8Image:
+        """The image before exposure: the scene through the lens (and motion blur), a function of
+        the pose alone (it draws nothing from the random generator). :meth:`expose` finishes it.
+
+        It is built in the camera's buffers, so one call at a time; ``fresh``: the result is a new
+        array (else it may be a buffer of the camera, valid until the next call)."""
         check_pose(T_camera_pad, "T_camera_pad")
         R = np.asarray(T_camera_pad.R, dtype=float)
         t = np.asarray(T_camera_pad.t, dtype=float)
@@ -442,14 +450,12 @@ class SimulatedCamera:
             )
         self._paint_sky(canvas, R, Kc)
         if self._maps is not None:
-            img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR, dst=self._undistorted)
+            img: Any = cv2.remap(canvas, *self._maps, cv2.INTER_LINEAR, dst=None if fresh else self._undistorted)
         else:
-            img = canvas
+            img = canvas.copy() if fresh else canvas
         if self._blur_kernel is not None:
             img = cv2.filter2D(img, -1, self._blur_kernel, borderType=cv2.BORDER_REPLICATE)
-        img = self._expose(img)
-        self.frames_rendered += 1
-        return img
+        return np.asarray(img, dtype=np.uint8)
 
     def _paint_sky(self, canvas: U8Image, R: NDArray, Kc: NDArray) -> None:
         """Pixels whose ray does not reach the ground (above the horizon) get the sky level."""
@@ -463,6 +469,13 @@ class SimulatedCamera:
         u, v = np.meshgrid(np.arange(cw, dtype=np.float32), np.arange(ch, dtype=np.float32))
         sky = (n[0] * u + n[1] * v + n[2]) >= -1e-3
         canvas[sky] = self.config.sky_level
+
+    def expose(self, img: U8Image) -> U8Image:
+        """The frame from :meth:`render_optics`' image: gain, offset and exposure noise (drawn from
+        the camera's random generator, one frame after the other); a new array."""
+        out = self._expose(img)
+        self.frames_rendered += 1
+        return out
 
     def _expose(self, img: U8Image) -> U8Image:
         cfg = self.config

@@ -2,18 +2,22 @@
 renders real images of the pad, and a DWM1001-like UWB tag ranging to the anchors around it.
 
 Both are fed by simulator truth. The true pose is snapshotted at each exposure / ranging instant
-(a cheap task on the shell's clock); a frame is rendered only when the shell reads it, so its
-pixels show the vehicle where it was at exposure, and it becomes readable only after the capture
-latency. The camera skips exposures in which the pad is outside the field of view (the detector
-would find nothing; rendering them would only burn CPU in simulation).
+(a cheap task on the shell's clock), so a frame's pixels show the vehicle where it was at
+exposure, and it becomes readable only after the capture latency. The camera skips exposures in
+which the pad is outside the field of view (the detector would find nothing; rendering them would
+only burn CPU in simulation).
+
+Once started, the camera renders each exposure's scene through the lens on a thread of its own as
+soon as the pose is known (OpenCV releases the GIL: the event loop runs on meanwhile); the frame
+is finished (gain, exposure noise from the camera's seeded generator) when the shell reads it, in
+the order the frames are read, so the frames are the ones rendered on read, bit for bit. At most
+``_AHEAD_KEPT`` unread renders are kept (the newest); an older exposure read later is rendered then.
 
 The camera offers the frame-listener capability (version 1, :mod:`companion.plugin_api`): with a
 listener attached it is called on the event loop when a frame's capture latency has elapsed (the
-frame is readable), as a real camera's capture thread calls it when a frame arrives. While one is
-attached (real time), each exposure in view is also rendered during its capture latency on a
-render thread of its own, so that, as from a real camera, the frame is whole when it is announced:
-neither the application's latency nor its event loop carries the simulator's rendering. The
-lock-step simulation never attaches one (its shell polls), so it runs exactly as without.
+frame is readable), as a real camera's capture thread calls it when a frame arrives; its optics were
+rendered during that latency, so neither the application's latency nor its event loop carries the
+simulator's rendering. The lock-step simulation never attaches one (its shell polls).
 """
 
 from __future__ import annotations
@@ -22,7 +26,6 @@ import asyncio
 import contextlib
 import logging
 import math
-import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -34,14 +37,14 @@ from companion.geometry.se3 import Transform
 from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot
 from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.multilateration import TwrMeasurement
-from companion_sitl.camera import SimulatedCamera
+from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
 
 
-_AHEAD_KEPT = 4  # frames rendered ahead and not read yet that are kept (the newest)
+_AHEAD_KEPT = 4  # exposures rendered ahead and not read yet that are kept (the newest)
 
 
 def _truth_pose(v: SimVehicle) -> Transform:
@@ -60,13 +63,13 @@ class SimCameraSource:
         self._clock = LoopClock()
         self._poses: deque[tuple[float, Transform]] = deque(maxlen=64)
         self._task: asyncio.Task[None] | None = None
+        # the optics of the exposures in view, rendered ahead on one thread (the camera's buffers
+        # take one render at a time), by exposure time
+        self._renderer: ThreadPoolExecutor | None = None
+        self._renders: dict[float, Future[U8Image]] = {}
+        self._listener = FrameListenerSlot("simulated")
         self._index = 0
         self._last_read_t = -math.inf
-        self._listener = FrameListenerSlot("simulated")
-        # real time, with a listener: exposure time -> its frame rendered ahead (None: out of view)
-        self._ahead: dict[float, Future[Frame | None]] = {}
-        self._render_pool: ThreadPoolExecutor | None = None
-        self._render_lock = threading.Lock()  # one render at a time (the camera's buffers and noise)
         self.exposures = 0
         self.rendered = 0
         self.out_of_view = 0
@@ -75,6 +78,7 @@ class SimCameraSource:
         self._half_fov_y = math.atan2(cam.height_px / 2.0, cam.fy)
 
     def start(self) -> None:
+        self._renderer = ThreadPoolExecutor(1, thread_name_prefix="sim-camera-render")
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-camera")
 
     def set_frame_listener(self, callback: Callable[[], None] | None) -> None:
@@ -87,23 +91,17 @@ class SimCameraSource:
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
-            self._poses.append((t, _truth_pose(self.vehicle)))
+            T = _truth_pose(self.vehicle)
+            self._poses.append((t, T))
             self.exposures += 1
+            if self._renderer is not None and self._in_view(T):
+                self._renders[t] = self._renderer.submit(
+                    self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True
+                )
+                if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
+                    self._renders.pop(next(iter(self._renders))).cancel()
             if self._listener.attached:
-                if self._render_pool is None:
-                    self._render_pool = ThreadPoolExecutor(1, thread_name_prefix="sim-camera-render")
-                self._ahead[t] = self._render_pool.submit(self._render, t, self._poses[-1][1])
-                if len(self._ahead) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
-                    del self._ahead[next(iter(self._ahead))]
                 loop.call_at(t + self.latency_s, self._frame_ready, t)
-
-    def _render(self, t: float, T_world_body: Transform) -> Frame | None:
-        """The frame exposed at ``t`` (index not yet given), or None when the pad is out of view."""
-        if not self._in_view(T_world_body):
-            return None
-        with self._render_lock:
-            image = self.camera.capture(T_world_body, t).image
-        return Frame(t, image, 0)
 
     def _frame_ready(self, exposure_s: float) -> None:
         """The frame exposed at ``exposure_s`` is readable now: tell the listener."""
@@ -141,35 +139,28 @@ class SimCameraSource:
             return None
         t, T = pose
         self._last_read_t = t
-        if self._ahead:  # real time with a listener: the frame was rendered during its capture latency
-            ahead = self._ahead.pop(t, None)
-            for old in [k for k in self._ahead if k < t]:  # passed over: dropped, as a live camera drops them
-                del self._ahead[old]
-            if ahead is not None:
-                done = ahead.result()  # rendered by now (it had the capture latency); else waits for it
-                if done is None:
-                    self.out_of_view += 1
-                    return None
-                self.rendered += 1
-                self._index += 1
-                return Frame(t, done.image, self._index)
+        ahead = self._renders.pop(t, None)
+        for k in [k for k in self._renders if k < t]:  # exposures dropped unread
+            self._renders.pop(k).cancel()
         if not self._in_view(T):
             self.out_of_view += 1
             return None
-        with self._render_lock:
-            frame = self.camera.capture(T, t)
+        if ahead is None and self._renderer is not None:  # (every exposure in view has one)
+            ahead = self._renderer.submit(self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True)
+        # not started (no renderer): rendered here, as capture() does
+        image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
         self.rendered += 1
         self._index += 1
-        return Frame(t, frame.image, self._index)
+        return Frame(t, image, self._index)
 
     def stop(self) -> None:
         if self._task is not None:
             self._task.cancel()
             self._task = None
-        if self._render_pool is not None:
-            self._render_pool.shutdown(wait=True, cancel_futures=True)
-            self._render_pool = None
-        self._ahead.clear()
+        if self._renderer is not None:
+            self._renderer.shutdown(wait=True, cancel_futures=True)
+            self._renderer = None
+        self._renders.clear()
 
 
 class SimUwbSource:

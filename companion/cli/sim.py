@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -20,6 +23,8 @@ from companion.config import (
     shipped_params_path,
 )
 from companion.units import format_cm, format_m
+
+log = logging.getLogger(__name__)
 
 
 def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
@@ -55,6 +60,17 @@ def _parse_vec(text: str, opt: str) -> list[float]:
     if len(vals) != 3:
         raise ConfigError(opt, [f"{text!r}: expected 1 to 3 components (north[,east[,down]]) in metres"])
     return vals
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{n}: need at least 1")
+    return n
 
 
 def _fmt_m(v: float) -> str:
@@ -258,20 +274,47 @@ def _print_bench(title: str, result: dict[str, Any]) -> None:
 
 
 def cmd_bench_campaign(args: argparse.Namespace) -> int:
-    from companion_sitl.landing_campaign import run_landing_campaign
+    import resource
+
+    from companion_sitl.landing_campaign import run_landing_campaign, usable_cpus
     from companion_sitl.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
 
     fw = FIRMWARE_OF_PROFILE.get(args.profile)
-    t0 = time.perf_counter()
-    r = run_landing_campaign(
-        args.n, args.seed, ("fusion",), None, profile=args.profile, tuning=firmware_tuning(fw) if fw else None
-    )
-    wall = time.perf_counter() - t0
-    sim = sum(x["sim_time_s"] for x in r["landings"]["fusion"])
+    tuning = firmware_tuning(fw) if fw else None
+    jobs = args.jobs if args.jobs is not None else usable_cpus()
+
+    def children_cpu() -> float:
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)  # the worker processes, once ended
+        return ru.ru_utime + ru.ru_stime
+
+    def timed(j: int) -> tuple[int, dict[str, Any], float, float, float, float]:
+        t0, c0, m0, k0 = time.perf_counter(), time.process_time(), time.thread_time(), children_cpu()
+        r = run_landing_campaign(args.n, args.seed, ("fusion",), None, profile=args.profile, tuning=tuning, jobs=j)
+        wall, main = time.perf_counter() - t0, time.thread_time() - m0
+        cpu = time.process_time() - c0 + children_cpu() - k0
+        return j, r, sum(x["sim_time_s"] for x in r["landings"]["fusion"]), wall, cpu, main
+
     print(
-        f"bench campaign: {args.n} fused landings on the {args.profile} profile: {sim:.0f} s simulated in "
-        f"{wall:.1f} s wall = {sim / wall:.1f}x real time (target >= 20x on a 2-core machine)"
+        f"bench campaign: {args.n} fused landings on the {args.profile} profile, seed {args.seed} "
+        f"(load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs)"
     )
+    runs = [timed(jobs)] + ([timed(1)] if jobs > 1 else [])
+    for j, _, sim, wall, cpu, main in runs:
+        # one process: its main thread (the event loop, the detector, the EKF) is the critical path
+        on_core = f"; main thread {main:.1f} s = {sim / main:.1f}x" if j == 1 else " in all processes"
+        print(
+            f"  {j} process{'es' if j > 1 else '  '}  {sim:.0f} s simulated in {wall:.1f} s wall = "
+            f"{sim / wall:.1f}x real time (target >= 20x on a 2-core machine); CPU {cpu:.1f} s{on_core}"
+        )
+    if len(runs) == 2:
+        (_, r_pool, _, w_pool, _, _), (_, r_one, _, w_one, _, _) = runs
+        same = json.dumps(r_pool) == json.dumps(r_one)
+        print(
+            f"  {jobs} processes / 1: {w_one / w_pool:.2f}x faster on {usable_cpus()} usable CPU(s); "
+            f"results {'identical' if same else 'DIFFERENT'}; load average now {os.getloadavg()[0]:.2f}"
+        )
+        if not same:
+            return exits.FAILED
     return 0
 
 
@@ -407,8 +450,14 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
 
     from companion.cli.console import make_console
     from companion_sitl.campaign_output import write_outputs
-    from companion_sitl.landing_campaign import FAILURE_VARIANTS, run_landing_campaign
+    from companion_sitl.landing_campaign import (
+        FAILURE_VARIANTS,
+        CampaignLandingError,
+        run_landing_campaign,
+        usable_cpus,
+    )
 
+    jobs = args.jobs if args.jobs is not None else usable_cpus()
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
     if args.variants:
         variants = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -439,9 +488,22 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
             # a firmware's profile flies with the landing tuning shipped for that firmware
             fw = FIRMWARE_OF_PROFILE.get(args.profile)
             tuning = firmware_tuning(fw) if fw else None
-            result = run_landing_campaign(
-                args.n, args.seed, tuple(variants), args.params, on_progress, profile=args.profile, tuning=tuning
-            )
+            try:
+                result = run_landing_campaign(
+                    args.n,
+                    args.seed,
+                    tuple(variants),
+                    args.params,
+                    on_progress,
+                    profile=args.profile,
+                    tuning=tuning,
+                    jobs=jobs,
+                )
+            except CampaignLandingError as err:
+                progress.stop()
+                log.debug("the failed landing", exc_info=err)
+                print(f"companion campaign landing: {err}", file=sys.stderr)
+                return exits.FAILED
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
@@ -583,6 +645,12 @@ def register_bench(bsub: Any) -> None:
     )
     bc.add_argument("--n", type=int, default=5, help="fused landings (default 5)")
     bc.add_argument("--seed", type=int, default=1, help="seed of the first draw")
+    bc.add_argument(
+        "--jobs",
+        type=_positive_int,
+        help="worker processes (default: the CPUs this process may use); above 1 the bench also flies the "
+        "landings in one process and prints both",
+    )
     bc.set_defaults(func=cmd_bench_campaign)
     bl = bsub.add_parser(
         "log", help="the flight logs' share of the GPS-only demo's time and microseconds per row and stream"
@@ -636,6 +704,12 @@ def register_campaign(csub: Any) -> None:
     cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
     cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
     cl.add_argument("--quiet", action="store_true", help="no progress bar")
+    cl.add_argument(
+        "--jobs",
+        type=_positive_int,
+        help="embedded landings flown at once, each in a worker process (default: the CPUs this process may "
+        "use; 1: one after the other in this process); the results are the same whatever the number",
+    )
     where = cl.add_mutually_exclusive_group()
     where.add_argument(
         "--profile",

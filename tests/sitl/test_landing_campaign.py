@@ -28,11 +28,17 @@ def test_fusion_beats_gps_only_and_every_failure_variant_lands_on_the_pad():
         assert s[v]["on_pad_pct"] == 100.0, (v, s[v])
 
 
-def test_campaign_command_writes_summary_and_scatter(tmp_path, capsys):
-    out = tmp_path / "camp"
-    assert main(["campaign", "landing", "--n", "2", "--seed", "5", "--out", str(out), "--quiet"]) == 0
-    summary = json.loads((out / "landing_campaign.json").read_text())["summary"]
+def test_campaign_command_writes_summary_and_scatter_the_same_in_two_processes_as_in_one(tmp_path, capsys):
+    out = {j: tmp_path / f"camp{j}" for j in (2, 1)}
+    for j, d in out.items():
+        assert (
+            main(["campaign", "landing", "--n", "2", "--seed", "5", "--jobs", str(j), "--out", str(d), "--quiet"]) == 0
+        )
+    summary = json.loads((out[2] / "landing_campaign.json").read_text())["summary"]
     assert set(summary) == {"fusion", "gps_only"}
-    img = mpimg.imread(out / "landing_scatter.png")
+    img = mpimg.imread(out[2] / "landing_scatter.png")
     assert img.shape[0] > 400 and img[..., :3].std() > 0.03
     assert "on the pad" in capsys.readouterr().out
+    # the landings flown in worker processes (the camera ones first): the same rows, in the same order
+    for name in ("landing_campaign.json", "landing_scatter.png"):
+        assert (out[2] / name).read_bytes() == (out[1] / name).read_bytes(), name

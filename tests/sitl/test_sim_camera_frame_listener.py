@@ -1,6 +1,6 @@
 """The simulated camera's frame listener (plugin_api, version 1): told on the event loop the moment
 each frame's capture latency has elapsed, and the frame it announces is the one ``read()`` returns,
-rendered ahead on the camera's render thread, not by ``read()`` on the loop."""
+its optics rendered ahead on the camera's render thread, not by ``read()`` on the loop."""
 
 from __future__ import annotations
 
@@ -27,14 +27,15 @@ def _source() -> SimCameraSource:
 
 
 def _render_threads(src: SimCameraSource) -> list[str]:
+    """The names of the threads the camera's optics (the expensive part of a frame) render on."""
     names: list[str] = []
-    capture = src.camera.capture
+    render = src.camera.render_optics
 
     def recorded(*args: object, **kwargs: object) -> object:
         names.append(threading.current_thread().name)
-        return capture(*args, **kwargs)  # type: ignore[arg-type]
+        return render(*args, **kwargs)  # type: ignore[arg-type]
 
-    src.camera.capture = recorded  # type: ignore[method-assign]
+    src.camera.render_optics = recorded  # type: ignore[method-assign]
     return names
 
 
@@ -69,22 +70,24 @@ def test_each_frame_is_announced_when_it_becomes_readable_and_read_then() -> Non
     assert all(name.startswith("sim-camera-render") for name in render_threads)
 
 
-def test_without_a_listener_nothing_is_rendered_ahead_and_unread_frames_are_not_hoarded() -> None:
+def test_unread_frames_are_not_hoarded_and_an_old_one_read_late_is_rendered_then() -> None:
     src = _source()
     render_threads = _render_threads(src)
 
-    async def go() -> tuple[int, int]:
-        src.start()
-        await asyncio.sleep(0.2)
-        without = len(render_threads)
+    async def go() -> tuple[int, int, float | None]:
         src.set_frame_listener(lambda: None)  # told, but never reads (vision not wanted)
+        src.start()
         await asyncio.sleep(1.0)
-        kept = len(src._ahead)
+        kept = len(src._renders)
+        rendered = len(render_threads)
+        f = src.read()  # the newest readable one, whatever was dropped before it
         src.stop()
-        return without, kept
+        return kept, rendered, f.time_s if f is not None else None
 
-    without, kept = run_virtual(go())
-    assert without == 0 and 0 < kept <= 4
+    kept, rendered, t = run_virtual(go())
+    # renders of unread exposures are cancelled once four newer ones wait (those not begun never run)
+    assert 0 < kept <= 4 and 0 < rendered <= 30
+    assert t == pytest.approx(28 / RATE_HZ)  # exposure 28 (0.933 s) was readable at 1.0 s, 29 not yet
 
 
 def test_nothing_is_announced_after_the_camera_stops() -> None:

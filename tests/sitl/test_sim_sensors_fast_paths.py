@@ -3,6 +3,7 @@ coefficients kept between steps, and the camera source's scan for the newest rea
 
 from __future__ import annotations
 
+import asyncio
 import math
 
 import numpy as np
@@ -62,3 +63,41 @@ def test_camera_source_reads_the_newest_ready_unread_exposure() -> None:
     f = src.read()
     assert f is not None and f.time_s == 9 / 30
     assert src.read() is None
+
+
+class _Track:
+    """Truth for the camera source: a pose that is a function of the time (a descent over the pad
+    that drifts out of view for a while)."""
+
+    def step_to(self, t: float) -> None:
+        self.pn, self.pe, self.pd = 0.3 * math.sin(t), (30.0 if 0.6 < t < 0.8 else 0.4 * t), -6.0 + 2.0 * t
+        self.roll, self.pitch, self.yaw = 0.05 * math.sin(3.0 * t), 0.04 * math.cos(2.0 * t), 0.1 * t
+
+
+def test_frames_rendered_ahead_on_the_thread_are_the_frames_rendered_on_read() -> None:
+    from companion_sitl.clock import run_virtual
+    from companion_sitl.landing_sensors import _truth_pose
+
+    track = _Track()
+
+    async def read_for(duration_s: float, period_s: float) -> list[tuple[float, np.ndarray]]:
+        src = SimCameraSource(track, SimulatedCamera(load_default_camera(), seed=4), 30.0, 0.05)  # type: ignore[arg-type]
+        src.start()
+        out = []
+        for _ in range(round(duration_s / period_s)):
+            await asyncio.sleep(period_s)
+            f = src.read()
+            if f is not None:
+                out.append((f.time_s, f.image))
+        assert src._renderer is not None  # the frames came from the render thread
+        src.stop()
+        assert src.out_of_view > 0 and src.rendered == len(out)
+        return out
+
+    # read at 20 Hz: some exposures are dropped unread (their renders cancelled or discarded)
+    frames = run_virtual(read_for(1.5, 0.05))
+    twin = SimulatedCamera(load_default_camera(), seed=4)  # renders each frame on read, as capture() does
+    assert len(frames) > 15
+    for t, image in frames:
+        track.step_to(t)
+        assert np.array_equal(image, twin.capture(_truth_pose(track), t).image), t
