@@ -42,8 +42,8 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
             "landing_xy_gain_1_s": 5.0,
             "landing_touchdown_height_m": 0.0,
             "velocity_bias_tau_s": 1.0,
-            "autopilot_accel_xy_m_s2": 0.0,
-            "autopilot_accel_z_m_s2": 0.0,
+            "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
+            "autopilot_accel_z_m_s2": 1.0,
         },
     }
     assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
