@@ -280,3 +280,14 @@ def test_gate_lockout_recovers_after_consecutive_rejections() -> None:
     assert ekf.counters["uwb.gate_resets"] == 1
     np.testing.assert_allclose(ekf.x[0:3], moved, atol=0.1)
     _assert_spd(ekf.P)
+
+
+def test_chi2_gate_quantile_is_scipys_chi2_ppf_to_the_bit():
+    from scipy.stats import chi2
+
+    from companion.estimation.ekf import chi2_ppf
+
+    for p in (0.5, 0.9, 0.95, 0.99, 0.997, 0.9999):
+        for dof in (1, 2, 3, 6, 9):
+            assert chi2_ppf(p, dof) == float(chi2.ppf(p, dof)), (p, dof)
+    assert chi2_ppf(0.95, 3) == pytest.approx(7.8147, abs=1e-4)  # the textbook table value
