@@ -58,10 +58,8 @@ class PathScorer:
         p = np.asarray(p_local_ned, dtype=float)
 
         def to(frame: MissionFrame, path: DeliveryPath) -> float:
-            q = np.array(frame.point_from_ned(p), dtype=float)
-            if in_plane:
-                q[1] = 0.0  # alpha_1 = y (eq 16)
-            return float(path.distance_to_path(q))
+            q = frame.point_from_ned(p)
+            return float(path.distance_in_plane(q) if in_plane else path.distance_to_path(q))
 
         d = to(m.frame, m.path)
         if phase is Phase.OUTBOUND:

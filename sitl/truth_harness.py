@@ -149,9 +149,7 @@ async def fly_on_truth(
                     path_out.append(path_d[-1])
                 if trace[-1][2] in ARC_SECTORS:
                     arcs_in_plane.append(scorer.in_plane_distance(m, out.phase, p))
-                    e_plane = np.array(e_i, dtype=float)
-                    e_plane[1] = 0.0  # alpha_1 = y (delivery eq 16), as PathScorer.in_plane_distance
-                    arcs_tracking.append(float(m.path.distance_to_path(e_plane)))
+                    arcs_tracking.append(float(m.path.distance_in_plane(e_i)))
         st = tel.status
         if (
             not touchdown

@@ -296,7 +296,7 @@ def cmd_bench_campaign(args: argparse.Namespace) -> int:
 
     print(
         f"bench campaign: {args.n} fused landings on the {args.profile} profile, seed {args.seed} "
-        f"(load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs)"
+        f"(load average {os.getloadavg()[0]:.2f} on {usable_cpus()} usable CPUs)"
     )
     runs = [timed(jobs)] + ([timed(1)] if jobs > 1 else [])
     for j, _, sim, wall, cpu, main in runs:

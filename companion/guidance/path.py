@@ -93,6 +93,13 @@ class DeliveryPath:
     def distance_to_path(self, p: ArrayLike) -> float:
         return math.sqrt(2.0 * self.lyapunov(p))
 
+    def distance_in_plane(self, p: ArrayLike) -> float:
+        """The distance within the path's vertical plane: the lateral alpha_1 = y of eq 16 left
+        out (along the path and up only)."""
+        q = np.array(p, dtype=float)
+        q[1] = 0.0
+        return self.distance_to_path(q)
+
     def sample(self, step_m: float = 0.25, z_start: float = 0.0) -> FloatArray:
         """Points along the planned curve from the start (at height z_start) to the pad."""
         h, r, d = self.h, self.r, self.d
