@@ -241,6 +241,15 @@ class RuntimeConfig(_Section):
         "tick guidance as soon as a camera observation of the pad is fused while the fused estimate steers, so the "
         "setpoint that uses it leaves at once instead of at the next guidance_rate_hz tick (false: fixed rate only)",
     )
+    opencv_threads: int = _f(
+        1,
+        "-",
+        "threads OpenCV's parallel loops may use in this process (cv2.setNumThreads; 1: each call on its calling "
+        "thread, the detector's executor; -1: OpenCV's default, one per CPU, whose spinning pool cost 7.5 % of one "
+        "core on 640x480 frames in bench app)",
+        ge=-1,
+        le=64,
+    )
     setpoint_stale_s: float = _f(
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )

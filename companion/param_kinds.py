@@ -299,6 +299,9 @@ class DartRuntimeTable(_Section):
     outer_size_m: float = _s(0.5, "m", "wall marker: outer marker side", gt=0.0)
     inner_size_m: float = _s(0.09, "m", "wall marker: inner marker side", gt=0.0)
     pad_size_m: float = _s(0.6, "m", "wall marker: printed pad side", gt=0.0)
+    opencv_threads: int = _s(
+        1, "-", "threads OpenCV's parallel loops may use (1: the vision thread only; -1: one per CPU)", ge=-1, le=64
+    )
 
 
 class DartFile(_Section):

@@ -143,6 +143,8 @@ class DartRuntimeConfig:
     outer_size_m: float = 0.5
     inner_size_m: float = 0.09
     pad_size_m: float = 0.6
+    # threads OpenCV's parallel loops may use (companion.vision.opencv_threads; -1: OpenCV's default)
+    opencv_threads: int = 1
 
     def __post_init__(self) -> None:
         key = self.estimator.strip().upper().replace("_", "-")
@@ -171,6 +173,9 @@ class DartRuntimeConfig:
             _check("lens_offset_m / max_contribution_us", v)
         if any(v < 0.0 for v in self.max_contribution_us):
             raise ValueError(f"max_contribution_us = {self.max_contribution_us!r}: must be >= 0")
+        cv_threads = self.opencv_threads
+        if isinstance(cv_threads, bool) or not isinstance(cv_threads, int) or cv_threads < -1:
+            raise ValueError(f"opencv_threads = {cv_threads!r}: must be an integer >= -1 (-1: OpenCV's default)")
         if not self.max_tilt_deg < 80.0:
             raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
         chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)

@@ -68,6 +68,7 @@ from companion.geometry import wrap_angle
 from companion.scheduling import Clock, LoopClock, RateLoop
 from companion.vision.camera import CameraModel, load_camera, load_default_camera
 from companion.vision.detector import PadDetector
+from companion.vision.opencv_threads import apply_opencv_threads
 from companion.vision.pad import PadLayout
 
 log = logging.getLogger(__name__)
@@ -528,6 +529,7 @@ class DartShell:
             raise ValueError(f"duration_s = {duration_s!r}: must be > 0")
         tel = self.autopilot.telemetry
         self._t0 = self.clock.now()
+        apply_opencv_threads(self.rt.opencv_threads)  # process-wide, before the camera starts
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dart-vision")
         if self.log_path is not None:
             self._csv = CsvLog(self.log_path, LOG_COLUMNS)

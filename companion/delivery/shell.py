@@ -212,6 +212,10 @@ class DeliveryShell:
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
         loop = asyncio.get_running_loop()
+        if self.landing is not None and (self.landing.camera is not None or self.landing.detector is not None):
+            from companion.vision.opencv_threads import apply_opencv_threads
+
+            apply_opencv_threads(self.config.runtime.opencv_threads)  # process-wide, before the camera starts
         if self.recorder is not None:
             # first listener: every sample gets a seq
             self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)

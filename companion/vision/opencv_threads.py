@@ -1,0 +1,32 @@
+"""How many threads OpenCV's parallel loops may use, process-wide (``cv2.setNumThreads``).
+
+OpenCV runs ``detectMarkers``, ``warpPerspective`` and ``remap`` on a worker pool of one thread per
+CPU by default. On a companion computer's 640x480 frames that pool costs more than it saves: the
+detector already runs off the event loop (an executor thread), and the pool's workers, woken for
+every call, keep spinning between the small jobs. Measured with ``companion bench app`` (30 s,
+same machine, one run each): OpenCV's default (2 threads here) companion 29.8 % of one core, of it
+7.5 % in the pool's unnamed threads and 5.1 % vision; one thread 23.3 %, vision 7.0 %, nothing
+unnamed; detection p50 1.1 -> 1.7 ms, well inside a 33 ms frame period.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+
+log = logging.getLogger(__name__)
+
+
+def apply_opencv_threads(threads: int) -> int:
+    """Set OpenCV's thread count for this process: ``threads`` >= 1 threads (1: every call runs on
+    the calling thread), 0 the same as 1 (OpenCV: threading off), -1 OpenCV's default (one per
+    CPU). Returns what OpenCV now uses. Raises ValueError for anything below -1."""
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < -1:
+        raise ValueError(f"opencv_threads = {threads!r}: must be an integer >= -1 (-1: OpenCV's default)")
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    now = cv2.getNumThreads()
+    if now != before:
+        log.debug("OpenCV threads %d -> %d (opencv_threads = %d)", before, now, threads)
+    return now
