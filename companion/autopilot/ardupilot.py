@@ -29,6 +29,7 @@ and every packet sent goes into the sink.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import functools
 import logging
@@ -272,6 +273,9 @@ class ArduPilotAutopilot(Autopilot):
         self._tlog_opened = False  # a reconnect appends to the same file
         self._conn: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        # calls from the reader thread waiting for the loop (_post), and whether a drain is on its way
+        self._posted: collections.deque[tuple[Callable[..., Any], tuple[Any, ...]]] = collections.deque()
+        self._drain_scheduled = False
         self._reader: threading.Thread | None = None
         self._running = False
         self._send_lock = threading.Lock()
@@ -339,6 +343,8 @@ class ArduPilotAutopilot(Autopilot):
         if self._conn is not None:
             return
         self._loop = asyncio.get_running_loop()
+        self._posted.clear()  # left from a loop that has gone (a reconnect from another loop)
+        self._drain_scheduled = False
         device, baud, kind = parse_connection(self.connection, self.baud)
         if kind == "serial" and not os.path.exists(device):
             raise LinkDeviceMissing(f"serial device {device} does not exist (connection {self.connection!r})")
@@ -827,11 +833,33 @@ class ArduPilotAutopilot(Autopilot):
 
     # ------------------------------------------------------------------ receiving (reader thread)
     def _post(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` on the event loop, in the order posted. Calls posted while the loop has
+        not yet run the previous ones go in one wake-up (an autopilot sends its streams in bursts:
+        one self-pipe write and one loop iteration per burst, not per message)."""
         loop = self._loop
         if loop is None or loop.is_closed():
             return
-        with contextlib.suppress(RuntimeError):  # loop closing
-            loop.call_soon_threadsafe(fn, *args)
+        self._posted.append((fn, args))
+        if self._drain_scheduled:  # the loop has not started the drain yet: it will run this too
+            return
+        self._drain_scheduled = True
+        try:
+            loop.call_soon_threadsafe(self._drain_posted)
+        except RuntimeError:  # loop closing: nothing will run them
+            self._posted.clear()
+            self._drain_scheduled = False
+
+    def _drain_posted(self) -> None:
+        # cleared before draining: a call posted from now on schedules a drain of its own (at
+        # worst an empty one), so none is left waiting
+        self._drain_scheduled = False
+        posted = self._posted
+        while posted:
+            fn, args = posted.popleft()
+            try:
+                fn(*args)
+            except Exception:  # as the loop would for a callback of its own: log, go on with the next
+                log.exception("error in %s posted from the MAVLink reader", getattr(fn, "__qualname__", fn))
 
     def _push(self, sample: TelemetrySample) -> None:
         self._post(self.telemetry.push, sample)
