@@ -17,7 +17,8 @@ CPU method: ``time.process_time`` deltas give the process total. Each task's wor
 belong to one task as a whole (the CSV and .tlog writer threads, the telemetry worker, Zenoh's and the
 MAVLink backend's I/O threads, the detector's executor threads) are measured per thread from
 ``/proc`` and their CPU not covered by a wrapper goes to that task. What is left on the event-loop
-thread (asyncio, the request tasks, the simulated sensors' pose-snapshot tasks) is ``loop_other``.
+thread (asyncio, the request tasks, the simulated sensors' tasks but for their pose, field-of-view and
+range computations, which are the simulator's) is ``loop_other``.
 """
 
 from __future__ import annotations
@@ -341,9 +342,17 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     kit = dataclasses.replace(kit, vision_in_thread=True)
     camera = kit.camera
     acct.patch(camera.camera, "capture", "sim_render")  # the simulator's rendering, not the companion's
+    # the exposure noise added to each rendered image as the frame is read: the simulator's (a real
+    # camera plugin's read hands over a finished frame)
+    acct.patch(camera.camera, "expose", "sim_render")
     acct.patch(camera, "read", "vision")
+    # the simulated sensors' tasks on the loop (30 Hz camera, 10 Hz UWB): the truth pose read from
+    # the MAVLink sim, the pad in the camera frame, the field-of-view test, the ranges: simulator work
+    acct.patch(camera, "_in_view", "sim_sensors")
+    acct.patch(camera.camera, "T_camera_pad", "sim_sensors")
     if kit.uwb is not None:
         acct.patch(kit.uwb, "read", "sim_uwb")
+        acct.patch(kit.uwb.uwb, "twr", "sim_uwb")
     if kit.multilaterator is not None:
         acct.patch(kit.multilaterator, "solve_twr", "fusion")
     detect = acct.wrap("vision", kit.detector.detect)
@@ -419,6 +428,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
             _patched(shell_mod, "RateLoop", _counted("shell")),
             _patched(CsvLog, "write", acct.wrap("logging", CsvLog.write)),
             _patched(landing_sensors, "RateLoop", _counted("sim sensor")),
+            _patched(landing_sensors, "_truth_pose", acct.wrap("sim_sensors", landing_sensors._truth_pose)),
             _patched(shell_telemetry.ShellTelemetry, "tick", tel_tick),
             _patched(shell_telemetry.ShellTelemetry, "_on_sample", tel_sample),
         ):
