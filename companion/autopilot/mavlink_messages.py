@@ -4,10 +4,15 @@ mask. :class:`MavlinkPacker` encodes decoded messages (MAVSDK's JSON) back into 
 
 from __future__ import annotations
 
+import binascii
+import inspect
 import json
 import math
+import operator
 import os
-from collections.abc import Mapping
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -23,6 +28,15 @@ def velocity_setpoint_message(
 ) -> Any:
     """SET_POSITION_TARGET_LOCAL_NED carrying a velocity in local NED and an absolute yaw."""
     return mavlink2.MAVLink_set_position_target_local_ned_message(
+        *velocity_setpoint_fields(time_boot_ms, target_system, target_component, sp)
+    )
+
+
+def velocity_setpoint_fields(
+    time_boot_ms: int, target_system: int, target_component: int, sp: VelocitySetpoint
+) -> tuple[Any, ...]:
+    """:func:`velocity_setpoint_message`'s field values, in its constructor's order."""
+    return (
         time_boot_ms & 0xFFFFFFFF,
         target_system,
         target_component,
@@ -96,3 +110,90 @@ class MavlinkPacker:
         """A packet from one of MAVSDK's decoded messages (``message_name`` and ``fields_json``)."""
         fields = json.loads(fields_json) if fields_json else {}
         return self.pack_fields(fields.get("message_id", name), fields, system_id, component_id)
+
+
+# ------------------------------------------------------------------------------ direct packing
+_REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))  # each byte with its bits reversed
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")  # magic, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
+_CRC = struct.Struct("<H")
+
+
+def _reflect16(x: int) -> int:
+    return (_REV8[x & 0xFF] << 8) | _REV8[x >> 8]
+
+
+def x25crc(data: bytes, crc: int = 0xFFFF) -> int:
+    """MAVLink's checksum, CRC-16/MCRF4XX (pymavlink's ``x25crc``: polynomial 0x1021 reflected,
+    initial 0xFFFF), in C: a reflected CRC is the bit-reversed MSB-first CRC (``binascii.crc_hqx``,
+    the same polynomial) of the bit-reversed bytes from the bit-reversed initial value. pymavlink's
+    own falls back to a Python loop over the bytes (~7 us a packet) without the ``fastcrc`` wheel."""
+    return _reflect16(binascii.crc_hqx(data.translate(_REV8), _reflect16(crc)))
+
+
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    msg_id: int
+    crc_extra: int
+    payload: struct.Struct
+    wire_order: Callable[[Sequence[Any]], Any]  # constructor-order values -> wire order
+    arrays: tuple[int, ...]  # positions (wire order) of numeric arrays, flattened into the payload
+    n_args: int
+    n_required: int  # the fields before the constructor's defaults (MAVLink 2 extension fields)
+    defaults: tuple[Any, ...]  # every field's default, for the values not given
+
+
+def _layout(cls: Any) -> _Layout:
+    index = {name: i for i, name in enumerate(cls.fieldnames)}
+    order = [index[name] for name in cls.ordered_fieldnames]
+    arrays = tuple(
+        k
+        for k, (name, n) in enumerate(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
+        if n and cls.fieldtypes[index[name]] != "char"  # char arrays are one 's' item
+    )
+    getter = operator.itemgetter(*order)
+    wire = getter if len(order) > 1 else (lambda args: (getter(args),))
+    params = list(inspect.signature(cls.__init__).parameters.values())[1:]  # after self
+    if [p.name for p in params] != list(cls.fieldnames):
+        raise TypeError(f"{cls.msgname}: constructor arguments are not its fields")
+    defaults = tuple(p.default for p in params)
+    n_required = sum(1 for p in params if p.default is inspect.Parameter.empty)
+    return _Layout(cls.id, cls.crc_extra, cls.unpacker, wire, arrays, len(order), n_required, defaults)
+
+
+class DirectPacker:
+    """MAVLink 2 packets from a pymavlink message class and its field values in the constructor's
+    order, without building the message object: the same bytes as :class:`MavlinkPacker` (payload
+    trailing zeros stripped to at least one byte, one sequence counter per source, CRC with the
+    message's CRC_EXTRA; tested against it), at a fifth of its cost. Unsigned packets only. Not
+    thread-safe: one thread packs."""
+
+    def __init__(self) -> None:
+        self._seq: dict[tuple[int, int], int] = {}
+        self._layouts: dict[Any, _Layout] = {}
+
+    def pack(self, cls: Any, args: Sequence[Any], system_id: int, component_id: int) -> bytes:
+        lay = self._layouts.get(cls)
+        if lay is None:
+            lay = self._layouts[cls] = _layout(cls)
+        if len(args) != lay.n_args:
+            if not lay.n_required <= len(args) <= lay.n_args:
+                raise TypeError(f"{cls.msgname}: {len(args)} values for {lay.n_required}..{lay.n_args} fields")
+            args = (*args, *lay.defaults[len(args) :])  # the extension fields' defaults, as the constructor
+        vals = lay.wire_order(args)
+        if lay.arrays:
+            flat: list[Any] = []
+            for k, v in enumerate(vals):
+                if k in lay.arrays:
+                    flat.extend(v)
+                else:
+                    flat.append(v)
+            vals = flat
+        payload = lay.payload.pack(*vals).rstrip(b"\0") or b"\0"  # MAVLink 2: trailing zeros go, one byte stays
+        key = (system_id, component_id)
+        seq = self._seq.get(key, 0)
+        self._seq[key] = (seq + 1) & 0xFF
+        mid = lay.msg_id
+        frame = _HEADER_V2.pack(0xFD, len(payload), 0, 0, seq, system_id, component_id, mid & 0xFFFF, mid >> 16)
+        frame += payload
+        crc = x25crc(bytes((lay.crc_extra,)), x25crc(frame[1:]))
+        return frame + _CRC.pack(crc)

@@ -39,7 +39,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion.autopilot.interface import PacketSource
-from companion.autopilot.mavlink_messages import MavlinkPacker, velocity_setpoint_message
+from companion.autopilot.mavlink_messages import DirectPacker, velocity_setpoint_fields
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -68,6 +68,19 @@ class _Flush:
 
     def __init__(self) -> None:
         self.done = threading.Event()
+
+
+class _Chunk:
+    """Whole records (timestamp + packet) packed by the producer, handed over together."""
+
+    __slots__ = ("data", "records")
+
+    def __init__(self, data: bytes, records: int) -> None:
+        self.data = data
+        self.records = records
+
+
+PACKED_RECORDS_PER_CHUNK = 256  # write_packed(): records kept by the producer before they go to the writer
 
 
 def tlog_timestamp_us(t_unix_s: float) -> int:
@@ -107,6 +120,8 @@ class TlogWriter:
         except OSError as err:
             raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
         self._q: queue.Queue[object] = queue.Queue(max_queue)
+        self._packed = bytearray()  # write_packed()'s records not handed to the writer yet
+        self._packed_n = 0
         self._closed = False
         self._dead = False
         self._thread = threading.Thread(target=self._run, name=f"tlog-{self.path.name}", daemon=True)
@@ -119,6 +134,8 @@ class TlogWriter:
         if self._closed or self._dead:
             self.dropped += 1
             return False
+        if self._packed_n:  # write_packed()'s records first, in order (they share the one thread)
+            self._hand_over_packed()
         usec = tlog_timestamp_us(self.clock() if t_unix_s is None else t_unix_s)
         item = (usec, packet)
         if self.drop_when_full:
@@ -137,11 +154,51 @@ class TlogWriter:
                     self.dropped += 1
                     return False
 
+    def write_packed(self, packet: bytes, t_unix_s: float | None = None) -> None:
+        """Append one finished packet from the one thread that packs (the simulator's encoder):
+        records are kept here and handed to the writer :data:`PACKED_RECORDS_PER_CHUNK` at a time,
+        one queue hand-over instead of one per packet; :meth:`flush` and :meth:`close` hand over
+        the rest (what a crash can lose: at most that many records), and so does :meth:`write`
+        before its packet: mixed on one thread, the two keep their order. Not thread-safe: one
+        thread packs (a log written from several threads uses :meth:`write` alone)."""
+        if self._closed or self._dead:
+            self.dropped += 1
+            return
+        usec = tlog_timestamp_us(self.clock() if t_unix_s is None else t_unix_s)
+        buf = self._packed
+        buf += _TS.pack(usec)
+        buf += packet
+        self._packed_n += 1
+        if self._packed_n >= PACKED_RECORDS_PER_CHUNK:
+            self._hand_over_packed()
+
+    def _hand_over_packed(self) -> None:
+        if not self._packed_n:
+            return
+        chunk = _Chunk(bytes(self._packed), self._packed_n)
+        self._packed.clear()
+        self._packed_n = 0
+        if self.drop_when_full:
+            try:
+                self._q.put_nowait(chunk)
+            except queue.Full:
+                self.dropped += chunk.records
+            return
+        while True:
+            try:
+                self._q.put(chunk, timeout=0.5)
+                return
+            except queue.Full:
+                if self._dead:
+                    self.dropped += chunk.records
+                    return
+
     def flush(self, timeout_s: float = 5.0) -> bool:
         """Wait until everything queued so far is handed to the OS. False on timeout or if the
         writer has stopped."""
         if self._closed or self._dead:
             return False
+        self._hand_over_packed()
         marker = _Flush()
         try:
             self._q.put(marker, timeout=timeout_s)
@@ -153,6 +210,8 @@ class TlogWriter:
         """Write what is queued, sync and close the file; safe to call twice."""
         if self._closed:
             return
+        if not self._dead:
+            self._hand_over_packed()
         self._closed = True
         while self._thread.is_alive():
             try:
@@ -211,6 +270,10 @@ class TlogWriter:
                 if isinstance(it, _Flush):
                     markers.append(it)
                     continue
+                if isinstance(it, _Chunk):
+                    buf += it.data
+                    n += it.records
+                    continue
                 usec: int
                 src: PacketSource
                 usec, src = it  # type: ignore[misc]
@@ -256,6 +319,8 @@ class TlogWriter:
                 return
             if isinstance(it, _Flush):
                 it.done.set()
+            elif isinstance(it, _Chunk):
+                self.dropped += it.records
             elif it is not _STOP:
                 self.dropped += 1
 
@@ -308,8 +373,11 @@ class TelemetryEncoder:
     ``system_id``/``component_id``; :meth:`setpoint`, :meth:`command` and :meth:`command_ack`
     encode what the companion sends (SET_POSITION_TARGET_LOCAL_NED, COMMAND_LONG from
     ``companion_component``) and the autopilot's answer. ``custom_mode`` maps a
-    :class:`FlightMode` onto the autopilot's HEARTBEAT custom mode. Encoding runs on the
-    writer thread; ``boot_s`` is the clock time of the autopilot's boot (``time_boot_ms``).
+    :class:`FlightMode` onto the autopilot's HEARTBEAT custom mode. Each packet is
+    packed at once by a :class:`~companion.autopilot.mavlink_messages.DirectPacker` (the bytes
+    pymavlink gives, without building its message objects) and handed to the writer in chunks
+    (:meth:`TlogWriter.write_packed`); ``boot_s`` is the clock time of the autopilot's boot
+    (``time_boot_ms``). Use it from one thread.
     """
 
     def __init__(
@@ -333,13 +401,20 @@ class TelemetryEncoder:
         self.vehicle_type = vehicle_type
         self.vehicle_id = (system_id, component_id)
         self.companion_id = (system_id, companion_component)
-        self._packer = MavlinkPacker()  # used on the writer thread only
+        self._packer = DirectPacker()
         self._velocity = (0.0, 0.0, 0.0)
         self._yaw = 0.0
 
-    def _emit(self, source: tuple[int, int], msg: Any) -> None:
-        packer = self._packer
-        self.writer.write(lambda: packer.pack(msg, *source))  # packed on the writer thread, in order
+    def _emit(self, source: tuple[int, int], cls: Any, args: tuple[Any, ...]) -> None:
+        try:
+            packet = self._packer.pack(cls, args, *source)
+        except (struct.error, TypeError, ValueError, OverflowError):  # a value the field cannot hold
+            w = self.writer
+            w.encode_errors += 1
+            if w.encode_errors in (1, 100, 10000):
+                log.exception("%s: cannot encode %s (%d so far)", w.path, cls.msgname, w.encode_errors)
+            return
+        self.writer.write_packed(packet)
 
     def _ms(self, t: float) -> int:
         return max(0, int((t - self.boot_s) * 1000.0)) & 0xFFFFFFFF
@@ -351,103 +426,128 @@ class TelemetryEncoder:
         """Encode one reported sample (at the clock's current time)."""
         t = self.clock()
         ms, us = self._ms(t), self._us(t)
-        m: list[Any]
+        m: list[tuple[Any, tuple[Any, ...]]]
         match s:
             case Attitude():
                 self._yaw = s.yaw_rad
                 m = [
-                    mavlink2.MAVLink_attitude_message(
-                        ms, s.roll_rad, s.pitch_rad, s.yaw_rad, s.rollspeed_rad_s, s.pitchspeed_rad_s, s.yawspeed_rad_s
+                    (
+                        mavlink2.MAVLink_attitude_message,
+                        (
+                            ms,
+                            s.roll_rad,
+                            s.pitch_rad,
+                            s.yaw_rad,
+                            s.rollspeed_rad_s,
+                            s.pitchspeed_rad_s,
+                            s.yawspeed_rad_s,
+                        ),
                     )
                 ]
             case Imu():
                 m = [
-                    mavlink2.MAVLink_highres_imu_message(
-                        us,
-                        s.accel_x_m_s2,
-                        s.accel_y_m_s2,
-                        s.accel_z_m_s2,
-                        s.gyro_x_rad_s,
-                        s.gyro_y_rad_s,
-                        s.gyro_z_rad_s,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0b111111,  # fields_updated: accelerometer and gyro
-                        0,
+                    (
+                        mavlink2.MAVLink_highres_imu_message,
+                        (
+                            us,
+                            s.accel_x_m_s2,
+                            s.accel_y_m_s2,
+                            s.accel_z_m_s2,
+                            s.gyro_x_rad_s,
+                            s.gyro_y_rad_s,
+                            s.gyro_z_rad_s,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0b111111,  # fields_updated: accelerometer and gyro
+                            0,
+                        ),
                     )
                 ]
             case PositionNed():
                 self._velocity = (s.north_m_s, s.east_m_s, s.down_m_s)
                 m = [
-                    mavlink2.MAVLink_local_position_ned_message(
-                        ms, s.north_m, s.east_m, s.down_m, s.north_m_s, s.east_m_s, s.down_m_s
+                    (
+                        mavlink2.MAVLink_local_position_ned_message,
+                        (ms, s.north_m, s.east_m, s.down_m, s.north_m_s, s.east_m_s, s.down_m_s),
                     )
                 ]
             case GlobalPosition():
                 vn, ve, vd = self._velocity
                 hdg = round(math.degrees(self._yaw) % 360.0 * 100.0) % 36000
                 m = [
-                    mavlink2.MAVLink_global_position_int_message(
-                        ms,
-                        _i32(s.lat_deg * 1e7),
-                        _i32(s.lon_deg * 1e7),
-                        _i32(s.alt_amsl_m * 1000.0),
-                        _i32(s.alt_rel_m * 1000.0),
-                        round(float(vn) * 100.0),
-                        round(float(ve) * 100.0),
-                        round(float(vd) * 100.0),
-                        hdg,
+                    (
+                        mavlink2.MAVLink_global_position_int_message,
+                        (
+                            ms,
+                            _i32(s.lat_deg * 1e7),
+                            _i32(s.lon_deg * 1e7),
+                            _i32(s.alt_amsl_m * 1000.0),
+                            _i32(s.alt_rel_m * 1000.0),
+                            round(float(vn) * 100.0),
+                            round(float(ve) * 100.0),
+                            round(float(vd) * 100.0),
+                            hdg,
+                        ),
                     )
                 ]
             case GpsRaw():
                 eph = _U16_MAX if not math.isfinite(s.eph_m) else min(_U16_MAX - 1, round(float(s.eph_m) * 100.0))
                 m = [
-                    mavlink2.MAVLink_gps_raw_int_message(
-                        us,
-                        s.fix_type,
-                        _i32(s.lat_deg * 1e7),
-                        _i32(s.lon_deg * 1e7),
-                        _i32(s.alt_amsl_m * 1000.0),
-                        eph,
-                        _U16_MAX,
-                        _U16_MAX,
-                        _U16_MAX,
-                        s.satellites,
+                    (
+                        mavlink2.MAVLink_gps_raw_int_message,
+                        (
+                            us,
+                            s.fix_type,
+                            _i32(s.lat_deg * 1e7),
+                            _i32(s.lon_deg * 1e7),
+                            _i32(s.alt_amsl_m * 1000.0),
+                            eph,
+                            _U16_MAX,
+                            _U16_MAX,
+                            _U16_MAX,
+                            s.satellites,
+                        ),
                     )
                 ]
             case VehicleStatus():
                 m = self._status(s)
             case HomePosition():
                 m = [
-                    mavlink2.MAVLink_home_position_message(
-                        _i32(s.lat_deg * 1e7),
-                        _i32(s.lon_deg * 1e7),
-                        _i32(s.alt_amsl_m * 1000.0),
-                        s.north_m,
-                        s.east_m,
-                        s.down_m,
-                        [1.0, 0.0, 0.0, 0.0],
-                        0.0,
-                        0.0,
-                        0.0,
-                        us,
+                    (
+                        mavlink2.MAVLink_home_position_message,
+                        (
+                            _i32(s.lat_deg * 1e7),
+                            _i32(s.lon_deg * 1e7),
+                            _i32(s.alt_amsl_m * 1000.0),
+                            s.north_m,
+                            s.east_m,
+                            s.down_m,
+                            [1.0, 0.0, 0.0, 0.0],
+                            0.0,
+                            0.0,
+                            0.0,
+                            us,
+                        ),
                     )
                 ]
             case StatusText():
                 m = [
-                    mavlink2.MAVLink_statustext_message(s.severity, s.text.encode("utf-8", errors="replace")[:50], 0, 0)
+                    (
+                        mavlink2.MAVLink_statustext_message,
+                        (s.severity, s.text.encode("utf-8", errors="replace")[:50], 0, 0),
+                    )
                 ]
             case _:
                 return
-        for msg in m:
-            self._emit(self.vehicle_id, msg)
+        for cls, args in m:
+            self._emit(self.vehicle_id, cls, args)
 
-    def _status(self, s: VehicleStatus) -> list[Any]:
+    def _status(self, s: VehicleStatus) -> list[tuple[Any, tuple[Any, ...]]]:
         base = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if s.armed:
             base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
@@ -455,43 +555,46 @@ class TelemetryEncoder:
         prearm = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
         remaining = max(0, min(100, round(float(s.battery_pct))))
         return [
-            mavlink2.MAVLink_heartbeat_message(
-                self.vehicle_type, self.autopilot, base, self.custom_mode(s.mode), state, 3
+            (
+                mavlink2.MAVLink_heartbeat_message,
+                (self.vehicle_type, self.autopilot, base, self.custom_mode(s.mode), state, 3),
             ),
-            mavlink2.MAVLink_sys_status_message(
-                prearm, prearm, prearm if s.healthy else 0, 0, _U16_MAX, -1, remaining, 0, 0, 0, 0, 0, 0
+            (
+                mavlink2.MAVLink_sys_status_message,
+                (prearm, prearm, prearm if s.healthy else 0, 0, _U16_MAX, -1, remaining, 0, 0, 0, 0, 0, 0),
             ),
-            mavlink2.MAVLink_battery_status_message(
-                0,
-                mavlink2.MAV_BATTERY_FUNCTION_ALL,
-                mavlink2.MAV_BATTERY_TYPE_LIPO,
-                32767,
-                [_U16_MAX] * 10,
-                -1,
-                -1,
-                -1,
-                remaining,
+            (
+                mavlink2.MAVLink_battery_status_message,
+                (
+                    0,
+                    mavlink2.MAV_BATTERY_FUNCTION_ALL,
+                    mavlink2.MAV_BATTERY_TYPE_LIPO,
+                    32767,
+                    [_U16_MAX] * 10,
+                    -1,
+                    -1,
+                    -1,
+                    remaining,
+                ),
             ),
-            mavlink2.MAVLink_extended_sys_state_message(mavlink2.MAV_VTOL_STATE_UNDEFINED, _LANDED[s.landed]),
+            (mavlink2.MAVLink_extended_sys_state_message, (mavlink2.MAV_VTOL_STATE_UNDEFINED, _LANDED[s.landed])),
         ]
 
     def setpoint(self, sp: VelocitySetpoint) -> None:
         """The companion's velocity setpoint, as SET_POSITION_TARGET_LOCAL_NED."""
         ms = self._ms(self.clock())
         ts, tc = self.vehicle_id
-        msg = velocity_setpoint_message(ms, ts, tc, sp)
-        self._emit(self.companion_id, msg)
+        fields = velocity_setpoint_fields(ms, ts, tc, sp)
+        self._emit(self.companion_id, mavlink2.MAVLink_set_position_target_local_ned_message, fields)
 
     def command(self, command: int, params: Sequence[float] = ()) -> None:
         """A COMMAND_LONG from the companion (up to seven parameters)."""
         p = [float(x) for x in params][:7]
         p += [0.0] * (7 - len(p))
         ts, tc = self.vehicle_id
-        msg = mavlink2.MAVLink_command_long_message(ts, tc, command, 0, *p)
-        self._emit(self.companion_id, msg)
+        self._emit(self.companion_id, mavlink2.MAVLink_command_long_message, (ts, tc, command, 0, *p))
 
     def command_ack(self, command: int, result: int) -> None:
         """The autopilot's COMMAND_ACK to the companion."""
         ts, tc = self.companion_id
-        msg = mavlink2.MAVLink_command_ack_message(command, result, 0, 0, ts, tc)
-        self._emit(self.vehicle_id, msg)
+        self._emit(self.vehicle_id, mavlink2.MAVLink_command_ack_message, (command, result, 0, 0, ts, tc))

@@ -16,7 +16,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.autopilot.mavlink_messages import MavlinkPacker
+from companion.autopilot.mavlink_messages import DirectPacker, MavlinkPacker
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -28,7 +28,13 @@ from companion.autopilot.types import (
 )
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
-from companion.flightlog.tlog import TelemetryEncoder, TlogWriter, read_tlog, tlog_timestamp_us
+from companion.flightlog.tlog import (
+    PACKED_RECORDS_PER_CHUNK,
+    TelemetryEncoder,
+    TlogWriter,
+    read_tlog,
+    tlog_timestamp_us,
+)
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.autopilot import SIM_TLOG_EPOCH_S, SimAutopilot
 from companion_sitl.clock import run_virtual
@@ -192,6 +198,30 @@ def test_flush_puts_everything_on_disk_while_the_log_stays_open(tmp_path):
         assert w.flush()
         assert path.stat().st_size == sum(8 + len(p) for p in packets)
         assert len(list(read_tlog(path))) == 50
+
+
+def test_packed_records_go_in_chunks_and_flush_and_close_hand_over_the_rest(tmp_path):
+    packer = DirectPacker()
+    hb = lambda k: packer.pack(mav2.MAVLink_heartbeat_message, (2, 12, 0, k, 4, 3), 1, 1)  # noqa: E731
+    path = tmp_path / "p.tlog"
+    size = len(hb(0)) + 8
+    t = [T0]
+    w = TlogWriter(path, clock=lambda: t[0])
+    n = PACKED_RECORDS_PER_CHUNK + 10
+    for k in range(n):
+        t[0] = T0 + k * 0.01
+        w.write_packed(hb(k))
+    w.flush()  # the chunk and the ten kept by the producer
+    assert path.stat().st_size == size * n
+    w.write_packed(hb(n))
+    w.write(hb(n + 1))  # write() after write_packed() on the same thread: still in order
+    w.write_packed(hb(n + 2))
+    w.close()
+    msgs = list(read_tlog(path))
+    assert [m.custom_mode for m in msgs] == list(range(n + 3))
+    assert msgs[5]._timestamp == pytest.approx(T0 + 0.05, abs=1e-5)
+    w.write_packed(hb(0))  # closed: refused and counted
+    assert w.dropped == 1 and w.written == n + 3
 
 
 def _crash_after(path, n_flushed, n_more):
