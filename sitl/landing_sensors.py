@@ -12,6 +12,10 @@ soon as the pose is known (OpenCV releases the GIL: the event loop runs on meanw
 is finished (gain, exposure noise from the camera's seeded generator) when the shell reads it, in
 the order the frames are read, so the frames are the ones rendered on read, bit for bit. At most
 ``_AHEAD_KEPT`` unread renders are kept (the newest); an older exposure read later is rendered then.
+Exposures are rendered ahead only while the camera is read (``read()`` called since the previous
+exposure, or a frame listener attached): before the shell wants vision, the exposures in view would
+be rendered and never read (~7 % of a landing's renders); the first frame read after such a gap is
+rendered on read.
 
 The camera offers the frame-listener capability (version 1, :mod:`companion.plugin_api`): with a
 listener attached it is called on the event loop when a frame's capture latency has elapsed (the
@@ -70,6 +74,7 @@ class SimCameraSource:
         self._listener = FrameListenerSlot("simulated")
         self._index = 0
         self._last_read_t = -math.inf
+        self._polled = False  # read() called since the last exposure
         self.exposures = 0
         self.rendered = 0
         self.out_of_view = 0
@@ -94,7 +99,10 @@ class SimCameraSource:
             T = _truth_pose(self.vehicle)
             self._poses.append((t, T))
             self.exposures += 1
-            if self._renderer is not None and self._in_view(T):
+            # rendered ahead while someone reads (polled since the last exposure, or a listener is
+            # told): an unpolled camera's exposures (vision not wanted yet) would render unread
+            polled, self._polled = self._polled, False
+            if self._renderer is not None and (polled or self._listener.attached) and self._in_view(T):
                 self._renders[t] = self._renderer.submit(
                     self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True
                 )
@@ -125,6 +133,7 @@ class SimCameraSource:
 
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
+        self._polled = True
         now = self._clock.now()
         # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
         # the scan from the newest stops at the first one already read
@@ -145,7 +154,7 @@ class SimCameraSource:
         if not self._in_view(T):
             self.out_of_view += 1
             return None
-        if ahead is None and self._renderer is not None:  # (every exposure in view has one)
+        if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
             ahead = self._renderer.submit(self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True)
         # not started (no renderer): rendered here, as capture() does
         image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
