@@ -65,7 +65,8 @@ class SimCameraSource:
         self.rate_hz = rate_hz
         self.latency_s = latency_s
         self._clock = LoopClock()
-        self._poses: deque[tuple[float, Transform]] = deque(maxlen=64)
+        # (exposure time, T_world_body, T_camera_pad when computed at the exposure, else None)
+        self._poses: deque[tuple[float, Transform, Transform | None]] = deque(maxlen=64)
         self._task: asyncio.Task[None] | None = None
         # the optics of the exposures in view, rendered ahead on one thread (the camera's buffers
         # take one render at a time), by exposure time
@@ -97,17 +98,18 @@ class SimCameraSource:
             t = await rate.tick()
             self.vehicle.step_to(t)
             T = _truth_pose(self.vehicle)
-            self._poses.append((t, T))
             self.exposures += 1
             # rendered ahead while someone reads (polled since the last exposure, or a listener is
             # told): an unpolled camera's exposures (vision not wanted yet) would render unread
             polled, self._polled = self._polled, False
-            if self._renderer is not None and (polled or self._listener.attached) and self._in_view(T):
-                self._renders[t] = self._renderer.submit(
-                    self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True
-                )
-                if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
-                    self._renders.pop(next(iter(self._renders))).cancel()
+            T_cp = None
+            if self._renderer is not None and (polled or self._listener.attached):
+                T_cp = self.camera.T_camera_pad(T)  # kept with the pose: read() needs it again
+                if self._pad_in_view(T_cp):
+                    self._renders[t] = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
+                    if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
+                        self._renders.pop(next(iter(self._renders))).cancel()
+            self._poses.append((t, T, T_cp))
             if self._listener.attached:
                 loop.call_at(t + self.latency_s, self._frame_ready, t)
 
@@ -121,8 +123,9 @@ class SimCameraSource:
             return
         self._listener.notify()
 
-    def _in_view(self, T_world_body: Transform) -> bool:
-        p = self.camera.T_camera_pad(T_world_body).t
+    def _pad_in_view(self, T_camera_pad: Transform) -> bool:
+        """The pad (within half a metre of its centre) is in the camera's field of view."""
+        p = T_camera_pad.t
         if p[2] <= 0.05:
             return False
         margin = 0.5 / p[2]  # half a metre around the pad centre
@@ -146,16 +149,18 @@ class SimCameraSource:
                 break
         if pose is None:
             return None
-        t, T = pose
+        t, T, T_cp = pose
         self._last_read_t = t
         ahead = self._renders.pop(t, None)
         for k in [k for k in self._renders if k < t]:  # exposures dropped unread
             self._renders.pop(k).cancel()
-        if not self._in_view(T):
+        if T_cp is None:
+            T_cp = self.camera.T_camera_pad(T)
+        if not self._pad_in_view(T_cp):
             self.out_of_view += 1
             return None
         if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
-            ahead = self._renderer.submit(self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True)
+            ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
         # not started (no renderer): rendered here, as capture() does
         image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
         self.rendered += 1

@@ -47,7 +47,7 @@ def test_camera_source_reads_the_newest_ready_unread_exposure() -> None:
     above = Transform.from_euler([0.0, 0.0, -5.0], 0.0, 0.0, 0.0)  # over the pad: in view
     beside = Transform.from_euler([40.0, 0.0, -5.0], 0.0, 0.0, 0.0)  # the pad far out of view
     for k in range(10):
-        src._poses.append((k / 30, beside if k == 7 else above))
+        src._poses.append((k / 30, beside if k == 7 else above, None))  # T_camera_pad not computed yet
     clock.t = 0.04
     assert src.read() is None  # nothing exposed 50 ms ago yet
     clock.t = 0.12  # exposures 0..2 are ready: the newest, 2, is read, 0 and 1 are dropped
