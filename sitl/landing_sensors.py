@@ -12,6 +12,10 @@ soon as the pose is known (OpenCV releases the GIL: the event loop runs on meanw
 is finished (gain, exposure noise from the camera's seeded generator) when the shell reads it, in
 the order the frames are read, so the frames are the ones rendered on read, bit for bit. At most
 ``_AHEAD_KEPT`` unread renders are kept (the newest); an older exposure read later is rendered then.
+Exposures are rendered ahead only while the camera is read (``read()`` called since the previous
+exposure, or a frame listener attached): before the shell wants vision, the exposures in view would
+be rendered and never read (~7 % of a landing's renders); the first frame read after such a gap is
+rendered on read.
 
 The camera offers the frame-listener capability (version 1, :mod:`companion.plugin_api`): with a
 listener attached it is called on the event loop when a frame's capture latency has elapsed (the
@@ -61,7 +65,8 @@ class SimCameraSource:
         self.rate_hz = rate_hz
         self.latency_s = latency_s
         self._clock = LoopClock()
-        self._poses: deque[tuple[float, Transform]] = deque(maxlen=64)
+        # (exposure time, T_world_body, T_camera_pad when computed at the exposure, else None)
+        self._poses: deque[tuple[float, Transform, Transform | None]] = deque(maxlen=64)
         self._task: asyncio.Task[None] | None = None
         # the optics of the exposures in view, rendered ahead on one thread (the camera's buffers
         # take one render at a time), by exposure time
@@ -70,6 +75,7 @@ class SimCameraSource:
         self._listener = FrameListenerSlot("simulated")
         self._index = 0
         self._last_read_t = -math.inf
+        self._polled = False  # read() called since the last exposure
         self.exposures = 0
         self.rendered = 0
         self.out_of_view = 0
@@ -92,14 +98,18 @@ class SimCameraSource:
             t = await rate.tick()
             self.vehicle.step_to(t)
             T = _truth_pose(self.vehicle)
-            self._poses.append((t, T))
             self.exposures += 1
-            if self._renderer is not None and self._in_view(T):
-                self._renders[t] = self._renderer.submit(
-                    self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True
-                )
-                if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
-                    self._renders.pop(next(iter(self._renders))).cancel()
+            # rendered ahead while someone reads (polled since the last exposure, or a listener is
+            # told): an unpolled camera's exposures (vision not wanted yet) would render unread
+            polled, self._polled = self._polled, False
+            T_cp = None
+            if self._renderer is not None and (polled or self._listener.attached):
+                T_cp = self.camera.T_camera_pad(T)  # kept with the pose: read() needs it again
+                if self._pad_in_view(T_cp):
+                    self._renders[t] = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
+                    if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
+                        self._renders.pop(next(iter(self._renders))).cancel()
+            self._poses.append((t, T, T_cp))
             if self._listener.attached:
                 loop.call_at(t + self.latency_s, self._frame_ready, t)
 
@@ -113,8 +123,9 @@ class SimCameraSource:
             return
         self._listener.notify()
 
-    def _in_view(self, T_world_body: Transform) -> bool:
-        p = self.camera.T_camera_pad(T_world_body).t
+    def _pad_in_view(self, T_camera_pad: Transform) -> bool:
+        """The pad (within half a metre of its centre) is in the camera's field of view."""
+        p = T_camera_pad.t
         if p[2] <= 0.05:
             return False
         margin = 0.5 / p[2]  # half a metre around the pad centre
@@ -125,6 +136,7 @@ class SimCameraSource:
 
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
+        self._polled = True
         now = self._clock.now()
         # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
         # the scan from the newest stops at the first one already read
@@ -137,16 +149,18 @@ class SimCameraSource:
                 break
         if pose is None:
             return None
-        t, T = pose
+        t, T, T_cp = pose
         self._last_read_t = t
         ahead = self._renders.pop(t, None)
         for k in [k for k in self._renders if k < t]:  # exposures dropped unread
             self._renders.pop(k).cancel()
-        if not self._in_view(T):
+        if T_cp is None:
+            T_cp = self.camera.T_camera_pad(T)
+        if not self._pad_in_view(T_cp):
             self.out_of_view += 1
             return None
-        if ahead is None and self._renderer is not None:  # (every exposure in view has one)
-            ahead = self._renderer.submit(self.camera.render_optics, self.camera.T_camera_pad(T), fresh=True)
+        if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
+            ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
         # not started (no renderer): rendered here, as capture() does
         image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
         self.rendered += 1

@@ -333,8 +333,8 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
         """Renders every exposure (the flight camera skips those without the pad in view): the
         detector then runs on all 30 frames a second, searching whole frames when the pad is out of view."""
 
-        def _in_view(self, T_world_body: Any) -> bool:
-            T = self.camera.T_camera_pad(T_world_body)
+        def _pad_in_view(self, T_camera_pad: Any) -> bool:
+            T = T_camera_pad
             return float((-T.R.T @ T.t)[2]) > 0.05  # the camera above the pad plane (on the ground it is not)
 
     with _patched(landing_sensors, "SimCameraSource", BenchCamera):

@@ -393,6 +393,23 @@ def _marker_side_px(c: FloatArray) -> float:
     return float(np.mean(np.linalg.norm(c - np.roll(c, 1, axis=0), axis=1)))
 
 
+# Small-array reductions of the edge refinement (a few hundred numbers each, ~20 calls a marker):
+# the operations numpy's wrappers end in, without their argument handling (the same floats).
+_add_reduce: Any = np.add.reduce
+
+
+def _mean(x: NDArray[Any], axis: int) -> FloatArray:
+    """``x.mean(axis)`` of a float64 array: the sum (``np.add.reduce``) divided by the count."""
+    m: FloatArray = _add_reduce(x, axis=axis) / x.shape[axis]
+    return m
+
+
+def _row_norms(x: FloatArray, keepdims: bool = False) -> FloatArray:
+    """``np.linalg.norm(x, axis=1)`` of a real array: the root of the rows' sums of squares."""
+    r: FloatArray = np.sqrt(_add_reduce(x * x, axis=1, keepdims=keepdims))
+    return r
+
+
 _EDGE_FRACTIONS: dict[int, FloatArray] = {}
 
 
@@ -409,7 +426,7 @@ def _cov_rows(x: FloatArray) -> FloatArray:
     """``np.cov(x)`` for a (2, n) float64 ``x``, n >= 2, by the same operations without the
     argument handling (bit for bit the same matrix)."""
     X = np.array(x, ndmin=2, dtype=np.float64)
-    X -= X.mean(axis=1)[:, None]
+    X -= _mean(X, 1)[:, None]
     c = np.dot(X, X.T.conj())
     c *= np.true_divide(1, X.shape[1] - 1)
     return c
@@ -436,19 +453,19 @@ def refine_corners_by_edges(
     Returns None when an edge cannot be measured (the caller falls back to the detected corners).
     """
     c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    p1s = np.roll(c, -1, axis=0)
-    side_len = float(np.mean(np.linalg.norm(c - p1s, axis=1)))
+    p1s = c[[1, 2, 3, 0]]  # np.roll(c, -1, axis=0)
+    side_len = float(_mean(_row_norms(c - p1s), 0))
     half = min(6.0, EDGE_PROFILE_CELLS * side_len / cells)
     if half < 1.0:
         return None
     offs = np.linspace(-half, half, max(9, int(4 * half) | 1))
     frac = _edge_fractions(samples_per_side)
-    centroid = c.mean(axis=0)
+    centroid = _mean(c, 0)
     p0s = c
     d = p1s - p0s
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d /= _row_norms(d, keepdims=True)
     n = np.stack([-d[:, 1], d[:, 0]], axis=1)
-    flip = np.sum(n * (0.5 * (p0s + p1s) - centroid), axis=1) < 0
+    flip = _add_reduce(n * (0.5 * (p0s + p1s) - centroid), axis=1) < 0
     n[flip] *= -1.0  # n points out of the marker: dark (border) -> light (surround)
     # base points (4, S, 2) along each side, profiles (4, S, O) across it
     base = p0s[:, None, :] + frac[None, :, None] * (p1s - p0s)[:, None, :]
@@ -459,12 +476,12 @@ def refine_corners_by_edges(
     prof = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     prof = prof.astype(np.float64)
     k = max(1, n_off // 4)
-    dark = prof[:, :k].mean(axis=1)
-    light = prof[:, -k:].mean(axis=1)
+    dark = _mean(prof[:, :k], 1)
+    light = _mean(prof[:, -k:], 1)
     level = 0.5 * (dark + light)
     above = prof > level[:, None]
     change = above[:, 1:] != above[:, :-1]
-    good = ((light - dark) > 20.0) & (change.sum(axis=1) == 1)
+    good = ((light - dark) > 20.0) & (_add_reduce(change, axis=1) == 1)
     a = np.argmax(change, axis=1)
     rows = np.arange(4 * S)
     v0, v1 = prof[rows, a], prof[rows, a + 1]
@@ -482,9 +499,9 @@ def refine_corners_by_edges(
     means, covs = [], np.empty((4, 2, 2))
     for i in range(4):
         ideal = ideal_all[i * S : (i + 1) * S][good[i * S : (i + 1) * S]]
-        if not np.all(np.isfinite(ideal)):
+        if not np.isfinite(ideal).all():
             return None
-        m = ideal.mean(axis=0)
+        m = _mean(ideal, 0)
         means.append(m)
         covs[i] = _cov_rows((ideal - m).T)
     # the four sides' eigen-decompositions in one call (LAPACK's per matrix, as four calls)
@@ -496,10 +513,10 @@ def refine_corners_by_edges(
         (n0, c0), (n1, c1) = lines[(i - 1) % 4], lines[i]  # corner i joins sides i-1 and i
         A[i] = (n0, n1)
         b[i, :, 0] = (c0, c1)
-    if np.any(np.abs(np.linalg.det(A)) < 1e-9):
+    if (np.abs(np.linalg.det(A)) < 1e-9).any():
         return None
     out = np.asarray(np.linalg.solve(A, b)[:, :, 0], dtype=np.float64)
-    if np.max(np.linalg.norm(out - ref, axis=1)) > max(1.5, 0.05 * side_len):
+    if _row_norms(out - ref).max() > max(1.5, 0.05 * side_len):
         return None  # refinement disagrees with the detector: do not trust it
     return out
 

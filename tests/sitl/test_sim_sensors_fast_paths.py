@@ -47,7 +47,7 @@ def test_camera_source_reads_the_newest_ready_unread_exposure() -> None:
     above = Transform.from_euler([0.0, 0.0, -5.0], 0.0, 0.0, 0.0)  # over the pad: in view
     beside = Transform.from_euler([40.0, 0.0, -5.0], 0.0, 0.0, 0.0)  # the pad far out of view
     for k in range(10):
-        src._poses.append((k / 30, beside if k == 7 else above))
+        src._poses.append((k / 30, beside if k == 7 else above, None))  # T_camera_pad not computed yet
     clock.t = 0.04
     assert src.read() is None  # nothing exposed 50 ms ago yet
     clock.t = 0.12  # exposures 0..2 are ready: the newest, 2, is read, 0 and 1 are dropped
@@ -101,3 +101,40 @@ def test_frames_rendered_ahead_on_the_thread_are_the_frames_rendered_on_read() -
     for t, image in frames:
         track.step_to(t)
         assert np.array_equal(image, twin.capture(_truth_pose(track), t).image), t
+
+
+def test_exposures_are_rendered_ahead_only_while_the_camera_is_read() -> None:
+    from companion_sitl.clock import run_virtual
+
+    class _Above:  # 5 m over the pad: every exposure shows it
+        pn, pe, pd, roll, pitch, yaw = 0.0, 0.0, -5.0, 0.0, 0.0, 0.0
+
+        def step_to(self, t: float) -> None:
+            pass
+
+    src = SimCameraSource(_Above(), SimulatedCamera(load_default_camera(), seed=0), 30.0, 0.05)  # type: ignore[arg-type]
+    renders: list[int] = []
+    render = src.camera.render_optics
+
+    def counted(*args: object, **kwargs: object) -> object:
+        renders.append(1)
+        return render(*args, **kwargs)  # type: ignore[arg-type]
+
+    src.camera.render_optics = counted  # type: ignore[method-assign]
+
+    async def go() -> tuple[tuple[int, int], list[int]]:
+        src.start()
+        await asyncio.sleep(0.5)  # 15 exposures in view, nobody reads (vision not wanted yet)
+        unread = (len(renders), len(src._renders))
+        pending = []
+        for _ in range(30):  # then polled at 60 Hz, as the lock-step shell does
+            await asyncio.sleep(1.0 / 60.0)
+            src.read()
+            pending.append(len(src._renders))
+        src.stop()
+        return unread, pending
+
+    unread, pending = run_virtual(go())
+    assert unread == (0, 0)  # nothing rendered for nobody
+    assert max(pending) > 0  # while read, the next exposures are rendered ahead (during their latency)
+    assert src.rendered >= 14 and src.rendered <= len(renders) <= src.rendered + 2  # (one or two ahead at the stop)

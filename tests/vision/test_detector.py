@@ -424,3 +424,21 @@ def test_cov_rows_is_np_cov_bit_for_bit() -> None:
             pts = rng.normal(0.0, scale, (n, 2)) + rng.uniform(-500.0, 500.0, 2)
             x = (pts - pts.mean(axis=0)).T  # as the refinement passes it: a transposed view
             assert _cov_rows(x).tobytes() == np.cov(x).tobytes()
+
+
+def test_edge_refinement_reductions_are_numpys_bit_for_bit() -> None:
+    from companion.vision.detector import _mean, _row_norms
+
+    rng = np.random.default_rng(6)
+    for shape in ((4, 2), (16, 2), (9, 2), (64, 5), (64, 13), (2, 33)):
+        for scale in (1e-3, 1.0, 300.0):
+            x = rng.normal(0.0, scale, shape) + rng.uniform(-500.0, 500.0)
+            for axis in (0, 1):
+                assert _mean(x, axis).tobytes() == x.mean(axis=axis).tobytes()
+                assert (
+                    _mean(x[:, : max(1, shape[1] // 4)], axis).tobytes()
+                    == x[:, : max(1, shape[1] // 4)].mean(axis=axis).tobytes()
+                )
+            assert _row_norms(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()
+            assert _row_norms(x, keepdims=True).tobytes() == np.linalg.norm(x, axis=1, keepdims=True).tobytes()
+    assert float(_mean(np.array([3.0, 1.5, 2.25, 7.0]), 0)) == float(np.mean([3.0, 1.5, 2.25, 7.0]))
