@@ -348,7 +348,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     acct.patch(camera, "read", "vision")
     # the simulated sensors' tasks on the loop (30 Hz camera, 10 Hz UWB): the truth pose read from
     # the MAVLink sim, the pad in the camera frame, the field-of-view test, the ranges: simulator work
-    acct.patch(camera, "_in_view", "sim_sensors")
+    acct.patch(camera, "_pad_in_view", "sim_sensors")
     acct.patch(camera.camera, "T_camera_pad", "sim_sensors")
     if kit.uwb is not None:
         acct.patch(kit.uwb, "read", "sim_uwb")
