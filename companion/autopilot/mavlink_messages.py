@@ -61,25 +61,29 @@ _FLOAT_TYPES = ("float", "double")
 
 class MavlinkPacker:
     """MAVLink 2 packets in pymavlink's ``ardupilotmega`` dialect (a superset of ``common``),
-    with one sequence counter per source (system, component). Not thread-safe: use it from one
-    thread (e.g. inside functions handed to a :class:`~companion.autopilot.interface.PacketSink`)."""
+    with one sequence counter per source (system, component). Messages from decoded fields
+    (:meth:`pack_fields`, :meth:`pack_json`) are packed by a :class:`DirectPacker` without
+    building pymavlink's message object; both paths share the counters. Not thread-safe: use it
+    from one thread (e.g. inside functions handed to a
+    :class:`~companion.autopilot.interface.PacketSink`)."""
 
     def __init__(self) -> None:
         self._mav: dict[tuple[int, int], Any] = {}
+        self._direct = DirectPacker()
 
     def pack(self, msg: Any, system_id: int, component_id: int) -> bytes:
         key = (system_id, component_id)
         mav = self._mav.get(key)
         if mav is None:
             mav = self._mav[key] = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
-        buf = bytes(msg.pack(mav))
-        mav.seq = (mav.seq + 1) % 256
-        return buf
+        mav.seq = self._direct.next_seq(key)
+        return bytes(msg.pack(mav))
 
     @staticmethod
-    def message_from_fields(name_or_id: str | int, fields: Mapping[str, Any]) -> Any:
-        """A pymavlink message from decoded field values (missing fields are 0; None, as in
-        MAVSDK's JSON for NaN, is NaN for float fields and 0 otherwise)."""
+    def message_args(name_or_id: str | int, fields: Mapping[str, Any]) -> tuple[Any, list[Any]]:
+        """The pymavlink message class and its constructor's arguments from decoded field values
+        (missing fields are 0; None, as in MAVSDK's JSON for NaN, is NaN for float fields and 0
+        otherwise)."""
         if isinstance(name_or_id, int):
             cls = mavlink2.mavlink_map.get(name_or_id)
         else:
@@ -101,10 +105,17 @@ class MavlinkPacker:
                 args.append(seq + [0] * (n - len(seq)))
             else:
                 args.append(blank if v is None else v)
+        return cls, args
+
+    @staticmethod
+    def message_from_fields(name_or_id: str | int, fields: Mapping[str, Any]) -> Any:
+        """A pymavlink message from decoded field values (see :meth:`message_args`)."""
+        cls, args = MavlinkPacker.message_args(name_or_id, fields)
         return cls(*args)
 
     def pack_fields(self, name_or_id: str | int, fields: Mapping[str, Any], system_id: int, component_id: int) -> bytes:
-        return self.pack(self.message_from_fields(name_or_id, fields), system_id, component_id)
+        cls, args = self.message_args(name_or_id, fields)
+        return self._direct.pack(cls, args, system_id, component_id)
 
     def pack_json(self, name: str, fields_json: str, system_id: int, component_id: int) -> bytes:
         """A packet from one of MAVSDK's decoded messages (``message_name`` and ``fields_json``)."""
@@ -171,6 +182,12 @@ class DirectPacker:
         self._seq: dict[tuple[int, int], int] = {}
         self._layouts: dict[Any, _Layout] = {}
 
+    def next_seq(self, source: tuple[int, int]) -> int:
+        """The sequence number of the source's next packet (0 first, wrapping after 255)."""
+        seq = self._seq.get(source, 0)
+        self._seq[source] = (seq + 1) & 0xFF
+        return seq
+
     def pack(self, cls: Any, args: Sequence[Any], system_id: int, component_id: int) -> bytes:
         lay = self._layouts.get(cls)
         if lay is None:
@@ -189,9 +206,7 @@ class DirectPacker:
                     flat.append(v)
             vals = flat
         payload = lay.payload.pack(*vals).rstrip(b"\0") or b"\0"  # MAVLink 2: trailing zeros go, one byte stays
-        key = (system_id, component_id)
-        seq = self._seq.get(key, 0)
-        self._seq[key] = (seq + 1) & 0xFF
+        seq = self.next_seq((system_id, component_id))
         mid = lay.msg_id
         frame = _HEADER_V2.pack(0xFD, len(payload), 0, 0, seq, system_id, component_id, mid & 0xFFFF, mid >> 16)
         frame += payload

@@ -82,3 +82,13 @@ def test_x25crc_is_pymavlinks_checksum() -> None:
         assert x25crc(data) == mav2.x25crc(data).crc
         assert x25crc(data[n // 2 :], x25crc(data[: n // 2])) == mav2.x25crc(data).crc  # continued
     assert x25crc(b"123456789") == 0x6F91  # CRC-16/MCRF4XX check value
+
+
+def test_packing_from_fields_gives_the_object_paths_bytes_and_shares_its_sequence() -> None:
+    fields = {"time_boot_ms": 1234, "roll": 0.25, "pitch": None, "yaw": -1.0, "rollspeed": 0.0}
+    a, b = MavlinkPacker(), MavlinkPacker()
+    msg = MavlinkPacker.message_from_fields("ATTITUDE", fields)
+    assert a.pack_fields("ATTITUDE", fields, 1, 1) == b.pack(msg, 1, 1)
+    # one counter per source whichever path packs: seq 1 then 2 on both
+    assert a.pack(msg, 1, 1) == b.pack_fields("ATTITUDE", fields, 1, 1)
+    assert a.pack_json("ATTITUDE", '{"time_boot_ms": 1234, "roll": 0.25, "pitch": null, "yaw": -1.0}', 1, 1)[4] == 2
