@@ -35,6 +35,7 @@ from companion.dart.mission import (
     load_mission_config,
     read_toml,
 )
+from companion.vision.opencv_threads import check_opencv_threads
 
 #: tables of a Dart parameter file; [sim] belongs to the simulator
 DART_TABLES = ("sim", "control", "mission", "runtime")
@@ -173,9 +174,7 @@ class DartRuntimeConfig:
             _check("lens_offset_m / max_contribution_us", v)
         if any(v < 0.0 for v in self.max_contribution_us):
             raise ValueError(f"max_contribution_us = {self.max_contribution_us!r}: must be >= 0")
-        cv_threads = self.opencv_threads
-        if isinstance(cv_threads, bool) or not isinstance(cv_threads, int) or cv_threads < -1:
-            raise ValueError(f"opencv_threads = {cv_threads!r}: must be an integer >= -1 (-1: OpenCV's default)")
+        check_opencv_threads(self.opencv_threads)
         if not self.max_tilt_deg < 80.0:
             raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
         chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)

@@ -137,21 +137,25 @@ class TlogWriter:
         if self._packed_n:  # write_packed()'s records first, in order (they share the one thread)
             self._hand_over_packed()
         usec = tlog_timestamp_us(self.clock() if t_unix_s is None else t_unix_s)
-        item = (usec, packet)
+        return self._enqueue((usec, packet), 1)
+
+    def _enqueue(self, item: object, records: int) -> bool:
+        """Queue ``item`` (``records`` records) by the writer's policy: drop and count when full,
+        or (``drop_when_full=False``) wait for room, but not on a writer that has died meanwhile."""
         if self.drop_when_full:
             try:
                 self._q.put_nowait(item)
             except queue.Full:
-                self.dropped += 1
+                self.dropped += records
                 return False
             return True
-        while True:  # wait for room, but not on a writer that has died meanwhile
+        while True:
             try:
                 self._q.put(item, timeout=0.5)
                 return True
             except queue.Full:
                 if self._dead:
-                    self.dropped += 1
+                    self.dropped += records
                     return False
 
     def write_packed(self, packet: bytes, t_unix_s: float | None = None) -> None:
@@ -178,20 +182,7 @@ class TlogWriter:
         chunk = _Chunk(bytes(self._packed), self._packed_n)
         self._packed.clear()
         self._packed_n = 0
-        if self.drop_when_full:
-            try:
-                self._q.put_nowait(chunk)
-            except queue.Full:
-                self.dropped += chunk.records
-            return
-        while True:
-            try:
-                self._q.put(chunk, timeout=0.5)
-                return
-            except queue.Full:
-                if self._dead:
-                    self.dropped += chunk.records
-                    return
+        self._enqueue(chunk, chunk.records)
 
     def flush(self, timeout_s: float = 5.0) -> bool:
         """Wait until everything queued so far is handed to the OS. False on timeout or if the

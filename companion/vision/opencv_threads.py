@@ -18,12 +18,19 @@ import cv2
 log = logging.getLogger(__name__)
 
 
+def check_opencv_threads(threads: object) -> int:
+    """``threads`` if it is a valid ``opencv_threads`` setting (an integer >= -1), else ValueError
+    naming the key."""
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < -1:
+        raise ValueError(f"opencv_threads = {threads!r}: must be an integer >= -1 (-1: OpenCV's default)")
+    return threads
+
+
 def apply_opencv_threads(threads: int) -> int:
     """Set OpenCV's thread count for this process: ``threads`` >= 1 threads (1: every call runs on
     the calling thread), 0 the same as 1 (OpenCV: threading off), -1 OpenCV's default (one per
     CPU). Returns what OpenCV now uses. Raises ValueError for anything below -1."""
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < -1:
-        raise ValueError(f"opencv_threads = {threads!r}: must be an integer >= -1 (-1: OpenCV's default)")
+    check_opencv_threads(threads)
     before = cv2.getNumThreads()
     cv2.setNumThreads(threads)
     now = cv2.getNumThreads()
