@@ -65,14 +65,12 @@ class DegE7Dequantiser:
     Each update moves the previous value by what the velocity says the vehicle moved (``step``,
     degE7) and clamps it into the step ``q`` allows: a moving vehicle crossing a step edge pins the
     value to that edge, so it stays within a fraction of a step of the truth (set membership; no
-    tuning); a vehicle at rest keeps its value inside the step. The first update (or one after
-    :meth:`reset`) takes the middle of the step."""
+    tuning); a vehicle at rest keeps its value inside the step. The first update, and one whose
+    ``step`` is not finite (the samples were too far apart to integrate), take the middle of the
+    step."""
 
     def __init__(self) -> None:
         self.value: float | None = None
-
-    def reset(self) -> None:
-        self.value = None
 
     @staticmethod
     def bounds(q: int) -> tuple[float, float]:
@@ -267,6 +265,7 @@ class MavlinkTruth:
         # cm/s, NED, truncated toward zero like the position (PX4: int16 of lpos.v * 1e2f): the
         # middle of each step
         v = (_mid_cm_s(m.vx), _mid_cm_s(m.vy), _mid_cm_s(m.vz))
+        # PX4 leaves time_usec at 0 in this stream (its msg{} is never stamped): timed on arrival
         t = m.time_usec * 1e-6 if getattr(m, "time_usec", 0) else time.monotonic()
         self._store(list(m.attitude_quaternion), (int(m.lat), int(m.lon), m.alt * 1e-3), v, t)
 
