@@ -42,7 +42,7 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from companion.geometry.earth import WGS84_A_M, WGS84_E2, GeoPoint, LocalTangentPlane
+from companion.geometry.earth import GeoPoint, LocalTangentPlane, radii_of_curvature
 from companion.geometry.rotations import quat_to_euler
 
 log = logging.getLogger(__name__)
@@ -293,12 +293,11 @@ class MavlinkTruth:
         step_lat = step_lon = math.nan
         if last is not None and 0.0 <= t - last[0] <= MAX_INTEGRATION_GAP_S:
             dt = t - last[0]
-            lat = math.radians(lat_e7 * 1e-7)
-            w = 1.0 - WGS84_E2 * math.sin(lat) ** 2
-            r_m = WGS84_A_M * (1.0 - WGS84_E2) / w**1.5 + alt_m  # meridian radius
-            r_n = WGS84_A_M / math.sqrt(w) + alt_m  # prime vertical
-            step_lat = 0.5 * (last[1] + vel[0]) * dt / r_m * DEG_E7_PER_RAD
-            step_lon = 0.5 * (last[2] + vel[1]) * dt / (r_n * math.cos(lat)) * DEG_E7_PER_RAD
+            lat_deg = lat_e7 * 1e-7
+            r_m, r_n = radii_of_curvature(lat_deg)
+            step_lat = 0.5 * (last[1] + vel[0]) * dt / (r_m + alt_m) * DEG_E7_PER_RAD
+            east_m_per_rad = (r_n + alt_m) * math.cos(math.radians(lat_deg))
+            step_lon = 0.5 * (last[2] + vel[1]) * dt / east_m_per_rad * DEG_E7_PER_RAD
         self._last_fix = (t, vel[0], vel[1])
         lat_d = self._lat.update(lat_e7, step_lat) * 1e-7
         lon_d = self._lon.update(lon_e7, step_lon) * 1e-7

@@ -32,6 +32,15 @@ class GeoPoint:
             raise ValueError(f"GeoPoint.lon_deg must be in [-180, 180], got {self.lon_deg}")
 
 
+def radii_of_curvature(lat_deg: float) -> tuple[float, float]:
+    """The WGS-84 meridian (R_M) and prime-vertical (R_N) radii of curvature at ``lat_deg``, m."""
+    phi = math.radians(lat_deg)
+    w = 1.0 - WGS84_E2 * math.sin(phi) ** 2
+    r_n = WGS84_A_M / math.sqrt(w)  # prime vertical
+    r_m = WGS84_A_M * (1.0 - WGS84_E2) / w**1.5  # meridian
+    return r_m, r_n
+
+
 @dataclass(frozen=True)
 class LocalTangentPlane:
     """A flat-earth NED plane tangent at ``origin``."""
@@ -40,11 +49,7 @@ class LocalTangentPlane:
 
     @property
     def _radii(self) -> tuple[float, float]:
-        phi = math.radians(self.origin.lat_deg)
-        w = 1.0 - WGS84_E2 * math.sin(phi) ** 2
-        r_n = WGS84_A_M / math.sqrt(w)  # prime vertical
-        r_m = WGS84_A_M * (1.0 - WGS84_E2) / w**1.5  # meridian
-        return r_m, r_n
+        return radii_of_curvature(self.origin.lat_deg)
 
     def to_ned(self, p: GeoPoint) -> tuple[float, float, float]:
         r_m, r_n = self._radii
