@@ -191,7 +191,7 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
             out[f"{name}_us_per_row"] = spent / rows[name] * 1e6
             out[f"{name}_rows"] = rows[name]
     out["all_streams_us_per_row"] = total / max(1, out["rows"]) * 1e6
-    out["log_writer"] = "logging process" if cpu0 is not None and cpu1 is not None else "in process"
+    out["log_writer"] = "by the logging process" if cpu0 is not None and cpu1 is not None else "in process"
     out["us_per_row_handover"] = write_s.get(_HANDOVER, 0.0) / max(1, out["rows"]) * 1e6
     out["us_per_row_this_process"] = out["all_streams_us_per_row"] + out["us_per_row_handover"]
     out["this_process_share"] = (total + write_s.get(_HANDOVER, 0.0)) / b

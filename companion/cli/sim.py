@@ -343,7 +343,7 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
     )
     print(
         f"  per stream, in this process, with CSVs + MCAP (recorder hook + queueing + taking the batch; "
-        f"{r['rows']} rows; written by the {r['log_writer']}):"
+        f"{r['rows']} rows; written {r['log_writer']}):"
     )
     for k, v in r.items():
         if k.endswith("_us_per_row") and k != "all_streams_us_per_row":

@@ -1,13 +1,18 @@
 """The flight as one MCAP file (``flight.mcap``) beside the CSVs, for Foxglove.
 
 Written by :class:`McapFlightLog`, which the :class:`~companion.flightlog.recorder.FlightRecorder`
-owns. Nothing is encoded on the control path: every CSV stream hands the batch the shared writer
-thread has just written to its file to :meth:`McapFlightLog.stream_sink` too, and the camera
-frames and the planned path are queued and encoded (JPEG, JSON) when the same thread wakes. The
-file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd chunks) into a
-context of its own; the writer thread ends the chunk and flushes it every time it wakes, so a
-hard crash loses at most the last 0.4 s (two periods) and leaves a readable file without its
-summary (the reader stops at the torn record).
+owns. Nothing is encoded on the control path, nor (by default) in the flight's process: the file
+is written by the logging process (:mod:`companion.flightlog.logproc`) with :class:`McapFile`.
+Every CSV stream's batch reaches it with the stream's rows (the CSV log names its stream with a
+:class:`RemoteStreamSink`; there :class:`McapStreamSink` formats each batch once for the CSV and
+the MCAP), and the camera frames, the planned path and ``run.json`` are queued here and handed
+over when the shared writer thread wakes (the path's points computed then, the JPEG encoded by
+the logging process). When logging in process the same :class:`McapFile` is written by the
+writer thread. The file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd
+chunks) into a context of its own; the chunk is ended and flushed after every hand-over (every
+wake-up in process), so a hard crash of the logging process loses at most the last 0.4 s (two
+periods) and leaves a readable file without its summary (the reader stops at the torn record); a
+crash of the flight's process leaves the logging process to close the file properly.
 
 Channels (JSON message encoding, JSON schemas):
 
