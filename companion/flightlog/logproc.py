@@ -361,6 +361,10 @@ class _Forward(logging.Handler):
             _send(self._sock, ("log", record.levelno, record.name, self.format(record)))
 
 
+# the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
+_ANSWERED: dict[str, tuple[int, int] | None] = {"close": (0, 0), "mclose": (1, 0), "cpu": None}
+
+
 class _Child:
     """The logging process's files, by the parent's ids."""
 
@@ -382,6 +386,8 @@ class _Child:
                         self.apply(op)
                     except Exception:
                         log.exception("logging process: %s op failed", op[0])
+                        if op[0] in _ANSWERED:  # the parent waits for an answer: one saying it failed
+                            _send(self.sock, ("reply", _ANSWERED[op[0]]))
                 for m in self.mcaps.values():
                     m.flush()
         finally:
@@ -414,7 +420,8 @@ class _Child:
             _, i, path, streams = op
             self.mcaps[i] = McapFile(Path(path), streams)
         elif kind == "mops":
-            self.mcaps[op[1]].apply(op[2])
+            if op[1] in self.mcaps:  # else it could not be created (said then)
+                self.mcaps[op[1]].apply(op[2])
         elif kind == "mclose":
             m = self.mcaps.pop(op[1])
             m.close()

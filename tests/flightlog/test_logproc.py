@@ -242,3 +242,17 @@ def test_the_in_process_switch(tmp_path, monkeypatch):
     m.close()
     assert lg.in_process and m._file is not None
     assert len(_messages(tmp_path / "flight.mcap")[stream_topic("a.csv")]) == 10 and m.messages > 10
+
+
+def test_an_mcap_the_logging_process_cannot_create_is_an_error_not_a_hang(tmp_path, own_process, caplog):
+    cols = ("time_s", "x_m")
+    m = McapFlightLog(tmp_path / "flight.mcap", {"a.csv": cols})
+    (tmp_path / "flight.mcap").unlink()
+    (tmp_path / "flight.mcap").mkdir()  # the logging process cannot open it
+    with caplog.at_level(logging.ERROR):
+        with CsvLog(tmp_path / "a.csv", cols, sink=m.stream_sink("a.csv")) as lg:
+            lg.write((0.0, 1.0))
+        m.close()
+    assert not lg.in_process and read_csv(tmp_path / "a.csv")["x_m"] == ["1.0"]
+    assert m.errors == 1 and any("mcap op failed" in r.getMessage() for r in caplog.records)
+    assert not LogProcess._current.dead  # type: ignore[union-attr]
