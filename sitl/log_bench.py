@@ -7,13 +7,16 @@ Two measurements of the GPS-only demo flight, in one run:
   with the CSV logs and ``flight.mcap``, and with the whole run folder (the CSVs, the MCAP and
   the MAVLink ``flight.tlog``), each ``rounds`` times interleaved, the fastest flight of each
   counting; shares are (logged - bare) / bare wall time;
-* microseconds per row and stream, from a further flight with the CSVs in which the recorder's
-  hooks (row building and queueing on the control loop) and each log's batched writes
-  (formatting and I/O on the writer thread, the batch's MCAP messages included) are timed. A
-  hook is charged to its stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the
-  ekf/events rows it writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and
-  writing. Times are CPU time of the thread doing the work (``time.thread_time``), so waiting
-  for the GIL is not counted.
+* microseconds per row, from a further flight with the CSVs and ``flight.mcap`` in which this
+  process's share is timed per stream: the recorder's hooks (row building and queueing on the
+  control loop) and each log's batch as the writer thread takes it (handed to the logging
+  process, or formatted and written here when logging in process). A hook is charged to its
+  stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it
+  writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and their batches. The
+  hand-over itself (one pickle and send per wake-up, :mod:`companion.flightlog.logproc`) is
+  timed as a whole and given per row, and so is the logging process's own CPU time (formatting,
+  MCAP encoding, I/O: another core). Times in this process are CPU time of the thread doing the
+  work (``time.thread_time``), so waiting for the GIL is not counted.
 """
 
 from __future__ import annotations
@@ -29,11 +32,14 @@ from pathlib import Path
 from typing import Any
 
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.flightlog import logproc
 from companion.flightlog import recorder as rec
 from companion.flightlog.csvlog import CsvLog
 from companion_sitl import demo
 
 log = logging.getLogger(__name__)
+
+_HANDOVER = "(hand-over)"  # the pickles sent to the logging process (and the closes' waits)
 
 # recorder hooks and the stream each is charged to (on_sample: the sample's own file)
 _HOOK_STREAM = {
@@ -115,8 +121,19 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator
 
         return timed
 
+    def handover(orig: Any) -> Any:
+        def timed(self: logproc.LogProcess, *args: Any) -> Any:
+            t0 = time.thread_time()
+            r = orig(self, *args)
+            write_s[_HANDOVER] += time.thread_time() - t0
+            return r
+
+        return timed
+
     patch(CsvLog, "write", write)
     patch(CsvLog, "_drain", drain)
+    patch(logproc.LogProcess, "flush", handover)
+    patch(logproc.LogProcess, "request", handover)
     try:
         yield
     finally:
@@ -146,8 +163,12 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
         mcap_bytes = (root / "mcap0" / rec.MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
+        proc = logproc.client()
+        cpu0 = proc.cpu_s() if proc is not None else None
         with _no_tlog(), _timed_logs(hook_s, write_s):
             demo.run_demo(cfg, fusion=False, run_dir=root / "timed")
+        proc_after = logproc.client()
+        cpu1 = proc_after.cpu_s() if proc_after is not None and proc_after is proc else None
         rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
     out["sim_time_s"] = bare.sim_time_s
     b, c, m, f = (min(walls[k]) for k in ("bare", "csv", "mcap", "full"))
@@ -170,4 +191,11 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
             out[f"{name}_us_per_row"] = spent / rows[name] * 1e6
             out[f"{name}_rows"] = rows[name]
     out["all_streams_us_per_row"] = total / max(1, out["rows"]) * 1e6
+    out["log_writer"] = "by the logging process" if cpu0 is not None and cpu1 is not None else "in process"
+    out["us_per_row_handover"] = write_s.get(_HANDOVER, 0.0) / max(1, out["rows"]) * 1e6
+    out["us_per_row_this_process"] = out["all_streams_us_per_row"] + out["us_per_row_handover"]
+    out["this_process_share"] = (total + write_s.get(_HANDOVER, 0.0)) / b
+    if cpu0 is not None and cpu1 is not None:
+        out["logging_process_cpu_s"] = cpu1 - cpu0
+        out["us_per_row_logging_process"] = (cpu1 - cpu0) / max(1, out["rows"]) * 1e6
     return out

@@ -341,12 +341,25 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
         f"  whole run folder (CSV logs + MCAP + flight.tlog)    {r['full_run_folder_wall_s']:.2f} s wall: "
         f"logging share {100 * r['full_logging_share']:+.1f} %"
     )
-    print(f"  per stream (recorder hook + queueing + batched write; {r['rows']} rows):")
+    print(
+        f"  per stream, in this process, with CSVs + MCAP (recorder hook + queueing + taking the batch; "
+        f"{r['rows']} rows; written {r['log_writer']}):"
+    )
     for k, v in r.items():
         if k.endswith("_us_per_row") and k != "all_streams_us_per_row":
             name = k.removesuffix("_us_per_row")
             print(f"    {name:<20} {r[name + '_rows']:>7} rows  {v:6.2f} us/row")
     print(f"    {'all streams':<20} {r['rows']:>7} rows  {r['all_streams_us_per_row']:6.2f} us/row")
+    print(f"    {'hand-over (pickle + send)':<28}      {r['us_per_row_handover']:6.2f} us/row")
+    print(
+        f"    {'this process in all':<28}      {r['us_per_row_this_process']:6.2f} us/row "
+        f"({100 * r['this_process_share']:.1f} % of the bare flight's wall time, in CPU time)"
+    )
+    if "us_per_row_logging_process" in r:
+        print(
+            f"  the logging process (formatting, MCAP, I/O; another core): {r['logging_process_cpu_s']:.2f} s CPU, "
+            f"{r['us_per_row_logging_process']:.2f} us/row"
+        )
     return 0
 
 

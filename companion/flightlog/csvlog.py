@@ -1,16 +1,30 @@
 """CSV flight logs: time in seconds first, units in the headers (PlotJuggler-friendly).
 
-Rows are handed through a bounded queue to one writer thread shared by every open log, so disk
-I/O and number formatting never run on the control path (a full queue drops the row and counts
-it). The writer wakes every ``flush_period_s`` (:data:`FLUSH_PERIOD_S`, 0.2 s), writes each
-log's rows as one batch (``csv.writer.writerows``) and flushes it to the OS. A process that
-dies without closing its logs (``kill -9``, ``os._exit``) therefore loses at most the rows of the
-last 0.2 s of wall time per stream (never more than ``max_queue`` rows). ``close()`` writes
-everything queued and closes the file (also on exceptions, via ``with``); logs still open when
-the interpreter exits (an uncaught exception, Ctrl-C) are closed by an ``atexit`` hook, so their
-queues are written too. One thread waking five times a second (instead of one per file at
-50 Hz) keeps the logging's share of a simulated flight small: every wake-up of a Python thread
-costs the busy control loop a GIL hand-over (``companion bench log``).
+Rows are handed through a bounded queue to one writer thread shared by every open log, so
+disk I/O and number formatting never run on the control path (a full queue drops the row and
+counts it). The writer wakes every ``flush_period_s`` (:data:`FLUSH_PERIOD_S`, 0.2 s) and takes
+each log's queued rows as one batch.
+
+By default the batches are not formatted in this process: the writer thread hands all of them,
+one pickle per wake-up, to the **logging process** (:mod:`companion.flightlog.logproc`, one child
+per process, started at the first log opened), which formats and writes them (and the run's
+``flight.mcap``) on another core. Formatting in this process competed for the GIL with the
+control loop: the logs cost the GPS-only demo 45-80 % of its wall time; handing over costs a
+fraction of a microsecond per row (``companion bench log``). The constructor still writes the
+header here, so an unwritable path raises at once and the file exists when it returns. If the
+logging process cannot be started or dies, the logs write in this process (the in-process path:
+``csv.writer.writerows`` per batch, flushed to the OS), said once in the log; rows not yet handed
+over are not lost. :data:`companion.flightlog.logproc.IN_PROCESS` (or the environment variable
+``COMPANION_LOG_IN_PROCESS=1``) forces the in-process path.
+
+Crash safety: a process that dies without closing its logs (``kill -9``, ``os._exit``) loses
+at most the rows of the last 0.2 s of wall time per stream (never more than ``max_queue`` rows):
+the logging process sees its pipe close, writes everything it was handed and closes its files
+(the MCAP with its summary). In the in-process path each batch is flushed to the OS as it is
+written, with the same bound. ``close()`` writes everything queued and returns once the file is
+complete on disk (also on exceptions, via ``with``); logs still open when the interpreter exits
+(an uncaught exception, Ctrl-C) are closed by an ``atexit`` hook, so their queues are written
+too. A forked child gets writers (and a logging process) of its own.
 
 Floats are written as their shortest round-trip decimal (``repr``): reading a value back with
 ``float()`` gives the very same double, which replay needs.
@@ -28,7 +42,10 @@ import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol
+
+if TYPE_CHECKING:
+    from companion.flightlog.logproc import LogProcess
 
 log = logging.getLogger(__name__)
 
@@ -56,9 +73,19 @@ class BatchSink(Protocol):
     def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None: ...
 
 
+class RemoteSink(Protocol):
+    """A sink that lives in the logging process (a stream of a remote ``flight.mcap``):
+    ``remote_key`` names it there; ``local()`` is its in-process stand-in once the logging
+    process is gone (None: the batches then go to the CSV only)."""
+
+    remote_key: tuple[int, str]
+
+    def local(self) -> BatchSink | None: ...
+
+
 class _SharedWriter:
     """The one writer thread of every :class:`CsvLog` (and :class:`~companion.flightlog.mcaplog.McapFlightLog`)
-    with the same period."""
+    with the same period; after each round it hands what the logs posted to the logging process."""
 
     _writers: ClassVar[dict[float, _SharedWriter]] = {}
     _lock = threading.Lock()
@@ -93,15 +120,94 @@ class _SharedWriter:
         cls._lock = threading.Lock()
 
     def _run(self) -> None:
+        from companion.flightlog import logproc
+
         while True:
             with self._cond:
                 self._cond.wait(self.period_s)
                 logs = list(self.logs)
             for lg in logs:
                 lg._drain()
+            logproc.flush_current()
 
 
 os.register_at_fork(after_in_child=_SharedWriter._forget_after_fork)
+
+
+class CsvFile:
+    """One CSV file being written, a batch at a time: in this process (the in-process path of
+    :class:`CsvLog`) or in the logging process. ``append``: the header is already there (the
+    file is continued). An ``OSError`` is logged once with the path; later batches are counted
+    in ``dropped``. Not thread-safe (its owner serialises)."""
+
+    def __init__(self, path: Path, columns: tuple[str, ...], sink: BatchSink | None = None, append: bool = False):
+        self.path = path
+        self.written = 0
+        self.dropped = 0
+        self.failed: OSError | None = None
+        self._sink = sink
+        self._fh = path.open("a" if append else "w", newline="", encoding="utf-8")
+        self._writer = csv.writer(self._fh)
+        if not append:
+            self._writer.writerow(columns)
+            self._fh.flush()
+
+    def write_batch(self, batch: list[tuple[object, ...]]) -> None:
+        """Write one batch and flush it to the OS."""
+        n = len(batch)
+        if not n or self._fh.closed:
+            return
+        if self.failed is not None:  # keep emptying the queue so memory stays bounded
+            self.dropped += n
+            return
+        payloads: list[bytes] | None = None
+        try:
+            if self._sink is not None:
+                try:
+                    text, payloads = self._sink.encode(batch)
+                except Exception:
+                    log.exception("%s: the batch encoder failed; written by csv.writer", self.path)
+                    text = ""
+                if payloads is not None:
+                    self._fh.write(text)
+                else:
+                    self._writer.writerows(batch)
+            else:
+                # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
+                self._writer.writerows(batch)
+            self._fh.flush()
+        except OSError as err:
+            self.failed = err
+            self.dropped += n
+            log.error("%s: cannot write the log any more: %s", self.path, err)
+            return
+        self.written += n
+        if self._sink is not None:
+            self._sink.publish(batch, payloads)
+
+    def close(self) -> None:
+        try:
+            self._fh.close()
+        except OSError as err:
+            log.error("%s: closing the log failed: %s", self.path, err)
+
+
+def _cut_torn_line(path: Path) -> None:
+    """Drop a last line without its end (a writer killed mid-write) before the file is continued."""
+    try:
+        with path.open("r+b") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            if size == 0:
+                return
+            start = max(0, size - 65536)
+            fh.seek(start)
+            tail = fh.read()
+            if tail.endswith(b"\n"):
+                return
+            cut = tail.rfind(b"\n")
+            fh.truncate(start + cut + 1 if cut >= 0 else start)
+    except OSError:
+        pass  # CsvFile's own open reports the path's trouble
 
 
 class CsvLog:
@@ -111,30 +217,60 @@ class CsvLog:
         columns: Sequence[str],
         max_queue: int = 10000,
         flush_period_s: float = FLUSH_PERIOD_S,
-        sink: BatchSink | None = None,
+        sink: BatchSink | RemoteSink | None = None,
     ):
         """``sink``: formats each batch (its CSV text plus messages of its own, e.g. the run's
-        MCAP) and is handed the batch and its messages once the CSV text is written."""
+        MCAP) and is handed the batch and its messages once the CSV text is written. A
+        :class:`RemoteSink` lives in the logging process; a log with an in-process sink is
+        written in this process."""
+        from companion.flightlog import logproc
+
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.columns = tuple(columns)
         self._n = len(self.columns)
-        self.dropped = 0
-        self.written = 0
+        self._queue_dropped = 0  # a full queue
+        self._remote_written = 0  # rows handed to the logging process (its count once closed)
+        self._remote_dropped = 0
         self._max = int(max_queue)
         self._q: collections.deque[tuple[object, ...]] = collections.deque()  # append/popleft are thread-safe
         self._io = threading.Lock()  # the writer thread and close() take turns on the file
-        self._failed: OSError | None = None
-        self._fh = self.path.open("w", newline="", encoding="utf-8")
-        self._writer = csv.writer(self._fh)
-        self._writer.writerow(self.columns)
-        self._fh.flush()
         self._closed = False
         self._sink = sink
+        remote = sink is None or hasattr(sink, "remote_key")
+        self._proc: LogProcess | None = logproc.client() if remote else None
+        self._file: CsvFile | None = None
+        if self._proc is None:
+            self._file = CsvFile(self.path, self.columns, self._local_sink())
+        else:
+            CsvFile(self.path, self.columns).close()  # the header, here: errors raise now
+            key = sink.remote_key if sink is not None else None  # type: ignore[union-attr]
+            self._id = self._proc.open_csv(self.path, self.columns, key)
         self._shared = _SharedWriter.attach(self, float(flush_period_s))
         _OPEN.add(self)
+
+    @property
+    def written(self) -> int:
+        """Rows written (while the logging process writes the file: handed over to it)."""
+        return self._remote_written + (self._file.written if self._file is not None else 0)
+
+    @property
+    def dropped(self) -> int:
+        """Rows lost: a full queue, or a file that could not be written."""
+        return self._queue_dropped + self._remote_dropped + (self._file.dropped if self._file is not None else 0)
+
+    @property
+    def in_process(self) -> bool:
+        """Written by this process (not, or no longer, by the logging process)."""
+        return self._file is not None
+
+    def _local_sink(self) -> BatchSink | None:
+        s = self._sink
+        if s is not None and hasattr(s, "remote_key"):
+            return s.local()  # type: ignore[union-attr]
+        return s  # type: ignore[return-value]
 
     def write(self, row: Sequence[object]) -> None:
         if self._closed:
@@ -142,45 +278,44 @@ class CsvLog:
         if len(row) != self._n:
             raise ValueError(f"{self.path}: row has {len(row)} fields, header has {self._n}")
         if len(self._q) >= self._max:
-            self.dropped += 1
+            self._queue_dropped += 1
             return
         self._q.append(tuple(row))
 
+    def _go_local(self) -> None:
+        """The logging process is gone: continue the file here, first with the batches it was
+        never handed (caller holds ``_io``)."""
+        assert self._proc is not None
+        returned = self._proc.take_returned(self._id)
+        _cut_torn_line(self.path)
+        try:
+            self._file = CsvFile(self.path, self.columns, self._local_sink(), append=True)
+        except OSError as err:
+            log.error("%s: cannot write the log any more: %s", self.path, err)
+            self._remote_dropped += sum(len(op[2]) for op in returned)
+            self._file = _FailedFile(self.path, err)
+            return
+        for op in returned:
+            self._file.write_batch(op[2])
+
     def _drain(self) -> None:
-        """Write (one batch) and flush what has been queued so far."""
+        """Hand over (or write, in process) what has been queued so far, as one batch."""
         with self._io:
+            if self._file is None and self._proc is not None and self._proc.dead:
+                self._go_local()
             q = self._q
             n = len(q)
-            if not n or self._fh.closed:
+            if not n:
                 return
             batch = [q.popleft() for _ in range(n)]
-            if self._failed is not None:  # keep emptying the queue so memory stays bounded
-                self.dropped += n
-                return
-            payloads: list[bytes] | None = None
-            try:
-                if self._sink is not None:
-                    try:
-                        text, payloads = self._sink.encode(batch)
-                    except Exception:
-                        log.exception("%s: the batch encoder failed; written by csv.writer", self.path)
-                        text = ""
-                    if payloads is not None:
-                        self._fh.write(text)
-                    else:
-                        self._writer.writerows(batch)
-                else:
-                    # csv writes str(v): for floats (and numpy float64) the shortest round-trip decimal
-                    self._writer.writerows(batch)
-                self._fh.flush()
-            except OSError as err:
-                self._failed = err
-                self.dropped += n
-                log.error("%s: cannot write the log any more: %s", self.path, err)
-                return
-            self.written += n
-            if self._sink is not None:
-                self._sink.publish(batch, payloads)
+            if self._file is None:
+                assert self._proc is not None
+                if self._proc.post(("rows", self._id, batch)):
+                    self._remote_written += n
+                    return
+                self._go_local()
+            assert self._file is not None
+            self._file.write_batch(batch)
 
     @property
     def closed(self) -> bool:
@@ -193,11 +328,17 @@ class CsvLog:
         _OPEN.discard(self)
         self._shared.detach(self)
         self._drain()
-        with self._io:
-            try:
-                self._fh.close()
-            except OSError as err:
-                log.error("%s: closing the log failed: %s", self.path, err)
+        if self._file is None:
+            assert self._proc is not None
+            reply = self._proc.request(("close", self._id))
+            with self._io:
+                if reply is not None:
+                    self._remote_written, self._remote_dropped = reply
+                elif self._file is None:
+                    self._go_local()
+        if self._file is not None:
+            with self._io:
+                self._file.close()
         if self.dropped:
             log.warning("%s: %d rows dropped (writer could not keep up)", self.path, self.dropped)
 
@@ -206,6 +347,22 @@ class CsvLog:
 
     def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
         self.close()
+
+
+class _FailedFile(CsvFile):
+    """A file that could not be reopened: every batch is counted as dropped."""
+
+    def __init__(self, path: Path, err: OSError) -> None:  # no super().__init__: nothing to open
+        self.path = path
+        self.written = 0
+        self.dropped = 0
+        self.failed = err
+
+    def write_batch(self, batch: list[tuple[object, ...]]) -> None:
+        self.dropped += len(batch)
+
+    def close(self) -> None:
+        pass
 
 
 def format_cell(v: object) -> str:

@@ -1,13 +1,18 @@
 """The flight as one MCAP file (``flight.mcap``) beside the CSVs, for Foxglove.
 
 Written by :class:`McapFlightLog`, which the :class:`~companion.flightlog.recorder.FlightRecorder`
-owns. Nothing is encoded on the control path: every CSV stream hands the batch the shared writer
-thread has just written to its file to :meth:`McapFlightLog.stream_sink` too, and the camera
-frames and the planned path are queued and encoded (JPEG, JSON) when the same thread wakes. The
-file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd chunks) into a
-context of its own; the writer thread ends the chunk and flushes it every time it wakes, so a
-hard crash loses at most the last 0.4 s (two periods) and leaves a readable file without its
-summary (the reader stops at the torn record).
+owns. Nothing is encoded on the control path, nor (by default) in the flight's process: the file
+is written by the logging process (:mod:`companion.flightlog.logproc`) with :class:`McapFile`.
+Every CSV stream's batch reaches it with the stream's rows (the CSV log names its stream with a
+:class:`RemoteStreamSink`; there :class:`McapStreamSink` formats each batch once for the CSV and
+the MCAP), and the camera frames, the planned path and ``run.json`` are queued here and handed
+over when the shared writer thread wakes (the path's points computed then, the JPEG encoded by
+the logging process). When logging in process the same :class:`McapFile` is written by the
+writer thread. The file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd
+chunks) into a context of its own; the chunk is ended and flushed after every hand-over (every
+wake-up in process), so a hard crash of the logging process loses at most the last 0.4 s (two
+periods) and leaves a readable file without its summary (the reader stops at the torn record); a
+crash of the flight's process leaves the logging process to close the file properly.
 
 Channels (JSON message encoding, JSON schemas):
 
@@ -226,18 +231,20 @@ def _dumps(obj: object) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
 
 
-class McapFlightLog:
-    """``flight.mcap`` of one run (see the module doc). Thread-safe: the shared writer thread
-    and ``close()`` on the loop thread take turns. A write error disables the MCAP (logged once,
-    counted in ``errors``); the CSVs go on."""
+Op = tuple[Any, ...]  # ("img", t, image, corners), ("path", t, points N x 3), ("meta", run.json text)
 
-    def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]]):
+
+class McapFile:
+    """The foxglove MCAP writer of one ``flight.mcap`` (in this process, or in the logging
+    process): channels, the messages of each op, the stream sinks. Thread-safe (the writer
+    thread and ``close()`` take turns). A write error disables it (logged once, counted in
+    ``errors``); the CSVs go on."""
+
+    def __init__(self, path: Path, streams: Mapping[str, Sequence[str]]):
         import foxglove
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-        from companion.flightlog import csvlog
-
-        self.path = Path(path)
+        self.path = path
         self._lock = threading.Lock()
         # a context of its own: the flight's channels reach this file only (not a live server)
         self._context: Any = foxglove.Context()
@@ -250,13 +257,10 @@ class McapFlightLog:
         self._columns = {name: tuple(cols) for name, cols in streams.items()}
         self._channels: dict[str, Any] = {}
         self.errors = 0
-        self.dropped_images = 0
         self.messages = 0
         self._failed = False
         self._closed = False
         self._dirty = False
-        self._images: collections.deque[tuple[float, np.ndarray, dict[str, np.ndarray]]] = collections.deque()
-        self._pending: collections.deque[Callable[[], None]] = collections.deque()
 
         def channel(topic: str, schema_name: str, schema: dict[str, Any], metadata: dict[str, str] | None) -> None:
             self._channels[topic] = foxglove.Channel(
@@ -298,10 +302,7 @@ class McapFlightLog:
             ),
         )
         self._writer.flush()
-        self._shared = csvlog._SharedWriter.attach(self, csvlog.FLUSH_PERIOD_S)
-        _OPEN.add(self)
 
-    # ---- writing (the shared writer thread, or close()) -------------------------------------
     def _add(self, topic: str, t_s: float, data: bytes) -> None:
         self._channels[topic].log(data, log_time=time_ns(t_s))
         self.messages += 1
@@ -338,32 +339,41 @@ class McapFlightLog:
             sig[f"sigma_{a}_deg"] = math.degrees(math.sqrt(max(0.0, f(f"var_{a}_rad2"))))
         self._add("/ekf/sigma", t, _dumps(sig))
 
-    def _drain(self) -> None:
-        """Encode the queued frames and path updates, then end the chunk and flush it to the OS
-        (called by the shared writer thread every 0.2 s)."""
-        if not self._images and not self._pending and not self._dirty:
-            return
+    def apply(self, ops: list[Op]) -> None:
+        """Write the messages of queued frames, path updates and metadata, in order."""
         with self._lock:
-            if self._closed:
+            if self._closed or self._failed:
                 return
             try:
-                while self._pending:
-                    self._pending.popleft()()
-                while self._images:
-                    self._write_image(*self._images.popleft())
-                if self._dirty and not self._failed:
-                    self._dirty = False
-                    self._writer.flush()
+                for op in ops:
+                    kind = op[0]
+                    if kind == "img":
+                        self._write_image(op[1], op[2], op[3])
+                    elif kind == "path":
+                        self._write_path(op[1], op[2])
+                    elif kind == "meta":
+                        self._writer.write_metadata("run.json", {"json": op[1]})
+                    else:
+                        raise ValueError(f"unknown MCAP op {kind!r}")
             except Exception as err:
-                self._images.clear()
-                self._pending.clear()
+                self._fail(err)
+
+    def flush(self) -> None:
+        """End the chunk and flush it to the OS (when something was written since)."""
+        if not self._dirty:
+            return
+        with self._lock:
+            if self._closed or self._failed or not self._dirty:
+                return
+            self._dirty = False
+            try:
+                self._writer.flush()
+            except Exception as err:
                 self._fail(err)
 
     def _write_image(self, t: float, image: np.ndarray, corners: dict[str, np.ndarray]) -> None:
         import cv2
 
-        if self._failed:
-            return
         ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if not ok:
             raise ValueError(f"JPEG encoding of a {image.shape} {image.dtype} frame failed")
@@ -404,10 +414,162 @@ class McapFlightLog:
             )
         self._add("/camera/markers", t, _dumps({"circles": [], "points": points, "texts": texts}))
 
+    def _write_path(self, time_s: float, points: Any) -> None:
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        stamp = foxglove_time(time_s)
+        entity = {
+            "timestamp": stamp,
+            "frame_id": "ned",
+            "id": "planned_path",
+            "lifetime": {"sec": 0, "nsec": 0},
+            "frame_locked": False,
+            "metadata": [],
+            "lines": [
+                {
+                    "type": 0,  # LINE_STRIP
+                    "pose": {
+                        "position": {"x": 0.0, "y": 0.0, "z": 0.0},
+                        "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+                    },
+                    "thickness": 3.0,
+                    "scale_invariant": True,
+                    "points": [{"x": float(n), "y": float(e), "z": float(d)} for n, e, d in pts],
+                    "color": {"r": 0.2, "g": 0.8, "b": 1.0, "a": 1.0},
+                    "colors": [],
+                    "indices": [],
+                }
+            ],
+            "spheres": [],
+        }
+        self._add("/mission/path", time_s, _dumps({"deletions": [], "entities": [entity]}))
+
+    def close(self) -> None:
+        """Write the summary and close the file (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                for ch in self._channels.values():
+                    ch.close()
+                self._writer.close()
+            except Exception as err:
+                self._fail(err)
+            # drop the SDK's objects here, not in some later garbage collection
+            self._channels.clear()
+            self._writer = self._context = None
+
+
+class McapFlightLog:
+    """``flight.mcap`` of one run (see the module doc). Frames, path updates and ``run.json``
+    are queued here and handed, when the shared writer thread wakes, to the file: in the logging
+    process (:mod:`companion.flightlog.logproc`), or in this process (:class:`McapFile`). If the
+    logging process dies after it started the file, the MCAP ends there (counted in ``errors``,
+    logged); the CSVs go on."""
+
+    def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]]):
+        from companion.flightlog import csvlog, logproc
+
+        self.path = Path(path)
+        self._columns = {name: tuple(cols) for name, cols in streams.items()}
+        self.dropped_images = 0
+        self._errors = 0  # here: a path that could not be computed, a logging process that died
+        self._remote_counts = (0, 0)  # the logging process's (errors, messages), once closed
+        self._closed = False
+        self._lost = False  # the logging process died with the file
+        self._mode_lock = threading.Lock()
+        self._images: collections.deque[tuple[float, np.ndarray, dict[str, np.ndarray]]] = collections.deque()
+        self._pending: collections.deque[tuple[Any, ...]] = collections.deque()
+        self._proc = logproc.client()
+        self._file: McapFile | None = None
+        if self._proc is None:
+            self._file = McapFile(self.path, self._columns)
+        else:
+            self.path.open("wb").close()  # errors raise here; the logging process writes it
+            self._id = self._proc.open_mcap(self.path, self._columns)
+        self._shared = csvlog._SharedWriter.attach(self, csvlog.FLUSH_PERIOD_S)
+        _OPEN.add(self)
+
+    @property
+    def errors(self) -> int:
+        return self._errors + self._remote_counts[0] + (self._file.errors if self._file is not None else 0)
+
+    @property
+    def messages(self) -> int:
+        """Messages written (in the logging process: counted once the file is closed)."""
+        return self._remote_counts[1] + (self._file.messages if self._file is not None else 0)
+
+    def stream_sink(self, name: str) -> McapStreamSink | RemoteStreamSink:
+        """What a CSV stream hands its batches to: the in-process file's
+        :class:`McapStreamSink`, or a :class:`RemoteStreamSink` naming the stream in the logging
+        process."""
+        if self._file is not None:
+            return self._file.stream_sink(name)
+        return RemoteStreamSink(self, name)
+
+    def _local_file(self) -> McapFile | None:
+        """The in-process file once the logging process is gone: a new one if that process
+        died before it was handed anything, else none (the file stays as the process left it)."""
+        with self._mode_lock:
+            if self._file is None and not self._lost and self._proc is not None and self._proc.dead:
+                returned = self._proc.take_returned(self._id)
+                if self._proc.ready:
+                    self._lost = True
+                    self._errors += 1
+                    log.error(
+                        "%s: the logging process died (%s); the MCAP ends where it stopped (the CSVs go on)",
+                        self.path,
+                        self._proc.reason,
+                    )
+                else:
+                    self._file = McapFile(self.path, self._columns)
+                    for op in returned:
+                        self._file.apply(op[2])
+            return self._file
+
+    # ---- the shared writer thread, or close() -----------------------------------------------
+    def _take(self) -> list[Op]:
+        ops: list[Op] = []
+        while self._pending:
+            op = self._pending.popleft()
+            if op[0] == "path":
+                try:
+                    op = ("path", op[1], np.asarray(op[2](), dtype=float).reshape(-1, 3))
+                except Exception as err:
+                    self._errors += 1
+                    log.error("%s: the planned path could not be computed: %s", self.path, err)
+                    continue
+            ops.append(op)
+        while self._images:
+            ops.append(("img", *self._images.popleft()))
+        return ops
+
+    def _drain(self) -> None:
+        """Hand the queued frames and path updates to the file, then (in process) end the chunk
+        and flush it to the OS (the shared writer thread, every 0.2 s)."""
+        if self._closed or self._lost:
+            return
+        if not self._images and not self._pending:
+            if self._file is not None:
+                self._file.flush()
+            elif self._proc is not None and self._proc.dead:
+                self._local_file()
+            return
+        ops = self._take()
+        if self._file is None and self._proc is not None:
+            if self._proc.post(("mops", self._id, ops)):
+                return
+            if self._local_file() is None:
+                return
+        assert self._file is not None
+        self._file.apply(ops)
+        self._file.flush()
+
     # ---- queueing (the loop thread) -------------------------------------------------------
     def add_image(self, time_s: float, image: Any, corners_px: dict[str, Any]) -> None:
-        """A frame the pad was detected in (encoded later, on the writer thread)."""
-        if self._closed or self._failed:
+        """A frame the pad was detected in (JPEG-encoded later, by the logging process or the
+        writer thread)."""
+        if self._closed or self._lost or (self._file is not None and self._file._failed):
             return
         if len(self._images) >= MAX_QUEUED_IMAGES:
             self.dropped_images += 1
@@ -419,65 +581,30 @@ class McapFlightLog:
     def add_path(self, time_s: float, points_ned: Callable[[], Any]) -> None:
         """The planned path as a SceneUpdate line; a replan replaces it. ``points_ned`` gives the
         N x 3 NED points (called on the writer thread)."""
-
-        def write() -> None:
-            pts = np.asarray(points_ned(), dtype=float).reshape(-1, 3)
-            stamp = foxglove_time(time_s)
-            entity = {
-                "timestamp": stamp,
-                "frame_id": "ned",
-                "id": "planned_path",
-                "lifetime": {"sec": 0, "nsec": 0},
-                "frame_locked": False,
-                "metadata": [],
-                "lines": [
-                    {
-                        "type": 0,  # LINE_STRIP
-                        "pose": {
-                            "position": {"x": 0.0, "y": 0.0, "z": 0.0},
-                            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-                        },
-                        "thickness": 3.0,
-                        "scale_invariant": True,
-                        "points": [{"x": float(n), "y": float(e), "z": float(d)} for n, e, d in pts],
-                        "color": {"r": 0.2, "g": 0.8, "b": 1.0, "a": 1.0},
-                        "colors": [],
-                        "indices": [],
-                    }
-                ],
-                "spheres": [],
-            }
-            self._add("/mission/path", time_s, _dumps({"deletions": [], "entities": [entity]}))
-
-        self._pending.append(write)
+        self._pending.append(("path", float(time_s), points_ned))
 
     def add_meta(self, meta_json: str) -> None:
         """``run.json`` as metadata (the reader keeps the last)."""
-
-        def write() -> None:
-            self._writer.write_metadata("run.json", {"json": meta_json})
-
-        self._pending.append(write)
+        self._pending.append(("meta", meta_json))
 
     # ---- closing ----------------------------------------------------------------------------
     def close(self) -> None:
-        """Encode what is queued, write the summary and close the file (idempotent)."""
+        """Encode what is queued, write the summary and close the file (idempotent); returns
+        once the file is complete on disk."""
         if self._closed:
             return
         _OPEN.discard(self)
         self._shared.detach(self)
         self._drain()
-        with self._lock:
-            self._closed = True
-            try:
-                for ch in self._channels.values():
-                    ch.close()
-                self._writer.close()
-            except Exception as err:
-                self._fail(err)
-            # drop the SDK's objects here, not in some later garbage collection
-            self._channels.clear()
-            self._writer = self._context = None
+        self._closed = True
+        if self._file is None and self._proc is not None and not self._lost:
+            reply = self._proc.request(("mclose", self._id))
+            if reply is not None:
+                self._remote_counts = reply
+            else:
+                self._local_file()
+        if self._file is not None:
+            self._file.close()
         if self.dropped_images:
             log.warning(
                 "%s: %d camera frames dropped (JPEG encoding could not keep up)", self.path, self.dropped_images
@@ -489,7 +616,7 @@ class McapStreamSink:
     and the JSON messages (the CSV writer writes the text), :meth:`publish` logs the messages
     (and, for ``ekf.csv``, the pose and sigma messages) once the CSV has them."""
 
-    def __init__(self, owner: McapFlightLog, name: str):
+    def __init__(self, owner: McapFile, name: str):
         self._owner = owner
         self.name = name
         self.columns = owner._columns[name]
@@ -516,3 +643,17 @@ class McapStreamSink:
                 m._dirty = True
             except Exception as err:
                 m._fail(err)
+
+
+class RemoteStreamSink:
+    """A CSV stream of a ``flight.mcap`` the logging process writes (a
+    :class:`~companion.flightlog.csvlog.RemoteSink`): the CSV log names it to that process."""
+
+    def __init__(self, owner: McapFlightLog, name: str):
+        self._owner = owner
+        self.name = name
+        self.remote_key = (owner._id, name)
+
+    def local(self) -> McapStreamSink | None:
+        f = self._owner._local_file()
+        return f.stream_sink(self.name) if f is not None else None

@@ -4,8 +4,8 @@
 listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
 calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
 ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
-(one shared writer thread, batches flushed every 0.2 s; time in seconds first, units in the headers), so PlotJuggler
-opens every file as is:
+(batches handed every 0.2 s to the logging process, which writes them; time in seconds first, units in the
+headers), so PlotJuggler opens every file as is:
 
 =====================  ==========================================================================
 ``ap_position.csv``    autopilot local position and velocity (LOCAL_POSITION_NED), NED

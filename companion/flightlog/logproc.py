@@ -1,0 +1,458 @@
+"""The logging process: formats and writes the flight logs on another core.
+
+Formatting the CSV rows and the MCAP's JSON messages in the flight's own process, even on a
+writer thread, competed for the GIL with the control loop (``companion bench log``). So each
+process that opens a flight log starts, lazily at the first log, one child process running
+:func:`main` (``python -m companion.flightlog.logproc``: a fresh interpreter, no fork of a
+threaded parent; it imports the CSV writer only, then numpy and foxglove at the first MCAP and
+OpenCV at the first camera frame to encode). The parent's logs still queue their rows; the shared
+writer thread (:class:`~companion.flightlog.csvlog._SharedWriter`) posts each log's batch here
+(:meth:`LogProcess.post`) and, once a round, sends everything posted as one pickle over a Unix
+socket (:func:`flush_current`). The child writes each message's batches with the in-process code
+(:class:`~companion.flightlog.csvlog.CsvFile`, :class:`~companion.flightlog.mcaplog.McapFile`), so
+the bytes are the same, and flushes every file after each message.
+
+Closing a log is a request: the parent's ``close()`` returns once the child has closed the file
+and answered with its counts. The child's own log records (a write error, named by path) are sent
+back and logged by the parent under the child's logger names.
+
+The child ignores SIGINT/SIGTERM and exits when its socket closes, after writing everything it was
+sent and closing its files (the MCAP with its summary): a parent killed with ``kill -9`` loses only
+the rows it had not handed over yet (at most one flush period). If the child cannot be started, or
+dies (a failed send, an answer that does not come), every log continues in the parent (the
+in-process path), said once at ERROR level with the reason; the batches not yet sent are written
+there. Set :data:`IN_PROCESS` (or ``COMPANION_LOG_IN_PROCESS=1``) to write in process from the
+start.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import logging
+import os
+import pickle
+import select
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, ClassVar
+
+log = logging.getLogger(__name__)
+
+ENV_IN_PROCESS = "COMPANION_LOG_IN_PROCESS"
+IN_PROCESS: bool = os.environ.get(ENV_IN_PROCESS, "") not in ("", "0")
+"""Write the logs in this process (no logging process). Read when a log is opened."""
+
+CHILD_COMMAND = [sys.executable, "-m", "companion.flightlog.logproc"]  # + the socket's fd
+START_TIMEOUT_S = 30.0  # for the child to import and say it is ready (a loaded CI machine)
+REPLY_TIMEOUT_S = 60.0  # for any send or answer (closing a log whose last batch holds images)
+
+_HEADER = struct.Struct("!Q")
+Op = tuple[Any, ...]
+
+
+def _send(sock: socket.socket, obj: object) -> None:
+    data = pickle.dumps(obj, protocol=5)
+    sock.sendall(_HEADER.pack(len(data)))
+    sock.sendall(data)
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    buf = bytearray(n)
+    view = memoryview(buf)
+    got = 0
+    while got < n:
+        k = sock.recv_into(view[got:])
+        if k == 0:
+            raise EOFError("the logging process closed its end")
+        got += k
+    return bytes(buf)
+
+
+def _recv(sock: socket.socket) -> Any:
+    (n,) = _HEADER.unpack(_recv_exact(sock, _HEADER.size))
+    return pickle.loads(_recv_exact(sock, n))
+
+
+def _plain(op: Op) -> Op:
+    """A rows op whose cells pickle: anything that does not becomes its ``str`` (what the CSV
+    writer writes for it)."""
+    if op[0] != "rows":
+        return op
+
+    def cell(v: object) -> object:
+        try:
+            pickle.dumps(v, protocol=5)
+        except Exception:
+            return str(v)
+        return v
+
+    return (op[0], op[1], [tuple(cell(v) for v in row) for row in op[2]])
+
+
+class LogProcess:
+    """The parent's end of its logging process (one per process; see the module doc).
+    Thread-safe: the writer thread and ``close()`` on other threads take turns on the socket."""
+
+    _current: ClassVar[LogProcess | None] = None
+    _failed_pid: ClassVar[int | None] = None  # this process could not start one: do not retry
+    _class_lock = threading.Lock()
+
+    def __init__(self) -> None:
+        parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            env = dict(os.environ)
+            root = str(Path(__file__).resolve().parents[2])  # where the companion package is
+            env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH", "")) if p)
+            self.child = subprocess.Popen(
+                [*CHILD_COMMAND, str(child.fileno())],
+                pass_fds=(child.fileno(),),
+                stdin=subprocess.DEVNULL,
+                env=env,
+            )
+        except BaseException:
+            parent.close()
+            raise
+        finally:
+            child.close()
+        parent.settimeout(REPLY_TIMEOUT_S)
+        self._sock: socket.socket | None = parent
+        self._lock = threading.Lock()
+        self._outbox: list[Op] = []
+        self._next_id = 0
+        self.ready = False  # the child said it is ready (it has been handed batches since)
+        self.dead = False
+        self.reason = ""
+        self._returned: dict[int, list[Op]] = defaultdict(list)
+        self.pid = os.getpid()
+
+    # ---- the registry ----------------------------------------------------------------------
+    @classmethod
+    def get(cls) -> LogProcess | None:
+        """This process's logging process, started at the first call; None when logging in
+        process (:data:`IN_PROCESS`, or it could not be started: said once)."""
+        if IN_PROCESS:
+            return None
+        cur = cls._current
+        if cur is not None and cur.pid == os.getpid() and not cur.dead:
+            return cur
+        if cls._failed_pid == os.getpid():
+            return None
+        with cls._class_lock:
+            cur = cls._current
+            if cur is not None and cur.pid == os.getpid() and not cur.dead:
+                return cur
+            if cur is not None and cur.dead:
+                return None  # it died: the logs opened from now on write in process too
+            try:
+                cls._current = cur = LogProcess()
+            except Exception as err:
+                cls._failed_pid = os.getpid()
+                log.error("flight logs: cannot start the logging process (%s); writing in this process", err)
+                return None
+            if not _exit_hook_registered:
+                _register_exit_hook()
+            return cur
+
+    @classmethod
+    def _forget_after_fork(cls) -> None:
+        """A forked child must not touch its parent's socket (closing its copy lets the parent's
+        logging process see the end); its logs start a logging process of their own."""
+        cur = cls._current
+        if cur is not None:
+            cur.dead = True  # logs inherited from the parent: in-process from here (if ever used)
+            cur.reason = "inherited from the parent process"
+            if cur._sock is not None:
+                cur._sock.close()
+                cur._sock = None
+        cls._current = None
+        cls._failed_pid = None
+        cls._class_lock = threading.Lock()
+
+    # ---- the logs' side ---------------------------------------------------------------------
+    def new_id(self) -> int:
+        with self._lock:
+            self._next_id += 1
+            return self._next_id
+
+    def open_csv(self, path: Path, columns: tuple[str, ...], sink_key: tuple[int, str] | None) -> int:
+        i = self.new_id()
+        self.post(("csv", i, str(path), columns, sink_key))
+        return i
+
+    def open_mcap(self, path: Path, streams: dict[str, tuple[str, ...]]) -> int:
+        i = self.new_id()
+        self.post(("mcap", i, str(path), streams))
+        return i
+
+    def post(self, op: Op) -> bool:
+        """Queue an op for the next send; False when the process is gone (write in process)."""
+        with self._lock:
+            if self.dead:
+                return False
+            self._outbox.append(op)
+            return True
+
+    def take_returned(self, log_id: int) -> list[Op]:
+        """The ops of a log that were never sent (the process died first), oldest first."""
+        with self._lock:
+            return self._returned.pop(log_id, [])
+
+    def flush(self) -> None:
+        """Send what was posted (one message), and log what the child said."""
+        with self._lock:
+            if self.dead:
+                return
+            if self._outbox:
+                ops, self._outbox = self._outbox, []
+                self._send_ops(ops)
+            if not self.dead:
+                try:
+                    self._read_available()
+                except (OSError, EOFError, pickle.UnpicklingError) as err:
+                    self._die(f"closed its end ({err})", [])
+
+    def request(self, op: Op) -> Any:
+        """Send what was posted and ``op``, and wait for the child's answer (None: the process
+        is gone; the caller continues in process)."""
+        with self._lock:
+            if self.dead:
+                return None
+            ops, self._outbox = [*self._outbox, op], []
+            if not self._send_ops(ops):
+                return None
+            try:
+                while True:
+                    msg = _recv(self._sock)  # type: ignore[arg-type]
+                    if msg[0] == "reply":
+                        return msg[1]
+                    self._handle(msg)
+            except (OSError, EOFError, pickle.UnpicklingError) as err:
+                self._die(f"did not answer ({err or type(err).__name__})", [op])
+                return None
+
+    def cpu_s(self) -> float | None:
+        """The logging process's CPU time so far (user + system), for ``companion bench log``."""
+        return self.request(("cpu",))  # type: ignore[no-any-return]
+
+    # ---- the socket (caller holds _lock) -------------------------------------------------------
+    def _send_ops(self, ops: list[Op]) -> bool:
+        sock = self._sock
+        assert sock is not None
+        try:
+            if not self.ready:
+                msg = _recv(sock) if select.select([sock], [], [], START_TIMEOUT_S)[0] else None
+                if msg is None or msg[0] != "ready":
+                    raise EOFError(f"no ready message in {START_TIMEOUT_S:g} s")
+                self.ready = True
+            try:
+                data = pickle.dumps(ops, protocol=5)
+            except Exception:
+                data = pickle.dumps([_plain(op) for op in ops], protocol=5)
+            sock.sendall(_HEADER.pack(len(data)))
+            sock.sendall(data)
+        except (OSError, EOFError, pickle.UnpicklingError) as err:
+            self._die(f"could not be sent a batch ({err or type(err).__name__})", ops)
+            return False
+        return True
+
+    def _read_available(self) -> None:
+        sock = self._sock
+        while sock is not None and select.select([sock], [], [], 0)[0]:
+            self._handle(_recv(sock))
+
+    def _handle(self, msg: Any) -> None:
+        if msg[0] == "log":
+            _, level, name, text = msg
+            logging.getLogger(name).log(level, "%s", text)
+
+    def _die(self, reason: str, unsent: list[Op]) -> None:
+        """Give up on the child: every log continues in process (see the module doc)."""
+        self.dead = True
+        code = self.child.poll()
+        if code is None:
+            self.child.kill()  # a hung child must not write beside the in-process fallback
+            try:
+                code = self.child.wait(5.0)
+            except subprocess.TimeoutExpired:
+                code = None
+        self.reason = f"{reason}; exit code {code}" if code is not None else reason
+        for op in [*unsent, *self._outbox]:
+            if op[0] in ("rows", "mops"):
+                self._returned[op[1]].append(op)
+        self._outbox = []
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        log.error(
+            "flight logs: the logging process (pid %d) %s; the logs are written in this process from now on",
+            self.child.pid,
+            self.reason,
+        )
+
+    def shutdown(self) -> None:
+        """Close the socket (the child finishes its files and exits) and wait for the child."""
+        with self._lock:
+            self.dead = True
+            self.reason = "shut down"
+            if self._sock is not None:
+                self._sock.close()
+                self._sock = None
+        try:
+            self.child.wait(REPLY_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log.error("flight logs: the logging process (pid %d) did not exit; killed", self.child.pid)
+            self.child.kill()
+
+
+def client() -> LogProcess | None:
+    """The logging process a new log should use (None: write in this process)."""
+    return LogProcess.get()
+
+
+def flush_current() -> None:
+    """Send what the logs posted (the shared writer thread, after each round)."""
+    cur = LogProcess._current
+    if cur is not None and cur.pid == os.getpid():
+        cur.flush()
+
+
+_exit_hook_registered = False
+
+
+def _register_exit_hook() -> None:
+    global _exit_hook_registered
+    _exit_hook_registered = True
+    atexit.register(_at_exit)
+
+
+def _at_exit() -> None:
+    """After the logs still open are closed (registered later than their hooks, so run first:
+    close them here), let the child finish and exit."""
+    from companion.flightlog import mcaplog
+
+    mcaplog._close_open_mcaps()
+    cur = LogProcess._current
+    if cur is not None and cur.pid == os.getpid():
+        cur.shutdown()
+
+
+os.register_at_fork(after_in_child=LogProcess._forget_after_fork)
+
+
+# ---- the child ------------------------------------------------------------------------------
+
+
+class _Forward(logging.Handler):
+    """The child's log records, sent to the parent (which logs them under the same names)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        super().__init__(logging.WARNING)
+        self._sock = sock
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with contextlib.suppress(Exception):  # the parent is gone: nobody to tell
+            _send(self._sock, ("log", record.levelno, record.name, self.format(record)))
+
+
+# the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
+_ANSWERED: dict[str, tuple[int, int] | None] = {"close": (0, 0), "mclose": (1, 0), "cpu": None}
+
+
+class _Child:
+    """The logging process's files, by the parent's ids."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.csvs: dict[int, Any] = {}
+        self.mcaps: dict[int, Any] = {}
+
+    def run(self) -> None:
+        _send(self.sock, ("ready", os.getpid()))
+        try:
+            while True:
+                try:
+                    ops = _recv(self.sock)
+                except EOFError:
+                    break
+                for op in ops:
+                    try:
+                        self.apply(op)
+                    except Exception:
+                        log.exception("logging process: %s op failed", op[0])
+                        if op[0] in _ANSWERED:  # the parent waits for an answer: one saying it failed
+                            _send(self.sock, ("reply", _ANSWERED[op[0]]))
+                for m in self.mcaps.values():
+                    m.flush()
+        finally:
+            self.finish()
+
+    def apply(self, op: Op) -> None:
+        from companion.flightlog.csvlog import CsvFile
+
+        kind = op[0]
+        if kind == "rows":
+            self.csvs[op[1]].write_batch(op[2])
+        elif kind == "csv":
+            _, i, path, columns, key = op
+            sink = self.mcaps[key[0]].stream_sink(key[1]) if key is not None and key[0] in self.mcaps else None
+            try:
+                self.csvs[i] = CsvFile(Path(path), tuple(columns), sink, append=True)
+            except OSError as err:
+                from companion.flightlog.csvlog import _FailedFile
+
+                csv_log = logging.getLogger("companion.flightlog.csvlog")
+                csv_log.error("%s: cannot write the log any more: %s", path, err)
+                self.csvs[i] = _FailedFile(Path(path), err)
+        elif kind == "close":
+            f = self.csvs.pop(op[1])
+            f.close()
+            _send(self.sock, ("reply", (f.written, f.dropped)))
+        elif kind == "mcap":
+            from companion.flightlog.mcaplog import McapFile
+
+            _, i, path, streams = op
+            self.mcaps[i] = McapFile(Path(path), streams)
+        elif kind == "mops":
+            if op[1] in self.mcaps:  # else it could not be created (said then)
+                self.mcaps[op[1]].apply(op[2])
+        elif kind == "mclose":
+            m = self.mcaps.pop(op[1])
+            m.close()
+            _send(self.sock, ("reply", (m.errors, m.messages)))
+        elif kind == "cpu":
+            t = os.times()
+            _send(self.sock, ("reply", t.user + t.system))
+        else:
+            raise ValueError(f"unknown op {kind!r}")
+
+    def finish(self) -> None:
+        """The parent is gone (or done): close every file it left open."""
+        for f in self.csvs.values():
+            f.close()
+        for m in self.mcaps.values():
+            m.close()
+        self.csvs.clear()
+        self.mcaps.clear()
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = sys.argv[1:] if argv is None else argv
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent, which closes the logs
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the end is the socket closing
+    sock = socket.socket(fileno=int(args[0]))
+    sock.setblocking(True)
+    root = logging.getLogger()
+    root.addHandler(_Forward(sock))
+    root.setLevel(logging.WARNING)
+    _Child(sock).run()
+
+
+if __name__ == "__main__":
+    main()

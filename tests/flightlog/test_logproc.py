@@ -1,0 +1,258 @@
+"""The logging process (:mod:`companion.flightlog.logproc`): the logs it writes are the bytes the
+in-process path writes; a parent that crashes leaves complete files; a child that cannot start,
+dies, or cannot write its file is reported and nothing queued is lost."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from companion.flightlog import logproc
+from companion.flightlog.csvlog import CsvLog, read_csv
+from companion.flightlog.logproc import LogProcess
+from companion.flightlog.mcaplog import McapFlightLog, stream_topic
+
+COLS = ("time_s", "x_m", "n", "label", "y_m")
+STREAMS = {"a.csv": COLS}
+
+
+def _rows(n: int) -> list[tuple[object, ...]]:
+    rng = np.random.default_rng(5)
+    out: list[tuple[object, ...]] = []
+    for i in range(n):
+        x = float(rng.normal(0.0, 10.0 ** rng.integers(-12, 12)))
+        out.append((i * 0.01, x if i % 3 else np.float64(x), i, ["", "a,b", 'q"t', "ok"][i % 4], math.nan))
+    return out
+
+
+@pytest.fixture
+def own_process() -> Iterator[None]:
+    """A logging process of the test's own (it may kill it), the suite's one restored after."""
+    saved = LogProcess._current, LogProcess._failed_pid
+    LogProcess._current = None
+    LogProcess._failed_pid = None
+    try:
+        yield
+    finally:
+        cur = LogProcess._current
+        if cur is not None and cur is not saved[0]:
+            cur.shutdown()
+        LogProcess._current, LogProcess._failed_pid = saved
+
+
+def _messages(path: Path) -> dict[str, list[bytes]]:
+    with path.open("rb") as fh:
+        reader = make_reader(fh)
+        assert reader.get_summary() is not None  # closed: the summary is there
+        out: dict[str, list[bytes]] = {}
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(message.data)
+    return out
+
+
+def test_the_logging_process_writes_the_bytes_the_in_process_path_writes(tmp_path, monkeypatch):
+    rows = _rows(2000)
+    ref = io.StringIO(newline="")
+    w = csv.writer(ref)
+    w.writerow(COLS)
+    w.writerows(rows)
+    with CsvLog(tmp_path / "remote.csv", COLS, max_queue=10**6) as lg:
+        assert not lg.in_process and LogProcess._current is not None and LogProcess._current.child.pid != os.getpid()
+        for i, row in enumerate(rows):
+            lg.write(row)
+            if i % 500 == 0:
+                lg._drain()  # handed over mid-stream, as the writer thread would
+    assert (lg.written, lg.dropped) == (len(rows), 0)
+    monkeypatch.setattr(logproc, "IN_PROCESS", True)
+    with CsvLog(tmp_path / "local.csv", COLS, max_queue=10**6) as local:
+        assert local.in_process
+        for row in rows:
+            local.write(row)
+    want = ref.getvalue().encode("utf-8")
+    assert (tmp_path / "remote.csv").read_bytes() == want == (tmp_path / "local.csv").read_bytes()
+
+
+def test_one_logging_process_for_every_log(tmp_path):
+    logs = [CsvLog(tmp_path / f"{i}.csv", ("time_s",)) for i in range(5)]
+    procs = {id(lg._proc) for lg in logs}
+    for lg in logs:
+        lg.close()
+    assert len(procs) == 1 and None not in {lg._proc for lg in logs}
+
+
+_CRASH = """
+import os, sys, time
+from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.logproc import LogProcess
+from companion.flightlog.mcaplog import McapFlightLog
+run = sys.argv[1]
+cols = ("time_s", "x_m")
+m = McapFlightLog(run + "/flight.mcap", {"a.csv": cols})
+lg = CsvLog(run + "/a.csv", cols, sink=m.stream_sink("a.csv"))
+plain = CsvLog(run + "/b.csv", cols)
+for i in range(300):
+    lg.write((float(i), 0.5 * i))
+    plain.write((float(i), -0.5 * i))
+m.add_meta('{"closed": false}')
+time.sleep(1.0)  # the writer thread hands everything over
+print(LogProcess._current.child.pid, flush=True)
+os._exit(1)  # a crash: no close(), no atexit
+"""
+
+
+def _wait_gone(pid: int, timeout_s: float = 60.0) -> None:
+    """Until the process has exited (a zombie counts: it has closed its files)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (FileNotFoundError, ProcessLookupError):
+            return
+        if state in ("Z", "X"):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"the logging process {pid} did not exit")
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="waits on /proc")
+def test_a_crashed_parent_leaves_complete_files(tmp_path):
+    proc = subprocess.run([sys.executable, "-c", _CRASH, str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1, proc.stderr
+    _wait_gone(int(proc.stdout.split()[0]))
+    a, b = read_csv(tmp_path / "a.csv"), read_csv(tmp_path / "b.csv")
+    assert len(a["time_s"]) == len(b["time_s"]) == 300 and b["x_m"][-1] == "-149.5"
+    msgs = _messages(tmp_path / "flight.mcap")  # the child closed it: summary and all
+    assert [json.loads(m)["x_m"] for m in msgs[stream_topic("a.csv")]] == [0.5 * i for i in range(300)]
+    with (tmp_path / "flight.mcap").open("rb") as fh:
+        meta = [m.metadata for m in make_reader(fh).iter_metadata()]
+    assert meta == [{"json": '{"closed": false}'}]
+
+
+def test_a_dead_logging_process_hands_the_logs_back(tmp_path, own_process, caplog):
+    cols = ("time_s", "x_m")
+    m = McapFlightLog(tmp_path / "flight.mcap", {"a.csv": cols})
+    lg = CsvLog(tmp_path / "a.csv", cols, sink=m.stream_sink("a.csv"))
+    plain = CsvLog(tmp_path / "b.csv", cols)
+    proc = LogProcess._current
+    assert proc is not None and not lg.in_process
+    for i in range(100):
+        lg.write((float(i), 1.0 * i))
+        plain.write((float(i), 2.0 * i))
+    lg._drain()
+    plain._drain()
+    assert proc.cpu_s() is not None  # an answer: everything before it was written
+    proc.child.kill()
+    proc.child.wait()
+    for i in range(100, 250):
+        lg.write((float(i), 1.0 * i))
+        plain.write((float(i), 2.0 * i))
+    with caplog.at_level(logging.ERROR):
+        lg.close()  # the hand-over fails: the rest is written here
+        plain.close()
+        m.close()
+    assert lg.in_process and plain.in_process
+    for p, k in ((tmp_path / "a.csv", 1.0), (tmp_path / "b.csv", 2.0)):
+        cols_ = read_csv(p)
+        assert cols_["x_m"] == [str(k * i) for i in range(250)], p
+    died = [r for r in caplog.records if "logging process" in r.getMessage()]
+    assert any("written in this process" in r.getMessage() and "exit code" in r.getMessage() for r in died)
+    assert sum("written in this process" in r.getMessage() for r in died) == 1
+    assert m.errors == 1 and any("the MCAP ends where it stopped" in r.getMessage() for r in died)
+    # logs opened afterwards write in process; nothing raised into the caller
+    with CsvLog(tmp_path / "c.csv", cols) as after:
+        after.write((0.0, 0.0))
+    assert after.in_process and read_csv(tmp_path / "c.csv")["x_m"] == ["0.0"]
+
+
+def test_a_logging_process_that_never_starts_leaves_the_logs_in_process(tmp_path, own_process, monkeypatch, caplog):
+    monkeypatch.setattr(logproc, "CHILD_COMMAND", [sys.executable, "-c", "raise SystemExit(3)"])
+    cols = ("time_s", "x_m")
+    with caplog.at_level(logging.ERROR):
+        m = McapFlightLog(tmp_path / "flight.mcap", {"a.csv": cols})
+        lg = CsvLog(tmp_path / "a.csv", cols, sink=m.stream_sink("a.csv"))
+        for i in range(50):
+            lg.write((float(i), 3.0 * i))
+        m.add_meta("{}")
+        lg.close()
+        m.close()
+    assert lg.in_process and read_csv(tmp_path / "a.csv")["x_m"] == [str(3.0 * i) for i in range(50)]
+    # it never started the MCAP: written here in full
+    assert len(_messages(tmp_path / "flight.mcap")[stream_topic("a.csv")]) == 50 and m.errors == 0
+    assert [r.getMessage() for r in caplog.records if "logging process" in r.getMessage()] == [
+        msg for msg in [r.getMessage() for r in caplog.records] if "exit code 3" in msg
+    ]
+    assert len([r for r in caplog.records if "exit code 3" in r.getMessage()]) == 1
+
+
+def test_a_logging_process_that_cannot_be_spawned(tmp_path, own_process, monkeypatch, caplog):
+    def no_spawn(*a, **k):
+        raise OSError("no interpreter here")
+
+    monkeypatch.setattr(logproc.subprocess, "Popen", no_spawn)
+    with caplog.at_level(logging.ERROR):
+        logs = [CsvLog(tmp_path / f"{i}.csv", ("time_s",)) for i in range(3)]
+        for lg in logs:
+            lg.write((1.5,))
+            lg.close()
+    assert all(lg.in_process for lg in logs) and read_csv(tmp_path / "2.csv")["time_s"] == ["1.5"]
+    msgs = [r.getMessage() for r in caplog.records]
+    assert msgs == ["flight logs: cannot start the logging process (no interpreter here); writing in this process"]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_write_error_in_the_logging_process_is_logged_once_by_path(tmp_path, caplog):
+    p = tmp_path / "full.csv"
+    lg = CsvLog(p, ("time_s", "x_m"))
+    assert not lg.in_process
+    p.unlink()
+    p.symlink_to("/dev/full")  # the logging process opens it at its first batch: every write fails
+    with caplog.at_level(logging.ERROR):
+        for _ in range(3):
+            for i in range(10):
+                lg.write((float(i), 0.0))
+            lg._drain()
+            logproc.flush_current()
+        lg.close()
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    # once, by path (the close's own flush fails too, and says so, as in process)
+    assert sum("cannot write the log any more" in e for e in errors) == 1, errors
+    assert all(e.startswith(f"{p}: ") for e in errors), errors
+    assert (lg.written, lg.dropped) == (0, 30)
+
+
+def test_the_in_process_switch(tmp_path, monkeypatch):
+    monkeypatch.setattr(logproc, "IN_PROCESS", True)
+    m = McapFlightLog(tmp_path / "flight.mcap", STREAMS)
+    with CsvLog(tmp_path / "a.csv", COLS, sink=m.stream_sink("a.csv")) as lg:
+        for row in _rows(10):
+            lg.write(row)
+    m.close()
+    assert lg.in_process and m._file is not None
+    assert len(_messages(tmp_path / "flight.mcap")[stream_topic("a.csv")]) == 10 and m.messages > 10
+
+
+def test_an_mcap_the_logging_process_cannot_create_is_an_error_not_a_hang(tmp_path, own_process, caplog):
+    cols = ("time_s", "x_m")
+    m = McapFlightLog(tmp_path / "flight.mcap", {"a.csv": cols})
+    (tmp_path / "flight.mcap").unlink()
+    (tmp_path / "flight.mcap").mkdir()  # the logging process cannot open it
+    with caplog.at_level(logging.ERROR):
+        with CsvLog(tmp_path / "a.csv", cols, sink=m.stream_sink("a.csv")) as lg:
+            lg.write((0.0, 1.0))
+        m.close()
+    assert not lg.in_process and read_csv(tmp_path / "a.csv")["x_m"] == ["1.0"]
+    assert m.errors == 1 and any("mcap op failed" in r.getMessage() for r in caplog.records)
+    assert not LogProcess._current.dead  # type: ignore[union-attr]
