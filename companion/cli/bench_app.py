@@ -18,7 +18,9 @@ belong to one task as a whole (the CSV and .tlog writer threads, the telemetry w
 MAVLink backend's I/O threads, the detector's executor threads) are measured per thread from
 ``/proc`` and their CPU not covered by a wrapper goes to that task. What is left on the event-loop
 thread (asyncio, the request tasks, the simulated sensors' tasks but for their pose, field-of-view and
-range computations, which are the simulator's) is ``loop_other``.
+range computations, which are the simulator's) is ``loop_other``. The logging process (the flight
+logs' formatting and I/O, :mod:`companion.flightlog.logproc`) reports its own CPU time at the start
+and the end of the window: the difference is added to ``logging`` and to the companion's total.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
 from companion.estimation.ekf import UpdateOutcome
+from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog
 
 log = logging.getLogger(__name__)
@@ -230,11 +233,38 @@ def _patched(obj: Any, name: str, value: Any) -> Iterator[None]:
 
 
 # ---------------------------------------------------------------------------- the run
+def logging_process_cpu_s() -> float:
+    """CPU seconds (user + system) of this process's logging process so far (the flight logs'
+    formatting and I/O, :mod:`companion.flightlog.logproc`); 0 when the logs are written in this
+    process (then their CPU is in the process's own)."""
+    cur = logproc.LogProcess._current
+    if cur is None or cur.dead or cur.pid != os.getpid():
+        return 0.0
+    v = cur.cpu_s()
+    return float(v) if v is not None else 0.0
+
+
+def logging_process_peak_rss_mib() -> float:
+    """Peak resident memory of this process's logging process (``VmHWM``), 0 without one."""
+    cur = logproc.LogProcess._current
+    if cur is None or cur.dead or cur.pid != os.getpid():
+        return 0.0
+    try:
+        for line in Path(f"/proc/{cur.child.pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
 def _snapshot(end: dict[str, Any]) -> None:
     """The end of the measured window, taken once, before the shell tears down its threads."""
-    if not end:
+    if "threads" not in end:
         end["threads"] = thread_cpu_s()
         end["process_s"] = time.process_time()
+        end["logging_process_s"] = logging_process_cpu_s()
+        end["logging_process_rss_mib"] = logging_process_peak_rss_mib()
         end["wall_s"] = time.monotonic()
         end["py_names"] = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
 
@@ -423,6 +453,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     proc0 = time.process_time()
     wall0 = time.monotonic()
     threads0 = thread_cpu_s()
+    end["logging_process_s0"] = logging_process_cpu_s()
     try:
         with (
             _patched(shell_mod, "RateLoop", _counted("shell")),
@@ -518,6 +549,7 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
             proc0 = time.process_time()
             wall0 = time.monotonic()
             threads0 = thread_cpu_s()
+            end["logging_process_s0"] = logging_process_cpu_s()
             stop_snapshot = loop.call_later(duration_s - 0.02, _snapshot, end)
             with (
                 _patched(dart_shell_mod, "RateLoop", _counted("dart")),
@@ -564,7 +596,11 @@ def _report(
             excluded["sim_threads"] += rest
         else:
             per_task[group] += rest
-    companion_s = max(0.0, process_s - sum(excluded.values()))
+    # the flight logs' formatting and I/O run in the logging process (another process, often
+    # another core): its CPU in the window is the logging task's and the companion's too
+    logging_child_s = max(0.0, end.get("logging_process_s", 0.0) - end.get("logging_process_s0", 0.0))
+    per_task["logging"] += logging_child_s
+    companion_s = max(0.0, process_s - sum(excluded.values())) + logging_child_s
 
     def pct(s: float) -> float:
         return round(100.0 * s / wall_s, 2) if wall_s > 0 else math.nan
@@ -590,12 +626,14 @@ def _report(
         "cpu": {
             "method": __doc__.split("CPU method: ", 1)[1].strip() if __doc__ else "",
             "process_total_pct": pct(process_s),
+            "logging_process_pct": pct(logging_child_s),
             "excluded_simulator_pct": {k: pct(v) for k, v in sorted(excluded.items())},
             "companion_total_pct": pct(companion_s),
             "tasks_pct": {t: pct(per_task.get(t, 0.0)) for t in (*tasks, "native_unnamed", "loop_other")},
             "threads_pct": {k: pct(v) for k, v in sorted(by_thread.items(), key=lambda kv: -kv[1]) if v > 0},
         },
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        "logging_process_peak_rss_mib": round(end.get("logging_process_rss_mib", 0.0), 1),
         "camera": {
             "frames_processed": lat.frames,
             "frames_with_detection": lat.detections,
@@ -679,11 +717,13 @@ def print_report(r: dict[str, Any]) -> None:
     print(f"  mission phase at the end: {r['mission_phase_at_end']}")
     print(
         f"  CPU (% of one core): process {cpu['process_total_pct']:.1f}, simulator taken out "
-        f"{sum(cpu['excluded_simulator_pct'].values()):.1f} -> companion {cpu['companion_total_pct']:.1f}"
+        f"{sum(cpu['excluded_simulator_pct'].values()):.1f}, logging process added "
+        f"{cpu['logging_process_pct']:.1f} -> companion {cpu['companion_total_pct']:.1f}"
     )
     for task, v in cpu["tasks_pct"].items():
         print(f"    {task:<16} {v:6.2f}")
-    print(f"  peak RSS: {r['peak_rss_mib']:.0f} MiB")
+    child_rss = r["logging_process_peak_rss_mib"]
+    print(f"  peak RSS: {r['peak_rss_mib']:.0f} MiB" + (f" (logging process {child_rss:.0f} MiB)" if child_rss else ""))
     cam = r["camera"]
     print(
         f"  camera: {cam['frames_processed']} frames processed "
