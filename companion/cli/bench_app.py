@@ -233,21 +233,25 @@ def _patched(obj: Any, name: str, value: Any) -> Iterator[None]:
 
 
 # ---------------------------------------------------------------------------- the run
+def _logging_process() -> logproc.LogProcess | None:
+    """This process's running logging process (never starts one)."""
+    cur = logproc.LogProcess._current
+    return None if cur is None or cur.dead or cur.pid != os.getpid() else cur
+
+
 def logging_process_cpu_s() -> float:
     """CPU seconds (user + system) of this process's logging process so far (the flight logs'
     formatting and I/O, :mod:`companion.flightlog.logproc`); 0 when the logs are written in this
     process (then their CPU is in the process's own)."""
-    cur = logproc.LogProcess._current
-    if cur is None or cur.dead or cur.pid != os.getpid():
-        return 0.0
-    v = cur.cpu_s()
+    cur = _logging_process()
+    v = cur.cpu_s() if cur is not None else None
     return float(v) if v is not None else 0.0
 
 
 def logging_process_peak_rss_mib() -> float:
     """Peak resident memory of this process's logging process (``VmHWM``), 0 without one."""
-    cur = logproc.LogProcess._current
-    if cur is None or cur.dead or cur.pid != os.getpid():
+    cur = _logging_process()
+    if cur is None:
         return 0.0
     try:
         for line in Path(f"/proc/{cur.child.pid}/status").read_text().splitlines():

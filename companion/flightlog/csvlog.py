@@ -288,15 +288,9 @@ class CsvLog:
         assert self._proc is not None
         returned = self._proc.take_returned(self._id)
         _cut_torn_line(self.path)
-        try:
-            self._file = CsvFile(self.path, self.columns, self._local_sink(), append=True)
-        except OSError as err:
-            log.error("%s: cannot write the log any more: %s", self.path, err)
-            self._remote_dropped += sum(len(op[2]) for op in returned)
-            self._file = _FailedFile(self.path, err)
-            return
+        self._file = open_csv_file(self.path, self.columns, self._local_sink(), append=True)
         for op in returned:
-            self._file.write_batch(op[2])
+            self._file.write_batch(op[2])  # a file that could not be reopened counts them dropped
 
     def _drain(self) -> None:
         """Hand over (or write, in process) what has been queued so far, as one batch."""
@@ -363,6 +357,17 @@ class _FailedFile(CsvFile):
 
     def close(self) -> None:
         pass
+
+
+def open_csv_file(path: Path, columns: tuple[str, ...], sink: BatchSink | None, append: bool) -> CsvFile:
+    """A :class:`CsvFile` to continue (or start); one that cannot be opened is reported once by
+    path and stands in as a file that counts every batch it is given as dropped (in this process,
+    or in the logging process)."""
+    try:
+        return CsvFile(path, columns, sink, append=append)
+    except OSError as err:
+        log.error("%s: cannot write the log any more: %s", path, err)
+        return _FailedFile(path, err)
 
 
 def format_cell(v: object) -> str:

@@ -394,7 +394,7 @@ class _Child:
             self.finish()
 
     def apply(self, op: Op) -> None:
-        from companion.flightlog.csvlog import CsvFile
+        from companion.flightlog.csvlog import open_csv_file
 
         kind = op[0]
         if kind == "rows":
@@ -402,14 +402,7 @@ class _Child:
         elif kind == "csv":
             _, i, path, columns, key = op
             sink = self.mcaps[key[0]].stream_sink(key[1]) if key is not None and key[0] in self.mcaps else None
-            try:
-                self.csvs[i] = CsvFile(Path(path), tuple(columns), sink, append=True)
-            except OSError as err:
-                from companion.flightlog.csvlog import _FailedFile
-
-                csv_log = logging.getLogger("companion.flightlog.csvlog")
-                csv_log.error("%s: cannot write the log any more: %s", path, err)
-                self.csvs[i] = _FailedFile(Path(path), err)
+            self.csvs[i] = open_csv_file(Path(path), tuple(columns), sink, append=True)
         elif kind == "close":
             f = self.csvs.pop(op[1])
             f.close()
