@@ -33,7 +33,7 @@ from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.profiles import apply_profile, get_profile
+from companion_sitl.profiles import VELOCITY_BIAS_HEIGHTS_M, EstimatorState, apply_profile, get_profile
 
 log = logging.getLogger(__name__)
 
@@ -132,6 +132,24 @@ class SimVehicle:
             ]
             for w in self._verr:
                 w.x = w.sigma * float(self._rng_verr.standard_normal())
+        # the estimator's state for this flight (profiles.EstimatorState; drawn after the error's
+        # start so a profile without states draws exactly as before)
+        self.estimator_state: EstimatorState | None = None
+        self._att_bias = (0.0, 0.0, 0.0)
+        if self.profile.estimator_states:
+            u = float(self._rng_verr.uniform()) if self._verr else float(self._rng_misc.uniform())
+            acc = 0.0
+            for es in self.profile.estimator_states:
+                acc += es.probability
+                self.estimator_state = es
+                if u < acc:
+                    break
+            assert self.estimator_state is not None
+            self._att_bias = tuple(math.radians(a) for a in self.estimator_state.attitude_bias_deg)  # type: ignore[assignment]
+            # the position estimate's share of the bias, from its steady state on the ground
+            tau_p = self.estimator_state.position_follows_bias_tau_s
+            b0 = self._velocity_bias()
+            self._pos_bias = [b0[0] * tau_p, b0[1] * tau_p]
         self._land_detect_s = self.profile.land_detect_s
         # the mode the autopilot's offboard-loss failsafe switches to (PX4: COM_OBL_RC_ACT; the
         # PX4-dialect MAVLink vehicle sets POSITION, measured on PX4 v1.16 SIH)
@@ -287,7 +305,31 @@ class SimVehicle:
         """The autopilot's own local position estimate (truth + GPS wander; the height off by the
         profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
+        if self.estimator_state is not None:
+            pb = self._pos_bias
+            return (
+                self.pn + w[0].x + pb[0],
+                self.pe + w[1].x + pb[1],
+                self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x,
+            )
         return (self.pn + w[0].x, self.pe + w[1].x, self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x)
+
+    def _velocity_bias(self) -> tuple[float, float]:
+        """The estimator state's horizontal velocity bias (N, E) at the true height above ground:
+        linear between the heights it was measured at, constant outside them."""
+        es = self.estimator_state
+        if es is None:
+            return (0.0, 0.0)
+        h = -self.pd
+        hs, vs = VELOCITY_BIAS_HEIGHTS_M, es.velocity_bias_m_s
+        if h <= hs[0]:
+            return vs[0]
+        for i in range(1, len(hs)):
+            if h <= hs[i]:
+                k = (h - hs[i - 1]) / (hs[i] - hs[i - 1])
+                a, b = vs[i - 1], vs[i]
+                return (a[0] + k * (b[0] - a[0]), a[1] + k * (b[1] - a[1]))
+        return vs[-1]
 
     def _step(self, dt: float) -> None:
         c = self.cfg
@@ -311,6 +353,14 @@ class SimVehicle:
             rv = self._rng_verr.standard_normal(3).tolist()
             for i in range(3):
                 self._verr[i].step(dt, rv[i])
+        if self.estimator_state is not None:
+            # the position estimate drifts with the velocity bias, GPS pulls it back (EstimatorState)
+            # (exact step of de/dt = b - e / tau for b constant over dt)
+            bn, be = self._velocity_bias()
+            tau_p = self.estimator_state.position_follows_bias_tau_s
+            a = math.exp(-dt / tau_p)
+            self._pos_bias[0] = a * self._pos_bias[0] + (1.0 - a) * tau_p * bn
+            self._pos_bias[1] = a * self._pos_bias[1] + (1.0 - a) * tau_p * be
         if self._release_at is not None and t >= self._release_at:
             self.payload_released = True
             self._release_at = None
@@ -376,6 +426,10 @@ class SimVehicle:
             ve_n += self._verr[0].x
             ve_e += self._verr[1].x
             ve_d += self._verr[2].x
+        if self.estimator_state is not None and self.profile.velocity_loop_on_estimate:
+            bn, be = self._velocity_bias()
+            ve_n += bn
+            ve_e += be
         kp, ki = vc.velocity_p_gain, vc.velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
         an = kp * en + ki * self._int[0]
@@ -518,6 +572,10 @@ class SimVehicle:
             vn += self._verr[0].x
             ve += self._verr[1].x
             vd += self._verr[2].x
+        if self.estimator_state is not None:
+            bn, be = self._velocity_bias()
+            vn += bn
+            ve += be
         return PositionNed(self.time_s, n, e, d, vn + r[0], ve + r[1], vd + r[2])
 
     def global_position(self) -> GlobalPosition:
@@ -536,7 +594,10 @@ class SimVehicle:
 
     def attitude(self) -> Attitude:
         p, q, r = self._rates
-        return Attitude(self.time_s, self.roll, self.pitch, self.yaw, p, q, r)
+        if self.estimator_state is None:
+            return Attitude(self.time_s, self.roll, self.pitch, self.yaw, p, q, r)
+        b = self._att_bias  # what the estimator reports is off the truth by its state's offset
+        return Attitude(self.time_s, self.roll + b[0], self.pitch + b[1], wrap_angle(self.yaw + b[2]), p, q, r)
 
     def imu(self) -> Imu:
         """Specific force and body rates in FRD, with white noise."""

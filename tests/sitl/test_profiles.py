@@ -127,3 +127,46 @@ def test_velocity_error_drives_a_px4_vehicle_but_not_an_arducopter_one():
         assert 0.005 < max(analyse(ac)["velocity_error_rms_m_s"][a] for a in "ne") < 0.05  # still reported
     px4 = [_hover_wander_m(_probe_rows("px4-sih", seed)) for seed in (1, 2, 3)]
     assert max(px4) > 0.3, px4
+
+
+def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_velocity_by_height():
+    """PX4 SIH's two estimator states (profiles.PX4_SIH_STATES, traced on the firmware): one per
+    flight, drawn by the seed (both appear over a few seeds); the reported attitude is the truth
+    plus the state's offset; the velocity bias is linear in the true height between the heights it
+    was measured at (hand-computed at 0.5 m: midway between the 0.25 and 0.75 m values) and is what
+    the velocity loop flies on; the position estimate carries it with de/dt = b - e / tau."""
+    states = {SimVehicle(SimConfig(profile="px4-sih", seed=s)).estimator_state.name for s in range(12)}
+    assert states == {"A", "B"}
+    v = SimVehicle(SimConfig(profile="px4-sih", seed=3))
+    es = v.estimator_state
+    assert es is not None
+    v.roll, v.pitch, v.yaw = 0.01, -0.02, 0.5
+    a = v.attitude()
+    assert (a.roll_rad, a.pitch_rad, a.yaw_rad) == pytest.approx(
+        (
+            0.01 + math.radians(es.attitude_bias_deg[0]),
+            -0.02 + math.radians(es.attitude_bias_deg[1]),
+            0.5 + math.radians(es.attitude_bias_deg[2]),
+        )
+    )
+    (b0, b1, b2) = es.velocity_bias_m_s
+    v.pd = -0.5
+    assert v._velocity_bias() == pytest.approx((0.5 * (b0[0] + b1[0]), 0.5 * (b0[1] + b1[1])))
+    v.pd = -0.1
+    assert v._velocity_bias() == pytest.approx(b0)
+    v.pd = -10.0
+    assert v._velocity_bias() == pytest.approx(b2)
+    # on the ground from the start: the position estimate at its steady state b * tau
+    g = SimVehicle(SimConfig(profile="px4-sih", seed=3))
+    tau_p = es.position_follows_bias_tau_s
+    assert g._pos_bias == pytest.approx([b0[0] * tau_p, b0[1] * tau_p])
+    # the reported velocity carries the bias (report noise 3 cm/s, the Gauss-Markov part 0.07)
+    rep = [g.position_ned() for _ in range(400)]
+    assert np.mean([r.north_m_s for r in rep]) == pytest.approx(b0[0] + g._verr[0].x, abs=0.01)
+    assert np.mean([r.east_m_s for r in rep]) == pytest.approx(b0[1] + g._verr[1].x, abs=0.01)
+    # ideal and arducopter-sitl have no state: attitude and velocity as before
+    for name in ("ideal", "arducopter-sitl"):
+        w = SimVehicle(SimConfig(profile=name, seed=3))
+        assert w.estimator_state is None
+        w.yaw = 0.5
+        assert w.attitude().yaw_rad == 0.5
