@@ -137,9 +137,21 @@ class MissionConfig(_Section):
         0.15,
         "m",
         "final descent: below this height only the vertical command remains (ArduCopter never reports "
-        "ON_GROUND while a horizontal velocity is commanded on the ground; measured on its SITL)",
-        ge=0.0,
+        "ON_GROUND while a horizontal velocity is commanded on the ground; measured on its SITL); "
+        "negative: the horizontal error is closed until the autopilot reports the touchdown",
+        ge=-1.0,
         le=2.0,
+    )
+    landing_xy_integral_gain_1_s2: float = _f(
+        0.0,
+        "1/s^2",
+        "final descent: horizontal speed per metre-second of accumulated error, which takes out what "
+        "the autopilot's velocity loop leaves (its velocity-estimate bias; not in the papers; 0 = off)",
+        ge=0.0,
+        le=20.0,
+    )
+    landing_xy_integral_max_m_s: float = _f(
+        0.5, "m/s", "final descent: largest horizontal speed the integral term may add", ge=0.0, le=3.0
     )
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)

@@ -51,6 +51,8 @@ FIRMWARE_TUNING_KEYS = {
     "mission": (
         "landing_xy_gain_1_s",
         "landing_touchdown_height_m",
+        "landing_xy_integral_gain_1_s2",
+        "landing_xy_integral_max_m_s",
         "velocity_bias_tau_s",
         "autopilot_accel_xy_m_s2",
         "autopilot_accel_z_m_s2",

@@ -1,5 +1,7 @@
 """The mission core alone: synthetic, timestamped inputs in; requests and events out."""
 
+import pytest
+
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import MissionConfig, PadConfig
 from companion.delivery.mission import DeliveryMission, MissionInputs, RequestKind, RequestResult
@@ -164,3 +166,61 @@ def test_a_reconnect_into_a_mode_the_failsafe_does_not_pick_is_the_pilot():
     t += 0.05
     m.step(MissionInputs(t, est(t, d=-3.0), status(t, mode=FlightMode.POSITION, **flying), HOME))
     assert m.phase is Phase.PILOT and "position" in m.summary.failure
+
+
+def _descent_setpoints(m, offsets_ned, t0=0.0, dt=0.05, d=-2.0):
+    """Horizontal setpoints (N, E) of the final descent over the pad at these NED offsets, one
+    guidance tick apart."""
+    pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+    out = []
+    for k, (dn, de) in enumerate(offsets_ned):
+        t = t0 + k * dt
+        sp = m._precision_descent(est(t, pn + dn, pe + de, d), 1, t)
+        out.append((sp.north_m_s, sp.east_m_s))
+    return out
+
+
+def test_final_descent_integral_term_accumulates_clamps_freezes_and_restarts_per_landing():
+    """k_i * sum(e * dt) added to the proportional law (mission._landing_integral), by hand: a
+    constant 0.04 m offset east for 10 ticks of 0.05 s at k_i = 2.5 1/s^2 adds 2.5 * 0.04 * 0.45 =
+    0.045 m/s against the offset (the first tick only starts the sum)."""
+    kw = dict(landing_xy_gain_1_s=5.0, landing_touchdown_height_m=0.15, landing_xy_integral_max_m_s=0.3)
+    m_p = DeliveryMission(cfg(**kw))
+    m_pi = DeliveryMission(cfg(landing_xy_integral_gain_1_s2=2.5, **kw))
+    for m in (m_p, m_pi):
+        m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+        m._goto(Phase.LANDING_PAD)
+    offs = [(0.0, 0.04)] * 10
+    p = _descent_setpoints(m_p, offs)
+    pi = _descent_setpoints(m_pi, offs)
+    assert pi[0] == pytest.approx(p[0])
+    assert p[-1][1] == pytest.approx(-5.0 * 0.04, abs=1e-9)  # proportional alone: -k_p e
+    assert pi[-1][0] == pytest.approx(p[-1][0], abs=1e-9)
+    assert pi[-1][1] - p[-1][1] == pytest.approx(-2.5 * 0.04 * 0.45, abs=1e-9)
+    # held at landing_xy_integral_max_m_s however long the error stays
+    long = _descent_setpoints(m_pi, [(0.0, 0.04)] * 200, t0=0.5)
+    assert long[-1][1] - p[-1][1] == pytest.approx(-0.3, abs=1e-9)
+    # frozen below the touchdown height (only the descent is commanded there)
+    low = _descent_setpoints(m_pi, [(0.0, 0.04)] * 5, t0=11.0, d=-0.1)
+    assert low[-1] == (0.0, 0.0)
+    back = _descent_setpoints(m_pi, [(0.0, 0.0)], t0=11.3)
+    assert back[0][1] == pytest.approx(-0.3, abs=1e-9)  # the sum kept, nothing added on the ground
+    # a new landing phase starts from nothing
+    m_pi._now = 20.0
+    m_pi._goto(Phase.LANDING_HOME)
+    m_pi._goto(Phase.LANDING_PAD)
+    again = _descent_setpoints(m_pi, [(0.0, 0.04)] * 2, t0=20.0)
+    assert again[0] == pytest.approx(p[0])
+    assert again[1][1] - p[0][1] == pytest.approx(-2.5 * 0.04 * 0.05, abs=1e-9)
+
+
+def test_a_negative_touchdown_height_keeps_closing_the_error_down_to_the_ground():
+    m = DeliveryMission(cfg(landing_xy_gain_1_s=5.0, landing_touchdown_height_m=-1.0))
+    m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    m._goto(Phase.LANDING_PAD)
+    (sp,) = _descent_setpoints(m, [(0.0, 0.04)], d=0.05)  # the estimate already below the ground
+    assert sp[1] == pytest.approx(-0.2, abs=1e-9)
+    m0 = DeliveryMission(cfg(landing_xy_gain_1_s=5.0))
+    m0.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    m0._goto(Phase.LANDING_PAD)
+    assert _descent_setpoints(m0, [(0.0, 0.04)], d=0.05) == [(0.0, 0.0)]

@@ -40,7 +40,9 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
         "landing": {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5},
         "mission": {
             "landing_xy_gain_1_s": 5.0,
-            "landing_touchdown_height_m": 0.0,
+            "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
+            "landing_xy_integral_gain_1_s2": 2.5,
+            "landing_xy_integral_max_m_s": 0.5,
             "velocity_bias_tau_s": 1.0,
             "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
             "autopilot_accel_z_m_s2": 1.0,
