@@ -135,7 +135,8 @@ class SimVehicle:
         # the estimator's state for this flight (profiles.EstimatorState; drawn after the error's
         # start so a profile without states draws exactly as before)
         self.estimator_state: EstimatorState | None = None
-        self._att_bias = (0.0, 0.0, 0.0)
+        self._att_bias = (0.0, 0.0, 0.0)  # reported - true roll, pitch, yaw (rad)
+        self._pos_bias = [0.0, 0.0]  # the position estimate's share of the velocity bias (N, E; m)
         if self.profile.estimator_states:
             u = float(self._rng_verr.uniform()) if self._verr else float(self._rng_misc.uniform())
             acc = 0.0
@@ -145,7 +146,8 @@ class SimVehicle:
                 if u < acc:
                     break
             assert self.estimator_state is not None
-            self._att_bias = tuple(math.radians(a) for a in self.estimator_state.attitude_bias_deg)  # type: ignore[assignment]
+            roll_b, pitch_b, yaw_b = self.estimator_state.attitude_bias_deg
+            self._att_bias = (math.radians(roll_b), math.radians(pitch_b), math.radians(yaw_b))
             # the position estimate's share of the bias, from its steady state on the ground
             tau_p = self.estimator_state.position_follows_bias_tau_s
             b0 = self._velocity_bias()
