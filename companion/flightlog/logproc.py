@@ -284,7 +284,7 @@ class LogProcess:
                 code = None
         self.reason = f"{reason}; exit code {code}" if code is not None else reason
         for op in [*unsent, *self._outbox]:
-            if op[0] in ("rows", "mops"):
+            if op[0] in ("rows", "mops", "trecs"):
                 self._returned[op[1]].append(op)
         self._outbox = []
         if self._sock is not None:
@@ -335,9 +335,10 @@ def _register_exit_hook() -> None:
 def _at_exit() -> None:
     """After the logs still open are closed (registered later than their hooks, so run first:
     close them here), let the child finish and exit."""
-    from companion.flightlog import mcaplog
+    from companion.flightlog import mcaplog, tlog
 
     mcaplog._close_open_mcaps()
+    tlog._close_open_tlogs()
     cur = LogProcess._current
     if cur is not None and cur.pid == os.getpid():
         cur.shutdown()
@@ -362,7 +363,8 @@ class _Forward(logging.Handler):
 
 
 # the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
-_ANSWERED: dict[str, tuple[int, int] | None] = {"close": (0, 0), "mclose": (1, 0), "cpu": None}
+# (written, dropped, encode errors)
+_ANSWERED: dict[str, tuple[int, ...] | None] = {"close": (0, 0), "mclose": (1, 0), "tclose": (0, 0, 0), "cpu": None}
 
 
 class _Child:
@@ -372,6 +374,7 @@ class _Child:
         self.sock = sock
         self.csvs: dict[int, Any] = {}
         self.mcaps: dict[int, Any] = {}
+        self.tlogs: dict[int, Any] = {}
 
     def run(self) -> None:
         _send(self.sock, ("ready", os.getpid()))
@@ -419,6 +422,21 @@ class _Child:
             m = self.mcaps.pop(op[1])
             m.close()
             _send(self.sock, ("reply", (m.errors, m.messages)))
+        elif kind == "trecs":
+            if op[1] in self.tlogs:  # else it could not be opened (said then)
+                self.tlogs[op[1]].apply(op[2])
+        elif kind == "tlog":
+            from companion.flightlog.tlog import open_replayer
+
+            _, i, path, params = op
+            self.tlogs[i] = open_replayer(Path(path), params)
+        elif kind == "tclose":
+            t = self.tlogs.pop(op[1], None)
+            if t is None:
+                _send(self.sock, ("reply", _ANSWERED["tclose"]))
+            else:
+                t.close()
+                _send(self.sock, ("reply", (t.written, t.dropped, t.encode_errors)))
         elif kind == "cpu":
             t = os.times()
             _send(self.sock, ("reply", t.user + t.system))
@@ -431,8 +449,11 @@ class _Child:
             f.close()
         for m in self.mcaps.values():
             m.close()
+        for t in self.tlogs.values():
+            t.close()
         self.csvs.clear()
         self.mcaps.clear()
+        self.tlogs.clear()
 
 
 def main(argv: list[str] | None = None) -> None:
