@@ -96,6 +96,10 @@ def _plain(op: Op) -> Op:
     return (op[0], op[1], [tuple(cell(v) for v in row) for row in op[2]])
 
 
+class _Unpicklable(Exception):
+    """A batch that cannot be handed over: written in process instead."""
+
+
 class LogProcess:
     """The parent's end of its logging process (one per process; see the module doc).
     Thread-safe: the writer thread and ``close()`` on other threads take turns on the socket."""
@@ -254,9 +258,15 @@ class LogProcess:
             try:
                 data = pickle.dumps(ops, protocol=5)
             except Exception:
-                data = pickle.dumps([_plain(op) for op in ops], protocol=5)
+                try:
+                    data = pickle.dumps([_plain(op) for op in ops], protocol=5)
+                except Exception as err:  # not rows (a .tlog record of a class defined in a function...)
+                    raise _Unpicklable(f"a batch does not pickle: {err}") from err
             sock.sendall(_HEADER.pack(len(data)))
             sock.sendall(data)
+        except _Unpicklable as err:
+            self._die(str(err), ops)
+            return False
         except (OSError, EOFError, pickle.UnpicklingError) as err:
             self._die(f"could not be sent a batch ({err or type(err).__name__})", ops)
             return False

@@ -5,6 +5,7 @@ dies or never starts leaves the file to this process, with one ERROR."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import struct
@@ -250,3 +251,34 @@ def test_cut_torn_record_keeps_the_whole_records(tmp_path):
     cut_torn_record(p)
     assert p.read_bytes() == whole
     assert struct.unpack(">Q", whole[:8])[0] > 0
+
+
+def test_a_record_that_does_not_pickle_leaves_the_file_to_this_process(tmp_path, own_process, caplog):
+    """A sample type the logging process cannot be handed (a class made in a function): the
+    writer thread is not stopped; the logs go on in process, with one ERROR."""
+
+    @dataclasses.dataclass(frozen=True)
+    class Odd:
+        time_s: float
+
+    calls = _calls(300, seed=9)
+    want = _at_once(tmp_path / "ref.tlog", calls)
+    clock = [0.0]
+    t = _tlog(tmp_path / "a.tlog", clock)
+    assert not t.in_process
+    with caplog.at_level(logging.ERROR):
+        _replay(calls[:150], t, clock)
+        t.sample(Odd(clock[0]))  # type: ignore[arg-type]  # no MAVLink for it: nothing written
+        _replay(calls[150:], t, clock)
+        t._drain()
+        logproc.flush_current()
+        t.close()
+    assert t.in_process and len(want) > 0
+    # every message, at its time (whatever the writer thread handed over before the odd record
+    # was written by the logging process; the rest here, numbered from 0 again)
+    got, ref = list(read_tlog(tmp_path / "a.tlog")), list(read_tlog(tmp_path / "ref.tlog"))
+    assert [(m.get_type(), m._timestamp, m.get_payload()) for m in got] == [
+        (m.get_type(), m._timestamp, m.get_payload()) for m in ref
+    ]
+    died = [r.getMessage() for r in caplog.records if "logging process" in r.getMessage()]
+    assert len(died) == 1 and "does not pickle" in died[0], died
