@@ -10,7 +10,9 @@ writer thread (:class:`~companion.flightlog.csvlog._SharedWriter`) posts each lo
 (:meth:`LogProcess.post`) and, once a round, sends everything posted as one pickle over a Unix
 socket (:func:`flush_current`). The child writes each message's batches with the in-process code
 (:class:`~companion.flightlog.csvlog.CsvFile`, :class:`~companion.flightlog.mcaplog.McapFile`), so
-the bytes are the same, and flushes every file after each message.
+the bytes are the same, and flushes every file after each message. The embedded simulator's
+``.tlog`` (:class:`~companion.flightlog.tlog.TelemetryTlog`) is handed over the same way, as field
+values the child encodes (:class:`~companion.flightlog.tlog.TlogReplayer`).
 
 Closing a log is a request: the parent's ``close()`` returns once the child has closed the file
 and answered with its counts. The child's own log records (a write error, named by path) are sent

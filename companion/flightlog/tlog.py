@@ -18,7 +18,9 @@ thread too.
 (MAVSDK only exposes decoded messages), one sequence counter per source. :class:`TelemetryEncoder`
 turns what an autopilot without a MAVLink link reports (:mod:`companion.autopilot.types`
 samples) and what the companion sends it into MAVLink, so the embedded simulator's flights give a
-``.tlog`` too.
+``.tlog`` too. The simulator does not encode on its control path: :class:`TelemetryTlog` queues
+the field values with the clock time, and the logging process (:mod:`companion.flightlog.logproc`)
+replays them through a :class:`TelemetryEncoder` (:class:`TlogReplayer`), giving the same bytes.
 """
 
 from __future__ import annotations
