@@ -8,7 +8,9 @@ time; under a normal loop it runs in real time (``companion demo --realtime``).
 With ``tlog_path`` it writes a MAVLink ``.tlog`` although no MAVLink crosses this link: what
 the autopilot reports and what the companion sends are encoded as the MAVLink 2 a PX4 would
 exchange (:class:`companion.flightlog.tlog.TelemetryEncoder`), stamped on the loop's clock;
-virtual time is mapped onto :data:`SIM_TLOG_EPOCH_S`, so the file is identical for a seed.
+virtual time is mapped onto :data:`SIM_TLOG_EPOCH_S`, so the file is identical for a seed. The
+flight only queues the field values (:class:`companion.flightlog.tlog.TelemetryTlog`); the
+logging process encodes and writes them.
 """
 
 from __future__ import annotations
@@ -21,9 +23,9 @@ import time
 from pathlib import Path
 
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
-from companion.autopilot.types import FlightMode, LandingTarget, StatusText, TelemetrySample
+from companion.autopilot.types import FlightMode, LandingTarget, StatusText
 from companion.config import SimConfig
-from companion.flightlog.tlog import TelemetryEncoder, TlogWriter
+from companion.flightlog.tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.clock import VirtualTimeEventLoop
@@ -52,8 +54,7 @@ class SimAutopilot(Autopilot):
         self.vehicle = vehicle or SimVehicle(cfg)
         self.telemetry = TelemetryCache()
         self.tlog_path = tlog_path
-        self.tlog: TlogWriter | None = None
-        self._tlog_enc: TelemetryEncoder | None = None
+        self.tlog: TelemetryTlog | None = None
         self._clock = LoopClock()
         self._task: asyncio.Task[None] | None = None
         self._link_up = True
@@ -78,8 +79,7 @@ class SimAutopilot(Autopilot):
         finally:
             tlog, self.tlog = self.tlog, None
             if tlog is not None:
-                self.telemetry.remove_listener(self._tlog_sample)
-                self._tlog_enc = None
+                self.telemetry.remove_listener(tlog.sample)
                 tlog.close()
 
     def _open_tlog(self, path: str | Path) -> None:
@@ -89,14 +89,9 @@ class SimAutopilot(Autopilot):
         boot = loop.time()
         # virtual time -> a fixed epoch (same file for a seed); real time -> the wall clock
         offset = SIM_TLOG_EPOCH_S if isinstance(loop, VirtualTimeEventLoop) else time.time() - boot
-        # never drop: under virtual time waiting for the writer costs no simulated time
-        self.tlog = TlogWriter(path, drop_when_full=False, clock=lambda: offset + loop.time())
-        self._tlog_enc = TelemetryEncoder(self.tlog, boot_s=boot, clock=loop.time, custom_mode=px4_custom_mode)
-        self.telemetry.add_listener(self._tlog_sample)
-
-    def _tlog_sample(self, sample: TelemetrySample) -> None:
-        if self._tlog_enc is not None:
-            self._tlog_enc.sample(sample)
+        # the hooks queue the field values; the logging process encodes and writes them
+        self.tlog = TelemetryTlog(path, boot_s=boot, clock=loop.time, epoch_s=offset, custom_mode=px4_custom_mode)
+        self.telemetry.add_listener(self.tlog.sample)
 
     @property
     def link_ok(self) -> bool:
@@ -110,7 +105,7 @@ class SimAutopilot(Autopilot):
     async def _command(self, name: str, fn, *args) -> None:  # type: ignore[no-untyped-def]
         if not self.link_ok:
             raise AutopilotError(f"{name}: link is down")
-        enc = self._tlog_enc
+        enc = self.tlog
         cmd, params = _MAV_COMMANDS.get(name, (0, ()))
         if enc is not None and cmd:
             if name == "takeoff":  # PX4 takes the altitude AMSL in param7
@@ -144,8 +139,8 @@ class SimAutopilot(Autopilot):
         self.vehicle.step_to(self._clock.now())
         self.vehicle.set_velocity(setpoint)
         self.setpoints_received += 1
-        if self._tlog_enc is not None:
-            self._tlog_enc.setpoint(setpoint)
+        if self.tlog is not None:
+            self.tlog.setpoint(setpoint)
 
     async def start_offboard(self) -> None:
         await self._command("start_offboard", self.vehicle.start_offboard)

@@ -7,16 +7,19 @@ Two measurements of the GPS-only demo flight, in one run:
   with the CSV logs and ``flight.mcap``, and with the whole run folder (the CSVs, the MCAP and
   the MAVLink ``flight.tlog``), each ``rounds`` times interleaved, the fastest flight of each
   counting; shares are (logged - bare) / bare wall time;
-* microseconds per row, from a further flight with the CSVs and ``flight.mcap`` in which this
+* microseconds per row, from a further flight with the whole run folder in which this
   process's share is timed per stream: the recorder's hooks (row building and queueing on the
   control loop) and each log's batch as the writer thread takes it (handed to the logging
   process, or formatted and written here when logging in process). A hook is charged to its
   stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it
-  writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and their batches. The
-  hand-over itself (one pickle and send per wake-up, :mod:`companion.flightlog.logproc`) is
-  timed as a whole and given per row, and so is the logging process's own CPU time (formatting,
-  MCAP encoding, I/O: another core). Times in this process are CPU time of the thread doing the
-  work (``time.thread_time``), so waiting for the GIL is not counted.
+  writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and their batches,
+  ``flight.tlog`` its hooks (one record per sample, setpoint, command or answer queued) and
+  its batches. The hand-over itself (one pickle and send per wake-up,
+  :mod:`companion.flightlog.logproc`) is timed as a whole and given per row, and so is the
+  logging process's own CPU time (formatting, MCAP and MAVLink encoding, I/O: another core).
+  Times in this process are CPU time of the thread doing the work (``time.thread_time``), so
+  waiting for the GIL is not counted; reading that clock costs about a microsecond on some
+  machines, so its cost per timed call, measured first, is subtracted.
 """
 
 from __future__ import annotations
@@ -35,11 +38,14 @@ from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipp
 from companion.flightlog import logproc
 from companion.flightlog import recorder as rec
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.tlog import TelemetryTlog
 from companion_sitl import demo
 
 log = logging.getLogger(__name__)
 
 _HANDOVER = "(hand-over)"  # the pickles sent to the logging process (and the closes' waits)
+_TLOG = "flight.tlog"
+_TLOG_HOOKS = ("sample", "setpoint", "command", "command_ack")
 
 # recorder hooks and the stream each is charged to (on_sample: the sample's own file)
 _HOOK_STREAM = {
@@ -79,9 +85,24 @@ def _no_mcap() -> Iterator[None]:
         rec.FlightRecorder.write_mcap = orig
 
 
+def clock_overhead_s(n: int = 20000, rounds: int = 5) -> float:
+    """What one timed interval measures with nothing in it: the cost of reading
+    ``time.thread_time`` (the fastest of ``rounds``)."""
+    clock = time.thread_time
+    best = float("inf")
+    for _ in range(rounds):
+        total = 0.0
+        for _ in range(n):
+            t0 = clock()
+            total += clock() - t0
+        best = min(best, total / n)
+    return best
+
+
 @contextmanager
-def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator[None]:
-    """Charge the recorder's hooks and every log's queueing and batched writes to streams."""
+def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict[str, int]) -> Iterator[None]:
+    """Charge the recorder's hooks, the .tlog's and every log's queueing and batched writes to
+    streams (``calls``: timed calls per stream, each charged one clock reading too many)."""
     saved: list[tuple[type, str, Any]] = []
 
     def patch(cls: type, name: str, wrapper: Callable[[Any], Any]) -> None:
@@ -96,6 +117,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator
             orig(self, *args)
             stream = rec.SAMPLE_FILES.get(type(args[0]), "") if name == "on_sample" else _HOOK_STREAM[name]
             hook_s[stream] += time.thread_time() - t0
+            calls[stream] += 1
 
         return timed
 
@@ -108,16 +130,29 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator
                 t0 = time.thread_time()
                 orig(self, row)
                 write_s[self.path.name] += time.thread_time() - t0
+                calls[self.path.name] += 1
             else:
                 orig(self, row)
 
         return timed
 
     def drain(orig: Any) -> Any:
-        def timed(self: CsvLog) -> None:
+        def timed(self: Any) -> None:
             t0 = time.thread_time()
             orig(self)
             write_s[self.path.name] += time.thread_time() - t0
+            calls[self.path.name] += 1
+
+        return timed
+
+    def tlog_hook(orig: Any) -> Any:
+        @functools.wraps(orig)
+        def timed(self: TelemetryTlog, *args: Any) -> None:
+            t0 = time.thread_time()
+            orig(self, *args)
+            hook_s[_TLOG] += time.thread_time() - t0
+            calls[_TLOG] += 1
+            calls[_TLOG + " records"] += 1
 
         return timed
 
@@ -126,12 +161,16 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float]) -> Iterator
             t0 = time.thread_time()
             r = orig(self, *args)
             write_s[_HANDOVER] += time.thread_time() - t0
+            calls[_HANDOVER] += 1
             return r
 
         return timed
 
     patch(CsvLog, "write", write)
     patch(CsvLog, "_drain", drain)
+    patch(TelemetryTlog, "_drain", drain)
+    for name in _TLOG_HOOKS:
+        patch(TelemetryTlog, name, tlog_hook)
     patch(logproc.LogProcess, "flush", handover)
     patch(logproc.LogProcess, "request", handover)
     try:
@@ -163,13 +202,16 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
         mcap_bytes = (root / "mcap0" / rec.MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
+        calls: dict[str, int] = defaultdict(int)
+        overhead = clock_overhead_s()
         proc = logproc.client()
         cpu0 = proc.cpu_s() if proc is not None else None
-        with _no_tlog(), _timed_logs(hook_s, write_s):
+        with _timed_logs(hook_s, write_s, calls):
             demo.run_demo(cfg, fusion=False, run_dir=root / "timed")
         proc_after = logproc.client()
         cpu1 = proc_after.cpu_s() if proc_after is not None and proc_after is proc else None
         rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
+        rows[_TLOG] = calls[_TLOG + " records"]
     out["sim_time_s"] = bare.sim_time_s
     b, c, m, f = (min(walls[k]) for k in ("bare", "csv", "mcap", "full"))
     out["rounds"] = rounds
@@ -183,18 +225,20 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
     out["mcap_bytes"] = mcap_bytes
     out["full_logging_share"] = (f - b) / b
     out["rows"] = sum(rows.values())
+    out["clock_overhead_us"] = overhead * 1e6
     total = 0.0
     for name in sorted(rows):
-        spent = hook_s.get(name, 0.0) + write_s.get(name, 0.0)
+        spent = max(0.0, hook_s.get(name, 0.0) + write_s.get(name, 0.0) - overhead * calls.get(name, 0))
         total += spent
         if rows[name]:
             out[f"{name}_us_per_row"] = spent / rows[name] * 1e6
             out[f"{name}_rows"] = rows[name]
     out["all_streams_us_per_row"] = total / max(1, out["rows"]) * 1e6
     out["log_writer"] = "by the logging process" if cpu0 is not None and cpu1 is not None else "in process"
-    out["us_per_row_handover"] = write_s.get(_HANDOVER, 0.0) / max(1, out["rows"]) * 1e6
+    handover = max(0.0, write_s.get(_HANDOVER, 0.0) - overhead * calls.get(_HANDOVER, 0))
+    out["us_per_row_handover"] = handover / max(1, out["rows"]) * 1e6
     out["us_per_row_this_process"] = out["all_streams_us_per_row"] + out["us_per_row_handover"]
-    out["this_process_share"] = (total + write_s.get(_HANDOVER, 0.0)) / b
+    out["this_process_share"] = (total + handover) / b
     if cpu0 is not None and cpu1 is not None:
         out["logging_process_cpu_s"] = cpu1 - cpu0
         out["us_per_row_logging_process"] = (cpu1 - cpu0) / max(1, out["rows"]) * 1e6

@@ -11,6 +11,7 @@ import math
 import operator
 import os
 import struct
+from binascii import crc_hqx
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -145,6 +146,7 @@ def x25crc(data: bytes, crc: int = 0xFFFF) -> int:
 class _Layout:
     msg_id: int
     crc_extra: int
+    crc_extra_reflected: bytes  # the CRC_EXTRA byte with its bits reversed (see x25crc)
     payload: struct.Struct
     wire_order: Callable[[Sequence[Any]], Any]  # constructor-order values -> wire order
     arrays: tuple[int, ...]  # positions (wire order) of numeric arrays, flattened into the payload
@@ -168,7 +170,8 @@ def _layout(cls: Any) -> _Layout:
         raise TypeError(f"{cls.msgname}: constructor arguments are not its fields")
     defaults = tuple(p.default for p in params)
     n_required = sum(1 for p in params if p.default is inspect.Parameter.empty)
-    return _Layout(cls.id, cls.crc_extra, cls.unpacker, wire, arrays, len(order), n_required, defaults)
+    extra = bytes((_REV8[cls.crc_extra],))
+    return _Layout(cls.id, cls.crc_extra, extra, cls.unpacker, wire, arrays, len(order), n_required, defaults)
 
 
 class DirectPacker:
@@ -210,5 +213,7 @@ class DirectPacker:
         mid = lay.msg_id
         frame = _HEADER_V2.pack(0xFD, len(payload), 0, 0, seq, system_id, component_id, mid & 0xFFFF, mid >> 16)
         frame += payload
-        crc = x25crc(bytes((lay.crc_extra,)), x25crc(frame[1:]))
-        return frame + _CRC.pack(crc)
+        # x25crc(CRC_EXTRA, x25crc(frame[1:])) in one pass: the bit-reversed CRC of the bit-reversed
+        # bytes from 0xFFFF (its own reflection), then the result reflected back
+        c = crc_hqx(lay.crc_extra_reflected, crc_hqx(frame[1:].translate(_REV8), 0xFFFF))
+        return frame + _CRC.pack((_REV8[c & 0xFF] << 8) | _REV8[c >> 8])

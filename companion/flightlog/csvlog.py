@@ -280,7 +280,17 @@ class CsvLog:
         if len(self._q) >= self._max:
             self._queue_dropped += 1
             return
-        self._q.append(tuple(row))
+        self._q.append(row if type(row) is tuple else tuple(row))
+
+    def put(self, row: tuple[object, ...]) -> None:
+        """:meth:`write` for a producer that builds every row as a tuple of the header's length
+        itself and stops before :meth:`close` (the flight recorder, at the telemetry rate): no
+        copy, no checks but the queue's bound."""
+        q = self._q
+        if len(q) < self._max:
+            q.append(row)
+        else:
+            self._queue_dropped += 1
 
     def _go_local(self) -> None:
         """The logging process is gone: continue the file here, first with the batches it was

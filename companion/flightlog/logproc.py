@@ -10,7 +10,9 @@ writer thread (:class:`~companion.flightlog.csvlog._SharedWriter`) posts each lo
 (:meth:`LogProcess.post`) and, once a round, sends everything posted as one pickle over a Unix
 socket (:func:`flush_current`). The child writes each message's batches with the in-process code
 (:class:`~companion.flightlog.csvlog.CsvFile`, :class:`~companion.flightlog.mcaplog.McapFile`), so
-the bytes are the same, and flushes every file after each message.
+the bytes are the same, and flushes every file after each message. The embedded simulator's
+``.tlog`` (:class:`~companion.flightlog.tlog.TelemetryTlog`) is handed over the same way, as field
+values the child encodes (:class:`~companion.flightlog.tlog.TlogReplayer`).
 
 Closing a log is a request: the parent's ``close()`` returns once the child has closed the file
 and answered with its counts. The child's own log records (a write error, named by path) are sent
@@ -94,6 +96,10 @@ def _plain(op: Op) -> Op:
         return v
 
     return (op[0], op[1], [tuple(cell(v) for v in row) for row in op[2]])
+
+
+class _Unpicklable(Exception):
+    """A batch that cannot be handed over: written in process instead."""
 
 
 class LogProcess:
@@ -254,9 +260,15 @@ class LogProcess:
             try:
                 data = pickle.dumps(ops, protocol=5)
             except Exception:
-                data = pickle.dumps([_plain(op) for op in ops], protocol=5)
+                try:
+                    data = pickle.dumps([_plain(op) for op in ops], protocol=5)
+                except Exception as err:  # not rows (a .tlog record of a class defined in a function...)
+                    raise _Unpicklable(f"a batch does not pickle: {err}") from err
             sock.sendall(_HEADER.pack(len(data)))
             sock.sendall(data)
+        except _Unpicklable as err:
+            self._die(str(err), ops)
+            return False
         except (OSError, EOFError, pickle.UnpicklingError) as err:
             self._die(f"could not be sent a batch ({err or type(err).__name__})", ops)
             return False
@@ -284,7 +296,7 @@ class LogProcess:
                 code = None
         self.reason = f"{reason}; exit code {code}" if code is not None else reason
         for op in [*unsent, *self._outbox]:
-            if op[0] in ("rows", "mops"):
+            if op[0] in ("rows", "mops", "trecs"):
                 self._returned[op[1]].append(op)
         self._outbox = []
         if self._sock is not None:
@@ -335,9 +347,10 @@ def _register_exit_hook() -> None:
 def _at_exit() -> None:
     """After the logs still open are closed (registered later than their hooks, so run first:
     close them here), let the child finish and exit."""
-    from companion.flightlog import mcaplog
+    from companion.flightlog import mcaplog, tlog
 
     mcaplog._close_open_mcaps()
+    tlog._close_open_tlogs()
     cur = LogProcess._current
     if cur is not None and cur.pid == os.getpid():
         cur.shutdown()
@@ -362,7 +375,8 @@ class _Forward(logging.Handler):
 
 
 # the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
-_ANSWERED: dict[str, tuple[int, int] | None] = {"close": (0, 0), "mclose": (1, 0), "cpu": None}
+# (written, dropped, encode errors)
+_ANSWERED: dict[str, tuple[int, ...] | None] = {"close": (0, 0), "mclose": (1, 0), "tclose": (0, 0, 0), "cpu": None}
 
 
 class _Child:
@@ -372,6 +386,7 @@ class _Child:
         self.sock = sock
         self.csvs: dict[int, Any] = {}
         self.mcaps: dict[int, Any] = {}
+        self.tlogs: dict[int, Any] = {}
 
     def run(self) -> None:
         _send(self.sock, ("ready", os.getpid()))
@@ -419,6 +434,21 @@ class _Child:
             m = self.mcaps.pop(op[1])
             m.close()
             _send(self.sock, ("reply", (m.errors, m.messages)))
+        elif kind == "trecs":
+            if op[1] in self.tlogs:  # else it could not be opened (said then)
+                self.tlogs[op[1]].apply(op[2])
+        elif kind == "tlog":
+            from companion.flightlog.tlog import open_replayer
+
+            _, i, path, params = op
+            self.tlogs[i] = open_replayer(Path(path), params)
+        elif kind == "tclose":
+            t = self.tlogs.pop(op[1], None)
+            if t is None:
+                _send(self.sock, ("reply", _ANSWERED["tclose"]))
+            else:
+                t.close()
+                _send(self.sock, ("reply", (t.written, t.dropped, t.encode_errors)))
         elif kind == "cpu":
             t = os.times()
             _send(self.sock, ("reply", t.user + t.system))
@@ -431,8 +461,11 @@ class _Child:
             f.close()
         for m in self.mcaps.values():
             m.close()
+        for t in self.tlogs.values():
+            t.close()
         self.csvs.clear()
         self.mcaps.clear()
+        self.tlogs.clear()
 
 
 def main(argv: list[str] | None = None) -> None:

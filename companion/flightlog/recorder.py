@@ -131,6 +131,22 @@ def _sample_encoder(cls: type) -> Any:
 _ENCODERS = {cls: _sample_encoder(cls) for cls in SAMPLE_FILES}
 
 
+def _sample_writer(cls: type, seq: Any, put: Any) -> Any:
+    """:meth:`FlightRecorder.on_sample`'s work for one sample type, in one call: the row
+    :data:`_ENCODERS` builds (``seq`` taken from the iterator ``seq``) handed to ``put``
+    (:meth:`CsvLog.put`). Types with flags or enums go through their encoder; the others build
+    the tuple here."""
+    fields_ = _SAMPLE_FIELDS[cls]
+    nxt = seq.__next__
+    if any(t is bool or (isinstance(t, type) and issubclass(t, enum.Enum)) for _, t in fields_):
+        encode = _ENCODERS[cls]
+        return lambda s: put(encode(nxt(), s))
+    get = operator.attrgetter(*(n for n, _ in fields_))
+    if len(fields_) == 1:
+        return lambda s: put((s.time_s, nxt(), get(s)))
+    return lambda s: put((s.time_s, nxt(), *get(s)))
+
+
 def decode_value(text: str, typ: Any) -> object:
     """A CSV cell back into a field of type ``typ`` (float, int, bool, str or an Enum)."""
     if typ is float:
@@ -419,11 +435,7 @@ def _guarded(fn: _F) -> _F:
         try:
             fn(self, *args)
         except Exception:
-            self.errors += 1
-            if self.errors in (1, 10, 100, 1000):
-                log.exception(
-                    "flight log: %s failed (%d failures so far); the log is incomplete", fn.__name__, self.errors
-                )
+            self._hook_failed(fn.__name__)
 
     return typing.cast(_F, hook)
 
@@ -469,6 +481,11 @@ class FlightRecorder:
             for name, cols in STREAM_FILES.items():
                 sink = self.mcap.stream_sink(name) if self.mcap is not None else None
                 self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
+            # the two hooks at the telemetry / setpoint rate queue their rows with no further checks
+            self._sample_writers = {
+                cls: _sample_writer(cls, self._seq, self.logs[name].put) for cls, name in SAMPLE_FILES.items()
+            }
+            self._put_setpoint = self.logs["setpoints.csv"].put
             self._write_meta()
         except BaseException:
             for lg in self.logs.values():
@@ -502,15 +519,26 @@ class FlightRecorder:
         self.logs[name].write(row)
 
     # ---- inputs of the core -------------------------------------------------------------
-    @_guarded
     def on_sample(self, sample: TelemetrySample) -> None:
-        """TelemetryCache listener: every accepted autopilot sample."""
-        cls = type(sample)
-        name = SAMPLE_FILES.get(cls)
-        if name is None:
-            log.debug("no stream for %s", cls.__name__)
+        """TelemetryCache listener: every accepted autopilot sample (guarded like the other
+        hooks, with the guard inline: this one runs at the telemetry rate)."""
+        if self._closed:
+            self.ignored_after_close += 1
             return
-        self._write(name, _ENCODERS[cls](next(self._seq), sample))
+        try:
+            self._sample_writers[type(sample)](sample)
+        except KeyError:
+            if type(sample) in self._sample_writers:
+                self._hook_failed("on_sample")
+            else:
+                log.debug("no stream for %s", type(sample).__name__)
+        except Exception:
+            self._hook_failed("on_sample")
+
+    def _hook_failed(self, hook: str) -> None:
+        self.errors += 1
+        if self.errors in (1, 10, 100, 1000):
+            log.exception("flight log: %s failed (%d failures so far); the log is incomplete", hook, self.errors)
 
     @_guarded
     def on_marker(self, now_s: float, obs: Any, image: Any = None) -> None:
@@ -591,7 +619,10 @@ class FlightRecorder:
     @_guarded
     def on_setpoint(self, now_s: float, sp: VelocitySetpoint) -> None:
         """A setpoint the stream sent to the autopilot."""
-        self._write("setpoints.csv", (now_s, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad))
+        if self._closed:
+            self.ignored_after_close += 1
+            return
+        self._put_setpoint((now_s, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad))
 
     def _record_fusion(self, fusion: Any, now_s: float) -> None:
         s = fusion.setup

@@ -18,23 +18,30 @@ thread too.
 (MAVSDK only exposes decoded messages), one sequence counter per source. :class:`TelemetryEncoder`
 turns what an autopilot without a MAVLink link reports (:mod:`companion.autopilot.types`
 samples) and what the companion sends it into MAVLink, so the embedded simulator's flights give a
-``.tlog`` too.
+``.tlog`` too. The simulator does not encode on its control path: :class:`TelemetryTlog` queues
+the field values with the clock time, and the logging process (:mod:`companion.flightlog.logproc`)
+replays them through a :class:`TelemetryEncoder` (:class:`TlogReplayer`), giving the same bytes.
 """
 
 from __future__ import annotations
 
+import atexit
+import collections
 import contextlib
+import dataclasses
 import logging
 import math
+import operator
 import os
 import queue
 import struct
 import threading
 import time
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -373,7 +380,7 @@ class TelemetryEncoder:
 
     def __init__(
         self,
-        writer: TlogWriter,
+        writer: PackedRecords,
         *,
         boot_s: float,
         clock: Callable[[], float],
@@ -589,3 +596,329 @@ class TelemetryEncoder:
         """The autopilot's COMMAND_ACK to the companion."""
         ts, tc = self.companion_id
         self._emit(self.vehicle_id, mavlink2.MAVLink_command_ack_message, (command, result, 0, 0, ts, tc))
+
+
+# ------------------------------------------------------------------- encoded off the control path
+class PackedRecords(Protocol):
+    """Where a :class:`TelemetryEncoder` puts its packets (:class:`TlogWriter`, or
+    :class:`TlogReplayer` in the logging process)."""
+
+    path: Path
+    encode_errors: int
+
+    def write_packed(self, packet: bytes, t_unix_s: float | None = None) -> None: ...
+
+
+# what TelemetryTlog records, besides samples (a sample record holds its class)
+_COMMAND = "command"
+_ACK = "ack"
+_FIELD_GETTERS: dict[type, Callable[[Any], Any]] = {}
+
+
+def _field_getter(cls: type) -> Callable[[Any], Any]:
+    """Every field of a sample (or setpoint) dataclass, in constructor order, as one tuple:
+    ``cls(*getter(s)) == s``."""
+    getter = _FIELD_GETTERS.get(cls)
+    if getter is None:
+        names = [f.name for f in dataclasses.fields(cls) if f.init]
+        get = operator.attrgetter(*names)
+        getter = _FIELD_GETTERS[cls] = get if len(names) > 1 else (lambda s: (get(s),))
+    return getter
+
+
+class TlogReplayer:
+    """Encodes :class:`TelemetryTlog`'s records with a :class:`TelemetryEncoder` and appends them
+    to the file, a batch at a time (in the logging process, or on the writer thread when logging
+    in process): each record is replayed at its own clock time, so the packets and their
+    timestamps are those a :class:`TelemetryEncoder` writing at once would give. An ``OSError``
+    is logged once with the path; later records are counted in ``dropped``. Not thread-safe."""
+
+    def __init__(self, path: Path, params: dict[str, Any], append: bool) -> None:
+        self.path = Path(path)
+        self.written = 0
+        self.dropped = 0
+        self.encode_errors = 0
+        self.failed: OSError | None = None
+        self._epoch_s = float(params["epoch_s"])
+        self._t = 0.0
+        self._buf = bytearray()
+        self._n = 0
+        self._fh = open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115 (closed by close())
+        modes: dict[FlightMode, int] = params["custom_modes"]
+        self.encoder = TelemetryEncoder(
+            self,
+            boot_s=params["boot_s"],
+            clock=lambda: self._t,
+            custom_mode=modes.__getitem__,
+            **params["encoder"],
+        )
+
+    def write_packed(self, packet: bytes, t_unix_s: float | None = None) -> None:
+        self._buf += _TS.pack(tlog_timestamp_us(self._epoch_s + self._t if t_unix_s is None else t_unix_s))
+        self._buf += packet
+        self._n += 1
+
+    def apply(self, records: list[tuple[Any, ...]]) -> None:
+        """Encode one batch and hand it to the OS."""
+        enc = self.encoder
+        for rec in records:
+            self._t = rec[0]
+            kind = rec[1]
+            try:
+                if kind is VelocitySetpoint:
+                    enc.setpoint(VelocitySetpoint(*rec[2:]))
+                elif kind == _COMMAND:
+                    enc.command(rec[2], rec[3])
+                elif kind == _ACK:
+                    enc.command_ack(rec[2], rec[3])
+                else:
+                    enc.sample(kind(*rec[2:]))
+            except Exception:
+                self.encode_errors += 1
+                if self.encode_errors in (1, 100, 10000):
+                    log.exception("%s: cannot encode a record (%d so far)", self.path, self.encode_errors)
+        self._write_out()
+
+    def _write_out(self) -> None:
+        n, data = self._n, bytes(self._buf)
+        self._buf.clear()
+        self._n = 0
+        if not n:
+            return
+        if self.failed is not None or self._fh.closed:
+            self.dropped += n
+            return
+        try:
+            view = memoryview(data)
+            while view:
+                k = self._fh.write(view)
+                if k is None or k <= 0:
+                    raise OSError(f"short write to {self.path}")
+                view = view[k:]
+        except OSError as err:
+            self.failed = err
+            self.dropped += n
+            log.error("%s: cannot write the MAVLink log any more: %s", self.path, err)
+            return
+        self.written += n
+
+    def close(self) -> None:
+        """Sync and close the file (idempotent)."""
+        if self._fh.closed:
+            return
+        with contextlib.suppress(OSError):
+            os.fsync(self._fh.fileno())
+        try:
+            self._fh.close()
+        except OSError as err:
+            log.error("%s: closing the MAVLink log failed: %s", self.path, err)
+
+
+def cut_torn_record(path: Path) -> None:
+    """Drop a last ``.tlog`` record that is not whole (its writer killed mid-write) before the
+    file is continued: records are walked from the start (8-byte timestamp, unsigned MAVLink 2)."""
+    try:
+        with path.open("r+b") as fh:
+            data = fh.read()
+            pos = 0
+            while pos + 10 <= len(data) and data[pos + 8] == 0xFD:
+                end = pos + 8 + 12 + data[pos + 9] + (13 if data[pos + 10] & 1 else 0)
+                if end > len(data):
+                    break
+                pos = end
+            if pos != len(data):
+                fh.truncate(pos)
+    except OSError:
+        pass  # the replayer's own open reports the path's trouble
+
+
+_OPEN_TLOGS: weakref.WeakSet[TelemetryTlog] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_tlogs() -> None:
+    for t in list(_OPEN_TLOGS):
+        t.close()
+
+
+class TelemetryTlog:
+    """A :class:`TelemetryEncoder`'s ``.tlog`` (the embedded simulator's), encoded off the control
+    path: :meth:`sample`, :meth:`setpoint`, :meth:`command` and :meth:`command_ack` only queue the
+    field values with the clock's time; the shared writer thread of the CSV logs
+    (:class:`~companion.flightlog.csvlog._SharedWriter`, every 0.2 s) hands them to the logging
+    process (:mod:`companion.flightlog.logproc`), which encodes them with the same
+    :class:`TelemetryEncoder` (:class:`TlogReplayer`) and writes the records: the same bytes as
+    encoding at once (timestamps ``epoch_s + clock()``). ``custom_mode`` is evaluated here for
+    every :class:`FlightMode` (the logging process gets the table).
+
+    When logging in process (:data:`companion.flightlog.logproc.IN_PROCESS`, or the logging
+    process could not be started) the writer thread encodes and writes the batches here. If the
+    logging process dies, the file is continued here (a torn last record cut) with the records it
+    was never handed, by a new encoder: its packet sequence numbers start again at 0. A process
+    killed outright loses the records of the last 0.2 s; :meth:`close` writes everything queued
+    and returns once the file is complete. Use the hooks from one thread."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        boot_s: float,
+        clock: Callable[[], float],
+        epoch_s: float,
+        custom_mode: Callable[[FlightMode], int],
+        **encoder: Any,
+    ) -> None:
+        from companion.flightlog import csvlog, logproc
+
+        self.path = Path(path)
+        self._clock = clock
+        self._params: dict[str, Any] = {
+            "boot_s": float(boot_s),
+            "epoch_s": float(epoch_s),
+            "custom_modes": {m: custom_mode(m) for m in FlightMode},
+            "encoder": encoder,
+        }
+        self._q: collections.deque[tuple[Any, ...]] = collections.deque()  # append/popleft are thread-safe
+        self._io = threading.Lock()
+        self._closed = False
+        self._remote_counts = (0, 0, 0)  # the logging process's (written, dropped, encode errors), once closed
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
+        self._proc = logproc.client()
+        self._local: TlogReplayer | None = None
+        try:
+            if self._proc is None:
+                self._local = TlogReplayer(self.path, self._params, append=False)
+            else:
+                self.path.open("wb").close()  # errors raise here; the logging process writes it
+                self._id = self._proc.new_id()
+                self._proc.post(("tlog", self._id, str(self.path), self._params))
+        except OSError as err:
+            raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
+        self._shared = csvlog._SharedWriter.attach(self, csvlog.FLUSH_PERIOD_S)
+        _OPEN_TLOGS.add(self)
+
+    # ---- the hooks (the loop thread) ---------------------------------------------------------
+    def sample(self, s: TelemetrySample) -> None:
+        """Queue one reported sample (at the clock's current time)."""
+        cls = type(s)
+        self._q.append((self._clock(), cls, *_field_getter(cls)(s)))
+
+    def setpoint(self, sp: VelocitySetpoint) -> None:
+        """Queue the companion's velocity setpoint (SET_POSITION_TARGET_LOCAL_NED)."""
+        self._q.append((self._clock(), VelocitySetpoint, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad))
+
+    def command(self, command: int, params: Sequence[float] = ()) -> None:
+        """Queue a COMMAND_LONG from the companion."""
+        self._q.append((self._clock(), _COMMAND, command, tuple(params)))
+
+    def command_ack(self, command: int, result: int) -> None:
+        """Queue the autopilot's COMMAND_ACK."""
+        self._q.append((self._clock(), _ACK, command, result))
+
+    # ---- counts -------------------------------------------------------------------------------
+    @property
+    def written(self) -> int:
+        """Records on disk (while the logging process writes the file: counted once closed)."""
+        return self._remote_counts[0] + (self._local.written if self._local is not None else 0)
+
+    @property
+    def dropped(self) -> int:
+        return self._remote_counts[1] + (self._local.dropped if self._local is not None else 0)
+
+    @property
+    def encode_errors(self) -> int:
+        return self._remote_counts[2] + (self._local.encode_errors if self._local is not None else 0)
+
+    @property
+    def in_process(self) -> bool:
+        return self._local is not None
+
+    # ---- the shared writer thread, or close() --------------------------------------------------
+    def _go_local(self) -> None:
+        """The logging process is gone: continue the file here, first with the records it was
+        never handed (caller holds ``_io``)."""
+        assert self._proc is not None
+        returned = self._proc.take_returned(self._id)
+        cut_torn_record(self.path)
+        self._local = open_replayer(self.path, self._params)
+        for op in returned:
+            self._local.apply(op[2])
+
+    def _drain(self) -> None:
+        """Hand over (or encode and write, in process) what has been queued, as one batch."""
+        with self._io:
+            if self._local is None and self._proc is not None and self._proc.dead:
+                self._go_local()
+            q = self._q
+            n = len(q)
+            if not n:
+                return
+            batch = [q.popleft() for _ in range(n)]
+            if self._local is None:
+                assert self._proc is not None
+                if self._proc.post(("trecs", self._id, batch)):
+                    return
+                self._go_local()
+            assert self._local is not None
+            self._local.apply(batch)
+
+    def close(self) -> None:
+        """Write everything queued, sync and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        _OPEN_TLOGS.discard(self)
+        self._shared.detach(self)
+        self._drain()
+        if self._local is None:
+            assert self._proc is not None
+            reply = self._proc.request(("tclose", self._id))
+            with self._io:
+                if reply is not None:
+                    self._remote_counts = reply
+                elif self._local is None:
+                    self._go_local()
+        if self._local is not None:
+            with self._io:
+                self._local.close()
+        if self.dropped:
+            log.warning("%s: %d MAVLink records dropped (the file could not be written)", self.path, self.dropped)
+        if self.encode_errors:
+            log.warning("%s: %d MAVLink records could not be encoded", self.path, self.encode_errors)
+
+    def __enter__(self) -> TelemetryTlog:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+
+class _FailedReplayer(TlogReplayer):
+    """A ``.tlog`` that could not be reopened: every record is counted as dropped."""
+
+    def __init__(self, path: Path, err: OSError) -> None:  # no super().__init__: nothing to open
+        self.path = path
+        self.written = 0
+        self.dropped = 0
+        self.encode_errors = 0
+        self.failed = err
+
+    def apply(self, records: list[tuple[Any, ...]]) -> None:
+        self.dropped += len(records)
+
+    def close(self) -> None:
+        pass
+
+
+def open_replayer(path: Path, params: dict[str, Any]) -> TlogReplayer:
+    """A :class:`TlogReplayer` continuing ``path``; one that cannot be opened is reported once by
+    path and counts every record it is given as dropped (in this process, or in the logging
+    process)."""
+    try:
+        return TlogReplayer(path, params, append=True)
+    except OSError as err:
+        log.error("%s: cannot write the MAVLink log any more: %s", path, err)
+        return _FailedReplayer(path, err)
