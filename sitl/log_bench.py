@@ -37,7 +37,7 @@ from typing import Any
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
 from companion.flightlog import logproc
 from companion.flightlog import recorder as rec
-from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.csvlog import CsvLog, HandedOverLog
 from companion.flightlog.tlog import TelemetryTlog
 from companion_sitl import demo
 
@@ -167,8 +167,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
         return timed
 
     patch(CsvLog, "write", write)
-    patch(CsvLog, "_drain", drain)
-    patch(TelemetryTlog, "_drain", drain)
+    patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
     for name in _TLOG_HOOKS:
         patch(TelemetryTlog, name, tlog_hook)
     patch(logproc.LogProcess, "flush", handover)

@@ -42,7 +42,7 @@ import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol, Self
 
 if TYPE_CHECKING:
     from companion.flightlog.logproc import LogProcess
@@ -210,7 +210,100 @@ def _cut_torn_line(path: Path) -> None:
         pass  # CsvFile's own open reports the path's trouble
 
 
-class CsvLog:
+class HandedOverLog:
+    """The flight's side of a log the logging process writes (:class:`CsvLog`, the simulator's
+    :class:`~companion.flightlog.tlog.TelemetryTlog`): what the loop queued is handed over as one
+    batch per writer wake-up (:meth:`_drain`), or written here when logging in process; if the
+    logging process dies, the file is continued here, first with the batches it was never handed
+    (:meth:`_go_local`). A subclass says how its file is continued, written and closed here, and
+    names its operations in the logging process (``_POST_OP``, ``_CLOSE_OP``)."""
+
+    _POST_OP: ClassVar[str]
+    _CLOSE_OP: ClassVar[str]
+    path: Path
+    _q: collections.deque[tuple[object, ...]]
+    _io: threading.Lock  # the writer thread and close() take turns on the file
+    _proc: LogProcess | None
+    _id: int
+    _shared: _SharedWriter
+
+    # ---- the log's own ---------------------------------------------------------------------------
+    def _is_local(self) -> bool:
+        raise NotImplementedError
+
+    def _open_local(self) -> None:
+        """Continue the file in this process (its torn end cut)."""
+        raise NotImplementedError
+
+    def _write_local(self, batch: list[tuple[object, ...]]) -> None:
+        raise NotImplementedError
+
+    def _close_local(self) -> None:
+        raise NotImplementedError
+
+    def _posted(self, n: int) -> None:
+        """``n`` rows were handed to the logging process."""
+
+    def _closed_remote(self, reply: tuple[int, ...]) -> None:
+        """The logging process closed the file and answered with its counts."""
+        raise NotImplementedError
+
+    # ---- shared --------------------------------------------------------------------------------
+    def _go_local(self) -> None:
+        """The logging process is gone: continue the file here, first with the batches it was
+        never handed (caller holds ``_io``)."""
+        assert self._proc is not None
+        returned = self._proc.take_returned(self._id)
+        self._open_local()
+        for op in returned:
+            self._write_local(op[2])  # a file that could not be reopened counts them dropped
+
+    def _drain(self) -> None:
+        """Hand over (or write, in process) what has been queued so far, as one batch."""
+        with self._io:
+            if not self._is_local() and self._proc is not None and self._proc.dead:
+                self._go_local()
+            q = self._q
+            n = len(q)
+            if not n:
+                return
+            batch = [q.popleft() for _ in range(n)]
+            if not self._is_local():
+                assert self._proc is not None
+                if self._proc.post((self._POST_OP, self._id, batch)):
+                    self._posted(n)
+                    return
+                self._go_local()
+            self._write_local(batch)
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+    def _close_file(self) -> None:
+        """Stop the writer's wake-ups, write everything queued and close the file: in the
+        logging process (answered once complete) or here."""
+        self._shared.detach(self)
+        self._drain()
+        if not self._is_local():
+            assert self._proc is not None
+            reply = self._proc.request((self._CLOSE_OP, self._id))
+            with self._io:
+                if reply is not None:
+                    self._closed_remote(reply)
+                elif not self._is_local():
+                    self._go_local()
+        if self._is_local():
+            with self._io:
+                self._close_local()
+
+
+class CsvLog(HandedOverLog):
     def __init__(
         self,
         path: str | Path,
@@ -292,34 +385,29 @@ class CsvLog:
         else:
             self._queue_dropped += 1
 
-    def _go_local(self) -> None:
-        """The logging process is gone: continue the file here, first with the batches it was
-        never handed (caller holds ``_io``)."""
-        assert self._proc is not None
-        returned = self._proc.take_returned(self._id)
+    _POST_OP = "rows"
+    _CLOSE_OP = "close"
+
+    def _is_local(self) -> bool:
+        return self._file is not None
+
+    def _open_local(self) -> None:
         _cut_torn_line(self.path)
         self._file = open_csv_file(self.path, self.columns, self._local_sink(), append=True)
-        for op in returned:
-            self._file.write_batch(op[2])  # a file that could not be reopened counts them dropped
 
-    def _drain(self) -> None:
-        """Hand over (or write, in process) what has been queued so far, as one batch."""
-        with self._io:
-            if self._file is None and self._proc is not None and self._proc.dead:
-                self._go_local()
-            q = self._q
-            n = len(q)
-            if not n:
-                return
-            batch = [q.popleft() for _ in range(n)]
-            if self._file is None:
-                assert self._proc is not None
-                if self._proc.post(("rows", self._id, batch)):
-                    self._remote_written += n
-                    return
-                self._go_local()
-            assert self._file is not None
-            self._file.write_batch(batch)
+    def _write_local(self, batch: list[tuple[object, ...]]) -> None:
+        assert self._file is not None
+        self._file.write_batch(batch)
+
+    def _close_local(self) -> None:
+        assert self._file is not None
+        self._file.close()
+
+    def _posted(self, n: int) -> None:
+        self._remote_written += n
+
+    def _closed_remote(self, reply: tuple[int, ...]) -> None:
+        self._remote_written, self._remote_dropped = reply
 
     @property
     def closed(self) -> bool:
@@ -330,27 +418,9 @@ class CsvLog:
             return
         self._closed = True
         _OPEN.discard(self)
-        self._shared.detach(self)
-        self._drain()
-        if self._file is None:
-            assert self._proc is not None
-            reply = self._proc.request(("close", self._id))
-            with self._io:
-                if reply is not None:
-                    self._remote_written, self._remote_dropped = reply
-                elif self._file is None:
-                    self._go_local()
-        if self._file is not None:
-            with self._io:
-                self._file.close()
+        self._close_file()
         if self.dropped:
             log.warning("%s: %d rows dropped (writer could not keep up)", self.path, self.dropped)
-
-    def __enter__(self) -> CsvLog:
-        return self
-
-    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
-        self.close()
 
 
 class _FailedFile(CsvFile):

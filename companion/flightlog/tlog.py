@@ -60,6 +60,7 @@ from companion.autopilot.types import (
     TelemetrySample,
     VehicleStatus,
 )
+from companion.flightlog.csvlog import HandedOverLog
 from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
@@ -741,7 +742,7 @@ def _close_open_tlogs() -> None:
         t.close()
 
 
-class TelemetryTlog:
+class TelemetryTlog(HandedOverLog):
     """A :class:`TelemetryEncoder`'s ``.tlog`` (the embedded simulator's), encoded off the control
     path: :meth:`sample`, :meth:`setpoint`, :meth:`command` and :meth:`command_ack` only queue the
     field values with the clock's time; the shared writer thread of the CSV logs
@@ -778,7 +779,7 @@ class TelemetryTlog:
             "custom_modes": {m: custom_mode(m) for m in FlightMode},
             "encoder": encoder,
         }
-        self._q: collections.deque[tuple[Any, ...]] = collections.deque()  # append/popleft are thread-safe
+        self._q = collections.deque()  # append/popleft are thread-safe
         self._io = threading.Lock()
         self._closed = False
         self._remote_counts = (0, 0, 0)  # the logging process's (written, dropped, encode errors), once closed
@@ -836,34 +837,27 @@ class TelemetryTlog:
     def in_process(self) -> bool:
         return self._local is not None
 
-    # ---- the shared writer thread, or close() --------------------------------------------------
-    def _go_local(self) -> None:
-        """The logging process is gone: continue the file here, first with the records it was
-        never handed (caller holds ``_io``)."""
-        assert self._proc is not None
-        returned = self._proc.take_returned(self._id)
+    # ---- the shared writer thread, or close(): csvlog.HandedOverLog -------------------------------
+    _POST_OP = "trecs"
+    _CLOSE_OP = "tclose"
+
+    def _is_local(self) -> bool:
+        return self._local is not None
+
+    def _open_local(self) -> None:
         cut_torn_record(self.path)
         self._local = open_replayer(self.path, self._params)
-        for op in returned:
-            self._local.apply(op[2])
 
-    def _drain(self) -> None:
-        """Hand over (or encode and write, in process) what has been queued, as one batch."""
-        with self._io:
-            if self._local is None and self._proc is not None and self._proc.dead:
-                self._go_local()
-            q = self._q
-            n = len(q)
-            if not n:
-                return
-            batch = [q.popleft() for _ in range(n)]
-            if self._local is None:
-                assert self._proc is not None
-                if self._proc.post(("trecs", self._id, batch)):
-                    return
-                self._go_local()
-            assert self._local is not None
-            self._local.apply(batch)
+    def _write_local(self, batch: list[tuple[Any, ...]]) -> None:
+        assert self._local is not None
+        self._local.apply(batch)
+
+    def _close_local(self) -> None:
+        assert self._local is not None
+        self._local.close()
+
+    def _closed_remote(self, reply: tuple[int, ...]) -> None:
+        self._remote_counts = (reply[0], reply[1], reply[2])
 
     def close(self) -> None:
         """Write everything queued, sync and close the file (idempotent)."""
@@ -871,29 +865,11 @@ class TelemetryTlog:
             return
         self._closed = True
         _OPEN_TLOGS.discard(self)
-        self._shared.detach(self)
-        self._drain()
-        if self._local is None:
-            assert self._proc is not None
-            reply = self._proc.request(("tclose", self._id))
-            with self._io:
-                if reply is not None:
-                    self._remote_counts = reply
-                elif self._local is None:
-                    self._go_local()
-        if self._local is not None:
-            with self._io:
-                self._local.close()
+        self._close_file()
         if self.dropped:
             log.warning("%s: %d MAVLink records dropped (the file could not be written)", self.path, self.dropped)
         if self.encode_errors:
             log.warning("%s: %d MAVLink records could not be encoded", self.path, self.encode_errors)
-
-    def __enter__(self) -> TelemetryTlog:
-        return self
-
-    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
-        self.close()
 
 
 class _FailedReplayer(TlogReplayer):

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import shutil
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from companion.config import load_config, shipped_params_path
+from companion.flightlog.logproc import LogProcess
 
 
 def short_config(**sim):
@@ -32,3 +35,32 @@ def run_copy(demo_run, tmp_path) -> Path:
     dst = tmp_path / "run"
     shutil.copytree(demo_run, dst)
     return dst
+
+
+def wait_gone(pid: int, timeout_s: float = 60.0) -> None:
+    """Until the process has exited (a zombie counts: it has closed its files)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (FileNotFoundError, ProcessLookupError):
+            return
+        if state in ("Z", "X"):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"the logging process {pid} did not exit")
+
+
+@pytest.fixture
+def own_process() -> Iterator[None]:
+    """A logging process of the test's own (it may kill it), the suite's one restored after."""
+    saved = LogProcess._current, LogProcess._failed_pid
+    LogProcess._current = None
+    LogProcess._failed_pid = None
+    try:
+        yield
+    finally:
+        cur = LogProcess._current
+        if cur is not None and cur is not saved[0]:
+            cur.shutdown()
+        LogProcess._current, LogProcess._failed_pid = saved

@@ -12,8 +12,6 @@ import math
 import os
 import subprocess
 import sys
-import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +22,8 @@ from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog, read_csv
 from companion.flightlog.logproc import LogProcess
 from companion.flightlog.mcaplog import McapFlightLog, stream_topic
+
+from .conftest import wait_gone
 
 COLS = ("time_s", "x_m", "n", "label", "y_m")
 STREAMS = {"a.csv": COLS}
@@ -36,21 +36,6 @@ def _rows(n: int) -> list[tuple[object, ...]]:
         x = float(rng.normal(0.0, 10.0 ** rng.integers(-12, 12)))
         out.append((i * 0.01, x if i % 3 else np.float64(x), i, ["", "a,b", 'q"t', "ok"][i % 4], math.nan))
     return out
-
-
-@pytest.fixture
-def own_process() -> Iterator[None]:
-    """A logging process of the test's own (it may kill it), the suite's one restored after."""
-    saved = LogProcess._current, LogProcess._failed_pid
-    LogProcess._current = None
-    LogProcess._failed_pid = None
-    try:
-        yield
-    finally:
-        cur = LogProcess._current
-        if cur is not None and cur is not saved[0]:
-            cur.shutdown()
-        LogProcess._current, LogProcess._failed_pid = saved
 
 
 def _messages(path: Path) -> dict[str, list[bytes]]:
@@ -113,25 +98,11 @@ os._exit(1)  # a crash: no close(), no atexit
 """
 
 
-def _wait_gone(pid: int, timeout_s: float = 60.0) -> None:
-    """Until the process has exited (a zombie counts: it has closed its files)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except (FileNotFoundError, ProcessLookupError):
-            return
-        if state in ("Z", "X"):
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"the logging process {pid} did not exit")
-
-
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="waits on /proc")
 def test_a_crashed_parent_leaves_complete_files(tmp_path):
     proc = subprocess.run([sys.executable, "-c", _CRASH, str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr
-    _wait_gone(int(proc.stdout.split()[0]))
+    wait_gone(int(proc.stdout.split()[0]))
     a, b = read_csv(tmp_path / "a.csv"), read_csv(tmp_path / "b.csv")
     assert len(a["time_s"]) == len(b["time_s"]) == 300 and b["x_m"][-1] == "-149.5"
     msgs = _messages(tmp_path / "flight.mcap")  # the child closed it: summary and all

@@ -11,8 +11,6 @@ import math
 import struct
 import subprocess
 import sys
-import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -43,23 +41,10 @@ from companion.flightlog.tlog import (
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink_px4 import px4_custom_mode
 
+from .conftest import wait_gone
+
 EPOCH = 1_735_689_600.0
 BOOT = 3.0
-
-
-@pytest.fixture
-def own_process() -> Iterator[None]:
-    """A logging process of the test's own (it may kill it), the suite's one restored after."""
-    saved = LogProcess._current, LogProcess._failed_pid
-    LogProcess._current = None
-    LogProcess._failed_pid = None
-    try:
-        yield
-    finally:
-        cur = LogProcess._current
-        if cur is not None and cur is not saved[0]:
-            cur.shutdown()
-        LogProcess._current, LogProcess._failed_pid = saved
 
 
 def _calls(n: int, seed: int = 7) -> list[tuple[float, str, Any]]:
@@ -161,26 +146,12 @@ os._exit(1)  # a crash: no close(), no atexit
 """
 
 
-def _wait_gone(pid: int, timeout_s: float = 60.0) -> None:
-    """Until the process has exited (a zombie counts: it has closed its files)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except (FileNotFoundError, ProcessLookupError):
-            return
-        if state in ("Z", "X"):
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"the logging process {pid} did not exit")
-
-
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="waits on /proc")
 def test_a_crashed_parent_leaves_every_record_it_handed_over(tmp_path):
     path = tmp_path / "crash.tlog"
     proc = subprocess.run([sys.executable, "-c", _CRASH, str(path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr
-    _wait_gone(int(proc.stdout.split()[0]))
+    wait_gone(int(proc.stdout.split()[0]))
     msgs = list(read_tlog(path))
     assert [m.yawspeed for m in msgs] == [float(i) for i in range(400)]
 
