@@ -519,13 +519,11 @@ class DeliveryMission:
         proportional law alone settles bias / k_p off the target (PX4 SIH: 0.2-0.4 m/s of bias near
         the ground, 4-8 cm at 5 1/s; docs/profiles.md). Rectangle rule per guidance tick; the sum
         is held to landing_xy_integral_max_m_s (anti-windup) and frozen once only the descent is
-        commanded. Reset at each landing phase's start (the first call)."""
+        commanded. Reset by every phase change (_goto)."""
         c = self.cfg
         last = self._landing_int_t
         self._landing_int_t = time_s
-        if last is None or self._landing_int_phase_t0 != self._phase_t0:
-            self._landing_int_phase_t0 = self._phase_t0
-            self._landing_int = (0.0, 0.0)
+        if last is None:
             return self._landing_int
         dt = time_s - last
         ix, iy = self._landing_int
@@ -631,7 +629,6 @@ class DeliveryMission:
     _touchdown_land_requested = False
     _landing_int: tuple[float, float] = (0.0, 0.0)
     _landing_int_t: float | None = None
-    _landing_int_phase_t0 = math.nan
     _disarm_not_before = -math.inf
     _left_pad = False
     _release_requested = False
@@ -680,6 +677,8 @@ class DeliveryMission:
         self._precland_requested = False
         self._touchdown_land_requested = False
         self._disarm_not_before = -math.inf
+        self._landing_int = (0.0, 0.0)  # the final descent's integral term starts again
+        self._landing_int_t = None
         self._release_requested = False
         self._retry = None  # a retry belongs to the phase that asked
         if phase in (Phase.OUTBOUND, Phase.INBOUND):

@@ -32,6 +32,7 @@ Floats are written as their shortest round-trip decimal (``repr``): reading a va
 
 from __future__ import annotations
 
+import abc
 import atexit
 import collections
 import csv
@@ -210,7 +211,7 @@ def _cut_torn_line(path: Path) -> None:
         pass  # CsvFile's own open reports the path's trouble
 
 
-class HandedOverLog:
+class HandedOverLog(abc.ABC):
     """The flight's side of a log the logging process writes (:class:`CsvLog`, the simulator's
     :class:`~companion.flightlog.tlog.TelemetryTlog`): what the loop queued is handed over as one
     batch per writer wake-up (:meth:`_drain`), or written here when logging in process; if the
@@ -228,25 +229,29 @@ class HandedOverLog:
     _shared: _SharedWriter
 
     # ---- the log's own ---------------------------------------------------------------------------
+    @abc.abstractmethod
     def _is_local(self) -> bool:
-        raise NotImplementedError
+        """Whether the file is written in this process."""
 
+    @abc.abstractmethod
     def _open_local(self) -> None:
         """Continue the file in this process (its torn end cut)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _write_local(self, batch: list[tuple[object, ...]]) -> None:
-        raise NotImplementedError
+        """Write one batch in this process."""
 
+    @abc.abstractmethod
     def _close_local(self) -> None:
-        raise NotImplementedError
+        """Close the file written in this process."""
 
+    @abc.abstractmethod
     def _posted(self, n: int) -> None:
         """``n`` rows were handed to the logging process."""
 
+    @abc.abstractmethod
     def _closed_remote(self, reply: tuple[int, ...]) -> None:
         """The logging process closed the file and answered with its counts."""
-        raise NotImplementedError
 
     # ---- shared --------------------------------------------------------------------------------
     def _go_local(self) -> None:
@@ -276,8 +281,9 @@ class HandedOverLog:
                 self._go_local()
             self._write_local(batch)
 
+    @abc.abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Write everything queued and close the file (idempotent)."""
 
     def __enter__(self) -> Self:
         return self

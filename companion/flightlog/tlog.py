@@ -96,6 +96,16 @@ def tlog_timestamp_us(t_unix_s: float) -> int:
     return round(float(t_unix_s) * 1e6) & _LINK_BITS
 
 
+def write_all(fh: Any, data: bytes, path: Path) -> None:
+    """Write every byte to an unbuffered file (a short write is retried; none at all raises)."""
+    view = memoryview(data)
+    while view:
+        k = fh.write(view)
+        if k is None or k <= 0:
+            raise OSError(f"short write to {path}")
+        view = view[k:]
+
+
 class TlogWriter:
     """Append MAVLink packets to a ``.tlog`` from a writer thread.
 
@@ -303,12 +313,7 @@ class TlogWriter:
                 return
 
     def _write_all(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            k = self._fh.write(view)
-            if k is None or k <= 0:
-                raise OSError(f"short write to {self.path}")
-            view = view[k:]
+        write_all(self._fh, data, self.path)
 
     def _release_waiters(self) -> None:
         while True:
@@ -690,12 +695,7 @@ class TlogReplayer:
             self.dropped += n
             return
         try:
-            view = memoryview(data)
-            while view:
-                k = self._fh.write(view)
-                if k is None or k <= 0:
-                    raise OSError(f"short write to {self.path}")
-                view = view[k:]
+            write_all(self._fh, data, self.path)
         except OSError as err:
             self.failed = err
             self.dropped += n
@@ -855,6 +855,9 @@ class TelemetryTlog(HandedOverLog):
     def _close_local(self) -> None:
         assert self._local is not None
         self._local.close()
+
+    def _posted(self, n: int) -> None:
+        pass  # records are counted by the logging process (its answer to the close)
 
     def _closed_remote(self, reply: tuple[int, ...]) -> None:
         self._remote_counts = (reply[0], reply[1], reply[2])
