@@ -21,7 +21,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion.guidance.setpoint import VelocitySetpoint
 
-VELOCITY_YAW_MASK = 0b0000_1101_1100_0111  # SET_POSITION_TARGET_LOCAL_NED: use vx, vy, vz and yaw only
+# SET_POSITION_TARGET_LOCAL_NED's type_mask (POSITION_TARGET_TYPEMASK): ignore x, y, z (1, 2, 4),
+# the accelerations (64, 128, 256) and the yaw rate (2048); use vx, vy, vz and yaw (1024 clear).
+# Until 2026-11-26 this was 3527, which also set YAW_IGNORE: PX4 and ArduCopter then held the
+# take-off heading instead of the path's (delivery 4.3, psi_r = 0 in F_I), unlike the embedded
+# simulator, which flew the yaw.
+VELOCITY_YAW_MASK = 0b0000_1001_1100_0111  # 2503
 
 
 def velocity_setpoint_message(

@@ -48,7 +48,7 @@ def _cases(rng: np.random.Generator) -> list[tuple[object, tuple[object, ...]]]:
         (mav2.MAVLink_extended_sys_state_message, (0, 2)),
         (
             mav2.MAVLink_set_position_target_local_ned_message,
-            (u32(), 1, 1, 1, 3527, 0.0, 0.0, 0.0, f(), f(), f(), 0.0, 0.0, 0.0, f(), 0.0),
+            (u32(), 1, 1, 1, 2503, 0.0, 0.0, 0.0, f(), f(), f(), 0.0, 0.0, 0.0, f(), 0.0),
         ),
         (mav2.MAVLink_command_long_message, (1, 1, 176, 0, f(), f(), 0.0, 0.0, 0.0, 0.0, f())),
         (mav2.MAVLink_command_ack_message, (176, 0, 0, 0, 1, 191)),

@@ -31,6 +31,16 @@ def _types(msgs):
     return {m.get_type() for m in msgs}
 
 
+def _turned_to_the_path(sent, vehicle_msgs) -> None:
+    """The vehicle flew the setpoints' yaw (the path's heading), not its take-off heading: the
+    setpoint's type_mask leaves the yaw in."""
+    yaw_sp = sent[len(sent) // 2][3]
+    assert abs(yaw_sp) > 0.2, yaw_sp  # the path is not due north, or holding yaw 0 would pass
+    att = [m for m in vehicle_msgs if m.get_type() == "ATTITUDE"]
+    err = [abs((m.yaw - yaw_sp + math.pi) % (2 * math.pi) - math.pi) for m in att]
+    assert min(err) < math.radians(3.0), math.degrees(min(err))
+
+
 def _pad_error(sim, config):
     td = [t for t in sim.vehicle.touchdowns if not t.payload_released]
     assert td, "no touchdown on the pad"
@@ -57,6 +67,7 @@ async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
     assert not log  # nobody else on the link
     sent = _setpoints(ours)
     assert len(sent) == ap.counters.setpoints_sent and sent == _setpoints(received)
+    _turned_to_the_path(sent, vehicle)
     commands = [(m.command, m.param1) for m in ours if m.get_type() == "COMMAND_LONG"]
     assert commands == [(m.command, m.param1) for m in received if m.get_type() == "COMMAND_LONG"]
     assert {"HEARTBEAT", "SET_POSITION_TARGET_LOCAL_NED", "COMMAND_LONG"} <= _types(ours)
@@ -87,6 +98,7 @@ async def test_full_delivery_px4_over_mavsdk(mav, udp_port, tmp_path):
     assert not others and mavsdk_id[0] == ap.system_id  # MAVSDK speaks as a component of the vehicle
     sent = _setpoints(ours)
     assert len(sent) == ap.setpoints_sent and sent == _setpoints(received)
+    _turned_to_the_path(sent, vehicle)
     assert {"HEARTBEAT", "COMMAND_LONG"} <= _types(ours)  # MAVSDK's own traffic (Action, intervals) too
     wanted = {"HEARTBEAT", "ATTITUDE", "HIGHRES_IMU", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "COMMAND_ACK"}
     assert wanted <= _types(vehicle)

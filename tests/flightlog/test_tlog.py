@@ -76,7 +76,7 @@ def random_messages(rng: np.random.Generator, n: int) -> list[tuple[Any, int, in
             m = mav2.MAVLink_statustext_message(int(rng.integers(0, 8)), f"text {k} {i}".encode(), 0, 0)
         elif choice == 4:
             m = mav2.MAVLink_set_position_target_local_ned_message(
-                i, 1, 1, 1, 3527, 0, 0, 0, u(-5, 5), u(-5, 5), u(-2, 2), 0, 0, 0, u(-3, 3), 0
+                i, 1, 1, 1, 2503, 0, 0, 0, u(-5, 5), u(-5, 5), u(-2, 2), 0, 0, 0, u(-3, 3), 0
             )
         else:
             m = mav2.MAVLink_command_long_message(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, u(0, 100))
@@ -312,7 +312,7 @@ MAVSDK_JSON = [
     (
         "SET_POSITION_TARGET_LOCAL_NED",
         '{"message_id":84,"message_name":"SET_POSITION_TARGET_LOCAL_NED","afx":0.0,"afy":0.0,"afz":0.0,'
-        '"coordinate_frame":1,"target_component":1,"target_system":1,"time_boot_ms":2504,"type_mask":3527,'
+        '"coordinate_frame":1,"target_component":1,"target_system":1,"time_boot_ms":2504,"type_mask":2503,'
         '"vx":0.5,"vy":0.0,"vz":0.0,"x":0.0,"y":0.0,"yaw":0.10000000149011612,"yaw_rate":0.0,"z":0.0}',
     ),
     ("STATUSTEXT", '{"message_id":253,"message_name":"STATUSTEXT","chunk_seq":0,"id":0,"severity":6,"text":"armed"}'),
@@ -368,7 +368,7 @@ def test_telemetry_encoder_maps_samples_and_companion_messages(tmp_path):
     assert m["SYS_STATUS"].battery_remaining == 87 and m["BATTERY_STATUS"].battery_remaining == 87
     assert m["STATUSTEXT"].text == "low battery" and m["STATUSTEXT"].severity == 4
     sp = m["SET_POSITION_TARGET_LOCAL_NED"]
-    assert (sp.vx, sp.vy, sp.vz, sp.yaw, sp.type_mask) == (1.0, -2.0, 0.5, 0.25, 3527)
+    assert (sp.vx, sp.vy, sp.vz, sp.yaw, sp.type_mask) == (1.0, -2.0, 0.5, 0.25, 2503)
     assert sp.get_srcComponent() == mav2.MAV_COMP_ID_ONBOARD_COMPUTER and sp.time_boot_ms == 10500
     assert (m["COMMAND_LONG"].command, m["COMMAND_LONG"].param2) == (176, 6.0)
     assert m["COMMAND_ACK"].target_component == mav2.MAV_COMP_ID_ONBOARD_COMPUTER
