@@ -282,6 +282,12 @@ class VehicleSimConfig(_Section):
     attitude_time_constant_s: float = _f(0.12, "s", "first-order tilt response", gt=0.005, le=2.0)
     velocity_p_gain: float = _f(1.8, "1/s", "velocity loop P (MPC_XY_VEL_P_ACC-like)", gt=0.0, le=20.0)
     velocity_i_gain: float = _f(0.4, "1/s^2", "velocity loop I", ge=0.0, le=20.0)
+    vertical_velocity_p_gain: float | None = _f(
+        None, "1/s", "vertical velocity loop P (MPC_Z_VEL_P_ACC-like; default: velocity_p_gain)", gt=0.0, le=20.0
+    )
+    vertical_velocity_i_gain: float | None = _f(
+        None, "1/s^2", "vertical velocity loop I (MPC_Z_VEL_I_ACC-like; default: velocity_i_gain)", ge=0.0, le=20.0
+    )
     position_p_gain: float = _f(0.95, "1/s", "position loop P for hold/land (MPC_XY_P-like)", gt=0.0, le=10.0)
     drag_coefficient_1_s: float = _f(0.35, "1/s", "linear drag per unit air-relative speed", ge=0.0, le=5.0)
     takeoff_speed_m_s: float = _f(1.5, "m/s", "autopilot takeoff climb rate", gt=0.1, le=5.0)

@@ -77,7 +77,7 @@ MASK_VEL = 0b111000
 MASK_ACC = 0b111000000
 MASK_YAW = 1 << 10
 MASK_YAW_RATE = 1 << 11
-VELOCITY_YAW_MASK = MASK_POS | MASK_ACC | MASK_YAW_RATE  # 3527: velocity + yaw used
+VELOCITY_YAW_MASK = MASK_POS | MASK_ACC | MASK_YAW_RATE  # 2503: velocity + yaw used
 
 _IMU = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
 SENSORS_BASE = _IMU | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
@@ -668,7 +668,7 @@ class MavlinkSimVehicle(abc.ABC):
             if not v.healthy:
                 return None
             g = v.global_position()
-            hdg = round(math.degrees(v.yaw) * 100) % 36000
+            hdg = round(math.degrees(v.estimated_yaw()) * 100) % 36000  # the estimate, as ATTITUDE
             return e.global_position_int_encode(
                 t_ms,
                 round(g.lat_deg * 1e7),
@@ -1026,6 +1026,6 @@ class MavlinkSimVehicle(abc.ABC):
         if (mask & MASK_POS) != MASK_POS:
             self.stats.setpoints_rejected += 1  # position control is not simulated
             return
-        yaw = v.yaw if mask & MASK_YAW else m.yaw
+        yaw = v.estimated_yaw() if mask & MASK_YAW else m.yaw  # YAW_IGNORE: hold the heading
         self._velocity_setpoint(VelocitySetpoint(m.vx, m.vy, m.vz, yaw))
         self.stats.setpoints += 1

@@ -212,7 +212,7 @@ class SimVehicle:
         self.armed = True
         self.mode = FlightMode.HOLD
         self._int = [0.0, 0.0, 0.0]
-        self._yaw_sp = self.yaw
+        self._yaw_sp = self.estimated_yaw()
         self._hold_target = None
         self._text("armed")
 
@@ -233,7 +233,7 @@ class SimVehicle:
         self._takeoff_target_d = est[2] - alt_rel_m
         self._hold_target = (est[0], est[1], self._takeoff_target_d)
         self.mode = FlightMode.TAKEOFF
-        self._yaw_sp = self.yaw
+        self._yaw_sp = self.estimated_yaw()
 
     def set_velocity(self, sp: VelocitySetpoint) -> None:
         vals = (sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad)
@@ -433,10 +433,12 @@ class SimVehicle:
             ve_n += bn
             ve_e += be
         kp, ki = vc.velocity_p_gain, vc.velocity_i_gain
+        kp_z = kp if vc.vertical_velocity_p_gain is None else vc.vertical_velocity_p_gain
+        ki_z = ki if vc.vertical_velocity_i_gain is None else vc.vertical_velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
         an = kp * en + ki * self._int[0]
         ae = kp * ee + ki * self._int[1]
-        ad = kp * ed + ki * self._int[2]
+        ad = kp_z * ed + ki_z * self._int[2]
         a_h_max = min(vc.max_horizontal_accel_m_s2, G * math.tan(math.radians(vc.max_tilt_deg)))
         ah = math.hypot(an, ae)
         sat_h = ah > a_h_max
@@ -465,7 +467,9 @@ class SimVehicle:
         d_pitch = (pitch_d - self.pitch) * k
         self.roll += d_roll
         self.pitch += d_pitch
-        dyaw = wrap_angle(self._yaw_sp - self.yaw) if self.armed else 0.0
+        # the yaw controller closes on the autopilot's yaw estimate (its heading setpoint is in the
+        # estimator's frame: with a state's yaw offset the true heading is the setpoint - offset)
+        dyaw = wrap_angle(self._yaw_sp - self.estimated_yaw()) if self.armed else 0.0
         dyaw = max(-YAW_RATE_MAX * dt, min(YAW_RATE_MAX * dt, dyaw))
         self.yaw = wrap_angle(self.yaw + dyaw)
         self._rates = (d_roll / dt, d_pitch / dt, dyaw / dt)
@@ -593,6 +597,13 @@ class SimVehicle:
         r = [x * self.cfg.gps_noise_m for x in self._rng_gps.standard_normal(3).tolist()]
         g = self._ltp.to_geo(est[0] + b[0] + r[0], est[1] + b[1] + r[1], est[2] + b[2] + r[2])
         return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, 3 if self.healthy else 1, 14, 0.8)
+
+    def estimated_yaw(self) -> float:
+        """The autopilot's yaw estimate: the true yaw plus its estimator state's offset (the truth
+        itself without a state)."""
+        if self.estimator_state is None:
+            return self.yaw
+        return wrap_angle(self.yaw + self._att_bias[2])
 
     def attitude(self) -> Attitude:
         p, q, r = self._rates

@@ -12,7 +12,14 @@ from companion.autopilot.types import FlightMode, LandedState
 from companion.config import ConfigError, SimConfig, config_from_dict
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.firmware_probe import COLUMNS, analyse
-from companion_sitl.profiles import PROFILE_NAMES, PROFILES, apply_profile, get_profile
+from companion_sitl.profiles import (
+    PROFILE_NAMES,
+    PROFILES,
+    PX4_SIH_STATES,
+    VELOCITY_BIAS_HEIGHTS_M,
+    apply_profile,
+    get_profile,
+)
 from companion_sitl.vehicle import SimVehicle
 
 
@@ -30,7 +37,7 @@ def test_px4_sih_profile_fixes_what_the_firmware_decides_and_has_no_wind():
     sim = apply_profile(SimConfig(profile="px4-sih", wind_speed_m_s=4.0, gps_walk_m=1.0))
     assert sim.wind_speed_m_s == 0.0 and sim.gust_std_effective_m_s == 0.0  # SIH v1.16: no wind
     assert sim.gps_walk_m == 0.12 and sim.gps_walk_time_constant_s == 2.5
-    assert sim.vehicle.drag_coefficient_1_s == 0.9
+    assert sim.vehicle.drag_coefficient_1_s == 0.75
     ac = apply_profile(SimConfig(profile="arducopter-sitl", wind_speed_m_s=4.0))
     assert ac.wind_speed_m_s == 4.0 and ac.gust_std_effective_m_s == 0.0  # SIM_WIND_TURB = 0
     assert ac.ready_delay_s == 41.0
@@ -130,13 +137,14 @@ def test_velocity_error_drives_a_px4_vehicle_but_not_an_arducopter_one():
 
 
 def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_velocity_by_height():
-    """PX4 SIH's two estimator states (profiles.PX4_SIH_STATES, traced on the firmware): one per
-    flight, drawn by the seed (both appear over a few seeds); the reported attitude is the truth
-    plus the state's offset; the velocity bias is linear in the true height between the heights it
-    was measured at (hand-computed at 0.5 m: midway between the 0.25 and 0.75 m values) and is what
-    the velocity loop flies on; the position estimate carries it with de/dt = b - e / tau."""
-    states = {SimVehicle(SimConfig(profile="px4-sih", seed=s)).estimator_state.name for s in range(12)}
-    assert states == {"A", "B"}
+    """PX4 SIH's estimator states (profiles.PX4_SIH_STATES, traced on the firmware): one per
+    flight, drawn by the seed (all four appear over enough seeds, A the most often); the reported
+    attitude is the truth plus the state's offset; the velocity bias is linear in the true height
+    between the heights it was measured at (hand-computed midway between the two lowest) and is
+    what the velocity loop flies on; the position estimate carries it with de/dt = b - e / tau."""
+    drawn = [SimVehicle(SimConfig(profile="px4-sih", seed=s)).estimator_state.name for s in range(200)]
+    assert set(drawn) == {es.name for es in PX4_SIH_STATES}  # every traced flight's state
+    assert max(drawn.count(n) for n in set(drawn)) < 0.2 * 200  # equally likely (0.1 each)
     v = SimVehicle(SimConfig(profile="px4-sih", seed=3))
     es = v.estimator_state
     assert es is not None
@@ -149,13 +157,14 @@ def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_veloci
             0.5 + math.radians(es.attitude_bias_deg[2]),
         )
     )
-    (b0, b1, b2) = es.velocity_bias_m_s
-    v.pd = -0.5
+    b0, b1, b_top = es.velocity_bias_m_s[0], es.velocity_bias_m_s[1], es.velocity_bias_m_s[-1]
+    assert len(es.velocity_bias_m_s) == len(VELOCITY_BIAS_HEIGHTS_M)
+    v.pd = -0.5 * (VELOCITY_BIAS_HEIGHTS_M[0] + VELOCITY_BIAS_HEIGHTS_M[1])
     assert v._velocity_bias() == pytest.approx((0.5 * (b0[0] + b1[0]), 0.5 * (b0[1] + b1[1])))
     v.pd = -0.1
     assert v._velocity_bias() == pytest.approx(b0)
     v.pd = -10.0
-    assert v._velocity_bias() == pytest.approx(b2)
+    assert v._velocity_bias() == pytest.approx(b_top)
     # on the ground from the start: the position estimate at its steady state b * tau
     g = SimVehicle(SimConfig(profile="px4-sih", seed=3))
     tau_p = es.position_follows_bias_tau_s
@@ -170,3 +179,31 @@ def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_veloci
         assert w.estimator_state is None
         w.yaw = 0.5
         assert w.attitude().yaw_rad == 0.5
+
+
+def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
+    """An autopilot's yaw controller closes on its own yaw estimate: asked for heading psi, a
+    px4-sih vehicle whose estimator state reports yaw off by dy ends up truly at psi - dy and
+    reports psi; holding (arming) keeps the estimated heading. Without a state: the truth."""
+    for name in ("px4-sih", "ideal"):
+        v = SimVehicle(SimConfig(profile=name, seed=3))
+        dy = math.radians(v.estimator_state.attitude_bias_deg[2]) if v.estimator_state else 0.0
+        t = v.cfg.ready_delay_s + 0.5
+        v.step_to(t)
+        v.arm()
+        assert v._yaw_sp == pytest.approx(v.estimated_yaw())
+        v.takeoff(3.0)
+        t += 8.0
+        v.step_to(t)
+        for _ in range(10):  # the stream before the switch
+            v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.6))
+            t += 0.05
+            v.step_to(t)
+        v.start_offboard()
+        for _ in range(200):  # 10 s at 20 Hz, asked for heading 0.6 rad
+            v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.6))
+            t += 0.05
+            v.step_to(t)
+        assert v.attitude().yaw_rad == pytest.approx(0.6, abs=0.01)
+        assert v.yaw == pytest.approx(0.6 - dy, abs=0.01)
+        assert (dy != 0.0) == (name == "px4-sih")
