@@ -26,7 +26,6 @@ replays them through a :class:`TelemetryEncoder` (:class:`TlogReplayer`), giving
 from __future__ import annotations
 
 import atexit
-import collections
 import contextlib
 import dataclasses
 import logging
@@ -779,7 +778,7 @@ class TelemetryTlog(HandedOverLog):
             "custom_modes": {m: custom_mode(m) for m in FlightMode},
             "encoder": encoder,
         }
-        self._q = collections.deque()  # append/popleft are thread-safe
+        self._q = []  # append and the writer's slicing are each atomic (the GIL)
         self._io = threading.Lock()
         self._closed = False
         self._remote_counts = (0, 0, 0)  # the logging process's (written, dropped, encode errors), once closed
@@ -805,7 +804,8 @@ class TelemetryTlog(HandedOverLog):
     def sample(self, s: TelemetrySample) -> None:
         """Queue one reported sample (at the clock's current time)."""
         cls = type(s)
-        self._q.append((self._clock(), cls, *_field_getter(cls)(s)))
+        get = _FIELD_GETTERS.get(cls) or _field_getter(cls)
+        self._q.append((self._clock(), cls, *get(s)))
 
     def setpoint(self, sp: VelocitySetpoint) -> None:
         """Queue the companion's velocity setpoint (SET_POSITION_TARGET_LOCAL_NED)."""
