@@ -341,6 +341,13 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
         f"  whole run folder (CSV logs + MCAP + flight.tlog)    {r['full_run_folder_wall_s']:.2f} s wall: "
         f"logging share {100 * r['full_logging_share']:+.1f} %"
     )
+    print("  CPU time the logs add (uninstrumented flights, fastest of each; over the bare flight's CPU time):")
+    for key, label in (("csv", "CSV logs"), ("csv_mcap", "CSV logs + flight.mcap"), ("full", "whole run folder")):
+        child = r.get(f"{key}_logging_process_cpu_share")
+        print(
+            f"    {label:<24} this process {100 * r[f'{key}_cpu_share']:+.1f} %"
+            + (f", the logging process (another core) {100 * child:.1f} %" if child is not None else "")
+        )
     print(
         f"  per stream, in this process, with the whole run folder (recorder hook + queueing + taking the batch; "
         f"{r['rows']} rows and .tlog records; written {r['log_writer']}; the CPU clock's own "
