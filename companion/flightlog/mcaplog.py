@@ -10,8 +10,8 @@ over when the shared writer thread wakes (the path's points computed then, the J
 the logging process). When logging in process the same :class:`McapFile` is written by the
 writer thread. The file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd
 chunks) into a context of its own; the chunk is ended and flushed after every hand-over (every
-wake-up in process), so a hard crash of the logging process loses at most the last 0.4 s (two
-periods) and leaves a readable file without its summary (the reader stops at the torn record); a
+wake-up in process), so a hard crash of the logging process loses at most the last 0.2 s (two
+periods of 0.1 s) and leaves a readable file without its summary (the reader stops at the torn record); a
 crash of the flight's process leaves the logging process to close the file properly.
 
 Channels (JSON message encoding, JSON schemas):
@@ -618,7 +618,7 @@ class McapFlightLog:
 
     def _drain(self) -> None:
         """Hand the queued frames and path updates to the file, then (in process) end the chunk
-        and flush it to the OS (the shared writer thread, every 0.2 s)."""
+        and flush it to the OS (the shared writer thread, every 0.1 s)."""
         if self._closed or self._lost:
             return
         if not self._images and not self._pending:

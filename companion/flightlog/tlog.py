@@ -745,7 +745,7 @@ class TelemetryTlog(HandedOverLog):
     """A :class:`TelemetryEncoder`'s ``.tlog`` (the embedded simulator's), encoded off the control
     path: :meth:`sample`, :meth:`setpoint`, :meth:`command` and :meth:`command_ack` only queue the
     field values with the clock's time; the shared writer thread of the CSV logs
-    (:class:`~companion.flightlog.csvlog._SharedWriter`, every 0.2 s) hands them to the logging
+    (:class:`~companion.flightlog.csvlog._SharedWriter`, every 0.1 s) hands them to the logging
     process (:mod:`companion.flightlog.logproc`), which encodes them with the same
     :class:`TelemetryEncoder` (:class:`TlogReplayer`) and writes the records: the same bytes as
     encoding at once (timestamps ``epoch_s + clock()``). ``custom_mode`` is evaluated here for
@@ -755,7 +755,7 @@ class TelemetryTlog(HandedOverLog):
     process could not be started) the writer thread encodes and writes the batches here. If the
     logging process dies, the file is continued here (a torn last record cut) with the records it
     was never handed, by a new encoder: its packet sequence numbers start again at 0. A process
-    killed outright loses the records of the last 0.2 s; :meth:`close` writes everything queued
+    killed outright loses the records of the last 0.1 s; :meth:`close` writes everything queued
     and returns once the file is complete. Use the hooks from one thread."""
 
     def __init__(
