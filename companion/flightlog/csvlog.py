@@ -474,7 +474,7 @@ class CsvLog(HandedOverLog):
 def close_logs(logs: Iterable[CsvLog]) -> None:
     """Close several logs (:meth:`CsvLog.close` each, idempotent) with one wait for the logging
     process (:func:`close_files`): the flight recorder's streams."""
-    todo = [lg for lg in logs if not lg._closed]
+    todo = [lg for lg in dict.fromkeys(logs) if not lg._closed]  # each once, in order
     for lg in todo:
         lg._closed = True
         _OPEN.discard(lg)
