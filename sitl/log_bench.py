@@ -6,13 +6,17 @@ Two measurements of the GPS-only demo flight, in one run:
   (the recorder's per-stream CSVs plus ``flight.csv`` and ``truth.csv``) but no ``flight.mcap``,
   with the CSV logs and ``flight.mcap``, and with the whole run folder (the CSVs, the MCAP and
   the MAVLink ``flight.tlog``), each ``rounds`` times interleaved, the fastest flight of each
-  counting; shares are (logged - bare) / bare wall time;
+  counting; shares are (logged - bare) / bare wall time; beside them the CPU time each adds
+  in this process ((logged - bare) / bare, process CPU time, all threads) and the logging
+  process's CPU time over the bare flight's CPU time, fastest flight of each, which the machine's
+  other load moves far less than wall time;
 * microseconds per row, from a further flight with the whole run folder in which this
   process's share is timed per stream: the recorder's hooks (row building and queueing on the
   control loop) and each log's batch as the writer thread takes it (handed to the logging
   process, or formatted and written here when logging in process). A hook is charged to its
   stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it
-  writes); ``flight.csv`` and ``truth.csv`` are charged their queueing and their batches,
+  writes); ``flight.csv`` is charged the shell's building and queueing of its row
+  (``DeliveryShell._record``) and its batches, ``truth.csv`` its queueing and its batches,
   ``flight.tlog`` its hooks (one record per sample, setpoint, command or answer queued) and
   its batches. The hand-over itself (one pickle and send per wake-up,
   :mod:`companion.flightlog.logproc`) is timed as a whole and given per row, and so is the
@@ -35,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.delivery.shell import DeliveryShell
 from companion.flightlog import logproc
 from companion.flightlog import recorder as rec
 from companion.flightlog.csvlog import CsvLog, HandedOverLog
@@ -124,9 +129,19 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
     for name in ("on_sample", *_HOOK_STREAM):
         patch(rec.FlightRecorder, name, functools.partial(hook, name))
 
+    def record(orig: Any) -> Any:
+        @functools.wraps(orig)
+        def timed(self: Any, *args: Any) -> None:
+            t0 = time.thread_time()
+            orig(self, *args)
+            hook_s["flight.csv"] += time.thread_time() - t0
+            calls["flight.csv"] += 1
+
+        return timed
+
     def write(orig: Any) -> Any:
         def timed(self: CsvLog, row: Any) -> None:
-            if self.path.name in ("flight.csv", "truth.csv"):  # no recorder hook builds these rows
+            if self.path.name == "truth.csv":  # no recorder hook builds these rows (flight.csv's: _record)
                 t0 = time.thread_time()
                 orig(self, row)
                 write_s[self.path.name] += time.thread_time() - t0
@@ -167,6 +182,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
         return timed
 
     patch(CsvLog, "write", write)
+    patch(DeliveryShell, "_record", record)  # flight.csv's row, built and written
     patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
     for name in _TLOG_HOOKS:
         patch(TelemetryTlog, name, tlog_hook)
@@ -189,15 +205,30 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
         # each variant flown `rounds` times, interleaved; the fastest flight of each counts (on a
         # shared machine the other load only ever adds time)
         walls: dict[str, list[float]] = defaultdict(list)
+        cpus: dict[str, list[float]] = defaultdict(list)  # this process's CPU time per flight
+        child_cpus: dict[str, list[float]] = defaultdict(list)  # the logging process's
         bare: Any = None
+
+        def fly(variant: str, run_dir: Path | None) -> Any:
+            proc = logproc.LogProcess._current
+            c0 = proc.cpu_s() if proc is not None and run_dir is not None else None
+            t0 = time.process_time()
+            r = demo.run_demo(cfg, fusion=False, run_dir=run_dir)
+            cpus[variant].append(time.process_time() - t0)
+            if c0 is not None and logproc.LogProcess._current is proc:
+                c1 = proc.cpu_s()  # type: ignore[union-attr]
+                if c1 is not None:
+                    child_cpus[variant].append(c1 - c0)
+            walls[variant].append(r.wall_time_s)
+            return r
+
         for k in range(rounds):
-            bare = demo.run_demo(cfg, fusion=False)
-            walls["bare"].append(bare.wall_time_s)
+            bare = fly("bare", None)
             with _no_tlog(), _no_mcap():
-                walls["csv"].append(demo.run_demo(cfg, fusion=False, run_dir=root / f"csv{k}").wall_time_s)
+                fly("csv", root / f"csv{k}")
             with _no_tlog():
-                walls["mcap"].append(demo.run_demo(cfg, fusion=False, run_dir=root / f"mcap{k}").wall_time_s)
-            walls["full"].append(demo.run_demo(cfg, fusion=False, run_dir=root / f"full{k}").wall_time_s)
+                fly("mcap", root / f"mcap{k}")
+            fly("full", root / f"full{k}")
         mcap_bytes = (root / "mcap0" / rec.MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
@@ -223,6 +254,12 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
     out["mcap_vs_csv_share"] = (m - c) / c
     out["mcap_bytes"] = mcap_bytes
     out["full_logging_share"] = (f - b) / b
+    # CPU time, fastest flight of each: what the other load on the machine moves least
+    cb = min(cpus["bare"])
+    for key, variant in (("csv", "csv"), ("csv_mcap", "mcap"), ("full", "full")):
+        out[f"{key}_cpu_share"] = (min(cpus[variant]) - cb) / cb
+        if child_cpus[variant]:
+            out[f"{key}_logging_process_cpu_share"] = min(child_cpus[variant]) / cb
     out["rows"] = sum(rows.values())
     out["clock_overhead_us"] = overhead * 1e6
     total = 0.0

@@ -322,7 +322,9 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
     from companion_sitl.log_bench import bench_log
 
     cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
-    r = bench_log(config=cfg)
+    if args.rounds < 1:
+        raise StartupError(f"--rounds {args.rounds}: must be >= 1", exits.BAD_INPUT)
+    r = bench_log(config=cfg, rounds=args.rounds)
     print(
         f"bench log: the GPS-only demo flight ({r['sim_time_s']:.0f} s simulated), each variant flown "
         f"{r['rounds']} times interleaved in this run (fastest counts), plus one timed flight"
@@ -341,6 +343,13 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
         f"  whole run folder (CSV logs + MCAP + flight.tlog)    {r['full_run_folder_wall_s']:.2f} s wall: "
         f"logging share {100 * r['full_logging_share']:+.1f} %"
     )
+    print("  CPU time the logs add (uninstrumented flights, fastest of each; over the bare flight's CPU time):")
+    for key, label in (("csv", "CSV logs"), ("csv_mcap", "CSV logs + flight.mcap"), ("full", "whole run folder")):
+        child = r.get(f"{key}_logging_process_cpu_share")
+        print(
+            f"    {label:<24} this process {100 * r[f'{key}_cpu_share']:+.1f} %"
+            + (f", the logging process (another core) {100 * child:.1f} %" if child is not None else "")
+        )
     print(
         f"  per stream, in this process, with the whole run folder (recorder hook + queueing + taking the batch; "
         f"{r['rows']} rows and .tlog records; written {r['log_writer']}; the CPU clock's own "
@@ -670,6 +679,12 @@ def register_bench(bsub: Any) -> None:
         "log", help="the flight logs' share of the GPS-only demo's time and microseconds per row and stream"
     )
     bl.add_argument("--seed", type=int, default=1, help="random seed of the scenario")
+    bl.add_argument(
+        "--rounds",
+        type=int,
+        default=2,
+        help="flights of each variant, interleaved (the fastest counts; more on a busy machine)",
+    )
     bl.set_defaults(func=cmd_bench_log)
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
     be.add_argument("--n", type=int, default=5000, help="calls timed per filter and estimator")

@@ -32,6 +32,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.config import CompanionConfig
@@ -176,6 +178,10 @@ class DeliveryShell:
         self.events: list[MissionEvent] = []
         self._clock = LoopClock()
         self._setpoint: tuple[float, VelocitySetpoint] | None = None
+        # flight_log's mission-frame position: the frame (replaced on a replan, never mutated),
+        # its R_ned_mission.T and pad, so each row does MissionFrame.point_from_ned's arithmetic
+        # on the same operands without rebuilding the matrix
+        self._record_frame: tuple[Any, Any, Any] | None = None
         self._last_sent_s = -math.inf  # when a setpoint last went to the autopilot
         # set when a camera observation is fused while the fused estimate steers: guidance ticks
         # at once instead of at its next deadline ([runtime] guidance_on_marker)
@@ -591,8 +597,12 @@ class DeliveryShell:
         sp = self._setpoint[1] if self._setpoint is not None else None
         st = self.autopilot.telemetry.status
         nan = math.nan
-        if e is not None and self.mission.frame is not None:
-            pm = self.mission.frame.point_from_ned(e.position_ned)
+        frame = self.mission.frame
+        if e is not None and frame is not None:
+            rf = self._record_frame
+            if rf is None or rf[0] is not frame:
+                rf = self._record_frame = (frame, frame.R_ned_mission.T, frame.pad_ned)
+            pm = rf[1] @ (np.asarray(e.position_ned, dtype=float) - rf[2])  # = frame.point_from_ned(...)
             mx, my, mz = float(pm[0]), float(pm[1]), float(pm[2])
         else:
             mx = my = mz = nan

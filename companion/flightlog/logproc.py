@@ -227,21 +227,26 @@ class LogProcess:
     def request(self, op: Op) -> Any:
         """Send what was posted and ``op``, and wait for the child's answer (None: the process
         is gone; the caller continues in process)."""
+        return self.request_all([op])[0]
+
+    def request_all(self, ops: list[Op]) -> list[Any]:
+        """Send what was posted and ``ops`` (each answered by the child) in one message, and wait
+        for every answer: one per op, in order, None for the ops the process did not answer
+        (it is gone; their callers continue in process)."""
+        replies: list[Any] = []
         with self._lock:
-            if self.dead:
-                return None
-            ops, self._outbox = [*self._outbox, op], []
-            if not self._send_ops(ops):
-                return None
-            try:
-                while True:
-                    msg = _recv(self._sock)  # type: ignore[arg-type]
-                    if msg[0] == "reply":
-                        return msg[1]
-                    self._handle(msg)
-            except (OSError, EOFError, pickle.UnpicklingError) as err:
-                self._die(f"did not answer ({err or type(err).__name__})", [op])
-                return None
+            out, self._outbox = [*self._outbox, *ops], []
+            if not self.dead and self._send_ops(out):
+                try:
+                    while len(replies) < len(ops):
+                        msg = _recv(self._sock)  # type: ignore[arg-type]
+                        if msg[0] == "reply":
+                            replies.append(msg[1])
+                        else:
+                            self._handle(msg)
+                except (OSError, EOFError, pickle.UnpicklingError) as err:
+                    self._die(f"did not answer ({err or type(err).__name__})", ops[len(replies) :])
+        return replies + [None] * (len(ops) - len(replies))
 
     def cpu_s(self) -> float | None:
         """The logging process's CPU time so far (user + system), for ``companion bench log``."""

@@ -10,8 +10,8 @@ over when the shared writer thread wakes (the path's points computed then, the J
 the logging process). When logging in process the same :class:`McapFile` is written by the
 writer thread. The file is written by foxglove-sdk's MCAP writer (``foxglove.open_mcap``, zstd
 chunks) into a context of its own; the chunk is ended and flushed after every hand-over (every
-wake-up in process), so a hard crash of the logging process loses at most the last 0.4 s (two
-periods) and leaves a readable file without its summary (the reader stops at the torn record); a
+wake-up in process), so a hard crash of the logging process loses at most the last 0.2 s (two
+periods of 0.1 s) and leaves a readable file without its summary (the reader stops at the torn record); a
 crash of the flight's process leaves the logging process to close the file properly.
 
 Channels (JSON message encoding, JSON schemas):
@@ -44,6 +44,7 @@ import csv
 import json
 import logging
 import math
+import operator
 import re
 import threading
 import weakref
@@ -187,20 +188,91 @@ class _ListWriter:
         self.parts.append(text)
 
 
+# what a text cell may hold to be written as is: printable ASCII but the quote, the comma and the
+# backslash (csv.writer quotes nothing of it, json.dumps escapes nothing of it)
+_NOT_PLAIN_TEXT = re.compile(r"[^\x20\x21\x23-\x2b\x2d-\x5b\x5d-\x7e]")
+_NOT_A_CELL = re.compile(r"[^0-9eE.+\-,nafi]")  # but the reprs of ints and floats, nan and inf included
+_NON_FINITE = ("nan", "inf", "-inf")
+
+
 def batch_encoder(columns: Sequence[str]) -> Callable[[list[tuple[object, ...]]], tuple[str, list[bytes]]]:
     """For a batch of rows: the CSV text ``csv.writer`` would write (``\r\n`` line ends) and
-    each row's JSON message, formatting every number once. A row of finite Python ints and
-    floats is ``%r``-formatted into one string, which is its CSV line as is and, split at the
-    commas, the values of its JSON template; other rows go through ``csv.writer`` and
-    :func:`encode_row`."""
+    each row's JSON message (:func:`encode_row`'s bytes), formatting every number once.
+
+    The whole batch at once when it allows: every row ``%``-formatted into its CSV line (numbers
+    with ``%r``, their shortest round-trip reprs, text columns (:data:`TEXT_COLUMNS`) with
+    ``%s``), which split at the commas gives the values of its JSON template (text quoted, NaN
+    and the infinities turned into the strings the CSV holds). That holds when every number
+    cell is a Python int or float and every text cell a ``str`` of printable ASCII without
+    ``"``, ``,`` or ``\\`` (nothing for either format to quote or escape), checked once per
+    batch; any other batch goes row by row: a row of finite Python numbers formatted once, any
+    other row through ``csv.writer`` and :func:`encode_row`."""
     cols = tuple(columns)
     n = len(cols)
+    text_idx = [i for i, c in enumerate(cols) if c in TEXT_COLUMNS]
+    number_idx = [i for i, c in enumerate(cols) if c not in TEXT_COLUMNS]
+    line_fmt = ",".join("%s" if c in TEXT_COLUMNS else "%r" for c in cols)
+    keys = [json.dumps(c).replace("%", "%%") + ":" for c in cols]
+    json_fmt = (
+        "{" + ",".join(k + ('"%s"' if c in TEXT_COLUMNS else "%s") for k, c in zip(keys, cols, strict=True)) + "}"
+    )
+    numbers_of = operator.itemgetter(*number_idx) if len(number_idx) > 1 else None
+    texts_of = operator.itemgetter(*text_idx) if len(text_idx) > 1 else None
     values = ",".join(["%r"] * n)
     template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
     search = _NOT_A_NUMBER.search
-    numeric = not TEXT_COLUMNS.intersection(cols)  # streams with text columns never take the fast path
+    numeric = not text_idx
+
+    def numbers(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
+        try:
+            lines = [values % row for row in batch]
+        except TypeError:  # a row of another length
+            return None
+        if search(",".join(lines)) is not None:  # not only finite ints and floats
+            return None
+        payloads = [(template % tuple(t.split(","))).encode() for t in lines]
+        lines.append("")  # the last line's end
+        return "\r\n".join(lines), payloads
+
+    def whole(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
+        try:
+            lines = [line_fmt % row for row in batch]
+        except TypeError:  # a row of another length
+            return None
+        cells = [line.split(",") for line in lines]
+        if any(len(c) != n for c in cells):  # a comma in a cell
+            return None
+        if number_idx:
+            if numbers_of is not None:
+                nums = ",".join([",".join(numbers_of(c)) for c in cells])
+            else:
+                nums = ",".join([c[number_idx[0]] for c in cells])
+            if _NOT_A_CELL.search(nums) is not None:
+                return None
+        if text_idx:
+            if texts_of is not None:
+                texts = [t for row in batch for t in texts_of(row)]
+            else:
+                texts = [row[text_idx[0]] for row in batch]
+            if set(map(type, texts)) - {str} or _NOT_PLAIN_TEXT.search("".join(texts)) is not None:  # type: ignore[arg-type]
+                return None
+        messages = "\n".join([json_fmt % tuple(c) for c in cells])
+        if number_idx:
+            for v in _NON_FINITE:
+                if v in messages:
+                    for end in (",", "}"):
+                        # after a key's closing quote (a text value holds no quote): a number's cell
+                        messages = messages.replace(f'":{v}{end}', f'":"{v}"{end}')
+        lines.append("")  # the last line's end
+        return "\r\n".join(lines), messages.encode().split(b"\n")
 
     def encode(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
+        if batch:
+            done = numbers(batch) if numeric else None
+            if done is None:
+                done = whole(batch)
+            if done is not None:
+                return done
         out = _ListWriter()
         slow = csv.writer(out)
         payloads: list[bytes] = []
@@ -546,7 +618,7 @@ class McapFlightLog:
 
     def _drain(self) -> None:
         """Hand the queued frames and path updates to the file, then (in process) end the chunk
-        and flush it to the OS (the shared writer thread, every 0.2 s)."""
+        and flush it to the OS (the shared writer thread, every 0.1 s)."""
         if self._closed or self._lost:
             return
         if not self._images and not self._pending:
@@ -624,6 +696,10 @@ class McapStreamSink:
         self._ekf = name == "ekf.csv"
         self._idx = {c: i for i, c in enumerate(self.columns)}
         self._channel = owner._channels[stream_topic(name)]
+        base = getattr(self._channel, "base", None)  # foxglove.Channel's native channel
+        self._log: Callable[[bytes, int, None], None] = (
+            base.log if base is not None else lambda data, t, _: self._channel.log(data, log_time=t)
+        )
 
     def publish(self, batch: list[tuple[object, ...]], payloads: list[bytes] | None) -> None:
         m = self._owner
@@ -633,12 +709,17 @@ class McapStreamSink:
             try:
                 if payloads is None:  # the batch encoder failed: the CSV was written without it
                     payloads = [encode_row(self.columns, row) for row in batch]
-                log_ = self._channel.log
-                for row, data in zip(batch, payloads, strict=True):
-                    t = float(row[0])  # type: ignore[arg-type]
-                    log_(data, log_time=time_ns(t))
-                    if self._ekf:
+                if self._ekf:
+                    for row, data in zip(batch, payloads, strict=True):
+                        t = float(row[0])  # type: ignore[arg-type]
+                        self._channel.log(data, log_time=time_ns(t))
                         m._ekf_messages(self._idx, row, t)
+                else:
+                    # the SDK's Channel.log for bytes, without its checks; log_time as time_ns()
+                    log_ = self._log
+                    for row, data in zip(batch, payloads, strict=True):
+                        t = float(row[0])  # type: ignore[arg-type]
+                        log_(data, round(t * 1e9) if 0.0 < t < math.inf else 0, None)
                 m.messages += len(batch)
                 m._dirty = True
             except Exception as err:

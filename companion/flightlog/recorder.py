@@ -4,7 +4,7 @@
 listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
 calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
 ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
-(batches handed every 0.2 s to the logging process, which writes them; time in seconds first, units in the
+(batches handed every 0.1 s to the logging process, which writes them; time in seconds first, units in the
 headers), so PlotJuggler opens every file as is:
 
 =====================  ==========================================================================
@@ -64,7 +64,7 @@ from companion.autopilot.types import (
     TelemetrySample,
     VehicleStatus,
 )
-from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.csvlog import CsvLog, close_logs
 from companion.flightlog.mcaplog import MCAP_FILE, McapFlightLog
 from companion.geometry.rotations import rotmat_to_euler
 from companion.geometry.se3 import Transform
@@ -131,20 +131,46 @@ def _sample_encoder(cls: type) -> Any:
 _ENCODERS = {cls: _sample_encoder(cls) for cls in SAMPLE_FILES}
 
 
-def _sample_writer(cls: type, seq: Any, put: Any) -> Any:
+def _sample_writer(cls: type, seq: Any, lg: CsvLog) -> Any:
     """:meth:`FlightRecorder.on_sample`'s work for one sample type, in one call: the row
-    :data:`_ENCODERS` builds (``seq`` taken from the iterator ``seq``) handed to ``put``
-    (:meth:`CsvLog.put`). Types with flags or enums go through their encoder; the others build
-    the tuple here."""
+    :data:`_ENCODERS` builds (``seq`` taken from the iterator ``seq``) appended to ``lg``'s queue
+    (:attr:`CsvLog.queue`, as :meth:`CsvLog.put` would, without its call). Types with flags or
+    enums go through their encoder; the others build the tuple here."""
     fields_ = _SAMPLE_FIELDS[cls]
     nxt = seq.__next__
+    q = lg.queue
+    append, mx, drop = q.append, lg.max_queue, lg.count_dropped
     if any(t is bool or (isinstance(t, type) and issubclass(t, enum.Enum)) for _, t in fields_):
         encode = _ENCODERS[cls]
-        return lambda s: put(encode(nxt(), s))
+
+        def write_encoded(s: Any) -> None:
+            row = encode(nxt(), s)  # a dropped row still takes its seq: replay sees the gap
+            if len(q) < mx:
+                append(row)
+            else:
+                drop()
+
+        return write_encoded
     get = operator.attrgetter(*(n for n, _ in fields_))
     if len(fields_) == 1:
-        return lambda s: put((s.time_s, nxt(), get(s)))
-    return lambda s: put((s.time_s, nxt(), *get(s)))
+
+        def write_one(s: Any) -> None:
+            row = (s.time_s, nxt(), get(s))
+            if len(q) < mx:
+                append(row)
+            else:
+                drop()
+
+        return write_one
+
+    def write(s: Any) -> None:
+        row = (s.time_s, nxt(), *get(s))
+        if len(q) < mx:
+            append(row)
+        else:
+            drop()
+
+    return write
 
 
 def decode_value(text: str, typ: Any) -> object:
@@ -483,7 +509,7 @@ class FlightRecorder:
                 self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
             # the two hooks at the telemetry / setpoint rate queue their rows with no further checks
             self._sample_writers = {
-                cls: _sample_writer(cls, self._seq, self.logs[name].put) for cls, name in SAMPLE_FILES.items()
+                cls: _sample_writer(cls, self._seq, self.logs[name]) for cls, name in SAMPLE_FILES.items()
             }
             self._put_setpoint = self.logs["setpoints.csv"].put
             self._write_meta()
@@ -652,11 +678,10 @@ class FlightRecorder:
         self._closed = True
         self.detach()
         errors = []
-        for lg in self.logs.values():
-            try:
-                lg.close()
-            except Exception as err:  # one bad stream must not keep the others open
-                errors.append(f"{lg.path}: {err}")
+        try:  # every stream's last batch and close handed over together: one wait
+            close_logs(self.logs.values())
+        except Exception as err:  # one bad stream does not keep the others open (close_files)
+            errors.append(f"{self.run_dir}: closing the streams: {err}")
         self.meta["closed"] = True
         self.meta["errors"] = self.errors
         self.meta["rows"] = {name: lg.written for name, lg in self.logs.items()}

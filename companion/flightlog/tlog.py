@@ -26,7 +26,6 @@ replays them through a :class:`TelemetryEncoder` (:class:`TlogReplayer`), giving
 from __future__ import annotations
 
 import atexit
-import collections
 import contextlib
 import dataclasses
 import logging
@@ -746,7 +745,7 @@ class TelemetryTlog(HandedOverLog):
     """A :class:`TelemetryEncoder`'s ``.tlog`` (the embedded simulator's), encoded off the control
     path: :meth:`sample`, :meth:`setpoint`, :meth:`command` and :meth:`command_ack` only queue the
     field values with the clock's time; the shared writer thread of the CSV logs
-    (:class:`~companion.flightlog.csvlog._SharedWriter`, every 0.2 s) hands them to the logging
+    (:class:`~companion.flightlog.csvlog._SharedWriter`, every 0.1 s) hands them to the logging
     process (:mod:`companion.flightlog.logproc`), which encodes them with the same
     :class:`TelemetryEncoder` (:class:`TlogReplayer`) and writes the records: the same bytes as
     encoding at once (timestamps ``epoch_s + clock()``). ``custom_mode`` is evaluated here for
@@ -756,7 +755,7 @@ class TelemetryTlog(HandedOverLog):
     process could not be started) the writer thread encodes and writes the batches here. If the
     logging process dies, the file is continued here (a torn last record cut) with the records it
     was never handed, by a new encoder: its packet sequence numbers start again at 0. A process
-    killed outright loses the records of the last 0.2 s; :meth:`close` writes everything queued
+    killed outright loses the records of the last 0.1 s; :meth:`close` writes everything queued
     and returns once the file is complete. Use the hooks from one thread."""
 
     def __init__(
@@ -779,7 +778,7 @@ class TelemetryTlog(HandedOverLog):
             "custom_modes": {m: custom_mode(m) for m in FlightMode},
             "encoder": encoder,
         }
-        self._q = collections.deque()  # append/popleft are thread-safe
+        self._q = []  # append and the writer's slicing are each atomic (the GIL)
         self._io = threading.Lock()
         self._closed = False
         self._remote_counts = (0, 0, 0)  # the logging process's (written, dropped, encode errors), once closed
@@ -805,7 +804,8 @@ class TelemetryTlog(HandedOverLog):
     def sample(self, s: TelemetrySample) -> None:
         """Queue one reported sample (at the clock's current time)."""
         cls = type(s)
-        self._q.append((self._clock(), cls, *_field_getter(cls)(s)))
+        get = _FIELD_GETTERS.get(cls) or _field_getter(cls)
+        self._q.append((self._clock(), cls, *get(s)))
 
     def setpoint(self, sp: VelocitySetpoint) -> None:
         """Queue the companion's velocity setpoint (SET_POSITION_TARGET_LOCAL_NED)."""

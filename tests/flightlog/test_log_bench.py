@@ -17,6 +17,9 @@ def test_bench_log_reports_shares_and_per_stream_costs():
     for k in ("bare_wall_s", "csv_logs_wall_s", "full_run_folder_wall_s"):
         assert r[k] > 0.0
     assert r["csv_logging_share"] == pytest.approx((r["csv_logs_wall_s"] - r["bare_wall_s"]) / r["bare_wall_s"])
+    for key in ("csv", "csv_mcap", "full"):  # CPU time: this process's, and the logging process's
+        assert isinstance(r[f"{key}_cpu_share"], float)
+        assert r[f"{key}_logging_process_cpu_share"] > 0.0
     per_stream = {k.removesuffix("_us_per_row") for k in r if k.endswith("_us_per_row")} - {"all_streams"}
     # the busy streams of a GPS-only flight, and the simulator's two
     assert {

@@ -12,6 +12,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ import pytest
 from mcap.reader import make_reader
 
 from companion.flightlog import logproc
-from companion.flightlog.csvlog import CsvLog, read_csv
+from companion.flightlog.csvlog import CsvLog, close_logs, read_csv
 from companion.flightlog.logproc import LogProcess
 from companion.flightlog.mcaplog import McapFlightLog, stream_topic
 
@@ -227,3 +228,83 @@ def test_an_mcap_the_logging_process_cannot_create_is_an_error_not_a_hang(tmp_pa
     assert not lg.in_process and read_csv(tmp_path / "a.csv")["x_m"] == ["1.0"]
     assert m.errors == 1 and any("mcap op failed" in r.getMessage() for r in caplog.records)
     assert not LogProcess._current.dead  # type: ignore[union-attr]
+
+
+def test_closing_several_logs_waits_for_the_logging_process_once(tmp_path, monkeypatch):
+    cols = ("time_s", "x_m")
+    logs = [CsvLog(tmp_path / f"{k}.csv", cols) for k in range(5)]
+    proc = LogProcess._current
+    assert proc is not None and not any(lg.in_process for lg in logs)
+    for k, lg in enumerate(logs):
+        for i in range(50 + k):
+            lg.write((float(i), k * 1.0 + i))
+    waits: list[int] = []
+    orig = LogProcess.request_all
+
+    def counted(self: LogProcess, ops: list[tuple[object, ...]]) -> list[object]:
+        waits.append(len(ops))
+        return orig(self, ops)
+
+    monkeypatch.setattr(LogProcess, "request_all", counted)
+    close_logs([*logs, logs[0]])  # a log named twice is closed once
+    assert waits == [5]  # every close in one message, one wait for the five answers
+    for k, lg in enumerate(logs):
+        assert lg.closed and not lg.in_process and lg.written == 50 + k and lg.dropped == 0
+        assert read_csv(tmp_path / f"{k}.csv")["x_m"] == [str(k * 1.0 + i) for i in range(50 + k)]
+    close_logs(logs)  # idempotent
+    assert waits == [5]
+
+
+def test_a_logging_process_that_dies_before_a_batched_close_leaves_every_log_complete(tmp_path, own_process, caplog):
+    cols = ("time_s", "x_m")
+    logs = [CsvLog(tmp_path / f"{k}.csv", cols) for k in range(3)]
+    proc = LogProcess._current
+    assert proc is not None
+    for lg in logs:
+        for i in range(40):
+            lg.write((float(i), 0.5 * i))
+        lg._drain()
+    assert proc.cpu_s() is not None  # answered: the first 40 rows of each are written
+    proc.child.kill()
+    proc.child.wait()
+    for lg in logs:
+        for i in range(40, 90):
+            lg.write((float(i), 0.5 * i))
+    with caplog.at_level(logging.ERROR):
+        close_logs(logs)
+    for k, lg in enumerate(logs):
+        assert lg.in_process and lg.closed
+        assert read_csv(tmp_path / f"{k}.csv")["x_m"] == [str(0.5 * i) for i in range(90)]
+    assert sum("written in this process" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_request_all_answers_none_for_what_a_dead_process_did_not_answer(own_process):
+    proc = LogProcess.get()
+    assert proc is not None
+    assert proc.request_all([("cpu",), ("cpu",)])[1] is not None
+    proc.child.kill()
+    proc.child.wait()
+    assert proc.request_all([("cpu",), ("cpu",)]) == [None, None]
+    assert proc.dead
+
+
+def test_rows_queued_while_the_writer_takes_a_batch_are_neither_lost_nor_doubled(tmp_path):
+    """The writer takes a log's batch by slicing its list while the producer appends: every row
+    is written once, in order (the flush period made as short as it goes)."""
+    cols = ("time_s", "i")
+    n = 60_000
+    with CsvLog(tmp_path / "a.csv", cols, max_queue=n, flush_period_s=1e-4) as lg:
+        done = threading.Event()
+
+        def produce() -> None:
+            for i in range(n):
+                lg.put((i * 0.5, i))
+            done.set()
+
+        t = threading.Thread(target=produce)
+        t.start()
+        while not done.is_set():
+            lg._drain()  # the writer thread drains too: two takers, one producer
+        t.join()
+    got = read_csv(tmp_path / "a.csv")["i"]
+    assert got == [str(i) for i in range(n)] and lg.written == n and lg.dropped == 0

@@ -5,6 +5,7 @@ run folder that holds only the MCAP."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import random
@@ -14,10 +15,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from companion.delivery.replay import replay_run
-from companion.flightlog.mcaplog import MCAP_FILE, cell_text, encode_row, row_encoder, stream_topic
+from companion.flightlog.mcaplog import MCAP_FILE, batch_encoder, cell_text, encode_row, row_encoder, stream_topic
 from companion.flightlog.reader import LogFormatError, open_table, read_mcap, read_meta
 from companion.flightlog.recorder import STREAM_FILES
 
@@ -192,3 +195,73 @@ def test_row_encoding_is_lossless_and_both_encoders_agree() -> None:
         obj = json.loads(enc(row))
         # the text a decoded cell gives is the text the CSV writer writes (str of the value)
         assert [cell_text(obj[c]) for c in cols] == [str(x) for x in row]
+
+
+def _reference(cols: tuple[str, ...], batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
+    """What the CSV writer and the row-by-row JSON encoder give for a batch."""
+    buf = io.StringIO()
+    csv.writer(buf).writerows(batch)
+    return buf.getvalue(), [encode_row(cols, row) for row in batch]
+
+
+_NUMBERS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(-(2**70), 2**70),
+    st.sampled_from([math.nan, math.inf, -math.inf, -0.0, 0.0, 5e-324, 1e16, 0.1 + 0.2]),
+    st.floats(allow_nan=True, allow_infinity=True).map(np.float64),
+    st.booleans(),
+    st.none(),
+)
+_PLAIN_NUMBERS = st.one_of(
+    st.floats(-1e9, 1e9),
+    st.integers(-(10**6), 10**6),
+    st.sampled_from([math.nan, math.inf, -math.inf, -0.0]),
+)
+_PLAIN_TEXTS = st.sampled_from(["", "outbound", "a b", "nan", "-inf", "x:nan", "x:nan}", "{}", ":inf"])
+_TEXTS = st.one_of(
+    st.sampled_from(["", "outbound", "offboard", "a b", "nan", "inf", "-inf", "1.5", ":nan,", "x}"]),
+    st.text(max_size=8),  # quotes, commas, backslashes, line ends, non-ASCII
+    st.none(),
+    st.integers(0, 9),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_the_batch_encoder_gives_the_csv_writers_text_and_the_row_encoders_messages(data: st.DataObject) -> None:
+    """Whatever a batch holds (NaN, infinities, -0.0, big ints, numpy floats, flags as bools,
+    None, text with quotes, commas, backslashes, line ends or non-ASCII, numbers in text
+    columns), the batch encoder's CSV text and messages are csv.writer's and encode_row's."""
+    cols = ("time_s", "seq", "phase", "a_m", "detail", "b_m")
+    kinds = ["n", "n", "t", "n", "t", "n"]
+    plain = data.draw(st.booleans())  # plain cells only: the batch-at-once paths
+    numbers = _PLAIN_NUMBERS if plain else _NUMBERS
+    texts = _PLAIN_TEXTS if plain else _TEXTS
+    n_rows = data.draw(st.integers(1, 6))
+    rows = [tuple(data.draw(numbers if kind == "n" else texts) for kind in kinds) for _ in range(n_rows)]
+    assert batch_encoder(cols)(rows) == _reference(cols, rows)
+    numeric_cols = ("time_s", "seq", "a_m")
+    numeric_rows = [(r[0], r[1], r[3]) for r in rows]
+    assert batch_encoder(numeric_cols)(numeric_rows) == _reference(numeric_cols, numeric_rows)
+
+
+def test_the_batch_encoder_takes_whole_batches_with_non_finite_numbers_and_odd_rows() -> None:
+    cols = ("time_s", "seq", "phase", "x_m", "request")
+    batches: list[list[tuple[object, ...]]] = [
+        [(0.5, 1, "outbound", math.nan, ""), (1.0, 2, "inbound", -math.inf, "land")],
+        [(0.5, 1, "outbound", 0.25, "")],
+        [(0.5, 1, 'say "hi"', 1.0, "a,b")],
+        [(0.5, 1, "outbound", np.float64(0.1), "")],
+        [(0.5, 1, None, True, "ü")],
+        [],
+    ]
+    for batch in batches:
+        assert batch_encoder(cols)(batch) == _reference(cols, batch)
+    numeric = ("time_s", "x_m")
+    for batch2 in ([(0.5, math.nan), (1.0, 2.0)], [(0.5, 1e300), (1, -0.0)]):
+        assert batch_encoder(numeric)(batch2) == _reference(numeric, batch2)
+    for short in ([(0.5, 1, "outbound", 0.25)], [(0.5,)]):  # a row of another length: as encode_row, refused
+        with pytest.raises(ValueError):
+            batch_encoder(cols if len(short[0]) == 4 else numeric)(short)
+        with pytest.raises(ValueError):
+            encode_row(cols if len(short[0]) == 4 else numeric, short[0])

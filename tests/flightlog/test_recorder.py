@@ -117,3 +117,23 @@ def test_estimates_are_written_exactly(demo_run):
     assert np.all(v > 0) and np.all(v < 1e-2)
     texts = [t.text(k, "var_gyro_bias_z_rad2_s2") for k in range(len(t))]
     assert max(len(s) for s in texts) > 12
+
+
+def test_a_sample_dropped_by_a_full_queue_is_counted_and_still_takes_its_seq(tmp_path):
+    """The telemetry hook appends to the stream's queue itself: a full queue drops the row (counted,
+    in run.json too) and the seq it took leaves a gap the replay reports."""
+    rec = FlightRecorder(tmp_path, CompanionConfig(), max_queue=3, mcap=False)
+    for lg in rec.logs.values():  # no writer wake-up while the samples are queued
+        lg._shared.detach(lg)
+    status = VehicleStatus(0.5, True, FlightMode.OFFBOARD, LandedState.IN_AIR, True, 80.0, False)
+    for k in range(5):
+        rec.on_sample(PositionNed(float(k), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))  # seq 0..4: 3 and 4 dropped
+    for _ in range(4):
+        rec.on_sample(status)  # seq 5..8: an encoded type (flags, enums), 8 dropped
+    rec.on_sample(Attitude(9.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))  # seq 9, queued
+    rec.close()
+    assert Table(tmp_path / "ap_position.csv").floats("seq").tolist() == [0.0, 1.0, 2.0]
+    assert Table(tmp_path / "ap_status.csv").floats("seq").tolist() == [5.0, 6.0, 7.0]
+    assert Table(tmp_path / "ap_attitude.csv").floats("seq").tolist() == [9.0]
+    meta = json.loads((tmp_path / "run.json").read_text())
+    assert meta["dropped"] == {"ap_position.csv": 2, "ap_status.csv": 1}
