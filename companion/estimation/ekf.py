@@ -69,7 +69,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from enum import Enum
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -537,9 +537,10 @@ def aruco_model(x: np.ndarray, T_body_camera: Transform, T_world_marker: Transfo
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class EkfSnapshot:
-    """Everything needed to put the filter back exactly where it was."""
+class EkfSnapshot(NamedTuple):
+    """Everything needed to put the filter back exactly where it was. (Immutable; a named tuple
+    rather than a frozen dataclass: the delayed-measurement buffer takes one per event, and a
+    frozen dataclass's ``__init__`` costs ~2 us, a named tuple's ~0.3 us.)"""
 
     x: np.ndarray
     P: np.ndarray
