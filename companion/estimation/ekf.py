@@ -510,28 +510,25 @@ def aruco_model(x: np.ndarray, T_body_camera: Transform, T_world_marker: Transfo
     den_roll = m21 * m21 + m22 * m22
     den_pitch = math.sqrt(max(1.0 - m20c * m20c, 1e-300))
     den_yaw = m10 * m10 + m00 * m00
-    rows: list[list[float]] = [
-        [-c00, -c01, -c02],
-        [-c10, -c11, -c12],
-        [-c20, -c21, -c22],
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 0.0],
-    ]
+    # H = [d h/dp (-C in rows 0-2, 0 below) | d h/d(roll, pitch, yaw)], gathered column by column
+    # (the rows of H^T: one flat list, one array, no nested lists to parse)
+    Ht = [-c00, -c10, -c20, 0.0, 0.0, 0.0, -c01, -c11, -c21, 0.0, 0.0, 0.0, -c02, -c12, -c22, 0.0, 0.0, 0.0]
     for b0, b1, b2 in zip(B0, B1, B2, strict=True):  # b_k, k = roll, pitch, yaw
-        rows[0].append(q1 * b2 - q2 * b1)  # d(C d)/d angle_k = (C d) x b_k
-        rows[1].append(q2 * b0 - q0 * b2)
-        rows[2].append(q0 * b1 - q1 * b0)
         # the entries of dM_k = -[b_k]x M that the Euler angles of M (eq 14) need
         dM00 = b2 * m10 - b1 * m20
         dM10 = b0 * m20 - b2 * m00
         dM20 = b1 * m00 - b0 * m10
         dM21 = b1 * m01 - b0 * m11
         dM22 = b1 * m02 - b0 * m12
-        rows[3].append((m22 * dM21 - m21 * dM22) / den_roll)
-        rows[4].append(-dM20 / den_pitch)
-        rows[5].append((m00 * dM10 - m10 * dM00) / den_yaw)
-    return hx, np.array(rows)  # H = [d h/dp (-C in rows 0-2, 0 below) | d h/d(roll, pitch, yaw)]
+        Ht += (
+            q1 * b2 - q2 * b1,  # d(C d)/d angle_k = (C d) x b_k
+            q2 * b0 - q0 * b2,
+            q0 * b1 - q1 * b0,
+            (m22 * dM21 - m21 * dM22) / den_roll,  # d roll(M) / d angle_k
+            -dM20 / den_pitch,  # d pitch(M) / d angle_k
+            (m00 * dM10 - m10 * dM00) / den_yaw,  # d yaw(M) / d angle_k
+        )
+    return hx, np.array(Ht).reshape(6, 6).T
 
 
 # ----------------------------------------------------------------------------------------------
