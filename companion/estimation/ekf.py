@@ -40,12 +40,21 @@ zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p),
 * so P is never re-symmetrised as a 12x12 (before: after every step, 2 numpy calls, plus 2 for S);
   ``P0`` and the xi switch's T P T^T are symmetrised once.
 * the small work is done on Python floats: h_ArUco's 3x3 products are written out (summed in the
-  order numpy's matmul sums them), the state stays a list of floats through a prediction's
-  sub-steps and angle wrap and through eq 7's wrap; the 12x12 products stay BLAS calls
-  (``ndarray.dot``: less dispatch than ``@``).
+  order numpy's matmul sums them) and its Jacobian gathered into one flat list, the state stays
+  a list of floats through a prediction's sub-steps and angle wrap and through eq 7's wrap; the
+  12x12 products stay BLAS calls (``ndarray.dot``: less dispatch than ``@``).
+
+Measured on this 2-core machine shared with other jobs, against the forms before (which
+re-symmetrised P and S after every step), interleaved: the steps in one process in small
+alternating batches, min per call (robust to the load, 3-5): predict 15.4 -> 10.4 us, ArUco
+update 33.3 -> 28.6 us, predict + ArUco 48.7 -> 38.9 us (issue 15's target: <= 50 us), the
+ArUco update 50 ms late (10 inputs replayed, an :class:`EkfSnapshot`, now a named tuple, per
+event) 267 -> 205 us; ``companion bench ekf`` (2000-call means, min of 5 runs at load 3-5.5)
+predict + ArUco 62.5 -> 45.2 us.
 
 The forms round differently from the ones before (the fused flight's golden digests in
-tests/flightlog/test_log_bytes.py were regenerated: its estimate moved by <= 6e-10 m);
+tests/flightlog/test_log_bytes.py were regenerated: its estimate moved by <= 6e-10 m; the
+100-landing campaign's figures are unchanged, each landing within 3.1e-7 m);
 :mod:`companion.estimation.ekf_reference` keeps the dense form, tests/estimation/test_ekf_sparse.py
 holds the two equal to ~1e-9 and ``companion bench ekf`` times both in one run.
 
