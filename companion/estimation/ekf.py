@@ -45,12 +45,11 @@ zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p),
   12x12 products stay BLAS calls (``ndarray.dot``: less dispatch than ``@``).
 
 Measured on this 2-core machine shared with other jobs, against the forms before (which
-re-symmetrised P and S after every step), interleaved: the steps in one process in small
-alternating batches, min per call (robust to the load, 3-5): predict 15.4 -> 10.4 us, ArUco
-update 33.3 -> 28.6 us, predict + ArUco 48.7 -> 38.9 us (issue 15's target: <= 50 us), the
-ArUco update 50 ms late (10 inputs replayed, an :class:`EkfSnapshot`, now a named tuple, per
-event) 267 -> 205 us; ``companion bench ekf`` (2000-call means, min of 5 runs at load 3-5.5)
-predict + ArUco 62.5 -> 45.2 us.
+re-symmetrised P and S after every step), interleaved: ``companion bench ekf``, min of 5 runs
+each at load 1.1-1.7: predict 15.5 -> 10.5 us, ArUco update 33.7 -> 27.2 us, predict + ArUco
+49.3 -> 37.8 us (issue 15's target: <= 50 us; 62.5 -> 45.2 us at load 3-5.5), SDK update
+34.1 -> 29.6 us, UWB 28.4 -> 24.0 us, the ArUco update 50 ms late (10 inputs replayed, an
+:class:`EkfSnapshot`, now a named tuple, per event) 275 -> 203 us.
 
 The forms round differently from the ones before (the fused flight's golden digests in
 tests/flightlog/test_log_bytes.py were regenerated: its estimate moved by <= 6e-10 m; the
