@@ -47,7 +47,7 @@ zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p),
 Measured on this 2-core machine shared with other jobs, against the forms before (which
 re-symmetrised P and S after every step), interleaved: ``companion bench ekf``, min of 5 runs
 each at load 1.1-1.7: predict 15.5 -> 10.5 us, ArUco update 33.7 -> 27.2 us, predict + ArUco
-49.3 -> 37.8 us (issue 15's target: <= 50 us; 62.5 -> 45.2 us at load 3-5.5), SDK update
+49.3 -> 37.8 us (issue 15's target: <= 50 us; 62.5 -> 45.2 us, min of 10 runs at load 2.6-5.6), SDK update
 34.1 -> 29.6 us, UWB 28.4 -> 24.0 us, the ArUco update 50 ms late (10 inputs replayed, an
 :class:`EkfSnapshot`, now a named tuple, per event) 275 -> 203 us.
 
