@@ -12,7 +12,8 @@ Input u = [world velocity (3, m/s NED), body rates (3, rad/s FRD)].
 * correction (eqs 7, 9) with the Joseph form P <- (I-KH) P (I-KH)^T + K R K^T instead of eq 8:
   eq 8 is only correct for the optimal gain and in floating point loses symmetry and positive
   definiteness (its error is first order in the gain error); the Joseph form is second order and
-  symmetric PSD by construction. P is re-symmetrised and its diagonal floored after every step.
+  symmetric PSD by construction. Every step keeps a symmetric P exactly symmetric (see Speed)
+  and the diagonal is floored after every step.
 * measurement models: h_SDK (eq 12) p + xi b_p and r; h_ArUco (eqs 13-14) the marker pose in the
   camera, (H_c^d)^-1 (H_d^w)^-1 H_a^w, as position and ZYX Euler angles; h_UWB (eq 15) p.
   Angle residuals are wrapped to [-pi, pi). All Jacobians are analytic (tested against central
@@ -25,15 +26,35 @@ EKF would need all of that bolted on through callbacks, and DESIGN.md measured i
 predict against ~40 us for hand numpy on these machines.
 
 Speed: the steps use the model's structure (F is the identity but for the attitude rows, G is
-zero below row 6, ArUco sees only p and r, UWB only p): eq 6 updates only the rows/columns that
-change, h_ArUco and its Jacobian come from one pass, the Joseph form runs on the non-zero
-columns of H, and S is factored once (Cholesky) instead of inverted. numpy costs ~0.5-1 us a call
-on these sizes, so the small work is done on Python floats: h_ArUco's 3x3 products are written
-out (summed in the order numpy's matmul sums them), the state stays a list of floats through a
-prediction's sub-steps and angle wrap, Q_u's diagonal scales G's columns; the 12x12 products
-stay BLAS calls (``ndarray.dot``: less dispatch than ``@``). In the golden digests' pinned
-arithmetic (tests/flightlog/test_log_bytes.py) every step gives the floats it gave before.
-:mod:`companion.estimation.ekf_reference` keeps the dense form; tests/estimation/test_ekf_sparse.py
+zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p), and numpy costs
+~0.5-1 us a call on these sizes, so the aim is few calls:
+
+* eq 6 changes only rows and columns 3-5 of P: F3 P (rows 3-5 of F) gives the rows, the columns
+  are their transpose (P symmetric), the 3x3 block F3 P F3^T is symmetrised and G Q_u G^T added
+  on floats (G Q_u G^T is dt^2 Q_v on p's diagonal and G_r Q_w G_r^T, G_r = J_r dt, on the
+  attitude block), Q_f with dt^2 Q_v is one cached diagonal. The result is exactly symmetric.
+* the correction runs on the non-zero columns of H; S = H P H^T + R is factored once (Cholesky,
+  LAPACK potrf/potrs) instead of inverted and not re-symmetrised (potrf reads one triangle); the
+  Joseph form is regrouped as P + N + N^T, N = (K S / 2 - P H^T) K^T (:func:`joseph_covariance`:
+  still exact for any K, one dgemm for K S / 2 - P H^T), exactly symmetric too.
+* so P is never re-symmetrised as a 12x12 (before: after every step, 2 numpy calls, plus 2 for S);
+  ``P0`` and the xi switch's T P T^T are symmetrised once.
+* the small work is done on Python floats: h_ArUco's 3x3 products are written out (summed in the
+  order numpy's matmul sums them) and its Jacobian gathered into one flat list, the state stays
+  a list of floats through a prediction's sub-steps and angle wrap and through eq 7's wrap; the
+  12x12 products stay BLAS calls (``ndarray.dot``: less dispatch than ``@``).
+
+Measured on this 2-core machine shared with other jobs, against the forms before (which
+re-symmetrised P and S after every step), interleaved: ``companion bench ekf``, min of 5 runs
+each at load 1.1-1.7: predict 15.5 -> 10.5 us, ArUco update 33.7 -> 27.2 us, predict + ArUco
+49.3 -> 37.8 us (issue 15's target: <= 50 us; 62.5 -> 45.2 us, min of 10 runs at load 2.6-5.6), SDK update
+34.1 -> 29.6 us, UWB 28.4 -> 24.0 us, the ArUco update 50 ms late (10 inputs replayed, an
+:class:`EkfSnapshot`, now a named tuple, per event) 275 -> 203 us.
+
+The forms round differently from the ones before (the fused flight's golden digests in
+tests/flightlog/test_log_bytes.py were regenerated: its estimate moved by <= 6e-10 m; the
+100-landing campaign's figures are unchanged, each landing within 3.1e-7 m);
+:mod:`companion.estimation.ekf_reference` keeps the dense form, tests/estimation/test_ekf_sparse.py
 holds the two equal to ~1e-9 and ``companion bench ekf`` times both in one run.
 
 Beyond the paper: chi-square (Mahalanobis) gating with per-sensor counters; measurement noise
@@ -56,10 +77,11 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from enum import Enum
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg.blas import dgemm as _gemm
 from scipy.linalg.lapack import dpotrf as _potrf
 from scipy.linalg.lapack import dpotrs as _potrs
 from scipy.special import gammaincinv
@@ -229,13 +251,26 @@ def propagation_blocks(x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndar
     :func:`propagate` and :func:`propagation_jacobians` (up to rounding), in scalar arithmetic
     (numpy's per-call overhead dominates at this size)."""
     xl = x.tolist()
-    F3, G6 = _propagation_step(xl, u.tolist(), dt)
+    F3, gr = _propagation_step(xl, u.tolist(), dt)
+    g01, g02, g11, g12, g21, g22 = gr
+    G6 = np.array(
+        [
+            [dt, 0.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, dt, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, dt, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, dt, g01, g02],
+            [0.0, 0.0, 0.0, 0.0, g11, g12],
+            [0.0, 0.0, 0.0, 0.0, g21, g22],
+        ]
+    )
     return np.array(xl), F3, G6
 
 
-def _propagation_step(xl: list[float], ul: list[float], dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`propagation_blocks` on Python lists: ``xl`` becomes f(x, u, dt) in place (eq 11), the
-    blocks F3 and G6 are returned (so that sub-steps and the angle wrap stay on floats)."""
+def _propagation_step(xl: list[float], ul: list[float], dt: float) -> tuple[np.ndarray, tuple[float, ...]]:
+    """:func:`propagation_blocks` on Python lists: ``xl`` becomes f(x, u, dt) in place (eq 11);
+    returned are F3 (rows 3-5 of F) and the entries of J_r dt that are not 0 or dt (G's rate block,
+    rows 3-5: [dt, g01, g02], [0, g11, g12], [0, g21, g22]), as floats: eq 6 needs G only in the
+    3x3 noise block, which :func:`_covariance_step` sums on floats."""
     roll, pitch = xl[3], xl[4]
     sr, cr = math.sin(roll), math.cos(roll)
     sp, cp = math.sin(pitch), math.cos(pitch)
@@ -263,36 +298,76 @@ def _propagation_step(xl: list[float], ul: list[float], dt: float) -> tuple[np.n
             [0.0, 0.0, 0.0, a / cp * dt, b * sp / cp2 * dt, 1.0, 0.0, 0.0, 0.0, 0.0, -j21 * dt, -j22 * dt],
         ]
     )
-    G6 = np.array(
-        [
-            [dt, 0.0, 0.0, 0.0, 0.0, 0.0],
-            [0.0, dt, 0.0, 0.0, 0.0, 0.0],
-            [0.0, 0.0, dt, 0.0, 0.0, 0.0],
-            [0.0, 0.0, 0.0, dt, j01 * dt, j02 * dt],
-            [0.0, 0.0, 0.0, 0.0, j11 * dt, j12 * dt],
-            [0.0, 0.0, 0.0, 0.0, j21 * dt, j22 * dt],
-        ]
-    )
-    return F3, G6
+    return F3, (j01 * dt, j02 * dt, j11 * dt, j12 * dt, j21 * dt, j22 * dt)
 
 
 def propagate_covariance(P: np.ndarray, F3: np.ndarray, G6: np.ndarray, qu: np.ndarray, Qf: np.ndarray) -> np.ndarray:
     """Delivery eq 6, P <- F P F^T + G Q_u G^T + Q_f, on the structure of eq 11: ``F3`` = rows 3-5
-    of F (the others are rows of I), ``G6`` = rows 0-5 of G (zero below), ``qu`` = the diagonal of
-    Q_u and ``Qf`` the diagonal of Q_f (both diagonal by construction, :class:`EkfConfig`). Only
-    rows/columns 3-5 of F P F^T and the top-left 6x6 block of G Q_u G^T are computed; equal to the
-    dense products up to rounding (tests/estimation/test_ekf_sparse.py)."""
-    # (ndarray.dot rather than @: the same BLAS products, ~0.5 us less dispatch per call)
+    of F (the others are rows of I), ``G6`` = rows 0-5 of G (zero below; dt I over the velocity
+    inputs, J_r dt over the rates, zero between), ``qu`` = the diagonal of Q_u and ``Qf`` the
+    diagonal of Q_f (both diagonal by construction, :class:`EkfConfig`). Equal to the dense
+    products up to rounding (tests/estimation/test_ekf_sparse.py); see :func:`_covariance_step`."""
+    (dt, _, _, _, _, _), _, _, (_, _, _, _, g01, g02), (_, _, _, _, g11, g12), (_, _, _, _, g21, g22) = G6.tolist()
+    qd = np.asarray(Qf, dtype=float).copy()
+    qd[0:3] += dt * dt * np.asarray(qu, dtype=float)[0:3]  # G Q_u G^T over p: dt^2 Q_v (diagonal)
+    return _covariance_step(P, F3, dt, (g01, g02, g11, g12, g21, g22), qu[3:6].tolist(), qd)
+
+
+def _covariance_step(
+    P: np.ndarray, F3: np.ndarray, dt: float, gr: tuple[float, ...], qw: list[float], qd: np.ndarray
+) -> np.ndarray:
+    """Delivery eq 6, P <- F P F^T + G Q_u G^T + Q_f, written so that a symmetric P gives an
+    exactly symmetric result (no re-symmetrisation needed afterwards):
+
+    * F P F^T: F = I but for rows 3-5 (``F3``), so with A = F3 P only rows and columns 3-5 change:
+      rows 3-5 are A, columns 3-5 (outside rows 3-5) are A^T (P symmetric), and the 3x3 block
+      F3 P F3^T is symmetrised on floats.
+    * G Q_u G^T is block diagonal (G = [dt I, 0; 0, J_r dt] above row 6, Q_u diagonal):
+      dt^2 Q_v on p's diagonal and G_r Q_w G_r^T (G_r = J_r dt, entries ``gr``, Q_w = diag(``qw``))
+      on the attitude block, each entry summed once and mirrored.
+    * ``qd`` = the diagonal of Q_f with dt^2 Q_v added on p's three entries.
+    """
     out = P.copy()
-    F3.dot(P, out=out[3:6])  # F P: only rows 3-5 change (written in place)
-    out[:, 3:6] = out.dot(F3.T)  # (F P) F^T: only columns 3-5 change
-    # G Q_u G^T with Q_u diagonal: G Q_u scales G's columns (each entry one product, as the matrix
-    # product with a diagonal Q_u gives it: the same floats, one numpy call fewer)
-    top_left = out[0:6, 0:6]
-    top_left += (G6 * qu).dot(G6.T)
+    A = out[3:6]
+    F3.dot(P, out=A)  # rows 3-5 of F P (ndarray.dot: ~0.5 us less dispatch than @)
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = A.dot(F3.T).tolist()  # F3 P F3^T
+    out[:, 3:6] = A.T  # columns 3-5 of F P F^T = (rows 3-5)^T; their 3x3 block is set below
+    g01, g02, g11, g12, g21, g22 = gr  # G_r rows: [dt, g01, g02], [0, g11, g12], [0, g21, g22]
+    q3, q4, q5 = qw
+    # G_r Q_w: the rows scaled by Q_w's diagonal
+    h00, h01, h02 = dt * q3, g01 * q4, g02 * q5
+    h11, h12, h21, h22 = g11 * q4, g12 * q5, g21 * q4, g22 * q5
+    c01 = 0.5 * (b01 + b10) + (h01 * g11 + h02 * g12)  # (F P F^T + G_r Q_w G_r^T), upper triangle
+    c02 = 0.5 * (b02 + b20) + (h01 * g21 + h02 * g22)
+    c12 = 0.5 * (b12 + b21) + (h11 * g21 + h12 * g22)
+    out[3:6, 3:6] = (
+        (b00 + (h00 * dt + h01 * g01 + h02 * g02), c01, c02),
+        (c01, b11 + (h11 * g11 + h12 * g12), c12),
+        (c02, c12, b22 + (h21 * g21 + h22 * g22)),
+    )
     diagonal = out.reshape(-1)[:: N_STATES + 1]  # a view of the diagonal
-    diagonal += Qf  # Q_f
+    diagonal += qd  # Q_f, and dt^2 Q_v (G Q_u G^T over p)
     return out
+
+
+def joseph_covariance(P: np.ndarray, K: np.ndarray, PHt: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """The Joseph form of delivery eq 8, (I - K H) P (I - K H)^T + K R K^T, from P H^T and
+    S = H P H^T + R (so that the sparse H is never widened to 12 columns).
+
+    Expanded it is P - K (P H^T)^T - (P H^T) K^T + K S K^T, exact for any gain K (not only the
+    optimal one: a rounding error in K stays second order in P, the reason for the Joseph form),
+    and regrouped as
+
+        P + N + N^T,    N = (K S / 2 - P H^T) K^T
+
+    (N + N^T = K (S + S^T)/2 K^T - K (P H^T)^T - (P H^T) K^T: S's symmetric part, so S needs no
+    re-symmetrising). N + N^T is symmetric to the last bit, so a symmetric P gives an exactly
+    symmetric result and the 12x12 matrix is never re-symmetrised. K S / 2 - P H^T is one BLAS
+    call (dgemm with alpha = 1/2, beta = -1). Equal to the dense form to ~1e-9 relative
+    (tests/estimation/test_ekf_sparse.py).
+    """
+    N = _gemm(0.5, K, S, -1.0, PHt).dot(K.T)
+    return P + (N + N.T)
 
 
 def h_sdk(x: np.ndarray, xi: float, with_angles: bool = True) -> np.ndarray:
@@ -443,36 +518,34 @@ def aruco_model(x: np.ndarray, T_body_camera: Transform, T_world_marker: Transfo
     den_roll = m21 * m21 + m22 * m22
     den_pitch = math.sqrt(max(1.0 - m20c * m20c, 1e-300))
     den_yaw = m10 * m10 + m00 * m00
-    rows: list[list[float]] = [
-        [-c00, -c01, -c02],
-        [-c10, -c11, -c12],
-        [-c20, -c21, -c22],
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 0.0],
-    ]
+    # H = [d h/dp (-C in rows 0-2, 0 below) | d h/d(roll, pitch, yaw)], gathered column by column
+    # (the rows of H^T: one flat list, one array, no nested lists to parse)
+    Ht = [-c00, -c10, -c20, 0.0, 0.0, 0.0, -c01, -c11, -c21, 0.0, 0.0, 0.0, -c02, -c12, -c22, 0.0, 0.0, 0.0]
     for b0, b1, b2 in zip(B0, B1, B2, strict=True):  # b_k, k = roll, pitch, yaw
-        rows[0].append(q1 * b2 - q2 * b1)  # d(C d)/d angle_k = (C d) x b_k
-        rows[1].append(q2 * b0 - q0 * b2)
-        rows[2].append(q0 * b1 - q1 * b0)
         # the entries of dM_k = -[b_k]x M that the Euler angles of M (eq 14) need
         dM00 = b2 * m10 - b1 * m20
         dM10 = b0 * m20 - b2 * m00
         dM20 = b1 * m00 - b0 * m10
         dM21 = b1 * m01 - b0 * m11
         dM22 = b1 * m02 - b0 * m12
-        rows[3].append((m22 * dM21 - m21 * dM22) / den_roll)
-        rows[4].append(-dM20 / den_pitch)
-        rows[5].append((m00 * dM10 - m10 * dM00) / den_yaw)
-    return hx, np.array(rows)  # H = [d h/dp (-C in rows 0-2, 0 below) | d h/d(roll, pitch, yaw)]
+        Ht += (
+            q1 * b2 - q2 * b1,  # d(C d)/d angle_k = (C d) x b_k
+            q2 * b0 - q0 * b2,
+            q0 * b1 - q1 * b0,
+            (m22 * dM21 - m21 * dM22) / den_roll,  # d roll(M) / d angle_k
+            -dM20 / den_pitch,  # d pitch(M) / d angle_k
+            (m00 * dM10 - m10 * dM00) / den_yaw,  # d yaw(M) / d angle_k
+        )
+    return hx, np.array(Ht).reshape(6, 6).T
 
 
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class EkfSnapshot:
-    """Everything needed to put the filter back exactly where it was."""
+class EkfSnapshot(NamedTuple):
+    """Everything needed to put the filter back exactly where it was. (Immutable; a named tuple
+    rather than a frozen dataclass: the delayed-measurement buffer takes one per event, and a
+    frozen dataclass's ``__init__`` costs ~2 us, a named tuple's ~0.3 us.)"""
 
     x: np.ndarray
     P: np.ndarray
@@ -514,7 +587,8 @@ class DeliveryEkf:
                 + [cfg.initial_gyro_bias_sigma_rad_s**2] * 3
             )
         else:
-            self.P = np.asarray(P0, dtype=float).reshape(N_STATES, N_STATES).copy()
+            P0a = np.asarray(P0, dtype=float).reshape(N_STATES, N_STATES)
+            self.P = (P0a + P0a.T) * 0.5  # exactly symmetric from the start: the steps keep it so
         if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(self.P))):
             raise ValueError("x0 and P0 must be finite")
         self.xi = False  # delivery eq 12: pad-local data (ArUco or UWB) observed yet?
@@ -529,7 +603,9 @@ class DeliveryEkf:
             + [cfg.gps_bias_process_sigma_m_per_sqrt_s**2] * 3
             + [cfg.gyro_bias_process_sigma_rad_s_per_sqrt_s**2] * 3
         )
-        self._qf_step, self._qf = math.nan, self._qf_density  # predict's Q_f diagonal, per step length
+        self._qw = self._qu[3:6].tolist()  # Q_w, the rates' block of Q_u (eq 6's attitude noise)
+        # predict's step length and the diagonal it adds for it: Q_f + dt^2 Q_v on p (eq 6)
+        self._q_step, self._qd = math.nan, self._qf_density
         self._gate = {dof: chi2_ppf(cfg.gate_probability, dof) for dof in (3, 6)}
         self._H_uwb = jacobian_uwb()
         # h_ArUco and its Jacobian (the dense reference filter swaps in the separate functions)
@@ -541,6 +617,7 @@ class DeliveryEkf:
             self.counters[f"{s}.gate_resets"] = 0
         # the counter names (the enum's value property and an f-string cost ~1 us per update)
         self._counter_key = {(s, o): f"{s}.{o.value}" for s in SENSORS for o in UpdateOutcome}
+        self._accepted_key = {s: f"{s}.{UpdateOutcome.ACCEPTED.value}" for s in SENSORS}
 
     # ---- bookkeeping ---------------------------------------------------------------------
 
@@ -607,17 +684,20 @@ class DeliveryEkf:
             ul = self.last_input.tolist()
         else:
             self.last_input = uu.copy()
-        n = max(1, math.ceil(dt_s / self.config.max_step_s - 1e-9))
+        max_step = self.config.max_step_s
+        n = 1 if dt_s <= max_step else math.ceil(dt_s / max_step - 1e-9)  # sub-steps of <= max_step
         h = dt_s / n
-        if h != self._qf_step:  # the diagonal of Q_f for this step (the input rate's step, cached)
-            self._qf_step, self._qf = h, self._qf_density * h
-        Qf, qu = self._qf, self._qu
+        if h != self._q_step:  # eq 6's diagonal for this step (the input rate's step, cached)
+            qd = self._qf_density * h  # Q_f
+            qd[0:3] += h * h * self._qu[0:3]  # G Q_u G^T over p: dt^2 Q_v
+            self._q_step, self._qd = h, qd
+        qd, qw = self._qd, self._qw
         # the state stays a list of floats through the sub-steps and the wrap: one array at the end
         xl = self.x.tolist()
         P = self.P
         for _ in range(n):
-            F3, G6 = _propagation_step(xl, ul, h)  # eq 5 with eq 11 (xl <- f(x, u, h))
-            P = propagate_covariance(P, F3, G6, qu, Qf)  # eq 6
+            F3, gr = _propagation_step(xl, ul, h)  # eq 5 with eq 11 (xl <- f(x, u, h))
+            P = _covariance_step(P, F3, h, gr, qw, qd)  # eq 6 (exactly symmetric: no re-symmetrising)
         xl[3] = (xl[3] + math.pi) % _TWO_PI - math.pi
         xl[5] = (xl[5] + math.pi) % _TWO_PI - math.pi
         self.x = np.array(xl)
@@ -654,15 +734,13 @@ class DeliveryEkf:
     def update_aruco(self, T_camera_marker: Transform, T_world_marker: Transform) -> UpdateOutcome:
         """Marker pose from PnP, as measured (delivery eqs 13-14), diagonal R."""
         cfg = self.config
-        R_cm = np.asarray(T_camera_marker.R, dtype=float)
-        (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R_cm.tolist()
-        if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22))):
+        (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(T_camera_marker.R, dtype=float).tolist()
+        t0, t1, t2 = np.asarray(T_camera_marker.t, dtype=float).reshape(3).tolist()
+        # one finiteness test: the angles of a finite R are finite (atan2, asin of a clamped value)
+        if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, t0, t1, t2))):
             return self._count("aruco", UpdateOutcome.REJECTED_NONFINITE)
-        zl = np.asarray(T_camera_marker.t, dtype=float).reshape(3).tolist()
-        zl += (math.atan2(m21, m22), -math.asin(max(-1.0, min(1.0, m20))), math.atan2(m10, m00))  # as _euler_of
-        if not all(map(math.isfinite, zl)):
-            return self._count("aruco", UpdateOutcome.REJECTED_NONFINITE)
-        z = np.array(zl)
+        # z: the marker's position and ZYX Euler angles in the camera (eqs 13-14; as _euler_of)
+        z = np.array((t0, t1, t2, math.atan2(m21, m22), -math.asin(max(-1.0, min(1.0, m20))), math.atan2(m10, m00)))
         height = self.height_above_pad_m
         if height > cfg.aruco_max_height_m:
             return self._count("aruco", UpdateOutcome.REJECTED_HEIGHT)
@@ -737,7 +815,8 @@ class DeliveryEkf:
         T = np.eye(N_STATES)
         T[0:3, 6:9] = -np.eye(3)  # p <- p - b_p
         self.x = T @ saved_x
-        self.P = T @ saved_P @ T.T
+        TPTt = T @ saved_P @ T.T
+        self.P = (TPTt + TPTt.T) * 0.5  # exactly symmetric, as the update's Joseph form wants P
         outcome = self._update(sensor, z, *model(self.x), R, has_angles)
         if outcome is UpdateOutcome.ACCEPTED:
             self.xi = True
@@ -762,12 +841,13 @@ class DeliveryEkf:
                 (y5 + math.pi) % _TWO_PI - math.pi,
             )
         k = H.shape[1]
+        P = self.P
         # (ndarray.dot rather than @ for the products: the same BLAS calls, ~0.5 us less dispatch each)
-        PHt = self.P[:, 0:k].dot(H.T)  # P H^T
-        S = H.dot(PHt[0:k]) + R  # H P H^T + R
-        S += S.T
-        S *= 0.5  # 0.5 (S + S^T), in place
-        L, info = _potrf(S, lower=1)  # Cholesky factor: S must be positive definite
+        PHt = P[:, 0:k].dot(H.T)  # P H^T
+        S = H.dot(PHt[0:k])
+        S += R  # S = H P H^T + R (not re-symmetrised: potrf reads one triangle, the Joseph form below
+        #         takes S's symmetric part by construction)
+        L, info = _potrf(S, lower=1)  # Cholesky factor of S (its lower triangle): S must be positive definite
         if info != 0:
             return self._count(sensor, UpdateOutcome.REJECTED_NUMERICAL)
         d2 = float(y.dot(_potrs(L, y, lower=1)[0]))  # squared Mahalanobis distance y^T S^-1 y
@@ -776,21 +856,15 @@ class DeliveryEkf:
             self._note_gate_rejection(sensor)
             return self._count(sensor, UpdateOutcome.REJECTED_GATE)
         self.consecutive_rejections[sensor] = 0
-        K = _potrs(L, PHt.T, lower=1)[0].T  # eq 9: K = P H^T S^-1 (S symmetric)
-        x = self.x + K.dot(y)  # eq 7
-        x[3] = (float(x[3]) + math.pi) % _TWO_PI - math.pi
-        x[5] = (float(x[5]) + math.pi) % _TWO_PI - math.pi
-        self.x = x
-        # Joseph form of eq 8, (I - KH) P (I - KH)^T + K R K^T, expanded (exact for any K) so
-        # that the sparse H is never widened: P - K (P H^T)^T - (P H^T) K^T + K S K^T, summed
-        # left to right into one new array
-        KPHt = K.dot(PHt.T)
-        P = self.P - KPHt
-        P -= KPHt.T
-        P += K.dot(S).dot(K.T)
-        self.P = P
+        K = _potrs(L, PHt.T, lower=1)[0].T  # eq 9: K = P H^T S^-1 (two triangular solves, no inverse)
+        xl = (self.x + K.dot(y)).tolist()  # eq 7
+        xl[3] = (xl[3] + math.pi) % _TWO_PI - math.pi  # roll and yaw wrapped to [-pi, pi), on floats
+        xl[5] = (xl[5] + math.pi) % _TWO_PI - math.pi
+        self.x = np.array(xl)
+        self.P = joseph_covariance(P, K, PHt, S)  # the Joseph form of eq 8 (exactly symmetric)
         self._condition()
-        return self._count(sensor, UpdateOutcome.ACCEPTED)
+        self.counters[self._accepted_key[sensor]] += 1
+        return UpdateOutcome.ACCEPTED
 
     def _note_gate_rejection(self, sensor: str) -> None:
         """Count consecutive gate rejections; after too many, inflate what the sensor disputes."""
@@ -816,9 +890,10 @@ class DeliveryEkf:
             self.P[b, b] = np.eye(3) * sig * sig
 
     def _condition(self) -> None:
-        """Keep P symmetric with a positive diagonal."""
-        P = self.P + self.P.T
-        P *= 0.5  # (P + P^T) / 2 into one new array
+        """Floor P's diagonal at ``min_variance`` (counted as a repair). P's symmetry needs no
+        repair: every step keeps a symmetric P exactly symmetric (eq 6 mirrors its changed rows
+        into the columns, the Joseph form adds N + N^T, the xi switch and ``P0`` are symmetrised)."""
+        P = self.P
         mv = self.config.min_variance
         # a cheap screen on Python floats first: min() is below mv, or NaN, only when some variance
         # is below mv or NaN; then the exact array test (NaN compares False: not repaired)
@@ -826,5 +901,6 @@ class DeliveryEkf:
             idx = np.flatnonzero(P.diagonal() < mv)
             if idx.size:
                 self.counters["covariance.repairs"] += 1
+                P = P.copy()  # (a new array: a snapshot may hold the old one)
                 P[idx, idx] = mv
-        self.P = P
+                self.P = P

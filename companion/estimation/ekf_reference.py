@@ -43,6 +43,11 @@ class DenseDeliveryEkf(DeliveryEkf):
         super().__init__(*args, **kwargs)
         self._aruco_model_fn = _dense_aruco_model
 
+    def _symmetrise_and_condition(self) -> None:
+        """(P + P^T) / 2 (the dense products are symmetric only to rounding), then the diagonal floor."""
+        self.P = (self.P + self.P.T) * 0.5
+        self._condition()
+
     def predict(self, u: ArrayLike, dt_s: float) -> bool:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             if dt_s != 0.0:
@@ -63,7 +68,7 @@ class DenseDeliveryEkf(DeliveryEkf):
             self.P = F @ self.P @ F.T + G @ self._Qu @ G.T + Qf  # eq 6
         self.x[3] = (self.x[3] + math.pi) % _TWO_PI - math.pi
         self.x[5] = (self.x[5] + math.pi) % _TWO_PI - math.pi
-        self._condition()
+        self._symmetrise_and_condition()
         return True
 
     def _update(
@@ -95,5 +100,5 @@ class DenseDeliveryEkf(DeliveryEkf):
         self.x[5] = (self.x[5] + math.pi) % _TWO_PI - math.pi
         IKH = np.eye(N_STATES) - K @ H
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T  # Joseph form of eq 8
-        self._condition()
+        self._symmetrise_and_condition()
         return self._count(sensor, UpdateOutcome.ACCEPTED)

@@ -1,5 +1,5 @@
-"""The EKF's structured steps (sparse eq 6, one-pass h_ArUco + Jacobian, Joseph form on the
-non-zero columns of H, Cholesky solves) against the straightforward dense form
+"""The EKF's structured steps (sparse, exactly symmetric eq 6; one-pass h_ArUco + Jacobian; the
+regrouped Joseph form on the non-zero columns of H; Cholesky solves) against the straightforward dense form
 (:class:`companion.estimation.ekf_reference.DenseDeliveryEkf`), on seeded random states,
 inputs and measurements."""
 
@@ -17,6 +17,7 @@ from companion.estimation.ekf import (
     aruco_model,
     h_aruco,
     jacobian_aruco,
+    joseph_covariance,
     propagate,
     propagate_covariance,
     propagation_blocks,
@@ -174,26 +175,44 @@ def test_aruco_model_on_floats_equals_the_numpy_products_to_1e_12() -> None:
         np.testing.assert_allclose(H, H_ref, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(H_ref))))
 
 
-def test_covariance_with_the_diagonal_of_q_u_is_bit_for_bit_the_matrix_product() -> None:
-    """G Q_u with Q_u diagonal: every entry is one product, so scaling G's columns gives exactly
-    the floats of the product with the diagonal matrix (the form propagate_covariance had)."""
+def test_covariance_step_keeps_p_exactly_symmetric_and_sums_g_q_g_t_by_hand() -> None:
+    """Eq 6 as predict runs it: a symmetric P gives an exactly symmetric result (the changed rows
+    mirrored into the columns, the 3x3 block and G_r Q_w G_r^T summed once), equal to the dense
+    F P F^T + G Q_u G^T + Q_f; and the attitude noise block against hand-computed values."""
     rng = np.random.default_rng(8)
     for _ in range(200):
         x, P = _random_state(rng), _random_cov(rng)
+        P = (P + P.T) * 0.5
         u, dt = rng.normal(0.0, 1.0, 6), float(rng.uniform(0.001, 0.05))
         qu, qf = rng.uniform(0.01, 0.5, 6), rng.uniform(1e-6, 1e-2, 12) * dt
-        _, F3, G6 = propagation_blocks(x, u, dt)
-        ref = P.copy()
-        ref[3:6] = F3 @ P
-        ref[:, 3:6] = ref @ F3.T
-        ref[0:6, 0:6] += G6 @ np.diag(qu) @ G6.T
-        ref.reshape(-1)[::13] += qf
-        np.testing.assert_array_equal(propagate_covariance(P, F3, G6, qu, qf), ref)
+        F, G = propagation_jacobians(x, u, dt)
+        out = propagate_covariance(P, *propagation_blocks(x, u, dt)[1:], qu, qf)
+        np.testing.assert_array_equal(out, out.T)
+        _close(out, F @ P @ F.T + G @ np.diag(qu) @ G.T + np.diag(qf))
+    # with P = 0 and F's blocks irrelevant, the attitude block is G_r Q_w G_r^T + Q_f,r: for
+    # roll = pitch = 0, J_r = I, so it is dt^2 diag(q_w) + Q_f,r
+    dt, qu, qf = 0.01, np.array([1.0, 2.0, 3.0, 0.5, 0.25, 0.125]), np.full(12, 1e-3)
+    _, F3, G6 = propagation_blocks(np.zeros(12), np.zeros(6), dt)
+    out = propagate_covariance(np.zeros((12, 12)), F3, G6, qu, qf)
+    np.testing.assert_allclose(np.diag(out)[0:6], dt * dt * qu + 1e-3, rtol=1e-15)
+    np.testing.assert_array_equal(out - np.diag(np.diag(out)), 0.0)
+    # pitch = 0.3, roll = 0.2: J_r rows [1, sr tp, cr tp], [0, cr, -sr], [0, sr/cp, cr/cp]
+    r, p = 0.2, 0.3
+    Jr = np.array([[1.0, math.sin(r) * math.tan(p), math.cos(r) * math.tan(p)],
+                   [0.0, math.cos(r), -math.sin(r)],
+                   [0.0, math.sin(r) / math.cos(p), math.cos(r) / math.cos(p)]])  # fmt: skip
+    x = np.zeros(12)
+    x[3:5] = r, p
+    _, F3, G6 = propagation_blocks(x, np.zeros(6), dt)
+    out = propagate_covariance(np.zeros((12, 12)), F3, G6, qu, np.zeros(12))
+    want = dt * dt * np.einsum("ik,k,jk->ij", Jr, qu[3:6], Jr)
+    np.testing.assert_allclose(out[3:6, 3:6], want, rtol=1e-14, atol=1e-20)
 
 
 def test_predict_on_floats_is_bit_for_bit_the_block_functions() -> None:
-    """DeliveryEkf.predict (state kept as floats through sub-steps and the wrap) against
-    propagation_blocks + propagate_covariance + the wrap + symmetrisation, one step and sub-stepped."""
+    """DeliveryEkf.predict (state kept as floats through sub-steps and the wrap, eq 6's diagonal
+    cached per step length) against propagation_blocks + propagate_covariance + the wrap, one step
+    and sub-stepped; P stays exactly symmetric, so nothing is re-symmetrised."""
     rng = np.random.default_rng(9)
     cfg = EkfConfig()
     for dt in (0.005, 0.12):
@@ -205,14 +224,73 @@ def test_predict_on_floats_is_bit_for_bit_the_block_functions() -> None:
             assert ekf.predict(u, dt)
             n = max(1, math.ceil(dt / cfg.max_step_s - 1e-9))
             h = dt / n
-            x, P = x0.copy(), P0.copy()
+            x, P = x0.copy(), (P0 + P0.T) * 0.5
             for _ in range(n):
                 x, F3, G6 = propagation_blocks(x, u, h)
                 P = propagate_covariance(P, F3, G6, ekf._Qu.diagonal(), ekf._qf_density * h)
             x[3] = (x[3] + math.pi) % (2 * math.pi) - math.pi
             x[5] = (x[5] + math.pi) % (2 * math.pi) - math.pi
             np.testing.assert_array_equal(ekf.x, x)
-            np.testing.assert_array_equal(ekf.P, (P + P.T) * 0.5)
+            np.testing.assert_array_equal(ekf.P, P)
+            np.testing.assert_array_equal(ekf.P, ekf.P.T)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_joseph_covariance_equals_the_dense_joseph_form_for_any_gain(seed: int) -> None:
+    """P + N + N^T, N = (K S / 2 - P H^T) K^T, against (I - KH) P (I - KH)^T + K R K^T with the
+    full 12-column H: for the optimal gain and for gains far from it (the Joseph form holds for
+    any K), with S as computed (not re-symmetrised); exactly symmetric for a symmetric P."""
+    rng = np.random.default_rng(300 + seed)
+    for _ in range(50):
+        P = _random_cov(rng)
+        P = (P + P.T) * 0.5
+        H = np.zeros((6, 12))
+        H[:, 0:6] = rng.normal(0.0, 1.0, (6, 6))
+        R = np.diag(rng.uniform(1e-4, 0.1, 6))
+        PHt = P[:, 0:6] @ H[:, 0:6].T
+        S = H[:, 0:6] @ PHt[0:6] + R
+        K_opt = PHt @ np.linalg.inv(S)
+        for K in (K_opt, K_opt * (1.0 + rng.normal(0.0, 0.3, K_opt.shape)), rng.normal(0.0, 1.0, (12, 6))):
+            IKH = np.eye(12) - K @ H
+            dense = IKH @ P @ IKH.T + K @ R @ K.T
+            got = joseph_covariance(P, K, PHt, S)
+            np.testing.assert_array_equal(got, got.T)
+            _close(got, dense)
+
+
+def test_every_step_keeps_p_exactly_symmetric() -> None:
+    """The filter never re-symmetrises P: predict (sub-stepped too), the three updates, the xi
+    switch, gate resets and an asymmetric P0 (symmetrised on construction) leave P == P^T."""
+    rng = np.random.default_rng(11)
+    T_bc = _transform(rng, 0.1)
+    x0 = _random_state(rng)
+    x0[0:3] = [0.3, -0.2, -6.0]
+    P0 = _random_cov(rng) * 0.01
+    P0[0, 1] += 1e-6  # asymmetric on purpose
+    ekf = DeliveryEkf(EkfConfig(gate_reset_after_rejections=3), T_body_camera=T_bc, x0=x0, P0=P0)
+    np.testing.assert_array_equal(ekf.P, ekf.P.T)
+    T_wm = Transform(euler_to_rotmat(math.pi, 0.0, 0.4), np.array([0.2, 0.1, 0.0]))
+    accepted: set[str] = set()
+    for i in range(400):
+        assert ekf.predict(rng.normal(0.0, 0.3, 6), 0.12 if i % 40 == 0 else 0.005)
+        np.testing.assert_array_equal(ekf.P, ekf.P.T)
+        truth = ekf.x + rng.normal(0.0, 0.02, 12)
+        if i % 5 == 1:
+            T_cm = (T_bc.inverse() @ Transform.from_euler(truth[0:3], *truth[3:6]).inverse()) @ T_wm
+            outcome, sensor = ekf.update_aruco(T_cm, T_wm), "aruco"
+        elif i % 5 == 2:
+            outcome, sensor = ekf.update_uwb(_Fix(truth[0:3], 1.5), Transform.identity()), "uwb"
+        elif i % 5 == 3:
+            far = 50.0 if 100 <= i < 200 else 0.0  # a GPS jump: gate rejections, then resets
+            outcome = ekf.update_sdk(truth[0:3] + truth[6:9] * ekf.xi + far, truth[3:6])
+            sensor = "sdk"
+        else:
+            continue
+        if outcome is UpdateOutcome.ACCEPTED:
+            accepted.add(sensor)
+        np.testing.assert_array_equal(ekf.P, ekf.P.T)
+    assert accepted == {"aruco", "uwb", "sdk"} and ekf.xi
+    assert ekf.counters["sdk.gate_resets"] > 0
 
 
 def test_condition_repairs_small_variances_as_the_array_test_did() -> None:

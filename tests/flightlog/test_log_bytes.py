@@ -6,7 +6,13 @@ were first taken from the per-file-thread, row-by-row writer this replaced (comm
 machine whose OpenBLAS ran its SkylakeX kernels; the batched writer gives exactly those bytes
 with ``OPENBLAS_CORETYPE=SkylakeX`` (checked). They are now taken with the CPU-dependent
 arithmetic pinned (``PINNED_CPU_ENV``, below), so they hold on any x86-64 machine. They pin the
-flight as well as the format: regenerate them when the flight itself is meant to change."""
+flight as well as the format: regenerate them when the flight itself is meant to change.
+
+The fused flight's were regenerated once the EKF's eq 6 and Joseph form were written to keep P
+exactly symmetric (companion/estimation/ekf.py, "Speed"): a rounding-level change. Against the
+flight before it, same rows and events (events.csv, camera.csv, commands.csv, requests.csv
+unchanged), the EKF state moved by at most 5.7e-10 m, the true path by at most 2.7e-12 m; the
+GPS-only flight's digests are unchanged."""
 
 from __future__ import annotations
 
@@ -44,24 +50,24 @@ DIGESTS = {
     (False, "truth.csv"): "5697e8a51179702790f179b974a14d22c0c7eefbd5c5a6cc40c0cf1dcebfbc29",
     (False, "uwb.csv"): "62b0204d2e49c8897570c237edf5dd971352b68222ae184b1c3284ba00637532",
     # fusion=True
-    (True, "ap_attitude.csv"): "0bbdfb56d8e0658d567d926d95a9ab5e38914ebbec798e6f6d3b7d2de5079c35",
-    (True, "ap_global.csv"): "67675655e8e4ed732a75e44d8e80a29d854cf027c5c29f760bcbece778702bb3",
-    (True, "ap_gps.csv"): "962184760a0e944fd701a0e574d87afb6759e73b2ce7d59792da424d2547b5d7",
+    (True, "ap_attitude.csv"): "43ad12d0267427773174fe2b0a395bd6f0e6ae74123b1492a28f0cf7036c7d38",
+    (True, "ap_global.csv"): "97409bd911ad1a6be12b5aad861b27d2e80d47547dd6a087e2e2abf6fbac3915",
+    (True, "ap_gps.csv"): "71756f19b5e125fc98910bde9db113c96ede9004f0a54a3b2d212b787d8b02f7",
     (True, "ap_home.csv"): "12adee376aa2e394650b7b8606f39e4759349d11b65863c1df438c1f0b8fd14a",
-    (True, "ap_imu.csv"): "ed6f3dd3c8bc0aa6783875991f62f76c2e0a4b358b5b31791088ff25156a542e",
-    (True, "ap_position.csv"): "dead9adb8087d91331d9d3f07717a7320b2fb1aa38cd25ce49fc0364a330229c",
+    (True, "ap_imu.csv"): "754b2bc8c13ec78be7f46178f235398c3a4df040adbf7faf507de8de86af8d9c",
+    (True, "ap_position.csv"): "7fac9e81b651860b16f3354381dda1ec4763afe29e7f996a78ea820f5ffec8f7",
     (True, "ap_status.csv"): "d4beb727739bc2f26f36b9fa50b7c5e2d4fc0e6c3832dc2c36f54aaad01ffd74",
     (True, "ap_statustext.csv"): "a3b7195f3ec142c5c60ff8d054570b613995f09d255b4e1e5b0da942a80dd5f2",
     (True, "camera.csv"): "f6760fde6f560207ff6545143cd1abc2b1209fd314faafe7cb9642f2c37e20d0",
     (True, "commands.csv"): "c85312b82eb8786586a3f8f997838f7a380c4c16f1e1e15fec4db07ff01882d4",
-    (True, "ekf.csv"): "9f7f2639d0cd3ca42a2fb0a3e055f0f681fe73a338a42779110b36c0e2d5956b",
+    (True, "ekf.csv"): "9445591f94094d6e7ee11cf9da2486998feba0ea2939219d3c459d946c54b0c1",
     (True, "events.csv"): "43bee5c7655283835cd0b5025fe68eca3b2c452ff5c001b867c380ae3bbd62af",
-    (True, "flight.csv"): "35ca7a598506607fc9ca50f24f1fd4c2d96fdfa249d417747381b7baa3c1d0ec",
-    (True, "guidance.csv"): "733e99432403c9c400464ed33a45e9c0cc264f86b58d196118a013ed01ce1c6e",
+    (True, "flight.csv"): "03e3c1412ec6f11acf7a30425ab7cef72d9a34e42c7eb401febcb61f0c85e4a6",
+    (True, "guidance.csv"): "7bc1e93d7b415a147474cbdb73fd9b4b4c0ce20506bf7dbfe9395eef41c83b4f",
     (True, "requests.csv"): "8e8cee9dd6acab982c3bec206615c995c0c1f0fc6b0fd45efd5de773df9baa19",
-    (True, "setpoints.csv"): "876db07076cd8cd9bd6d8c41cee7f9ce35f97f37c86e1d598e09bd561b3db105",
-    (True, "truth.csv"): "a1bb11a6bbf24075fb6e22a0ed0f26f2d46a9ac3cd71bbc96f5b6070b6a68e3c",
-    (True, "uwb.csv"): "8d13e4f1cf78a625489a3f1bce2638505bdb0ffba141ab0026ae12bf3c5a2294",
+    (True, "setpoints.csv"): "9be0d5bd91dc5300d148d2ae84143b97f059c22cd9034c58bace552f1ab93254",
+    (True, "truth.csv"): "0fbb5c7d1a10b9bf94323343c3b51f3b8545b57ae66ea09addc2256f944b9a9f",
+    (True, "uwb.csv"): "977867525d7300bf63b1e2cba157fec2e7fd468b0cf4e387983b414971e0af2c",
 }
 
 
