@@ -152,147 +152,63 @@ class AutopilotProfile:
 # +3.0/+1.5/+13.0, +0.8/-2.4/+5.1, -1.1/-1.9/+16.3 deg) with other bias curves: what PX4 SIH's
 # estimate gets wrong depends on the heading flown, so these states hold for paths heading
 # roughly north-east as the campaign's do (its pad lies 37 deg from home).
-PX4_SIH_STATES = (
-    EstimatorState(
-        "T1",
-        0.1,  # landed 14.1 cm (heading 34 deg)
-        attitude_bias_deg=(0.5, -1.2, 3.2),
-        velocity_bias_m_s=(
-            (0.06, 0.54),
-            (0.11, 0.45),
-            (0.21, 0.25),
-            (0.21, 0.07),
-            (0.13, 0.18),
-            (0.02, 0.31),
-            (-0.03, 0.33),
-        ),
+# per flight: (reported - true roll, pitch, yaw in deg), velocity bias (N, E) in m/s at
+# VELOCITY_BIAS_HEIGHTS_M
+_PX4_SIH_TRACED: tuple[tuple[tuple[float, float, float], tuple[tuple[float, float], ...]], ...] = (
+    # landed 14.1 cm, heading 34 deg
+    (
+        (0.5, -1.2, 3.2),
+        ((0.06, 0.54), (0.11, 0.45), (0.21, 0.25), (0.21, 0.07), (0.13, 0.18), (0.02, 0.31), (-0.03, 0.33)),
     ),
-    EstimatorState(
-        "T2",
-        0.1,  # landed 5.2 cm (heading 36 deg)
-        attitude_bias_deg=(1.7, 1.1, 0.4),
-        velocity_bias_m_s=(
-            (0.06, 0.01),
-            (0.07, 0.03),
-            (0.04, 0.07),
-            (0.02, 0.07),
-            (0.02, 0.11),
-            (0.2, -0.01),
-            (0.2, 0.01),
-        ),
+    # landed 5.2 cm, heading 36 deg
+    (
+        (1.7, 1.1, 0.4),
+        ((0.06, 0.01), (0.07, 0.03), (0.04, 0.07), (0.02, 0.07), (0.02, 0.11), (0.2, -0.01), (0.2, 0.01)),
     ),
-    EstimatorState(
-        "T3",
-        0.1,  # landed 13.0 cm (heading 50 deg)
-        attitude_bias_deg=(0.4, -1.7, -12.9),
-        velocity_bias_m_s=(
-            (-0.03, 0.38),
-            (0.11, 0.26),
-            (0.21, 0.14),
-            (0.22, -0.05),
-            (0.27, -0.06),
-            (0.18, 0.02),
-            (0.1, 0.08),
-        ),
+    # landed 13.0 cm, heading 50 deg
+    (
+        (0.4, -1.7, -12.9),
+        ((-0.03, 0.38), (0.11, 0.26), (0.21, 0.14), (0.22, -0.05), (0.27, -0.06), (0.18, 0.02), (0.1, 0.08)),
     ),
-    EstimatorState(
-        "T4",
-        0.1,  # landed 12.3 cm (heading 32 deg)
-        attitude_bias_deg=(1.3, -1.8, 5.3),
-        velocity_bias_m_s=(
-            (0.03, 0.35),
-            (0.12, 0.33),
-            (0.21, 0.28),
-            (0.31, 0.03),
-            (0.17, 0.05),
-            (-0.0, 0.29),
-            (-0.16, 0.39),
-        ),
+    # landed 12.3 cm, heading 32 deg
+    (
+        (1.3, -1.8, 5.3),
+        ((0.03, 0.35), (0.12, 0.33), (0.21, 0.28), (0.31, 0.03), (0.17, 0.05), (-0.0, 0.29), (-0.16, 0.39)),
     ),
-    EstimatorState(
-        "T5",
-        0.1,  # landed 18.5 cm (heading 50 deg)
-        attitude_bias_deg=(0.4, -1.8, -12.7),
-        velocity_bias_m_s=(
-            (-0.05, 0.4),
-            (0.04, 0.36),
-            (0.18, 0.14),
-            (0.22, 0.01),
-            (0.24, -0.08),
-            (0.18, 0.01),
-            (0.1, 0.08),
-        ),
+    # landed 18.5 cm, heading 50 deg
+    (
+        (0.4, -1.8, -12.7),
+        ((-0.05, 0.4), (0.04, 0.36), (0.18, 0.14), (0.22, 0.01), (0.24, -0.08), (0.18, 0.01), (0.1, 0.08)),
     ),
-    EstimatorState(
-        "T6",
-        0.1,  # landed 2.0 cm (heading 36 deg)
-        attitude_bias_deg=(1.5, 1.1, 0.1),
-        velocity_bias_m_s=(
-            (0.06, 0.01),
-            (0.07, 0.04),
-            (0.02, 0.09),
-            (0.02, 0.07),
-            (0.02, 0.12),
-            (0.21, -0.02),
-            (0.2, 0.01),
-        ),
+    # landed 2.0 cm, heading 36 deg
+    (
+        (1.5, 1.1, 0.1),
+        ((0.06, 0.01), (0.07, 0.04), (0.02, 0.09), (0.02, 0.07), (0.02, 0.12), (0.21, -0.02), (0.2, 0.01)),
     ),
-    EstimatorState(
-        "T7",
-        0.1,  # landed 8.2 cm (heading 48 deg)
-        attitude_bias_deg=(0.3, -1.8, -11.3),
-        velocity_bias_m_s=(
-            (-0.14, 0.51),
-            (-0.22, 0.63),
-            (-0.23, 0.54),
-            (-0.22, 0.5),
-            (-0.21, 0.42),
-            (-0.17, 0.39),
-            (-0.02, 0.19),
-        ),
+    # landed 8.2 cm, heading 48 deg
+    (
+        (0.3, -1.8, -11.3),
+        ((-0.14, 0.51), (-0.22, 0.63), (-0.23, 0.54), (-0.22, 0.5), (-0.21, 0.42), (-0.17, 0.39), (-0.02, 0.19)),
     ),
-    EstimatorState(
-        "T8",
-        0.1,  # landed 5.8 cm (heading 32 deg)
-        attitude_bias_deg=(0.8, 1.3, 4.8),
-        velocity_bias_m_s=(
-            (-0.13, 0.16),
-            (-0.21, 0.09),
-            (-0.16, 0.04),
-            (-0.19, 0.07),
-            (-0.27, 0.22),
-            (-0.28, 0.28),
-            (-0.11, 0.13),
-        ),
+    # landed 5.8 cm, heading 32 deg
+    (
+        (0.8, 1.3, 4.8),
+        ((-0.13, 0.16), (-0.21, 0.09), (-0.16, 0.04), (-0.19, 0.07), (-0.27, 0.22), (-0.28, 0.28), (-0.11, 0.13)),
     ),
-    EstimatorState(
-        "T9",
-        0.1,  # landed 8.8 cm (heading 32 deg)
-        attitude_bias_deg=(0.5, -2.0, 4.7),
-        velocity_bias_m_s=(
-            (0.1, 0.16),
-            (0.18, 0.09),
-            (0.21, 0.09),
-            (0.19, 0.0),
-            (0.14, -0.03),
-            (-0.04, 0.24),
-            (-0.05, 0.33),
-        ),
+    # landed 8.8 cm, heading 32 deg
+    (
+        (0.5, -2.0, 4.7),
+        ((0.1, 0.16), (0.18, 0.09), (0.21, 0.09), (0.19, 0.0), (0.14, -0.03), (-0.04, 0.24), (-0.05, 0.33)),
     ),
-    EstimatorState(
-        "T10",
-        0.1,  # landed 16.2 cm (heading 24 deg)
-        attitude_bias_deg=(0.1, 0.7, 12.3),
-        velocity_bias_m_s=(
-            (0.23, -0.21),
-            (0.08, -0.11),
-            (0.02, 0.09),
-            (-0.02, 0.01),
-            (-0.03, 0.22),
-            (-0.11, 0.18),
-            (0.17, 0.13),
-        ),
+    # landed 16.2 cm, heading 24 deg
+    (
+        (0.1, 0.7, 12.3),
+        ((0.23, -0.21), (0.08, -0.11), (0.02, 0.09), (-0.02, 0.01), (-0.03, 0.22), (-0.11, 0.18), (0.17, 0.13)),
     ),
+)
+PX4_SIH_STATES = tuple(
+    EstimatorState(f"T{k + 1}", 1.0 / len(_PX4_SIH_TRACED), attitude_bias_deg=att, velocity_bias_m_s=bias)
+    for k, (att, bias) in enumerate(_PX4_SIH_TRACED)
 )
 
 PROFILES: dict[str, AutopilotProfile] = {
