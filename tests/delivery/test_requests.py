@@ -178,6 +178,29 @@ def test_takeoff_counts_as_done_once_the_autopilot_holds_in_the_air_short_of_our
     assert out.setpoint is not None  # the field takes over
 
 
+def test_the_field_stream_goes_on_when_the_mode_leaves_hold_for_offboard_short_of_our_90_percent():
+    """PX4 SIH, measured: our height read 1.3 m of a 2.5 m take-off PX4 had finished. The field
+    took over in HOLD, asked for OFFBOARD, and the stream must not stop when HOLD ends (it did:
+    PX4's offboard-loss failsafe landed the vehicle and the return was aborted)."""
+    m, t = on_the_pad()
+    m._goto(Phase.TAKEOFF_RETURN)
+    m._takeoff_requested = True
+    alt = 0.55 * m.cfg.takeoff_alt_m  # above the HOLD test's half, short of 90 %
+    holding = status(t, armed=True, mode=FlightMode.HOLD, landed=LandedState.IN_AIR)
+    offboard = status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+    switched, ticks = False, 0
+    while m.phase is Phase.TAKEOFF_RETURN and ticks < 200:
+        t += DT
+        ticks += 1
+        out = m.step(MissionInputs(t, est(t, 60.0, 80.0, -alt), offboard if switched else holding, HOME))
+        assert out.setpoint is not None, f"the stream stopped at tick {ticks} ({'OFFBOARD' if switched else 'HOLD'})"
+        if out.request is not None:
+            assert out.request.kind is RequestKind.START_OFFBOARD
+            m.on_result(RequestResult(out.request.id, True))
+            switched = True
+    assert switched and m.phase is Phase.INBOUND
+
+
 def _armed_for_return(m, t, n, e):
     """Tick RELEASE -> ARMING -> TAKEOFF_RETURN with the vehicle on the ground at (n, e)."""
     released = lambda tt: status(tt, released=True)  # noqa: E731
