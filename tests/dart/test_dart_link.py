@@ -76,7 +76,7 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
     on the pilot's stick alone."""
     mission = DartMissionConfig(approach=False)
     params = DartParams(mission=mission)
-    sent: list[tuple[float, tuple[int, ...], float, int | None]] = []
+    sent: list[tuple[float, tuple[int, ...], float, int | None, bool]] = []
     switch_seen: list[tuple[float, int]] = []
     out: dict[str, object] = {}
 
@@ -85,8 +85,9 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
         real_send = ap.send_rc_override
 
         def spy(channels):  # what leaves the companion, with the contribution and pilot stick it used
-            rc = ap.telemetry.rc_input
-            sent.append((shell.clock.now(), tuple(channels), shell.command.roll_us, rc.channels_us[8] if rc else None))
+            rc, now, c = ap.telemetry.rc_input, shell.clock.now(), shell.command
+            fresh = now - c.time_s <= shell.rt.contribution_timeout_s  # else pilot only (the shell's rule)
+            sent.append((now, tuple(channels), c.roll_us, rc.channels_us[8] if rc else None, fresh))
             real_send(channels)
 
         ap.send_rc_override = spy  # type: ignore[method-assign]
@@ -120,9 +121,12 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
     assert out["roll_us"] < -20.0 and out["integral"] < 0.0  # type: ignore[operator]
     deflected = [s for s in sent if t_stick + 0.2 < s[0] < t_off and s[1][0] != 0]
     assert len(deflected) > 100
-    for _t, ch, roll_us, pilot_roll in deflected:  # override = pilot's stick + contribution, sign kept
-        assert pilot_roll == 1600 and ch[0] == round(min(2000.0, max(1000.0, 1600 + roll_us)))
+    # override = pilot's stick + contribution, sign kept; a contribution older than its timeout
+    # (the control step late on a loaded machine) is left out: the pilot's stick alone
+    for _t, ch, roll_us, pilot_roll, fresh in deflected:
+        assert pilot_roll == 1600 and ch[0] == round(min(2000.0, max(1000.0, 1600 + (roll_us if fresh else 0.0))))
         assert ch[6] == 65535  # the switch channel is never overridden
+    assert sum(not s[4] for s in deflected) <= 0.1 * len(deflected)
     # switch off: handling the first reading of it released everything (in that very callback,
     # so before any later control or command tick), and nothing but releases was sent after it
     first_off = min(t for t, sw in switch_seen if t > t_off and sw < 1700)
@@ -314,7 +318,7 @@ async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() ->
     from companion.autopilot.types import FlightMode
 
     mission = DartMissionConfig(approach=False)
-    sent: list[tuple[float, object, float]] = []
+    sent: list[tuple[float, object, float, bool]] = []
     switch_seen: list[tuple[float, int]] = []
     out: dict[str, object] = {}
 
@@ -323,7 +327,8 @@ async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() ->
         real_send = ap.set_attitude_target
 
         def spy(target):
-            sent.append((shell.clock.now(), target, shell.command.roll_us))
+            now, c = shell.clock.now(), shell.command
+            sent.append((now, target, c.roll_us, now - c.time_s <= shell.rt.contribution_timeout_s))
             real_send(target)
 
         ap.set_attitude_target = spy  # type: ignore[method-assign]
@@ -353,8 +358,10 @@ async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() ->
     tilt = math.radians(35.0) / 500.0
     deflected = [s for s in sent if t_stick + 0.2 < s[0] < t_off]
     assert len(deflected) > 80
-    for _t, target, roll_us in deflected:
-        assert target.roll_rad == pytest.approx((100.0 + roll_us) * tilt, abs=1e-9)  # type: ignore[attr-defined]
+    for _t, target, roll_us, fresh in deflected:  # a late contribution is left out (the pilot's alone)
+        want = (100.0 + (roll_us if fresh else 0.0)) * tilt
+        assert target.roll_rad == pytest.approx(want, abs=1e-9)  # type: ignore[attr-defined]
+    assert sum(not s[3] for s in deflected) <= 0.1 * len(deflected)
     assert out["dx"] > 0.05  # type: ignore[operator]
     first_off = min(t for t, sw in switch_seen if t > t_off and sw < 1700)
     assert not [s for s in sent if s[0] >= first_off]  # the stream stopped on that reading
