@@ -291,6 +291,14 @@ class VehicleSimConfig(_Section):
     position_p_gain: float = _f(0.95, "1/s", "position loop P for hold/land (MPC_XY_P-like)", gt=0.0, le=10.0)
     drag_coefficient_1_s: float = _f(0.35, "1/s", "linear drag per unit air-relative speed", ge=0.0, le=5.0)
     takeoff_speed_m_s: float = _f(1.5, "m/s", "autopilot takeoff climb rate", gt=0.1, le=5.0)
+    takeoff_altitude_acceptance_m: float = _f(
+        0.05,
+        "m",
+        "the take-off is reported done (TAKEOFF -> HOLD, still climbing to its height) this far below it "
+        "(PX4's NAV_MC_ALT_RAD)",
+        gt=0.0,
+        le=5.0,
+    )
     land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
     offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
     offboard_max_horizontal_m_s: float = _f(

@@ -92,6 +92,7 @@ class Px4SimVehicle(MavlinkSimVehicle):
             "MPC_XY_VEL_MAX": 12.0,
             "MPC_LAND_SPEED": cfg.vehicle.land_speed_m_s,
             "MPC_TKO_SPEED": cfg.vehicle.takeoff_speed_m_s,
+            "NAV_MC_ALT_RAD": cfg.vehicle.takeoff_altitude_acceptance_m,
             "SYS_AUTOSTART": 10040.0,
             # PX4 v1.16 defaults of what `companion preflight` checks
             "COM_RC_OVERRIDE": 1.0,

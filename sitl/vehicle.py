@@ -392,7 +392,8 @@ class SimVehicle:
                 assert self._hold_target is not None
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
                 sp_d = -vc.takeoff_speed_m_s
-                if est[2] <= self._takeoff_target_d + 0.05:
+                # done within the altitude acceptance radius: HOLD then climbs on to the height
+                if est[2] <= self._takeoff_target_d + vc.takeoff_altitude_acceptance_m:
                     self.mode = FlightMode.HOLD
             if self.mode in (
                 FlightMode.HOLD,
