@@ -329,14 +329,12 @@ class DeliveryMission:
                 self._expect_mode_change = True
                 return None, self._make_request(RequestKind.TAKEOFF), math.nan
             return None, None, math.nan
-        # latched: once the field has taken over, its stream must not stop when the mode leaves HOLD
-        # for OFFBOARD (PX4 SIH, measured: our height read 1.3 m of a 2.5 m take-off that PX4 had
-        # finished, the HOLD test lapsed with the switch, the stream stopped and PX4's offboard-loss
-        # failsafe landed the vehicle)
-        if not self._takeoff_reached:
-            if not self._takeoff_done(inp, est):
-                return None, None, math.nan
-            self._takeoff_reached = True
+        # judged until the field's stream starts (_stream_t0 set), then never again: the stream must
+        # not stop when the mode leaves HOLD for OFFBOARD (PX4 SIH, measured: our height read 1.3 m
+        # of a 2.5 m take-off that PX4 had finished, the HOLD test lapsed with the switch, the
+        # stream stopped and PX4's offboard-loss failsafe landed the vehicle)
+        if self._stream_t0 is None and not self._takeoff_done(inp, est):
+            return None, None, math.nan
         sp, lyap = self._field_setpoint(est, s)
         req = self._enter_offboard(inp)
         if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
@@ -623,7 +621,6 @@ class DeliveryMission:
     # ------------------------------------------------------------------ helpers
     _abort_hold_requested = False
     _takeoff_requested = False
-    _takeoff_reached = False  # the take-off phase's field stream has started
     _touched_down = False
     _started = False
     _hold_forever = False
@@ -678,7 +675,6 @@ class DeliveryMission:
         self._offboard_requested = False
         self._abort_hold_requested = False
         self._takeoff_requested = False
-        self._takeoff_reached = False
         self._touched_down = False
         self._reenter = False
         self._release_t0 = None if phase is not Phase.RELEASE else self._release_t0

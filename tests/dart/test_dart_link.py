@@ -14,6 +14,7 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.interface import RcInput
+from companion.dart.control import DartCommand
 from companion.dart.estimators import (
     ESTIMATORS,
     CameraMarkerObservation,
@@ -67,6 +68,20 @@ async def test_dart_hover_and_approach_over_ardupilot_link_reaches_1_5_m() -> No
     assert r.rc_overrides_end[:4] == [None] * 4  # released when the shell stopped
 
 
+def _contributions_used(shell: DartShell) -> list[DartCommand | None]:
+    """What the shell's own rule (``_contribution``: none while disengaged or older than its
+    timeout, e.g. the control step late on a loaded machine) gave each command it sent."""
+    used: list[DartCommand | None] = [None]
+    real = shell._contribution
+
+    def spy(now: float) -> DartCommand | None:
+        used.append(real(now))
+        return used[-1]
+
+    shell._contribution = spy  # type: ignore[method-assign]
+    return used
+
+
 @pytest.mark.slow
 async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_over_link() -> None:
     """Hybrid mode over the link: the pilot's roll stick (+100 us on channel 1, mirrored on 9)
@@ -84,10 +99,12 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
         ap = shell.autopilot
         real_send = ap.send_rc_override
 
+        used = _contributions_used(shell)
+
         def spy(channels):  # what leaves the companion, with the contribution and pilot stick it used
-            rc, now, c = ap.telemetry.rc_input, shell.clock.now(), shell.command
-            fresh = now - c.time_s <= shell.rt.contribution_timeout_s  # else pilot only (the shell's rule)
-            sent.append((now, tuple(channels), c.roll_us, rc.channels_us[8] if rc else None, fresh))
+            rc = ap.telemetry.rc_input
+            pilot_roll = rc.channels_us[8] if rc else None
+            sent.append((shell.clock.now(), tuple(channels), shell.command.roll_us, pilot_roll, used[-1] is not None))
             real_send(channels)
 
         ap.send_rc_override = spy  # type: ignore[method-assign]
@@ -121,8 +138,8 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
     assert out["roll_us"] < -20.0 and out["integral"] < 0.0  # type: ignore[operator]
     deflected = [s for s in sent if t_stick + 0.2 < s[0] < t_off and s[1][0] != 0]
     assert len(deflected) > 100
-    # override = pilot's stick + contribution, sign kept; a contribution older than its timeout
-    # (the control step late on a loaded machine) is left out: the pilot's stick alone
+    # override = pilot's stick + contribution, sign kept; a contribution the shell left out (older
+    # than its timeout) leaves the pilot's stick alone
     for _t, ch, roll_us, pilot_roll, fresh in deflected:
         assert pilot_roll == 1600 and ch[0] == round(min(2000.0, max(1000.0, 1600 + (roll_us if fresh else 0.0))))
         assert ch[6] == 65535  # the switch channel is never overridden
@@ -326,9 +343,10 @@ async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() ->
         ap = shell.autopilot
         real_send = ap.set_attitude_target
 
+        used = _contributions_used(shell)
+
         def spy(target):
-            now, c = shell.clock.now(), shell.command
-            sent.append((now, target, c.roll_us, now - c.time_s <= shell.rt.contribution_timeout_s))
+            sent.append((shell.clock.now(), target, shell.command.roll_us, used[-1] is not None))
             real_send(target)
 
         ap.set_attitude_target = spy  # type: ignore[method-assign]
