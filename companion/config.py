@@ -300,6 +300,13 @@ class VehicleSimConfig(_Section):
         le=5.0,
     )
     land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
+    soft_ground: bool = _f(
+        False,
+        "-",
+        "the ground stops the vehicle only while the net vertical force points down, where it is caught "
+        "(PX4 SIH's fake ground, sih.cpp): a steady descent passes below the take-off level until the thrust "
+        "drops; false: a hard ground at the take-off level",
+    )
     offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
     offboard_max_horizontal_m_s: float = _f(
         30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, horizontal (MPC_XY_VEL_MAX)", gt=0.0

@@ -217,7 +217,8 @@ PROFILES: dict[str, AutopilotProfile] = {
         "px4-sih",
         "PX4 v1.16 SIH: one of ten traced flights' estimator errors per landing (attitude reported up to "
         "2 deg off in tilt and 13 in heading, velocity estimate biased up to 0.6 m/s by height and flown on), "
-        "position wander 0.12 m (2.5 s), take-off done 0.8 m short (NAV_MC_ALT_RAD), 2.3 s land detector, no wind",
+        "position wander 0.12 m (2.5 s), take-off done 0.8 m short (NAV_MC_ALT_RAD), a soft ground (a steady "
+        "descent sinks below the take-off level), 2.3 s land detector, no wind",
         # around the estimator state's bias (below): SD 0.01-0.14 m/s per band and flight in the
         # traced landings (the probe's hover: RMS 0.13 / 0.28 m/s N / E in all, bias included)
         velocity_error_m_s=0.07,
@@ -250,6 +251,9 @@ PROFILES: dict[str, AutopilotProfile] = {
             "vertical_velocity_i_gain": 2.0,
             "max_horizontal_accel_m_s2": 3.0,
             "land_speed_m_s": 0.7,  # MPC_LAND_SPEED (measured descent 0.64 m/s)
+            # SIH's ground catches the vehicle only when the net force points down (sih.cpp): the
+            # traced descents went on 0-0.46 m below the take-off level (VehicleSimConfig)
+            "soft_ground": True,
             "takeoff_speed_m_s": 1.5,
             # PX4 leaves TAKEOFF for HOLD within NAV_MC_ALT_RAD (0.8 m, the v1.16 default) of the
             # take-off height and climbs on to it in HOLD: measured (its LOCAL_POSITION_NED at the

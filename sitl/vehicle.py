@@ -193,6 +193,7 @@ class SimVehicle:
         self._rates = (0.0, 0.0, 0.0)
         self._accel = (0.0, 0.0, 0.0)
         self._airborne = False
+        self._grounded = True  # resting on the ground (soft_ground: where it was caught)
         self._truth_next = 0.0
 
     # ------------------------------------------------------------------ commands
@@ -447,7 +448,8 @@ class SimVehicle:
             an, ae = an * a_h_max / ah, ae * a_h_max / ah
         sat_v = not (-vc.max_up_accel_m_s2 <= ad <= vc.max_down_accel_m_s2)
         ad = min(max(ad, -vc.max_up_accel_m_s2), vc.max_down_accel_m_s2)
-        on_ground = self.pd >= -1e-6
+        soft = vc.soft_ground
+        on_ground = self._grounded if soft else self.pd >= -1e-6
         if thrust_on and not on_ground:
             if not sat_h:  # conditional integration (anti-windup)
                 self._int[0] += en * dt
@@ -489,19 +491,27 @@ class SimVehicle:
         a_n = f_n - kd * (self.vn - self._wind[0])
         a_e = f_e - kd * (self.ve - self._wind[1])
         a_d = f_d + G - kd * (self.vd - self._wind[2])
-        if on_ground and a_d >= 0.0:
+        if soft:
+            # PX4 SIH's fake ground (sih.cpp, Sih::equations_of_motion): below the take-off level
+            # it cancels the forces and stops the vehicle only while their sum points down. A
+            # steady descent (thrust = weight - drag) is not caught: it sinks on until the thrust
+            # drops, and the vehicle rests where it was caught. Traced on PX4 v1.16 SIH, ten
+            # landings at 0.5 m/s: caught 0 / 0 / 0 / 0 / 0 / 0.04 / 0.09 / 0.19 / 0.21 / 0.46 m
+            # below the take-off level (docs/profiles.md).
+            caught = self.pd >= -1e-6 and a_d > 0.0
+            if caught:
+                self._rest(thrust_on)
+                a_n = a_e = a_d = 0.0
+            else:
+                self._integrate(a_n, a_e, a_d, dt)
+            self._grounded = caught
+        elif on_ground and a_d >= 0.0:
             # resting on the ground: the ground carries the weight, friction stops sliding
-            self.vn = self.ve = self.vd = 0.0
+            self._rest(thrust_on)
             self.pd = 0.0
             a_n = a_e = a_d = 0.0
-            self._int = [0.0, 0.0, self._int[2] if thrust_on else 0.0]
         else:
-            self.vn += a_n * dt
-            self.ve += a_e * dt
-            self.vd += a_d * dt
-            self.pn += self.vn * dt
-            self.pe += self.ve * dt
-            self.pd += self.vd * dt
+            self._integrate(a_n, a_e, a_d, dt)
             if self.pd > 0.0:  # touching down this step
                 self.pd = 0.0
                 self.vd = 0.0
@@ -512,6 +522,19 @@ class SimVehicle:
         if t >= self._truth_next:
             self._truth_next = t + 0.1
             self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))
+
+    def _rest(self, thrust_on: bool) -> None:
+        """On the ground: it carries the weight, friction stops sliding."""
+        self.vn = self.ve = self.vd = 0.0
+        self._int = [0.0, 0.0, self._int[2] if thrust_on else 0.0]
+
+    def _integrate(self, a_n: float, a_e: float, a_d: float, dt: float) -> None:
+        self.vn += a_n * dt
+        self.ve += a_e * dt
+        self.vd += a_d * dt
+        self.pn += self.vn * dt
+        self.pe += self.ve * dt
+        self.pd += self.vd * dt
 
     def _pos_ctrl(
         self, est: tuple[float, float, float], target: tuple[float, float, float]

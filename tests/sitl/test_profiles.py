@@ -237,3 +237,67 @@ def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_i
     # the switch to OFFBOARD 1 s after HOLD: 2.48-2.60 m
     for name in climbs:
         assert climbs[name][1] == pytest.approx(2.5, abs=0.3)
+
+
+def _descend_to_the_ground(soft: bool) -> tuple[SimVehicle, float]:
+    """Ideal vehicle (no estimate error, no wind) in OFFBOARD, 1 m up, descending at 0.5 m/s on
+    a steady setpoint."""
+    v = SimVehicle(SimConfig(seed=2, vehicle={"soft_ground": soft}))
+    t = v.cfg.ready_delay_s + 0.5
+    v.step_to(t)
+    v.arm()
+    v.takeoff(1.0)
+    t += 8.0
+    v.step_to(t)
+    assert -v.pd > 0.7
+    for _ in range(10):  # PX4 wants setpoints streaming before the switch
+        t += 0.05
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        v.step_to(t)
+    v.start_offboard()
+    while v.pd < -0.01:
+        t += 0.01
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.5, 0.0))
+        v.step_to(t)
+    assert v.vd == pytest.approx(0.5, abs=0.05)  # a steady descent: thrust = weight - drag
+    return v, t
+
+
+def test_px4_sih_soft_ground_catches_the_vehicle_only_while_the_net_force_points_down():
+    """PX4 SIH's fake ground (sih.cpp): below the take-off level it stops the vehicle only while
+    the forces' sum points down, and the vehicle rests where it was caught. Traced on the real
+    SIH: descents went on 0-0.46 m below the take-off level (profiles.py)."""
+    assert PROFILES["px4-sih"].vehicle["soft_ground"] is True
+    assert apply_profile(SimConfig(profile="px4-sih")).vehicle.soft_ground
+    assert not SimConfig().vehicle.soft_ground
+    assert not apply_profile(SimConfig(profile="arducopter-sitl")).vehicle.soft_ground
+
+    # a hard ground (default): the descent stops at the take-off level
+    hard, t = _descend_to_the_ground(soft=False)
+    hard.step_to(t + 1.0)
+    assert hard.pd == 0.0 and hard.vd == 0.0
+
+    # soft: slowing down (net force up) the vehicle sinks through the take-off level, with its
+    # horizontal speed kept
+    v, t = _descend_to_the_ground(soft=True)
+    v.vn = 0.2  # a sideways drift the ground would stop
+    depth = []
+    for _ in range(30):  # 0.3 s asking for a slower descent
+        t += 0.01
+        v.set_velocity(VelocitySetpoint(0.2, 0.0, 0.2, 0.0))
+        v.step_to(t)
+        depth.append(v.pd)
+        assert v._accel[2] <= 0.0 or v.pd < 0.0
+    assert depth[-1] > 0.05 and v.vd > 0.1 and v.vn > 0.1
+    # asking to descend faster turns the net force down: caught at once, resting where it was
+    # caught with every speed zeroed; it stays there
+    v.set_velocity(VelocitySetpoint(0.0, 0.0, 1.0, 0.0))
+    v.step_to(t + 0.02)
+    caught = v.pd
+    assert depth[-1] <= caught < depth[-1] + 0.02
+    assert (v.vn, v.ve, v.vd) == (0.0, 0.0, 0.0)
+    for k in range(100):
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 1.0, 0.0))
+        v.step_to(t + 0.02 + 0.02 * (k + 1))
+    assert v.pd == caught
+    assert v.landed is LandedState.ON_GROUND  # the land detector fires there (px4-sih: after land_detect_s)
