@@ -300,4 +300,4 @@ def test_px4_sih_soft_ground_catches_the_vehicle_only_while_the_net_force_points
         v.set_velocity(VelocitySetpoint(0.0, 0.0, 1.0, 0.0))
         v.step_to(t + 0.02 + 0.02 * (k + 1))
     assert v.pd == caught
-    assert v.landed is LandedState.ON_GROUND  # the land detector fires there (px4-sih: after land_detect_s)
+    assert v.landed is LandedState.ON_GROUND  # the land detector fires where it rests
