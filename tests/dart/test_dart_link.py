@@ -104,7 +104,8 @@ async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_
         def spy(channels):  # what leaves the companion, with the contribution and pilot stick it used
             rc = ap.telemetry.rc_input
             pilot_roll = rc.channels_us[8] if rc else None
-            sent.append((shell.clock.now(), tuple(channels), shell.command.roll_us, pilot_roll, used[-1] is not None))
+            c = used[-1]  # the contribution this command carries (None: the pilot's stick alone)
+            sent.append((shell.clock.now(), tuple(channels), c.roll_us if c else 0.0, pilot_roll, c is not None))
             real_send(channels)
 
         ap.send_rc_override = spy  # type: ignore[method-assign]
@@ -346,7 +347,8 @@ async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() ->
         used = _contributions_used(shell)
 
         def spy(target):
-            sent.append((shell.clock.now(), target, shell.command.roll_us, used[-1] is not None))
+            c = used[-1]  # the contribution this target carries (None: the pilot's stick alone)
+            sent.append((shell.clock.now(), target, c.roll_us if c else 0.0, c is not None))
             real_send(target)
 
         ap.set_attitude_target = spy  # type: ignore[method-assign]
