@@ -32,10 +32,9 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
+from companion.autopilot.types import FlightMode
 from companion.config import CompanionConfig
 from companion.delivery.mission import (
     DeliveryMission,
@@ -84,6 +83,9 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
+# enum values by member (a dict lookup; ``Enum.value`` is a Python property: flight.csv's row per tick)
+_PHASE_VALUE = {p: p.value for p in Phase}
+_MODE_VALUE = {m: m.value for m in FlightMode}
 _SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
 
 
@@ -598,29 +600,26 @@ class DeliveryShell:
         st = self.autopilot.telemetry.status
         nan = math.nan
         frame = self.mission.frame
-        if e is not None and frame is not None:
-            rf = self._record_frame
-            if rf is None or rf[0] is not frame:
-                rf = self._record_frame = (frame, frame.R_ned_mission.T, frame.pad_ned)
-            pm = rf[1] @ (np.asarray(e.position_ned, dtype=float) - rf[2])  # = frame.point_from_ned(...)
-            mx, my, mz = float(pm[0]), float(pm[1]), float(pm[2])
-        else:
+        if e is None:
+            est: tuple[float, ...] = (nan, nan, nan, nan, nan, nan, nan)
             mx = my = mz = nan
-        self.flight_log.write(
-            (
-                now,
-                out.phase.value,
-                out.sector,
-                out.lyapunov,
-                *(e.position_ned if e else (nan, nan, nan)),
-                *(e.velocity_ned if e else (nan, nan, nan)),
-                e.yaw_rad if e else nan,
-                *((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan)),
-                int(clamped),
-                mx,
-                my,
-                mz,
-                st.mode.value if st else "",
-                int(st.armed) if st else 0,
-            )
+        else:
+            est = (e.north_m, e.east_m, e.down_m, e.north_m_s, e.east_m_s, e.down_m_s, e.yaw_rad)
+            if frame is None:
+                mx = my = mz = nan
+            else:
+                rf = self._record_frame
+                if rf is None or rf[0] is not frame:
+                    Rt, pad = frame.R_ned_mission.T, frame.pad_ned
+                    rf = self._record_frame = (frame, tuple(tuple(map(float, r)) for r in Rt), tuple(map(float, pad)))
+                # = frame.point_from_ned(position) in floats: numpy's 3x3 product sums each row in this order
+                (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rf[1]
+                pn, pe, pd = rf[2]
+                dn, de, dd = e.north_m - pn, e.east_m - pe, e.down_m - pd
+                mx, my, mz = a0 * dn + a1 * de + a2 * dd, b0 * dn + b1 * de + b2 * dd, c0 * dn + c1 * de + c2 * dd
+        self.flight_log.put(
+            (now, _PHASE_VALUE[out.phase], out.sector, out.lyapunov)
+            + est
+            + ((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan))
+            + (int(clamped), mx, my, mz, _MODE_VALUE[st.mode] if st else "", int(st.armed) if st else 0)
         )
