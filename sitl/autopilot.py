@@ -21,6 +21,7 @@ import logging
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.types import FlightMode, LandingTarget, StatusText
@@ -55,6 +56,9 @@ class SimAutopilot(Autopilot):
         self.telemetry = TelemetryCache()
         self.tlog_path = tlog_path
         self.tlog: TelemetryTlog | None = None
+        # a FlightRecorder on self.telemetry that queues the .tlog's sample records from its own
+        # rows (FlightRecorder.share_samples; set before connect()): the .tlog then needs no listener
+        self.sample_rows: Any = None
         self._clock = LoopClock()
         self._task: asyncio.Task[None] | None = None
         self._link_up = True
@@ -79,6 +83,8 @@ class SimAutopilot(Autopilot):
         finally:
             tlog, self.tlog = self.tlog, None
             if tlog is not None:
+                if self.sample_rows is not None:
+                    self.sample_rows.unshare_samples(tlog)
                 self.telemetry.remove_listener(tlog.sample)
                 tlog.close()
 
@@ -91,7 +97,9 @@ class SimAutopilot(Autopilot):
         offset = SIM_TLOG_EPOCH_S if isinstance(loop, VirtualTimeEventLoop) else time.time() - boot
         # the hooks queue the field values; the logging process encodes and writes them
         self.tlog = TelemetryTlog(path, boot_s=boot, clock=loop.time, epoch_s=offset, custom_mode=px4_custom_mode)
-        self.telemetry.add_listener(self.tlog.sample)
+        rows = self.sample_rows
+        if rows is None or not rows.share_samples(self.telemetry, self.tlog):
+            self.telemetry.add_listener(self.tlog.sample)
 
     @property
     def link_ok(self) -> bool:

@@ -211,8 +211,9 @@ async def fly(
     mav_sim = None
     ap: Autopilot
     tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
+    sim_ap: SimAutopilot | None = None
     if mavlink is None:
-        ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
+        ap = sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
         from companion.autopilot.px4 import Px4Autopilot
@@ -246,6 +247,8 @@ async def fly(
         truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
         # per-stream logs (events.csv included, written as they happen) for replay and reports
         recorder = FlightRecorder(run_dir, config)
+        if sim_ap is not None:
+            sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
     scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:

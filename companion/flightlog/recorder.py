@@ -104,13 +104,25 @@ def sample_columns(cls: type) -> tuple[str, ...]:
     return ("time_s", "seq", *(name for name, _ in _SAMPLE_FIELDS[cls]))
 
 
+class _EnumValues(dict[enum.Enum, object]):
+    """``member.value`` by ``self[member]``: a dict lookup once seen (``Enum.value`` is a Python
+    property, two frames deep: guidance rows run every tick)."""
+
+    def __missing__(self, member: enum.Enum) -> object:
+        v = self[member] = member.value
+        return v
+
+
+_ENUM_VALUE = _EnumValues()
+
+
 def _sample_encoder(cls: type) -> Any:
     """A fast row builder for one sample type (called at the telemetry rate on the loop thread):
     enums as their value, flags as 0/1, numbers as they are."""
     fields_ = _SAMPLE_FIELDS[cls]
     get = operator.attrgetter(*(n for n, _ in fields_))
     conv = [
-        (i, (lambda v: v.value) if isinstance(t, type) and issubclass(t, enum.Enum) else (lambda v: int(bool(v))))
+        (i, _ENUM_VALUE.__getitem__ if isinstance(t, type) and issubclass(t, enum.Enum) else (lambda v: int(bool(v))))
         for i, (_, t) in enumerate(fields_)
         if t is bool or (isinstance(t, type) and issubclass(t, enum.Enum))
     ]
@@ -131,15 +143,30 @@ def _sample_encoder(cls: type) -> Any:
 _ENCODERS = {cls: _sample_encoder(cls) for cls in SAMPLE_FILES}
 
 
-def _sample_writer(cls: type, seq: Any, lg: CsvLog) -> Any:
+def _sample_writer(cls: type, seq: Any, lg: CsvLog, tap: Any = None) -> Any:
     """:meth:`FlightRecorder.on_sample`'s work for one sample type, in one call: the row
     :data:`_ENCODERS` builds (``seq`` taken from the iterator ``seq``) appended to ``lg``'s queue
     (:attr:`CsvLog.queue`, as :meth:`CsvLog.put` would, without its call). Types with flags or
-    enums go through their encoder; the others build the tuple here."""
+    enums go through their encoder; the others build the tuple here. ``tap``: a
+    :meth:`TelemetryTlog.sample_tap <companion.flightlog.tlog.TelemetryTlog.sample_tap>` that gets
+    every row too (queued even when the CSV's queue is full)."""
     fields_ = _SAMPLE_FIELDS[cls]
     nxt = seq.__next__
     q = lg.queue
     append, mx, drop = q.append, lg.max_queue, lg.count_dropped
+    if tap is not None:
+        encode = _ENCODERS[cls]
+        tap_append, clock, marker = tap
+
+        def write_tapped(s: Any) -> None:
+            row = encode(nxt(), s)
+            tap_append((clock(), marker, cls, row))
+            if len(q) < mx:
+                append(row)
+            else:
+                drop()
+
+        return write_tapped
     if any(t is bool or (isinstance(t, type) and issubclass(t, enum.Enum)) for _, t in fields_):
         encode = _ENCODERS[cls]
 
@@ -386,47 +413,47 @@ def guidance_row(seq: int, inp: Any, out: Any, setpoint: VelocitySetpoint | None
     """One guidance tick: the mission's inputs (``MissionInputs``) and output (``MissionOutput``),
     and the clamped setpoint the shell streams (None when the mission gave none)."""
     e = inp.estimate
-    est = (
-        (
-            e.source,
-            e.time_s,
-            e.north_m,
-            e.east_m,
-            e.down_m,
-            e.north_m_s,
-            e.east_m_s,
-            e.down_m_s,
-            e.roll_rad,
-            e.pitch_rad,
-            e.yaw_rad,
-            e.gps_bias_north_m,
-            e.gps_bias_east_m,
-            e.gps_bias_down_m,
-        )
-        if e is not None
-        else ("", *([_NAN] * 13))
-    )
     cmd = out.setpoint
     req = out.request
     return (
-        inp.time_s,
-        seq,
-        int(bool(inp.link_ok)),
-        *est,
-        out.phase.value,
-        out.sector,
-        float(out.lyapunov),
-        *((cmd.north_m_s, cmd.east_m_s, cmd.down_m_s, cmd.yaw_rad) if cmd is not None else (_NAN,) * 4),
-        *(
+        (inp.time_s, seq, int(bool(inp.link_ok)))
+        + (
+            (
+                e.source,
+                e.time_s,
+                e.north_m,
+                e.east_m,
+                e.down_m,
+                e.north_m_s,
+                e.east_m_s,
+                e.down_m_s,
+                e.roll_rad,
+                e.pitch_rad,
+                e.yaw_rad,
+                e.gps_bias_north_m,
+                e.gps_bias_east_m,
+                e.gps_bias_down_m,
+            )
+            if e is not None
+            else _NO_ESTIMATE
+        )
+        + (_ENUM_VALUE[out.phase], out.sector, float(out.lyapunov))
+        + ((cmd.north_m_s, cmd.east_m_s, cmd.down_m_s, cmd.yaw_rad) if cmd is not None else _NAN4)
+        + (
             (setpoint.north_m_s, setpoint.east_m_s, setpoint.down_m_s, setpoint.yaw_rad)
             if setpoint is not None
-            else (_NAN,) * 4
-        ),
-        int(bool(clamped)),
-        req.kind.value if req is not None else "",
-        req.id if req is not None else 0,
-        float(req.alt_rel_m) if req is not None else _NAN,
+            else _NAN4
+        )
+        + (
+            (int(bool(clamped)), _ENUM_VALUE[req.kind], req.id, float(req.alt_rel_m))
+            if req is not None
+            else (int(bool(clamped)), "", 0, _NAN)
+        )
     )
+
+
+_NO_ESTIMATE = ("", *([_NAN] * 13))
+_NAN4 = (_NAN, _NAN, _NAN, _NAN)
 
 
 def transform_json(T: Transform) -> dict[str, list[Any]]:
@@ -508,9 +535,8 @@ class FlightRecorder:
                 sink = self.mcap.stream_sink(name) if self.mcap is not None else None
                 self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
             # the two hooks at the telemetry / setpoint rate queue their rows with no further checks
-            self._sample_writers = {
-                cls: _sample_writer(cls, self._seq, self.logs[name]) for cls, name in SAMPLE_FILES.items()
-            }
+            self._shared_tlog: Any = None  # share_samples()
+            self._make_sample_writers()
             self._put_setpoint = self.logs["setpoints.csv"].put
             self._write_meta()
         except BaseException:
@@ -532,7 +558,38 @@ class FlightRecorder:
     def detach(self) -> None:
         if self._telemetry is not None:
             self._telemetry.remove_listener(self.on_sample)
+            tlog, self._shared_tlog = self._shared_tlog, None
+            if tlog is not None:  # the .tlog outlives this recorder: it listens for itself again
+                self._telemetry.add_listener(tlog.sample)
+                self._make_sample_writers()
             self._telemetry = None
+
+    def share_samples(self, telemetry: Any, tlog: Any) -> bool:
+        """Queue the embedded simulator's ``.tlog`` records of the samples (``tlog``: a
+        :class:`~companion.flightlog.tlog.TelemetryTlog` on the same ``telemetry`` cache) from
+        the rows this recorder builds anyway, so the ``.tlog`` needs no listener of its own and
+        the hand-over carries each sample's values once (``companion bench log``). The file is
+        the same. False (nothing changed) unless attached to ``telemetry`` and not sharing yet;
+        the caller then lets ``tlog.sample`` listen. Undo with :meth:`unshare_samples` before the
+        ``.tlog`` closes; if this recorder detaches first, it puts ``tlog.sample`` back on the
+        cache."""
+        if self._closed or self._telemetry is not telemetry or self._shared_tlog is not None:
+            return False
+        self._shared_tlog = tlog
+        self._make_sample_writers()
+        return True
+
+    def unshare_samples(self, tlog: Any) -> None:
+        """Stop queueing ``tlog``'s sample records (no-op unless :meth:`share_samples` gave it)."""
+        if self._shared_tlog is tlog:
+            self._shared_tlog = None
+            self._make_sample_writers()
+
+    def _make_sample_writers(self) -> None:
+        tap = self._shared_tlog.sample_tap() if self._shared_tlog is not None else None
+        self._sample_writers = {
+            cls: _sample_writer(cls, self._seq, self.logs[name], tap) for cls, name in SAMPLE_FILES.items()
+        }
 
     @property
     def closed(self) -> bool:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import dataclasses
+import enum
 import logging
 import math
 import operator
@@ -36,6 +37,7 @@ import queue
 import struct
 import threading
 import time
+import typing
 import weakref
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -617,6 +619,30 @@ class PackedRecords(Protocol):
 # what TelemetryTlog records, besides samples (a sample record holds its class)
 _COMMAND = "command"
 _ACK = "ack"
+_ROW = "row"  # a flight recorder's row of the sample (FlightRecorder.share_samples): (t, _ROW, cls, row)
+_ROW_CONVERSIONS: dict[type, list[tuple[int, Callable[[Any], Any]]]] = {}
+
+
+def sample_from_row(cls: type, row: tuple[Any, ...]) -> Any:
+    """The sample a flight recorder's row stands for (:mod:`companion.flightlog.recorder`: ``time_s,
+    seq`` and then the other fields in order, enums as their value and flags as 0/1)."""
+    conv = _ROW_CONVERSIONS.get(cls)
+    if conv is None:
+        hints = typing.get_type_hints(cls)
+        names = [f.name for f in dataclasses.fields(cls)]
+        if names[0] != "time_s":
+            raise TypeError(f"{cls.__name__}: a sample's first field must be time_s, not {names[0]}")
+        conv = _ROW_CONVERSIONS[cls] = [
+            (i, hints[n])
+            for i, n in enumerate(names[1:])
+            if hints[n] is bool or (isinstance(hints[n], type) and issubclass(hints[n], enum.Enum))
+        ]
+    fields = list(row[2:])
+    for i, typ in conv:
+        fields[i] = typ(fields[i])
+    return cls(row[0], *fields)
+
+
 _FIELD_GETTERS: dict[type, Callable[[Any], Any]] = {}
 
 
@@ -676,6 +702,8 @@ class TlogReplayer:
                     enc.command(rec[2], rec[3])
                 elif kind == _ACK:
                     enc.command_ack(rec[2], rec[3])
+                elif kind == _ROW:
+                    enc.sample(sample_from_row(rec[2], rec[3]))
                 else:
                     enc.sample(kind(*rec[2:]))
             except Exception:
@@ -806,6 +834,16 @@ class TelemetryTlog(HandedOverLog):
         cls = type(s)
         get = _FIELD_GETTERS.get(cls) or _field_getter(cls)
         self._q.append((self._clock(), cls, *get(s)))
+
+    def sample_tap(self) -> tuple[Callable[[tuple[Any, ...]], None], Callable[[], float], str]:
+        """What a flight recorder listening to the same samples needs to queue each one here from
+        the row it builds anyway, instead of :meth:`sample` (:meth:`FlightRecorder.share_samples
+        <companion.flightlog.recorder.FlightRecorder.share_samples>`): this log's queue's
+        ``append``, its clock and the record's marker. The record is ``(clock(), marker, cls,
+        row)``; the row is not copied, so the hand-over pickles its values once for both logs,
+        and the logging process rebuilds the sample from it (:func:`sample_from_row`): the same
+        packets and timestamps as :meth:`sample`."""
+        return self._q.append, self._clock, _ROW
 
     def setpoint(self, sp: VelocitySetpoint) -> None:
         """Queue the companion's velocity setpoint (SET_POSITION_TARGET_LOCAL_NED)."""

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from companion.autopilot.interface import TelemetryCache
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -31,17 +32,19 @@ from companion.autopilot.types import (
 )
 from companion.flightlog import logproc
 from companion.flightlog.logproc import LogProcess
+from companion.flightlog.recorder import _ENCODERS, SAMPLE_FILES, FlightRecorder
 from companion.flightlog.tlog import (
     TelemetryEncoder,
     TelemetryTlog,
     TlogWriter,
     cut_torn_record,
     read_tlog,
+    sample_from_row,
 )
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink_px4 import px4_custom_mode
 
-from .conftest import wait_gone
+from .conftest import short_config, wait_gone
 
 EPOCH = 1_735_689_600.0
 BOOT = 3.0
@@ -127,6 +130,61 @@ def test_the_same_bytes_through_the_logging_process_and_in_process(tmp_path, mon
     local.close()
     assert local.in_process and (tmp_path / "local.tlog").read_bytes() == want
     assert (local.written, local.dropped) == (n, 0)
+
+
+def _shared(tmp_path: Path, name: str, calls: list[tuple[float, str, Any]], detach_at: int | None = None) -> Any:
+    """The .tlog with its sample records queued by a FlightRecorder's telemetry hook
+    (``share_samples``) instead of its own listener; ``detach_at``: the recorder closes after
+    that many calls and the .tlog listens for itself from there."""
+    clock = [0.0]
+    tc = TelemetryCache()
+    rec = FlightRecorder(tmp_path / f"{name}-run", short_config(), mcap=False)
+    rec.attach(tc, landing=False)
+    tl = _tlog(tmp_path / f"{name}.tlog", clock)
+    assert rec.share_samples(tc, tl)
+    assert not rec.share_samples(tc, tl)  # once
+    for i, (t, what, arg) in enumerate(calls):
+        if i == detach_at:
+            rec.close()
+            assert tc._listeners == [tl.sample]  # the .tlog listens for itself again
+        clock[0] = t
+        if what == "sample":
+            for fn in tc._listeners:  # what TelemetryCache.push does once the sample is valid
+                fn(arg)
+        elif what in ("command", "command_ack"):
+            getattr(tl, what)(*arg)
+        else:
+            getattr(tl, what)(arg)
+        if i % 700 == 699:
+            tl._drain()  # handed over mid-stream, as the writer thread would
+    rec.unshare_samples(tl)
+    tl.close()
+    rec.close()
+    return tl, rec
+
+
+def test_the_recorder_s_rows_give_the_same_tlog_as_its_own_listener(tmp_path, monkeypatch):
+    calls = _calls(3000)
+    want = _at_once(tmp_path / "ref.tlog", calls)
+    n = len(list(read_tlog(tmp_path / "ref.tlog")))
+    samples = sum(1 for _, what, _ in calls if what == "sample")
+    for name, detach_at in (("shared", None), ("detached", 1800)):
+        tl, rec = _shared(tmp_path, name, calls, detach_at)
+        assert not tl.in_process
+        assert (tmp_path / f"{name}.tlog").read_bytes() == want, name
+        assert (tl.written, tl.dropped, tl.encode_errors) == (n, 0, 0)
+        rows = sum(rec.meta["rows"][f] for f in SAMPLE_FILES.values())
+        assert rows == (samples if detach_at is None else sum(1 for c in calls[:detach_at] if c[1] == "sample"))
+    monkeypatch.setattr(logproc, "IN_PROCESS", True)
+    tl, _ = _shared(tmp_path, "local", calls)
+    assert tl.in_process and (tmp_path / "local.tlog").read_bytes() == want
+
+
+def test_sample_from_row_gives_back_the_sample():
+    for _, what, s in _calls(200):
+        if what == "sample":
+            row = _ENCODERS[type(s)](17, s)
+            assert sample_from_row(type(s), row) == s
 
 
 _CRASH = """
