@@ -10,6 +10,11 @@ Two measurements of the GPS-only demo flight, in one run:
   in this process ((logged - bare) / bare, process CPU time, all threads) and the logging
   process's CPU time over the bare flight's CPU time, fastest flight of each, which the machine's
   other load moves far less than wall time;
+* the whole run folder's share split in three, from two more variants flown in the same rounds:
+  the folder opened and closed with nothing logged (every hook does nothing), and every row and
+  ``.tlog`` record built and queued as usual but dropped where it would be handed over: opening
+  and closing; building and queueing the rows on the loop; handing them over (pickle and send),
+  the logging process's work on the other core and closing's wait for it;
 * microseconds per row, from a further flight with the whole run folder in which this
   process's share is timed per stream: the recorder's hooks (row building and queueing on the
   control loop) and each log's batch as the writer thread takes it (handed to the logging
@@ -88,6 +93,62 @@ def _no_mcap() -> Iterator[None]:
         yield
     finally:
         rec.FlightRecorder.write_mcap = orig
+
+
+@contextmanager
+def _no_rows() -> Iterator[None]:
+    """Fly with the whole run folder opened and closed but nothing logged: every hook of the
+    recorder, the simulator's ``.tlog`` and ``flight.csv``/``truth.csv`` does nothing (what
+    is left is opening, the logging process's start-up messages, and closing)."""
+    saved: list[tuple[type, str, Any]] = []
+
+    def off(cls: type, name: str, value: Any) -> None:
+        saved.append((cls, name, cls.__dict__[name]))
+        setattr(cls, name, value)
+
+    def nothing(self: Any, *args: Any) -> None:
+        return None
+
+    for name in ("on_sample", *_HOOK_STREAM):
+        off(rec.FlightRecorder, name, nothing)
+    off(rec.FlightRecorder, "share_samples", lambda self, telemetry, tlog: False)
+    for name in ("write", "put"):
+        off(CsvLog, name, nothing)
+    for name in _TLOG_HOOKS:
+        off(TelemetryTlog, name, nothing)
+    try:
+        yield
+    finally:
+        for cls, name, orig in reversed(saved):
+            setattr(cls, name, orig)
+
+
+@contextmanager
+def _rows_not_handed_over() -> Iterator[None]:
+    """Fly with every row and ``.tlog`` record built and queued as usual, but the batches
+    dropped where they would be handed to the logging process (files opened and closed)."""
+    orig = logproc.LogProcess.post
+
+    def post(self: logproc.LogProcess, op: Any) -> bool:
+        return True if op[0] in (CsvLog._POST_OP, TelemetryTlog._POST_OP) else orig(self, op)
+
+    logproc.LogProcess.post = post  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        logproc.LogProcess.post = orig  # type: ignore[method-assign]
+
+
+def tlog_record_count(path: Path) -> int:
+    """Whole records in a ``.tlog`` (8-byte timestamp + MAVLink 2 packet, walked from the start)."""
+    data = path.read_bytes()
+    pos = n = 0
+    while pos + 11 <= len(data) and data[pos + 8] == 0xFD:
+        end = pos + 8 + 12 + data[pos + 9] + (13 if data[pos + 10] & 1 else 0)
+        if end > len(data):
+            break
+        pos, n = end, n + 1
+    return n
 
 
 def clock_overhead_s(n: int = 20000, rounds: int = 5) -> float:
@@ -229,6 +290,11 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
             with _no_tlog():
                 fly("mcap", root / f"mcap{k}")
             fly("full", root / f"full{k}")
+            if logproc.client() is not None:  # the split of the whole folder's cost
+                with _no_rows():
+                    fly("fixed", root / f"fixed{k}")
+                with _rows_not_handed_over():
+                    fly("queued", root / f"queued{k}")
         mcap_bytes = (root / "mcap0" / rec.MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
@@ -241,7 +307,8 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
         proc_after = logproc.client()
         cpu1 = proc_after.cpu_s() if proc_after is not None and proc_after is proc else None
         rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
-        rows[_TLOG] = calls[_TLOG + " records"]
+        rows[_TLOG] = calls[_TLOG + " records"]  # queued by its own hooks (setpoints, commands, answers)
+        tlog_records = tlog_record_count(root / "timed" / _TLOG)
     out["sim_time_s"] = bare.sim_time_s
     b, c, m, f = (min(walls[k]) for k in ("bare", "csv", "mcap", "full"))
     out["rounds"] = rounds
@@ -254,6 +321,13 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
     out["mcap_vs_csv_share"] = (m - c) / c
     out["mcap_bytes"] = mcap_bytes
     out["full_logging_share"] = (f - b) / b
+    if walls["fixed"] and walls["queued"]:
+        # the whole folder's share, split: opening and closing; building and queueing the rows
+        # on the loop; handing them over (pickle, send), the logging process and closing's wait
+        x, q = min(walls["fixed"]), min(walls["queued"])
+        out["split_open_close_share"] = (x - b) / b
+        out["split_rows_share"] = (q - x) / b
+        out["split_handover_share"] = (f - q) / b
     # CPU time, fastest flight of each: what the other load on the machine moves least
     cb = min(cpus["bare"])
     for key, variant in (("csv", "csv"), ("csv_mcap", "mcap"), ("full", "full")):
@@ -275,6 +349,9 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
     out["us_per_row_handover"] = handover / max(1, out["rows"]) * 1e6
     out["us_per_row_this_process"] = out["all_streams_us_per_row"] + out["us_per_row_handover"]
     out["this_process_share"] = (total + handover) / b
+    out["this_process_ms"] = (total + handover) * 1e3
+    out["tlog_records"] = tlog_records
+    out["tlog_records_of_samples"] = tlog_records - rows[_TLOG]
     if cpu0 is not None and cpu1 is not None:
         out["logging_process_cpu_s"] = cpu1 - cpu0
         out["us_per_row_logging_process"] = (cpu1 - cpu0) / max(1, out["rows"]) * 1e6

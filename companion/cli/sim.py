@@ -343,6 +343,13 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
         f"  whole run folder (CSV logs + MCAP + flight.tlog)    {r['full_run_folder_wall_s']:.2f} s wall: "
         f"logging share {100 * r['full_logging_share']:+.1f} %"
     )
+    if "split_rows_share" in r:
+        print(
+            "    split (the same flights with nothing logged / rows queued but not handed over, fastest of each): "
+            f"opening and closing {100 * r['split_open_close_share']:+.1f} %, building and queueing the rows on "
+            f"the loop {100 * r['split_rows_share']:+.1f} %, handing them over + the logging process + closing's "
+            f"wait {100 * r['split_handover_share']:+.1f} %"
+        )
     print("  CPU time the logs add (uninstrumented flights, fastest of each; over the bare flight's CPU time):")
     for key, label in (("csv", "CSV logs"), ("csv_mcap", "CSV logs + flight.mcap"), ("full", "whole run folder")):
         child = r.get(f"{key}_logging_process_cpu_share")
@@ -362,8 +369,14 @@ def cmd_bench_log(args: argparse.Namespace) -> int:
     print(f"    {'all streams':<20} {r['rows']:>7} rows  {r['all_streams_us_per_row']:6.2f} us/row")
     print(f"    {'hand-over (pickle + send)':<28}      {r['us_per_row_handover']:6.2f} us/row")
     print(
-        f"    {'this process in all':<28}      {r['us_per_row_this_process']:6.2f} us/row "
-        f"({100 * r['this_process_share']:.1f} % of the bare flight's wall time, in CPU time)"
+        f"    {'this process in all':<28}      {r['us_per_row_this_process']:6.2f} us/row, "
+        f"{r['this_process_ms']:.0f} ms ({100 * r['this_process_share']:.1f} % of the bare flight's wall time, "
+        "in CPU time)"
+    )
+    print(
+        f"  flight.tlog holds {r['tlog_records']} records: {r['tlog_records_of_samples']} of them encoded from "
+        "the telemetry samples the recorder's telemetry hook queued for it (charged to the ap_* streams), "
+        f"the other {r['flight.tlog_rows']} queued by the .tlog's own hooks"
     )
     if "us_per_row_logging_process" in r:
         print(
@@ -682,7 +695,7 @@ def register_bench(bsub: Any) -> None:
     bl.add_argument(
         "--rounds",
         type=int,
-        default=2,
+        default=3,
         help="flights of each variant, interleaved (the fastest counts; more on a busy machine)",
     )
     bl.set_defaults(func=cmd_bench_log)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from companion.flightlog.recorder import STREAM_FILES
+from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES
 from companion_sitl.log_bench import bench_log
 
 from .conftest import short_config
@@ -36,3 +36,11 @@ def test_bench_log_reports_shares_and_per_stream_costs():
     # the clock's own cost is subtracted: a stream with next to nothing to do may come out at 0
     assert all(r[f"{s}_us_per_row"] >= 0.0 for s in per_stream) and r["all_streams_us_per_row"] > 0.0
     assert 0.0 < r["clock_overhead_us"] < 100.0
+    # the whole folder's share, split three ways from the same rounds' flights
+    split = r["split_open_close_share"] + r["split_rows_share"] + r["split_handover_share"]
+    assert split == pytest.approx(r["full_logging_share"])
+    # the .tlog's sample records come from the recorder's rows: its own hooks queue the rest
+    assert r["tlog_records"] == r["tlog_records_of_samples"] + r["flight.tlog_rows"]
+    samples = sum(r.get(f"{name}_rows", 0) for name in SAMPLE_FILES.values())
+    assert r["tlog_records_of_samples"] >= samples > 0  # a status gives four messages
+    assert r["this_process_ms"] == pytest.approx(r["this_process_share"] * r["bare_wall_s"] * 1e3)
