@@ -2,11 +2,13 @@
 
 Rows are handed through a bounded queue to one writer thread shared by every open log, so
 disk I/O and number formatting never run on the control path (a full queue drops the row and
-counts it). The writer wakes every ``flush_period_s`` (:data:`FLUSH_PERIOD_S`, 0.1 s) and takes
-each log's queued rows as one batch (by slicing its list: no per-row work).
+counts it). The writer takes each log's queued rows as one batch (by slicing its list: no per-row
+work) every ``flush_period_s`` (:data:`FLUSH_PERIOD_S`, 0.1 s), or sooner: it looks every
+:data:`WAKE_PERIOD_S` (0.02 s) and takes them at once when :data:`HANDOVER_ROWS` rows wait
+(the simulator running many times faster than real time).
 
 By default the batches are not formatted in this process: the writer thread hands all of them,
-one pickle per wake-up, to the **logging process** (:mod:`companion.flightlog.logproc`, one child
+one pickle per round, to the **logging process** (:mod:`companion.flightlog.logproc`, one child
 per process, started at the first log opened), which formats and writes them (and the run's
 ``flight.mcap``) on another core. Formatting in this process competed for the GIL with the
 control loop: the logs cost the GPS-only demo 45-80 % of its wall time; handing over costs a
@@ -38,6 +40,7 @@ import csv
 import logging
 import os
 import threading
+import time
 import weakref
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -52,6 +55,13 @@ log = logging.getLogger(__name__)
 # the shared writer's period: what a hard crash can lose, in wall time, and what closing a log waits
 # for at most (the logging process writing the last batch; 0.2 s made that 30-60 ms of a 1.2 s flight)
 FLUSH_PERIOD_S = 0.1
+# while rows come faster than HANDOVER_ROWS a period, the writer looks at the queues this often and
+# hands them over once HANDOVER_ROWS rows and records wait: the simulator at 160x real time every
+# 0.02 s, which took 3-5 points off the GPS-only demo's logging share (rows kept 0.1 s cost the
+# flight more; `companion bench log`); a flight in real time (a few hundred rows a second) keeps
+# one round a period
+WAKE_PERIOD_S = 0.02
+HANDOVER_ROWS = 256
 
 _OPEN: weakref.WeakSet[CsvLog] = weakref.WeakSet()
 
@@ -124,10 +134,22 @@ class _SharedWriter:
     def _run(self) -> None:
         from companion.flightlog import logproc
 
+        period = self.period_s
+        wait_s, last = period, time.monotonic()
         while True:
             with self._cond:
-                self._cond.wait(self.period_s)
+                self._cond.wait(wait_s)
                 logs = list(self.logs)
+            now = time.monotonic()
+            queued = sum(len(getattr(lg, "_q", ())) for lg in logs)
+            # a round once the period is over, or earlier once enough rows wait (a fast simulation):
+            # rows handed over young cost the flight less than rows kept for the whole period
+            if now - last < period and queued < HANDOVER_ROWS:
+                continue
+            # looked at every WAKE_PERIOD_S only while the rows come faster than HANDOVER_ROWS a period
+            # (a flight in real time keeps one wake-up a period)
+            wait_s = min(period, WAKE_PERIOD_S) if queued * period >= HANDOVER_ROWS * (now - last) else period
+            last = now
             for lg in logs:
                 lg._drain()
             logproc.flush_current()
@@ -215,7 +237,7 @@ def _cut_torn_line(path: Path) -> None:
 class HandedOverLog(abc.ABC):
     """The flight's side of a log the logging process writes (:class:`CsvLog`, the simulator's
     :class:`~companion.flightlog.tlog.TelemetryTlog`): what the loop queued is handed over as one
-    batch per writer wake-up (:meth:`_drain`), or written here when logging in process; if the
+    batch per writer round (:meth:`_drain`), or written here when logging in process; if the
     logging process dies, the file is continued here, first with the batches it was never handed
     (:meth:`_go_local`). A subclass says how its file is continued, written and closed here, and
     names its operations in the logging process (``_POST_OP``, ``_CLOSE_OP``)."""

@@ -4,7 +4,7 @@
 listens to the autopilot's :class:`~companion.autopilot.interface.TelemetryCache` and the shell
 calls it where pad observations, UWB fixes, request results, operator/ground commands, guidance
 ticks and sent setpoints pass. Each stream is a :class:`~companion.flightlog.csvlog.CsvLog`
-(batches handed every 0.1 s to the logging process, which writes them; time in seconds first, units in the
+(batches handed at least every 0.1 s to the logging process, which writes them; time in seconds first, units in the
 headers), so PlotJuggler opens every file as is:
 
 =====================  ==========================================================================

@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -308,3 +309,33 @@ def test_rows_queued_while_the_writer_takes_a_batch_are_neither_lost_nor_doubled
         t.join()
     got = read_csv(tmp_path / "a.csv")["i"]
     assert got == [str(i) for i in range(n)] and lg.written == n and lg.dropped == 0
+
+
+def test_the_writer_hands_over_before_the_period_while_rows_come_fast(tmp_path):
+    """Rows that come faster than HANDOVER_ROWS a period are looked at every WAKE_PERIOD_S and
+    handed over once HANDOVER_ROWS wait, before the period is over; fewer wait for the period."""
+    from companion.flightlog import csvlog
+
+    n = csvlog.HANDOVER_ROWS
+
+    def wait_written(lg: CsvLog, rows: int, within_s: float) -> None:
+        deadline = time.monotonic() + within_s
+        while lg.written < rows and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert lg.written == rows
+
+    with CsvLog(tmp_path / "a.csv", ("time_s", "x"), flush_period_s=2.0) as lg:
+        assert not lg.in_process  # handed to the logging process: `written` counts the rows handed over
+        for k in range(n + 50):  # faster than n rows a period: the first round (at 2 s) says so
+            lg.write((float(k), 1.0))
+        wait_written(lg, n + 50, 5.0)
+        t0 = time.monotonic()
+        for k in range(10):
+            lg.write((float(k), 2.0))
+        while time.monotonic() - t0 < 0.5:  # under HANDOVER_ROWS: they wait for the period
+            assert lg.written == n + 50
+            time.sleep(0.05)
+        for k in range(n):
+            lg.write((float(k), 3.0))
+        wait_written(lg, 2 * n + 60, 1.0)  # the period is over ~2 s after the first round, not yet
+    assert len(read_csv(tmp_path / "a.csv")["x"]) == 2 * n + 60
