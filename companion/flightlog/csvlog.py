@@ -57,9 +57,8 @@ log = logging.getLogger(__name__)
 FLUSH_PERIOD_S = 0.1
 # while rows come faster than HANDOVER_ROWS a period, the writer looks at the queues this often and
 # hands them over once HANDOVER_ROWS rows and records wait: the simulator at 160x real time every
-# 0.02 s, which took 3-5 points off the GPS-only demo's logging share (rows kept 0.1 s cost the
-# flight more; `companion bench log`); a flight in real time (a few hundred rows a second) keeps
-# one round a period
+# 0.02 s, 1-2 points off the GPS-only demo's logging share (rows kept 0.1 s cost the flight a little
+# more; README, issue 15); a flight in real time (a few hundred rows a second) keeps one round a period
 WAKE_PERIOD_S = 0.02
 HANDOVER_ROWS = 256
 
