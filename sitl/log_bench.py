@@ -96,47 +96,54 @@ def _no_mcap() -> Iterator[None]:
 
 
 @contextmanager
-def _no_rows() -> Iterator[None]:
-    """Fly with the whole run folder opened and closed but nothing logged: every hook of the
-    recorder, the simulator's ``.tlog`` and ``flight.csv``/``truth.csv`` does nothing (what
-    is left is opening, the logging process's start-up messages, and closing)."""
+def _patched() -> Iterator[Callable[[type, str, Callable[[Any], Any]], None]]:
+    """Replace class attributes for the block: ``patch(cls, name, make)`` sets ``make(original)``;
+    every original is put back afterwards, last first."""
     saved: list[tuple[type, str, Any]] = []
 
-    def off(cls: type, name: str, value: Any) -> None:
-        saved.append((cls, name, cls.__dict__[name]))
-        setattr(cls, name, value)
+    def patch(cls: type, name: str, make: Callable[[Any], Any]) -> None:
+        orig = cls.__dict__[name]
+        saved.append((cls, name, orig))
+        setattr(cls, name, make(orig))
 
-    def nothing(self: Any, *args: Any) -> None:
-        return None
-
-    for name in ("on_sample", *_HOOK_STREAM):
-        off(rec.FlightRecorder, name, nothing)
-    off(rec.FlightRecorder, "share_samples", lambda self, telemetry, tlog: False)
-    for name in ("write", "put"):
-        off(CsvLog, name, nothing)
-    for name in _TLOG_HOOKS:
-        off(TelemetryTlog, name, nothing)
     try:
-        yield
+        yield patch
     finally:
         for cls, name, orig in reversed(saved):
             setattr(cls, name, orig)
 
 
 @contextmanager
+def _no_rows() -> Iterator[None]:
+    """Fly with the whole run folder opened and closed but nothing logged: every hook of the
+    recorder, the simulator's ``.tlog`` and ``flight.csv``/``truth.csv`` does nothing (what
+    is left is opening, the logging process's start-up messages, and closing)."""
+
+    def nothing(orig: Any) -> Any:
+        return lambda self, *args: None
+
+    with _patched() as patch:
+        for name in ("on_sample", *_HOOK_STREAM):
+            patch(rec.FlightRecorder, name, nothing)
+        patch(rec.FlightRecorder, "share_samples", lambda orig: lambda self, telemetry, tlog: False)
+        for name in ("write", "put"):
+            patch(CsvLog, name, nothing)
+        for name in _TLOG_HOOKS:
+            patch(TelemetryTlog, name, nothing)
+        yield
+
+
+@contextmanager
 def _rows_not_handed_over() -> Iterator[None]:
     """Fly with every row and ``.tlog`` record built and queued as usual, but the batches
     dropped where they would be handed to the logging process (files opened and closed)."""
-    orig = logproc.LogProcess.post
 
-    def post(self: logproc.LogProcess, op: Any) -> bool:
-        return True if op[0] in (CsvLog._POST_OP, TelemetryTlog._POST_OP) else orig(self, op)
+    def post(orig: Any) -> Any:
+        return lambda self, op: True if op[0] in (CsvLog._POST_OP, TelemetryTlog._POST_OP) else orig(self, op)
 
-    logproc.LogProcess.post = post  # type: ignore[method-assign]
-    try:
+    with _patched() as patch:
+        patch(logproc.LogProcess, "post", post)
         yield
-    finally:
-        logproc.LogProcess.post = orig  # type: ignore[method-assign]
 
 
 def tlog_record_count(path: Path) -> int:
@@ -169,12 +176,6 @@ def clock_overhead_s(n: int = 20000, rounds: int = 5) -> float:
 def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict[str, int]) -> Iterator[None]:
     """Charge the recorder's hooks, the .tlog's and every log's queueing and batched writes to
     streams (``calls``: timed calls per stream, each charged one clock reading too many)."""
-    saved: list[tuple[type, str, Any]] = []
-
-    def patch(cls: type, name: str, wrapper: Callable[[Any], Any]) -> None:
-        orig = cls.__dict__[name]
-        saved.append((cls, name, orig))
-        setattr(cls, name, wrapper(orig))
 
     def hook(name: str, orig: Any) -> Any:
         @functools.wraps(orig)
@@ -186,9 +187,6 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
             calls[stream] += 1
 
         return timed
-
-    for name in ("on_sample", *_HOOK_STREAM):
-        patch(rec.FlightRecorder, name, functools.partial(hook, name))
 
     def record(orig: Any) -> Any:
         @functools.wraps(orig)
@@ -228,7 +226,6 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
             orig(self, *args)
             hook_s[_TLOG] += time.thread_time() - t0
             calls[_TLOG] += 1
-            calls[_TLOG + " records"] += 1
 
         return timed
 
@@ -242,18 +239,17 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
 
         return timed
 
-    patch(CsvLog, "write", write)
-    patch(DeliveryShell, "_record", record)  # flight.csv's row, built and written
-    patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
-    for name in _TLOG_HOOKS:
-        patch(TelemetryTlog, name, tlog_hook)
-    patch(logproc.LogProcess, "flush", handover)
-    patch(logproc.LogProcess, "request", handover)
-    try:
+    with _patched() as patch:
+        for name in ("on_sample", *_HOOK_STREAM):
+            patch(rec.FlightRecorder, name, functools.partial(hook, name))
+        patch(CsvLog, "write", write)
+        patch(DeliveryShell, "_record", record)  # flight.csv's row, built and written
+        patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
+        for name in _TLOG_HOOKS:
+            patch(TelemetryTlog, name, tlog_hook)
+        patch(logproc.LogProcess, "flush", handover)
+        patch(logproc.LogProcess, "request", handover)
         yield
-    finally:
-        for cls, name, orig in reversed(saved):
-            setattr(cls, name, orig)
 
 
 def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int = 2) -> dict[str, Any]:
@@ -307,7 +303,7 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
         proc_after = logproc.client()
         cpu1 = proc_after.cpu_s() if proc_after is not None and proc_after is proc else None
         rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
-        rows[_TLOG] = calls[_TLOG + " records"]  # queued by its own hooks (setpoints, commands, answers)
+        rows[_TLOG] = calls[_TLOG]  # queued by its own hooks (setpoints, commands, answers)
         tlog_records = tlog_record_count(root / "timed" / _TLOG)
     out["sim_time_s"] = bare.sim_time_s
     b, c, m, f = (min(walls[k]) for k in ("bare", "csv", "mcap", "full"))

@@ -34,7 +34,6 @@ from typing import Any
 
 from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
-from companion.autopilot.types import FlightMode
 from companion.config import CompanionConfig
 from companion.delivery.mission import (
     DeliveryMission,
@@ -50,6 +49,7 @@ from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.recorder import ENUM_VALUE
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasEstimator
@@ -83,9 +83,6 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
-# enum values by member (a dict lookup; ``Enum.value`` is a Python property: flight.csv's row per tick)
-_PHASE_VALUE = {p: p.value for p in Phase}
-_MODE_VALUE = {m: m.value for m in FlightMode}
 _SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
 
 
@@ -618,8 +615,8 @@ class DeliveryShell:
                 dn, de, dd = e.north_m - pn, e.east_m - pe, e.down_m - pd
                 mx, my, mz = a0 * dn + a1 * de + a2 * dd, b0 * dn + b1 * de + b2 * dd, c0 * dn + c1 * de + c2 * dd
         self.flight_log.put(
-            (now, _PHASE_VALUE[out.phase], out.sector, out.lyapunov)
+            (now, ENUM_VALUE[out.phase], out.sector, out.lyapunov)
             + est
             + ((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan))
-            + (int(clamped), mx, my, mz, _MODE_VALUE[st.mode] if st else "", int(st.armed) if st else 0)
+            + (int(clamped), mx, my, mz, ENUM_VALUE[st.mode] if st else "", int(st.armed) if st else 0)
         )

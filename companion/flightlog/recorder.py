@@ -106,14 +106,14 @@ def sample_columns(cls: type) -> tuple[str, ...]:
 
 class _EnumValues(dict[enum.Enum, object]):
     """``member.value`` by ``self[member]``: a dict lookup once seen (``Enum.value`` is a Python
-    property, two frames deep: guidance rows run every tick)."""
+    property, two frames deep: the guidance and flight.csv rows run every tick)."""
 
     def __missing__(self, member: enum.Enum) -> object:
         v = self[member] = member.value
         return v
 
 
-_ENUM_VALUE = _EnumValues()
+ENUM_VALUE = _EnumValues()
 
 
 def _sample_encoder(cls: type) -> Any:
@@ -122,7 +122,7 @@ def _sample_encoder(cls: type) -> Any:
     fields_ = _SAMPLE_FIELDS[cls]
     get = operator.attrgetter(*(n for n, _ in fields_))
     conv = [
-        (i, _ENUM_VALUE.__getitem__ if isinstance(t, type) and issubclass(t, enum.Enum) else (lambda v: int(bool(v))))
+        (i, ENUM_VALUE.__getitem__ if isinstance(t, type) and issubclass(t, enum.Enum) else (lambda v: int(bool(v))))
         for i, (_, t) in enumerate(fields_)
         if t is bool or (isinstance(t, type) and issubclass(t, enum.Enum))
     ]
@@ -437,7 +437,7 @@ def guidance_row(seq: int, inp: Any, out: Any, setpoint: VelocitySetpoint | None
             if e is not None
             else _NO_ESTIMATE
         )
-        + (_ENUM_VALUE[out.phase], out.sector, float(out.lyapunov))
+        + (ENUM_VALUE[out.phase], out.sector, float(out.lyapunov))
         + ((cmd.north_m_s, cmd.east_m_s, cmd.down_m_s, cmd.yaw_rad) if cmd is not None else _NAN4)
         + (
             (setpoint.north_m_s, setpoint.east_m_s, setpoint.down_m_s, setpoint.yaw_rad)
@@ -445,7 +445,7 @@ def guidance_row(seq: int, inp: Any, out: Any, setpoint: VelocitySetpoint | None
             else _NAN4
         )
         + (
-            (int(bool(clamped)), _ENUM_VALUE[req.kind], req.id, float(req.alt_rel_m))
+            (int(bool(clamped)), ENUM_VALUE[req.kind], req.id, float(req.alt_rel_m))
             if req is not None
             else (int(bool(clamped)), "", 0, _NAN)
         )
