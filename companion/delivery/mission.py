@@ -237,6 +237,11 @@ class DeliveryMission:
         ):
             self.summary.failure = reason
             self._goto(Phase.FAILED)
+        elif p.request.kind is RequestKind.DISARM and self.phase is Phase.ABORT_LAND:
+            # on the ground after an abort: say it and end, rather than ask again for ever
+            self.summary.failure = f"aborted: {self._abort_reason}; landed but still armed ({reason})"
+            self.summary.end_time_s = self._now
+            self._goto(Phase.FAILED)
         else:
             self.abort(self._now, reason)
 
@@ -612,10 +617,17 @@ class DeliveryMission:
             self._expect_mode_change = True
             return None, self._make_request(RequestKind.LAND), math.nan
         st = inp.status
-        if st is not None and st.landed is LandedState.ON_GROUND and not st.armed:
-            self.summary.failure = f"aborted: {self._abort_reason}"
-            self.summary.end_time_s = inp.time_s
-            self._goto(Phase.FAILED)
+        if st is not None and st.landed is LandedState.ON_GROUND:
+            if not st.armed:
+                self.summary.failure = f"aborted: {self._abort_reason}"
+                self.summary.end_time_s = inp.time_s
+                self._goto(Phase.FAILED)
+            elif self._idle() and inp.time_s >= self._disarm_not_before:
+                # as after a landing on the pad: ask, and again only if it stays armed. Waiting for
+                # the autopilot's own disarm would wait forever where it is turned off (PX4
+                # COM_DISARM_LAND < 0, ArduPilot DISARM_DELAY = 0)
+                self._disarm_not_before = inp.time_s + DISARM_REPEAT_S
+                return None, self._make_request(RequestKind.DISARM), math.nan
         return None, None, math.nan
 
     # ------------------------------------------------------------------ helpers

@@ -224,3 +224,59 @@ def test_a_negative_touchdown_height_keeps_closing_the_error_down_to_the_ground(
     m0.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
     m0._goto(Phase.LANDING_PAD)
     assert _descent_setpoints(m0, [(0.0, 0.04)], d=0.05) == [(0.0, 0.0)]
+
+
+def _aborted_in_the_air():
+    """A mission aborted 2 m up in its takeoff, through HOLD and LAND, now reported on the ground
+    and still armed (an autopilot whose own disarm after landing is turned off)."""
+    m = DeliveryMission(cfg(abort_hold_s=1.0))
+    t = 0.0
+    req = m.step(MissionInputs(t, est(t), status(t), HOME)).request
+    m.on_result(RequestResult(req.id, True))
+    air = status(t, armed=True, mode=FlightMode.TAKEOFF, landed=LandedState.IN_AIR)
+    req = m.step(MissionInputs(t, est(t, d=-2.0), air, HOME)).request
+    m.on_result(RequestResult(req.id, True))  # TAKEOFF
+    m.abort(t, "operator abort")
+    kinds = []
+    while t < 3.0:
+        t += 0.05
+        out = m.step(MissionInputs(t, est(t, d=-2.0), air, HOME))
+        if out.request is not None:
+            kinds.append(out.request.kind)
+            m.on_result(RequestResult(out.request.id, True))
+    assert kinds == [RequestKind.HOLD, RequestKind.LAND] and m.phase is Phase.ABORT_LAND
+    return m, t
+
+
+def test_an_abort_landing_asks_to_disarm_on_the_ground_and_ends_once_disarmed():
+    m, t = _aborted_in_the_air()
+    ground = status(t, armed=True, mode=FlightMode.LAND)
+    sent = []
+    for _ in range(100):  # 5 s on the ground, armed
+        t += 0.05
+        out = m.step(MissionInputs(t, est(t), ground, HOME))
+        if out.request is not None:
+            assert out.request.kind is RequestKind.DISARM
+            sent.append(t)
+            m.on_result(RequestResult(out.request.id, True))
+    # at once, then again only every DISARM_REPEAT_S (2 s) while the status still shows armed
+    assert len(sent) == 3 and sent[1] - sent[0] >= 2.0 - 1e-9 and sent[2] - sent[1] >= 2.0 - 1e-9
+    assert m.phase is Phase.ABORT_LAND
+    m.step(MissionInputs(t + 0.05, est(t), status(t, armed=False, mode=FlightMode.LAND), HOME))
+    assert m.phase is Phase.FAILED and m.summary.failure == "aborted: operator abort"
+
+
+def test_an_abort_landing_whose_disarm_is_refused_ends_saying_it_is_still_armed():
+    m, t = _aborted_in_the_air()
+    ground = status(t, armed=True, mode=FlightMode.LAND)
+    tries = 0
+    while m.phase is not Phase.FAILED and t < 30.0:
+        t += 0.05
+        out = m.step(MissionInputs(t, est(t), ground, HOME))
+        if out.request is not None:
+            assert out.request.kind is RequestKind.DISARM
+            tries += 1
+            m.on_result(RequestResult(out.request.id, False, "disarm denied"))
+    assert tries == 3  # never asked again for ever
+    assert m.phase is Phase.FAILED
+    assert m.summary.failure == "aborted: operator abort; landed but still armed (disarm failed 3 times: disarm denied)"
