@@ -10,11 +10,13 @@ must absorb the displacement, as delivery 5.2 describes). The landing error is s
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import logging
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
@@ -196,3 +198,64 @@ async def fly_on_truth(
         guidance_overruns=shell.stats.guidance_overruns,
         setpoint_overruns=shell.stats.setpoint_overruns,
     )
+
+
+def flight_story(run_dir: Path, firmware_log: Path | None = None, tail_lines: int = 30) -> str:
+    """What a failed SITL flight leaves for its reader, as text: the mission's events and the
+    requests with their results (events.csv, requests.csv), every change of the autopilot's mode,
+    arming or landed state (ap_status.csv), its STATUSTEXTs, and the end of the firmware's own log.
+    A file that is missing or unreadable is named, never fatal (this runs after a failure)."""
+    out: list[str] = []
+
+    def rows(name: str) -> list[dict[str, str]] | None:
+        path = run_dir / name
+        try:
+            with path.open(newline="") as f:
+                return list(csv.DictReader(f))
+        except (OSError, csv.Error, UnicodeDecodeError) as err:
+            out.append(f"{name}: not readable ({err})")
+            return None
+
+    def t(row: dict[str, str]) -> str:
+        return row.get("time_s", "?")[:10]
+
+    events = rows("events.csv")
+    if events is not None:
+        out.append(f"events.csv ({len(events)}):")
+        out += [f"  {t(r)} {r.get('phase')} {r.get('kind')} {r.get('detail')}" for r in events]
+    requests = rows("requests.csv")
+    if requests is not None:
+        out.append(f"requests.csv ({len(requests)}):")
+        out += [
+            f"  {t(r)} #{r.get('id')} {r.get('kind')} {'ok' if r.get('ok') == '1' else 'FAILED ' + str(r.get('error'))}"
+            for r in requests
+        ]
+    status = rows("ap_status.csv")
+    if status is not None:
+        changes: list[str] = []
+        last: tuple[str | None, ...] = ()
+        for r in status:
+            now = (r.get("armed"), r.get("mode"), r.get("landed"), r.get("healthy"))
+            if now != last:
+                changes.append(f"  {t(r)} armed={now[0]} mode={now[1]} landed={now[2]} healthy={now[3]}")
+                last = now
+        tail = f", last at {t(status[-1])}" if status else ""
+        out.append(f"ap_status.csv ({len(status)} rows{tail}), changes:")
+        out += changes
+    position = rows("ap_position.csv")
+    if position:
+        p = position[-1]
+        out.append(f"ap_position.csv ({len(position)} rows): last at {t(p)}, down {p.get('down_m')} m")
+    texts = rows("ap_statustext.csv")
+    if texts is not None:
+        out.append(f"ap_statustext.csv ({len(texts)}):")
+        out += [f"  {t(r)} [{r.get('severity')}] {r.get('text')}" for r in texts]
+    if firmware_log is not None:
+        try:
+            lines = firmware_log.read_text(errors="replace").splitlines()
+        except OSError as err:
+            out.append(f"{firmware_log.name}: not readable ({err})")
+        else:
+            out.append(f"{firmware_log.name}, last {min(tail_lines, len(lines))} of {len(lines)} lines:")
+            out += [f"  {line}" for line in lines[-tail_lines:]]
+    return "\n".join(out)

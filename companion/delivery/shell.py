@@ -252,7 +252,9 @@ class DeliveryShell:
                 try:
                     await asyncio.wait_for(self._guidance_loop(), timeout_s)
                 except TimeoutError:
-                    self.mission.summary.failure = f"mission did not finish within {timeout_s} s"
+                    self.mission.summary.failure = (
+                        f"mission did not finish within {timeout_s} s ({self.where_it_stands(self._clock.now())})"
+                    )
                     log.error(self.mission.summary.failure)
         finally:
             if stream is not None:
@@ -277,6 +279,27 @@ class DeliveryShell:
             if self.recorder is not None:
                 self.recorder.detach()  # its owner closes it
         return self.mission.summary
+
+    def where_it_stands(self, now: float) -> str:
+        """The mission's phase and what the autopilot last said (mode, armed, landed, height, and
+        how old each is): for a mission that ends without finishing, so the log says where."""
+        tc = self.autopilot.telemetry
+        parts = [f"phase {self.mission.phase.value}"]
+        st = tc.status
+        if st is None:
+            parts.append("no autopilot status")
+        else:
+            parts.append(
+                f"autopilot {st.mode.value}, {'armed' if st.armed else 'disarmed'}, {st.landed.value} "
+                f"(status {now - st.time_s:.1f} s old)"
+            )
+        p = tc.position_ned
+        if p is None:
+            parts.append("no local position")
+        else:
+            parts.append(f"local height {-p.down_m:.2f} m (position {now - p.time_s:.1f} s old)")
+        parts.append("link up" if self.autopilot.link_ok else "link down")
+        return "; ".join(parts)
 
     # ------------------------------------------------------------------ tasks
     async def _guidance_loop(self) -> None:

@@ -109,6 +109,22 @@ def test_pilot_takeover_ends_autonomy_within_one_period_and_is_not_fought():
     assert shell.stats.requests == seen["requests0"]  # no command fought the pilot
 
 
+def test_a_mission_that_does_not_finish_in_time_says_where_it_stands():
+    """The timeout's failure names the phase and the autopilot's last mode, arming, landed state,
+    height and how old they are (a real SITL that stalls leaves only this in the test's output)."""
+    import re
+
+    _shell, _ap, vehicle, summary = run_virtual(_fly_with(cfg(seed=1), lambda *a: asyncio.sleep(1e9), timeout_s=30.0))
+    m = re.fullmatch(
+        r"mission did not finish within 30.0 s \(phase outbound; autopilot offboard, armed, in_air "
+        r"\(status (\d+\.\d) s old\); local height (\d+\.\d\d) m \(position (\d+\.\d) s old\); link up\)",
+        summary.failure,
+    )
+    assert m is not None, summary.failure
+    assert float(m[1]) <= 1.0 and float(m[3]) <= 0.1  # fresh: the sim vehicle streams on
+    assert abs(float(m[2]) + vehicle.position_ned().down_m) < 0.2, (m[2], vehicle.position_ned())
+
+
 def test_stalled_control_task_stops_the_stream_and_the_autopilot_failsafe_fires():
     config = cfg(seed=1)
     out = {}

@@ -22,7 +22,7 @@ from companion_sitl.demo import run_demo
 from companion_sitl.px4_sitl import Px4NotFound, Px4Sitl, find_px4
 from companion_sitl.real_campaign import firmware_tuning
 from companion_sitl.truth_feed import MavlinkTruth
-from companion_sitl.truth_harness import fly_on_truth
+from companion_sitl.truth_harness import flight_story, fly_on_truth
 
 pytestmark = pytest.mark.sitl
 
@@ -161,6 +161,8 @@ async def _delivery(px4_root, tmp_path, return_home: bool = True, **landing):
         finally:
             rec.close()
             await ap.close()
+    if not r.delivered or (return_home and not r.returned):
+        print(flight_story(tmp_path / "run", tmp_path / "px4.log"))  # the failure's story, in the test's output
     print(
         f"PX4 SIH delivery {landing or 'companion descent'}: landing error on truth {r.pad_landing_error_m:.3f} m, "
         f"path RMS {r.path_rms_truth_m:.3f} m, max {r.path_max_truth_m:.3f} m"
