@@ -88,6 +88,7 @@ from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
+STREAM_RESUBSCRIBE_S = 1.0  # a MAVSDK stream that ended or raised is subscribed again after this
 ATTITUDE_TARGET_RATES_IGNORED = 0b0000_0011  # SET_ATTITUDE_TARGET: use q, yaw rate, thrust
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
@@ -302,6 +303,7 @@ class Px4Autopilot(Autopilot):
         self.release_actuator_value = release_actuator_value
         self.command_timeout_s = command_timeout_s
         self.destroy_timeout_s = destroy_timeout_s
+        self.streams_restarted = 0  # telemetry streams that ended or raised and were subscribed again
         self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
         self.telemetry = TelemetryCache()
         self.setpoints_sent = 0
@@ -549,17 +551,31 @@ class Px4Autopilot(Autopilot):
             self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
 
     async def _consume(self, subscribe: Callable[[], AsyncIterator[Any]], fn: Callable[[Any], None]) -> None:
-        gen = subscribe()
-        try:
-            async for item in gen:
-                self._last_rx = time.monotonic()
-                try:
-                    fn(item)
-                except Exception:
-                    log.exception("error decoding %s", fn.__name__)
-        finally:
-            with contextlib.suppress(Exception):
-                await gen.aclose()  # type: ignore[attr-defined]
+        """One MAVSDK stream into ``fn``, for as long as the task runs. A stream that ends or
+        raises is said once and subscribed again after ``STREAM_RESUBSCRIBE_S`` (counted in
+        ``streams_restarted``): a stream lost silently would freeze that part of the telemetry
+        (a landed state that never changes again leaves a landing that never ends)."""
+        name = fn.__name__
+        while True:
+            gen = subscribe()
+            why = "ended"
+            try:
+                async for item in gen:
+                    self._last_rx = time.monotonic()
+                    try:
+                        fn(item)
+                    except Exception:
+                        log.exception("error decoding %s", name)
+            except asyncio.CancelledError:
+                raise
+            except Exception as err:
+                why = f"failed ({type(err).__name__}: {err})"
+            finally:
+                with contextlib.suppress(Exception):
+                    await gen.aclose()  # type: ignore[attr-defined]
+            self.streams_restarted += 1
+            log.warning("MAVSDK stream %s %s: subscribing again in %.1f s", name, why, STREAM_RESUBSCRIBE_S)
+            await asyncio.sleep(STREAM_RESUBSCRIBE_S)
 
     async def _watch_connection(self) -> None:
         gen = self._system.is_connected_state()
