@@ -12,9 +12,10 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.config import load_config, shipped_params_path
+from companion.flightlog.recorder import FlightRecorder
 from companion_sitl.demo import run_demo
 from companion_sitl.real_campaign import firmware_tuning
-from companion_sitl.truth_harness import fly_on_truth
+from companion_sitl.truth_harness import flight_story, fly_on_truth
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
@@ -39,10 +40,14 @@ async def _fly(ardupilot_root, tmp_path, params, return_home: bool = True, **lan
     with arducopter(ardupilot_root, tmp_path, extra_params=params) as (sitl, truth):
         config = _config(sitl.connection, return_home, **landing)
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
+        rec = FlightRecorder(tmp_path / "run", config)
         try:
-            r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=300.0)
+            r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=300.0, recorder=rec)
         finally:
+            rec.close()
             await ap.close()
+    if not r.delivered or (return_home and not r.returned):
+        print(flight_story(tmp_path / "run", tmp_path / "arducopter.log"))  # the failure's story, in the output
     print(
         f"\npad error on truth {r.pad_landing_error_m * 100:.1f} cm (touchdown {r.touchdown_truth_ne_m}, "
         f"pad {r.true_pad_ne_m}); markers {r.markers_used}, uwb {r.uwb_used}, "
