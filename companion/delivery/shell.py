@@ -593,19 +593,34 @@ class DeliveryShell:
             RequestKind.PRECISION_LAND: ap.precision_land,
             RequestKind.RELEASE: ap.release_payload,
         }
+        # Every way out of here answers the request: a request left without a result would keep
+        # the mission from ever issuing another (an abort's HOLD and LAND included), silently.
         try:
             if req.kind is RequestKind.TAKEOFF:
                 await asyncio.wait_for(ap.takeoff(req.alt_rel_m), 10.0)
             else:
                 await asyncio.wait_for(calls[req.kind](), 10.0)
         except (AutopilotError, TimeoutError) as err:
-            self.stats.requests_failed += 1
-            msg = str(err) or type(err).__name__
             permanent = isinstance(err, CommandRejected) and err.permanent
-            log.warning("%s failed%s: %s", req.kind.value, " (not retried)" if permanent else "", msg)
-            self._result(req, RequestResult(req.id, False, msg, permanent))
+            self._failed(req, str(err) or type(err).__name__, permanent)
+            return
+        except asyncio.CancelledError:
+            task = asyncio.current_task()
+            if task is not None and task.cancelling():
+                raise  # the shell is stopping
+            # a cancellation from inside the backend (a native call's future cancelled under it)
+            self._failed(req, "the autopilot call was cancelled inside the backend", False)
+            return
+        except Exception as err:  # a backend bug: said with its traceback, and the mission told
+            log.exception("%s: the backend raised %s", req.kind.value, type(err).__name__)
+            self._failed(req, f"backend error: {type(err).__name__}: {err}", False)
             return
         self._result(req, RequestResult(req.id, True))
+
+    def _failed(self, req: Request, msg: str, permanent: bool) -> None:
+        self.stats.requests_failed += 1
+        log.warning("%s failed%s: %s", req.kind.value, " (not retried)" if permanent else "", msg)
+        self._result(req, RequestResult(req.id, False, msg, permanent))
 
     def _result(self, req: Request, result: RequestResult) -> None:
         if self.recorder is not None:

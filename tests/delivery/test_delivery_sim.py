@@ -125,6 +125,46 @@ def test_a_mission_that_does_not_finish_in_time_says_where_it_stands():
     assert abs(float(m[2]) + vehicle.position_ned().down_m) < 0.2, (m[2], vehicle.position_ned())
 
 
+def test_a_backend_that_raises_or_is_cancelled_inside_fails_the_request_and_the_mission_goes_on(caplog):
+    """A request whose backend call ends any other way than accepted or AutopilotError (a bug
+    raising, a native call's future cancelled under it) is answered as failed and retried:
+    never left without a result, which would keep the mission from issuing anything again."""
+    config = cfg(seed=1)
+    broken = {"takeoff": 1, "start_offboard": 1}
+
+    class FlakyAutopilot(SimAutopilot):
+        async def takeoff(self, alt_rel_m):
+            if broken["takeoff"]:
+                broken["takeoff"] -= 1
+                raise KeyError("custom_mode")
+            await super().takeoff(alt_rel_m)
+
+        async def start_offboard(self):
+            if broken["start_offboard"]:
+                broken["start_offboard"] -= 1
+                raise asyncio.CancelledError()
+            await super().start_offboard()
+
+    async def go():
+        vehicle = SimVehicle(config.sim)
+        ap = FlakyAutopilot(config.sim, vehicle)
+        shell = DeliveryShell(config, ap)
+        try:
+            return shell, await shell.run(timeout_s=600.0)
+        finally:
+            await ap.close()
+
+    shell, summary = run_virtual(go())
+    assert summary.delivered and summary.returned, summary.failure
+    failed = [e.detail for e in shell.events if e.kind is EventKind.REQUEST_FAILED]
+    assert failed == [
+        "takeoff (try 1 of 3): backend error: KeyError: 'custom_mode'",
+        "start_offboard (try 1 of 3): the autopilot call was cancelled inside the backend",
+    ]
+    assert shell.stats.requests_failed == 2
+    assert any("takeoff: the backend raised KeyError" in r.getMessage() and r.exc_info for r in caplog.records)
+
+
 def test_stalled_control_task_stops_the_stream_and_the_autopilot_failsafe_fires():
     config = cfg(seed=1)
     out = {}
