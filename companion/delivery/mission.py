@@ -161,6 +161,15 @@ class DeliveryMission:
         else:
             self._goto(Phase.ABORT_HOLD)
 
+    def waiting_for(self) -> str:
+        """The request the mission waits on, if any (for a mission that ends without finishing)."""
+        if self._pending is not None:
+            r = self._pending.request
+            return f"waiting for the answer to {r.kind.value} #{r.id} (try {self._pending.tries})"
+        if self._retry is not None:
+            return f"{self._retry[0].value} to be retried at t = {self._retry[2]:.1f} s"
+        return "no request in flight"
+
     @property
     def returning(self) -> bool:
         """Flying (or landing) back home: guidance targets the GPS-surveyed home."""

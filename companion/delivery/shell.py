@@ -281,10 +281,11 @@ class DeliveryShell:
         return self.mission.summary
 
     def where_it_stands(self, now: float) -> str:
-        """The mission's phase and what the autopilot last said (mode, armed, landed, height, and
-        how old each is): for a mission that ends without finishing, so the log says where."""
+        """The mission's phase, the request it waits on, and what the autopilot last said (mode,
+        armed, landed, height, and how old each is): for a mission that ends without finishing,
+        so the log says where."""
         tc = self.autopilot.telemetry
-        parts = [f"phase {self.mission.phase.value}"]
+        parts = [f"phase {self.mission.phase.value}", self.mission.waiting_for()]
         st = tc.status
         if st is None:
             parts.append("no autopilot status")

@@ -116,8 +116,9 @@ def test_a_mission_that_does_not_finish_in_time_says_where_it_stands():
 
     _shell, _ap, vehicle, summary = run_virtual(_fly_with(cfg(seed=1), lambda *a: asyncio.sleep(1e9), timeout_s=30.0))
     m = re.fullmatch(
-        r"mission did not finish within 30.0 s \(phase outbound; autopilot offboard, armed, in_air "
-        r"\(status (\d+\.\d) s old\); local height (\d+\.\d\d) m \(position (\d+\.\d) s old\); link up\)",
+        r"mission did not finish within 30.0 s \(phase outbound; no request in flight; "
+        r"autopilot offboard, armed, in_air \(status (\d+\.\d) s old\); "
+        r"local height (\d+\.\d\d) m \(position (\d+\.\d) s old\); link up\)",
         summary.failure,
     )
     assert m is not None, summary.failure

@@ -280,3 +280,12 @@ def test_an_abort_landing_whose_disarm_is_refused_ends_saying_it_is_still_armed(
     assert tries == 3  # never asked again for ever
     assert m.phase is Phase.FAILED
     assert m.summary.failure == "aborted: operator abort; landed but still armed (disarm failed 3 times: disarm denied)"
+
+
+def test_the_mission_says_which_request_it_waits_on():
+    m = DeliveryMission(cfg())
+    assert m.waiting_for() == "no request in flight"
+    req = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
+    assert m.waiting_for() == f"waiting for the answer to arm #{req.id} (try 1)"
+    m.on_result(RequestResult(req.id, False, "not ready"))
+    assert m.waiting_for() == "arm to be retried at t = 1.0 s"
