@@ -10,7 +10,6 @@ must absorb the displacement, as delivery 5.2 describes). The landing error is s
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import logging
 import math
@@ -204,17 +203,20 @@ def flight_story(run_dir: Path, firmware_log: Path | None = None, tail_lines: in
     """What a failed SITL flight leaves for its reader, as text: the mission's events and the
     requests with their results (events.csv, requests.csv), every change of the autopilot's mode,
     arming or landed state (ap_status.csv), its STATUSTEXTs, and the end of the firmware's own log.
-    A file that is missing or unreadable is named, never fatal (this runs after a failure)."""
+    A file that is missing or unreadable is named, never fatal (this runs after a failure); the
+    streams are read as replay reads them (:func:`~companion.flightlog.reader.open_table`: a torn
+    last line dropped, ``flight.mcap`` standing in for a missing CSV)."""
+    from companion.flightlog.reader import LogFormatError, open_table
+
     out: list[str] = []
 
     def rows(name: str) -> list[dict[str, str]] | None:
-        path = run_dir / name
         try:
-            with path.open(newline="") as f:
-                return list(csv.DictReader(f))
-        except (OSError, csv.Error, UnicodeDecodeError) as err:
+            table = open_table(run_dir, name)
+        except LogFormatError as err:
             out.append(f"{name}: not readable ({err})")
             return None
+        return [dict(zip(table.header, r, strict=True)) for r in table.rows]
 
     def t(row: dict[str, str]) -> str:
         return row.get("time_s", "?")[:10]

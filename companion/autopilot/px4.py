@@ -566,9 +566,7 @@ class Px4Autopilot(Autopilot):
                         fn(item)
                     except Exception:
                         log.exception("error decoding %s", name)
-            except asyncio.CancelledError:
-                raise
-            except Exception as err:
+            except Exception as err:  # (a cancellation is not one: it ends the task)
                 why = f"failed ({type(err).__name__}: {err})"
             finally:
                 with contextlib.suppress(Exception):

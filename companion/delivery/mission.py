@@ -468,11 +468,7 @@ class DeliveryMission:
             if not st.armed:
                 self._after_touchdown(s)
                 return None, None, math.nan
-            if self._idle() and inp.time_s >= self._disarm_not_before:
-                # the autopilot usually disarms by itself; ask, and ask again only if it stays armed
-                self._disarm_not_before = inp.time_s + DISARM_REPEAT_S
-                return None, self._make_request(RequestKind.DISARM), math.nan
-            return None, None, math.nan
+            return None, self._ask_to_disarm(inp), math.nan
         if est is None:
             return None, None, math.nan
         if self._touchdown_land_requested:
@@ -631,13 +627,19 @@ class DeliveryMission:
                 self.summary.failure = f"aborted: {self._abort_reason}"
                 self.summary.end_time_s = inp.time_s
                 self._goto(Phase.FAILED)
-            elif self._idle() and inp.time_s >= self._disarm_not_before:
-                # as after a landing on the pad: ask, and again only if it stays armed. Waiting for
-                # the autopilot's own disarm would wait forever where it is turned off (PX4
-                # COM_DISARM_LAND < 0, ArduPilot DISARM_DELAY = 0)
-                self._disarm_not_before = inp.time_s + DISARM_REPEAT_S
-                return None, self._make_request(RequestKind.DISARM), math.nan
+            else:
+                # as after a landing on the pad: waiting for the autopilot's own disarm would wait
+                # forever where it is turned off (PX4 COM_DISARM_LAND < 0, ArduPilot DISARM_DELAY = 0)
+                return None, self._ask_to_disarm(inp), math.nan
         return None, None, math.nan
+
+    def _ask_to_disarm(self, inp: MissionInputs) -> Request | None:
+        """On the ground and still armed: the DISARM request, at once and again only every
+        DISARM_REPEAT_S while the status shows armed (the autopilot usually disarms by itself)."""
+        if not self._idle() or inp.time_s < self._disarm_not_before:
+            return None
+        self._disarm_not_before = inp.time_s + DISARM_REPEAT_S
+        return self._make_request(RequestKind.DISARM)
 
     # ------------------------------------------------------------------ helpers
     _abort_hold_requested = False
