@@ -11,6 +11,8 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY companion ./companion
 COPY sitl ./sitl
+COPY firmware ./firmware
+COPY lab ./lab
 COPY plugins ./plugins
 COPY params ./params
 RUN python -m venv /opt/companion \

@@ -331,7 +331,7 @@ class SimConfig(_Section):
         "ideal",
         "-",
         "autopilot behaviour measured on the real firmware SITL (estimate errors, velocity response, land "
-        "detector, start-up delay, wind model; companion_sitl/profiles.py); it overrides the fields it fixes",
+        "detector, start-up delay, wind model; sitl/profiles.py); it overrides the fields it fixes",
     )
     home: GeoConfig = Field(default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0))
     wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
@@ -346,7 +346,7 @@ class SimConfig(_Section):
         0.0,
         "-",
         "the autopilot's height estimate reads (1 + this) x the true height above home (PX4 v1.16 SIH in flight: "
-        "+0.10 to +0.14, companion_sitl/profiles.py)",
+        "+0.10 to +0.14, sitl/profiles.py)",
         ge=-0.5,
         le=0.5,
     )

@@ -35,7 +35,6 @@ import asyncio
 import contextlib
 import logging
 import math
-import socket
 import threading
 import time
 from collections import deque
@@ -73,7 +72,7 @@ from .dart_sim import (
     motion_blur,
     thrust_per_mass,
 )
-from .mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, LinkStats, MavlinkSimVehicle
+from .mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, LinkStats, MavlinkSimVehicle, free_udp_port
 from .vehicle import G, SimVehicle, TruthSample
 
 log = logging.getLogger(__name__)
@@ -594,12 +593,6 @@ class DartLinkResult:
             return np.zeros((0, 3))
         t0 = starts[-1] + after_s
         return np.array([r[2:] for r in self.truth if r[1] is phase and r[0] >= t0], dtype=float).reshape(-1, 3)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 async def fly_dart_link(

@@ -33,10 +33,14 @@ import math
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
+from companion.config import CompanionConfig
+from companion.delivery.shell import LandingKit
 from companion.geometry.se3 import Transform
 from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot
 from companion.scheduling import LoopClock, RateLoop
@@ -215,3 +219,112 @@ class SimUwbSource:
             self._task.cancel()
             with contextlib.suppress(Exception):
                 self._task = None
+
+
+@dataclass(frozen=True)
+class CameraPlayback:
+    """Hardware-in-the-loop with a recorded camera: the landing camera is replaced by ``video``
+    played through the OpenCV camera plugin at its own frame times on the simulated clock.
+
+    ``times``: the ``frame,time_s`` CSV of exposure times (None: the container's timestamps);
+    ``time_offset_s`` is added to them (the recording's clock -> the simulated one; 0 for a
+    recording of a simulated flight, whose clock starts where this one does). ``calibration``:
+    the camera TOML for the detector (e.g. from ``companion calibrate``; None:
+    ``landing.camera_calibration``)."""
+
+    video: Path
+    times: Path | None = None
+    time_offset_s: float = 0.0
+    calibration: str | None = None
+
+
+def sim_landing_kit(
+    config: CompanionConfig,
+    vehicle: SimVehicle,
+    true_pad_ne: tuple[float, float],
+    camera_playback: CameraPlayback | None = None,
+    record_camera: Path | None = None,
+) -> LandingKit:
+    """Simulated camera and UWB around the *true* pad, with the real detector and solver; the
+    anchors are ``landing.uwb_anchors`` (as on the vehicle).
+
+    ``camera_playback``: the camera is the OpenCV camera plugin playing a recorded file on the
+    simulated clock, with the detector on that file's calibration; ``record_camera``: the
+    simulated camera's frames are recorded as they are read."""
+    from companion.delivery.landing_setup import LandingSetupError, resolve_params_file
+    from companion.geometry.mounts import downward_mount, pad_pose_ned
+    from companion.plugin_api import PluginError, create
+    from companion.scheduling import LoopClock
+    from companion.uwb.anchors import load_anchor_layout
+    from companion.uwb.multilateration import Multilaterator
+    from companion.vision.camera import CameraConfigError, load_camera, load_default_camera
+    from companion.vision.detector import PadDetector
+    from companion.vision.pad import PadLayout
+    from companion_sitl.camera import SimulatedCamera
+    from companion_sitl.landing_sensors import SimCameraSource, SimUwbSource
+    from companion_sitl.uwb import SimulatedUwb
+
+    lc = config.landing
+    seed = config.sim.seed
+    T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0)
+    mount = downward_mount(lc.camera_offset_body_m)
+    cam_model = load_default_camera()
+    layout = PadLayout()
+    camera = uwb = detector = multi = None
+    if (camera_playback is not None or record_camera is not None) and not lc.use_camera:
+        raise LandingSetupError("a camera file is played or recorded but landing.use_camera = false")
+    if camera_playback is not None and record_camera is not None:
+        raise LandingSetupError("play a camera file or record one, not both in one flight")
+    if lc.use_camera and camera_playback is not None:
+        calib = camera_playback.calibration or lc.camera_calibration
+        try:
+            det_model = load_camera(resolve_params_file(calib, "camera_calibration"))
+        except CameraConfigError as err:
+            raise LandingSetupError(f"camera calibration {calib!r}: {err}") from None
+        try:
+            camera = create(
+                "companion.cameras",
+                "opencv",
+                source=str(camera_playback.video),
+                width_px=det_model.width_px,
+                height_px=det_model.height_px,
+                latency_s=lc.camera_latency_s,
+                clock=LoopClock().now,
+                playback=True,
+                frame_times=camera_playback.times,
+                time_offset_s=camera_playback.time_offset_s,
+            )
+            camera.start()  # check the file before take-off (start is idempotent: the shell's is a no-op)
+        except PluginError as err:
+            raise LandingSetupError(f"camera file {camera_playback.video}: {err}") from err
+        markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
+        detector = PadDetector(det_model, layout, markers=markers)
+    elif lc.use_camera:
+        sim_cam = SimulatedCamera(cam_model, layout, T_body_camera=mount, T_world_pad=T_world_pad_true, seed=seed)
+        camera = SimCameraSource(vehicle, sim_cam, lc.camera_rate_hz, lc.camera_latency_s)
+        if record_camera is not None:
+            from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera
+
+            try:
+                writer = CameraFileWriter(record_camera, fps=lc.camera_rate_hz)
+            except (CameraFileError, OSError) as err:
+                raise LandingSetupError(f"recording the camera: {err}") from None
+            camera = RecordingCamera(camera, writer)
+        markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
+        detector = PadDetector(cam_model, layout, markers=markers)
+    anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
+    if lc.use_uwb:
+        uwb = SimUwbSource(vehicle, SimulatedUwb(anchors, seed=seed + 1), T_world_pad_true, lc.uwb_rate_hz)
+        multi = Multilaterator(anchors)
+    from companion.geometry.se3 import Transform
+
+    return LandingKit(
+        camera,
+        uwb,
+        detector,
+        multi,
+        mount,
+        Transform.identity(),
+        vision_in_thread=False,
+        vision_attitude=lc.vision_attitude,
+    )

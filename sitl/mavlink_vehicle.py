@@ -1028,3 +1028,12 @@ class MavlinkSimVehicle(abc.ABC):
         yaw = v.estimated_yaw() if mask & MASK_YAW else m.yaw  # YAW_IGNORE: hold the heading
         self._velocity_setpoint(VelocitySetpoint(m.vx, m.vy, m.vz, yaw))
         self.stats.setpoints += 1
+
+
+def free_udp_port() -> int:
+    """A currently free UDP port on 127.0.0.1."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

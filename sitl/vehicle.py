@@ -114,7 +114,7 @@ class SimVehicle:
     status_texts: list[tuple[float, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        # the autopilot profile fixes what the firmware decides (companion_sitl/profiles.py)
+        # the autopilot profile fixes what the firmware decides (sitl/profiles.py)
         self.profile = get_profile(self.cfg.profile)
         self.cfg = apply_profile(self.cfg)
         c = self.cfg

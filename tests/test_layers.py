@@ -1,9 +1,10 @@
-"""The layer order of ``companion``, checked on its import graph (docs/architecture.md).
+"""The layer order of the project, checked on its import graph (docs/architecture.md).
 
 Every import in every module (function-level ones included) is parsed with :mod:`ast` and
-mapped to the package it lands in; an edge between two packages must be listed in
-``ALLOWED`` below, the one place the layer order is written down. Imports inside a package are
-free. Only ``companion.cli`` may import the simulator (``companion_sitl``).
+mapped to the unit it lands in: a subpackage of ``companion`` or one of the packages beside it
+(the simulator, the firmware harnesses, the experiment tooling, the driver plugins). An edge
+between two units must be listed in ``ALLOWED`` below, the one place the layer order is written
+down. Inside a unit, the modules' own import graph must have no cycle.
 """
 
 from __future__ import annotations
@@ -14,6 +15,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "companion"
+# installed name -> folder in the repository (pyproject's package-dir)
+OUTSIDE = {
+    "companion_sitl": ROOT / "sitl",
+    "companion_firmware": ROOT / "firmware",
+    "companion_lab": ROOT / "lab",
+    "companion_plugins": ROOT / "plugins",
+}
+SIMULATOR = "companion_sitl"
+TOOLING = {"companion_sitl", "companion_firmware", "companion_lab"}
 
 # Lowest first. "companion" is the package's own __init__ (the version string).
 BASE = {
@@ -27,14 +37,19 @@ BASE = {
     "units",
     "foxglove_schemas",
 }
+CORE = BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
 
-# package -> the packages it may import (besides itself). The layer picture, written once:
-#   6  cli
-#   5  delivery   dart                      (the two applications, side by side)
+# unit -> the units it may import (besides itself). The layer picture, written once:
+#   9  cli                                   (companion's command line)
+#   8  companion_lab                         experiment tooling: demo, campaigns, parity, benches
+#   7  companion_firmware                    real-firmware harnesses (PX4 SIH, ArduCopter SITL)
+#   6  companion_sitl                        the embedded simulator
+#   5  delivery   dart                       (the two applications, side by side)
 #   4  telemetry  flightlog
 #   3  autopilot
 #   2  vision  uwb  estimation  guidance
 #   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units  foxglove_schemas
+#   companion_plugins (real drivers) sit beside the applications and import only the core.
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
     "geometry": set(),
@@ -54,24 +69,35 @@ ALLOWED: dict[str, set[str]] = {
     "flightlog": {"geometry", "units", "autopilot", "guidance", "foxglove_schemas"},
     "delivery": BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog"},
     "dart": BASE | {"vision", "estimation", "autopilot", "flightlog"},
-    "cli": BASE
-    | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
-    | {"companion_sitl"},
+    "companion_sitl": CORE,
+    "companion_firmware": CORE | {"companion_sitl"},
+    "companion_lab": CORE | {"companion_sitl", "companion_firmware"},
+    "companion_plugins": CORE,
+    "cli": CORE | TOOLING,
     "__main__": {"cli"},  # `python -m companion`: the command line and nothing else
 }
-SIMULATOR = "companion_sitl"
+
+
+def _files() -> Iterator[tuple[str, Path, Path]]:
+    """(package name, package folder, file) of every module of ours."""
+    for name, folder in (("companion", PACKAGE), *OUTSIDE.items()):
+        for path in sorted(folder.rglob("*.py")):
+            yield name, folder, path
 
 
 def _module_name(path: Path) -> str:
-    parts = path.relative_to(ROOT).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    for name, folder in (("companion", PACKAGE), *OUTSIDE.items()):
+        if path.is_relative_to(folder):
+            parts = (name, *path.relative_to(folder).with_suffix("").parts)
+            return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    raise AssertionError(f"{path} is in none of our packages")
 
 
 def _package_of(module: str) -> str | None:
     """The layer unit of a module name: ``companion.vision.pad`` -> ``vision``; None if not ours."""
     parts = module.split(".")
-    if parts[0] == SIMULATOR:
-        return SIMULATOR
+    if parts[0] in OUTSIDE:
+        return parts[0]
     if parts[0] != "companion":
         return None
     return parts[1] if len(parts) > 1 else "companion"
@@ -102,7 +128,7 @@ def _imports(path: Path) -> Iterator[tuple[int, str]]:
 
 def _edges() -> Iterator[tuple[str, int, str, str]]:
     """(file, line, from package, to package) of every import that leaves its package."""
-    for path in sorted(PACKAGE.rglob("*.py")):
+    for _, _, path in _files():
         src = _package_of(_module_name(path))
         assert src is not None
         for line, target in _imports(path):
@@ -113,7 +139,7 @@ def _edges() -> Iterator[tuple[str, int, str, str]]:
 
 
 def test_every_package_has_a_place_in_the_layers() -> None:
-    found = {_package_of(_module_name(p)) for p in PACKAGE.rglob("*.py")}
+    found = {_package_of(_module_name(p)) for _, _, p in _files()}
     unknown = sorted(p for p in found if p not in ALLOWED)
     assert not unknown, f"packages/modules of companion with no place in ALLOWED: {unknown}"
 
@@ -127,25 +153,55 @@ def test_imports_follow_the_layer_order() -> None:
     assert not bad, "imports against the layer order:\n" + "\n".join(bad)
 
 
-def test_only_the_cli_imports_the_simulator() -> None:
-    bad = [f"{file}:{line}: {src} imports {dst}" for file, line, src, dst in _edges() if dst == SIMULATOR]
-    assert all(" cli imports " in b for b in bad), "\n".join(b for b in bad if " cli imports " not in b)
+def test_the_application_never_imports_the_simulator_or_the_tooling() -> None:
+    bad = [f"{file}:{line}: {src} imports {dst}" for file, line, src, dst in _edges() if dst in TOOLING and src in CORE]
+    assert not bad, "\n".join(bad)
 
 
-def test_the_allowed_edges_have_no_cycle() -> None:
-    order: list[str] = []
+def _module_graph() -> dict[str, dict[str, set[str]]]:
+    """unit -> module -> the modules of the same unit it imports (function-level imports included)."""
+    known = {_module_name(p) for _, _, p in _files()}
+    graph: dict[str, dict[str, set[str]]] = {}
+    for _, _, path in _files():
+        mod = _module_name(path)
+        unit = _package_of(mod)
+        assert unit is not None
+        edges = graph.setdefault(unit, {}).setdefault(mod, set())
+        for _, target in _imports(path):
+            # `from pkg import name` may name a submodule
+            while target and target not in known:
+                target = target.rpartition(".")[0]
+            if target and target != mod and _package_of(target) == unit and not mod.startswith(target + "."):
+                edges.add(target)
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[str]:
+    """Every cycle a depth-first walk of ``graph`` meets, as ``a -> b -> a``."""
+    cycles: list[str] = []
     state: dict[str, int] = {}
 
-    def visit(p: str, stack: tuple[str, ...]) -> None:
-        if state.get(p) == 2:
+    def visit(m: str, stack: tuple[str, ...]) -> None:
+        if state.get(m) == 2:
             return
-        assert state.get(p) != 1, f"cycle in ALLOWED: {' -> '.join((*stack, p))}"
-        state[p] = 1
-        for q in sorted(ALLOWED.get(p, set())):
-            visit(q, (*stack, p))
-        state[p] = 2
-        order.append(p)
+        if state.get(m) == 1:
+            cycles.append(" -> ".join((*stack[stack.index(m) :], m)))
+            return
+        state[m] = 1
+        for q in sorted(graph.get(m, set())):
+            visit(q, (*stack, m))
+        state[m] = 2
 
-    for p in sorted(ALLOWED):
-        visit(p, ())
-    assert SIMULATOR in order
+    for m in sorted(graph):
+        visit(m, ())
+    return cycles
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a -> b -> c -> a"]
+    assert _cycles({"a": {"b", "c"}, "b": {"c"}, "c": set()}) == []
+
+
+def test_no_import_cycle_inside_a_package() -> None:
+    cycles = [c for graph in _module_graph().values() for c in _cycles(graph)]
+    assert not cycles, "import cycles inside a package:\n" + "\n".join(cycles)

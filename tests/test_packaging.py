@@ -4,13 +4,19 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MAP = {"sitl": "companion_sitl", "plugins": "companion_plugins", "params": "companion_params"}
+MAP = {
+    "sitl": "companion_sitl",
+    "firmware": "companion_firmware",
+    "lab": "companion_lab",
+    "plugins": "companion_plugins",
+    "params": "companion_params",
+}
 
 
 def test_every_package_is_installed():
     cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     listed = set(cfg["packages"])
-    for top in ("companion", "sitl", "plugins", "params"):
+    for top in ("companion", *MAP):
         for init in (ROOT / top).rglob("__init__.py"):
             rel = init.parent.relative_to(ROOT).parts
             name = ".".join((MAP.get(rel[0], rel[0]), *rel[1:]))

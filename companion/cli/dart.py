@@ -34,7 +34,7 @@ def _cmd_campaign_dart(args: argparse.Namespace) -> int:
     from companion.dart.mission import DartParamsError
 
     try:
-        from companion_sitl.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
+        from companion_lab.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
     except ImportError as exc:  # the simulator ships with the distribution; a stripped install may lack it
         print(f"error: the embedded simulator is not installed: {exc}")
         return 2

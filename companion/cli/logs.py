@@ -42,7 +42,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from companion.flightlog.reader import LogFormatError
     from companion.flightlog.report import make_report
-    from companion_sitl.campaign_output import CAMPAIGN_FIGURES
+    from companion_lab.campaign_output import CAMPAIGN_FIGURES
 
     try:
         figures = make_report(args.run_dir, args.out, extra=CAMPAIGN_FIGURES)

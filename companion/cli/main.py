@@ -10,7 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 from companion import __version__
-from companion.cli import exits, params, plugins, sim
+from companion.cli import bench, campaign, demo, exits, params, plugins
 from companion.cli.exits import StartupError
 from companion.cli.helptext import show_defaults
 from companion.config import ConfigError
@@ -35,23 +35,24 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    sim.register_demo(sub)
-    bench = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
-    bsub = bench.add_subparsers(dest="bench", metavar="WHAT", required=True)
-    sim.register_bench(bsub)
-    campaign = sub.add_parser("campaign", help="repeated simulated experiments with summary statistics")
-    csub = campaign.add_subparsers(dest="campaign", metavar="WHAT", required=True)
-    sim.register_campaign(csub)
+    demo.register_demo(sub)
+    bench_p = sub.add_parser("bench", help="benchmarks (ratios measured in one run)")
+    bsub = bench_p.add_subparsers(dest="bench", metavar="WHAT", required=True)
+    bench.register_bench(bsub)
+    campaign_p = sub.add_parser("campaign", help="repeated simulated experiments with summary statistics")
+    csub = campaign_p.add_subparsers(dest="campaign", metavar="WHAT", required=True)
+    campaign.register_campaign(csub)
     try:
         importlib.import_module("companion.cli.dart").register_campaign(csub)
     except ImportError as err:
         log.error("campaign dart unavailable: %s", err)
-    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing", "companion.cli.bench_app"):
+    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing"):
         try:
             importlib.import_module(mod).register_bench(bsub)
         except ImportError as err:
             log.error("bench from %s unavailable: %s", mod, err)
-    sim.register_bench_micro(bsub)
+    bench.register_bench_micro(bsub)
+    bench.register_bench_app(bsub)
     params.register(sub)
     plugins.register(sub)
 

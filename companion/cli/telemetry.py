@@ -249,7 +249,7 @@ def format_fleet_result(fleet: dict[str, Any]) -> str:
 
 
 def cmd_bench_telemetry(args: argparse.Namespace) -> int:
-    from companion.telemetry.bench import bench_fleet, bench_telemetry
+    from companion_lab.bench.telemetry import bench_fleet, bench_telemetry
 
     counts: tuple[int, ...] = args.vehicles
     try:

@@ -1,7 +1,7 @@
 """The precision-landing kit of a real vehicle, from configuration: sensor plugins found through
 entry points (``companion.cameras``, ``companion.uwb``), the camera calibration, the pad layout,
 the UWB anchor layout and the camera mount. The simulator builds its own kit
-(:func:`companion_sitl.demo.sim_landing_kit`); everything after the plugins is the same code.
+(:func:`companion_sitl.landing_sensors.sim_landing_kit`); everything after the plugins is the same code.
 
 A sensor that cannot be set up is an error naming the plugin, the setting and the reason, raised
 before take-off, with the switch that flies without it (``use_camera`` / ``use_uwb`` /

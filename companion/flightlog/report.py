@@ -12,7 +12,7 @@
 =========================  ===================================================================
 
 The campaign figures (landing scatter, Dart estimator comparison) are drawn beside the campaigns
-(``companion_sitl.campaign_output``); ``companion report`` hands them in as :class:`ExtraFigure`.
+(``companion_lab.campaign_output``); ``companion report`` hands them in as :class:`ExtraFigure`.
 
 A figure whose inputs are missing is skipped and the reason reported; a malformed input file is
 an error naming the file, line and column (:class:`~companion.flightlog.reader.LogFormatError`).

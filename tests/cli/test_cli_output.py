@@ -12,12 +12,12 @@ from types import SimpleNamespace
 import pytest
 
 from companion.cli.console import make_console
+from companion.cli.demo import flight_time_s
 from companion.cli.helptext import all_parsers
 from companion.cli.main import build_parser, main
-from companion.cli.sim import flight_time_s
 from companion.config import shipped_params_path
 from companion.units import format_cm, format_m
-from companion_sitl.path_scoring import REFERENCE
+from companion_sitl.scoring import REFERENCE
 
 _NOT_OPTIONS = (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)
 
@@ -117,7 +117,7 @@ def test_campaign_dart_json_into_a_new_folder(tmp_path, capsys):
 
 
 def test_bench_distances_are_not_rounded_to_zero():
-    from companion.cli.sim import _bench_value
+    from companion.cli.bench import _bench_value
 
     assert _bench_value("ours_median_position_error_m", 0.0022) == "2.2 mm"
     assert _bench_value("ours/raw", 0.38) == "0.38"

@@ -9,9 +9,9 @@ from collections import deque
 import numpy as np
 import pytest
 
-from companion.dart.bench import _synthetic
 from companion.dart.estimators import CameraMarkerObservation, FcfCfEstimator
 from companion.geometry import wrap_angle
+from companion_lab.bench.dart import _synthetic
 
 
 class _RebuildingFcfCf(FcfCfEstimator):

@@ -8,7 +8,7 @@ from typing import Any
 from companion.autopilot.types import LandedState
 from companion.config import load_config, shipped_params_path
 from companion.events import Phase
-from companion_sitl.demo import run_demo
+from companion_lab.demo import run_demo
 
 
 def test_uwb_only_landing_with_anchors_at_one_height() -> None:

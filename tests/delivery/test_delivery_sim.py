@@ -10,9 +10,9 @@ from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase
 from companion.scheduling import LoopClock
+from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
-from companion_sitl.demo import run_demo
 from companion_sitl.vehicle import SimVehicle
 
 pytestmark = pytest.mark.slow

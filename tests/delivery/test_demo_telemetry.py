@@ -8,9 +8,9 @@ import pytest
 from companion.config import load_config, shipped_params_path
 from companion.events import EventKind
 from companion.telemetry.auth import CommandKind
-from companion.telemetry.bench import free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation
-from companion_sitl.demo import run_demo
+from companion.telemetry.loopback import free_tcp_port, loopback_settings
+from companion_lab.demo import run_demo
 
 SECRET = b"integration-secret-0123456789"
 

@@ -9,7 +9,7 @@ import pytest
 
 from companion.config import ConfigError, load_config, shipped_params_path
 from companion.events import EventKind
-from companion_sitl.demo import run_demo
+from companion_lab.demo import run_demo
 
 pytestmark = pytest.mark.slow
 

@@ -16,10 +16,10 @@ import pytest
 from companion.config import load_config, shipped_params_path
 from companion.delivery.telemetry import FRESH_S
 from companion.flightlog.csvlog import read_csv
-from companion.telemetry.bench import free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation
+from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout
-from companion_sitl.demo import run_demo
+from companion_lab.demo import run_demo
 
 pytestmark = pytest.mark.slow
 

@@ -22,7 +22,7 @@ def short_config(**sim):
 def demo_run(tmp_path_factory) -> Path:
     """Run folder of the short delivery (35 s simulated, about 2 s wall) with a GPS bias and a
     displaced pad, so the fusion has something to estimate. Tests copy it before changing it."""
-    from companion_sitl.demo import run_demo
+    from companion_lab.demo import run_demo
 
     run = tmp_path_factory.mktemp("demo") / "run"
     r = run_demo(short_config(gps_bias_m=[1.0, -0.5, 0.0], pad_offset_m=[0.3, -0.2]), run_dir=run)

@@ -87,7 +87,7 @@ _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
 from companion.config import load_config, shipped_params_path
-from companion_sitl.demo import run_demo
+from companion_lab.demo import run_demo
 run, fusion = Path(sys.argv[1]), sys.argv[2] == "1"
 over = {"sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]}}
 r = run_demo(load_config(shipped_params_path("sitl_short.toml"), overrides=over), fusion=fusion, run_dir=run)

@@ -20,9 +20,9 @@ from companion.flightlog.plots import (
     lyapunov_figure,
     path_figure,
 )
-from companion_sitl.campaign_output import landing_scatter
-from companion_sitl.demo import run_demo
-from companion_sitl.path_scoring import REFERENCE
+from companion_lab.campaign_output import landing_scatter
+from companion_lab.demo import run_demo
+from companion_sitl.scoring import REFERENCE
 
 from .conftest import short_config
 

@@ -123,7 +123,7 @@ def test_replay_of_a_flight_on_anchors_at_one_height_is_identical(tmp_path):
     """uwb.csv carries HDOP/VDOP and vertical_weak: the replayed EKF weights the weak vertical as
     the flight did (without them the replay would fuse the fixes isotropically and differ)."""
     from companion.config import load_config, shipped_params_path
-    from companion_sitl.demo import run_demo
+    from companion_lab.demo import run_demo
 
     config = load_config(
         shipped_params_path("sitl_short.toml"),

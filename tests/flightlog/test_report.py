@@ -12,8 +12,8 @@ import pytest
 from companion.cli.main import main
 from companion.flightlog.reader import LogFormatError
 from companion.flightlog.report import make_report
-from companion_sitl.campaign_output import CAMPAIGN_FIGURES
-from companion_sitl.demo import run_demo
+from companion_lab.campaign_output import CAMPAIGN_FIGURES
+from companion_lab.demo import run_demo
 
 from .conftest import short_config
 

@@ -12,7 +12,7 @@ import pytest
 from companion.dart.estimators import GimbalKind, corrected_sample_std
 from companion.dart.mission import DartParamsError
 from companion.geometry import rotmat_to_euler
-from companion_sitl.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
+from companion_lab.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
 from companion_sitl.dart_sim import (
     DartSim,
     DartSimConfig,

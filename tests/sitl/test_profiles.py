@@ -1,5 +1,5 @@
 """Autopilot profiles (issue 17): the embedded vehicle reproduces the figures measured on the
-real firmware (companion_sitl/profiles.py), and ``ideal`` changes nothing."""
+real firmware (sitl/profiles.py), and ``ideal`` changes nothing."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import ConfigError, SimConfig, config_from_dict
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.firmware_probe import COLUMNS, analyse
+from companion_lab.firmware_probe import COLUMNS, analyse
 from companion_sitl.profiles import (
     PROFILE_NAMES,
     PROFILES,

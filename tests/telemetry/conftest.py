@@ -8,8 +8,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from companion.telemetry.bench import free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation
+from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.telemetry.session import ZenohSettings
 
 SECRET = b"test-shared-secret-0123456789"

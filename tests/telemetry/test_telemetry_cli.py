@@ -18,11 +18,12 @@ from companion.cli.telemetry import (
     register,
     register_bench,
 )
-from companion.telemetry.bench import bench_telemetry, free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation, VehicleRow, render_table
+from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.telemetry.publisher import TelemetryPublisher, TelemetrySettings
 from companion.telemetry.schema import StateMessage
 from companion.telemetry.session import SettingsError, ZenohSettings, load_settings
+from companion_lab.bench.telemetry import bench_telemetry
 
 from .conftest import wait_until
 

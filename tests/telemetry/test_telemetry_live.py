@@ -12,8 +12,8 @@ import zenoh
 
 from companion.events import EventKind, MissionEvent, Phase
 from companion.telemetry.auth import CommandKind, CommandSettings, GroundCommand, sign_command
-from companion.telemetry.bench import free_tcp_port, loopback_settings
 from companion.telemetry.ground import GroundStation
+from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.telemetry.publisher import TelemetryPublisher, TelemetrySettings
 from companion.telemetry.schema import (
     HealthMessage,

@@ -21,8 +21,8 @@ from companion.vision.detector import (
     rotation_angle,
 )
 from companion.vision.pad import PadLayout
+from companion_lab.bench.vision import bench_vision
 from companion_sitl.camera import SimCameraConfig, SimulatedCamera
-from companion_sitl.vision_bench import bench_vision
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 CAM = load_default_camera()

@@ -1,0 +1,188 @@
+"""``companion campaign``: landing campaigns (embedded simulator or real SITL), parity, firmware probe."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from companion.cli import exits
+from companion.cli.args import positive_int
+from companion.units import format_cm
+
+log = logging.getLogger(__name__)
+
+
+def cmd_campaign_landing(args: argparse.Namespace) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from companion.cli.console import make_console
+    from companion_lab.campaign_output import write_outputs
+    from companion_lab.landing_campaign import (
+        FAILURE_VARIANTS,
+        CampaignLandingError,
+        run_landing_campaign,
+        usable_cpus,
+    )
+
+    jobs = args.jobs if args.jobs is not None else usable_cpus()
+    variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
+    if args.variants:
+        variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    console = make_console()
+    with Progress(
+        TextColumn("{task.description:<12}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=args.quiet,
+    ) as progress:
+        task = progress.add_task("landing", total=args.n * len(variants))
+
+        def on_progress(variant: str, done: int, total: int) -> None:
+            progress.update(task, description=variant, completed=done)
+
+        out = Path(args.out) if args.out else Path("runs") / time.strftime("landing-%Y%m%d-%H%M%S")
+        if args.autopilot:
+            from companion_lab.real_campaign import run_real_landing_campaign
+
+            result = run_real_landing_campaign(
+                args.autopilot, args.n, args.seed, tuple(variants), args.params, out / "sitl", on_progress
+            )
+        else:
+            from companion_lab.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
+
+            # a firmware's profile flies with the landing tuning shipped for that firmware
+            fw = FIRMWARE_OF_PROFILE.get(args.profile)
+            tuning = firmware_tuning(fw) if fw else None
+            try:
+                result = run_landing_campaign(
+                    args.n,
+                    args.seed,
+                    tuple(variants),
+                    args.params,
+                    on_progress,
+                    profile=args.profile,
+                    tuning=tuning,
+                    jobs=jobs,
+                )
+            except CampaignLandingError as err:
+                progress.stop()
+                log.debug("the failed landing", exc_info=err)
+                print(f"companion campaign landing: {err}", file=sys.stderr)
+                return exits.FAILED
+    files = write_outputs(result, out)
+    where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
+    table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
+    for col in ("variant", "mean", "median", "p90", "p95", "max", "on the pad"):
+        table.add_column(col, justify="right" if col != "variant" else "left")
+    for v, s in result["summary"].items():
+        table.add_row(
+            v,
+            *(format_cm(s[k]) for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
+            f"{s['on_pad_pct']:.0f} %",
+        )
+    console.print(table)
+    console.print(f"written: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def cmd_campaign_parity(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from companion.cli.console import make_console
+    from companion_lab.real_campaign import run_parity
+
+    variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
+    out = Path(args.out) if args.out else None
+    result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants)
+    console = make_console()
+    for v, c in result["comparison"].items():
+        title = f"{v}: {result['profile']} profile vs real {args.autopilot} SITL, same {len(c['seeds'])} draws"
+        table = Table(title=title)
+        for col in ("", "mean", "p90", "max"):
+            table.add_column(col, justify="right" if col else "left")
+        for name in ("predicted", "real"):
+            f = c[name]
+            table.add_row(name, *(format_cm(f[k]) for k in ("mean_m", "p90_m", "max_m")))
+        r = c["ratio_predicted_to_real"]
+        table.add_row("predicted/real", *(f"{r[k]:.2f}" for k in ("mean_m", "p90_m", "max_m")))
+        console.print(table)
+        console.print(
+            f"mean and p90 within {c['within_factor']}x: {'yes' if c['mean_and_p90_within_factor'] else 'NO'}; "
+            f"failure classes agree: {'yes' if c['failure_classes_agree'] else 'NO'} "
+            f"(disagreeing seeds: {c['failure_class_disagreements'] or 'none'})"
+        )
+    console.print(f"written: {result['out_dir']}/parity.json, parity.png")
+    return 0
+
+
+def cmd_campaign_probe(args: argparse.Namespace) -> int:
+    from companion_lab.firmware_probe import run_probe
+
+    out = Path(args.out) if args.out else Path("runs") / time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S")
+    fig = run_probe(args.autopilot, out)
+    for k, v in sorted(fig.items()):
+        print(f"{k:48s} {json.dumps(v)}")
+    print(f"written: {out}/probe.csv, {out}/probe.json")
+    return 0
+
+
+def register_campaign(csub: Any) -> None:
+    """Add ``companion campaign landing``."""
+    cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
+    cl.add_argument("--n", type=int, default=100, help="landings per variant")
+    cl.add_argument("--seed", type=int, default=1, help="seed of the draws")
+    cl.add_argument("--failures", action="store_true", help="also: no_camera, no_uwb, outer_only, inner_only")
+    cl.add_argument(
+        "--variants",
+        help="comma-separated variants, overrides --failures (default: fusion,gps_only, and the failure "
+        "variants with --failures)",
+    )
+    cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
+    cl.add_argument("--quiet", action="store_true", help="no progress bar")
+    cl.add_argument(
+        "--jobs",
+        type=positive_int,
+        help="embedded landings flown at once, each in a worker process (default: the CPUs this process may "
+        "use; 1: one after the other in this process); the results are the same whatever the number",
+    )
+    where = cl.add_mutually_exclusive_group()
+    where.add_argument(
+        "--profile",
+        choices=("ideal", "px4-sih", "arducopter-sitl"),
+        default="ideal",
+        help="embedded simulator behaving like this autopilot (measured on its SITL; default ideal)",
+    )
+    where.add_argument(
+        "--autopilot",
+        choices=("px4", "ardupilot"),
+        help="fly the landings on the real SITL build (PX4_DIR / ARDUPILOT_DIR), in real time "
+        "(default: the embedded simulator)",
+    )
+    cl.set_defaults(func=cmd_campaign_landing)
+    cp = csub.add_parser(
+        "parity",
+        help="the embedded campaign with the firmware's profile against the real SITL on the same draws",
+    )
+    cp.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True, help="the real SITL to compare with")
+    cp.add_argument("--n", type=int, default=10, help="landings (each real one takes about a minute)")
+    cp.add_argument("--seed", type=int, default=1, help="seed of the draws")
+    cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
+    cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cp.add_argument("--out", help="output folder (default runs/parity-<autopilot>-<time>)")
+    cp.set_defaults(func=cmd_campaign_parity)
+    pr = csub.add_parser(
+        "probe",
+        help="measure a real SITL for its autopilot profile: estimate errors, velocity step, land detector",
+    )
+    pr.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True, help="the real SITL to measure")
+    pr.add_argument("--out", help="output folder (default runs/probe-<autopilot>-<time>)")
+    pr.set_defaults(func=cmd_campaign_probe)

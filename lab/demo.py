@@ -1,0 +1,361 @@
+"""Fly the delivery mission on the embedded simulator and score it against simulator truth.
+
+The application cannot tell the simulator from a vehicle: :class:`companion.delivery.shell.DeliveryShell`
+runs unchanged against :class:`SimAutopilot`. Truth (what the vehicle really did) is read from
+the simulator only here, for scoring: path distance, landing error on the true pad.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from companion.autopilot.interface import Autopilot
+from companion.config import CompanionConfig
+from companion.delivery.mission import MissionOutput
+from companion.delivery.planning import pad_position_ned
+from companion.delivery.shell import FLIGHT_LOG_COLUMNS, DeliveryShell
+from companion.events import Phase
+from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.recorder import FlightRecorder
+from companion.geometry.earth import GeoPoint
+from companion_sitl.autopilot import SimAutopilot
+from companion_sitl.clock import run_virtual
+from companion_sitl.landing_sensors import CameraPlayback, sim_landing_kit
+from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.scoring import REFERENCE, PathScorer, rms
+from companion_sitl.vehicle import SimVehicle
+
+log = logging.getLogger(__name__)
+
+TRUTH_COLUMNS = (
+    "time_s",
+    "phase",
+    "true_north_m",
+    "true_east_m",
+    "true_down_m",
+    "true_mission_x_m",
+    "true_mission_y_m",
+    "true_mission_z_m",
+    "true_path_distance_m",
+    "est_lyapunov_m2",
+    "true_planned_path_distance_m",
+)
+
+
+@dataclass
+class DemoResult:
+    delivered: bool
+    returned: bool
+    phase: str
+    failure: str
+    flight_time_s: float
+    sim_time_s: float
+    wall_time_s: float
+    path_rms_truth_m: float
+    path_max_truth_m: float
+    path_rms_estimate_m: float
+    pad_landing_error_m: float
+    pad_landing_error_ne_m: tuple[float, float]
+    home_landing_error_m: float
+    setpoints_sent: int
+    setpoints_clamped: int
+    guidance_overruns: int
+    # path_*_truth_m are scored against REFERENCE; these against the mission's own path (the planned
+    # one, and on the way home the one planned from the landing point), which counts the correct
+    # move to a pad lying away from its configured position as error
+    path_rms_planned_m: float = math.nan
+    path_max_planned_m: float = math.nan
+    path_reference: str = REFERENCE
+    run_dir: str = ""
+    events: list[tuple[float, str, str, str]] = field(default_factory=list)
+
+    @property
+    def speedup(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+class _Scorer:
+    """Samples truth at each guidance tick while the vector field is being followed, against the
+    reference of companion_sitl.scoring (the way out may end at the pad as found)."""
+
+    FOLLOW = (Phase.OUTBOUND, Phase.INBOUND)
+
+    def __init__(self, vehicle: SimVehicle, truth_log: CsvLog | None, true_pad_ne: tuple[float, float] | None = None):
+        self.vehicle = vehicle
+        self.true_pad_ne = true_pad_ne  # truth frame; the reference path on the way out (path_scoring)
+        self.path_scorer: PathScorer | None = None
+        self.truth_log = truth_log
+        self.truth_d: list[float] = []
+        self.planned_d: list[float] = []
+        self.est_d: list[float] = []
+        self.outbound: tuple[Any, Any, float] | None = None  # (frame, path, z_start) as first planned
+
+    def __call__(self, shell: DeliveryShell, out: MissionOutput) -> None:
+        m = shell.mission
+        v = self.vehicle
+        if m.frame is None or m.path is None:
+            return
+        off = getattr(v, "_home_offset", (0.0, 0.0, 0.0))
+        # the plan lives in the autopilot's local frame, whose origin is the home estimate
+        p_local_truth = np.array([v.pn - off[0], v.pe - off[1], v.pd - off[2]])
+        if self.outbound is None:
+            self.outbound = (m.frame, m.path, m.z_start)
+        # truth in the outbound F_I throughout (the mission re-plans the way home in a frame of its own)
+        p_i = self.outbound[0].point_from_ned(p_local_truth)
+        d_planned = float(m.path.distance_to_path(m.frame.point_from_ned(p_local_truth)))
+        if self.path_scorer is None:
+            tp = self.true_pad_ne
+            self.path_scorer = PathScorer((tp[0] - off[0], tp[1] - off[1]) if tp is not None else None)
+        d_truth = self.path_scorer.distance(m, out.phase, p_local_truth)
+        if out.phase in self.FOLLOW:
+            self.truth_d.append(d_truth)
+            self.planned_d.append(d_planned)
+            if math.isfinite(out.lyapunov):
+                self.est_d.append(math.sqrt(2.0 * out.lyapunov))
+        if self.truth_log is not None:
+            self.truth_log.write(
+                (v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov, d_planned)
+            )
+
+
+def path_summary(config: CompanionConfig, scorer: _Scorer) -> dict[str, Any]:
+    """summary.json's path figures: the outbound path as planned (``path``, in its F_I), the true
+    pad in that F_I and the path to the true pad that the way out is scored against."""
+    if scorer.outbound is None:
+        return {"path": None}
+    frame, path, z_start = scorer.outbound
+    out: dict[str, Any] = {
+        "path": {
+            "h_m": path.h,
+            "r_m": path.r,
+            "d_m": path.d,
+            "z_start_m": z_start,
+            "heading_rad": frame.heading_rad,
+            "pad_ned_m": [float(x) for x in frame.pad_ned],
+            "pad_size_m": config.mission.pad.size_m,
+        }
+    }
+    ref = scorer.path_scorer.true_pad_path if scorer.path_scorer is not None else None
+    if ref is not None:
+        ref_frame, ref_path = ref
+        out["true_pad_mission_m"] = [float(x) for x in frame.point_from_ned(ref_frame.pad_ned)]
+        out["reference_path"] = {
+            "pad_ned_m": [float(x) for x in ref_frame.pad_ned],
+            "heading_rad": ref_frame.heading_rad,
+            "d_m": ref_path.d,
+        }
+    return out
+
+
+def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
+    """Where the pad really is in the simulator's truth frame (true home at the origin)."""
+    h = config.sim.home
+    pad = pad_position_ned(config.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
+
+
+async def fly(
+    config: CompanionConfig,
+    run_dir: Path | None = None,
+    on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+    timeout_s: float = 1800.0,
+    telemetry: bool = False,
+    mavlink: str | None = None,
+    fusion: bool | None = None,
+    camera_playback: CameraPlayback | None = None,
+    record_camera: Path | None = None,
+) -> DemoResult:
+    """Fly one delivery on the simulator (on whatever loop is running) and score it.
+
+    ``camera_playback``: the landing camera is a recorded file (see :class:`CameraPlayback`);
+    ``record_camera``: record the simulated camera's frames that the flight reads into this
+    video and its frame-times CSV (``<video>.csv``), for playing back later.
+
+    ``mavlink`` = "px4" or "ardupilot": the simulator is served over real MAVLink on loopback UDP
+    (MavlinkSimVehicle, stepped in real time) and flown through the matching backend (MAVSDK or
+    pymavlink); otherwise the in-process SimAutopilot is used.
+    """
+    vehicle = SimVehicle(config.sim)
+    pad_n, pad_e = true_pad_ned(config)
+    vehicle.set_pad_truth(pad_n, pad_e)
+    mav_sim = None
+    ap: Autopilot
+    tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
+    sim_ap: SimAutopilot | None = None
+    if mavlink is None:
+        ap = sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
+    else:
+        from companion.autopilot.ardupilot import ArduPilotAutopilot
+        from companion.autopilot.px4 import Px4Autopilot
+        from companion.flightlog.tlog import open_tlog
+        from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+
+        port = free_udp_port()
+        # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
+        grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
+        if grip is not None and config.landing.controller == "autopilot":
+            grip |= {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}  # LAND by LANDING_TARGET, as on the real SITL
+        mav_sim = MavlinkSimVehicle(
+            config.sim,
+            mavlink,  # type: ignore[arg-type]
+            remote=("127.0.0.1", port),
+            vehicle=vehicle,
+            params=grip,
+        ).start()
+        lt = config.runtime.link_timeout_s
+        sink = open_tlog(tlog) if tlog is not None else None
+        ap = (
+            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
+            if mavlink == "px4"
+            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
+        )
+    use_fusion = config.landing.fusion if fusion is None else fusion
+    flight_log = truth_log = recorder = None
+    if run_dir is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
+        truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
+        # per-stream logs (events.csv included, written as they happen) for replay and reports
+        recorder = FlightRecorder(run_dir, config)
+        if sim_ap is not None:
+            sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
+    scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
+
+    def tick(shell: DeliveryShell, out: MissionOutput) -> None:
+        scorer(shell, out)
+        if on_tick is not None:
+            on_tick(shell, out)
+
+    kit = None
+    if use_fusion:
+        # over MAVLink the vehicle runs on its own thread and clock: the sensors only read its truth
+        truth_src = vehicle if mav_sim is None else cast(SimVehicle, _ThreadedTruth(mav_sim))
+        kit = sim_landing_kit(config, truth_src, (pad_n, pad_e), camera_playback, record_camera)
+        if mav_sim is not None:
+            kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
+    shell = DeliveryShell(
+        config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit, recorder=recorder
+    )
+    wall0 = time.perf_counter()
+    try:
+        summary = await shell.run(timeout_s=timeout_s)
+    finally:
+        try:
+            await ap.close()
+            if mav_sim is not None:
+                mav_sim.stop()
+        finally:
+            for lg in (flight_log, truth_log, recorder):
+                if lg is not None:
+                    lg.close()
+    wall = time.perf_counter() - wall0
+
+    # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
+    def near_pad(t: Any) -> bool:
+        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
+
+    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
+    home_td = [t for t in vehicle.touchdowns if not near_pad(t)]
+    pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
+    home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
+    flight_time = (
+        summary.end_time_s - summary.takeoff_time_s
+        if summary.end_time_s is not None and summary.takeoff_time_s is not None
+        else math.nan
+    )
+    result = DemoResult(
+        delivered=summary.delivered,
+        returned=summary.returned,
+        phase=shell.mission.phase.value,
+        failure=summary.failure,
+        flight_time_s=flight_time,
+        sim_time_s=vehicle.time_s,
+        wall_time_s=wall,
+        path_rms_truth_m=rms(scorer.truth_d),
+        path_max_truth_m=max(scorer.truth_d) if scorer.truth_d else math.nan,
+        path_rms_estimate_m=rms(scorer.est_d),
+        pad_landing_error_m=math.hypot(*pad_err_ne),
+        pad_landing_error_ne_m=pad_err_ne,
+        home_landing_error_m=home_err,
+        setpoints_sent=shell.stats.setpoints_sent,
+        setpoints_clamped=shell.stats.setpoints_clamped,
+        guidance_overruns=shell.stats.guidance_overruns,
+        path_rms_planned_m=rms(scorer.planned_d),
+        path_max_planned_m=max(scorer.planned_d) if scorer.planned_d else math.nan,
+        run_dir=str(run_dir or ""),
+        events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
+    )
+    if run_dir is not None:
+        summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
+        summary_json["speedup"] = result.speedup
+        summary_json["true_pad_ned_m"] = [pad_n, pad_e]
+        summary_json.update(path_summary(config, scorer))
+        (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
+    return result
+
+
+class _ThreadedTruth:
+    """Truth of a vehicle stepped by the MAVLink sim's thread, read under its lock. The simulated
+    sensors must not step it: their clock (the event loop's) is not the vehicle's."""
+
+    def __init__(self, mav_sim: Any):
+        self._sim = mav_sim
+
+    def step_to(self, t_s: float) -> None:
+        """The MAVLink sim's thread steps the vehicle in real time."""
+
+    def _read(self, name: str) -> float:
+        with self._sim.lock:
+            return float(getattr(self._sim.vehicle, name))
+
+    pn = property(lambda self: self._read("pn"))
+    pe = property(lambda self: self._read("pe"))
+    pd = property(lambda self: self._read("pd"))
+    roll = property(lambda self: self._read("roll"))
+    pitch = property(lambda self: self._read("pitch"))
+    yaw = property(lambda self: self._read("yaw"))
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return str(o)
+
+
+def run_demo(
+    config: CompanionConfig,
+    run_dir: Path | None = None,
+    realtime: bool = False,
+    on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
+    telemetry: bool = False,
+    mavlink: str | None = None,
+    fusion: bool | None = None,
+    camera_playback: CameraPlayback | None = None,
+    record_camera: Path | None = None,
+) -> DemoResult:
+    """Fly the demo: lock-step virtual time (default), or real time (``realtime``, or always
+    with ``mavlink``, whose simulator runs on the wall clock behind real sockets)."""
+    coro = fly(
+        config,
+        run_dir,
+        on_tick,
+        telemetry=telemetry,
+        mavlink=mavlink,
+        fusion=fusion,
+        camera_playback=camera_playback,
+        record_camera=record_camera,
+    )
+    if realtime or mavlink:
+        return asyncio.run(coro)
+    return run_virtual(coro)

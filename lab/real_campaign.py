@@ -1,0 +1,356 @@
+"""Precision landings on the real autopilot SITL (``companion campaign landing --autopilot``) and
+the sim-to-real check against the embedded simulator's profile (``companion campaign parity``).
+
+The draws are the embedded campaign's (:func:`draw_scenarios`, same seed, same numbers). A real
+SITL cannot bias its GPS, so each draw's GPS bias joins its pad displacement: the pad lies
+``pad_offset + gps_bias`` (north, east) from where the parameters put it, which is the same
+geometry for everything that lands (the vehicle arrives on its GPS at the configured pad; the
+landing sensors see the true one). The pad is placed relative to where the vehicle starts (the
+firmware sets home at arming), so one ArduCopter SITL flies every landing of a campaign (it
+needs ~41 s of simulated time to become armable, ~4 s at its boot speed-up); PX4 SIH is
+restarted from clean parameters for each (~6 s).
+Wind: ArduCopter's SIM_WIND_SPD / SIM_WIND_DIR from the draw (SIM_WIND_TURB = 0); PX4 SIH v1.16
+has no wind model, so its landings fly in still air (the ``px4-sih`` profile drops wind too).
+
+Landings are scored on the firmware's truth (HIL_STATE_QUATERNION / SIM_STATE) at the first
+ON_GROUND of the landing phase, as the embedded campaign scores its truth.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import os
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
+from companion.delivery.planning import pad_position_ned
+from companion.geometry.earth import GeoPoint
+from companion.units import format_cm
+from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
+from companion_firmware.truth_harness import fly_on_truth
+from companion_lab.landing_campaign import VARIANTS, Draw, _stats, draw_scenarios, on_pad, run_landing_campaign
+
+log = logging.getLogger(__name__)
+
+PROFILE_FOR = {"px4": "px4-sih", "ardupilot": "arducopter-sitl"}
+FIRMWARE_OF_PROFILE = {v: k for k, v in PROFILE_FOR.items()}
+# the companion's landing settings shipped for each firmware (params/px4_sih_quad.toml,
+# params/ardupilot_quad.toml): the same in the real and in the profile campaign
+FIRMWARE_PARAMS = {"px4": "px4_sih_quad.toml", "ardupilot": "ardupilot_quad.toml"}
+FIRMWARE_TUNING_KEYS = {
+    "landing": ("ekf_position_process_sigma_m_per_sqrt_s", "ekf_gate_reset_after_rejections"),
+    "mission": (
+        "landing_xy_gain_1_s",
+        "landing_touchdown_height_m",
+        "landing_xy_integral_gain_1_s2",
+        "landing_xy_integral_max_m_s",
+        "velocity_bias_tau_s",
+        "autopilot_accel_xy_m_s2",
+        "autopilot_accel_z_m_s2",
+    ),
+}
+LANDING_TIMEOUT_S = 300.0
+MAV_CMD_DO_SET_HOME = 179
+
+
+def firmware_tuning(autopilot: str) -> dict[str, dict[str, Any]]:
+    """The landing tuning (fusion and final descent) the shipped parameters of ``autopilot``
+    carry (see FIRMWARE_PARAMS), as config overrides by table."""
+    cfg = load_config(shipped_params_path(FIRMWARE_PARAMS[autopilot]))
+    return {table: {k: getattr(getattr(cfg, table), k) for k in keys} for table, keys in FIRMWARE_TUNING_KEYS.items()}
+
+
+def real_pad_displacement(d: Draw) -> tuple[float, float]:
+    """Where the true pad lies from the configured one on a SITL without GPS bias (module doc)."""
+    return d.pad_offset_m[0] + d.gps_bias_m[0], d.pad_offset_m[1] + d.gps_bias_m[1]
+
+
+def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
+    """The campaign parameters for a real SITL: the pad as north/east offsets from home (where it
+    lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
+    tuning = firmware_tuning(autopilot)
+    cfg = load_config(
+        base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
+    )
+    h = cfg.sim.home
+    pn, pe, _ = pad_position_ned(cfg.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    pad = PadConfig(north_m=float(pn), east_m=float(pe), size_m=cfg.mission.pad.size_m)
+    mission = cfg.mission.model_copy(update={"pad": pad, "ready_timeout_s": max(cfg.mission.ready_timeout_s, 120.0)})
+    return cfg.model_copy(update={"mission": mission, "autopilot": autopilot})
+
+
+async def _one_landing(
+    rv: RealVehicle, config: CompanionConfig, d: Draw, rel_pad: tuple[float, float]
+) -> dict[str, Any]:
+    truth = rv.truth
+    disp = real_pad_displacement(d)
+    if rv.autopilot_name == "ardupilot":
+        wind = (("SIM_WIND_SPD", d.wind_speed_m_s), ("SIM_WIND_DIR", d.wind_from_deg), ("SIM_WIND_TURB", 0.0))
+        for name, value in wind:
+            await asyncio.to_thread(truth.set_param, name, value)
+    if rv.autopilot_name == "ardupilot" and rv.landings_flown > 0:
+        # the next landing starts where the last one ended: home there, as a ground station
+        # would set it (ArduPilot sets home only at arming; the mission plans from home first)
+        result = await asyncio.to_thread(truth.command, MAV_CMD_DO_SET_HOME, 1.0)
+        if result != 0:
+            raise RuntimeError(f"ArduCopter refused MAV_CMD_DO_SET_HOME (current location): MAV_RESULT {result}")
+    start = (truth.pn, truth.pe)
+    pad_ne = (start[0] + rel_pad[0] + disp[0], start[1] + rel_pad[1] + disp[1])
+    ap = rv.backend(config)
+    failure = ""
+    try:
+        await ap.connect(timeout_s=20.0)
+        r = await fly_on_truth(config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne)
+        err, td, delivered, failure = r.pad_landing_error_m, r.touchdown_truth_ne_m, r.delivered, r.failure
+        used = {
+            "markers_used": r.markers_used,
+            "uwb_used": r.uwb_used,
+            "fusion_outcomes": r.fusion_outcomes,
+            "believed_offset_m": r.believed_offset_m,
+            "estimate_error_m": r.estimate_error_m,
+            "guidance_overruns": r.guidance_overruns,
+            "setpoint_overruns": r.setpoint_overruns,
+        }
+    except Exception as exc:  # a landing that cannot be flown is a result, not the end of the campaign
+        log.exception("landing seed %d failed", d.seed)
+        err, td, delivered, failure = math.nan, (math.nan, math.nan), False, f"{type(exc).__name__}: {exc}"
+        used = {
+            "markers_used": 0,
+            "uwb_used": 0,
+            "believed_offset_m": math.nan,
+            "estimate_error_m": math.nan,
+            "guidance_overruns": 0,
+            "setpoint_overruns": 0,
+        }
+    finally:
+        await ap.close()
+        rv.landings_flown += 1
+    dn, de = td[0] - pad_ne[0], td[1] - pad_ne[1]
+    return {
+        "seed": d.seed,
+        "error_m": err,
+        "north_m": dn,
+        "east_m": de,
+        "delivered": delivered,
+        "failure": failure,
+        "gps_bias_m": d.gps_bias_m[:2],
+        "pad_offset_m": d.pad_offset_m,
+        "pad_displacement_m": disp,
+        "wind_m_s": d.wind_speed_m_s if rv.autopilot_name == "ardupilot" else 0.0,
+        **used,
+    }
+
+
+async def run_real_landing_campaign_async(
+    autopilot: str,
+    n: int,
+    seed: int,
+    variants: tuple[str, ...] = ("fusion", "gps_only"),
+    params: str | Path | None = None,
+    log_dir: Path | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    if autopilot not in REAL_AUTOPILOTS:
+        raise ValueError(f"autopilot {autopilot!r}: expected one of {REAL_AUTOPILOTS}")
+    base = Path(params) if params else shipped_params_path("landing_campaign.toml")
+    draws = draw_scenarios(n, seed)
+    configs = {v: real_config(base, autopilot, v) for v in variants}
+    rel = configs[variants[0]].mission.pad
+    rel_pad = (float(rel.north_m or 0.0), float(rel.east_m or 0.0))
+    pad_half = rel.size_m / 2.0
+    logs = log_dir or Path("runs") / time.strftime(f"real-{autopilot}-%Y%m%d-%H%M%S")
+    landings: dict[str, list[dict[str, Any]]] = {v: [] for v in variants}
+    total, done = n * len(variants), 0
+    t0 = time.monotonic()
+
+    async def fly_all(rv: RealVehicle, todo: list[tuple[Draw, str]]) -> None:
+        nonlocal done
+        for d, v in todo:
+            row = await _one_landing(rv, configs[v], d, rel_pad)
+            row["on_pad"] = on_pad(row["north_m"], row["east_m"], pad_half, row["delivered"])
+            landings[v].append(row)
+            done += 1
+            log.info("%s %s seed %d: %.3f m (%s)", autopilot, v, d.seed, row["error_m"], row["failure"] or "ok")
+            if progress is not None:
+                progress(v, done, total)
+
+    jobs = [(d, v) for d in draws for v in variants]
+    if autopilot == "ardupilot":  # one SITL for the campaign (41 s of simulated time to become armable)
+        async with real_vehicle("ardupilot", logs) as rv:
+            await fly_all(rv, jobs)
+    else:  # PX4 SIH: a clean start for each landing
+        for k, job in enumerate(jobs):
+            async with real_vehicle("px4", logs / f"{k:03d}") as rv:
+                await fly_all(rv, [job])
+    summary = {v: _stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]) for v, ls in landings.items()}
+    return {
+        "n": n,
+        "seed": seed,
+        "params": str(base),
+        "autopilot": autopilot,
+        "source": f"real {autopilot} SITL",
+        "wall_time_s": time.monotonic() - t0,
+        "summary": summary,
+        "landings": landings,
+    }
+
+
+def run_real_landing_campaign(*args: Any, **kwargs: Any) -> dict[str, Any]:
+    return asyncio.run(run_real_landing_campaign_async(*args, **kwargs))
+
+
+# --------------------------------------------------------------------------- parity
+
+
+def landing_diagnostics(rows: list[dict[str, Any]]) -> str:
+    """One line per real landing: its error split into where the companion believed it was from
+    the pad (its control error) and how far that belief was from the truth (its estimation
+    error), loop overruns and sensor use; with the machine it ran on (real landings depend on it)."""
+    model = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="ascii", errors="replace").splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    lines = [f"{model} x{os.cpu_count()}, load {load:.2f}"]
+    for x in rows:
+        lines.append(
+            f"seed {x['seed']}: {x['error_m']:.3f} m (N {x['north_m']:+.3f} E {x['east_m']:+.3f}), believed "
+            f"{x.get('believed_offset_m', math.nan):.3f} m, "
+            f"estimate error {x.get('estimate_error_m', math.nan):.3f} m, "
+            f"overruns {x.get('guidance_overruns', 0)}/{x.get('setpoint_overruns', 0)}, "
+            f"markers {x['markers_used']}, uwb {x['uwb_used']}"
+        )
+    return "; ".join(lines)
+
+
+def _figures(errs: list[float]) -> dict[str, float]:
+    a = np.array(errs, dtype=float)
+    ok = a[np.isfinite(a)]
+    if not ok.size:
+        return {"mean_m": math.nan, "p90_m": math.nan, "max_m": math.nan}
+    return {"mean_m": float(ok.mean()), "p90_m": float(np.percentile(ok, 90)), "max_m": float(ok.max())}
+
+
+def compare(
+    predicted: dict[str, Any], real: dict[str, Any], variant: str = "fusion", factor: float = 1.5
+) -> dict[str, Any]:
+    """Sim-to-real agreement on the same seeds (issue 17): mean and p90 within ``factor`` each
+    way, and the same failure classes (off the pad in one, off in the other) but for one flight
+    in ten."""
+    p_rows = {x["seed"]: x for x in predicted["landings"][variant]}
+    r_rows = {x["seed"]: x for x in real["landings"][variant]}
+    seeds = sorted(set(p_rows) & set(r_rows))
+    pf = _figures([p_rows[s]["error_m"] for s in seeds])
+    rf = _figures([r_rows[s]["error_m"] for s in seeds])
+    ratios = {k: (pf[k] / rf[k]) if rf[k] > 0 else math.nan for k in ("mean_m", "p90_m", "max_m")}
+    disagree = [s for s in seeds if bool(p_rows[s]["on_pad"]) != bool(r_rows[s]["on_pad"])]
+    allowed = max(1, math.ceil(len(seeds) / 10))
+    within = all(1.0 / factor <= ratios[k] <= factor for k in ("mean_m", "p90_m"))
+    return {
+        "variant": variant,
+        "seeds": seeds,
+        "predicted": pf,
+        "real": rf,
+        "ratio_predicted_to_real": ratios,
+        "within_factor": factor,
+        "mean_and_p90_within_factor": within,
+        "failure_class_disagreements": disagree,
+        "failure_classes_agree": len(disagree) <= allowed,
+        "per_seed": [
+            {
+                "seed": s,
+                "predicted_m": p_rows[s]["error_m"],
+                "real_m": r_rows[s]["error_m"],
+                "predicted_on_pad": p_rows[s]["on_pad"],
+                "real_on_pad": r_rows[s]["on_pad"],
+            }
+            for s in seeds
+        ],
+    }
+
+
+def run_parity(
+    autopilot: str,
+    n: int,
+    seed: int,
+    params: str | Path | None = None,
+    out_dir: Path | None = None,
+    variants: tuple[str, ...] = ("fusion",),
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """The embedded campaign with the firmware's profile and the real-SITL campaign on the same
+    draws; writes parity.json and parity.png into ``out_dir``."""
+    if autopilot not in PROFILE_FOR:
+        raise ValueError(f"autopilot {autopilot!r}: expected one of {tuple(PROFILE_FOR)}")
+    out = out_dir or Path("runs") / time.strftime(f"parity-{autopilot}-%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    profile = PROFILE_FOR[autopilot]
+    t0 = time.monotonic()
+    predicted = run_landing_campaign(
+        n, seed, variants, params, progress, profile=profile, tuning=firmware_tuning(autopilot)
+    )
+    t_pred = time.monotonic() - t0
+    real = run_real_landing_campaign(autopilot, n, seed, variants, params, out / "sitl", progress)
+    result = {
+        "autopilot": autopilot,
+        "profile": profile,
+        "n": n,
+        "seed": seed,
+        "predicted_wall_time_s": t_pred,
+        "real_wall_time_s": real["wall_time_s"],
+        "out_dir": str(out),
+        "comparison": {v: compare(predicted, real, v) for v in variants},
+        "predicted": predicted,
+        "real": real,
+    }
+    (out / "parity.json").write_text(json.dumps(result, indent=1, default=lambda o: None))
+    parity_figure(result, out / "parity.png")
+    return result
+
+
+def parity_figure(result: dict[str, Any], dest: Path) -> Path:
+    """Error distributions side by side (profile prediction vs real firmware), seeds paired."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    variants = list(result["comparison"])
+    fig, axes = plt.subplots(1, len(variants), figsize=(5.0 * len(variants), 4.2), squeeze=False)
+    for ax, v in zip(axes[0], variants, strict=True):
+        c = result["comparison"][v]
+        rows = c["per_seed"]
+        pred = [r["predicted_m"] * 100 for r in rows]
+        real = [r["real_m"] * 100 for r in rows]
+        data = [[x for x in pred if math.isfinite(x)], [x for x in real if math.isfinite(x)]]
+        ax.boxplot(data, positions=[0, 1], widths=0.4, showfliers=False)
+        for p, r in zip(pred, real, strict=True):
+            ax.plot([0, 1], [p, r], color="0.7", lw=0.8, zorder=1)
+        ax.scatter([0] * len(pred), pred, s=18, color="tab:blue", zorder=2, label="predicted")
+        ax.scatter([1] * len(real), real, s=18, color="tab:red", zorder=2, label="real")
+        ax.set_xticks([0, 1], [f"embedded\n{result['profile']} profile", f"real {result['autopilot']}\nSITL"])
+        ax.set_ylabel("landing error on truth (cm)")
+        ax.set_ylim(bottom=0)
+        pm, rm = format_cm(c["predicted"]["mean_m"]), format_cm(c["real"]["mean_m"])
+        ax.set_title(f"{v}: mean {pm} vs {rm}, n = {len(rows)}", fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(dest, dpi=110)
+    plt.close(fig)
+    return dest

@@ -1,0 +1,199 @@
+"""``companion bench app``: the report's structure and sanity (no timing thresholds), and the
+accounting pieces it is built from."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from companion_lab.bench.app import (
+    DART_TASKS,
+    TASKS,
+    CpuAccount,
+    LatencyTracker,
+    classify_thread,
+    percentiles,
+    thread_cpu_s,
+)
+
+
+def _spin(seconds: float) -> None:
+    t_end = time.thread_time() + seconds
+    while time.thread_time() < t_end:
+        pass
+
+
+def test_cpu_account_is_exclusive_of_nested_wrapped_calls():
+    acct = CpuAccount()
+    inner = acct.wrap("fusion", lambda: _spin(0.05))
+
+    def outer_body() -> None:
+        _spin(0.05)
+        inner()
+
+    acct.wrap("guidance", outer_body)()
+    tid = threading.get_native_id()
+    guidance = acct.by_task_tid[("guidance", tid)]
+    fusion = acct.by_task_tid[("fusion", tid)]
+    assert 0.045 <= fusion < 0.09
+    assert 0.045 <= guidance < 0.09  # the nested fusion call is not counted twice
+    assert acct.calls == {"guidance": 1, "fusion": 1}
+
+
+def test_cpu_account_keeps_threads_apart():
+    acct = CpuAccount()
+    work = acct.wrap("vision", lambda: _spin(0.03))
+    t = threading.Thread(target=work)
+    t.start()
+    t.join()
+    work()
+    tids = {tid for (task, tid) in acct.by_task_tid if task == "vision"}
+    assert len(tids) == 2
+
+
+def test_thread_cpu_reads_this_thread():
+    tid = threading.get_native_id()
+    before = thread_cpu_s()[tid][1]
+    _spin(0.1)
+    comm, after = thread_cpu_s()[tid]
+    assert comm
+    assert after - before >= 0.05  # clock ticks of 10 ms
+
+
+def test_latency_tracker_attributes_frames_to_the_next_setpoint():
+    lat = LatencyTracker()
+    lat.frame_processed(10.000, True, 0.002, 10.060)
+    lat.frame_processed(10.033, False, 0.001, 10.090)
+    lat.guidance_step(True, 10.100)
+    lat.frame_processed(10.066, True, 0.002, 10.120)  # after the tick: waits for the next one
+    lat.setpoint_sent(10.110)
+    assert lat.all_ms == pytest.approx([110.0, 77.0])
+    assert lat.detected_ms == pytest.approx([110.0])
+    assert lat.to_processed_ms == pytest.approx([60.0, 57.0])
+    assert lat.to_guidance_ms == pytest.approx([40.0, 10.0])
+    assert lat.to_setpoint_ms == pytest.approx([10.0, 10.0])
+    lat.guidance_step(False, 10.150)  # no setpoint in this phase: the frame is not attributed
+    lat.setpoint_sent(10.160)
+    assert len(lat.all_ms) == 2 and lat.no_setpoint == 1
+    assert lat.frames == 3 and lat.detections == 2
+
+
+def test_percentiles():
+    assert percentiles([]) == {"n": 0, "p50": None, "p99": None, "max": None}
+    p = percentiles([float(x) for x in range(1, 101)])
+    assert p["n"] == 100 and p["p50"] == 51.0 and p["p99"] == 99.0 and p["max"] == 100.0
+
+
+@pytest.mark.parametrize(
+    ("comm", "py_name", "group"),
+    [
+        ("python", "mavlink-sim-ardupilot", "sim"),
+        ("python", "csvlog-writer-0.2s", "logging"),
+        ("python", "tlog-flight.tlog", "logging"),
+        ("python", "telemetry-sitl1", "telemetry"),
+        ("python", "ardupilot-reader", "link"),
+        ("python", "asyncio_0", "vision"),
+        ("python", "dart-vision_0", "vision"),
+        ("python", "dart-link-camera", "sim"),
+        ("python", "sim-camera-render_0", "sim"),
+        ("tx-0", None, "telemetry"),
+        ("python", "MainThread", "loop_other"),
+        ("mavsdk", None, "native_unnamed"),
+    ],
+)
+def test_classify_thread(comm, py_name, group):
+    assert classify_thread(comm, py_name) == group
+
+
+def test_bad_duration_is_refused():
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--duration-s", "-1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "--duration-s -1" in proc.stderr + proc.stdout
+
+
+@pytest.mark.slow
+def test_bench_app_report_structure_and_sanity():
+    duration_s = 8.0
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--duration-s", f"{duration_s:g}", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout)
+    assert r["app"] == "delivery" and r["backend"] == "ardupilot"
+    assert duration_s <= r["duration_s"] < duration_s + 10.0
+    cpu = r["cpu"]
+    assert "thread_time" in cpu["method"] and "/proc" in cpu["method"]
+    for task in TASKS:
+        assert task in cpu["tasks_pct"], task
+        assert cpu["tasks_pct"][task] >= 0.0
+    assert cpu["tasks_pct"]["vision"] > 0 and cpu["tasks_pct"]["fusion"] > 0 and cpu["tasks_pct"]["guidance"] > 0
+    assert sum(cpu["tasks_pct"].values()) <= cpu["companion_total_pct"] + 2.0  # /proc ticks are 10 ms
+    # the flight logs are formatted and written by the logging process: its CPU is the companion's too
+    assert cpu["logging_process_pct"] > 0 and r["logging_process_peak_rss_mib"] > 0
+    assert cpu["tasks_pct"]["logging"] >= cpu["logging_process_pct"]
+    assert cpu["companion_total_pct"] <= cpu["process_total_pct"] + cpu["logging_process_pct"]
+    assert cpu["excluded_simulator_pct"]["sim_threads"] > 0
+    assert r["peak_rss_mib"] > 0
+    cam = r["camera"]
+    assert cam["rate_hz"] == 30.0
+    # the simulated camera offers the frame listener: its task wakes per frame, not on a poll tick
+    assert cam["read"] == "frame listener" and cam["frames_notified"] >= cam["frames_processed"]
+    # fusion (and the camera) start once the mission has a frame, a second or two into the run
+    assert 0.3 * 30 * duration_s <= cam["frames_processed"] <= 1.1 * 30 * duration_s
+    for key in ("detect_ms", "exposure_to_setpoint_ms"):
+        p = r[key]
+        assert p["n"] > 0 and 0 < p["p50"] <= p["p99"] <= p["max"], (key, p)
+    # a frame becomes readable only after the capture latency
+    assert r["exposure_to_setpoint_ms"]["p50"] >= cam["capture_latency_ms"]
+    for stage in r["stages_ms"].values():
+        assert stage["n"] == r["exposure_to_setpoint_ms"]["n"] and stage["p50"] >= 0
+    names = [lp["loop"] for lp in r["loops"]]
+    assert names.count("shell 20 Hz") == 2 and "shell 60 Hz" in names and "sim sensor 30 Hz" in names
+    for lp in r["loops"]:
+        assert lp["ticks"] > 0 and lp["overruns"] >= 0
+    assert r["setpoints_sent"] > 0
+    assert set(r["targets"]) == {"non_vision_cpu_pct", "exposure_to_setpoint_p99_ms", "loop_overruns"}
+    for t in r["targets"].values():
+        assert isinstance(t["ok"], bool) and t["target"]
+
+
+@pytest.mark.slow
+def test_bench_app_dart_report_structure_and_sanity():
+    duration_s = 6.0
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--dart", "--duration-s", f"{duration_s:g}", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout)
+    assert r["app"] == "dart"
+    assert duration_s - 0.5 <= r["duration_s"] <= duration_s + 1.0
+    cpu = r["cpu"]
+    for task in DART_TASKS:
+        assert task in cpu["tasks_pct"] and cpu["tasks_pct"][task] >= 0.0, task
+    assert cpu["tasks_pct"]["vision"] > 0 and cpu["tasks_pct"]["imu"] > 0 and cpu["tasks_pct"]["control"] > 0
+    assert sum(cpu["tasks_pct"].values()) <= cpu["companion_total_pct"] + 2.0
+    assert cpu["excluded_simulator_pct"]["sim_threads"] > 0  # the link sim and its rendering camera
+    cam = r["camera"]
+    assert 0.5 * 30 * duration_s <= cam["frames_processed"] <= 1.1 * 30 * duration_s
+    assert cam["frames_with_detection"] > 0  # the wall marker is in view from the start
+    p = r["exposure_to_setpoint_ms"]
+    assert p["n"] > 0 and cam["capture_latency_ms"] <= p["p50"] <= p["p99"] <= p["max"]
+    rates = sorted(lp["rate_hz"] for lp in r["loops"])
+    assert rates == [20.0, 22.0, 44.0, 200.0]
+    assert r["commands_sent"] > 0.5 * 44 * duration_s

@@ -1,0 +1,137 @@
+"""The real-SITL landing campaign and the parity check, the parts that need no firmware: the
+mapping of a draw onto a SITL, the comparison, the figure and the profile campaign."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import matplotlib.image as mpimg
+import pytest
+
+from companion.cli.main import main
+from companion.config import load_config, shipped_params_path
+from companion.delivery.planning import pad_position_ned
+from companion.geometry.earth import GeoPoint
+from companion_lab.landing_campaign import Draw, draw_scenarios, run_landing_campaign, scenario_config
+from companion_lab.real_campaign import (
+    compare,
+    firmware_tuning,
+    landing_diagnostics,
+    parity_figure,
+    real_config,
+    real_pad_displacement,
+)
+
+
+def test_a_draw_maps_onto_a_sitl_without_gps_bias():
+    d = Draw(seed=7, gps_bias_m=(1.0, -2.0, 0.3), pad_offset_m=(0.25, 0.5), wind_speed_m_s=3.0, wind_from_deg=90.0)
+    assert real_pad_displacement(d) == (1.25, -1.5)  # the vehicle arrives at the biased pad
+    base = shipped_params_path("landing_campaign.toml")
+    cfg = real_config(base, "px4", "fusion")
+    h = cfg.sim.home
+    n, e, _ = pad_position_ned(load_config(base).mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    assert cfg.mission.pad.north_m == pytest.approx(n) and cfg.mission.pad.east_m == pytest.approx(e)
+    assert cfg.mission.pad.lat_deg is None and cfg.autopilot == "px4"
+    assert math.hypot(n, e) == pytest.approx(15.0, abs=0.5)  # the shipped pad, 15 m from home
+    # the firmware's own landing tuning comes from its shipped parameters (params/px4_sih_quad.toml)
+    assert firmware_tuning("px4") == {
+        "landing": {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5},
+        "mission": {
+            "landing_xy_gain_1_s": 5.0,
+            "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
+            "landing_xy_integral_gain_1_s2": 2.5,
+            "landing_xy_integral_max_m_s": 0.5,
+            "velocity_bias_tau_s": 1.0,
+            "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
+            "autopilot_accel_z_m_s2": 1.0,
+        },
+    }
+    assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
+    assert firmware_tuning("ardupilot")["mission"]["autopilot_accel_z_m_s2"] == 0.5  # GUIDED's limits
+    assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
+    assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
+    assert real_config(base, "px4", "gps_only").landing.fusion is False
+    with pytest.raises(ValueError, match="unknown variant"):
+        real_config(base, "px4", "no_such")
+
+
+def test_profile_campaign_flies_the_same_draws_without_wind_on_px4_sih():
+    d = draw_scenarios(1, 4)[0]
+    cfg = scenario_config(shipped_params_path("landing_campaign.toml"), d, "fusion", "px4-sih")
+    assert cfg.sim.profile == "px4-sih" and cfg.sim.wind_speed_m_s == d.wind_speed_m_s  # the vehicle drops it
+    tuned = scenario_config(
+        shipped_params_path("landing_campaign.toml"), d, "gps_only", "px4-sih", firmware_tuning("px4")
+    )
+    assert tuned.mission.landing_xy_gain_1_s == 5.0 and tuned.landing.fusion is False
+    r = run_landing_campaign(1, 4, ("fusion",), profile="px4-sih")
+    assert r["profile"] == "px4-sih" and r["landings"]["fusion"][0]["wind_m_s"] == 0.0
+    assert r["landings"]["fusion"][0]["delivered"]
+
+
+def _campaign(errors: list[float], pad: float = 0.5) -> dict:
+    rows = [{"seed": 1000 + k, "error_m": e, "on_pad": math.isfinite(e) and e <= pad} for k, e in enumerate(errors)]
+    return {"landings": {"fusion": rows}}
+
+
+def test_compare_against_hand_computed_figures(tmp_path):
+    pred = _campaign([0.10, 0.20, 0.30, 0.40])
+    real = _campaign([0.10, 0.10, 0.20, 0.20])
+    c = compare(pred, real)
+    assert c["predicted"]["mean_m"] == pytest.approx(0.25) and c["real"]["mean_m"] == pytest.approx(0.15)
+    # numpy's linear p90 of (0.1, 0.2, 0.3, 0.4): 0.37; of (0.1, 0.1, 0.2, 0.2): 0.2
+    assert c["predicted"]["p90_m"] == pytest.approx(0.37) and c["real"]["p90_m"] == pytest.approx(0.2)
+    assert c["ratio_predicted_to_real"]["mean_m"] == pytest.approx(0.25 / 0.15)
+    assert c["mean_and_p90_within_factor"] is False  # 1.67x and 1.85x > 1.5x
+    assert c["failure_classes_agree"] and c["failure_class_disagreements"] == []
+    # one seed off the pad in the real run only: allowed for up to 10 flights, not two of them
+    assert compare(_campaign([0.1] * 10), _campaign([0.1] * 9 + [0.9]))["failure_classes_agree"]
+    two = compare(_campaign([0.1] * 10), _campaign([0.1] * 8 + [0.9, 0.9]))
+    assert not two["failure_classes_agree"] and two["failure_class_disagreements"] == [1008, 1009]
+    ok = compare(_campaign([0.10, 0.12, 0.14]), _campaign([0.09, 0.13, 0.15]))
+    assert ok["mean_and_p90_within_factor"]
+    # a landing that never happened (NaN) leaves the figures of the others
+    nan = compare(_campaign([0.1, math.nan]), _campaign([0.1, 0.1]))
+    assert nan["predicted"]["mean_m"] == pytest.approx(0.1)
+    res = {"autopilot": "px4", "profile": "px4-sih", "comparison": {"fusion": c}}
+    img = mpimg.imread(parity_figure(res, tmp_path / "parity.png"))
+    assert img.shape[0] > 300 and img[..., :3].std() > 0.03
+
+
+def test_campaign_command_with_a_profile(tmp_path, capsys):
+    out = tmp_path / "new" / "folder"
+    args = ["campaign", "landing", "--n", "1", "--seed", "2", "--variants", "fusion", "--profile", "px4-sih"]
+    assert main([*args, "--out", str(out), "--quiet"]) == 0
+    result = json.loads((out / "landing_campaign.json").read_text())
+    assert result["profile"] == "px4-sih" and "p90_m" in result["summary"]["fusion"]
+    assert "px4-sih profile" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # a profile and a real autopilot are two different campaigns
+        main([*args, "--autopilot", "px4"])
+
+
+def test_landing_diagnostics_names_the_machine_and_splits_each_error():
+    rows = [
+        {
+            "seed": 7,
+            "error_m": 0.0412,
+            "north_m": 0.03,
+            "east_m": -0.0283,
+            "believed_offset_m": 0.02,
+            "estimate_error_m": 0.05,
+            "guidance_overruns": 2,
+            "setpoint_overruns": 0,
+            "markers_used": 300,
+            "uwb_used": 200,
+        },
+        # a landing that could not be flown has no split
+        {"seed": 8, "error_m": math.nan, "north_m": math.nan, "east_m": math.nan, "markers_used": 0, "uwb_used": 0},
+    ]
+    text = landing_diagnostics(rows)
+    machine, first, second = text.split("; ")
+    assert f"x{os.cpu_count()}, load " in machine
+    assert first == (
+        "seed 7: 0.041 m (N +0.030 E -0.028), believed 0.020 m, estimate error 0.050 m, "
+        "overruns 2/0, markers 300, uwb 200"
+    )
+    assert second.startswith("seed 8: nan m") and "believed nan m" in second
