@@ -13,7 +13,7 @@ from companion.autopilot.px4 import Px4Autopilot
 from companion.events import EventKind, Phase
 from companion.flightlog.tlog import open_tlog, read_tlog
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def _tlog_by_source(path):

@@ -17,7 +17,7 @@ from companion.autopilot import LandedState
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 class Relay(threading.Thread):

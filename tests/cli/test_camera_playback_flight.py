@@ -33,7 +33,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_recorded_camera_flies_the_landing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # 1. intrinsics from chessboard images rendered through the simulator's camera (seeded)
     pattern = "chessboard:9x6:0.025"

@@ -8,7 +8,7 @@ from companion.cli.main import main
 from companion.config import shipped_params_path
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_demo_writes_run_folder_and_plots(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["demo", "--out", str(out), "--quiet", "--seed", "2"]) == 0
@@ -70,7 +70,7 @@ def test_bench_ekf_and_uwb_are_wired(capsys):
     assert "predict_us" in out and "update_aruco_us" in out
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_demo_over_mavlink_px4(tmp_path, capsys):
     out = tmp_path / "run"
     rc = main(
@@ -91,7 +91,7 @@ def test_demo_over_mavlink_px4(tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["pad_landing_error_m"] < 1.0
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_bench_sim_reports_both_flights(capsys):
     assert main(["bench", "sim", "--repeat", "1"]) == 0
     out = capsys.readouterr().out

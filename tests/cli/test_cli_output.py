@@ -60,7 +60,7 @@ def test_console_does_not_wrap_when_not_a_terminal(capsys):
     assert long in capsys.readouterr().out
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_demo_output_is_not_wrapped_and_names_its_path_reference(tmp_path, capsys):
     out = tmp_path / "run"
     params = str(shipped_params_path("sitl_short.toml"))
@@ -107,7 +107,7 @@ def test_format_cm():
         assert float(format_cm(v).split()[0]) != 0.0 and float(format_m(v).split()[0]) != 0.0
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_campaign_dart_json_into_a_new_folder(tmp_path, capsys):
     dest = tmp_path / "not" / "yet" / "dart.json"
     args = ["campaign", "dart", "--estimator", "FCF-CF", "--n", "1", "--duration", "6", "--settle", "1"]

@@ -30,7 +30,7 @@ from companion_sitl.dart_sim import DartParams, shipped_dart_params
 
 
 # ------------------------------------------------------------------------ the whole mission
-@pytest.mark.slow
+@pytest.mark.flight
 async def test_dart_hover_and_approach_over_ardupilot_link_reaches_1_5_m() -> None:
     """dart sec. 5 over MAVLink: hover at 4 m, straight approach (triangular profile), hover at
     1.5 m. The profile peaks at 0.3 m/s instead of the paper's 0.1 m/s (a 17 s approach instead of
@@ -82,7 +82,7 @@ def _contributions_used(shell: DartShell) -> list[DartCommand | None]:
     return used
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 async def test_pilot_stick_adds_while_engaged_and_switch_returns_manual_control_over_link() -> None:
     """Hybrid mode over the link: the pilot's roll stick (+100 us on channel 1, mirrored on 9)
     moves the drone right while the cyber-pilot holds against it, the override carrying exactly
@@ -323,7 +323,7 @@ async def test_px4_backend_sends_attitude_targets_and_reads_rc_channels() -> Non
     assert m.type_mask == 3 and m.thrust == pytest.approx(0.55) and m.body_yaw_rate == pytest.approx(0.2)  # type: ignore[attr-defined]
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 async def test_px4_offboard_attitude_hover_pilot_stick_and_switch_over_link() -> None:
     """The PX4 path over MAVLink (MAVSDK backend, sim vehicle in the PX4 dialect): the switch on
     streams SET_ATTITUDE_TARGET and enters OFFBOARD; the drone hovers on the estimate; the pilot's

@@ -15,7 +15,7 @@ from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.vehicle import SimVehicle
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def cfg(**sim):

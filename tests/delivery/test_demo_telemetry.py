@@ -34,7 +34,7 @@ def _wait(pred, timeout_s=3.0):
     return pred()
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_demo_publishes_every_mission_event_to_the_ground(tmp_path):
     port = free_tcp_port()
     with GroundStation(loopback_settings(listen_port=port), out_dir=tmp_path / "rec") as ground:
@@ -52,7 +52,7 @@ def test_demo_publishes_every_mission_event_to_the_ground(tmp_path):
     assert '"source": "ekf"' in est[-1] or '"source":"ekf"' in est[-1]
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_ground_return_command_turns_the_vehicle_home(tmp_path):
     port = free_tcp_port()
     replies = []

@@ -11,7 +11,7 @@ from companion.config import ConfigError, load_config, shipped_params_path
 from companion.events import EventKind
 from companion_lab.demo import run_demo
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 BIAS = [1.5, -1.0, 0.0]
 PAD_OFFSET = [0.4, -0.3]

@@ -21,7 +21,7 @@ from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout
 from companion_lab.demo import run_demo
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def _config(tmp_path: Path, port: int):

@@ -16,7 +16,7 @@ from companion_firmware.truth_feed import MavlinkTruth, TruthUnavailable
 from companion_firmware.truth_harness import fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def test_truth_feed_reads_hil_state_quaternion_from_the_vehicle(mav, udp_port):

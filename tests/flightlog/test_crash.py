@@ -15,7 +15,7 @@ from companion_lab.demo import run_demo
 
 from .conftest import short_config
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 CRASH_AT_S = 16.0  # on the final approach: camera and UWB are being fused
 

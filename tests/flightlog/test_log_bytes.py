@@ -96,7 +96,7 @@ print(json.dumps({f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in so
 """
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 @pytest.mark.skipif(platform.machine() != "x86_64", reason="the digests are of x86-64 arithmetic (PINNED_CPU_ENV)")
 @pytest.mark.parametrize("fusion", [False, True], ids=["gps-only", "fused"])
 def test_run_folder_csvs_are_byte_identical_to_the_row_by_row_writer(tmp_path, fusion):

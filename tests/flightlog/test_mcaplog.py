@@ -24,7 +24,7 @@ from companion.flightlog.mcaplog import MCAP_FILE, batch_encoder, cell_text, enc
 from companion.flightlog.reader import LogFormatError, open_table, read_mcap, read_meta
 from companion.flightlog.recorder import STREAM_FILES
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def _csv_rows(path: Path) -> list[list[str]]:

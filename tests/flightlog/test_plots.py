@@ -26,7 +26,7 @@ from companion_sitl.scoring import REFERENCE
 
 from .conftest import short_config
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from companion.delivery.replay import read_inputs
 from companion.flightlog.reader import Table
 from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES, FlightRecorder
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 UNITS = ("_s", "_m", "_m_s", "_rad", "_rad_s", "_deg", "_m_s2", "_px", "_pct", "_m2", "_rad2", "_rad2_s2")
 # columns without a physical unit: identifiers, flags, names, counts, matrix elements, DOP

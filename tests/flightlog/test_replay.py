@@ -17,7 +17,7 @@ from companion.flightlog.reader import LogFormatError, Table
 
 from .conftest import short_config
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def _edit_cell(path, row, column, fn):

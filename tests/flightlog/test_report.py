@@ -17,7 +17,7 @@ from companion_lab.demo import run_demo
 
 from .conftest import short_config
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 FLIGHT_FIGURES = ("path.png", "lyapunov.png", "landing_3d.png", "landing_axes.png", "gps_bias.png")
 

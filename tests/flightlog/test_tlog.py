@@ -388,7 +388,7 @@ def summarize(path):
     return counts
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_demo_flight_writes_a_tlog_with_heartbeats_positions_and_our_setpoints(tmp_path):
     r = run_demo(sim_config(), run_dir=tmp_path / "a", fusion=False)
     assert r.delivered and r.returned, r.failure
@@ -418,7 +418,7 @@ class _Crash(RuntimeError):
     pass
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_an_exception_mid_flight_leaves_a_readable_tlog_with_everything_before(tmp_path):
     config = sim_config()
     crash_at = 15.0

@@ -11,7 +11,7 @@ import pytest
 from companion_lab import campaign_pool
 from companion_lab.landing_campaign import CampaignLandingError, run_landing_campaign
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def _no_workers_left(timeout_s: float = 10.0) -> bool:

@@ -8,7 +8,7 @@ import pytest
 from companion.cli.main import main
 from companion_lab.landing_campaign import draw_scenarios, run_landing_campaign
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def test_draws_are_seeded_and_bounded():

@@ -12,7 +12,7 @@ import pytest
 from companion.config import shipped_params_path
 from companion_lab.real_campaign import landing_diagnostics, run_parity
 
-pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+pytestmark = pytest.mark.firmware
 
 
 def test_parity_on_three_seeds(ardupilot_root, tmp_path):

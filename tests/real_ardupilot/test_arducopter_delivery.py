@@ -19,7 +19,7 @@ from companion_lab.real_campaign import firmware_tuning
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
-pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+pytestmark = pytest.mark.firmware
 
 PAD_OFFSET = (1.2, -0.9)  # 1.5 m: GPS alone would land 1.5 m off the true pad
 

@@ -24,7 +24,7 @@ from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink_vehicle import free_udp_port
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 LOITER_PWM = 1685  # flight-mode switch position 5 (1621-1750 us): FLTMODE5 = 5, LOITER, in copter.parm
 SITL_CH5_US = 1800  # the SITL's own RC default (position 6, STABILIZE): sent unchanged until the switch

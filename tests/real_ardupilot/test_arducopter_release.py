@@ -11,7 +11,7 @@ from companion.autopilot.interface import CommandRejected
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 
 async def test_do_gripper_with_grip_enable_0_is_a_permanent_failure(ardupilot_root, tmp_path):

@@ -24,7 +24,7 @@ from companion_firmware.ardupilot_sitl import ArduCopterSitl
 
 from .conftest import free_udp_port, wait_for
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 KEY = SigningKey(hashlib.sha256(b"companion sitl signing test").digest(), "<test>")
 OTHER = SigningKey(hashlib.sha256(b"not the vehicle's key").digest(), "<other>")

@@ -20,7 +20,7 @@ from companion_firmware.ardupilot_sitl import CMAC_HOME, ArduPilotNotFound, find
 
 from .conftest import arducopter, wait_for
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 
 def test_find_ardupilot_reports_where_it_looked(tmp_path):

@@ -23,7 +23,7 @@ from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink_vehicle import free_udp_port
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 MAV_CMD_DO_SET_MODE = 176
 PX4_AUTO_LOITER = (1.0, 4.0, 3.0)  # base mode custom, PX4 main mode AUTO, sub mode LOITER ("Hold")

@@ -24,7 +24,7 @@ from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.demo import run_demo
 from companion_lab.real_campaign import firmware_tuning
 
-pytestmark = pytest.mark.sitl
+pytestmark = pytest.mark.firmware
 
 # The pad lies 1.5 m from where the parameters say (SIH cannot bias GPS): GPS alone lands 1.5 m off.
 PAD_OFFSET_M = (1.5 / math.sqrt(2.0), 1.5 / math.sqrt(2.0))

@@ -121,7 +121,7 @@ def test_bad_duration_is_refused():
     assert "--duration-s -1" in proc.stderr + proc.stdout
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_bench_app_report_structure_and_sanity():
     duration_s = 8.0
     proc = subprocess.run(
@@ -170,7 +170,7 @@ def test_bench_app_report_structure_and_sanity():
         assert isinstance(t["ok"], bool) and t["target"]
 
 
-@pytest.mark.slow
+@pytest.mark.flight
 def test_bench_app_dart_report_structure_and_sanity():
     duration_s = 6.0
     proc = subprocess.run(

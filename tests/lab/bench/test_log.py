@@ -8,7 +8,7 @@ from companion.config import load_config, shipped_params_path
 from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES
 from companion_lab.bench.log import bench_log
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.flight
 
 
 def short_config():
