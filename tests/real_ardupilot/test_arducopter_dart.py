@@ -1,5 +1,5 @@
-"""The Dart cyber-pilot on real ArduCopter 4.7 SITL (issue 12): RC_CHANNELS_OVERRIDE added to the
-pilot's sticks in ALT_HOLD and in STABILIZE, the pilot's switch giving control back, both measured at the vehicle.
+"""The Dart cyber-pilot on real ArduCopter 4.7 SITL: RC_CHANNELS_OVERRIDE added to the pilot's
+sticks in ALT_HOLD and in STABILIZE, the pilot's switch giving control back, both seen at the vehicle.
 
 The pilot's transmitter is the SITL's RC input (UDP 5501); the forward camera renders the wall
 marker from SIM_STATE truth (companion_firmware.dart_arducopter).
