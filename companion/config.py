@@ -225,7 +225,7 @@ class PayloadConfig(_Section):
 
 
 class LimitsConfig(_Section):
-    """Clamps applied to every setpoint before it leaves (DESIGN safety contract)."""
+    """Clamps applied to every setpoint before it leaves (safety contract, docs/architecture.md)."""
 
     max_horizontal_speed_m_s: float = _f(8.0, "m/s", "horizontal speed limit", gt=0.0, le=30.0)
     max_climb_m_s: float = _f(3.0, "m/s", "climb rate limit", gt=0.0, le=10.0)
@@ -236,7 +236,7 @@ class LimitsConfig(_Section):
 
 
 class RuntimeConfig(_Section):
-    """Task rates (DESIGN: floors, not ceilings) and watchdogs."""
+    """Task rates (floors, not ceilings: docs/architecture.md) and watchdogs."""
 
     guidance_rate_hz: float = _f(20.0, "Hz", "guidance and mission rate", ge=20.0, le=200.0)
     setpoint_rate_hz: float = _f(
@@ -376,7 +376,7 @@ class SimConfig(_Section):
 
 
 class TelemetryCommandsConfig(_Section):
-    """Commands from the ground (hold, return, land, abort). Off by default (DESIGN safety)."""
+    """Commands from the ground (hold, return, land, abort). Off by default (safety contract, docs/architecture.md)."""
 
     enabled: bool = _f(False, "-", "accept authenticated ground commands")
     secret_file: str | None = _f(None, "-", "file holding the shared HMAC secret (>= 16 bytes)")

@@ -93,7 +93,7 @@ async def run_delivery(
     With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash);
     ``before_flight`` is awaited once connected, before the mission starts (the pre-flight check)."""
     recorder = FlightRecorder(run_dir, config) if run_dir is not None else None
-    # the ground link publishes by default (DESIGN safety contract); [telemetry] enabled = false turns it off
+    # the ground link publishes by default (docs/architecture.md); [telemetry] enabled = false turns it off
     shell = DeliveryShell(
         config,
         autopilot,

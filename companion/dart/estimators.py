@@ -4,9 +4,9 @@ Each turns a marker observation from the vision system (the marker pose in the c
 as a PnP returns it: rotation R_cam_marker and translation Q_m = t_cam_marker, dart eq 1) plus an
 attitude estimate into the position of the drone's centre of thrust relative to the marker.
 
-Frames (DESIGN.md): world W = local NED (the attitude filters' reference), body B = FRD with its
-origin at the centre of thrust, camera C = OpenCV (x right, y down, z optical axis), marker
-M = ArUco (x right, y up, z out of the marker plane). ``R_a_b`` maps b-coordinates into a.
+Frames (docs/architecture.md): world W = local NED (the attitude filters' reference), body B =
+FRD with its origin at the centre of thrust, camera C = OpenCV (x right, y down, z optical axis),
+marker M = ArUco (x right, y up, z out of the marker plane). ``R_a_b`` maps b-coordinates into a.
 
 Configured geometry: the camera mount R_body_cam and the lens position t_body_cam (the paper's
 Q_off, "the distance between the camera and the center of thrust"; in camera axes
@@ -43,7 +43,7 @@ Ambiguity: an observation flagged ``ambiguous`` (the IPPE two-fold planar ambigu
 unresolved by the detector) is gated in every estimator, FCF-CF included, and counted in
 ``ambiguous_observations``; it never reaches a filter.
 
-Timing (DESIGN "time is an input"): observations carry the exposure time; the estimators keep a
+Timing (docs/architecture.md: time is an input): observations carry the exposure time; the estimators keep a
 short history of the attitude (IMU rate) and use the attitude at the exposure time. Yaw from
 the Madgwick filter is not observable and drifts; ``yaw_offset_rad`` aligns it to the world of
 R_world_marker and, when ``yaw_align_tau_s`` is set (not in the paper, off by default), the

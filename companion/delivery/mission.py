@@ -344,9 +344,9 @@ class DeliveryMission:
                 return None, self._make_request(RequestKind.TAKEOFF), math.nan
             return None, None, math.nan
         # judged until the field's stream starts (_stream_t0 set), then never again: the stream must
-        # not stop when the mode leaves HOLD for OFFBOARD (PX4 SIH, measured: our height read 1.3 m
-        # of a 2.5 m take-off that PX4 had finished, the HOLD test lapsed with the switch, the
-        # stream stopped and PX4's offboard-loss failsafe landed the vehicle)
+        # not stop when the mode leaves HOLD for OFFBOARD (the HOLD test lapses with the switch while
+        # our height may still read below the take-off height), or the autopilot's offboard-loss
+        # failsafe lands the vehicle
         if self._stream_t0 is None and not self._takeoff_done(inp, est):
             return None, None, math.nan
         sp, lyap = self._field_setpoint(est, s)
@@ -389,8 +389,8 @@ class DeliveryMission:
     def _takeoff_done(self, inp: MissionInputs, est: StateEstimate) -> bool:
         """At 90 % of the takeoff height by our estimate, or once the autopilot has finished its
         takeoff (holding in the air) above half of it: the autopilot climbs to the height by *its*
-        altitude, which can sit 0.2-0.3 m off ours (PX4 SIH, measured: a fused estimate never
-        reached 90 % of a 2.5 m takeoff that PX4 had completed)."""
+        altitude, which can sit 0.2-0.3 m off ours (on PX4 SIH a fused estimate may never reach
+        90 % of a 2.5 m takeoff that PX4 has completed)."""
         h = self._height_above_ground(est)
         if h >= 0.9 * self.cfg.takeoff_alt_m:
             return True
@@ -495,10 +495,10 @@ class DeliveryMission:
         The vector field's convergence term scales with v_r, so at land speed it corrects only a
         few cm/s; here the horizontal error is closed proportionally (landing_xy_gain_1_s: firm,
         3 1/s by default, so the part of a gust the autopilot's velocity loop lets through is
-        taken back within a fraction of a second; measured on the windiest campaign draws, 0.8 1/s
-        left 30 cm at touchdown, 3 1/s 15 cm, and an added integral term made it worse). The
-        descent slows while the vehicle is off-centre and holds height at twice the tolerance
-        (like PX4's precision landing) down to landing_hold_min_height_m.
+        taken back within a fraction of a second), plus an integral term when
+        landing_xy_integral_gain_1_s2 > 0 (:meth:`_landing_integral`). The descent slows while the
+        vehicle is off-centre and holds height at twice the tolerance (like PX4's precision
+        landing) down to landing_hold_min_height_m.
         """
         assert self.frame is not None and self.path is not None
         c = self.cfg
@@ -531,9 +531,10 @@ class DeliveryMission:
         """The final descent's integral term, k_i * integral of the error (m/s, F_I): an autopilot
         flying our velocity on a biased estimate of its own moves at setpoint - bias, so the
         proportional law alone settles bias / k_p off the target (PX4 SIH: 0.2-0.4 m/s of bias near
-        the ground, 4-8 cm at 5 1/s; docs/profiles.md). Rectangle rule per guidance tick; the sum
-        is held to landing_xy_integral_max_m_s (anti-windup) and frozen once only the descent is
-        commanded. Reset by every phase change (_goto)."""
+        the ground, 4-8 cm at 5 1/s; docs/profiles.md). Off by default and in
+        params/ardupilot_quad.toml; params/px4_sih_quad.toml turns it on. Rectangle rule per
+        guidance tick; the sum is held to landing_xy_integral_max_m_s (anti-windup) and frozen once
+        only the descent is commanded. Reset by every phase change (_goto)."""
         c = self.cfg
         last = self._landing_int_t
         self._landing_int_t = time_s
@@ -763,7 +764,7 @@ class DeliveryMission:
         if la > 0.0:
             # Not in the paper: the autopilot's velocity loop lags the setpoint by about 1/k_v
             # (0.5 s on PX4 and ArduCopter), so at an arc the vehicle follows the field of where
-            # it was and overshoots by v * lag (measured 1.8 m at r = 2 m, 3 m/s). Evaluating F at
+            # it was and overshoots by v * lag (1.8 m at r = 2 m and 3 m/s). Evaluating F at
             # the position predicted one lag ahead (still a function of the state, not of time)
             # turns the vehicle in time; V is still reported at the current position.
             p_ahead = np.asarray(est.position_ned) + la * np.array([est.north_m_s, est.east_m_s, est.down_m_s])
@@ -797,7 +798,7 @@ class DeliveryMission:
             self._emit(EventKind.LINK_RESTORED, "resuming from where the vehicle is")
         if self._restore_undecided:
             # The autopilot's offboard-loss failsafe will have switched to its failsafe mode (HOLD;
-            # POSCTL on PX4 v1.16 with COM_OBL_RC_ACT = 0, measured): that is not the pilot, so
+            # POSCTL on PX4 v1.16 with COM_OBL_RC_ACT = 0): that is not the pilot, so
             # re-enter offboard and let the (path-based) field resume. Decided on a status the
             # autopilot sent after the link came back: the link can return (a heartbeat) before
             # the mode does, and the last status from before the loss still says OFFBOARD.

@@ -22,8 +22,7 @@ Input u = [world velocity (3, m/s NED), body rates (3, rad/s FRD)].
 Implementation choice: hand-written numpy rather than ``filterpy.kalman.ExtendedKalmanFilter``.
 The filter needs angle-wrapped residuals, a Joseph update with a per-call R, chi-square gating
 before the state is touched and cheap snapshots for the delayed-measurement replay; filterpy's
-EKF would need all of that bolted on through callbacks, and DESIGN.md measured it at ~70 us per
-predict against ~40 us for hand numpy on these machines.
+EKF would need all of that bolted on through callbacks, and costs more per predict.
 
 Speed: the steps use the model's structure (F is the identity but for the attitude rows, G is
 zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p), and numpy costs
@@ -37,25 +36,16 @@ zero below row 6 and block diagonal above, ArUco sees only p and r, UWB only p),
   LAPACK potrf/potrs) instead of inverted and not re-symmetrised (potrf reads one triangle); the
   Joseph form is regrouped as P + N + N^T, N = (K S / 2 - P H^T) K^T (:func:`joseph_covariance`:
   still exact for any K, one dgemm for K S / 2 - P H^T), exactly symmetric too.
-* so P is never re-symmetrised as a 12x12 (before: after every step, 2 numpy calls, plus 2 for S);
-  ``P0`` and the xi switch's T P T^T are symmetrised once.
+* so P is never re-symmetrised as a 12x12; ``P0`` and the xi switch's T P T^T are symmetrised
+  once.
 * the small work is done on Python floats: h_ArUco's 3x3 products are written out (summed in the
   order numpy's matmul sums them) and its Jacobian gathered into one flat list, the state stays
   a list of floats through a prediction's sub-steps and angle wrap and through eq 7's wrap; the
   12x12 products stay BLAS calls (``ndarray.dot``: less dispatch than ``@``).
 
-Measured on this 2-core machine shared with other jobs, against the forms before (which
-re-symmetrised P and S after every step), interleaved: ``companion bench ekf``, min of 5 runs
-each at load 1.1-1.7: predict 15.5 -> 10.5 us, ArUco update 33.7 -> 27.2 us, predict + ArUco
-49.3 -> 37.8 us (issue 15's target: <= 50 us; 62.5 -> 45.2 us, min of 10 runs at load 2.6-5.6), SDK update
-34.1 -> 29.6 us, UWB 28.4 -> 24.0 us, the ArUco update 50 ms late (10 inputs replayed, an
-:class:`EkfSnapshot`, now a named tuple, per event) 275 -> 203 us.
-
-The forms round differently from the ones before (the fused flight's golden digests in
-tests/flightlog/test_log_bytes.py were regenerated: its estimate moved by <= 6e-10 m; the
-100-landing campaign's figures are unchanged, each landing within 3.1e-7 m);
-:mod:`companion.estimation.ekf_reference` keeps the dense form, tests/estimation/test_ekf_sparse.py
-holds the two equal to ~1e-9 and ``companion bench ekf`` times both in one run.
+:mod:`companion.estimation.ekf_reference` keeps the dense form (which re-symmetrises P and S
+after every step); tests/estimation/test_ekf_sparse.py holds the two equal to ~1e-9 and
+``companion bench ekf`` times both in one run.
 
 Beyond the paper: chi-square (Mahalanobis) gating with per-sensor counters; measurement noise
 sigma = sigma0 + gain * height above the pad (per sensor); the 30 m ArUco height gate (delivery

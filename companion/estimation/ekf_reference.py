@@ -1,5 +1,6 @@
-"""The 12-state EKF's steps in their straightforward dense form (delivery eqs 5-15), as
-written before :mod:`companion.estimation.ekf` exploited the model's sparsity.
+"""The 12-state EKF's steps in their straightforward dense form (delivery eqs 5-15): the
+reference that :mod:`companion.estimation.ekf`, which exploits the model's sparsity, is checked
+and timed against.
 
 :class:`DenseDeliveryEkf` is a :class:`~companion.estimation.ekf.DeliveryEkf` whose prediction
 and correction are the textbook products: eq 6 with the full 12x12 F and 12x6 G, eq 9 with the

@@ -1,6 +1,6 @@
 """Frames, rotations, quaternions, SE(3) and flat-earth conversion.
 
-Conventions (DESIGN.md): SI units, radians inside; world frame local NED at the origin;
+Conventions (docs/architecture.md): SI units, radians inside; world frame local NED at the origin;
 mission frame F_I (delivery section 4.1) with origin at the pad, x horizontal towards the pad
 from the start, z up; body frame FRD; quaternions (w, x, y, z) Hamilton; Euler roll-pitch-yaw
 ZYX; ``T_a_b`` is the pose of b in a (maps points from b to a).

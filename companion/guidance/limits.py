@@ -1,4 +1,5 @@
-"""Setpoint clamping (DESIGN safety contract: every setpoint is clamped before it leaves)."""
+"""Setpoint clamping (the safety contract in docs/architecture.md: every setpoint is clamped before it
+leaves)."""
 
 from __future__ import annotations
 

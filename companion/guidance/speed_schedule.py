@@ -3,9 +3,9 @@
 Not in the papers. The field (delivery eq 19) asks for v_i in sector S_i and turns the velocity
 through the arcs of radius r at once; an autopilot follows a velocity setpoint within its own
 acceleration limits (ArduCopter GUIDED: WPNAV_ACCEL = 2.5 m/s^2 horizontally, WPNAV_ACCEL_Z =
-1 m/s^2 vertically; PX4: MPC_ACC_HOR, MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX). Measured on ArduCopter
-4.7 SITL (sitl_short: r = 2 m, 5 m/s cruise): the vehicle rose 1.4 m above the cruise height out
-of the climb and ran 3 m past the turn into each descent. Two limits keep the speed feasible:
+1 m/s^2 vertically; PX4: MPC_ACC_HOR, MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX), so it overshoots: out
+of the climb above the cruise height and past the turn into each descent (metres on ArduCopter
+SITL with r = 2 m and a 5 m/s cruise). Two limits keep the speed feasible:
 
 - on an arc the centripetal acceleration v^2 / r must stay within the smaller limit (the velocity
   turns between vertical and horizontal): v <= sqrt(a r);

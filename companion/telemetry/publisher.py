@@ -27,9 +27,9 @@ microseconds); encoding and ``put`` happen on the worker. Two lanes:
 All publishers are declared reliable and use Zenoh's batching (``express=False``): with
 ``express=True`` every sample takes a transmit-queue slot of its own, and on a loaded 2-core
 board back-to-back DROP samples were then occasionally dropped on loopback; batching costs
-under a millisecond (measured: 20 vehicles x 50 Hz, p99 ~1 ms, none lost). ``publish`` costs
-~2 us; encoding ~35 us per message, on the worker. Presence: a liveliness token ``companion/<id>/alive``
-exists while the publisher runs. A queryable ``companion/<id>/info`` answers identity, versions
+under a millisecond of latency (``companion bench telemetry``). ``publish`` only hands the sample
+over; encoding runs on the worker. Presence: a liveliness token ``companion/<id>/alive`` exists
+while the publisher runs. A queryable ``companion/<id>/info`` answers identity, versions
 and the params given at construction. A queryable ``companion/<id>/command`` refuses every
 command unless command access is enabled with a secret (see :mod:`.auth`); accepted commands
 go to ``on_command`` (called on a Zenoh thread: use :func:`call_in_loop` to hop to asyncio).

@@ -1,6 +1,6 @@
 """Vision: camera model and calibration, nested ArUco pad layouts, marker detection and PnP.
 
-Frames (DESIGN.md): camera = OpenCV (x right, y down, z optical axis); pad/marker = OpenCV ArUco
+Frames (docs/architecture.md): camera = OpenCV (x right, y down, z optical axis); pad/marker = OpenCV ArUco
 (x right, y up, z out of the pad); ``T_camera_pad`` is the pose of the pad in the camera frame.
 """
 

@@ -28,7 +28,7 @@ Pipeline per frame (``PadDetector.detect``):
    when neither agrees.
 
 Output: :class:`MarkerObservation` with ``T_camera_pad`` (pose of the pad in the camera frame),
-timestamped with the exposure time the caller passes in (DESIGN.md: time is an input).
+timestamped with the exposure time the caller passes in (docs/architecture.md: time is an input).
 """
 
 from __future__ import annotations
@@ -384,7 +384,7 @@ def _params(min_perimeter_rate: float = 0.03) -> Any:
     # The pad's white margin is only 0.1 m around the 0.8 m outer marker: with the default
     # minMarkerDistanceRate (0.125) the pad outline (a quad candidate on darker ground) is grouped
     # with the outer marker and the group can lose the marker. 0.025 keeps them apart but still
-    # merges the two contours of one marker border (measured on rendered frames).
+    # merges the two contours of one marker border (on rendered frames).
     p.minMarkerDistanceRate = 0.025
     return p
 
@@ -447,7 +447,7 @@ def refine_corners_by_edges(
     with the camera model (OpenCV or dart eqs 2-4) — straight lines only exist in the ideal image
     — a line is fitted to each side by total least squares, and adjacent lines are intersected.
     This removes the ~0.1 px inward bias that corner-window refinement shows on sharp marker
-    corners (measured: 0.3-0.5 % scale, i.e. 1.5-4 cm of depth at 5-8 m). ``cells`` is the
+    corners (0.3-0.5 % scale, i.e. 1.5-4 cm of depth at 5-8 m). ``cells`` is the
     marker's width in cells including the border; the profile reaches 0.6 of a cell either side
     (the border is one cell wide and the pad keeps a one-cell quiet zone around each marker).
     Returns None when an edge cannot be measured (the caller falls back to the detected corners).

@@ -3,10 +3,8 @@
 OpenCV runs ``detectMarkers``, ``warpPerspective`` and ``remap`` on a worker pool of one thread per
 CPU by default. On a companion computer's 640x480 frames that pool costs more than it saves: the
 detector already runs off the event loop (an executor thread), and the pool's workers, woken for
-every call, keep spinning between the small jobs. Measured with ``companion bench app`` (30 s,
-same machine, one run each): OpenCV's default (2 threads here) companion 29.8 % of one core, of it
-7.5 % in the pool's unnamed threads and 5.1 % vision; one thread 23.3 %, vision 7.0 %, nothing
-unnamed; detection p50 1.1 -> 1.7 ms, well inside a 33 ms frame period.
+every call, keep spinning between the small jobs. One thread saves the pool's share of a core
+(``companion bench app`` shows it) and keeps detection well inside a 33 ms frame period.
 """
 
 from __future__ import annotations

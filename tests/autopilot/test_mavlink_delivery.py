@@ -171,7 +171,7 @@ async def test_link_loss_and_reconnect_px4(mav, udp_port):
         n0 = sim.stats.setpoints
         await mav.wait_for(lambda: not ap.link_ok, 2.0, "link_ok false")
         out["detect"] = True
-        # PX4 v1.16 with COM_OBL_RC_ACT = 0 goes to POSCTL (measured on SIH), as the sim vehicle does
+        # PX4 v1.16 with COM_OBL_RC_ACT = 0 goes to POSCTL on SIH, as the sim vehicle does
         await mav.wait_for(lambda: sim.vehicle.mode is FlightMode.POSITION, 3.0, "offboard-loss failsafe")
         out["mode_during_loss"] = sim.vehicle.mode
         out["setpoints_during_loss"] = sim.stats.setpoints - n0

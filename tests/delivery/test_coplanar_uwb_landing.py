@@ -44,8 +44,7 @@ def test_uwb_only_landing_with_anchors_at_one_height() -> None:
     assert fusion.counters.uwb_used > 100
     # in the air the larger vertical variance keeps honest fixes inside the gate. In the last second
     # (touchdown, then the land detector's wait), at the anchors' height (VDOP > 2) and with the
-    # vehicle stopped on the ground, the EKF rejects some (seeds 1-4: 0-10 of ~85 in that second,
-    # 0-41 more on the pad until the release), which no longer steer the landing
+    # vehicle stopped on the ground, the EKF rejects some, which no longer steer the landing
     airborne = [c for t, c in seen["snapshots"] if t < seen["touchdown_s"] - 1.0][-1]
     accepted = airborne.get("uwb.accepted", 0)
     gated = airborne.get("uwb.rejected_gate", 0)

@@ -1,5 +1,5 @@
 """`landing.controller = "autopilot"`: the autopilot's own precision landing does the descent,
-fed LANDING_TARGET from our pad observations (issue 4 interop), on the embedded simulator."""
+fed LANDING_TARGET from our pad observations, on the embedded simulator."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """How the mission treats the autopilot's answers: one retry path, permanent refusals never
 resent, a failed release handled once (fly home with the parcel, or stay), no request storms.
 
-The firmware answers these tests model were measured on PX4 v1.16 SIH and ArduCopter 4.7 SITL:
+The firmware answers these tests model are those of PX4 v1.16 SIH and ArduCopter 4.7 SITL:
 PX4 answers DO_SET_SERVO with UNSUPPORTED and refuses to arm in the mode a landing leaves;
 ArduCopter answers DO_GRIPPER with FAILED while GRIP_ENABLE = 0.
 """
@@ -179,9 +179,9 @@ def test_takeoff_counts_as_done_once_the_autopilot_holds_in_the_air_short_of_our
 
 
 def test_the_field_stream_goes_on_when_the_mode_leaves_hold_for_offboard_short_of_our_90_percent():
-    """PX4 SIH, measured: our height read 1.3 m of a 2.5 m take-off PX4 had finished. The field
-    took over in HOLD, asked for OFFBOARD, and the stream must not stop when HOLD ends (it did:
-    PX4's offboard-loss failsafe landed the vehicle and the return was aborted)."""
+    """PX4 SIH can finish a take-off while our height reads short of 90 % of it. The field takes
+    over in HOLD and asks for OFFBOARD, and the stream must not stop when HOLD ends, or PX4's
+    offboard-loss failsafe lands the vehicle and the return is aborted."""
     m, t = on_the_pad()
     m._goto(Phase.TAKEOFF_RETURN)
     m._takeoff_requested = True

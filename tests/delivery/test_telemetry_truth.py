@@ -130,7 +130,7 @@ def test_health_carries_the_process_cpu_and_no_heartbeat_in_the_embedded_simulat
     assert len(health) >= 3
     # the first health message has no interval to measure over (cpu_pct None), but health is sent
     # keep-newest at 1 Hz of wall time while the embedded demo runs ~20x real time, so the first can
-    # be replaced by the next before the worker sends it (seen on CI: seq 0 carried 53.7 %)
+    # be replaced by the next before the worker sends it
     first = health[0]["cpu_pct"]
     assert first is None or first > 0.0, first
     cpu = [m["cpu_pct"] for m in health[1:]]

@@ -56,7 +56,7 @@ def mav_free_port() -> int:
 
 @pytest.mark.parametrize("profile", ["ideal", "px4-sih"])
 async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_truth(mav, udp_port, profile):
-    """Also with the px4-sih profile (issue 17): the MAVLink sim vehicle standing in for PX4 SIH
+    """Also with the px4-sih profile: the MAVLink sim vehicle standing in for PX4 SIH
     flies on a velocity estimate 0.2 m/s off, detects the landing after 2.3 s, and the companion
     flies it with the tuning shipped for PX4 SIH, as it flies the firmware (tests/sitl_px4)."""
     config = mav.short_config()

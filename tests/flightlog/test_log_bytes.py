@@ -1,18 +1,10 @@
-"""The flight logs' bytes: batching the writes (one shared writer thread, ``writerows`` per
-period) changed nothing in the files.
+"""The flight logs' bytes: the batched writer (one shared writer thread, ``writerows`` per
+period) writes exactly the pinned files.
 
-``DIGESTS`` are the SHA-256 of every CSV of the short seeded flight (GPS-only and fused). They
-were first taken from the per-file-thread, row-by-row writer this replaced (commit 0eb72bd), on a
-machine whose OpenBLAS ran its SkylakeX kernels; the batched writer gives exactly those bytes
-with ``OPENBLAS_CORETYPE=SkylakeX`` (checked). They are now taken with the CPU-dependent
-arithmetic pinned (``PINNED_CPU_ENV``, below), so they hold on any x86-64 machine. They pin the
-flight as well as the format: regenerate them when the flight itself is meant to change.
-
-The fused flight's were regenerated once the EKF's eq 6 and Joseph form were written to keep P
-exactly symmetric (companion/estimation/ekf.py, "Speed"): a rounding-level change. Against the
-flight before it, same rows and events (events.csv, camera.csv, commands.csv, requests.csv
-unchanged), the EKF state moved by at most 5.7e-10 m, the true path by at most 2.7e-12 m; the
-GPS-only flight's digests are unchanged."""
+``DIGESTS`` are the SHA-256 of every CSV of the short seeded flight (GPS-only and fused), taken
+with the CPU-dependent arithmetic pinned (``PINNED_CPU_ENV``, below), so they hold on any x86-64
+machine. They pin the flight as well as the format: regenerate them when the flight itself is
+meant to change."""
 
 from __future__ import annotations
 
@@ -72,9 +64,9 @@ DIGESTS = {
 
 
 # The flight's last bits depend on the CPU: numpy's bundled OpenBLAS picks its kernels per CPU
-# (measured on one AMD EPYC: its own kernel and Haswell's give one set of CSVs, SkylakeX's another,
-# Nehalem's a third) and numpy and OpenCV dispatch SIMD code per CPU too. The digests are therefore
-# taken in a child process with every such choice pinned to what any x86-64 CPU since 2008 runs:
+# (on one machine Haswell's and SkylakeX's kernels give different CSVs) and numpy and OpenCV
+# dispatch SIMD code per CPU too. The digests are therefore taken in a child process with every
+# such choice pinned to what any x86-64 CPU since 2008 runs:
 # a recorded flight replays bit for bit on one machine and library build, not across CPUs.
 PINNED_CPU_ENV = {
     "OPENBLAS_CORETYPE": "Nehalem",

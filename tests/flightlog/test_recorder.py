@@ -111,7 +111,7 @@ def test_demo_run_folder_has_every_stream_closed_and_consistent(demo_run):
 
 def test_estimates_are_written_exactly(demo_run):
     # the EKF's variances are tiny numbers with 17 significant digits: a fixed-decimal format
-    # (the old %.6f) would round most of them away
+    # (such as %.6f) would round most of them away
     t = Table(demo_run / "ekf.csv")
     v = t.floats("var_gyro_bias_z_rad2_s2")
     assert np.all(v > 0) and np.all(v < 1e-2)

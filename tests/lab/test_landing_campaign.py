@@ -1,4 +1,4 @@
-"""Seeded small version of `companion campaign landing` (the full one prints the issue's figures)."""
+"""Seeded small version of `companion campaign landing` (the full one prints the campaign's table)."""
 
 import json
 

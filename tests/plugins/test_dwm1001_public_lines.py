@@ -116,7 +116,7 @@ def test_the_horizontal_differences_have_the_spread_the_noise_predicts() -> None
 
 def test_a_tag_in_the_anchor_plane_gets_a_good_horizontal_and_a_weak_vertical() -> None:
     """Line 3: the ranges are a little short for any height below the anchors, so the fitted
-    height collapses onto their plane. The old PDOP gate refused it (PDOP ~2.8e6); now the
+    height collapses onto their plane (PDOP ~2.8e6: a PDOP gate would refuse it). The
     horizontal agrees with POS to 6 cm and the vertical is reported weak (VDOP ~6, i.e. ~0.6 m
     at 10 cm ranging), which covers the 0.54 m by which POS puts the tag below the plane."""
     line, side = PUBLIC_LINES[2]

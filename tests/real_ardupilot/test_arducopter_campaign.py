@@ -31,6 +31,6 @@ def test_parity_on_three_seeds(ardupilot_root, tmp_path):
     assert any(x["wind_m_s"] > 1.0 for x in real)  # the draws' wind blew on the firmware
     errs = [x["error_m"] for x in real]
     assert all(math.isfinite(e) for e in errs)
-    assert sum(errs) / len(errs) < 0.05  # issue 12: ArduCopter mean <= 5 cm
+    assert sum(errs) / len(errs) < 0.05  # the precision-landing target on ArduCopter: mean <= 5 cm
     c = r["comparison"]["fusion"]
     assert c["failure_classes_agree"]

@@ -58,18 +58,15 @@ async def _fly(ardupilot_root, tmp_path, params, return_home: bool = True, **lan
 
 async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_displaced_pad(ardupilot_root, tmp_path):
     """The whole delivery on the real firmware: GUIDED flight, our descent, the gripper release
-    confirmed on its servo output, re-arming (out of LAND/GUIDED) and the flight home.
-
-    Measured: 29 cm from the true pad (GPS alone: 1.5 m) with ~50 markers fused on sitl_short's
-    short, fast descent; with GUIDED's acceleration limits respected (params/ardupilot_quad.toml)
-    the descent slows for the landing: 2.4 cm, 186 markers and 259 UWB fixes fused."""
+    confirmed on its servo output, re-arming (out of LAND/GUIDED) and the flight home. GPS alone
+    would land 1.5 m off; the fused descent lands within a few cm (the bound is ~10x that)."""
     r, ap = await _fly(ardupilot_root, tmp_path, GRIPPER_SERVO9)
     assert r.delivered and r.returned, r.failure
     assert r.failure == ""
     assert ap.releases_unconfirmed == 0  # the gripper's output was seen at GRIP_RELEASE
     assert r.uwb_used > 50
     assert r.pad_landing_error_m < 0.25, r
-    # path tracking on the firmware against the embedded simulator on the same path (issue 12):
+    # the delivery paper's path-tracking check, on the firmware against the embedded simulator:
     # truth against the configured path or the path to the true pad on the way out, the path
     # planned from the landing point on the way back (companion_sitl.scoring)
     config = _config("tcp:127.0.0.1:5760")
@@ -85,12 +82,11 @@ async def test_delivery_on_arducopter_releases_and_returns_landing_near_the_disp
         + ", ".join(f"{k} {e.path_rms_truth_m:.2f} / {e.path_max_truth_m:.2f} m" for k, e in embedded.items())
         + f"; largest distance in the arcs {r.path_max_arcs_m:.2f} m"
     )
-    # measured 0.18 / 0.72 and 0.17 / 0.71 m against ideal 0.19-0.21 / 0.60-0.69 m (1.40 / 3.06 m
-    # before the accel limits)
+    # with the accel limits ArduCopter tracks about as well as the ideal vehicle
     assert r.path_rms_truth_m < 1.5 * embedded["ideal"].path_rms_truth_m, (r, embedded["ideal"])
     assert r.path_max_truth_m < 1.2, r.path_max_truth_m
-    # issue 12: no overshoot past 0.5 m at the arcs, within the path's plane (the largest whole
-    # distance, 0.70 m, is the move onto the displaced pad in the arc into the descent); measured 0.19 m
+    # no overshoot past 0.5 m at the arcs, within the path's plane (the largest whole distance is
+    # the move onto the displaced pad in the arc into the descent)
     assert r.path_max_arcs_m < 0.5, r.path_max_arcs_m
 
 
@@ -104,4 +100,4 @@ async def test_arducopter_precision_landing_fed_our_landing_target(ardupilot_roo
     )
     assert r.delivered, r.failure
     assert r.landing_targets_sent > 20
-    assert r.pad_landing_error_m < 0.5, r  # measured 22 cm, 3.5 cm with the accel limits; GPS alone: 1.5 m
+    assert r.pad_landing_error_m < 0.5, r  # GPS alone: 1.5 m

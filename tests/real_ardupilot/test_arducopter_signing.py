@@ -2,7 +2,7 @@
 
 The companion's link is SERIAL2 (udpclient to us: MAVLink channel 2). Older ArduPilot trusted
 channel 0 (USB; TCP 5760 in SITL) and took unsigned packets there even when signing was on; 4.7
-SITL does not (measured below). Over SERIAL2 the key is pushed with SETUP_SIGNING while the
+SITL does not (tested below). Over SERIAL2 the key is pushed with SETUP_SIGNING while the
 vehicle does not sign yet, then: an unsigned companion is ignored, a wrong key is refused, the
 signed companion arms, takes off, flies GUIDED velocity and lands; SERIAL0 refuses unsigned too.
 Every SITL start has a fresh eeprom.bin, so no key survives the module.
@@ -101,10 +101,9 @@ async def test_signed_companion_arms_takes_off_flies_guided_velocity_and_lands(s
 
 
 async def test_serial0_refuses_unsigned_too(signing_copter):
-    """ArduCopter 4.7 SITL, measured: with a key set, SERIAL0 (TCP 5760, MAVLink channel 0) drops
-    unsigned packets like every other link (older GCS_Signing.cpp trusted channel 0 always). Not
-    shown here: turning signing off again with the zero key (docs/signing.md: it did not take on
-    4.7 SITL in the one diagnostic run, cause not isolated)."""
+    """ArduCopter 4.7 SITL: with a key set, SERIAL0 (TCP 5760, MAVLink channel 0) drops unsigned
+    packets like every other link (older GCS_Signing.cpp trusted channel 0 always). Turning
+    signing off again with the zero key is not tested (docs/signing.md)."""
     sitl, _link = signing_copter
     ap0 = ArduPilotAutopilot(sitl.connection, stream_rates_hz={})  # SERIAL0 = channel 0, unsigned
     await ap0.connect(timeout_s=10.0)  # its heartbeats (signed) still parse

@@ -152,11 +152,9 @@ async def test_guided_velocity_times_out_and_the_vehicle_stops(copter):
 
 
 async def test_preflight_names_arducopters_default_gripper_as_wrong(copter):
-    """`companion preflight --json` as a user runs it against this SITL (issue 13): copter.parm's
-    defaults are right for the companion except the gripper (GRIP_ENABLE = 0, no output with
-    function 28), which the shipped parameters release with: exit 6, those two rows wrong, the rest
-    ok (measured: GUID_TIMEOUT 3, RC_OVERRIDE_TIME 3, FS_GCS_ENABLE 0, FLTMODE_CH 5; position 30 Hz,
-    attitude 50 Hz; SYSTEM_TIME 0.6-1.1 s behind a synced clock)."""
+    """`companion preflight --json` as a user runs it against this SITL: copter.parm's defaults
+    are right for the companion except the gripper (GRIP_ENABLE = 0, no output with function 28),
+    which the shipped parameters release with: exit 6, those two rows wrong, the rest ok."""
     import json
     import subprocess
     import sys

@@ -1,4 +1,4 @@
-"""Autopilot profiles (issue 17): the embedded vehicle reproduces the figures measured on the
+"""Autopilot profiles: the embedded vehicle reproduces the figures measured on the
 real firmware (sitl/profiles.py), and ``ideal`` changes nothing."""
 
 from __future__ import annotations
@@ -210,8 +210,8 @@ def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
 
 
 def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_in_hold():
-    """PX4 leaves TAKEOFF for HOLD within NAV_MC_ALT_RAD (0.8 m) of the take-off height (measured
-    on v1.16 SIH: at 1.95-2.0 m of 2.5 m) and climbs on to the height in HOLD; the ideal vehicle
+    """PX4 leaves TAKEOFF for HOLD within NAV_MC_ALT_RAD (0.8 m) of the take-off height (v1.16
+    SIH: at 1.95-2.0 m of 2.5 m) and climbs on to the height in HOLD; the ideal vehicle
     reports it at the height. Climbs by the autopilot's own estimate."""
     climbs = {}
     for name in ("px4-sih", "ideal"):
@@ -233,8 +233,7 @@ def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_i
     assert 2.5 - accept <= climbs["px4-sih"][0] < 2.5 - accept + 0.1  # one 20 ms step at 1.5 m/s: 0.03 m
     assert climbs["ideal"][0] >= 2.45
     # HOLD goes on to the take-off height, within what its position loop (0.95 1/s) leaves to the
-    # vertical gusts (ideal) and to PX4 SIH's velocity error (0.13 m/s down, flown on); measured at
-    # the switch to OFFBOARD 1 s after HOLD: 2.48-2.60 m
+    # vertical gusts (ideal) and to PX4 SIH's velocity error (0.13 m/s down, flown on)
     for name in climbs:
         assert climbs[name][1] == pytest.approx(2.5, abs=0.3)
 

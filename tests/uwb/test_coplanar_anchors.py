@@ -163,12 +163,12 @@ CENTRE_IN_PLANE_VDOP = math.sqrt(math.sqrt(18.0) / 0.10)
 
 @pytest.mark.parametrize("h", [0.0, 0.02])
 def test_tag_in_the_anchor_plane_gets_the_horizontal_and_a_weak_bounded_vertical(h: float) -> None:
-    """At the plane the linearised VDOP diverges (the fix used to be refused on PDOP); the
+    """At the plane the linearised VDOP diverges (a PDOP gate would refuse the fix); the
     horizontal is as good as anywhere, so the fix is kept, gated on HDOP, with VDOP bounded."""
     layout = layout_from_positions(SQUARE)
     p = np.array([0.0, 0.0, 1.2 + h])
     d = np.linalg.norm(SQUARE - p, axis=1)
-    assert dilutions_of_precision(p, SQUARE, False)[0] > 20.0 or h == 0.0  # the old PDOP gate refused it
+    assert dilutions_of_precision(p, SQUARE, False)[0] > 20.0 or h == 0.0  # a PDOP gate would refuse it
     f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
     np.testing.assert_allclose(f.position_m[:2], p[:2], atol=1e-6)
     assert 1.2 <= f.z_m <= 1.2 + 0.05  # on the tag's side, at the plane: the height is not observed
