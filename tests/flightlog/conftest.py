@@ -18,7 +18,7 @@ def short_config(**sim):
     return load_config(shipped_params_path("sitl_short.toml"), overrides=over)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def demo_run(tmp_path_factory) -> Path:
     """Run folder of the short delivery (35 s simulated, about 2 s wall) with a GPS bias and a
     displaced pad, so the fusion has something to estimate. Tests copy it before changing it."""

@@ -182,7 +182,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     assert r.pad_landing_error_m < 0.45, r
     # the delivery paper's path-tracking check, on the firmware against the embedded simulator on
     # the same path and tuning, scored on truth against the configured path or the path to the true pad on the
-    # way out, the path home planned from the landing point on the way back (sitl/path_scoring.py)
+    # way out, the path home planned from the landing point on the way back (sitl/scoring.py)
     embedded = []
     for seed in (1, 2, 3):
         scenario = {"pad_offset_m": PAD_OFFSET_M, "profile": "px4-sih", "seed": seed}
