@@ -694,11 +694,11 @@ class Px4Autopilot(Autopilot):
         """Parameters by name through MAVSDK's Param plugin (PX4 sends int32 parameters byte-wise;
         the plugin decodes them by their type). ``names`` maps each name to its PX4 type; a
         WRONG_TYPE answer is retried as the other type. Each value is a float, or a
-        :class:`companion.autopilot.preflight.ParamUnavailable` with MAVSDK's reason."""
+        :class:`companion.autopilot.preflight.report.ParamUnavailable` with MAVSDK's reason."""
         from mavsdk.asyncio.plugins.param import ParamAsync
         from mavsdk.plugins.param import ParamError, ParamResult
 
-        from companion.autopilot.preflight import ParamUnavailable
+        from companion.autopilot.preflight.report import ParamUnavailable
 
         if self._system is None:
             return {n: ParamUnavailable("not connected") for n in names}
