@@ -43,7 +43,7 @@ def check_connection(config: CompanionConfig) -> None:
 
         check_connection_url(config.connection)
     elif config.autopilot == "ardupilot":
-        from companion.autopilot.ardupilot import parse_connection
+        from companion.autopilot.ardupilot.link import parse_connection
 
         device, _, kind = parse_connection(config.connection)
         if kind == "serial" and not os.path.exists(device):
