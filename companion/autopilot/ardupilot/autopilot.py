@@ -195,11 +195,11 @@ class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
         self._push_status()
 
     async def arm(self) -> None:
-        """GUIDED, then arm. Until EKF3 uses GPS (~41 s after boot in SITL) ArduCopter answers
-        FAILED to both: GUIDED with "Mode change to GUIDED failed: requires position" (the first
-        ~20 s), arming with "Arm: Need Position Estimate". Both are retried every second until
-        ``arm_timeout_s``, then the last refusal is raised. Arming in LAND (the mode a LAND
-        leaves it in) is refused for good ("Arm: LAND mode not armable"): GUIDED comes first."""
+        """GUIDED, then arm. Until EKF3 uses GPS ArduCopter answers FAILED to both: GUIDED
+        with "Mode change to GUIDED failed: requires position", arming with "Arm: Need Position
+        Estimate". Both are retried every second until ``arm_timeout_s``, then the last refusal
+        is raised. Arming in LAND (the mode a LAND leaves it in) is refused for good ("Arm: LAND
+        mode not armable"): GUIDED comes first."""
         deadline = time.monotonic() + self.arm_timeout_s
         while True:
             try:
@@ -267,10 +267,9 @@ class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
     async def release_payload(self) -> None:
         """DO_GRIPPER release (or DO_SET_SERVO), then confirmed on the output itself.
 
-        ArduCopter ACCEPTs DO_GRIPPER once GRIP_ENABLE = 1 and moves the servo at once (4.7 SITL,
-        GRIP_TYPE = 1: SERVOn_FUNCTION = 28 output to GRIP_RELEASE within 0.1 s, STATUSTEXT
-        "Gripper load releasing" then "Gripper load released" 0.5 s later); with GRIP_ENABLE = 0
-        it answers FAILED, for good. The release counts as done only when SERVO_OUTPUT_RAW shows
+        ArduCopter ACCEPTs DO_GRIPPER once GRIP_ENABLE = 1 and moves the servo at once (GRIP_TYPE
+        = 1: the SERVOn_FUNCTION = 28 output goes to GRIP_RELEASE); with GRIP_ENABLE = 0 it
+        answers FAILED, for good. The release counts as done only when SERVO_OUTPUT_RAW shows
         the gripper's output (found from the GRIP_* and SERVOn_FUNCTION parameters) or the
         release servo at the release PWM; CommandRejected FAILED after
         ``release_confirm_timeout_s`` otherwise. An autopilot that sends no SERVO_OUTPUT_RAW or

@@ -19,7 +19,6 @@ from companion.autopilot.preflight.report import (
 MIN_SETPOINT_PERIODS = 3.0
 #: longest time the vehicle may fly on a stalled companion's last setpoint
 MAX_SETPOINT_TIMEOUT_S = 5.0
-#: share of ``landing.camera_rate_hz`` the measured camera rate must reach
 
 
 def fmt(x: float) -> str:
