@@ -34,7 +34,8 @@ from typing import Any, cast
 
 import numpy as np
 
-from companion.autopilot.ardupilot import COPTER_MODES, ArduPilotAutopilot
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.interface import RcInput
 from companion.autopilot.types import LandedState
 from companion.dart.estimators import wall_marker

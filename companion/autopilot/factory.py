@@ -39,11 +39,11 @@ def check_connection(config: CompanionConfig) -> None:
     :class:`~companion.autopilot.interface.LinkDeviceMissing` when its serial device does not
     exist. Lets a command fail before it starts anything else."""
     if config.autopilot == "px4":
-        from companion.autopilot.px4 import check_connection_url
+        from companion.autopilot.px4.mavsdk_core import check_connection_url
 
         check_connection_url(config.connection)
     elif config.autopilot == "ardupilot":
-        from companion.autopilot.ardupilot import parse_connection
+        from companion.autopilot.ardupilot.link import parse_connection
 
         device, _, kind = parse_connection(config.connection)
         if kind == "serial" and not os.path.exists(device):

@@ -22,10 +22,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from companion.guidance.setpoint import VelocitySetpoint
 
 # SET_POSITION_TARGET_LOCAL_NED's type_mask (POSITION_TARGET_TYPEMASK): ignore x, y, z (1, 2, 4),
-# the accelerations (64, 128, 256) and the yaw rate (2048); use vx, vy, vz and yaw (1024 clear).
-# Until 2026-11-26 this was 3527, which also set YAW_IGNORE: PX4 and ArduCopter then held the
-# take-off heading instead of the path's (delivery 4.3, psi_r = 0 in F_I), unlike the embedded
-# simulator, which flew the yaw.
+# the accelerations (64, 128, 256) and the yaw rate (2048); use vx, vy, vz and yaw (1024 clear):
+# the vehicle flies the path's heading (delivery 4.3, psi_r = 0 in F_I), as the embedded simulator does.
 VELOCITY_YAW_MASK = 0b0000_1001_1100_0111  # 2503
 
 
@@ -143,7 +141,7 @@ def x25crc(data: bytes, crc: int = 0xFFFF) -> int:
     """MAVLink's checksum, CRC-16/MCRF4XX (pymavlink's ``x25crc``: polynomial 0x1021 reflected,
     initial 0xFFFF), in C: a reflected CRC is the bit-reversed MSB-first CRC (``binascii.crc_hqx``,
     the same polynomial) of the bit-reversed bytes from the bit-reversed initial value. pymavlink's
-    own falls back to a Python loop over the bytes (~7 us a packet) without the ``fastcrc`` wheel."""
+    own falls back to a slow Python loop over the bytes without the ``fastcrc`` wheel."""
     return _reflect16(binascii.crc_hqx(data.translate(_REV8), _reflect16(crc)))
 
 

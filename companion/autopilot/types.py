@@ -125,8 +125,8 @@ class VehicleStatus(_Finite):
 @dataclass(frozen=True, slots=True)
 class HomePosition(_Finite):
     """Home as the autopilot reports it (MAVLink HOME_POSITION): geodetic, and where it lies in
-    the autopilot's local NED frame, whose origin (the EKF origin) need not be home: PX4 v1.16 SIH
-    was measured with home 21 m from its local origin on a fresh start."""
+    the autopilot's local NED frame, whose origin (the EKF origin) need not be home (PX4 may put
+    home metres from its local origin on a fresh start)."""
 
     time_s: float
     lat_deg: float

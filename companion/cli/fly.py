@@ -127,7 +127,8 @@ def preflight_hook(
     :class:`StartupError` (exit :data:`~companion.cli.exits.PREFLIGHT_FAILED`)."""
 
     async def check() -> None:
-        from companion.autopilot.preflight import preflight, requirements_from_config
+        from companion.autopilot.preflight.report import requirements_from_config
+        from companion.autopilot.preflight.runner import preflight
         from companion.cli.preflight import probe_sensors, report_line, sensor_requirements
 
         req = sensor_requirements(config, requirements_from_config(config), kit)

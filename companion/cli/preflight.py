@@ -14,17 +14,16 @@ from typing import Any
 
 from companion.autopilot import factory
 from companion.autopilot.interface import Autopilot, AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
-from companion.autopilot.preflight import (
+from companion.autopilot.preflight.readers import probe_camera, probe_uwb
+from companion.autopilot.preflight.report import (
     CameraProbe,
     PreflightReport,
     Requirements,
     Status,
     UwbProbe,
-    preflight,
-    probe_camera,
-    probe_uwb,
     requirements_from_config,
 )
+from companion.autopilot.preflight.runner import preflight
 from companion.cli import exits
 from companion.cli.console import make_console
 from companion.cli.exits import StartupError

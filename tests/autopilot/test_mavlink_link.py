@@ -10,9 +10,10 @@ import socket
 import pytest
 
 from companion.autopilot import Autopilot, AutopilotError, FlightMode
-from companion.autopilot.ardupilot import ArduPilotAutopilot, parse_connection
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.ardupilot.link import parse_connection
 from companion.autopilot.px4 import Px4Autopilot
-from companion.autopilot.px4 import px4_flight_mode as px4_decode
+from companion.autopilot.px4.telemetry import px4_flight_mode as px4_decode
 from companion.cli.fly import make_autopilot
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink_ardupilot import COPTER_GUIDED, copter_flight_mode

@@ -9,14 +9,49 @@ from typing import Any
 import numpy as np
 import pytest
 
-from companion.autopilot import preflight as pf
-from companion.autopilot.preflight import (
+from companion.autopilot.preflight.ardupilot import (
+    ardupilot_param_names,
+    check_ardupilot_gcs_failsafe,
+    check_ardupilot_guided_timeout,
+    check_ardupilot_mode_switch,
+    check_ardupilot_precland,
+    check_ardupilot_rc_override,
+    check_ardupilot_release,
+)
+from companion.autopilot.preflight.px4 import (
+    check_px4_ekf_gps,
+    check_px4_ekf_height,
+    check_px4_offboard_loss,
+    check_px4_offboard_loss_action,
+    check_px4_precland,
+    check_px4_rc_override,
+    px4_param_types,
+)
+from companion.autopilot.preflight.readers import (
+    clock_probe_from,
+    probe_camera,
+    probe_uwb,
+    stream_rate_hz,
+)
+from companion.autopilot.preflight.report import (
     CameraProbe,
+    CheckResult,
     ClockProbe,
     ParamUnavailable,
     Requirements,
     Status,
+    StreamProbe,
     UwbProbe,
+    requirements_from_config,
+)
+from companion.autopilot.preflight.runner import (
+    run_checks,
+)
+from companion.autopilot.preflight.sensors import (
+    check_camera,
+    check_clock,
+    check_streams,
+    check_uwb,
 )
 from companion.config import load_config, shipped_params_path
 from companion.plugin_api import Frame
@@ -31,14 +66,14 @@ AP_DEFAULTS |= {"GRIP_ENABLE": 0.0, "PLND_ENABLED": 0.0, "PLND_TYPE": 0.0}
 AP_DEFAULTS |= {f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)}
 
 
-def _row(rows: list[pf.CheckResult], name: str) -> pf.CheckResult:
+def _row(rows: list[CheckResult], name: str) -> CheckResult:
     (row,) = [r for r in rows if r.name == name]
     return row
 
 
 # ------------------------------------------------------------------------------------------ PX4
 def test_px4_firmware_defaults_pass() -> None:
-    report = pf.run_checks(PX4, PX4_DEFAULTS, clock=ClockProbe(offset_s=0.01))
+    report = run_checks(PX4, PX4_DEFAULTS, clock=ClockProbe(offset_s=0.01))
     assert report.passed, report.wrong
     assert [c.name for c in report.checks] == [
         "COM_OF_LOSS_T",
@@ -60,7 +95,7 @@ def test_px4_firmware_defaults_pass() -> None:
     ],
 )
 def test_px4_offboard_loss_timeout(value: float, status: Status, words: list[str]) -> None:
-    row = pf.check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": value})
+    row = check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": value})
     assert row.status is status
     for w in words:
         assert w in row.detail
@@ -68,17 +103,17 @@ def test_px4_offboard_loss_timeout(value: float, status: Status, words: list[str
 
 def test_offboard_loss_timeout_follows_the_setpoint_rate() -> None:
     slow = dataclasses.replace(PX4, setpoint_rate_hz=5.0)  # 3 periods = 0.6 s
-    assert pf.check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": 0.5}).status is Status.OK
-    row = pf.check_px4_offboard_loss(slow, {"COM_OF_LOSS_T": 0.5})
+    assert check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": 0.5}).status is Status.OK
+    row = check_px4_offboard_loss(slow, {"COM_OF_LOSS_T": 0.5})
     assert row.status is Status.WRONG and "set COM_OF_LOSS_T >= 0.60" in row.detail
 
 
 def test_unread_and_missing_parameters_are_unknown_with_the_reason() -> None:
-    row = pf.check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": ParamUnavailable("MAVSDK TIMEOUT")})
+    row = check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": ParamUnavailable("MAVSDK TIMEOUT")})
     assert (row.status, row.name) == (Status.UNKNOWN, "COM_OF_LOSS_T") and "MAVSDK TIMEOUT" in row.detail
-    assert pf.check_px4_offboard_loss(PX4, {}).status is Status.UNKNOWN
-    assert pf.check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": float("nan")}).status is Status.UNKNOWN
-    report = pf.run_checks(PX4, {}, clock=ClockProbe(offset_s=0.0))
+    assert check_px4_offboard_loss(PX4, {}).status is Status.UNKNOWN
+    assert check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": float("nan")}).status is Status.UNKNOWN
+    report = run_checks(PX4, {}, clock=ClockProbe(offset_s=0.0))
     assert report.passed  # unknown rows do not fail the check
     assert sum(c.status is Status.UNKNOWN for c in report.checks) == 5
 
@@ -100,61 +135,61 @@ def test_px4_offboard_loss_action_against_the_resume_modes(
     action: int, resume: tuple[str, ...], status: Status, words: list[str]
 ) -> None:
     req = dataclasses.replace(PX4, link_loss_resume_modes=resume)
-    row = pf.check_px4_offboard_loss_action(req, {"COM_OBL_RC_ACT": float(action)})
+    row = check_px4_offboard_loss_action(req, {"COM_OBL_RC_ACT": float(action)})
     assert row.status is status, row
     for w in words:
         assert w in row.detail
 
 
 def test_px4_rc_override() -> None:
-    assert "takes over with the mode switch" in pf.check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 1.0}).detail
-    assert "sticks take" in pf.check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 3.0}).detail
-    row = pf.check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 16.0})
+    assert "takes over with the mode switch" in check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 1.0}).detail
+    assert "sticks take" in check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 3.0}).detail
+    row = check_px4_rc_override(PX4, {"COM_RC_OVERRIDE": 16.0})
     assert row.status is Status.WRONG and "COM_RC_OVERRIDE = 1 or 3" in row.detail
 
 
 def test_px4_ekf_settings() -> None:
-    assert pf.check_px4_ekf_gps(PX4, {"EKF2_GPS_CTRL": 1.0}).status is Status.OK
-    row = pf.check_px4_ekf_gps(PX4, {"EKF2_GPS_CTRL": 6.0})  # position bit off
+    assert check_px4_ekf_gps(PX4, {"EKF2_GPS_CTRL": 1.0}).status is Status.OK
+    row = check_px4_ekf_gps(PX4, {"EKF2_GPS_CTRL": 6.0})  # position bit off
     assert row.status is Status.WRONG and "EKF2_GPS_CTRL = 7" in row.detail
-    assert pf.check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 0.0}).status is Status.OK
-    row = pf.check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 3.0})
+    assert check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 0.0}).status is Status.OK
+    row = check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 3.0})
     assert row.status is Status.WRONG and "EKF2_HGT_REF = 0 (baro) or 1 (GNSS)" in row.detail
-    assert pf.check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 4.0}).status is Status.WRONG
+    assert check_px4_ekf_height(PX4, {"EKF2_HGT_REF": 4.0}).status is Status.WRONG
 
 
 def test_px4_precision_landing_only_when_px4_lands() -> None:
-    assert pf.check_px4_precland(PX4, {}) == []
-    assert "PLD_BTOUT" not in pf.px4_param_types(PX4)
+    assert check_px4_precland(PX4, {}) == []
+    assert "PLD_BTOUT" not in px4_param_types(PX4)
     req = dataclasses.replace(PX4, landing_controller="autopilot", camera_rate_hz=2.0, pad_size_m=1.0)
-    assert {"PLD_BTOUT", "PLD_HACC_RAD"} <= set(pf.px4_param_types(req))
-    rows = pf.check_px4_precland(req, {"PLD_BTOUT": 5.0, "PLD_HACC_RAD": 0.2})
+    assert {"PLD_BTOUT", "PLD_HACC_RAD"} <= set(px4_param_types(req))
+    rows = check_px4_precland(req, {"PLD_BTOUT": 5.0, "PLD_HACC_RAD": 0.2})
     assert [r.status for r in rows] == [Status.OK, Status.OK]
-    rows = pf.check_px4_precland(req, {"PLD_BTOUT": 1.0, "PLD_HACC_RAD": 0.8})
+    rows = check_px4_precland(req, {"PLD_BTOUT": 1.0, "PLD_HACC_RAD": 0.8})
     assert [r.status for r in rows] == [Status.WRONG, Status.WRONG]
     assert "set PLD_BTOUT >= 1.50" in rows[0].detail  # 3 frames at 2 Hz
     assert "set PLD_HACC_RAD <= 0.5" in rows[1].detail
-    rows = pf.check_px4_precland(req, {"PLD_HACC_RAD": ParamUnavailable("MAVSDK DOES_NOT_EXIST")})
+    rows = check_px4_precland(req, {"PLD_HACC_RAD": ParamUnavailable("MAVSDK DOES_NOT_EXIST")})
     assert [r.status for r in rows] == [Status.UNKNOWN, Status.UNKNOWN]
 
 
 # ------------------------------------------------------------------------------------ ArduPilot
 def test_ardupilot_copter_parm_defaults_fail_only_on_the_gripper() -> None:
-    report = pf.run_checks(AP, AP_DEFAULTS, clock=ClockProbe(offset_s=0.0))
+    report = run_checks(AP, AP_DEFAULTS, clock=ClockProbe(offset_s=0.0))
     assert [c.name for c in report.wrong] == ["GRIP_ENABLE", "gripper output"]
     assert "set GRIP_ENABLE = 1" in report.wrong[0].detail
     assert "SERVOn_FUNCTION = 28" in report.wrong[1].detail
     fixed = AP_DEFAULTS | {"GRIP_ENABLE": 1.0, "SERVO9_FUNCTION": 28.0}
-    report = pf.run_checks(AP, fixed, clock=ClockProbe(offset_s=0.0))
+    report = run_checks(AP, fixed, clock=ClockProbe(offset_s=0.0))
     assert report.passed, report.wrong
     assert _row(list(report.checks), "gripper output").value == "SERVO9"
 
 
 def test_ardupilot_param_names_follow_the_configuration() -> None:
-    names = pf.ardupilot_param_names(AP)
+    names = ardupilot_param_names(AP)
     assert "GRIP_ENABLE" in names and "SERVO16_FUNCTION" in names and "PLND_ENABLED" not in names
     servo = dataclasses.replace(AP, release="servo", servo_channel=10, landing_controller="autopilot")
-    names = pf.ardupilot_param_names(servo)
+    names = ardupilot_param_names(servo)
     assert "SERVO10_FUNCTION" in names and "GRIP_ENABLE" not in names and "PLND_TYPE" in names
 
 
@@ -163,18 +198,18 @@ def test_ardupilot_param_names_follow_the_configuration() -> None:
     [(3.0, Status.OK, ["3 s"]), (0.1, Status.WRONG, ["set GUID_TIMEOUT >= 0.15"]), (8.0, Status.WRONG, ["and 5"])],
 )
 def test_ardupilot_guided_timeout(value: float, status: Status, words: list[str]) -> None:
-    row = pf.check_ardupilot_guided_timeout(AP, {"GUID_TIMEOUT": value})
+    row = check_ardupilot_guided_timeout(AP, {"GUID_TIMEOUT": value})
     assert row.status is status
     for w in words:
         assert w in row.detail
 
 
 def test_ardupilot_rc_override_time() -> None:
-    assert pf.check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": 3.0}).status is Status.OK
-    assert pf.check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": 0.0}).status is Status.OK
-    row = pf.check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": -1.0})
+    assert check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": 3.0}).status is Status.OK
+    assert check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": 0.0}).status is Status.OK
+    row = check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": -1.0})
     assert row.status is Status.WRONG and "set RC_OVERRIDE_TIME = 3" in row.detail
-    assert pf.check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": ParamUnavailable("x")}).status is Status.UNKNOWN
+    assert check_ardupilot_rc_override(AP, {"RC_OVERRIDE_TIME": ParamUnavailable("x")}).status is Status.UNKNOWN
 
 
 @pytest.mark.parametrize(
@@ -190,7 +225,7 @@ def test_ardupilot_rc_override_time() -> None:
 )
 def test_ardupilot_gcs_failsafe(value: int, resume: tuple[str, ...], status: Status, words: list[str]) -> None:
     req = dataclasses.replace(AP, link_loss_resume_modes=resume)
-    row = pf.check_ardupilot_gcs_failsafe(req, {"FS_GCS_ENABLE": float(value)})
+    row = check_ardupilot_gcs_failsafe(req, {"FS_GCS_ENABLE": float(value)})
     assert row.status is status, row
     for w in words:
         assert w in row.detail
@@ -201,42 +236,42 @@ def test_ardupilot_gcs_failsafe(value: int, resume: tuple[str, ...], status: Sta
     [(5, Status.OK, ["channel 5"]), (0, Status.WRONG, ["FLTMODE_CH = 5"]), (3, Status.WRONG, ["stick channel 3"])],
 )
 def test_ardupilot_mode_switch(value: int, status: Status, words: list[str]) -> None:
-    row = pf.check_ardupilot_mode_switch(AP, {"FLTMODE_CH": float(value)})
+    row = check_ardupilot_mode_switch(AP, {"FLTMODE_CH": float(value)})
     assert row.status is status
     for w in words:
         assert w in row.detail
 
 
 def test_ardupilot_precision_landing() -> None:
-    assert pf.check_ardupilot_precland(AP, {}) == []
+    assert check_ardupilot_precland(AP, {}) == []
     req = dataclasses.replace(AP, landing_controller="autopilot", landing_target_output="body_angles")
-    rows = pf.check_ardupilot_precland(req, {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0})
+    rows = check_ardupilot_precland(req, {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0})
     assert [r.status for r in rows] == [Status.OK, Status.OK]
-    rows = pf.check_ardupilot_precland(req, {"PLND_ENABLED": 0.0, "PLND_TYPE": 0.0})
+    rows = check_ardupilot_precland(req, {"PLND_ENABLED": 0.0, "PLND_TYPE": 0.0})
     assert [r.status for r in rows] == [Status.WRONG, Status.WRONG]
     assert "set PLND_ENABLED = 1" in rows[0].detail and "set PLND_TYPE = 1" in rows[1].detail
     local = dataclasses.replace(req, landing_target_output="local_ned")
-    (_, row) = pf.check_ardupilot_precland(local, {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0})
+    (_, row) = check_ardupilot_precland(local, {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0})
     assert row.status is Status.WRONG and "landing_target_output = 'body_angles'" in row.detail
 
 
 def test_ardupilot_release_by_servo() -> None:
     req = dataclasses.replace(AP, release="servo", servo_channel=10)
-    (row,) = pf.check_ardupilot_release(req, {"SERVO10_FUNCTION": 0.0})
+    (row,) = check_ardupilot_release(req, {"SERVO10_FUNCTION": 0.0})
     assert row.status is Status.OK
-    (row,) = pf.check_ardupilot_release(req, {"SERVO10_FUNCTION": 33.0})
+    (row,) = check_ardupilot_release(req, {"SERVO10_FUNCTION": 33.0})
     assert row.status is Status.WRONG and "set SERVO10_FUNCTION = 0" in row.detail
-    (row,) = pf.check_ardupilot_release(req, {})
+    (row,) = check_ardupilot_release(req, {})
     assert row.status is Status.UNKNOWN
-    (row,) = pf.check_ardupilot_release(dataclasses.replace(AP, release="actuator"), {})
+    (row,) = check_ardupilot_release(dataclasses.replace(AP, release="actuator"), {})
     assert row.status is Status.WRONG and "'gripper' or 'servo'" in row.detail
 
 
 def test_ardupilot_gripper_output_unknown_when_no_output_was_read() -> None:
-    rows = pf.check_ardupilot_release(AP, {"GRIP_ENABLE": 1.0})
+    rows = check_ardupilot_release(AP, {"GRIP_ENABLE": 1.0})
     assert [r.status for r in rows] == [Status.OK, Status.UNKNOWN]
     some = {"GRIP_ENABLE": 1.0, "SERVO1_FUNCTION": 33.0}
-    rows = pf.check_ardupilot_release(AP, some)
+    rows = check_ardupilot_release(AP, some)
     assert rows[1].status is Status.WRONG and "15 outputs not read" in rows[1].detail
 
 
@@ -245,39 +280,39 @@ CAM = dataclasses.replace(PX4, camera_size_px=(640, 480), camera_rate_hz=30.0)
 
 
 def test_camera_rules() -> None:
-    assert pf.check_camera(PX4, None) == []  # no camera configured: no row
-    rows = pf.check_camera(CAM, CameraProbe(640, 480, 29.5, 60))
+    assert check_camera(PX4, None) == []  # no camera configured: no row
+    rows = check_camera(CAM, CameraProbe(640, 480, 29.5, 60))
     assert [r.status for r in rows] == [Status.OK, Status.OK]
-    rows = pf.check_camera(CAM, CameraProbe(1280, 720, 15.0, 30))
+    rows = check_camera(CAM, CameraProbe(1280, 720, 15.0, 30))
     assert [r.status for r in rows] == [Status.WRONG, Status.WRONG]
     assert "calibration (landing.camera_calibration) is for 640x480" in rows[0].detail
     assert "landing.camera_rate_hz = 15" in rows[1].detail
-    rows = pf.check_camera(CAM, CameraProbe(640, 480, None, 2))
+    rows = check_camera(CAM, CameraProbe(640, 480, None, 2))
     assert [r.status for r in rows] == [Status.OK, Status.UNKNOWN]
-    (row,) = pf.check_camera(CAM, CameraProbe(error="camera OpenCvCamera: cannot open 0"))
+    (row,) = check_camera(CAM, CameraProbe(error="camera OpenCvCamera: cannot open 0"))
     assert row.status is Status.UNKNOWN and "cannot open 0" in row.detail
 
 
 def test_uwb_rules() -> None:
     req = dataclasses.replace(AP, uwb_anchor_ids=frozenset({"A1", "A2", "A3", "A4"}))
-    assert pf.check_uwb(AP, UwbProbe()) == []
-    (row,) = pf.check_uwb(req, UwbProbe(frozenset({"A1", "A2", "A3", "A4", "B9"}), 20))
+    assert check_uwb(AP, UwbProbe()) == []
+    (row,) = check_uwb(req, UwbProbe(frozenset({"A1", "A2", "A3", "A4", "B9"}), 20))
     assert row.status is Status.OK and row.value == "4/4" and "B9" in row.detail
-    (row,) = pf.check_uwb(req, UwbProbe(frozenset({"A1", "A2"}), 20))
+    (row,) = check_uwb(req, UwbProbe(frozenset({"A1", "A2"}), 20))
     assert row.status is Status.WRONG and row.value == "2/4" and "not heard: A3, A4" in row.detail
-    (row,) = pf.check_uwb(req, UwbProbe(error="no reading from the UWB tag within 2 s"))
+    (row,) = check_uwb(req, UwbProbe(error="no reading from the UWB tag within 2 s"))
     assert row.status is Status.UNKNOWN
 
 
 def test_clock_rule() -> None:
-    assert pf.check_clock(PX4, ClockProbe(offset_s=0.2)).status is Status.OK
-    row = pf.check_clock(PX4, ClockProbe(offset_s=5.0))
+    assert check_clock(PX4, ClockProbe(offset_s=0.2)).status is Status.OK
+    row = check_clock(PX4, ClockProbe(offset_s=5.0))
     assert row.status is Status.WRONG and "5.0 s behind" in row.detail and "NTP" in row.detail
-    assert "ahead of" in pf.check_clock(PX4, ClockProbe(offset_s=-5.0)).detail
-    assert pf.check_clock(PX4, None).status is Status.UNKNOWN
-    assert pf.clock_probe_from(None).error == "no SYSTEM_TIME from the autopilot"
-    assert "no UTC" in pf.clock_probe_from((0, 1.0e9)).error
-    assert pf.clock_probe_from((1_700_000_002_500_000, 1_700_000_000.0)).offset_s == pytest.approx(2.5)
+    assert "ahead of" in check_clock(PX4, ClockProbe(offset_s=-5.0)).detail
+    assert check_clock(PX4, None).status is Status.UNKNOWN
+    assert clock_probe_from(None).error == "no SYSTEM_TIME from the autopilot"
+    assert "no UTC" in clock_probe_from((0, 1.0e9)).error
+    assert clock_probe_from((1_700_000_002_500_000, 1_700_000_000.0)).offset_s == pytest.approx(2.5)
 
 
 # --------------------------------------------------------------------------------- the probes
@@ -304,11 +339,11 @@ class _FakeCamera:
 
 def test_probe_camera_reads_size_and_rate() -> None:
     cam = _FakeCamera(320, 240)
-    probe = pf.probe_camera(cam, seconds=0.1)
+    probe = probe_camera(cam, seconds=0.1)
     assert (probe.width_px, probe.height_px, probe.error) == (320, 240, "")
     assert probe.frames >= 3 and probe.fps == pytest.approx(25.0)  # from the exposure times, not the reads
     assert cam.started and cam.stopped
-    probe = pf.probe_camera(_FakeCamera(320, 240, fail=True), seconds=0.1)
+    probe = probe_camera(_FakeCamera(320, 240, fail=True), seconds=0.1)
     assert "cannot open /dev/video7" in probe.error
 
 
@@ -325,32 +360,32 @@ class _FakeUwb:
 
 
 def test_probe_uwb_collects_anchor_ids() -> None:
-    probe = pf.probe_uwb(_FakeUwb(["A1", "A2"]), seconds=0.05)
+    probe = probe_uwb(_FakeUwb(["A1", "A2"]), seconds=0.05)
     assert probe.anchors_seen == {"A1", "A2"} and probe.readings > 0
 
 
 def test_requirements_from_the_shipped_files() -> None:
     cfg = load_config(str(shipped_params_path("ardupilot_quad.toml")))
-    req = pf.requirements_from_config(cfg)
+    req = requirements_from_config(cfg)
     assert (req.autopilot, req.release) == ("ardupilot", cfg.payload.release)
     assert req.setpoint_rate_hz == cfg.runtime.setpoint_rate_hz
     with pytest.raises(ValueError, match="needs 'px4' or 'ardupilot'"):
-        pf.requirements_from_config(load_config(str(shipped_params_path("delivery_paper.toml"))))
+        requirements_from_config(load_config(str(shipped_params_path("delivery_paper.toml"))))
 
 
 def test_stream_rates_against_the_guidance_rate() -> None:
-    rows = pf.check_streams(PX4, pf.StreamProbe({"PositionNed": 30.0, "Attitude": 50.0}, 1.5))
+    rows = check_streams(PX4, StreamProbe({"PositionNed": 30.0, "Attitude": 50.0}, 1.5))
     assert [(r.name, r.status) for r in rows] == [("local position rate", Status.OK), ("attitude rate", Status.OK)]
-    rows = pf.check_streams(PX4, pf.StreamProbe({"PositionNed": 4.0, "Attitude": 50.0}, 1.5))
+    rows = check_streams(PX4, StreamProbe({"PositionNed": 4.0, "Attitude": 50.0}, 1.5))
     assert rows[0].status is Status.WRONG and "runtime.guidance_rate_hz = 20 (10 Hz)" in rows[0].detail
     assert "MAV_x_RATE" in rows[0].detail
     # nothing at all (ArduPilot before its EKF has an origin): not known yet, not a wrong setting
-    (_, row) = pf.check_streams(AP, pf.StreamProbe({"PositionNed": 30.0}, 1.5))  # no attitude at all
+    (_, row) = check_streams(AP, StreamProbe({"PositionNed": 30.0}, 1.5))  # no attitude at all
     assert row.status is Status.UNKNOWN and row.value == "0 Hz" and "SRn_EXTRA1" in row.detail
     assert "no estimate yet" in row.detail
-    assert pf.check_streams(PX4, None)[0].status is Status.UNKNOWN
+    assert check_streams(PX4, None)[0].status is Status.UNKNOWN
 
 
 def test_stream_rate_counts_from_the_first_sample() -> None:
-    assert pf.stream_rate_hz([]) == 0.0 and pf.stream_rate_hz([1.0]) == 0.0
-    assert pf.stream_rate_hz([1.0 + 0.1 * i for i in range(11)]) == pytest.approx(10.0)
+    assert stream_rate_hz([]) == 0.0 and stream_rate_hz([1.0]) == 0.0
+    assert stream_rate_hz([1.0 + 0.1 * i for i in range(11)]) == pytest.approx(10.0)

@@ -8,7 +8,7 @@ import asyncio
 import time
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.autopilot.preflight import ParamUnavailable
+from companion.autopilot.preflight.report import ParamUnavailable
 from companion.autopilot.px4 import Px4Autopilot
 from companion.config import SimConfig
 from companion_sitl.mavlink_vehicle import MavlinkSimVehicle

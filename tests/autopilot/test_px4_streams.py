@@ -5,12 +5,12 @@ import logging
 
 import pytest
 
-from companion.autopilot import px4
 from companion.autopilot.px4 import Px4Autopilot
+from companion.autopilot.px4 import telemetry as px4_telemetry
 
 
 async def test_a_stream_that_raises_or_ends_is_subscribed_again_and_said_once_each_time(monkeypatch, caplog):
-    monkeypatch.setattr(px4, "STREAM_RESUBSCRIBE_S", 0.01)
+    monkeypatch.setattr(px4_telemetry, "STREAM_RESUBSCRIBE_S", 0.01)
     ap = Px4Autopilot("udpin://127.0.0.1:14599")
     got: list[int] = []
     closed: list[int] = []

@@ -14,7 +14,8 @@ import time
 
 import pytest
 
-from companion.autopilot.ardupilot import COPTER_MODES, ArduPilotAutopilot
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase

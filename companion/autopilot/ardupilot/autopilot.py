@@ -1,0 +1,338 @@
+"""The ArduPilot (ArduCopter) backend: its configuration and the flight commands.
+
+Companion control is GUIDED (mapped to :attr:`FlightMode.OFFBOARD`), GUIDED velocity times out
+after 3 s on the vehicle (it stops and holds), arming is refused until the EKF uses GPS (arm()
+retries until ``arm_timeout_s``), takeoff is MAV_CMD_NAV_TAKEOFF in GUIDED, hold is BRAKE (or
+LOITER), land is LAND mode, and the parcel is released with MAV_CMD_DO_GRIPPER or
+MAV_CMD_DO_SET_SERVO. Velocity setpoints are a single non-blocking SET_POSITION_TARGET_LOCAL_NED
+send. The link, the requests and the telemetry decoding are its base classes
+(:mod:`.link`, :mod:`.requests`, :mod:`.telemetry`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+from companion.autopilot.ardupilot.dialect import mavlink
+from companion.autopilot.ardupilot.link import LinkCounters
+from companion.autopilot.ardupilot.modes import COPTER_MODES
+from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ
+from companion.autopilot.ardupilot.telemetry import ArduPilotTelemetry
+from companion.autopilot.interface import (
+    Autopilot,
+    AutopilotError,
+    CommandRejected,
+    LinkLatch,
+    OpenPacketSink,
+    PacketSink,
+    TelemetryCache,
+)
+from companion.autopilot.mavlink_messages import velocity_setpoint_message
+from companion.autopilot.signing import (
+    SigningSetup,
+    read_key_file,
+    read_timestamp_file,
+)
+from companion.autopilot.types import (
+    LandedState,
+    LandingTarget,
+)
+from companion.guidance.setpoint import VelocitySetpoint
+
+log = logging.getLogger(__name__)
+
+# arming refusals that clear by themselves (pre-arm checks while the EKF converges)
+ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
+
+
+class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
+    def __init__(
+        self,
+        connection: str = "udpin:0.0.0.0:14550",
+        *,
+        baud: int = 57600,
+        link_timeout_s: float = 1.0,
+        source_system: int = 255,
+        source_component: int = 191,  # MAV_COMP_ID_ONBOARD_COMPUTER
+        target_system: int | None = None,
+        release: Literal["gripper", "servo"] = "gripper",
+        release_servo: int = 9,
+        release_pwm: int = 1900,
+        hold_mode: Literal["BRAKE", "LOITER"] = "BRAKE",
+        arm_timeout_s: float = 8.0,
+        release_confirm_timeout_s: float = 2.0,
+        command_timeout_s: float = 0.5,
+        command_retries: int = 3,
+        stream_rates_hz: dict[int, float] | None = None,
+        tlog: OpenPacketSink | None = None,
+        signing: SigningSetup | None = None,
+    ):
+        self.connection = connection
+        self.signing = signing
+        self.baud = baud
+        self.link_timeout_s = link_timeout_s
+        self.source_system = source_system
+        self.source_component = source_component
+        self.target_system = target_system
+        self.target_component = 1
+        self.release = release
+        self.release_servo = release_servo
+        self.release_pwm = release_pwm
+        self.hold_mode = hold_mode
+        self.arm_timeout_s = arm_timeout_s
+        self.release_confirm_timeout_s = release_confirm_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.command_retries = command_retries
+        self.stream_rates_hz = dict(DEFAULT_STREAM_RATES_HZ if stream_rates_hz is None else stream_rates_hz)
+        self.telemetry = TelemetryCache()
+        self.counters = LinkCounters()
+        self.rc_channels: tuple[int, ...] = ()
+        self.open_tlog = tlog
+        self.tlog: PacketSink | None = None
+        self._tlog_opened = False  # a reconnect appends to the same file
+        self._conn: Any = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        # calls from the reader thread waiting for the loop (_post), and whether a drain is on its way
+        self._posted: collections.deque[tuple[Callable[..., Any], tuple[Any, ...]]] = collections.deque()
+        self._drain_scheduled = False
+        self._reader: threading.Thread | None = None
+        self._running = False
+        self._send_lock = threading.Lock()
+        self._acks: dict[int, asyncio.Future[int]] = {}
+        self._first_hb: asyncio.Future[None] | None = None
+        self._last_hb = -math.inf
+        self._last_rx = -math.inf
+        self._latch = LinkLatch()
+        self._last_attitude = -math.inf
+        self._last_stream_request = -math.inf
+        self._t_boot = time.monotonic()
+        # vehicle state (reader thread writes, event loop reads)
+        self.copter_mode = -1
+        self._armed = False
+        self._landed = LandedState.UNKNOWN
+        self._battery_pct = math.nan
+        self._prearm_ok: bool | None = None
+        self._gps_fix = 0
+        self._payload_released = False
+        self._have_highres = False
+        self._last_text = ""
+        self._texts_seen = 0
+        self.params: dict[str, float] = {}  # every PARAM_VALUE seen
+        self._param_waiters: dict[str, asyncio.Future[float]] = {}
+        self.servo_outputs: tuple[int, ...] = ()  # SERVO_OUTPUT_RAW port 0, index 0 = output 1, us
+        self._servo_outputs_time = -math.inf
+        self._gripper_output: tuple[int, int] | bool | None = False  # False: not looked up yet
+        # last SYSTEM_TIME: (time_unix_usec, our wall clock at arrival)
+        self._system_time: tuple[int, float] | None = None
+        self._system_time_waiters: list[asyncio.Future[tuple[int, float]]] = []
+        self.releases_unconfirmed = 0
+        self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
+
+    @classmethod
+    def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
+        """Build from a :class:`companion.config.CompanionConfig` (``connection``, link timeout,
+        ``[payload]``: gripper or servo; ArduPilot has no actuator-set command)."""
+        pl = config.payload
+        if pl.release == "actuator":
+            raise AutopilotError(
+                "payload.release = 'actuator' is PX4's DO_SET_ACTUATOR: on ArduPilot use 'gripper' "
+                "(GRIP_ENABLE = 1, SERVOn_FUNCTION = 28) or 'servo' (payload.servo_channel)"
+            )
+        kwargs.setdefault("release", pl.release)
+        kwargs.setdefault("release_servo", pl.servo_channel)
+        kwargs.setdefault("release_pwm", pl.servo_pwm_us)
+        sc = getattr(config, "signing", None)
+        if sc is not None and sc.enabled and "signing" not in kwargs:
+            key = read_key_file(sc.key_file, sc.key_format)
+            ts_file = Path(sc.timestamp_file) if sc.timestamp_file else None
+            if ts_file is not None:
+                read_timestamp_file(ts_file)  # a bad file stops us here, before any link is opened
+            kwargs["signing"] = SigningSetup(key, sc.link_id, sc.allow_unsigned, ts_file)
+            log.info(
+                "MAVLink signing on: key %s (%s), link id %d, %s",
+                key.fingerprint,
+                sc.key_file,
+                sc.link_id,
+                "unsigned accepted" if sc.allow_unsigned else "unsigned refused",
+            )
+        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+
+    def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
+        if not self.link_ok or self.target_system is None:
+            self.counters.setpoints_dropped += 1
+            return
+        ts, tc = self.target_system, self.target_component
+        t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
+        msg = velocity_setpoint_message(t_ms, ts, tc, setpoint)
+        ok = self._send(lambda mav: mav.send(msg))
+        if ok:
+            self.counters.setpoints_sent += 1
+        else:
+            self.counters.setpoints_dropped += 1
+
+    def send_rc_override(self, channels: Sequence[int]) -> None:
+        """RC_CHANNELS_OVERRIDE for channels 1..18 (channels 1-8: 0 = release to the radio,
+        65535 = ignore; 9-18: 0 or 65535 = ignore, 65534 = release); missing channels are ignored."""
+        vals = list(channels)[:18]
+        ch = [*vals[:8], *[65535] * (8 - min(8, len(vals)))]
+        ext = [*vals[8:], *[0] * (18 - max(8, len(vals)))]  # MAVLink 2 extensions, chan9..18
+        ts, tc = self.target_system or 1, self.target_component
+        self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch, *ext))
+
+    # ------------------------------------------------------------------ commands
+    async def set_mode(self, name: str) -> None:
+        num = COPTER_MODES[name]
+        await self._command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, num, what=name)
+        self.copter_mode = num  # ACCEPTED means switched; the next heartbeat confirms
+        self._push_status()
+
+    async def arm(self) -> None:
+        """GUIDED, then arm. Until EKF3 uses GPS ArduCopter answers FAILED to both: GUIDED
+        with "Mode change to GUIDED failed: requires position", arming with "Arm: Need Position
+        Estimate". Both are retried every second until ``arm_timeout_s``, then the last refusal
+        is raised. Arming in LAND (the mode a LAND leaves it in) is refused for good ("Arm: LAND
+        mode not armable"): GUIDED comes first."""
+        deadline = time.monotonic() + self.arm_timeout_s
+        while True:
+            try:
+                if self.copter_mode != COPTER_MODES["GUIDED"]:
+                    await self.set_mode("GUIDED")
+                await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arm")
+                break
+            except CommandRejected as err:
+                if err.result not in ARM_RETRY_RESULTS or time.monotonic() + 1.0 > deadline:
+                    raise
+                log.info("GUIDED/arming refused (EKF/GPS not ready?), retrying: %s", err)
+                await asyncio.sleep(1.0)
+        self._armed = True
+        self._push_status()
+
+    async def disarm(self) -> None:
+        await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, what="disarm")
+        self._armed = False
+        self._push_status()
+
+    async def takeoff(self, alt_rel_m: float) -> None:
+        if self.copter_mode != COPTER_MODES["GUIDED"]:
+            await self.set_mode("GUIDED")
+        await self._command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt_rel_m, what="takeoff")
+
+    async def start_offboard(self) -> None:
+        await self.set_mode("GUIDED")
+
+    async def hold(self) -> None:
+        await self.set_mode(self.hold_mode)
+
+    async def land(self) -> None:
+        await self.set_mode("LAND")
+
+    async def precision_land(self) -> None:
+        """LAND: with PLND_ENABLED = 1 and PLND_TYPE = 1 (companion computer) ArduPilot's LAND
+        steers onto the LANDING_TARGET it receives (landing.landing_target_output = "body_angles")."""
+        await self.set_mode("LAND")
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """LANDING_TARGET (MAVLink 2 fields included). AC_PrecLand_Companion reads angle_x /
+        angle_y / distance (MAV_FRAME_BODY_FRD); the position form is sent as MAV_FRAME_LOCAL_NED."""
+        t = target
+        frame = mavlink.MAV_FRAME_LOCAL_NED if t.position_valid else mavlink.MAV_FRAME_BODY_FRD
+        usec = max(0, int(t.time_s * 1e6))
+        self._send(
+            lambda mav: mav.landing_target_send(
+                usec,
+                0,
+                frame,
+                t.angle_x_rad,
+                t.angle_y_rad,
+                t.distance_m,
+                t.size_x_rad,
+                t.size_y_rad,
+                t.north_m,
+                t.east_m,
+                t.down_m,
+                [1.0, 0.0, 0.0, 0.0],
+                mavlink.LANDING_TARGET_TYPE_VISION_FIDUCIAL,
+                int(t.position_valid),
+            )
+        )
+
+    async def release_payload(self) -> None:
+        """DO_GRIPPER release (or DO_SET_SERVO), then confirmed on the output itself.
+
+        ArduCopter ACCEPTs DO_GRIPPER once GRIP_ENABLE = 1 and moves the servo at once (GRIP_TYPE
+        = 1: the SERVOn_FUNCTION = 28 output goes to GRIP_RELEASE); with GRIP_ENABLE = 0 it
+        answers FAILED, for good. The release counts as done only when SERVO_OUTPUT_RAW shows
+        the gripper's output (found from the GRIP_* and SERVOn_FUNCTION parameters) or the
+        release servo at the release PWM; CommandRejected FAILED after
+        ``release_confirm_timeout_s`` otherwise. An autopilot that sends no SERVO_OUTPUT_RAW or
+        no parameters cannot confirm: its ACK is taken (counted in ``releases_unconfirmed``).
+        """
+        outputs_streamed = True  # the confirmation reads SERVO_OUTPUT_RAW at 10 Hz
+        try:
+            await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 36, 1e5, retries=2)
+        except CommandRejected as err:
+            outputs_streamed = self._servo_outputs_time > -math.inf
+            log.info("SERVO_OUTPUT_RAW not available: %s", err)
+        if self.release == "gripper":
+            what = "release (gripper)"
+            target = await self._find_gripper_output() if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_GRIPPER, 1, mavlink.GRIPPER_ACTION_RELEASE, what=what)
+        else:
+            what = "release (servo)"
+            target = (self.release_servo, self.release_pwm) if outputs_streamed else None
+            t_cmd = time.monotonic()
+            await self._command(mavlink.MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm, what=what)
+        if target is None:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; its output cannot be watched, release not confirmed", what)
+        else:
+            await self._confirm_output(what, *target, t_cmd)
+        self._payload_released = True
+        self._push_status()
+
+    async def _confirm_output(self, what: str, channel: int, pwm: int, since: float) -> None:
+        end = time.monotonic() + self.release_confirm_timeout_s
+        while time.monotonic() < end:
+            out = self.servo_outputs
+            if self._servo_outputs_time > since and len(out) >= channel and abs(out[channel - 1] - pwm) <= 20:
+                log.info("%s confirmed: output %d at %d us", what, channel, out[channel - 1])
+                return
+            await asyncio.sleep(0.02)
+        if self._servo_outputs_time == -math.inf:
+            self.releases_unconfirmed += 1
+            log.warning("%s accepted; no SERVO_OUTPUT_RAW from the autopilot, release not confirmed", what)
+            return
+        seen = self.servo_outputs[channel - 1] if len(self.servo_outputs) >= channel else None
+        raise CommandRejected(
+            what, "FAILED", f"output {channel} at {seen} us, not {pwm} us, {self.release_confirm_timeout_s:.1f} s after"
+        )
+
+    async def _find_gripper_output(self) -> tuple[int, int] | None:
+        """(output, release PWM) of a servo gripper (GRIP_TYPE = 1, SERVOn_FUNCTION = 28,
+        GRIP_RELEASE), looked up once; None when the parameters do not say (or do not answer)."""
+        if self._gripper_output is not False:
+            return self._gripper_output  # type: ignore[return-value]
+        found: tuple[int, int] | None = None
+        grip_type = await self.read_param("GRIP_TYPE")
+        release = await self.read_param("GRIP_RELEASE") if grip_type == 1 else None
+        if release is not None:
+            order = [self.release_servo, *(n for n in range(1, 17) if n != self.release_servo)]
+            for n in order:
+                fn = await self.read_param(f"SERVO{n}_FUNCTION")
+                if fn is None:
+                    break
+                if int(fn) == 28:  # SRV_Channel::k_gripper
+                    found = (n, round(release))
+                    break
+        log.info("gripper output: %s", found)
+        self._gripper_output = found
+        return found

@@ -1,0 +1,246 @@
+"""The pre-flight rules for ArduCopter 4.x.
+
+Parameters (copter.parm): GUID_TIMEOUT (s, default 3), RC_OVERRIDE_TIME (s, default 3, -1 = never
+lapses), FS_GCS_ENABLE (0 off, 1 RTL, 2 RTL/continue in AUTO, 3 SmartRTL or RTL, 4 SmartRTL or
+Land, 5 Land, 6 DO_LAND_START or RTL, 7 Brake or Land; default 0), FLTMODE_CH (0 none, else the
+RC channel; default 5), GRIP_ENABLE (default 0), SERVOn_FUNCTION (28 = gripper, 0 = no
+function), PLND_ENABLED (default 0), PLND_TYPE (1 = MAVLink companion). ArduPilot sends every
+parameter as a float.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from companion.autopilot.preflight.report import (
+    CheckResult,
+    ParamUnavailable,
+    ParamValue,
+    Requirements,
+    Status,
+)
+from companion.autopilot.preflight.rules import (
+    check_link_loss_resume,
+    check_setpoint_timeout,
+    fmt,
+    param_or_unknown,
+)
+
+AP_FS_GCS_ACTIONS: dict[int, tuple[str, str | None]] = {  # FS_GCS_ENABLE -> (ArduCopter name, FlightMode value)
+    1: ("RTL", "rtl"),
+    2: ("RTL (continue in AUTO)", "rtl"),
+    3: ("SmartRTL or RTL", "rtl"),
+    4: ("SmartRTL or Land", "rtl"),
+    5: ("Land", "land"),
+    6: ("DO_LAND_START or RTL", "rtl"),
+    7: ("Brake or Land", "hold"),
+}
+AP_GRIPPER_FUNCTION = 28
+AP_SERVO_OUTPUTS = 16
+
+
+def ardupilot_param_names(req: Requirements) -> list[str]:
+    """The ArduPilot parameters the checks read."""
+    names = ["GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_GCS_ENABLE", "FLTMODE_CH"]
+    if req.landing_controller == "autopilot":
+        names += ["PLND_ENABLED", "PLND_TYPE"]
+    if req.release == "gripper":
+        names += ["GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
+    elif req.release == "servo":
+        names.append(f"SERVO{req.servo_channel}_FUNCTION")
+    return names
+
+
+def check_ardupilot_guided_timeout(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "GUID_TIMEOUT")
+    if isinstance(v, CheckResult):
+        return v
+    return check_setpoint_timeout("GUID_TIMEOUT", v, req, "GUIDED stops the vehicle")
+
+
+def check_ardupilot_rc_override(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "RC_OVERRIDE_TIME")
+    if isinstance(v, CheckResult):
+        return v
+    if v < 0:
+        return CheckResult(
+            "RC_OVERRIDE_TIME",
+            Status.WRONG,
+            fmt(v),
+            "RC overrides never lapse: a companion (the Dart) that stops leaves its last sticks in force; "
+            "set RC_OVERRIDE_TIME = 3 (s)",
+        )
+    if v == 0:
+        return CheckResult("RC_OVERRIDE_TIME", Status.OK, fmt(v), "RC overrides are ignored (the Dart cannot fly)")
+    return CheckResult("RC_OVERRIDE_TIME", Status.OK, fmt(v), f"RC overrides lapse {fmt(v)} s after the last one")
+
+
+def check_ardupilot_gcs_failsafe(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "FS_GCS_ENABLE")
+    if isinstance(v, CheckResult):
+        return v
+    if v == 0:
+        return CheckResult(
+            "FS_GCS_ENABLE",
+            Status.OK,
+            fmt(v),
+            "no GCS failsafe: a lost link leaves ArduCopter in GUIDED, stopped after GUID_TIMEOUT; the mission "
+            "flies on when the link is back",
+        )
+    action = AP_FS_GCS_ACTIONS.get(int(v)) if v == int(v) else None
+    if action is None:
+        return CheckResult(
+            "FS_GCS_ENABLE", Status.WRONG, fmt(v), "not an ArduCopter value (0-7): set FS_GCS_ENABLE = 0"
+        )
+    name, mode = action
+    return check_link_loss_resume("FS_GCS_ENABLE", v, mode, f"ArduCopter {name}", req, "set FS_GCS_ENABLE = 0")
+
+
+def check_ardupilot_mode_switch(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "FLTMODE_CH")
+    if isinstance(v, CheckResult):
+        return v
+    if v != int(v) or not 0 <= v <= 16:
+        return CheckResult("FLTMODE_CH", Status.WRONG, fmt(v), "not an RC channel (0-16): set FLTMODE_CH = 5")
+    if v == 0:
+        return CheckResult(
+            "FLTMODE_CH",
+            Status.WRONG,
+            fmt(v),
+            "no flight-mode switch: the pilot cannot take the vehicle back with a switch; set FLTMODE_CH = 5",
+        )
+    if v <= 4:
+        return CheckResult(
+            "FLTMODE_CH",
+            Status.WRONG,
+            fmt(v),
+            f"the flight-mode switch is on stick channel {int(v)}: set FLTMODE_CH to a switch channel (5-16)",
+        )
+    return CheckResult("FLTMODE_CH", Status.OK, fmt(v), f"pilot's mode switch on channel {int(v)}")
+
+
+def check_ardupilot_precland(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    if req.landing_controller != "autopilot":
+        return []
+    out: list[CheckResult] = []
+    v = param_or_unknown(params, "PLND_ENABLED")
+    if isinstance(v, CheckResult):
+        out.append(v)
+    elif v != 1:
+        out.append(
+            CheckResult(
+                "PLND_ENABLED",
+                Status.WRONG,
+                fmt(v),
+                "landing.controller = 'autopilot' hands the descent to LAND with precision landing: "
+                "set PLND_ENABLED = 1",
+            )
+        )
+    else:
+        out.append(CheckResult("PLND_ENABLED", Status.OK, fmt(v), "LAND lands on the target"))
+    v = param_or_unknown(params, "PLND_TYPE")
+    if isinstance(v, CheckResult):
+        out.append(v)
+    elif v != 1:
+        out.append(
+            CheckResult(
+                "PLND_TYPE",
+                Status.WRONG,
+                fmt(v),
+                "the target comes from this companion's LANDING_TARGET: set PLND_TYPE = 1 (MAVLink) "
+                "and landing.landing_target_output = 'body_angles'",
+            )
+        )
+    elif req.landing_target_output != "body_angles":
+        out.append(
+            CheckResult(
+                "PLND_TYPE",
+                Status.WRONG,
+                fmt(v),
+                f"ArduCopter reads the body-frame angles: set landing.landing_target_output = 'body_angles' "
+                f"(now {req.landing_target_output!r})",
+            )
+        )
+    else:
+        out.append(CheckResult("PLND_TYPE", Status.OK, fmt(v), "target from our LANDING_TARGET (body angles)"))
+    return out
+
+
+def check_ardupilot_release(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    """GRIP_ENABLE and a SERVOn_FUNCTION = 28 output for the gripper; a free output for the servo."""
+    if req.release == "gripper":
+        out: list[CheckResult] = []
+        v = param_or_unknown(params, "GRIP_ENABLE")
+        if isinstance(v, CheckResult):
+            out.append(v)
+        elif v != 1:
+            out.append(
+                CheckResult(
+                    "GRIP_ENABLE",
+                    Status.WRONG,
+                    fmt(v),
+                    "payload.release = 'gripper' but ArduCopter's gripper is off (DO_GRIPPER answers FAILED): "
+                    "set GRIP_ENABLE = 1",
+                )
+            )
+        else:
+            out.append(CheckResult("GRIP_ENABLE", Status.OK, fmt(v), "gripper enabled"))
+        found, unread = [], []
+        for n in range(1, AP_SERVO_OUTPUTS + 1):
+            f = params.get(f"SERVO{n}_FUNCTION")
+            if f is None or isinstance(f, ParamUnavailable) or not math.isfinite(f):
+                unread.append(n)
+            elif int(f) == AP_GRIPPER_FUNCTION:
+                found.append(n)
+        if found:
+            outs = ", ".join(f"SERVO{n}" for n in found)
+            out.append(CheckResult("gripper output", Status.OK, outs, f"{outs}_FUNCTION = 28 (gripper)"))
+        elif len(unread) == AP_SERVO_OUTPUTS:
+            out.append(CheckResult("gripper output", Status.UNKNOWN, "-", "no SERVOn_FUNCTION could be read"))
+        else:
+            miss = f" ({len(unread)} outputs not read)" if unread else ""
+            out.append(
+                CheckResult(
+                    "gripper output",
+                    Status.WRONG,
+                    "none",
+                    f"no output drives the gripper{miss}: set SERVOn_FUNCTION = 28 on the gripper's output",
+                )
+            )
+        return out
+    if req.release == "servo":
+        name = f"SERVO{req.servo_channel}_FUNCTION"
+        v = param_or_unknown(params, name)
+        if isinstance(v, CheckResult):
+            return [v]
+        if v != 0:
+            return [
+                CheckResult(
+                    name,
+                    Status.WRONG,
+                    fmt(v),
+                    f"payload.servo_channel = {req.servo_channel} is an output with function {int(v)}, which "
+                    f"drives it too: set {name} = 0 or pick a free output for payload.servo_channel",
+                )
+            ]
+        return [CheckResult(name, Status.OK, fmt(v), f"output {req.servo_channel} is free for DO_SET_SERVO")]
+    return [
+        CheckResult(
+            "payload.release",
+            Status.WRONG,
+            req.release,
+            "ArduPilot has no actuator-set command: set payload.release = 'gripper' or 'servo'",
+        )
+    ]
+
+
+def check_ardupilot(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    return [
+        check_ardupilot_guided_timeout(req, params),
+        check_ardupilot_rc_override(req, params),
+        check_ardupilot_gcs_failsafe(req, params),
+        check_ardupilot_mode_switch(req, params),
+        *check_ardupilot_precland(req, params),
+        *check_ardupilot_release(req, params),
+    ]

@@ -1,0 +1,73 @@
+"""The whole pre-flight check: :func:`run_checks` judges the values read, :func:`preflight` reads
+them from a connected autopilot (measuring its telemetry rates meanwhile) and judges them."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from companion.autopilot.preflight.ardupilot import check_ardupilot
+from companion.autopilot.preflight.px4 import check_px4
+from companion.autopilot.preflight.readers import probe_clock, read_params, stream_rate_hz
+from companion.autopilot.preflight.report import (
+    CameraProbe,
+    ClockProbe,
+    ParamValue,
+    PreflightReport,
+    Requirements,
+    StreamProbe,
+    UwbProbe,
+)
+from companion.autopilot.preflight.sensors import STREAMS, check_camera, check_clock, check_streams, check_uwb
+
+
+def run_checks(
+    req: Requirements,
+    params: Mapping[str, ParamValue],
+    *,
+    camera: CameraProbe | None = None,
+    uwb: UwbProbe | None = None,
+    clock: ClockProbe | None = None,
+    streams: StreamProbe | None = None,
+) -> PreflightReport:
+    rows = check_px4(req, params) if req.autopilot == "px4" else check_ardupilot(req, params)
+    if streams is not None:
+        rows += check_streams(req, streams)
+    rows += check_camera(req, camera)
+    rows += check_uwb(req, uwb)
+    rows.append(check_clock(req, clock))
+    return PreflightReport(req.autopilot, tuple(rows))
+
+
+async def preflight(
+    autopilot: Any,
+    req: Requirements,
+    *,
+    camera: CameraProbe | None = None,
+    uwb: UwbProbe | None = None,
+    stream_window_s: float = 1.5,
+) -> PreflightReport:
+    """Read the parameters and the clock from the connected ``autopilot``, measure its position and
+    attitude rates meanwhile (over ``stream_window_s`` at least), and run every check."""
+    arrivals: dict[str, list[float]] = {k: [] for k in STREAMS}
+
+    def on_sample(sample: Any) -> None:
+        times = arrivals.get(type(sample).__name__)
+        if times is not None:
+            times.append(time.monotonic())
+
+    tc = autopilot.telemetry
+    tc.add_listener(on_sample)
+    try:
+        t0 = time.monotonic()
+        params = await read_params(autopilot, req)
+        clock = await probe_clock(autopilot)
+        rest = stream_window_s - (time.monotonic() - t0)
+        if rest > 0:
+            await asyncio.sleep(rest)
+    finally:
+        tc.remove_listener(on_sample)
+    streams = StreamProbe({k: stream_rate_hz(v) for k, v in arrivals.items()}, time.monotonic() - t0)
+    return run_checks(req, params, camera=camera, uwb=uwb, clock=clock, streams=streams)

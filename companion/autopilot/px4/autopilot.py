@@ -1,0 +1,310 @@
+"""The PX4 backend: its configuration, the flight commands and the setpoints.
+
+Setpoints. MAVSDK's Offboard plugin re-sends the last setpoint at 20 Hz on its own thread until
+``offboard.stop()``: a stale setpoint would be resent forever if the control task died, which
+defeats the shell's stale-setpoint watchdog and PX4's offboard-loss failsafe. So by default
+(``setpoint_transport="direct"``) each setpoint is one SET_POSITION_TARGET_LOCAL_NED sent through
+MavlinkDirect (synchronous and non-blocking), and OFFBOARD is entered with MAV_CMD_DO_SET_MODE
+(PX4 refuses unless setpoints streamed first). ``setpoint_transport="offboard"`` uses the plugin's
+synchronous ``set_velocity_ned`` and ``start()`` instead (see :mod:`.telemetry` for its guard).
+
+Commands. Arming is refused (TEMPORARILY_REJECTED) in POSCTL without RC and in AUTO.LAND /
+AUTO.TAKEOFF, and (DENIED) in OFFBOARD once our setpoints stopped, which is the mode a
+companion-flown landing leaves the vehicle in; :meth:`Px4Autopilot.arm` therefore switches to
+HOLD (AUTO.LOITER, where PX4 arms) first. The parcel is released with MAV_CMD_DO_GRIPPER or
+MAV_CMD_DO_SET_ACTUATOR (an output whose function is "Peripheral via Actuator Set N"); PX4
+answers MAV_CMD_DO_SET_SERVO with UNSUPPORTED. Both go out as COMMAND_LONG through MavlinkDirect:
+MAVSDK's Gripper plugin can leave a native call blocked.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import Any, Literal
+
+from companion.autopilot.interface import (
+    AttitudeTarget,
+    Autopilot,
+    AutopilotError,
+    LinkLatch,
+    OpenPacketSink,
+    PacketSink,
+    TelemetryCache,
+)
+from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.px4.requests import Px4Requests
+from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
+from companion.autopilot.types import (
+    FlightMode,
+    LandedState,
+    LandingTarget,
+)
+from companion.geometry import euler_to_quat
+from companion.guidance.setpoint import VelocitySetpoint
+
+log = logging.getLogger(__name__)
+
+ATTITUDE_TARGET_RATES_IGNORED = 0b0000_0011  # SET_ATTITUDE_TARGET: use q, yaw rate, thrust
+MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_SET_SERVO = 183
+MAV_CMD_DO_GRIPPER = 211
+GRIPPER_ACTION_RELEASE = 0
+PX4_MAIN_AUTO = 4
+PX4_AUTO_LOITER = 3
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+PX4_MAIN_OFFBOARD = 6
+
+
+class Px4Autopilot(Px4Requests, Autopilot):
+    def __init__(
+        self,
+        connection: str = "udpin://0.0.0.0:14540",
+        *,
+        link_timeout_s: float = 1.0,
+        setpoint_transport: Literal["direct", "offboard"] = "direct",
+        setpoint_stale_s: float = 0.5,
+        release: Literal["gripper", "servo", "actuator"] = "gripper",
+        gripper_instance: int = 1,
+        release_servo: int = 9,
+        release_pwm: int = 1900,
+        release_actuator: int = 1,
+        release_actuator_value: float = 1.0,
+        command_timeout_s: float = 5.0,
+        destroy_timeout_s: float = 3.0,
+        tlog: OpenPacketSink | None = None,
+    ):
+        self.connection = connection
+        self.link_timeout_s = link_timeout_s
+        self.setpoint_transport = setpoint_transport
+        self.setpoint_stale_s = setpoint_stale_s
+        self.release = release
+        self.gripper_instance = gripper_instance
+        self.release_servo = release_servo
+        self.release_pwm = release_pwm
+        self.release_actuator = release_actuator
+        self.release_actuator_value = release_actuator_value
+        self.command_timeout_s = command_timeout_s
+        self.destroy_timeout_s = destroy_timeout_s
+        self.streams_restarted = 0  # telemetry streams that ended or raised and were subscribed again
+        self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
+        self.telemetry = TelemetryCache()
+        self.setpoints_sent = 0
+        self.setpoints_dropped = 0
+        self.system_id = 1
+        self.open_tlog = tlog
+        self.tlog: PacketSink | None = None
+        self._tlog_opened = False  # a reconnect appends to the same file
+        self._tlog_unhook: list[Callable[[], None]] = []
+        self._mavsdk: Any = None
+        self._system: Any = None
+        self._action: Any = None
+        self._tel: Any = None
+        self._offboard: Any = None
+        self._direct: Any = None
+        self._direct_sync: Any = None
+        self._param: Any = None
+        self._offboard_sync: Any = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._leaked: list[Any] = []
+        self._connected = False
+        self._last_rx = -math.inf
+        self._last_hb = -math.inf
+        self._latch = LinkLatch()
+        self._last_sp_call = -math.inf
+        self._plugin_streaming = False
+        self._t_boot = time.monotonic()
+        # composed status
+        self._armed = False
+        self._mode = FlightMode.UNKNOWN
+        self._landed = LandedState.UNKNOWN
+        self._healthy = False
+        self._battery_pct = 100.0
+        self._payload_released = False
+        self._rates = (0.0, 0.0, 0.0)
+        self._gps_fix = 0
+        self._gps_sats = 0
+        self._last_text = ""
+
+    @classmethod
+    def from_config(cls, config: Any, **kwargs: Any) -> Px4Autopilot:
+        kwargs.setdefault("setpoint_stale_s", config.runtime.setpoint_stale_s)
+        pl = config.payload
+        kwargs.setdefault("release", pl.release)
+        kwargs.setdefault("gripper_instance", pl.gripper_instance)
+        kwargs.setdefault("release_servo", pl.servo_channel)
+        kwargs.setdefault("release_pwm", pl.servo_pwm_us)
+        kwargs.setdefault("release_actuator", pl.actuator_index)
+        kwargs.setdefault("release_actuator_value", pl.actuator_value)
+        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+
+    async def arm(self) -> None:
+        if not self._armed and self._mode is not FlightMode.HOLD:
+            # PX4 refuses to arm in the mode a landing leaves (OFFBOARD without setpoints,
+            # AUTO.LAND) and in POSCTL without RC: arm in HOLD, then take off from there
+            await self._direct_command(
+                "arm (switch to HOLD first)",
+                MAV_CMD_DO_SET_MODE,
+                MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                PX4_MAIN_AUTO,
+                PX4_AUTO_LOITER,
+            )
+            self._mode = FlightMode.HOLD
+        await self._call("arm", self._action.arm)
+
+    async def disarm(self) -> None:
+        await self._call("disarm", self._action.disarm)
+
+    async def takeoff(self, alt_rel_m: float) -> None:
+        await self._call("takeoff", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
+        await self._call("takeoff", self._action.takeoff)
+
+    def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
+        if self._system is None or not self.link_ok:
+            self.setpoints_dropped += 1
+            return
+        sp = setpoint
+        try:
+            if self.setpoint_transport == "offboard":
+                from mavsdk.plugins.offboard import VelocityNedYaw
+
+                self._offboard_sync.set_velocity_ned(
+                    VelocityNedYaw(sp.north_m_s, sp.east_m_s, sp.down_m_s, math.degrees(sp.yaw_rad))
+                )
+                self._plugin_streaming = True
+            else:
+                from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+                t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
+                fields = (
+                    f'{{"time_boot_ms":{t_ms},"target_system":{self.system_id},"target_component":1,'
+                    f'"coordinate_frame":{MAV_FRAME_LOCAL_NED},"type_mask":{VELOCITY_YAW_MASK},'
+                    f'"x":0,"y":0,"z":0,"vx":{sp.north_m_s!r},"vy":{sp.east_m_s!r},"vz":{sp.down_m_s!r},'
+                    f'"afx":0,"afy":0,"afz":0,"yaw":{sp.yaw_rad!r},"yaw_rate":0}}'
+                )
+                self._direct_sync.send_message(
+                    MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, self.system_id, 1, fields)
+                )
+        except Exception as err:
+            self.setpoints_dropped += 1
+            log.debug("setpoint not sent: %s", err)
+            return
+        self._last_sp_call = time.monotonic()
+        self.setpoints_sent += 1
+
+    def set_attitude_target(self, target: AttitudeTarget) -> None:
+        """One SET_ATTITUDE_TARGET through MavlinkDirect (offboard attitude): roll, pitch and
+        heading as a quaternion, the yaw rate as feed-forward, thrust 0..1; body roll and pitch
+        rates ignored. Non-blocking; dropped (and counted) without a link or with a non-finite value."""
+        a = target
+        vals = (a.roll_rad, a.pitch_rad, a.yaw_rad, a.yaw_rate_rad_s, a.thrust)
+        if self._system is None or not self.link_ok or not all(math.isfinite(v) for v in vals):
+            self.setpoints_dropped += 1
+            return
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        q = [float(v) for v in euler_to_quat(a.roll_rad, a.pitch_rad, a.yaw_rad)]
+        fields = {
+            "time_boot_ms": int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF,
+            "target_system": self.system_id,
+            "target_component": 1,
+            "type_mask": ATTITUDE_TARGET_RATES_IGNORED,
+            "q": q,
+            "body_roll_rate": 0.0,
+            "body_pitch_rate": 0.0,
+            "body_yaw_rate": float(a.yaw_rate_rad_s),
+            "thrust": min(1.0, max(0.0, float(a.thrust))),
+        }
+        try:
+            self._direct_sync.send_message(
+                MavlinkMessage("SET_ATTITUDE_TARGET", 0, 0, self.system_id, 1, json.dumps(fields))
+            )
+        except Exception as err:
+            self.setpoints_dropped += 1
+            log.debug("attitude setpoint not sent: %s", err)
+            return
+        self._last_sp_call = time.monotonic()
+        self.setpoints_sent += 1
+
+    async def start_offboard(self) -> None:
+        if self.setpoint_transport == "offboard":
+            await self._call("start_offboard", self._offboard.start)
+            return
+        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if self._armed else 0)
+        await self._direct_command("start_offboard", MAV_CMD_DO_SET_MODE, base, PX4_MAIN_OFFBOARD, 0)
+
+    async def hold(self) -> None:
+        if self.setpoint_transport == "offboard" and self._plugin_streaming:
+            self._plugin_streaming = False
+            await self._call("hold", self._offboard.stop)  # stops the re-send and switches to HOLD
+            return
+        await self._call("hold", self._action.hold)
+
+    async def land(self) -> None:
+        await self._call("land", self._action.land)
+
+    async def precision_land(self) -> None:
+        """AUTO.PRECLAND (main mode AUTO = 4, sub mode PRECLAND = 9): PX4's precision landing,
+        which needs LANDING_TARGET (landing.landing_target_output = "local_ned")."""
+        await self._direct_command(
+            "precision_land", MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED, 4, 9
+        )
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """LANDING_TARGET through MAVSDK's MavlinkDirect. PX4 reads the position form
+        (position_valid, MAV_FRAME_LOCAL_NED); time_usec is the exposure on the monotonic clock,
+        which PX4 maps into its own through MAVSDK's TIMESYNC."""
+        if self._system is None or not self.link_ok:
+            return
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        t = target
+        frame = MAV_FRAME_LOCAL_NED if t.position_valid else MAV_FRAME_BODY_FRD
+        fields = json.dumps(
+            {
+                "time_usec": max(0, int(t.time_s * 1e6)),
+                "target_num": 0,
+                "frame": frame,
+                "angle_x": t.angle_x_rad,
+                "angle_y": t.angle_y_rad,
+                "distance": t.distance_m,
+                "size_x": t.size_x_rad,
+                "size_y": t.size_y_rad,
+                "x": t.north_m,
+                "y": t.east_m,
+                "z": t.down_m,
+                "q": [1.0, 0.0, 0.0, 0.0],
+                "type": LANDING_TARGET_TYPE_VISION_FIDUCIAL,
+                "position_valid": int(t.position_valid),
+            }
+        )
+        try:
+            self._direct_sync.send_message(MavlinkMessage("LANDING_TARGET", 0, 0, self.system_id, 1, fields))
+        except Exception as err:
+            raise AutopilotError(f"LANDING_TARGET not sent: {err}") from err
+
+    async def release_payload(self) -> None:
+        """Release the parcel (``release``: gripper, servo or actuator; see the module doc). PX4
+        gives no feedback beyond the COMMAND_ACK, so ACCEPTED counts as released."""
+        if self.release == "gripper":
+            await self._direct_command(
+                "release (gripper)", MAV_CMD_DO_GRIPPER, self.gripper_instance, GRIPPER_ACTION_RELEASE
+            )
+        elif self.release == "actuator":
+            # DO_SET_ACTUATOR with NaN for the other sets (left unchanged): MavlinkDirect's JSON
+            # cannot carry a NaN, MAVSDK's Action.set_actuator sends exactly this command
+            await self._call(
+                "release (actuator)",
+                lambda: self._action.set_actuator(self.release_actuator, self.release_actuator_value),
+            )
+        else:
+            await self._direct_command("release (servo)", MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm)
+        self._payload_released = True
+        self._push_status()

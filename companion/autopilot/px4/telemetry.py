@@ -1,0 +1,308 @@
+"""PX4 telemetry through MAVSDK's async streams, one task per stream (cancelled, and so
+unsubscribed, on close), stamped on the shell's clock; HEARTBEAT, HOME_POSITION and RC_CHANNELS
+come whole through MavlinkDirect. With ``setpoint_transport="offboard"`` a guard stops MAVSDK's
+offboard re-send once the shell stops refreshing the setpoint."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import time
+from collections.abc import AsyncIterator, Callable
+from typing import Any
+
+from companion.autopilot.interface import (
+    RcInput,
+)
+from companion.autopilot.px4.link import Px4Link
+from companion.autopilot.types import (
+    Attitude,
+    FlightMode,
+    GlobalPosition,
+    GpsRaw,
+    HomePosition,
+    Imu,
+    LandedState,
+    PositionNed,
+    StatusText,
+    VehicleStatus,
+)
+
+log = logging.getLogger(__name__)
+
+STREAM_RESUBSCRIBE_S = 1.0  # a MAVSDK stream that ended or raised is subscribed again after this
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+_FLIGHT_MODES = {
+    "UNKNOWN": FlightMode.UNKNOWN,
+    "READY": FlightMode.HOLD,
+    "TAKEOFF": FlightMode.TAKEOFF,
+    "HOLD": FlightMode.HOLD,
+    "MISSION": FlightMode.MISSION,
+    "RETURN_TO_LAUNCH": FlightMode.RTL,
+    "LAND": FlightMode.LAND,
+    "OFFBOARD": FlightMode.OFFBOARD,
+    "FOLLOW_ME": FlightMode.MISSION,
+    "MANUAL": FlightMode.MANUAL,
+    "ALTCTL": FlightMode.MANUAL,
+    "POSCTL": FlightMode.POSITION,
+    "ACRO": FlightMode.MANUAL,
+    "STABILIZED": FlightMode.MANUAL,
+    "RATTITUDE": FlightMode.MANUAL,
+}
+_LANDED = {
+    "UNKNOWN": LandedState.UNKNOWN,
+    "ON_GROUND": LandedState.ON_GROUND,
+    "IN_AIR": LandedState.IN_AIR,
+    "TAKING_OFF": LandedState.TAKING_OFF,
+    "LANDING": LandedState.LANDING,
+}
+_SEVERITY = {"EMERGENCY": 0, "ALERT": 1, "CRITICAL": 2, "ERROR": 3, "WARNING": 4, "NOTICE": 5, "INFO": 6, "DEBUG": 7}
+
+
+_PX4_AUTO_SUB = {
+    1: FlightMode.HOLD,  # AUTO.READY
+    2: FlightMode.TAKEOFF,
+    3: FlightMode.HOLD,  # AUTO.LOITER
+    4: FlightMode.MISSION,
+    5: FlightMode.RTL,
+    6: FlightMode.LAND,
+    8: FlightMode.MISSION,  # follow target
+    9: FlightMode.LAND,  # precision land
+}
+_PX4_MAIN = {
+    1: FlightMode.MANUAL,
+    2: FlightMode.MANUAL,  # ALTCTL
+    3: FlightMode.POSITION,  # POSCTL
+    5: FlightMode.MANUAL,  # ACRO
+    6: FlightMode.OFFBOARD,
+    7: FlightMode.MANUAL,  # STABILIZED
+    8: FlightMode.MANUAL,  # RATTITUDE
+}
+
+
+def px4_flight_mode(custom_mode: int) -> FlightMode:
+    """PX4 HEARTBEAT custom_mode (main mode << 16 | sub mode << 24) -> :class:`FlightMode`."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main == 4:  # AUTO
+        return _PX4_AUTO_SUB.get(sub, FlightMode.UNKNOWN)
+    return _PX4_MAIN.get(main, FlightMode.UNKNOWN)
+
+
+def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
+    return _FLIGHT_MODES.get(getattr(mode, "name", str(mode)), FlightMode.UNKNOWN)
+
+
+class Px4Telemetry(Px4Link):
+    """The telemetry streams, the connection watch and the stale-setpoint guard."""
+
+    def _start_streams(self) -> None:
+        tel, loop = self._tel, asyncio.get_running_loop()
+
+        def now() -> float:
+            return loop.time()
+
+        def on_pv(pv: Any) -> None:
+            p, v = pv.position, pv.velocity
+            self._push(PositionNed(now(), p.north_m, p.east_m, p.down_m, v.north_m_s, v.east_m_s, v.down_m_s))
+
+        def on_pos(p: Any) -> None:
+            self._push(
+                GlobalPosition(now(), p.latitude_deg, p.longitude_deg, p.absolute_altitude_m, p.relative_altitude_m)
+            )
+
+        def on_att(e: Any) -> None:
+            r = math.radians
+            self._push(Attitude(now(), r(e.roll_deg), r(e.pitch_deg), r(e.yaw_deg), *self._rates))
+
+        def on_rates(w: Any) -> None:
+            self._rates = (w.roll_rad_s, w.pitch_rad_s, w.yaw_rad_s)
+
+        def on_imu(i: Any) -> None:
+            a, g = i.acceleration_frd, i.angular_velocity_frd
+            self._push(
+                Imu(now(), a.forward_m_s2, a.right_m_s2, a.down_m_s2, g.forward_rad_s, g.right_rad_s, g.down_rad_s)
+            )
+
+        def on_gps_info(gi: Any) -> None:
+            self._gps_fix = int(getattr(gi.fix_type, "value", gi.fix_type))
+            self._gps_sats = int(gi.num_satellites)
+
+        def on_raw_gps(g: Any) -> None:
+            eph = g.horizontal_uncertainty_m if math.isfinite(g.horizontal_uncertainty_m) else g.hdop
+            eph = eph if math.isfinite(eph) else 99.99
+            self._push(
+                GpsRaw(
+                    now(), g.latitude_deg, g.longitude_deg, g.absolute_altitude_m, self._gps_fix, self._gps_sats, eph
+                )
+            )
+
+        def on_mode(m: Any) -> None:
+            self._mode = flight_mode_from_mavsdk(m)
+            self._push_status()
+
+        def on_armed(a: bool) -> None:
+            self._armed = bool(a)
+            self._push_status()
+
+        def on_landed(s: Any) -> None:
+            self._landed = _LANDED.get(getattr(s, "name", ""), LandedState.UNKNOWN)
+            self._push_status()
+
+        def on_battery(b: Any) -> None:
+            pct = b.remaining_percent
+            if math.isfinite(pct):
+                self._battery_pct = pct * 100.0 if pct <= 1.0 else pct
+
+        def on_health(h: Any) -> None:
+            self._healthy = bool(h.is_armable and h.is_global_position_ok and h.is_home_position_ok)
+            self._push_status()
+
+        def on_text(st: Any) -> None:
+            text = str(st.text)
+            self._last_text = text
+            log.info("autopilot: %s", text)
+            self._push(StatusText(now(), _SEVERITY.get(getattr(st.type, "name", ""), 6), text))
+
+        def on_home(h: Any) -> None:
+            pass  # MAVSDK's home stream keeps HOME_POSITION coming; on_home_position reads it whole
+
+        def on_home_position(m: Any) -> None:  # with x/y/z: home in PX4's local frame
+            if m.system_id != self.system_id:
+                return
+            try:
+                f = json.loads(m.fields_json)
+                home = HomePosition(
+                    now(),
+                    int(f["latitude"]) / 1e7,
+                    int(f["longitude"]) / 1e7,
+                    int(f["altitude"]) / 1000.0,
+                    float(f.get("x", 0.0)),
+                    float(f.get("y", 0.0)),
+                    float(f.get("z", 0.0)),
+                )
+            except (ValueError, TypeError, KeyError) as err:
+                log.warning("HOME_POSITION not understood (%s): %s", err, m.fields_json)
+                return
+            self._push(home)
+
+        def on_heartbeat(m: Any) -> None:
+            if m.system_id != self.system_id or m.component_id != 1:
+                return
+            try:
+                hb = json.loads(m.fields_json)
+            except ValueError:
+                return
+            self._last_hb = time.monotonic()
+            self._armed = bool(int(hb.get("base_mode", 0)) & MAV_MODE_FLAG_SAFETY_ARMED)
+            self._mode = px4_flight_mode(int(hb.get("custom_mode", 0)))
+            self._push_status()
+
+        streams: list[tuple[Callable[[], AsyncIterator[Any]], Callable[[Any], None]]] = [
+            (tel.subscribe_position_velocity_ned, on_pv),
+            (tel.subscribe_position, on_pos),
+            (tel.subscribe_attitude_euler, on_att),
+            (tel.subscribe_attitude_angular_velocity_body, on_rates),
+            (tel.subscribe_imu, on_imu),
+            (tel.subscribe_gps_info, on_gps_info),
+            (tel.subscribe_raw_gps, on_raw_gps),
+            (tel.subscribe_flight_mode, on_mode),
+            (tel.subscribe_armed, on_armed),
+            (tel.subscribe_landed_state, on_landed),
+            (tel.subscribe_battery, on_battery),
+            (tel.subscribe_health, on_health),
+            (tel.subscribe_status_text, on_text),
+            (tel.subscribe_home, on_home),
+        ]
+        for sub, fn in streams:
+            self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
+        self._tasks.append(
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
+        )
+        self._tasks.append(
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HOME_POSITION"), on_home_position))
+        )
+
+        def on_rc_channels(m: Any) -> None:  # the receiver's raw channels (Dart: pilot sticks, switch)
+            if m.system_id != self.system_id:
+                return
+            try:
+                f = json.loads(m.fields_json)
+                n = max(0, min(18, int(f.get("chancount", 18))))
+                chans = tuple(int(f.get(f"chan{i}_raw", 0)) for i in range(1, n + 1))
+            except (ValueError, TypeError):
+                return
+            self.telemetry.push_rc(RcInput(now(), chans))
+
+        self._tasks.append(
+            loop.create_task(self._consume(lambda: self._direct.subscribe_message("RC_CHANNELS"), on_rc_channels))
+        )
+        self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
+        if self.setpoint_transport == "offboard":
+            self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
+
+    async def _consume(self, subscribe: Callable[[], AsyncIterator[Any]], fn: Callable[[Any], None]) -> None:
+        """One MAVSDK stream into ``fn``, for as long as the task runs. A stream that ends or
+        raises is said once and subscribed again after ``STREAM_RESUBSCRIBE_S`` (counted in
+        ``streams_restarted``): a stream lost silently would freeze that part of the telemetry
+        (a landed state that never changes again leaves a landing that never ends)."""
+        name = fn.__name__
+        while True:
+            gen = subscribe()
+            why = "ended"
+            try:
+                async for item in gen:
+                    self._last_rx = time.monotonic()
+                    try:
+                        fn(item)
+                    except Exception:
+                        log.exception("error decoding %s", name)
+            except Exception as err:  # (a cancellation is not one: it ends the task)
+                why = f"failed ({type(err).__name__}: {err})"
+            finally:
+                with contextlib.suppress(Exception):
+                    await gen.aclose()  # type: ignore[attr-defined]
+            self.streams_restarted += 1
+            log.warning("MAVSDK stream %s %s: subscribing again in %.1f s", name, why, STREAM_RESUBSCRIBE_S)
+            await asyncio.sleep(STREAM_RESUBSCRIBE_S)
+
+    async def _watch_connection(self) -> None:
+        gen = self._system.is_connected_state()
+        try:
+            async for connected in gen:
+                if connected != self._connected:
+                    log.warning("PX4 link %s", "restored" if connected else "lost (no heartbeat for 3 s)")
+                self._connected = bool(connected)
+        finally:
+            with contextlib.suppress(Exception):
+                await gen.aclose()
+
+    async def _stale_guard(self) -> None:
+        """Offboard-plugin transport: stop MAVSDK's 20 Hz re-send once the shell stops refreshing."""
+        while True:
+            await asyncio.sleep(0.1)
+            if self._plugin_streaming and time.monotonic() - self._last_sp_call > self.setpoint_stale_s:
+                self._plugin_streaming = False
+                if self._mode is FlightMode.OFFBOARD:
+                    log.error("setpoints stale: stopping MAVSDK's offboard re-send (PX4 switches to HOLD)")
+                    with contextlib.suppress(Exception):
+                        await self._offboard.stop()
+
+    def _push(self, sample: Any) -> None:
+        self.telemetry.push(sample)
+
+    def _push_status(self) -> None:
+        self._push(
+            VehicleStatus(
+                time.monotonic(),
+                self._armed,
+                self._mode,
+                self._landed,
+                self._healthy,
+                self._battery_pct,
+                self._payload_released,
+            )
+        )
