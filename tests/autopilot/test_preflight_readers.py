@@ -11,9 +11,7 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.preflight.report import ParamUnavailable
 from companion.autopilot.px4 import Px4Autopilot
 from companion.config import SimConfig
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
-
-from .conftest import free_udp_port
+from companion_sitl.mavlink_vehicle import MavlinkSimVehicle, free_udp_port
 
 
 def test_px4_reads_by_type_and_names_a_missing_parameter() -> None:

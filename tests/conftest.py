@@ -1,29 +1,18 @@
-"""Helpers for real-time MAVLink tests: free loopback ports, a sim vehicle, a delivery run."""
+"""Helpers shared by the real-time MAVLink tests of every folder: free loopback ports, a sim vehicle,
+a delivery run."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import time
 
 import pytest
 
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from companion.telemetry.loopback import free_tcp_port
+from companion_sitl.mavlink_vehicle import MavlinkSimVehicle, free_udp_port
 
 
 def short_config(**mission):
