@@ -49,6 +49,7 @@ class McapFlightLog:
         self._closed = False
         self._lost = False  # the logging process died with the file
         self._mode_lock = threading.Lock()
+        self._io = threading.Lock()  # the writer thread and close() take turns handing over
         self._images: collections.deque[tuple[float, np.ndarray, dict[str, np.ndarray]]] = collections.deque()
         self._pending: collections.deque[tuple[Any, ...]] = collections.deque()
         self._proc = client()
@@ -118,6 +119,11 @@ class McapFlightLog:
     def _drain(self) -> None:
         """Hand the queued frames and path updates to the file, then (in process) end the chunk
         and flush it to the OS (the shared writer thread, every 0.1 s)."""
+        with self._io:
+            self._hand_over()
+
+    def _hand_over(self) -> None:
+        """:meth:`_drain` (caller holds ``_io``: what the writer took is posted before a close)."""
         if self._closed or self._lost:
             return
         if not self._images and not self._pending:
@@ -166,8 +172,9 @@ class McapFlightLog:
             return
         forget(self, CloseOrder.MCAP)
         self._shared.detach(self)
-        self._drain()
-        self._closed = True
+        with self._io:  # after any hand-over the writer thread is in the middle of
+            self._hand_over()
+            self._closed = True
         if self._file is None and self._proc is not None and not self._lost:
             reply = self._proc.request(("mclose", self._id))
             if reply is not None:
