@@ -1,4 +1,4 @@
-"""The Foxglove side shared by the flight log (``flightlog.mcaplog``) and the ground station's
+"""The Foxglove side shared by the flight log (``flightlog.mcap_file``) and the ground station's
 live bridge (``telemetry.foxglove_bridge``): the well-known Foxglove JSON schemas of the message
 types we write, time stamps, and the frame conventions (NED inside, ENU in Foxglove's 3D view).
 A base module (no companion imports), so neither layer-4 package imports the other."""

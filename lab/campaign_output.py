@@ -20,8 +20,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from companion.flightlog.reader import LogFormatError
-from companion.flightlog.recorder import META_FILE
 from companion.flightlog.report import DPI, ExtraFigure, FigureSkipped
+from companion.flightlog.streams import META_FILE
 from companion.units import format_cm
 
 COLOURS = {

@@ -198,7 +198,7 @@ async def fly(
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
         from companion.autopilot.px4 import Px4Autopilot
-        from companion.flightlog.tlog import open_tlog
+        from companion.flightlog.tlog_writer import open_tlog
         from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
 
         port = free_udp_port()

@@ -7,9 +7,9 @@ time; under a normal loop it runs in real time (``companion demo --realtime``).
 
 With ``tlog_path`` it writes a MAVLink ``.tlog`` although no MAVLink crosses this link: what
 the autopilot reports and what the companion sends are encoded as the MAVLink 2 a PX4 would
-exchange (:class:`companion.flightlog.tlog.TelemetryEncoder`), stamped on the loop's clock;
+exchange (:class:`companion.flightlog.tlog_encoder.TelemetryEncoder`), stamped on the loop's clock;
 virtual time is mapped onto :data:`SIM_TLOG_EPOCH_S`, so the file is identical for a seed. The
-flight only queues the field values (:class:`companion.flightlog.tlog.TelemetryTlog`); the
+flight only queues the field values (:class:`companion.flightlog.telemetry_tlog.TelemetryTlog`); the
 logging process encodes and writes them.
 """
 
@@ -26,7 +26,7 @@ from typing import Any
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.types import FlightMode, LandingTarget, StatusText
 from companion.config import SimConfig
-from companion.flightlog.tlog import TelemetryTlog
+from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.clock import VirtualTimeEventLoop

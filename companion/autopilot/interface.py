@@ -35,7 +35,7 @@ PacketSource = bytes | bytearray | Callable[[], bytes | bytearray | None]
 
 class PacketSink(Protocol):
     """Where a backend hands every MAVLink packet of its link, sent and received (the flight's
-    ``.tlog``, :class:`companion.flightlog.tlog.TlogWriter`). ``write`` is called from the link's
+    ``.tlog``, :class:`companion.flightlog.tlog_writer.TlogWriter`). ``write`` is called from the link's
     threads and must not block (a callable packet is encoded by the sink, off the link's path);
     ``close`` flushes and closes."""
 

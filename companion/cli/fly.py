@@ -44,7 +44,7 @@ def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwa
 
         return SimAutopilot(config.sim, tlog_path=tlog_path, **kwargs)
     if tlog_path is not None:
-        from companion.flightlog.tlog import open_tlog
+        from companion.flightlog.tlog_writer import open_tlog
 
         kwargs["tlog"] = open_tlog(tlog_path)
     return factory.make_autopilot(config, **kwargs)

@@ -31,9 +31,10 @@ from typing import Any, cast
 
 import numpy as np
 
-from companion.flightlog.csvlog import CsvLog, format_cell
+from companion.flightlog.csv_file import format_cell
+from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
-from companion.flightlog.recorder import (
+from companion.flightlog.streams import (
     EKF_COLUMNS,
     EVENT_COLUMNS,
     GUIDANCE_COLUMNS,

@@ -49,7 +49,7 @@ from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
-from companion.flightlog.recorder import ENUM_VALUE
+from companion.flightlog.streams import ENUM_VALUE
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasEstimator

@@ -1,43 +1,29 @@
-"""The logging process: formats and writes the flight logs on another core.
+"""The logging process's client: each process that opens a flight log starts, lazily at the first
+log, one child process that formats and writes the logs on another core
+(:mod:`companion.flightlog.logproc_child`, a fresh interpreter: no fork of a threaded parent).
 
-Formatting the CSV rows and the MCAP's JSON messages in the flight's own process, even on a
-writer thread, competed for the GIL with the control loop (``companion bench log``). So each
-process that opens a flight log starts, lazily at the first log, one child process running
-:func:`main` (``python -m companion.flightlog.logproc``: a fresh interpreter, no fork of a
-threaded parent; it imports the CSV writer only, then numpy and foxglove at the first MCAP and
-OpenCV at the first camera frame to encode). The parent's logs still queue their rows; the shared
-writer thread (:class:`~companion.flightlog.csvlog._SharedWriter`) posts each log's batch here
-(:meth:`LogProcess.post`) and, once a round, sends everything posted as one pickle over a Unix
-socket (:func:`flush_current`). The child writes each message's batches with the in-process code
-(:class:`~companion.flightlog.csvlog.CsvFile`, :class:`~companion.flightlog.mcaplog.McapFile`), so
-the bytes are the same, and flushes every file after each message. The embedded simulator's
-``.tlog`` (:class:`~companion.flightlog.tlog.TelemetryTlog`) is handed over the same way, as field
-values the child encodes (:class:`~companion.flightlog.tlog.TlogReplayer`).
+Formatting rows in the flight's own process, even on a writer thread, competes for the GIL with
+the control loop (``companion bench log``). The flight's logs still queue their rows; the shared
+writer thread (:class:`~companion.flightlog.handover.SharedWriter`) posts each log's batch here
+(:meth:`LogProcess.post`) and, once a round, sends everything posted as one message
+(:func:`flush_current`). Closing a log is a request: it returns once the child has closed the file
+and answered with its counts.
 
-Closing a log is a request: the parent's ``close()`` returns once the child has closed the file
-and answered with its counts. The child's own log records (a write error, named by path) are sent
-back and logged by the parent under the child's logger names.
-
-The child ignores SIGINT/SIGTERM and exits when its socket closes, after writing everything it was
-sent and closing its files (the MCAP with its summary): a parent killed with ``kill -9`` loses only
-the rows it had not handed over yet (at most one flush period). If the child cannot be started, or
-dies (a failed send, an answer that does not come), every log continues in the parent (the
-in-process path), said once at ERROR level with the reason; the batches not yet sent are written
-there. Set :data:`IN_PROCESS` (or ``COMPANION_LOG_IN_PROCESS=1``) to write in process from the
-start.
+A parent killed with ``kill -9`` loses only the rows it had not handed over yet (at most one
+flush period): the child sees its socket close, writes everything it was sent and closes its
+files. If the child cannot be started, or dies (a failed send, an answer that does not come),
+every log continues in the parent (the in-process path), said once at ERROR level with the reason;
+the batches not yet sent are written there. Set :data:`IN_PROCESS` (or
+``COMPANION_LOG_IN_PROCESS=1``) to write in process from the start.
 """
 
 from __future__ import annotations
 
-import atexit
-import contextlib
 import logging
 import os
 import pickle
 import select
-import signal
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -45,41 +31,17 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, ClassVar
 
+from companion.flightlog.logproc_wire import HEADER, Op, recv
+
 log = logging.getLogger(__name__)
 
 ENV_IN_PROCESS = "COMPANION_LOG_IN_PROCESS"
 IN_PROCESS: bool = os.environ.get(ENV_IN_PROCESS, "") not in ("", "0")
 """Write the logs in this process (no logging process). Read when a log is opened."""
 
-CHILD_COMMAND = [sys.executable, "-m", "companion.flightlog.logproc"]  # + the socket's fd
+CHILD_COMMAND = [sys.executable, "-m", "companion.flightlog.logproc_child"]  # + the socket's fd
 START_TIMEOUT_S = 30.0  # for the child to import and say it is ready (a loaded CI machine)
 REPLY_TIMEOUT_S = 60.0  # for any send or answer (closing a log whose last batch holds images)
-
-_HEADER = struct.Struct("!Q")
-Op = tuple[Any, ...]
-
-
-def _send(sock: socket.socket, obj: object) -> None:
-    data = pickle.dumps(obj, protocol=5)
-    sock.sendall(_HEADER.pack(len(data)))
-    sock.sendall(data)
-
-
-def _recv_exact(sock: socket.socket, n: int) -> bytes:
-    buf = bytearray(n)
-    view = memoryview(buf)
-    got = 0
-    while got < n:
-        k = sock.recv_into(view[got:])
-        if k == 0:
-            raise EOFError("the logging process closed its end")
-        got += k
-    return bytes(buf)
-
-
-def _recv(sock: socket.socket) -> Any:
-    (n,) = _HEADER.unpack(_recv_exact(sock, _HEADER.size))
-    return pickle.loads(_recv_exact(sock, n))
 
 
 def _plain(op: Op) -> Op:
@@ -162,8 +124,6 @@ class LogProcess:
                 cls._failed_pid = os.getpid()
                 log.error("flight logs: cannot start the logging process (%s); writing in this process", err)
                 return None
-            if not _exit_hook_registered:
-                _register_exit_hook()
             return cur
 
     @classmethod
@@ -239,7 +199,7 @@ class LogProcess:
             if not self.dead and self._send_ops(out):
                 try:
                     while len(replies) < len(ops):
-                        msg = _recv(self._sock)  # type: ignore[arg-type]
+                        msg = recv(self._sock)  # type: ignore[arg-type]
                         if msg[0] == "reply":
                             replies.append(msg[1])
                         else:
@@ -258,7 +218,7 @@ class LogProcess:
         assert sock is not None
         try:
             if not self.ready:
-                msg = _recv(sock) if select.select([sock], [], [], START_TIMEOUT_S)[0] else None
+                msg = recv(sock) if select.select([sock], [], [], START_TIMEOUT_S)[0] else None
                 if msg is None or msg[0] != "ready":
                     raise EOFError(f"no ready message in {START_TIMEOUT_S:g} s")
                 self.ready = True
@@ -269,7 +229,7 @@ class LogProcess:
                     data = pickle.dumps([_plain(op) for op in ops], protocol=5)
                 except Exception as err:  # not rows (a .tlog record of a class defined in a function...)
                     raise _Unpicklable(f"a batch does not pickle: {err}") from err
-            sock.sendall(_HEADER.pack(len(data)))
+            sock.sendall(HEADER.pack(len(data)))
             sock.sendall(data)
         except _Unpicklable as err:
             self._die(str(err), ops)
@@ -282,7 +242,7 @@ class LogProcess:
     def _read_available(self) -> None:
         sock = self._sock
         while sock is not None and select.select([sock], [], [], 0)[0]:
-            self._handle(_recv(sock))
+            self._handle(recv(sock))
 
     def _handle(self, msg: Any) -> None:
         if msg[0] == "log":
@@ -340,150 +300,12 @@ def flush_current() -> None:
         cur.flush()
 
 
-_exit_hook_registered = False
-
-
-def _register_exit_hook() -> None:
-    global _exit_hook_registered
-    _exit_hook_registered = True
-    atexit.register(_at_exit)
-
-
-def _at_exit() -> None:
-    """After the logs still open are closed (registered later than their hooks, so run first:
-    close them here), let the child finish and exit."""
-    from companion.flightlog import mcaplog, tlog
-
-    mcaplog._close_open_mcaps()
-    tlog._close_open_tlogs()
+def shutdown_current() -> None:
+    """Let this process's logging process finish its files and exit (at interpreter exit, once
+    every log is closed: :mod:`companion.flightlog.registry`)."""
     cur = LogProcess._current
     if cur is not None and cur.pid == os.getpid():
         cur.shutdown()
 
 
 os.register_at_fork(after_in_child=LogProcess._forget_after_fork)
-
-
-# ---- the child ------------------------------------------------------------------------------
-
-
-class _Forward(logging.Handler):
-    """The child's log records, sent to the parent (which logs them under the same names)."""
-
-    def __init__(self, sock: socket.socket) -> None:
-        super().__init__(logging.WARNING)
-        self._sock = sock
-
-    def emit(self, record: logging.LogRecord) -> None:
-        with contextlib.suppress(Exception):  # the parent is gone: nobody to tell
-            _send(self._sock, ("log", record.levelno, record.name, self.format(record)))
-
-
-# the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
-# (written, dropped, encode errors)
-_ANSWERED: dict[str, tuple[int, ...] | None] = {"close": (0, 0), "mclose": (1, 0), "tclose": (0, 0, 0), "cpu": None}
-
-
-class _Child:
-    """The logging process's files, by the parent's ids."""
-
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.csvs: dict[int, Any] = {}
-        self.mcaps: dict[int, Any] = {}
-        self.tlogs: dict[int, Any] = {}
-
-    def run(self) -> None:
-        _send(self.sock, ("ready", os.getpid()))
-        try:
-            while True:
-                try:
-                    ops = _recv(self.sock)
-                except EOFError:
-                    break
-                for op in ops:
-                    try:
-                        self.apply(op)
-                    except Exception:
-                        log.exception("logging process: %s op failed", op[0])
-                        if op[0] in _ANSWERED:  # the parent waits for an answer: one saying it failed
-                            _send(self.sock, ("reply", _ANSWERED[op[0]]))
-                for m in self.mcaps.values():
-                    m.flush()
-        finally:
-            self.finish()
-
-    def apply(self, op: Op) -> None:
-        from companion.flightlog.csvlog import open_csv_file
-
-        kind = op[0]
-        if kind == "rows":
-            self.csvs[op[1]].write_batch(op[2])
-        elif kind == "csv":
-            _, i, path, columns, key = op
-            sink = self.mcaps[key[0]].stream_sink(key[1]) if key is not None and key[0] in self.mcaps else None
-            self.csvs[i] = open_csv_file(Path(path), tuple(columns), sink, append=True)
-        elif kind == "close":
-            f = self.csvs.pop(op[1])
-            f.close()
-            _send(self.sock, ("reply", (f.written, f.dropped)))
-        elif kind == "mcap":
-            from companion.flightlog.mcaplog import McapFile
-
-            _, i, path, streams = op
-            self.mcaps[i] = McapFile(Path(path), streams)
-        elif kind == "mops":
-            if op[1] in self.mcaps:  # else it could not be created (said then)
-                self.mcaps[op[1]].apply(op[2])
-        elif kind == "mclose":
-            m = self.mcaps.pop(op[1])
-            m.close()
-            _send(self.sock, ("reply", (m.errors, m.messages)))
-        elif kind == "trecs":
-            if op[1] in self.tlogs:  # else it could not be opened (said then)
-                self.tlogs[op[1]].apply(op[2])
-        elif kind == "tlog":
-            from companion.flightlog.tlog import open_replayer
-
-            _, i, path, params = op
-            self.tlogs[i] = open_replayer(Path(path), params)
-        elif kind == "tclose":
-            t = self.tlogs.pop(op[1], None)
-            if t is None:
-                _send(self.sock, ("reply", _ANSWERED["tclose"]))
-            else:
-                t.close()
-                _send(self.sock, ("reply", (t.written, t.dropped, t.encode_errors)))
-        elif kind == "cpu":
-            t = os.times()
-            _send(self.sock, ("reply", t.user + t.system))
-        else:
-            raise ValueError(f"unknown op {kind!r}")
-
-    def finish(self) -> None:
-        """The parent is gone (or done): close every file it left open."""
-        for f in self.csvs.values():
-            f.close()
-        for m in self.mcaps.values():
-            m.close()
-        for t in self.tlogs.values():
-            t.close()
-        self.csvs.clear()
-        self.mcaps.clear()
-        self.tlogs.clear()
-
-
-def main(argv: list[str] | None = None) -> None:
-    args = sys.argv[1:] if argv is None else argv
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent, which closes the logs
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the end is the socket closing
-    sock = socket.socket(fileno=int(args[0]))
-    sock.setblocking(True)
-    root = logging.getLogger()
-    root.addHandler(_Forward(sock))
-    root.setLevel(logging.WARNING)
-    _Child(sock).run()
-
-
-if __name__ == "__main__":
-    main()

@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from companion.flightlog.csvlog import read_csv
+from companion.flightlog.csv_file import read_csv
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath
 from companion.units import format_m

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from companion.flightlog.mcaplog import MCAP_FILE, PROFILE, STREAM_TOPIC_PREFIX, cell_text
-from companion.flightlog.recorder import FORMAT, META_FILE, decode_value
+from companion.flightlog.mcap_encoding import MCAP_FILE, PROFILE, STREAM_TOPIC_PREFIX, cell_text
+from companion.flightlog.streams import FORMAT, META_FILE, decode_value
 
 log = logging.getLogger(__name__)
 

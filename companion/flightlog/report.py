@@ -33,9 +33,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from companion.flightlog.mcaplog import MCAP_FILE
+from companion.flightlog.mcap_encoding import MCAP_FILE
 from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
-from companion.flightlog.recorder import META_FILE, STREAM_FILES, transform_from_json
+from companion.flightlog.streams import META_FILE, STREAM_FILES, transform_from_json
 
 log = logging.getLogger(__name__)
 

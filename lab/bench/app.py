@@ -341,7 +341,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     from companion.delivery import telemetry as shell_telemetry
     from companion.delivery.shell import DeliveryShell
     from companion.flightlog.recorder import FlightRecorder
-    from companion.flightlog.tlog import open_tlog
+    from companion.flightlog.tlog_writer import open_tlog
     from companion_lab.demo import _ThreadedTruth, true_pad_ned
     from companion_sitl import landing_sensors
     from companion_sitl.landing_sensors import sim_landing_kit

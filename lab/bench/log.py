@@ -46,9 +46,12 @@ from typing import Any
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.flightlog import logproc
-from companion.flightlog import recorder as rec
-from companion.flightlog.csvlog import CsvLog, HandedOverLog
-from companion.flightlog.tlog import TelemetryTlog
+from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.handover import HandedOverLog
+from companion.flightlog.mcap_encoding import MCAP_FILE
+from companion.flightlog.recorder import FlightRecorder
+from companion.flightlog.streams import SAMPLE_FILES
+from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion_lab import demo
 
 log = logging.getLogger(__name__)
@@ -87,12 +90,12 @@ def _no_tlog() -> Iterator[None]:
 @contextmanager
 def _no_mcap() -> Iterator[None]:
     """Fly with the recorder's CSVs only."""
-    orig = rec.FlightRecorder.write_mcap
-    rec.FlightRecorder.write_mcap = False
+    orig = FlightRecorder.write_mcap
+    FlightRecorder.write_mcap = False
     try:
         yield
     finally:
-        rec.FlightRecorder.write_mcap = orig
+        FlightRecorder.write_mcap = orig
 
 
 @contextmanager
@@ -124,8 +127,8 @@ def _no_rows() -> Iterator[None]:
 
     with _patched() as patch:
         for name in ("on_sample", *_HOOK_STREAM):
-            patch(rec.FlightRecorder, name, nothing)
-        patch(rec.FlightRecorder, "share_samples", lambda orig: lambda self, telemetry, tlog: False)
+            patch(FlightRecorder, name, nothing)
+        patch(FlightRecorder, "share_samples", lambda orig: lambda self, telemetry, tlog: False)
         for name in ("write", "put"):
             patch(CsvLog, name, nothing)
         for name in _TLOG_HOOKS:
@@ -182,7 +185,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
         def timed(self: Any, *args: Any) -> None:
             t0 = time.thread_time()
             orig(self, *args)
-            stream = rec.SAMPLE_FILES.get(type(args[0]), "") if name == "on_sample" else _HOOK_STREAM[name]
+            stream = SAMPLE_FILES.get(type(args[0]), "") if name == "on_sample" else _HOOK_STREAM[name]
             hook_s[stream] += time.thread_time() - t0
             calls[stream] += 1
 
@@ -242,7 +245,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
 
     with _patched() as patch:
         for name in ("on_sample", *_HOOK_STREAM):
-            patch(rec.FlightRecorder, name, functools.partial(hook, name))
+            patch(FlightRecorder, name, functools.partial(hook, name))
         patch(CsvLog, "write", write)
         patch(DeliveryShell, "_record", record)  # flight.csv's row, built and written
         patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
@@ -292,7 +295,7 @@ def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int 
                     fly("fixed", root / f"fixed{k}")
                 with _rows_not_handed_over():
                     fly("queued", root / f"queued{k}")
-        mcap_bytes = (root / "mcap0" / rec.MCAP_FILE).stat().st_size
+        mcap_bytes = (root / "mcap0" / MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
         calls: dict[str, int] = defaultdict(int)

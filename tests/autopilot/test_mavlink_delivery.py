@@ -11,7 +11,8 @@ from companion.autopilot import FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
 from companion.events import EventKind, Phase
-from companion.flightlog.tlog import open_tlog, read_tlog
+from companion.flightlog.tlog import read_tlog
+from companion.flightlog.tlog_writer import open_tlog
 
 pytestmark = pytest.mark.flight
 

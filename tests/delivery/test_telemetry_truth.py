@@ -15,7 +15,7 @@ import pytest
 
 from companion.config import load_config, shipped_params_path
 from companion.delivery.telemetry import FRESH_S
-from companion.flightlog.csvlog import read_csv
+from companion.flightlog.csv_file import read_csv
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout

@@ -10,7 +10,7 @@ import pytest
 
 from companion.delivery.replay import read_inputs, replay_run
 from companion.flightlog.reader import Table
-from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES
+from companion.flightlog.streams import SAMPLE_FILES, STREAM_FILES
 from companion_lab.demo import run_demo
 
 from .conftest import short_config

@@ -21,9 +21,11 @@ import pytest
 from mcap.reader import make_reader
 
 from companion.flightlog import logproc
-from companion.flightlog.csvlog import CsvLog, close_logs, read_csv
+from companion.flightlog.csv_file import read_csv
+from companion.flightlog.csvlog import CsvLog, close_logs
 from companion.flightlog.logproc import LogProcess
-from companion.flightlog.mcaplog import McapFlightLog, stream_topic
+from companion.flightlog.mcap_encoding import stream_topic
+from companion.flightlog.mcaplog import McapFlightLog
 
 from .conftest import wait_gone
 
@@ -314,9 +316,9 @@ def test_rows_queued_while_the_writer_takes_a_batch_are_neither_lost_nor_doubled
 def test_the_writer_hands_over_before_the_period_while_rows_come_fast(tmp_path):
     """Rows that come faster than HANDOVER_ROWS a period are looked at every WAKE_PERIOD_S and
     handed over once HANDOVER_ROWS wait, before the period is over; fewer wait for the period."""
-    from companion.flightlog import csvlog
+    from companion.flightlog import handover
 
-    n = csvlog.HANDOVER_ROWS
+    n = handover.HANDOVER_ROWS
 
     def wait_written(lg: CsvLog, rows: int, within_s: float) -> None:
         deadline = time.monotonic() + within_s

@@ -20,9 +20,9 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from companion.delivery.replay import replay_run
-from companion.flightlog.mcaplog import MCAP_FILE, batch_encoder, cell_text, encode_row, row_encoder, stream_topic
+from companion.flightlog.mcap_encoding import MCAP_FILE, batch_encoder, cell_text, encode_row, row_encoder, stream_topic
 from companion.flightlog.reader import LogFormatError, open_table, read_mcap, read_meta
-from companion.flightlog.recorder import STREAM_FILES
+from companion.flightlog.streams import STREAM_FILES
 
 pytestmark = pytest.mark.flight
 

@@ -22,7 +22,8 @@ from companion.autopilot.types import (
 from companion.config import CompanionConfig
 from companion.delivery.replay import read_inputs
 from companion.flightlog.reader import Table
-from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES, FlightRecorder
+from companion.flightlog.recorder import FlightRecorder
+from companion.flightlog.streams import SAMPLE_FILES, STREAM_FILES
 
 pytestmark = pytest.mark.flight
 

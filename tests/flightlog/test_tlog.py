@@ -28,13 +28,9 @@ from companion.autopilot.types import (
 )
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
-from companion.flightlog.tlog import (
-    PACKED_RECORDS_PER_CHUNK,
-    TelemetryEncoder,
-    TlogWriter,
-    read_tlog,
-    tlog_timestamp_us,
-)
+from companion.flightlog.tlog import read_tlog, tlog_timestamp_us
+from companion.flightlog.tlog_encoder import TelemetryEncoder
+from companion.flightlog.tlog_writer import PACKED_RECORDS_PER_CHUNK, TlogWriter
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SIM_TLOG_EPOCH_S, SimAutopilot

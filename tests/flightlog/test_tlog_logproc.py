@@ -32,15 +32,13 @@ from companion.autopilot.types import (
 )
 from companion.flightlog import logproc
 from companion.flightlog.logproc import LogProcess
-from companion.flightlog.recorder import _ENCODERS, SAMPLE_FILES, FlightRecorder
-from companion.flightlog.tlog import (
-    TelemetryEncoder,
-    TelemetryTlog,
-    TlogWriter,
-    cut_torn_record,
-    read_tlog,
-    sample_from_row,
-)
+from companion.flightlog.recorder import FlightRecorder
+from companion.flightlog.streams import SAMPLE_ENCODERS, SAMPLE_FILES
+from companion.flightlog.telemetry_tlog import TelemetryTlog
+from companion.flightlog.tlog import cut_torn_record, read_tlog
+from companion.flightlog.tlog_encoder import TelemetryEncoder
+from companion.flightlog.tlog_replay import sample_from_row
+from companion.flightlog.tlog_writer import TlogWriter
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink_px4 import px4_custom_mode
 
@@ -183,7 +181,7 @@ def test_the_recorder_s_rows_give_the_same_tlog_as_its_own_listener(tmp_path, mo
 def test_sample_from_row_gives_back_the_sample():
     for _, what, s in _calls(200):
         if what == "sample":
-            row = _ENCODERS[type(s)](17, s)
+            row = SAMPLE_ENCODERS[type(s)](17, s)
             assert sample_from_row(type(s), row) == s
 
 
@@ -191,7 +189,7 @@ _CRASH = """
 import os, sys, time
 from companion.autopilot.types import Attitude
 from companion.flightlog.logproc import LogProcess
-from companion.flightlog.tlog import TelemetryTlog
+from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion_sitl.mavlink_px4 import px4_custom_mode
 clock = [0.0]
 t = TelemetryTlog(sys.argv[1], boot_s=0.0, clock=lambda: clock[0], epoch_s=1.7e9, custom_mode=px4_custom_mode)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from companion.config import load_config, shipped_params_path
-from companion.flightlog.recorder import SAMPLE_FILES, STREAM_FILES
+from companion.flightlog.streams import SAMPLE_FILES, STREAM_FILES
 from companion_lab.bench.log import bench_log
 
 pytestmark = pytest.mark.flight
