@@ -11,7 +11,7 @@ import pytest
 
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
 
 def free_udp_port() -> int:
@@ -38,7 +38,7 @@ DELIVERY_PARAMS = {"ardupilot": {"GRIP_ENABLE": 1.0}, "px4": {}}
 @contextlib.contextmanager
 def sim_vehicle(config, dialect, port, **kwargs):
     kwargs.setdefault("params", DELIVERY_PARAMS[dialect])
-    sim = MavlinkSimVehicle(config.sim, dialect, remote=("127.0.0.1", port), **kwargs).start()
+    sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), **kwargs).start()
     try:
         yield sim
     finally:
