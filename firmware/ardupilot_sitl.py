@@ -13,9 +13,9 @@ ArduCopter 4.7 SITL: first heartbeat ~1 s after start, streams nothing until mes
 are requested, arms only once EKF3 uses GPS (~41 s of simulated time after start, STATUSTEXT "EKF3
 IMU0 is using GPS"). That wait is spent, as MAVProxy's ``sitl_autospeedup`` module spends it, at
 ``boot_speedup`` times real time: :meth:`ArduCopterSitl.start` boots the SITL with ``--speedup
-boot_speedup``, waits on SERIAL0 for the pre-arm checks to pass and EKF3 to use GPS (measured: 4.3 s
-of wall time at 10x instead of 41 s), then sets ``SIM_SPEEDUP`` back to ``speedup`` (read back)
-before anyone else connects. Everything after start runs at ``speedup`` (1 = real time).
+boot_speedup``, waits on SERIAL0 for the pre-arm checks to pass and EKF3 to use GPS, then sets
+``SIM_SPEEDUP`` back to ``speedup`` (read back) before anyone else connects. Everything after
+start runs at ``speedup`` (1 = real time).
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.dart_link import ESTIMATOR_GIMBAL, DartLinkCamera
 from companion_sitl.dart_sim import NEUTRAL_US, SWITCH_OFF_US, SWITCH_ON_US, DartParams
-from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.mavlink.link import free_udp_port
 
 log = logging.getLogger(__name__)
 

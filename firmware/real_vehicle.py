@@ -23,7 +23,7 @@ from companion.config import CompanionConfig
 from companion_firmware.ardupilot_sitl import ArduCopterSitl, find_ardupilot
 from companion_firmware.px4_sitl import Px4Sitl, find_px4
 from companion_firmware.truth_feed import MavlinkTruth
-from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.mavlink.link import free_udp_port
 
 REAL_AUTOPILOTS = ("px4", "ardupilot")
 PX4_OFFBOARD_URL = "udpin://127.0.0.1:14540"

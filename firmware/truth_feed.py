@@ -11,18 +11,16 @@ displaced from the configured one (SIH cannot bias GPS; displacing the pad tests
 
 ArduPilot's SITL offers the same as SIM_STATE (message 108, ``message="SIM_STATE"``): its
 physics' true attitude quaternion, latitude/longitude (``lat_int``/``lon_int``, degE7) and
-altitude (m AMSL), sent on any link that asks with SET_MESSAGE_INTERVAL (measured on ArduCopter
-4.7.0-dev; its float ``lat``/``lon`` fields carry degE7 too, so the integer ones are preferred).
+altitude (m AMSL), sent on any link that asks with SET_MESSAGE_INTERVAL (its float
+``lat``/``lon`` fields carry degE7 too on ArduCopter 4.7, so the integer ones are preferred).
 SIMSTATE (164) carries no altitude and is not used.
 
 Both messages carry latitude and longitude as degE7 integers that the firmware truncates (C's
 ``(int32_t)(deg * 1e7)``, toward zero: ArduPilot's ``SIM::sim_state_send``, PX4's
 HIL_STATE_QUATERNION stream): a 1.11 cm step in latitude and 0.91 cm in longitude at CMAC. Read as
 they are, the truth jumps on that grid: the simulated camera and UWB then see the vehicle standing
-still and leaping a centimetre, and the touchdown is scored to the centimetre. Measured on real
-ArduCopter SITL (eight landings, seed 3): the truth took 4 distinct north values in the landing's
-last 15 s, and the landing's estimate was 0.91 cm RMS off that truth where the embedded simulator's
-is 0.46 cm. :class:`DegE7Dequantiser` recovers the position inside the step from the message's own
+still and leaping a centimetre, and the touchdown is scored to the centimetre.
+:class:`DegE7Dequantiser` recovers the position inside the step from the message's own
 velocity (float m/s in SIM_STATE, cm/s in HIL_STATE_QUATERNION), holding it inside the step the
 integer allows.
 

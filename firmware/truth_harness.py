@@ -1,5 +1,5 @@
 """Fly the delivery against an external autopilot simulation with landing sensors rendered from
-its ground truth (issue 4: PX4 SITL SIH; in CI the MAVLink sim vehicle stands in for it).
+its ground truth (PX4 SITL SIH; in CI the MAVLink sim vehicle stands in for it).
 
 The autopilot is reached through the normal backend (MAVSDK / pymavlink), exactly as in flight.
 Ground truth arrives on a second MAVLink link as HIL_STATE_QUATERNION (:class:`MavlinkTruth`);
@@ -58,8 +58,8 @@ class HarnessResult:
     path_rms_outbound_m: float = math.nan  # the way out only (before any pad was seen)
     path_max_outbound_m: float = math.nan
     # the largest distance to the path within its vertical plane (sideways left out) while the true
-    # vehicle is in an arc (sectors 2 and 4, delivery eq 1): how far it overshoots a turn (issue 12:
-    # at most 0.5 m). The whole distance in the arcs also holds the move onto a displaced pad
+    # vehicle is in an arc (sectors 2 and 4, delivery eq 1): how far it overshoots a turn (at
+    # most 0.5 m). The whole distance in the arcs also holds the move onto a displaced pad
     path_max_arcs_m: float = math.nan
     # the estimate the autopilot flies on against the mission's path: what the guidance controls
     tracking_rms_m: float = math.nan

@@ -1,6 +1,6 @@
 """A landing campaign's landings flown in worker processes (``companion campaign landing --jobs N``).
 
-Each landing depends on its draw alone (:func:`companion_lab.landing_campaign.fly_landing`), so
+Each landing depends on its draw alone (:func:`companion_lab.campaign_landing.fly_landing`), so
 they fly in any order in any process; the rows are put back in the campaign's order, and the
 result is the sequential one, bit for bit.
 
@@ -28,7 +28,7 @@ from multiprocessing.process import BaseProcess
 from multiprocessing.queues import SimpleQueue
 from typing import Any
 
-from companion_lab.landing_campaign import CampaignLandingError, LandingTask, fly_landing, renders_camera
+from companion_lab.campaign_landing import CampaignLandingError, LandingTask, fly_landing, renders_camera
 
 log = logging.getLogger(__name__)
 

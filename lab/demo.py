@@ -32,7 +32,7 @@ from companion.geometry.earth import GeoPoint
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.landing_sensors import CameraPlayback, sim_landing_kit
-from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.mavlink.link import free_udp_port
 from companion_sitl.scoring import REFERENCE, PathScorer, rms
 from companion_sitl.vehicle import SimVehicle
 
@@ -199,14 +199,14 @@ async def fly(
         from companion.autopilot.ardupilot import ArduPilotAutopilot
         from companion.autopilot.px4 import Px4Autopilot
         from companion.flightlog.tlog_writer import open_tlog
-        from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+        from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
         port = free_udp_port()
         # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
         grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
         if grip is not None and config.landing.controller == "autopilot":
             grip |= {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}  # LAND by LANDING_TARGET, as on the real SITL
-        mav_sim = MavlinkSimVehicle(
+        mav_sim = mavlink_sim_vehicle(
             config.sim,
             mavlink,  # type: ignore[arg-type]
             remote=("127.0.0.1", port),

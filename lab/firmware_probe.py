@@ -1,4 +1,4 @@
-"""Measure a real autopilot SITL the way the autopilot profiles (issue 17) describe it.
+"""Measure a real autopilot SITL the way the autopilot profiles describe it.
 
 One short flight through the normal backend (MAVSDK for PX4, pymavlink for ArduPilot) with the
 firmware's ground truth on a second link: hover, a velocity step, a descent onto the ground. It
@@ -12,7 +12,7 @@ velocity, its landed state) and derives the figures a profile needs:
 - the land detector: seconds from the true touchdown to ON_GROUND.
 
 ``companion campaign probe --autopilot px4|ardupilot`` runs it and writes ``probe.csv`` and
-``probe.json``; the figures quoted in ``sitl/profiles.py`` come from it.
+``probe.json``; the autopilot profiles' figures come from it (docs/profiles.md).
 """
 
 from __future__ import annotations

@@ -37,7 +37,8 @@ from companion.geometry.earth import GeoPoint
 from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_firmware.truth_harness import fly_on_truth
-from companion_lab.landing_campaign import VARIANTS, Draw, _stats, draw_scenarios, on_pad, run_landing_campaign
+from companion_lab.campaign_landing import VARIANTS, Draw, draw_scenarios, on_pad
+from companion_lab.landing_campaign import _stats, run_landing_campaign
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +250,7 @@ def _figures(errs: list[float]) -> dict[str, float]:
 def compare(
     predicted: dict[str, Any], real: dict[str, Any], variant: str = "fusion", factor: float = 1.5
 ) -> dict[str, Any]:
-    """Sim-to-real agreement on the same seeds (issue 17): mean and p90 within ``factor`` each
+    """Sim-to-real agreement on the same seeds: mean and p90 within ``factor`` each
     way, and the same failure classes (off the pad in one, off in the other) but for one flight
     in ten."""
     p_rows = {x["seed"]: x for x in predicted["landings"][variant]}

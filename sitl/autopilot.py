@@ -89,7 +89,7 @@ class SimAutopilot(Autopilot):
                 tlog.close()
 
     def _open_tlog(self, path: str | Path) -> None:
-        from companion_sitl.mavlink_px4 import px4_custom_mode
+        from companion_sitl.mavlink.px4 import px4_custom_mode
 
         loop = asyncio.get_running_loop()
         boot = loop.time()

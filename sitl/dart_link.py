@@ -72,7 +72,10 @@ from .dart_sim import (
     motion_blur,
     thrust_per_mass,
 )
-from .mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, LinkStats, MavlinkSimVehicle, free_udp_port
+from .mavlink.factory import mavlink_sim_vehicle
+from .mavlink.link import LinkStats, free_udp_port
+from .mavlink.messages import PX4_DEFAULT_STREAMS_HZ
+from .mavlink.vehicle import MavlinkSimVehicle
 from .vehicle import G, SimVehicle, TruthSample
 
 log = logging.getLogger(__name__)
@@ -487,7 +490,7 @@ class DartLinkSim:
         if dialect == "px4":
             self.vehicle.mode = FlightMode.POSITION  # the pilot hovers in POSCTL
             streams = {**PX4_DEFAULT_STREAMS_HZ, **PX4_DART_STREAMS_HZ}
-        self.link = MavlinkSimVehicle(  # type: ignore[abstract]  # the factory returns the dialect's subclass
+        self.link = mavlink_sim_vehicle(
             self.sim_config,
             dialect,  # type: ignore[arg-type]
             remote=("127.0.0.1", port),
@@ -672,5 +675,4 @@ __all__ = [
     "DartLinkSim",
     "StickSimVehicle",
     "fly_dart_link",
-    "free_udp_port",
 ]

@@ -14,8 +14,7 @@ the order the frames are read, so the frames are the ones rendered on read, bit 
 ``_AHEAD_KEPT`` unread renders are kept (the newest); an older exposure read later is rendered then.
 Exposures are rendered ahead only while the camera is read (``read()`` called since the previous
 exposure, or a frame listener attached): before the shell wants vision, the exposures in view would
-be rendered and never read (~7 % of a landing's renders); the first frame read after such a gap is
-rendered on read.
+be rendered and never read; the first frame read after such a gap is rendered on read.
 
 The camera offers the frame-listener capability (version 1, :mod:`companion.plugin_api`): with a
 listener attached it is called on the event loop when a frame's capture latency has elapsed (the

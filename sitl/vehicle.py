@@ -495,9 +495,7 @@ class SimVehicle:
             # PX4 SIH's fake ground (sih.cpp, Sih::equations_of_motion): below the take-off level
             # it cancels the forces and stops the vehicle only while their sum points down. A
             # steady descent (thrust = weight - drag) is not caught: it sinks on until the thrust
-            # drops, and the vehicle rests where it was caught. Traced on PX4 v1.16 SIH, ten
-            # landings at 0.5 m/s: caught 0 / 0 / 0 / 0 / 0 / 0.04 / 0.09 / 0.19 / 0.21 / 0.46 m
-            # below the take-off level (docs/profiles.md).
+            # drops, and the vehicle rests where it was caught (see docs/profiles.md).
             caught = self.pd >= -1e-6 and a_d > 0.0
             if caught:
                 self._rest(thrust_on)

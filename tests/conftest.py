@@ -12,7 +12,8 @@ import pytest
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.telemetry.loopback import free_tcp_port
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle, free_udp_port
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.mavlink.link import free_udp_port
 
 
 def short_config(**mission):
@@ -27,7 +28,7 @@ DELIVERY_PARAMS = {"ardupilot": {"GRIP_ENABLE": 1.0}, "px4": {}}
 @contextlib.contextmanager
 def sim_vehicle(config, dialect, port, **kwargs):
     kwargs.setdefault("params", DELIVERY_PARAMS[dialect])
-    sim = MavlinkSimVehicle(config.sim, dialect, remote=("127.0.0.1", port), **kwargs).start()
+    sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), **kwargs).start()
     try:
         yield sim
     finally:

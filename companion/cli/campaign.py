@@ -22,13 +22,9 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from companion.cli.console import make_console
+    from companion_lab.campaign_landing import CampaignLandingError
     from companion_lab.campaign_output import write_outputs
-    from companion_lab.landing_campaign import (
-        FAILURE_VARIANTS,
-        CampaignLandingError,
-        run_landing_campaign,
-        usable_cpus,
-    )
+    from companion_lab.landing_campaign import FAILURE_VARIANTS, run_landing_campaign, usable_cpus
 
     jobs = args.jobs if args.jobs is not None else usable_cpus()
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])

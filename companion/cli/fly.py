@@ -251,11 +251,11 @@ def _pct(xs: list[float], q: float) -> float:
 
 
 async def _bench(backend: str, seconds: float) -> dict[str, Any]:
-    from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
     port = _free_udp_port()
     dialect = "px4" if backend == "px4" else "ardupilot"
-    sim = MavlinkSimVehicle(SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", port)).start()
+    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", port)).start()
     arrivals: list[float] = []
 
     def on_msg(m: Any) -> None:

@@ -345,7 +345,8 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     from companion_lab.demo import _ThreadedTruth, true_pad_ned
     from companion_sitl import landing_sensors
     from companion_sitl.landing_sensors import sim_landing_kit
-    from companion_sitl.mavlink_vehicle import MavlinkSimVehicle, free_udp_port
+    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+    from companion_sitl.mavlink.link import free_udp_port
     from companion_sitl.vehicle import SimVehicle
 
     acct = CpuAccount()
@@ -359,7 +360,7 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     port = free_udp_port()
     grip = {"GRIP_ENABLE": 1.0} if backend == "ardupilot" else None
     dialect = "px4" if backend == "px4" else "ardupilot"
-    mav_sim = MavlinkSimVehicle(config.sim, dialect, remote=("127.0.0.1", port), vehicle=vehicle, params=grip).start()
+    mav_sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), vehicle=vehicle, params=grip).start()
     lt = config.runtime.link_timeout_s
     sink = open_tlog(run_dir / "flight.tlog")
     ap: Any = (
@@ -503,8 +504,9 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
     from companion.dart import shell as dart_shell_mod
     from companion.dart.params import DartFlightParams
     from companion.dart.shell import DART_STREAM_RATES_HZ, DartShell
-    from companion_sitl.dart_link import DartLinkSim, free_udp_port
+    from companion_sitl.dart_link import DartLinkSim
     from companion_sitl.dart_sim import DartParams
+    from companion_sitl.mavlink.link import free_udp_port
 
     acct = CpuAccount()
     lat = LatencyTracker()

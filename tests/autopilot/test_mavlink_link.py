@@ -16,9 +16,9 @@ from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.px4.telemetry import px4_flight_mode as px4_decode
 from companion.cli.fly import make_autopilot
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.mavlink_ardupilot import COPTER_GUIDED, copter_flight_mode
-from companion_sitl.mavlink_px4 import px4_custom_mode, px4_flight_mode
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+from companion_sitl.mavlink.ardupilot import COPTER_GUIDED, copter_flight_mode
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.mavlink.px4 import px4_custom_mode, px4_flight_mode
 
 
 def test_px4_custom_mode_round_trip():
@@ -158,7 +158,7 @@ def test_sim_vehicle_rejects_an_unknown_dialect():
     from companion.config import SimConfig
 
     with pytest.raises(ValueError, match="dialect"):
-        MavlinkSimVehicle(SimConfig(), "inav")  # type: ignore[arg-type]
+        mavlink_sim_vehicle(SimConfig(), "inav")  # type: ignore[arg-type]
 
 
 async def test_mavsdk_own_log_lines_go_to_python_logging_not_stdout(mav, caplog, capfd):

@@ -11,12 +11,13 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.preflight.report import ParamUnavailable
 from companion.autopilot.px4 import Px4Autopilot
 from companion.config import SimConfig
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle, free_udp_port
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.mavlink.link import free_udp_port
 
 
 def test_px4_reads_by_type_and_names_a_missing_parameter() -> None:
     port = free_udp_port()
-    sim = MavlinkSimVehicle(
+    sim = mavlink_sim_vehicle(
         SimConfig(ready_delay_s=0.0),
         "px4",
         remote=("127.0.0.1", port),
@@ -49,7 +50,7 @@ def test_px4_reads_by_type_and_names_a_missing_parameter() -> None:
 
 def test_ardupilot_reads_parameters_and_system_time() -> None:
     port = free_udp_port()
-    sim = MavlinkSimVehicle(SimConfig(ready_delay_s=0.0), "ardupilot", remote=("127.0.0.1", port)).start()
+    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), "ardupilot", remote=("127.0.0.1", port)).start()
 
     async def go() -> tuple[list[float | None], tuple[int, float] | None]:
         ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{port}")

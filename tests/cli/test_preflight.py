@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.cli import exits
 from companion.config import SimConfig
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
 TIME_LIMIT_S = 60.0
 URLS = {"px4": "udpin://127.0.0.1:{port}", "ardupilot": "udpin:127.0.0.1:{port}"}
@@ -35,7 +35,7 @@ class _Vehicle:
     def __init__(self, dialect: str, params: dict[str, float] | None = None, **kwargs: Any) -> None:
         self.port = _free_udp_port()
         self.dialect = dialect
-        self.sim = MavlinkSimVehicle(
+        self.sim = mavlink_sim_vehicle(
             SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", self.port), params=params, **kwargs
         )
         self.commands: list[int] = []
@@ -148,7 +148,7 @@ def test_clock_off_by_seconds_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) 
 
 
 def test_a_slow_position_stream_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
-    from companion_sitl.mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ
+    from companion_sitl.mavlink.messages import PX4_DEFAULT_STREAMS_HZ
 
     slow = {**PX4_DEFAULT_STREAMS_HZ, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4.0}
     v = _start(vehicle, "px4", stream_rates_hz=slow)

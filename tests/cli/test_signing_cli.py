@@ -11,7 +11,7 @@ from companion.autopilot.signing import read_key_file
 from companion.cli import exits
 from companion.cli.main import main
 from companion.config import load_config, shipped_params_path
-from companion_sitl.mavlink_vehicle import MavlinkSimVehicle
+from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
 
 def test_keygen_writes_a_key_show_reads_it_and_keygen_never_replaces_it(tmp_path, capsys):
@@ -62,7 +62,7 @@ def test_push_gives_the_sim_vehicle_the_key_and_off_takes_it_away(tmp_path, caps
     params.write_text(f'autopilot = "ardupilot"\n[signing]\nkey_file = "{key_file}"\n')
     port = _free_udp_port()
     cfg = load_config(shipped_params_path("sitl_short.toml"))
-    sim = MavlinkSimVehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
+    sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
     try:
         args = ["signing", "push", "--params", str(params), "--connection", f"udpin:127.0.0.1:{port}"]
         assert main([*args, "--timeout", "5"]) == exits.OK
@@ -82,7 +82,7 @@ def test_push_to_a_vehicle_signing_with_another_key_fails_naming_it(tmp_path, ca
     port = _free_udp_port()
     cfg = load_config(shipped_params_path("sitl_short.toml"))
     other = hashlib.sha256(b"someone else's key").digest()
-    sim = MavlinkSimVehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port), signing_key=other).start()
+    sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port), signing_key=other).start()
     try:
         args = ["signing", "push", "--params", str(params), "--connection", f"udpin:127.0.0.1:{port}"]
         assert main([*args, "--timeout", "3"]) == exits.FAILED
@@ -140,7 +140,7 @@ def test_fly_against_a_vehicle_that_does_not_sign_stops_naming_signing(tmp_path)
         "[landing]\nfusion = false\nuse_camera = false\nuse_uwb = false\n[telemetry]\nenabled = false\n"
     )
     cfg = load_config(shipped_params_path("sitl_short.toml"))
-    sim = MavlinkSimVehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
+    sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "companion", "fly", "--params", str(params), "--out", str(tmp_path / "run")],

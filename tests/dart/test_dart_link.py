@@ -25,8 +25,9 @@ from companion.dart.mission import DartMissionConfig, DartParamsError, DartPhase
 from companion.dart.params import DartFlightParams, DartRuntimeConfig, load_dart_flight_params
 from companion.dart.shell import DartShell
 from companion.geometry import Transform
-from companion_sitl.dart_link import DartLinkSim, fly_dart_link, free_udp_port
+from companion_sitl.dart_link import DartLinkSim, fly_dart_link
 from companion_sitl.dart_sim import DartParams, shipped_dart_params
+from companion_sitl.mavlink.link import free_udp_port
 
 
 # ------------------------------------------------------------------------ the whole mission
@@ -298,12 +299,13 @@ async def test_px4_backend_sends_attitude_targets_and_reads_rc_channels() -> Non
     from companion.autopilot.px4 import Px4Autopilot
     from companion.config import SimConfig
     from companion.geometry import euler_to_quat
-    from companion_sitl.mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, MavlinkSimVehicle
+    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+    from companion_sitl.mavlink.messages import PX4_DEFAULT_STREAMS_HZ
 
     port = free_udp_port()
     got: list[object] = []
     streams = {**PX4_DEFAULT_STREAMS_HZ, 65: 20.0}  # + RC_CHANNELS, as PX4 streams it on an onboard link
-    sim = MavlinkSimVehicle(SimConfig(ready_delay_s=0.0), "px4", remote=("127.0.0.1", port), stream_rates_hz=streams)
+    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), "px4", remote=("127.0.0.1", port), stream_rates_hz=streams)
     sim.on_message = lambda m: got.append(m) if m.get_type() == "SET_ATTITUDE_TARGET" else None
     with sim:
         sim.pilot_set_rc({1: 1620, 7: 2000})

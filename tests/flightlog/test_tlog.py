@@ -35,7 +35,7 @@ from companion.guidance.setpoint import VelocitySetpoint
 from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SIM_TLOG_EPOCH_S, SimAutopilot
 from companion_sitl.clock import run_virtual
-from companion_sitl.mavlink_px4 import px4_custom_mode
+from companion_sitl.mavlink.px4 import px4_custom_mode
 
 T0 = 1_700_000_000.0
 

@@ -40,7 +40,7 @@ from companion.flightlog.tlog_encoder import TelemetryEncoder
 from companion.flightlog.tlog_replay import sample_from_row
 from companion.flightlog.tlog_writer import TlogWriter
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.mavlink_px4 import px4_custom_mode
+from companion_sitl.mavlink.px4 import px4_custom_mode
 
 from .conftest import short_config, wait_gone
 
@@ -190,7 +190,7 @@ import os, sys, time
 from companion.autopilot.types import Attitude
 from companion.flightlog.logproc import LogProcess
 from companion.flightlog.telemetry_tlog import TelemetryTlog
-from companion_sitl.mavlink_px4 import px4_custom_mode
+from companion_sitl.mavlink.px4 import px4_custom_mode
 clock = [0.0]
 t = TelemetryTlog(sys.argv[1], boot_s=0.0, clock=lambda: clock[0], epoch_s=1.7e9, custom_mode=px4_custom_mode)
 for i in range(400):

@@ -9,7 +9,8 @@ import time
 import pytest
 
 from companion_lab import campaign_pool
-from companion_lab.landing_campaign import CampaignLandingError, run_landing_campaign
+from companion_lab.campaign_landing import CampaignLandingError
+from companion_lab.landing_campaign import run_landing_campaign
 
 pytestmark = pytest.mark.flight
 

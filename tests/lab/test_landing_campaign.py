@@ -6,7 +6,8 @@ import matplotlib.image as mpimg
 import pytest
 
 from companion.cli.main import main
-from companion_lab.landing_campaign import draw_scenarios, run_landing_campaign
+from companion_lab.campaign_landing import draw_scenarios
+from companion_lab.landing_campaign import run_landing_campaign
 
 pytestmark = pytest.mark.flight
 

@@ -14,7 +14,8 @@ from companion.cli.main import main
 from companion.config import load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.geometry.earth import GeoPoint
-from companion_lab.landing_campaign import Draw, draw_scenarios, run_landing_campaign, scenario_config
+from companion_lab.campaign_landing import Draw, draw_scenarios, scenario_config
+from companion_lab.landing_campaign import run_landing_campaign
 from companion_lab.real_campaign import (
     compare,
     firmware_tuning,

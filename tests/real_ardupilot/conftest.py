@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,6 +13,7 @@ import pytest
 from companion_firmware.ardupilot_sitl import ArduCopterSitl, ArduPilotNotFound, find_ardupilot
 from companion_firmware.real_vehicle import ARDUCOPTER_GRIPPER_SERVO9
 from companion_firmware.truth_feed import MavlinkTruth
+from companion_sitl.mavlink.link import free_udp_port
 
 # ArduCopter's optional features used here, set from boot (they need a reboot): servo gripper on output 9
 GRIPPER_SERVO9 = ARDUCOPTER_GRIPPER_SERVO9
@@ -25,12 +25,6 @@ def ardupilot_root() -> Path:
         return find_ardupilot()
     except ArduPilotNotFound as err:
         pytest.skip(str(err))
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @contextlib.contextmanager

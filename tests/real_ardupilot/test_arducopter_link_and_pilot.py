@@ -23,7 +23,7 @@ from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.dart_arducopter import RCIN_PORT, SitlRcInput
 from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
-from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.mavlink.link import free_udp_port
 
 pytestmark = pytest.mark.firmware
 

@@ -21,7 +21,7 @@ from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
-from companion_sitl.mavlink_vehicle import free_udp_port
+from companion_sitl.mavlink.link import free_udp_port
 
 pytestmark = pytest.mark.firmware
 

@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.autopilot.types import FlightMode
 from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.mavlink_vehicle import Dialect, MavlinkSimVehicle
+from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
 
 # ArduCopter mode numbers
 COPTER_STABILIZE = 0
@@ -86,7 +86,7 @@ def fltmode_slot(pwm: int) -> int:
 
 
 class ArduPilotSimVehicle(MavlinkSimVehicle):
-    """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink_vehicle.MavlinkSimVehicle`)."""
+    """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev

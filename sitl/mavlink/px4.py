@@ -17,7 +17,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.autopilot.types import FlightMode
 from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.mavlink_vehicle import PX4_DEFAULT_STREAMS_HZ, Dialect, MavlinkSimVehicle
+from companion_sitl.mavlink.messages import PX4_DEFAULT_STREAMS_HZ
+from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
 
 # PX4 custom modes (px4_custom_mode.h)
 PX4_MAIN_MANUAL = 1
@@ -72,7 +73,7 @@ def px4_flight_mode(custom_mode: int) -> FlightMode:
 
 
 class Px4SimVehicle(MavlinkSimVehicle):
-    """The sim vehicle speaking PX4 (see :class:`~companion_sitl.mavlink_vehicle.MavlinkSimVehicle`)."""
+    """The sim vehicle speaking PX4 (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
     dialect: Dialect = "px4"
     DEFAULT_STREAMS_HZ: ClassVar[dict[int, float]] = PX4_DEFAULT_STREAMS_HZ
@@ -107,8 +108,8 @@ class Px4SimVehicle(MavlinkSimVehicle):
     #   AUTO.LAND, DENIED in OFFBOARD without a setpoint stream, ACCEPTED in HOLD;
     #   DO_GRIPPER and DO_SET_ACTUATOR ACCEPTED, DO_SET_SERVO UNSUPPORTED.
     BOOT_MODE: ClassVar[FlightMode] = FlightMode.POSITION
-    # offboard lost (COM_OF_LOSS_T) with COM_OBL_RC_ACT = 0: PX4 v1.16 SIH went to POSCTL, measured
-    # (tests/sitl_px4/test_px4_link_and_pilot.py), not to HOLD
+    # offboard lost (COM_OF_LOSS_T) with COM_OBL_RC_ACT = 0: PX4 v1.16 SIH goes to POSCTL, not HOLD
+    # (tests/real_px4/test_px4_link_and_pilot.py)
     OFFBOARD_LOSS_MODE: ClassVar[FlightMode] = FlightMode.POSITION
     release_actuator: int = 1
 

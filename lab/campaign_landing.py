@@ -1,0 +1,141 @@
+"""One landing of a landing campaign: the variants, the random draw, its scenario, and the task a
+worker flies and scores (:func:`fly_landing`), the same row in any process.
+
+A landing is *on the pad* when the true touchdown point lies inside the 1 x 1 m square.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.config import CompanionConfig, load_config
+from companion_lab.demo import run_demo
+from companion_sitl.profiles import get_profile
+
+VARIANTS: dict[str, dict[str, Any]] = {
+    "fusion": {},
+    "gps_only": {"fusion": False},
+    "no_camera": {"use_camera": False},
+    "no_uwb": {"use_uwb": False},
+    "outer_only": {"markers": "outer"},
+    "inner_only": {"markers": "inner"},
+}
+
+
+@dataclass(frozen=True)
+class Draw:
+    seed: int
+    gps_bias_m: tuple[float, float, float]
+    pad_offset_m: tuple[float, float]
+    wind_speed_m_s: float
+    wind_from_deg: float
+
+
+def draw_scenarios(
+    n: int, seed: int, gps_sigma_m: float = 1.5, pad_offset_max_m: float = 1.0, wind_max_m_s: float = 5.0
+) -> list[Draw]:
+    if n < 1:
+        raise ValueError(f"n = {n}: need at least one landing")
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        b = np.clip(rng.normal(0.0, gps_sigma_m, 2), -3 * gps_sigma_m, 3 * gps_sigma_m)
+        r, th = pad_offset_max_m * math.sqrt(rng.uniform()), rng.uniform(0, 2 * math.pi)
+        out.append(
+            Draw(
+                seed=seed * 1000 + k,
+                gps_bias_m=(float(b[0]), float(b[1]), float(rng.normal(0.0, 0.5))),
+                pad_offset_m=(r * math.cos(th), r * math.sin(th)),
+                wind_speed_m_s=float(rng.uniform(0.0, wind_max_m_s)),
+                wind_from_deg=float(rng.uniform(0.0, 360.0)),
+            )
+        )
+    return out
+
+
+def scenario_config(
+    base_file: Path, d: Draw, variant: str, profile: str = "ideal", tuning: dict[str, dict[str, Any]] | None = None
+) -> CompanionConfig:
+    """The draw ``d`` flown as ``variant`` on the embedded simulator with the autopilot ``profile``
+    (sitl/profiles.py: a profile without wind flies the draw in still air); ``tuning``:
+    config overrides by table (a firmware's landing tuning, see real_campaign.firmware_tuning)."""
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
+    sim = {
+        "seed": d.seed,
+        "gps_bias_m": list(d.gps_bias_m),
+        "pad_offset_m": list(d.pad_offset_m),
+        "wind_speed_m_s": d.wind_speed_m_s,
+        "wind_from_deg": d.wind_from_deg,
+    }
+    if profile != "ideal":
+        sim["profile"] = profile
+    tuning = tuning or {}
+    landing = {**tuning.get("landing", {}), **VARIANTS[variant]}
+    overrides = {**tuning, "sim": sim, "landing": landing}
+    return load_config(base_file, overrides=overrides)
+
+
+def renders_camera(variant: str) -> bool:
+    """The variant's landings render and search camera images (most of a landing's time)."""
+    opts = VARIANTS[variant]
+    return bool(opts.get("fusion", True) and opts.get("use_camera", True))
+
+
+def on_pad(north_m: float, east_m: float, half_size_m: float, delivered: bool) -> bool:
+    """The true touchdown lies inside the square pad (and the parcel was delivered there)."""
+    return bool(math.isfinite(north_m) and abs(north_m) <= half_size_m and abs(east_m) <= half_size_m and delivered)
+
+
+@dataclass(frozen=True)
+class LandingTask:
+    """One landing of a campaign, all a worker process needs to fly it: the ``index``-th of the
+    campaign's ``total`` (draw-major, variants in their order), flown from ``base`` (the scenario
+    parameters) with the draw, variant, profile and tuning; ``pad_half_m`` scores it."""
+
+    index: int
+    total: int
+    base: Path
+    draw: Draw
+    variant: str
+    profile: str
+    tuning: dict[str, dict[str, Any]] | None
+    pad_half_m: float
+
+    def name(self) -> str:
+        return f"landing {self.index + 1} of {self.total} (seed {self.draw.seed}, {self.variant})"
+
+
+class CampaignLandingError(RuntimeError):
+    """A landing of the campaign failed (raised, or its worker process died); the message names
+    the landing: its index, the draw's seed and the variant."""
+
+
+def fly_landing(task: LandingTask) -> dict[str, Any]:
+    """Fly one landing on the embedded simulator and score it: the campaign JSON's row.
+
+    Everything the landing draws comes from ``task.draw.seed`` (the vehicle, camera and UWB seed
+    their own generators from it) and nothing it computes outlives it, except caches keyed by what
+    they hold (the camera's lens maps per model): the same row in any process, after any other
+    landings."""
+    d = task.draw
+    r = run_demo(scenario_config(task.base, d, task.variant, task.profile, task.tuning))
+    dn, de = r.pad_landing_error_ne_m
+    return {
+        "seed": d.seed,
+        "error_m": r.pad_landing_error_m,
+        "north_m": dn,
+        "east_m": de,
+        "on_pad": on_pad(dn, de, task.pad_half_m, r.delivered),
+        "delivered": r.delivered,
+        "failure": r.failure,
+        "sim_time_s": r.sim_time_s,
+        "gps_bias_m": d.gps_bias_m[:2],
+        "pad_offset_m": d.pad_offset_m,
+        "wind_m_s": d.wind_speed_m_s if get_profile(task.profile).has_wind else 0.0,
+    }
