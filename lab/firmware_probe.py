@@ -12,7 +12,7 @@ velocity, its landed state) and derives the figures a profile needs:
 - the land detector: seconds from the true touchdown to ON_GROUND.
 
 ``companion campaign probe --autopilot px4|ardupilot`` runs it and writes ``probe.csv`` and
-``probe.json``; the autopilot profiles' figures come from it (docs/profiles.md).
+``probe.json``; the autopilot profiles' figures come from it (docs/simulation.md).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ like a given firmware, chosen by name with ``[sim] profile``.
 
 The figures come from the real SITL, measured with the firmware probe (``companion campaign probe
 --autopilot px4|ardupilot``: hover, a 2 m/s step, a descent onto the ground, truth beside what the
-autopilot reports) and from traced landings (``companion campaign parity``); see docs/profiles.md.
+autopilot reports) and from traced landings (``companion campaign parity``); see docs/simulation.md.
 
 PX4 SIH's velocity estimate is not consistent with its position estimate, so the profile models
 the two errors independently: the velocity loop (and the reported velocity) sees truth + a
@@ -34,7 +34,7 @@ PROFILE_NAMES = ("ideal", "px4-sih", "arducopter-sitl")
 class EstimatorState:
     """One state a firmware's estimator settles into at start-up and keeps through the flight.
 
-    Measured on PX4 v1.16 SIH (docs/profiles.md, *PX4 SIH's estimator states*): every start
+    Measured on PX4 v1.16 SIH (docs/notes.md, *PX4 SIH's estimator states*): every start
     settles into one of a few, seen in the attitude it reports (a constant offset from the truth)
     and in its horizontal velocity estimate (a bias that follows the same curve over height in
     every flight of the state, where PX4 flies on it)."""

@@ -495,7 +495,7 @@ class SimVehicle:
             # PX4 SIH's fake ground (sih.cpp, Sih::equations_of_motion): below the take-off level
             # it cancels the forces and stops the vehicle only while their sum points down. A
             # steady descent (thrust = weight - drag) is not caught: it sinks on until the thrust
-            # drops, and the vehicle rests where it was caught (see docs/profiles.md).
+            # drops, and the vehicle rests where it was caught (see docs/simulation.md).
             caught = self.pd >= -1e-6 and a_d > 0.0
             if caught:
                 self._rest(thrust_on)

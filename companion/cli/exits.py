@@ -1,4 +1,4 @@
-"""Exit codes of the ``companion`` command line (the README's "Exit codes" table) and the
+"""Exit codes of the ``companion`` command line (the table in docs/flying.md) and the
 start-up error that carries one.
 
 A start-up failure ends the process with one line on stderr, ``companion COMMAND: what failed;

@@ -531,7 +531,7 @@ class DeliveryMission:
         """The final descent's integral term, k_i * integral of the error (m/s, F_I): an autopilot
         flying our velocity on a biased estimate of its own moves at setpoint - bias, so the
         proportional law alone settles bias / k_p off the target (PX4 SIH: 0.2-0.4 m/s of bias near
-        the ground, 4-8 cm at 5 1/s; docs/profiles.md). Off by default and in
+        the ground, 4-8 cm at 5 1/s; docs/notes.md). Off by default and in
         params/ardupilot_quad.toml; params/px4_sih_quad.toml turns it on. Rectangle rule per
         guidance tick; the sum is held to landing_xy_integral_max_m_s (anti-windup) and frozen once
         only the descent is commanded. Reset by every phase change (_goto)."""

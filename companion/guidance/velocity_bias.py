@@ -3,7 +3,7 @@
 An autopilot's velocity loop drives *its velocity estimate* to our setpoint. When that estimate is
 biased, the vehicle moves at setpoint + bias and the vector field (delivery eq 4-8, a proportional
 law on the distance to the path) settles at distance = bias / convergence gain. PX4 v1.16 SIH
-does this (docs/profiles.md): its reported velocity stays 0.3-0.5 m/s away from the rate of its
+does this (docs/simulation.md): its reported velocity stays 0.3-0.5 m/s away from the rate of its
 own position estimate for seconds, enough to put the descent at home well beside the path.
 
 The position estimate follows GPS (it cannot drift away from it), so its rate is the vehicle's real

@@ -203,7 +203,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     # Path tracking against the embedded simulator standing in for this firmware: the px4-sih
     # profile carries what PX4 SIH does to a path: its velocity loop (PI on a drag-heavy airframe,
     # the integrator carrying it past the turn into the descent), its cut of the descent setpoint at
-    # MPC_Z_VEL_MAX_DN and its height estimate reading high in flight (docs/profiles.md). Real /
+    # MPC_Z_VEL_MAX_DN and its height estimate reading high in flight (docs/simulation.md). Real /
     # predicted lands around 0.8-1.3.
     assert r.path_rms_truth_m < 1.5 * pred_rms, (r.path_rms_truth_m, pred_rms)
     assert r.path_max_truth_m < 1.5 * pred_max, (r.path_max_truth_m, pred_max)
@@ -214,7 +214,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     # tuning carries (autopilot_accel_* = 1.0 / 1.0). PX4 SIH's run-to-run spread puts some flights
     # just above 0.5 m, hence 0.65. On truth it is not held: PX4 SIH's own height estimate, which
     # every companion flying on the autopilot's estimate flies on, reads high in flight
-    # (docs/profiles.md, "Path tracking").
+    # (docs/simulation.md, "Path tracking").
     assert r.tracking_max_arcs_m < 0.65, r.tracking_max_arcs_m
     assert math.isfinite(r.path_max_arcs_m), r
 
