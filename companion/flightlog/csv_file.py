@@ -134,13 +134,3 @@ def format_cell(v: object) -> str:
     """A value as the writer puts it in the file: ``str(v)``, which for a float is its shortest
     decimal that reads back as the same double."""
     return "" if v is None else str(v)
-
-
-def read_csv(path: str | Path) -> dict[str, list[str]]:
-    """Columns of a CSV log, as strings (for reports and tests)."""
-    with Path(path).open(newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
-        raise ValueError(f"{path}: empty CSV log")
-    header, body = rows[0], rows[1:]
-    return {h: [r[i] for r in body] for i, h in enumerate(header)}

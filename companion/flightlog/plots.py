@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from companion.flightlog.csv_file import read_csv
+from companion.flightlog.reader import read_columns
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath
 from companion.units import format_m
@@ -88,8 +88,8 @@ def path_figure(run_dir: str | Path) -> Figure:
     p = summary["path"]
     planned = DeliveryPath(p["h_m"], p["r_m"], p["d_m"]).sample(0.25, z_start=p["z_start_m"])
     reference = _reference_in_planned_frame(summary, p["z_start_m"])
-    truth = read_csv(run / "truth.csv")
-    flight = read_csv(run / "flight.csv")
+    truth = read_columns(run / "truth.csv")
+    flight = read_columns(run / "flight.csv")
     tx, ty, tz = (_floats(truth[k]) for k in ("true_mission_x_m", "true_mission_y_m", "true_mission_z_m"))
     configured, true_pad, touchdown = _pads(summary)
     size = float(p.get("pad_size_m", 1.0))
@@ -183,8 +183,8 @@ def lyapunov_figure(run_dir: str | Path) -> Figure:
     own axis); the phases without a vector field are shaded and named, so no gap goes unexplained."""
     run = Path(run_dir)
     summary = _summary(run)
-    truth = read_csv(run / "truth.csv")
-    flight = read_csv(run / "flight.csv")
+    truth = read_columns(run / "truth.csv")
+    flight = read_columns(run / "flight.csv")
     t = _floats(flight["time_s"])
     V = _floats(flight["lyapunov_m2"])
     fig, (ax_v, ax_d) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)

@@ -87,6 +87,13 @@ class Table:
         return np.array([self.value(k, column, float) for k in range(len(self.rows))], dtype=float)
 
 
+def read_columns(path: str | Path) -> dict[str, list[str]]:
+    """Every column of one CSV stream as strings (figures, tests), read as :class:`Table` reads it:
+    a torn last line dropped, any other fault a :class:`LogFormatError` naming the file."""
+    table = Table(Path(path))
+    return {h: [r[i] for r in table.rows] for i, h in enumerate(table.header)}
+
+
 def read_meta(run_dir: Path) -> dict[str, Any]:
     """``run.json`` of a run folder, or the last one stored in its ``flight.mcap``."""
     p = run_dir / META_FILE

@@ -15,7 +15,7 @@ import pytest
 
 from companion.config import load_config, shipped_params_path
 from companion.delivery.telemetry import FRESH_S
-from companion.flightlog.csv_file import read_csv
+from companion.flightlog.reader import read_columns
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout
@@ -67,7 +67,7 @@ def flight(tmp_path_factory):
 
 def test_state_fields_come_from_the_tick_they_were_published_at(flight):
     _r, run, rec, _row = flight
-    fl = read_csv(run / "flight.csv")
+    fl = read_columns(run / "flight.csv")
     by_est = {}
     for i in range(len(fl["time_s"])):
         key = tuple(float(fl[k][i]) for k in ("est_north_m", "est_east_m", "est_down_m"))
@@ -85,12 +85,12 @@ def test_state_fields_come_from_the_tick_they_were_published_at(flight):
 
 def test_mission_fields_match_the_flight_log(flight):
     _r, run, rec, _row = flight
-    fl = read_csv(run / "flight.csv")
+    fl = read_columns(run / "flight.csv")
     ticks = {float(t): i for i, t in enumerate(fl["time_s"])}
     meta = json.loads((run / "run.json").read_text())
     conf_pad = meta["mission"]["pad_ned_m"]
     speeds = load_config(shipped_params_path("sitl_short.toml")).mission.sector_speed_m_s
-    gl = read_csv(run / "guidance.csv")
+    gl = read_columns(run / "guidance.csv")
     guidance_at = {float(t): i for i, t in enumerate(gl["time_s"])}
     senses: dict[str, set[int]] = {}
     distances = 0
@@ -143,15 +143,15 @@ def test_landing_fields_match_the_sensor_logs_and_truth(flight):
     r, run, rec, row = flight
     landings = _messages(rec, "landing")
     assert len(landings) > 10
-    cam = read_csv(run / "camera.csv")
+    cam = read_columns(run / "camera.csv")
     cam_t = _f(cam["time_s"])
-    uwb = read_csv(run / "uwb.csv")
+    uwb = read_columns(run / "uwb.csv")
     uwb_t = _f(uwb["time_s"])
-    ekf = read_csv(run / "ekf.csv")
+    ekf = read_columns(run / "ekf.csv")
     ekf_at = {float(t): i for i, t in enumerate(ekf["tick_s"])}
-    fl = read_csv(run / "flight.csv")
+    fl = read_columns(run / "flight.csv")
     phase_at = dict(zip(map(float, fl["time_s"]), fl["phase"], strict=True))
-    truth = read_csv(run / "truth.csv")
+    truth = read_columns(run / "truth.csv")
     tt = _f(truth["time_s"])
     tn, te, td = (_f(truth[k]) for k in ("true_north_m", "true_east_m", "true_down_m"))
     summary = json.loads((run / "summary.json").read_text())
@@ -210,7 +210,7 @@ def test_landing_fields_match_the_sensor_logs_and_truth(flight):
 
 def test_estimate_fields_match_the_ekf_log(flight):
     _r, run, rec, _row = flight
-    ekf = read_csv(run / "ekf.csv")
+    ekf = read_columns(run / "ekf.csv")
     # several updates can share a time (an autopilot sample, then a marker exposed at that instant);
     # a message is one of the states logged at its time, all its fields from the same row
     rows: dict[float, list[int]] = {}
@@ -237,7 +237,7 @@ def test_estimate_fields_match_the_ekf_log(flight):
 
 def test_log_messages_are_the_autopilot_status_texts(flight):
     _r, run, rec, _row = flight
-    texts = read_csv(run / "ap_statustext.csv")
+    texts = read_columns(run / "ap_statustext.csv")
     logged = list(zip(map(float, texts["time_s"]), map(int, texts["severity"]), texts["text"], strict=True))
     published = [(m["time_s"], m["severity"], m["text"]) for m in _messages(rec, "log") if m["source"] == "autopilot"]
     assert published and published == logged  # never dropped, in order
@@ -245,7 +245,7 @@ def test_log_messages_are_the_autopilot_status_texts(flight):
 
 def test_health_and_the_ground_row_of_a_finished_vehicle(flight):
     _r, run, rec, row = flight
-    fl = read_csv(run / "flight.csv")
+    fl = read_columns(run / "flight.csv")
     ticks = {float(t) for t in fl["time_s"]}
     health = _messages(rec, "health")
     assert health

@@ -103,6 +103,19 @@ def test_without_simulator_truth_the_path_comes_from_the_logs(run_copy):
         _assert_real_image(figs[name].path)
 
 
+def test_a_flight_cut_short_mid_line_still_gets_its_figures(run_copy, capsys):
+    # a killed flight leaves truth.csv and flight.csv ending in half a row
+    for name, keep in (("truth.csv", 0.5), ("flight.csv", 0.6)):
+        data = (run_copy / name).read_bytes()
+        cut = int(len(data) * keep)
+        assert data[cut - 1 : cut] != b"\n"  # mid-line, not at a row's end
+        (run_copy / name).write_bytes(data[:cut])
+    assert main(["report", str(run_copy)]) == 0
+    assert "5 figure(s) written" in capsys.readouterr().out
+    for name in FLIGHT_FIGURES:
+        _assert_real_image(run_copy / name)
+
+
 def test_malformed_csv_is_an_error_naming_file_and_column(run_copy, capsys):
     lines = (run_copy / "ekf.csv").read_text().splitlines()
     header = lines[0].split(",")
