@@ -620,6 +620,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(str(p), ["file not found"]) from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(str(p), [f"not valid TOML: {err}"]) from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(str(p), [f"not UTF-8 text, as TOML must be: {err}"]) from None
     except OSError as err:
         raise ConfigError(str(p), [f"cannot read: {err.strerror}"]) from None
 

@@ -224,3 +224,17 @@ def test_zenoh_and_camera_and_anchor_schemas_know_the_loaders_keys() -> None:
     assert set(CameraTable.model_fields) == _CAMERA_KEYS
     assert set(KINDS["camera"].schema.model_fields["calibration"].annotation.model_fields) == _META_KEYS  # type: ignore[union-attr]
     assert set(AnchorsFile.model_fields) == {"frame", "base_anchor", "max_range_m", "tag_side", "anchors"}
+
+
+@pytest.mark.parametrize("name", sorted(KIND_OF))
+def test_a_file_that_is_not_utf8_is_reported_and_the_others_still_checked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    # a Latin-1 byte in a comment: TOML files are UTF-8, so this is not a TOML file at all
+    bad = tmp_path / f"latin1_{name}"
+    bad.write_bytes((PARAMS / name).read_bytes() + b"# caf\xe9\n")
+    assert main(["params", "check", str(bad), str(PARAMS / name)]) == 1
+    captured = capsys.readouterr()
+    assert f"{PARAMS / name}: OK ({KIND_OF[name]})" in captured.out
+    assert captured.err.splitlines()[0] == f"{bad}:"
+    assert "not UTF-8 text" in captured.err

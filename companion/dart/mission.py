@@ -104,6 +104,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise DartParamsError(f"{p}: cannot read: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise DartParamsError(f"{p}: not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise DartParamsError(f"{p}: not UTF-8 text, as TOML must be: {exc}") from None
 
 
 # ------------------------------------------------------------------------------ mission

@@ -207,6 +207,8 @@ def load_settings(path: str | Path, table: str = "zenoh") -> ZenohSettings:
             doc = tomllib.load(fh)
     except (OSError, tomllib.TOMLDecodeError) as e:
         raise SettingsError(f"{path}: {e}") from e
+    except UnicodeDecodeError as e:
+        raise SettingsError(f"{path}: not UTF-8 text, as TOML must be: {e}") from None
     data = doc.get(table)
     if not isinstance(data, dict):
         raise SettingsError(f"{path}: no [{table}] table")

@@ -221,6 +221,8 @@ class AnchorLayout:
             raise AnchorLayoutError(str(p), "<file>", str(p), f"cannot read: {exc}") from exc
         except tomllib.TOMLDecodeError as exc:
             raise AnchorLayoutError(str(p), "<file>", str(p), f"invalid TOML: {exc}") from exc
+        except UnicodeDecodeError as exc:
+            raise AnchorLayoutError(str(p), "<file>", str(p), f"not UTF-8 text, as TOML must be: {exc}") from None
         return AnchorLayout.from_mapping(data, source=str(p))
 
 

@@ -292,6 +292,8 @@ def load_camera(path: str | Path) -> CameraModel:
         raise CameraConfigError(f"{p}: cannot read camera file: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise CameraConfigError(f"{p}: not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise CameraConfigError(f"{p}: not UTF-8 text, as TOML must be: {exc}") from None
     unknown = sorted(set(doc) - {"camera", "calibration"})
     if unknown:
         raise _cfg_error(p, unknown[0], doc[unknown[0]], "unknown table/key (allowed: camera, calibration)")

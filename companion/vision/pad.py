@@ -318,6 +318,8 @@ def load_pad(path: str | Path) -> PadLayout:
         raise PadConfigError(f"{p}: cannot read pad file: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise PadConfigError(f"{p}: not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise PadConfigError(f"{p}: not UTF-8 text, as TOML must be: {exc}") from None
     unknown = sorted(set(doc) - {"pad"})
     if unknown:
         raise _pad_error(p, unknown[0], doc[unknown[0]], "unknown table/key (allowed: pad)")
