@@ -664,6 +664,8 @@ def parse_json(payload: bytes | bytearray | memoryview | str) -> Any:
         raise
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise SchemaError(f"payload is not valid UTF-8 JSON: {e}") from None
+    except ValueError as e:  # an integer of more digits than int() converts (sys.get_int_max_str_digits)
+        raise SchemaError(f"payload holds a number JSON parsing refuses: {e}") from None
 
 
 def _reject_constant(name: str) -> Any:

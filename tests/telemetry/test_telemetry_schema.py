@@ -188,6 +188,8 @@ MALFORMED = {
     "int for bool": _mutate(("msg", "armed"), 1),
     "unknown enum": _mutate(("msg", "mode"), "warp"),
     "huge number": json.dumps(_good_doc()).replace("-45.0", "1e999", 1).encode(),
+    "integer of 5000 digits": json.dumps(_good_doc()).replace("-45.0", "9" * 5000, 1).encode(),
+    "seq of 5000 digits": _mutate(("seq",), 0).replace(b'"seq": 0', b'"seq": ' + b"1" * 5000),
     "oversize": b'{"schema":"companion.telemetry/1","pad":"' + b"x" * MAX_PAYLOAD_BYTES + b'"}',
 }
 
