@@ -292,7 +292,7 @@ def register_bench(bsub: Any) -> None:
         default="px4-sih",
         help="autopilot profile of the embedded simulator",
     )
-    bc.add_argument("--n", type=int, default=5, help="fused landings (default 5)")
+    bc.add_argument("--n", type=positive_int, default=5, help="fused landings (default 5)")
     bc.add_argument("--seed", type=int, default=1, help="seed of the first draw")
     bc.add_argument(
         "--jobs",
@@ -313,17 +313,17 @@ def register_bench(bsub: Any) -> None:
     )
     bl.set_defaults(func=cmd_bench_log)
     be = bsub.add_parser("estimation", help="microseconds per Madgwick update and per Dart estimator step")
-    be.add_argument("--n", type=int, default=5000, help="calls timed per filter and estimator")
+    be.add_argument("--n", type=positive_int, default=5000, help="calls timed per filter and estimator")
     be.set_defaults(func=cmd_bench_estimation)
 
 
 def register_bench_micro(bsub: Any) -> None:
     """Add ``companion bench ekf``, ``bench uwb`` and ``bench vision``."""
     bk = bsub.add_parser("ekf", help="microseconds per EKF predict and per update of each sensor")
-    bk.add_argument("--n", type=int, default=2000, help="calls timed per step")
+    bk.add_argument("--n", type=positive_int, default=2000, help="calls timed per step")
     bk.set_defaults(func=cmd_bench_ekf)
     bu = bsub.add_parser("uwb", help="microseconds per TWR / TDoA multilateration solve")
-    bu.add_argument("--n", type=int, default=300, help="solves timed per method")
+    bu.add_argument("--n", type=positive_int, default=300, help="solves timed per method")
     bu.set_defaults(func=cmd_bench_uwb)
     bv = bsub.add_parser("vision", help="raw full-frame ArUco detection vs our ROI pipeline on the same frames")
     bv.add_argument("--frames", type=int, help="rendered frames of the descent (default: 120; 300 with --ambiguity)")

@@ -133,7 +133,7 @@ def cmd_campaign_probe(args: argparse.Namespace) -> int:
 def register_campaign(csub: Any) -> None:
     """Add ``companion campaign landing``."""
     cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
-    cl.add_argument("--n", type=int, default=100, help="landings per variant")
+    cl.add_argument("--n", type=positive_int, default=100, help="landings per variant")
     cl.add_argument("--seed", type=int, default=1, help="seed of the draws")
     cl.add_argument("--failures", action="store_true", help="also: no_camera, no_uwb, outer_only, inner_only")
     cl.add_argument(
@@ -169,7 +169,7 @@ def register_campaign(csub: Any) -> None:
         help="the embedded campaign with the firmware's profile against the real SITL on the same draws",
     )
     cp.add_argument("--autopilot", choices=("px4", "ardupilot"), required=True, help="the real SITL to compare with")
-    cp.add_argument("--n", type=int, default=10, help="landings (each real one takes about a minute)")
+    cp.add_argument("--n", type=positive_int, default=10, help="landings (each real one takes about a minute)")
     cp.add_argument("--seed", type=int, default=1, help="seed of the draws")
     cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
     cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")

@@ -24,6 +24,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from companion.cli.args import positive_int
+
 log = logging.getLogger(__name__)
 
 
@@ -91,7 +93,7 @@ def register_campaign(csub: Any) -> None:
         default="all",
         help="all, or comma-separated FCF-CF, FCF-MF, SCF-MF-2DOF, SCF-MF-3DOF (default: all)",
     )
-    d.add_argument("--n", type=int, default=3, help="runs per estimator (default 3)")
+    d.add_argument("--n", type=positive_int, default=3, help="runs per estimator (default 3)")
     d.add_argument("--seed", type=int, default=0, help="seed of the first run (run k uses seed + k)")
     d.add_argument("--duration", type=float, default=25.0, help="simulated hover per run, s (default: %(default)s)")
     d.add_argument(

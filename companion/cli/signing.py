@@ -21,6 +21,7 @@ from companion.autopilot.signing import (
     write_key_file,
 )
 from companion.cli import exits
+from companion.cli.args import positive_int
 from companion.cli.exits import StartupError
 from companion.config import load_config
 
@@ -58,7 +59,7 @@ def register(subparsers: Any) -> None:
 def register_bench(bench_subparsers: Any) -> None:
     """Add ``companion bench signing``."""
     b = bench_subparsers.add_parser("signing", help="cost of MAVLink 2 signing: pack and parse, unsigned vs signed")
-    b.add_argument("--n", type=int, default=5000, help="messages per timed batch")
+    b.add_argument("--n", type=positive_int, default=5000, help="messages per timed batch")
     b.add_argument("--rounds", type=int, default=5, help="alternating batches per variant (median reported)")
     b.set_defaults(func=cmd_bench_signing)
 

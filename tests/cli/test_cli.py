@@ -96,3 +96,23 @@ def test_bench_sim_reports_both_flights(capsys):
     assert main(["bench", "sim", "--repeat", "1"]) == 0
     out = capsys.readouterr().out
     assert "GPS-only (simulator + guidance):" in out and "with camera rendering" in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["campaign", "landing", "--n", "0"],
+        ["campaign", "landing", "--n", "-6"],
+        ["campaign", "parity", "--autopilot", "px4", "--n", "0"],
+        ["campaign", "dart", "--n", "0"],
+        ["bench", "campaign", "--n", "0"],
+        ["bench", "ekf", "--n", "0"],
+        ["bench", "signing", "--n", "0"],
+    ],
+    ids=lambda a: " ".join(a),
+)
+def test_a_count_below_one_is_refused_before_anything_runs(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert f"argument --n: {argv[-1]}: need at least 1" in capsys.readouterr().err
