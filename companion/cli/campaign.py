@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
-from companion.cli.args import positive_int
+from companion.cli.args import output_folder, positive_int
 from companion.units import format_cm
 
 log = logging.getLogger(__name__)
@@ -44,7 +44,7 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         def on_progress(variant: str, done: int, total: int) -> None:
             progress.update(task, description=variant, completed=done)
 
-        out = Path(args.out) if args.out else Path("runs") / time.strftime("landing-%Y%m%d-%H%M%S")
+        out = output_folder(args.out, time.strftime("landing-%Y%m%d-%H%M%S"))
         if args.autopilot:
             from companion_lab.real_campaign import run_real_landing_campaign
 
@@ -122,7 +122,7 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
 def cmd_campaign_probe(args: argparse.Namespace) -> int:
     from companion_lab.firmware_probe import run_probe
 
-    out = Path(args.out) if args.out else Path("runs") / time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S")
+    out = output_folder(args.out, time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S"))
     fig = run_probe(args.autopilot, out)
     for k, v in sorted(fig.items()):
         print(f"{k:48s} {json.dumps(v)}")

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
+from companion.cli.args import output_folder
 from companion.cli.exits import StartupError
 from companion.config import (
     DEFAULT_PARAMS,
@@ -123,7 +124,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     cfg = _load_demo_config(args)
     playback = _camera_playback(args, cfg)
     console = make_console()
-    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
+    run_dir = output_folder(args.out, time.strftime("demo-%Y%m%d-%H%M%S"))
     m = cfg.mission
     console.print(
         f"[bold]companion demo[/]: h = {m.height_m} m, r = {m.arc_radius_m} m, v = {list(m.sector_speed_m_s)} m/s, "

@@ -116,3 +116,14 @@ def test_a_count_below_one_is_refused_before_anything_runs(argv, capsys):
         main(argv)
     assert exc.value.code == 2
     assert f"argument --n: {argv[-1]}: need at least 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [["demo", "--quiet"], ["campaign", "landing", "--n", "1", "--quiet"]])
+def test_an_out_that_cannot_be_a_folder_is_refused_before_the_flight(tmp_path, capsys, command):
+    in_the_way = tmp_path / "a_file"
+    in_the_way.write_text("not a folder")
+    assert main([*command, "--out", str(in_the_way)]) == 2
+    assert f"--out {in_the_way}: a file of that name is in the way" in capsys.readouterr().err
+    assert main([*command, "--out", str(in_the_way / "run")]) == 2
+    assert f"--out {in_the_way / 'run'}: cannot create the folder" in capsys.readouterr().err
+    assert in_the_way.read_text() == "not a folder"
