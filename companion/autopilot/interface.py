@@ -56,6 +56,13 @@ class ConnectionUrlError(AutopilotError):
     """The connection setting is malformed (unknown scheme, no port): a configuration error."""
 
 
+def check_port(url: str, port: str) -> int:
+    """The port of a network connection URL as a number in 1-65535, or a :class:`ConnectionUrlError`."""
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConnectionUrlError(f"connection {url!r}: port {port!r} is not a number in 1-65535")
+    return int(port)
+
+
 class LinkDeviceMissing(AutopilotError):
     """The serial device the connection names does not exist (unplugged, wrong path)."""
 

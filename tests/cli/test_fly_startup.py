@@ -202,11 +202,31 @@ def test_telemetry_endpoint_in_use(tmp_path: Path, silent_udp_port: int):
         ('autopilot = "sim"\n', ["autopilot = 'sim'", "companion demo", "'px4' or 'ardupilot'"]),
         ('autopilot = "px4"\nconnection = "udpin:nowhere"\n', ["'udpin:nowhere'", "change connection in"]),
         (
+            'autopilot = "px4"\nconnection = "udpin://0.0.0.0:99999"\n',
+            ["port '99999' is not a number in 1-65535", "change connection in"],
+        ),
+        (
+            'autopilot = "ardupilot"\nconnection = "udpin://0.0.0.0:99999"\n',
+            ["port '99999' is not a number in 1-65535", "change connection in"],
+        ),
+        ('autopilot = "px4"\nconnection = "tcpout://127.0.0.1"\n', ["expected tcpout://HOST:PORT"]),
+        (
             'autopilot = "px4"\n[landing]\nfusion = true\nuse_uwb = false\npad_file = "no_such_pad.toml"\n',
             ["landing.pad_file = 'no_such_pad.toml'", "no such file"],
         ),
     ],
-    ids=["unknown-key", "bad-value", "out-of-range", "bad-toml", "sim", "bad-url", "missing-pad-file"],
+    ids=[
+        "unknown-key",
+        "bad-value",
+        "out-of-range",
+        "bad-toml",
+        "sim",
+        "bad-url",
+        "px4-port-out-of-range",
+        "ardupilot-port-out-of-range",
+        "px4-no-port",
+        "missing-pad-file",
+    ],
 )
 def test_bad_parameters(tmp_path: Path, params: str, words: list[str]):
     code, out, err = _fly(tmp_path, params)

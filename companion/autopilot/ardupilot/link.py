@@ -38,6 +38,7 @@ from companion.autopilot.interface import (
     OpenPacketSink,
     PacketSink,
     TelemetryCache,
+    check_port,
 )
 from companion.autopilot.signing import (
     SigningError,
@@ -92,6 +93,7 @@ def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
         host, _, port = rest.rpartition(":")
         if not port.isdigit():
             raise ConnectionUrlError(f"connection {url!r}: expected {scheme}:HOST:PORT")
+        check_port(url, port)
         if scheme == "udp":  # MAVSDK style udp://:14540 listens
             scheme = "udpin"
         if scheme == "tcpout":

@@ -13,6 +13,7 @@ from typing import Any
 from companion.autopilot.interface import (
     ConnectionUrlError,
     LinkDeviceMissing,
+    check_port,
 )
 
 log = logging.getLogger(__name__)
@@ -116,4 +117,9 @@ def check_connection_url(url: str) -> str:
             raise LinkDeviceMissing(f"serial device {dev} does not exist (connection {url!r})")
     elif scheme not in ("udp", "udpin", "udpout", "tcp", "tcpin", "tcpout", "raw"):
         raise ConnectionUrlError(f"connection {url!r}: unknown scheme {scheme!r}")
+    elif scheme != "raw":
+        host, colon, port = rest.rpartition(":")
+        if not colon:
+            raise ConnectionUrlError(f"connection {url!r}: expected {scheme}://HOST:PORT")
+        check_port(url, port)
     return u
