@@ -14,8 +14,9 @@ stops the stream.
 :func:`parse_lec_line` is a pure parser; :class:`LecParser` adds counters. Malformed, partial
 (truncated), binary or unexpected lines are counted and dropped, never raised;
 :func:`explain_lec_line` (and ``LecParser.last_drop_reason``) says why, naming the field.
-:class:`Dwm1001Driver` owns the serial port; readings are stamped with the injected clock when
-their line is complete (arrival time; the device's own latency is not modelled).
+:class:`Dwm1001Driver` owns the serial port; a reader thread stamps each reading with the injected
+clock as its line completes (arrival time, not the time the shell polls; the device's own latency
+is not modelled).
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ from __future__ import annotations
 import logging
 import math
 import re
+import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
@@ -38,6 +41,7 @@ from companion.uwb.multilateration import TwrMeasurement
 log = logging.getLogger(__name__)
 
 MAX_LINE_BYTES = 512
+MAX_QUEUED_READINGS = 256  # about 25 s at the tag's 10 Hz; older readings are dropped and counted
 MAX_ANCHORS_PER_LINE = 16
 PROMPT = b"dwm>"
 _HEX_ID = re.compile(r"^[0-9A-Fa-f]{1,8}$")
@@ -239,10 +243,11 @@ class LecStats:
     partial: int = 0
     binary: int = 0
     overflow: int = 0  # bytes without a line ending beyond MAX_LINE_BYTES (dropped)
+    unread: int = 0  # readings dropped because nobody read them (more than MAX_QUEUED_READINGS waiting)
 
     @property
     def dropped(self) -> int:
-        return self.malformed + self.partial + self.binary + self.overflow
+        return self.malformed + self.partial + self.binary + self.overflow + self.unread
 
 
 class LecParser:
@@ -303,6 +308,12 @@ class Dwm1001Driver:
         self._buf = bytearray()
         self._streaming = False
         self.parser = LecParser()
+        # readings stamped by the reader thread, handed to read() / read_one()
+        self._ready: deque[DwmReading] = deque()
+        self._cond = threading.Condition()
+        self._reader: threading.Thread | None = None
+        self._stop_reader = threading.Event()
+        self.reader_error: BaseException | None = None
 
     @property
     def stats(self) -> LecStats:
@@ -325,6 +336,7 @@ class Dwm1001Driver:
         if probe_s > 0 and self._stream_running(probe_s):
             self._streaming = True
             log.info("dwm1001 on %s: lec stream already running", self.port)
+            self._start_reader()
             return
         deadline = self.clock() + self.prompt_timeout_s
         seen = bytearray()
@@ -348,6 +360,41 @@ class Dwm1001Driver:
         self._streaming = True
         self._buf.clear()
         log.info("dwm1001 on %s: shell open, lec stream started", self.port)
+        self._start_reader()
+
+    def _start_reader(self) -> None:
+        self._stop_reader.clear()
+        self._reader = threading.Thread(target=self._read_port, name=f"dwm1001 {self.port}", daemon=True)
+        self._reader.start()
+
+    def _read_port(self) -> None:
+        """Reader thread: bytes as they arrive (the port's 0.05 s read timeout bounds each wait),
+        each completed line parsed and stamped at once."""
+        ser = self._ser
+        try:
+            self._parse_buffer()  # lines the start-up probe left buffered
+            while not self._stop_reader.is_set():
+                chunk = ser.read(max(1, ser.in_waiting))
+                if chunk:
+                    self._buf += chunk
+                    self._parse_buffer()
+        except (serial.SerialException, OSError, TypeError) as exc:  # unplugged: pyserial may raise either
+            if not self._stop_reader.is_set():
+                log.error("dwm1001 on %s: reading the port failed: %s", self.port, exc)
+                self.reader_error = exc
+        finally:
+            with self._cond:
+                self._cond.notify_all()
+
+    def _parse_buffer(self) -> None:
+        """Readings of every complete line in the buffer, stamped now, queued for read()."""
+        while (reading := self._next_from_buffer()) is not None:
+            with self._cond:
+                if len(self._ready) >= MAX_QUEUED_READINGS:
+                    self._ready.popleft()
+                    self.parser.stats.unread += 1
+                self._ready.append(reading)
+                self._cond.notify_all()
 
     def _stream_running(self, window_s: float) -> bool:
         """Are complete, valid lec lines arriving? (They stay buffered for :meth:`read`.)"""
@@ -367,34 +414,38 @@ class Dwm1001Driver:
         default; with ``timeout_s`` > 0 wait that long for at least one). Bad lines are counted."""
         if self._ser is None:
             raise Dwm1001Error("read() before start()")
-        waiting = self._ser.in_waiting
-        if waiting:
-            self._buf += self._ser.read(waiting)
-        out: list[DwmReading] = []
-        while (r := self._next_from_buffer()) is not None:
-            out.append(r)
-        if not out and timeout_s > 0.0:
-            first = self.read_one(timeout_s)
-            if first is not None:
-                out.append(first)
-                while (r := self._next_from_buffer()) is not None:
-                    out.append(r)
+        self._raise_if_reader_failed()
+        with self._cond:
+            if not self._ready and timeout_s > 0.0:
+                self._wait_for_reading(timeout_s)
+                self._raise_if_reader_failed()
+            out = list(self._ready)
+            self._ready.clear()
         return out
 
     def read_one(self, timeout_s: float = 1.0) -> DwmReading | None:
         """The next valid reading within ``timeout_s`` (None on timeout). Bad lines are counted."""
         if self._ser is None:
             raise Dwm1001Error("read_one() before start()")
-        deadline = self.clock() + timeout_s
-        while True:
-            reading = self._next_from_buffer()
-            if reading is not None:
-                return reading
-            if self.clock() >= deadline:
-                return None
-            chunk = self._ser.read(max(1, self._ser.in_waiting))
-            if chunk:
-                self._buf += chunk
+        self._raise_if_reader_failed()
+        with self._cond:
+            if not self._ready:
+                self._wait_for_reading(timeout_s)
+                self._raise_if_reader_failed()
+            return self._ready.popleft() if self._ready else None
+
+    def _raise_if_reader_failed(self) -> None:
+        if self.reader_error is not None and not self._ready:
+            raise Dwm1001Error(f"{self.port}: reading the port failed: {self.reader_error}")
+
+    def _wait_for_reading(self, timeout_s: float) -> None:
+        """Under ``self._cond``: until a reading is queued, the reader stops, or ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while not self._ready and self._reader is not None and self._reader.is_alive():
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                return
+            self._cond.wait(left)
 
     def _next_from_buffer(self) -> DwmReading | None:
         while True:
@@ -417,6 +468,10 @@ class Dwm1001Driver:
         """Send ``lec`` again (stops the stream) and close the port. Safe to call twice."""
         if self._ser is None:
             return
+        self._stop_reader.set()
+        if self._reader is not None:
+            self._reader.join(1.0)  # the port's read timeout is 0.05 s
+            self._reader = None
         try:
             if self._streaming and self._ser.is_open:
                 self._ser.write(b"lec\r")

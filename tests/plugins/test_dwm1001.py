@@ -323,3 +323,71 @@ def test_driver_keeps_a_stream_left_running() -> None:
         assert fake.commands == [b"lec"]
     finally:
         fake.close()
+
+
+def test_a_reading_is_stamped_when_its_line_arrives_not_when_it_is_read() -> None:
+    master, slave = os.openpty()
+    streaming = threading.Event()
+    streaming.set()
+
+    def stream_left_running() -> None:  # start() finds lines arriving and keeps the stream
+        while streaming.is_set():
+            os.write(master, GOOD.encode() + b"\r\n")
+            time.sleep(0.02)
+
+    writer = threading.Thread(target=stream_left_running, daemon=True)
+    writer.start()
+    try:
+        drv = Dwm1001Driver(os.ttyname(slave))
+        drv.start(probe_s=0.3)
+        streaming.clear()
+        writer.join(1.0)
+        time.sleep(0.1)
+        drv.read()  # what arrived so far
+        arrived = time.monotonic()
+        os.write(master, GOOD.encode() + b"\r\n")
+        time.sleep(0.3)  # the shell polls late
+        polled = time.monotonic()
+        (reading,) = drv.read()
+        assert reading.time_s - arrived < 0.1 < polled - reading.time_s
+        drv.stop()
+    finally:
+        streaming.clear()
+        writer.join(1.0)
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_port_that_fails_while_streaming_is_an_error_on_read() -> None:
+    class Unplugged:
+        is_open = True
+        in_waiting = 0
+
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            self.reads = 0
+
+        def reset_input_buffer(self) -> None:
+            pass
+
+        def read(self, n: int) -> bytes:
+            self.reads += 1
+            if self.reads <= 2:  # the probe sees a running stream
+                return GOOD.encode() + b"\r\n"
+            raise OSError(5, "Input/output error")
+
+        def write(self, data: bytes) -> int:
+            raise OSError(5, "Input/output error")
+
+        def flush(self) -> None:
+            pass
+
+        def close(self) -> None:
+            self.is_open = False
+
+    drv = Dwm1001Driver("/dev/ttyGONE", serial_factory=Unplugged)
+    drv.start(probe_s=0.2)
+    assert drv.read()  # the readings that arrived before the fault are not lost
+    with pytest.raises(Dwm1001Error, match=r"reading the port failed: .*Input/output error"):
+        drv.read(timeout_s=1.0)
+    drv.stop()  # the 'lec' that cannot be written is logged, the port closed
+    assert not drv.is_open
