@@ -265,7 +265,14 @@ class RuntimeConfig(_Section):
     setpoint_stale_s: float = _f(
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )
-    link_timeout_s: float = _f(1.0, "s", "no heartbeat for this long is a lost link", gt=0.1, le=30.0)
+    link_timeout_s: float = _f(
+        1.0,
+        "s",
+        "no message from the autopilot for this long is a lost link (so is a heartbeat older than 3.5 s on "
+        "ArduPilot, or MAVSDK's own heartbeat timeout on PX4, while other telemetry still arrives)",
+        gt=0.1,
+        le=30.0,
+    )
     connect_timeout_s: float = _f(
         10.0, "s", "start-up: give up when no autopilot answers on the connection within this time", gt=0.0, le=600.0
     )
