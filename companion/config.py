@@ -594,6 +594,8 @@ def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
             problems.append(f"{parent} = {_value_at(data, e['loc'][:-1])!r}: item [{e['loc'][-1]}] is missing")
         elif e["type"] == "missing":
             problems.append(f"{loc}: required key is missing")
+        elif loc and isinstance(e["input"], dict):  # a rule between keys of a table names them itself
+            problems.append(f"{loc}: {msg}")
         elif loc:
             problems.append(f"{loc} = {e['input']!r}: {msg}")
         else:

@@ -79,3 +79,17 @@ def test_describe_parameters_lists_units_and_limits():
     lines = describe_parameters(load_config(shipped_params_path("delivery_paper.toml")))
     line = next(x for x in lines if x.startswith("mission.arc_radius_m"))
     assert "[m]" in line and "> 0.0" in line and "radius" in line
+
+
+@pytest.mark.parametrize(
+    ("table", "value", "line"),
+    [
+        ("mission", {"arc_radius_m": 50.0}, "mission: arc_radius_m (50.0) must be < height_m (45.0)"),
+        ("mission", {"pad": {"north_m": 1.0}}, "mission.pad: pad north_m and east_m go together"),
+    ],
+)
+def test_a_rule_between_keys_names_the_keys_not_the_whole_table(table, value, line):
+    with pytest.raises(ConfigError) as ei:
+        config_from_dict({table: value}, "test.toml")
+    assert any(p.startswith(line) for p in ei.value.problems), ei.value.problems
+    assert not any("{" in p for p in ei.value.problems), ei.value.problems
