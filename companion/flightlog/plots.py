@@ -194,13 +194,16 @@ def lyapunov_figure(run_dir: str | Path) -> Figure:
     ax_v.set_ylabel("V [m^2]")
     ax_v.set_title("Vector field Lyapunov function (cf. delivery Fig. 9)")
     tt = _floats(truth["time_s"])
+    # the distance counts where the vector field flies (what the summary scores); elsewhere the
+    # path is not what the vehicle follows (it sits on the pad, climbs, lands): left blank
+    followed = np.array([ph in FIELD_PHASES for ph in truth["phase"]])
     has_ref = "path_reference" in summary  # truth.csv's distance is to the scored reference
     ref_label = "to the scored reference path" if has_ref else "to the path"
-    ax_d.plot(tt, _floats(truth["true_path_distance_m"]), "g-", lw=1, label=f"distance {ref_label} (truth)")
+    d_ref = np.where(followed, _floats(truth["true_path_distance_m"]), np.nan)
+    ax_d.plot(tt, d_ref, "g-", lw=1, label=f"distance {ref_label} (truth)")
     if "true_planned_path_distance_m" in truth:
-        d_ref = _floats(truth["true_path_distance_m"])
-        d_planned = _floats(truth["true_planned_path_distance_m"])
-        if np.nanmax(np.abs(d_planned - d_ref)) > 0.01:
+        d_planned = np.where(followed, _floats(truth["true_planned_path_distance_m"]), np.nan)
+        if np.nanmax(np.abs(d_planned - d_ref), initial=0.0) > 0.01:
             ax_d.plot(tt, d_planned, "k--", lw=0.8, alpha=0.7, label="distance to the mission's path (truth)")
     ax_d.set_ylim(bottom=0.0)
     ax_d.set_ylabel("distance [m]")

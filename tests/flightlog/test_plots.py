@@ -168,3 +168,22 @@ def test_landing_scatter_shows_both_ellipses_unclipped():
         assert fused_e.get_center() == pytest.approx(tuple(pts["fusion"].mean(axis=0)))
     finally:
         plt.close(fig)
+
+
+def test_the_distance_drawn_is_the_distance_scored(tmp_path):
+    # a pad 2.5 m from its configured place: on the pad the vehicle is 2.5 m off the configured
+    # path's end, which no path figure scores; the figure draws what the summary's maximum counts
+    run = tmp_path / "run"
+    r = run_demo(short_config(gps_bias_m=[1.0, -0.5, 0.0], pad_offset_m=[2.0, 1.5]), run_dir=run)
+    assert r.delivered, r.failure
+    summary = json.loads((run / "summary.json").read_text())
+    fig = lyapunov_figure(run)
+    try:
+        lines = {ln.get_label(): ln.get_ydata() for ln in fig.axes[1].get_lines()}
+        scored = next(d for label, d in lines.items() if "scored reference" in label)
+        planned = next(d for label, d in lines.items() if "mission's path" in label)
+        assert np.nanmax(scored) == pytest.approx(summary["path_max_truth_m"], abs=0.01)
+        assert np.nanmax(planned) == pytest.approx(summary["path_max_planned_m"], abs=0.01)
+        assert summary["path_max_truth_m"] < 1.0  # the pad's displacement is not in it
+    finally:
+        plt.close(fig)
