@@ -118,7 +118,7 @@ def check_connection_url(url: str) -> str:
     elif scheme not in ("udp", "udpin", "udpout", "tcp", "tcpin", "tcpout", "raw"):
         raise ConnectionUrlError(f"connection {url!r}: unknown scheme {scheme!r}")
     elif scheme != "raw":
-        host, colon, port = rest.rpartition(":")
+        _host, colon, port = rest.rpartition(":")
         if not colon:
             raise ConnectionUrlError(f"connection {url!r}: expected {scheme}://HOST:PORT")
         check_port(url, port)
