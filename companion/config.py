@@ -367,6 +367,30 @@ class SimConfig(_Section):
     baro_noise_m: float = _f(0.1, "m", "barometer white noise", ge=0.0, le=10.0)
     ready_delay_s: float = _f(2.0, "s", "time after boot until the vehicle is healthy (GPS, EKF)", ge=0.0, le=120.0)
     pad_offset_m: tuple[float, float] = _f((0.0, 0.0), "m", "true pad displacement from its configured position (N, E)")
+    camera_fails_below_m: float = _f(
+        0.0,
+        "m",
+        "the simulated landing camera gives no frame below this true height above the pad (a failure; "
+        "0 = never; higher than the flight = failed all flight)",
+        ge=0.0,
+        le=10000.0,
+    )
+    camera_range_m: float = _f(
+        0.0,
+        "m",
+        "the simulated landing camera gives no frame above this true height above the pad (a short detection "
+        "range; 0 = unlimited)",
+        ge=0.0,
+        le=10000.0,
+    )
+    uwb_fails_below_m: float = _f(
+        0.0,
+        "m",
+        "the simulated UWB gives no ranging below this true height above the pad (0 = never; higher than "
+        "the flight = failed all flight)",
+        ge=0.0,
+        le=10000.0,
+    )
     vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
 
     @model_validator(mode="after")
@@ -409,6 +433,99 @@ class TelemetryConfig(_Section):
     health_rate_hz: float = _f(1.0, "Hz", "health topic rate", ge=0.01, le=1000.0)
     event_queue_size: int = _f(1024, "-", "bound of the never-drop event queue", ge=16, le=1_000_000)
     commands: TelemetryCommandsConfig = Field(default_factory=TelemetryCommandsConfig)
+
+
+class PadLockPolicyConfig(_Section):
+    """No release off the pad (docs/delivery-policy.md): the parcel is released only on a locked
+    pad, and what the vehicle does, in order, when the pad is not locked."""
+
+    require_pad_lock: bool = _f(
+        True,
+        "-",
+        "release only on a locked pad (a camera or UWB observation younger than max_observation_age_s "
+        "and the EKF's horizontal 1-sigma under max_horizontal_sigma_m, checked at the approach height and "
+        "at touchdown); without pad sensors (landing.fusion = false, or neither camera nor UWB) no lock is "
+        "possible and the parcel flies home. false: release wherever the vehicle lands, the paper's GPS-only "
+        "baseline (delivery Fig. 15): an explicit opt-out, said in an event at each release",
+    )
+    max_observation_age_s: float = _f(
+        2.0,
+        "s",
+        "the pad is locked while its newest accepted camera or UWB observation is younger (a camera alone "
+        "loses the pad in the last ~0.7 m: 1.4 s at 0.5 m/s before touchdown)",
+        gt=0.0,
+        le=10.0,
+    )
+    max_horizontal_sigma_m: float = _f(
+        0.25,
+        "m",
+        "the pad is locked while the EKF's horizontal position 1-sigma (largest axis) is under this",
+        gt=0.001,
+        le=5.0,
+    )
+    commit_height_m: float = _f(
+        1.0,
+        "m",
+        "in the final descent, a lost lock above this height stops the descent (a try fails); below it the "
+        "descent finishes and the touchdown check decides",
+        ge=0.0,
+        le=20.0,
+    )
+    approach_tolerance_m: float = _f(
+        0.5,
+        "m",
+        "after a hold or search, the descent starts again only this close (horizontally) above the locked pad",
+        gt=0.05,
+        le=5.0,
+    )
+    hold_s: float = _f(5.0, "s", "step 1: hold at the approach height this long waiting for the lock", ge=0.0, le=120.0)
+    search_height_m: float = _f(
+        8.0,
+        "m",
+        "step 2: climb to this height above the pad for the search (higher: the camera sees more ground, "
+        "the markers are smaller)",
+        gt=1.0,
+        le=60.0,
+    )
+    search_radius_m: float = _f(
+        6.0,
+        "m",
+        "step 2: the search pattern (an expanding square around the configured pad) stays within this "
+        "horizontal distance of it; 0 = no search",
+        ge=0.0,
+        le=50.0,
+    )
+    search_spacing_m: float = _f(
+        2.5,
+        "m",
+        "step 2: distance between the legs of the expanding square: at most the ground the camera sees at "
+        "search_height_m, so no ground between legs goes unseen",
+        gt=0.5,
+        le=30.0,
+    )
+    search_speed_m_s: float = _f(
+        1.5,
+        "m/s",
+        "step 2: ground speed along the pattern: slow enough for the detector (motion blur, frames per metre)",
+        gt=0.1,
+        le=8.0,
+    )
+    search_dwell_s: float = _f(
+        1.0, "s", "step 2: pause at each corner of the pattern (frames at rest)", ge=0.0, le=30.0
+    )
+    descent_tries: int = _f(
+        2,
+        "-",
+        "step 3: descents tried (the first included) before the fallback; each failed one is followed by "
+        "the hold and the search again",
+        ge=1,
+        le=10,
+    )
+    fallback: Literal["home"] = _f(
+        "home",
+        "-",
+        "step 4: home = fly home with the parcel and land there without releasing it",
+    )
 
 
 class LandingConfig(_Section):
@@ -473,6 +590,7 @@ class LandingConfig(_Section):
         "send LANDING_TARGET from our pad observations: local_ned (PX4: pad in its local frame), "
         "body_angles (ArduPilot PLND_TYPE=1: angles + distance), off",
     )
+    policy: PadLockPolicyConfig = Field(default_factory=PadLockPolicyConfig)
 
 
 class SigningConfig(_Section):
@@ -558,6 +676,12 @@ class CompanionConfig(_Section):
             raise ValueError(
                 "landing.landing_target_output = 'local_ned' needs landing.fusion = true: the pad's position in the "
                 "autopilot's frame comes from the EKF's GPS-bias state"
+            )
+        pol = lc.policy
+        if pol.require_pad_lock and pol.search_radius_m > 0 and pol.search_height_m <= self.mission.final_descent_alt_m:
+            raise ValueError(
+                f"landing.policy.search_height_m ({pol.search_height_m}) must be above mission.final_descent_alt_m "
+                f"({self.mission.final_descent_alt_m}), the approach height: the search climbs to see more ground"
             )
         return self
 

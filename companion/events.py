@@ -13,6 +13,8 @@ class Phase(enum.Enum):
     OUTBOUND = "outbound"  # vector field, s = +1, sectors S1..S5
     LANDING_PAD = "landing_pad"  # final descent on the pad
     RELEASE = "release"  # parcel release on the ground
+    PAD_HOLD = "pad_hold"  # no pad lock: hold at the approach height (or fly onto the pad once locked)
+    PAD_SEARCH = "pad_search"  # no pad lock: the search pattern around the configured pad
     TAKEOFF_RETURN = "takeoff_return"
     INBOUND = "inbound"  # vector field, s = -1, back along the path
     LANDING_HOME = "landing_home"
@@ -41,6 +43,7 @@ class EventKind(enum.Enum):
     LINK_RESTORED = "link_restored"
     REQUEST_FAILED = "request_failed"
     WARNING = "warning"
+    PAD_LOCK = "pad_lock"  # a step of the no-release-off-the-pad policy, with its reason
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,7 +26,7 @@ from companion.config import CompanionConfig
 from companion.delivery.mission import MissionOutput
 from companion.delivery.planning import pad_position_ned
 from companion.delivery.shell import DeliveryShell
-from companion.events import Phase
+from companion.events import EventKind, Phase
 from companion.geometry.earth import GeoPoint
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.landing_sensors import sim_landing_kit
@@ -52,6 +52,12 @@ class HarnessResult:
     uwb_used: int
     landing_targets_sent: int
     fusion_outcomes: dict[str, int] = dataclasses.field(default_factory=dict)  # "sensor.outcome" -> count
+    # the no-release-off-the-pad policy (docs/delivery-policy.md): landed home with the parcel
+    # aboard, descents it stopped, and the mission's RELEASED events (release commands accepted)
+    home_with_parcel: bool = False
+    pad_tries: int = 0
+    releases: int = 0
+    pad_lock_events: tuple[str, ...] = ()
     # distance of the true vehicle to the planned path while the vector field is followed
     path_rms_truth_m: float = math.nan
     path_max_truth_m: float = math.nan
@@ -196,6 +202,10 @@ async def fly_on_truth(
         estimate_error_m=est_err,
         guidance_overruns=shell.stats.guidance_overruns,
         setpoint_overruns=shell.stats.setpoint_overruns,
+        home_with_parcel=summary.home_with_parcel,
+        pad_tries=summary.pad_tries,
+        releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
+        pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
     )
 
 

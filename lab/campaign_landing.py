@@ -17,14 +17,34 @@ from companion.config import CompanionConfig, load_config
 from companion_lab.demo import run_demo
 from companion_sitl.profiles import get_profile
 
+# [landing] overrides of each variant. gps_only is the paper's baseline: it has no pad lock, so it
+# opts out of the no-release-off-the-pad policy explicitly (docs/delivery-policy.md) and is scored
+# where it lands, as before.
 VARIANTS: dict[str, dict[str, Any]] = {
     "fusion": {},
-    "gps_only": {"fusion": False},
+    "gps_only": {"fusion": False, "policy": {"require_pad_lock": False}},
     "no_camera": {"use_camera": False},
     "no_uwb": {"use_uwb": False},
     "outer_only": {"markers": "outer"},
     "inner_only": {"markers": "inner"},
+    "sensors_failed": {},
+    "camera_blind_5m": {},
+    "pad_4m": {},
+    "pad_4m_search": {"use_uwb": False, "policy": {"search_height_m": 5.0}},
 }
+
+# [sim] overrides (failures of the sensors fitted and configured, in flight)
+SIM_VARIANTS: dict[str, dict[str, Any]] = {
+    "sensors_failed": {"camera_fails_below_m": 10000.0, "uwb_fails_below_m": 10000.0},
+    "camera_blind_5m": {"camera_fails_below_m": 5.0},
+    # no UWB and a camera that detects the pad only below 6 m: a pad 4 m away is outside its view on
+    # the way down and at the approach height; only the search (at 5 m) can find it
+    "pad_4m_search": {"camera_range_m": 6.0},
+}
+
+# the pad lies this far from its configured place (in the draw's direction): outside the camera's
+# view at the approach height
+PAD_MOVED_M = {"pad_4m": 4.0, "pad_4m_search": 4.0}
 
 
 @dataclass(frozen=True)
@@ -75,6 +95,12 @@ def scenario_config(
     }
     if profile != "ideal":
         sim["profile"] = profile
+    sim.update(SIM_VARIANTS.get(variant, {}))
+    if variant in PAD_MOVED_M:
+        n, e = d.pad_offset_m
+        r = math.hypot(n, e)
+        u = (n / r, e / r) if r > 0 else (1.0, 0.0)
+        sim["pad_offset_m"] = [PAD_MOVED_M[variant] * u[0], PAD_MOVED_M[variant] * u[1]]
     tuning = tuning or {}
     landing = {**tuning.get("landing", {}), **VARIANTS[variant]}
     overrides = {**tuning, "sim": sim, "landing": landing}
@@ -133,6 +159,8 @@ def fly_landing(task: LandingTask) -> dict[str, Any]:
         "east_m": de,
         "on_pad": on_pad(dn, de, task.pad_half_m, r.delivered),
         "delivered": r.delivered,
+        "home_with_parcel": r.home_with_parcel,
+        "pad_tries": r.pad_tries,
         "failure": r.failure,
         "sim_time_s": r.sim_time_s,
         "gps_bias_m": d.gps_bias_m[:2],

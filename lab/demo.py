@@ -79,6 +79,8 @@ class DemoResult:
     path_reference: str = REFERENCE
     run_dir: str = ""
     events: list[tuple[float, str, str, str]] = field(default_factory=list)
+    home_with_parcel: bool = False  # landed at home with the parcel aboard (docs/delivery-policy.md)
+    pad_tries: int = 0  # descents onto the pad the no-release-off-the-pad policy stopped
 
     @property
     def speedup(self) -> float:
@@ -295,6 +297,8 @@ async def fly(
         path_max_planned_m=max(scorer.planned_d) if scorer.planned_d else math.nan,
         run_dir=str(run_dir or ""),
         events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
+        home_with_parcel=summary.home_with_parcel,
+        pad_tries=summary.pad_tries,
     )
     if run_dir is not None:
         summary_json = {k: v for k, v in asdict(result).items() if k != "events"}

@@ -32,7 +32,24 @@ from companion_lab.campaign_pool import fly_in_pool
 log = logging.getLogger(__name__)
 
 DEFAULT_VARIANTS = ("fusion", "gps_only")
-FAILURE_VARIANTS = ("no_camera", "no_uwb", "outer_only", "inner_only")
+FAILURE_VARIANTS = (
+    "no_camera",
+    "no_uwb",
+    "outer_only",
+    "inner_only",
+    "sensors_failed",
+    "camera_blind_5m",
+    "pad_4m",
+    "pad_4m_search",
+)
+
+
+def _outcomes(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """How each delivery ended under the no-release-off-the-pad policy (docs/delivery-policy.md)."""
+    return {
+        "released": sum(bool(x["delivered"]) for x in rows),
+        "home_with_parcel": sum(bool(x.get("home_with_parcel")) for x in rows),
+    }
 
 
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
@@ -116,7 +133,10 @@ def run_landing_campaign(
     landings: dict[str, list[dict[str, Any]]] = {v: [] for v in variants}
     for task, row in zip(tasks, rows, strict=True):
         landings[task.variant].append(row)
-    summary = {v: _stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]) for v, ls in landings.items()}
+    summary = {
+        v: {**_stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]), **_outcomes(ls)}
+        for v, ls in landings.items()
+    }
     out = {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
     if profile != "ideal":
         out["profile"] = profile

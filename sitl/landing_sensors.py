@@ -62,8 +62,18 @@ class SimCameraSource:
     api_version: ClassVar[int] = 1
     frame_listener_version: ClassVar[int] = FRAME_LISTENER_VERSION
 
-    def __init__(self, vehicle: SimVehicle, camera: SimulatedCamera, rate_hz: float = 30.0, latency_s: float = 0.05):
+    def __init__(
+        self,
+        vehicle: SimVehicle,
+        camera: SimulatedCamera,
+        rate_hz: float = 30.0,
+        latency_s: float = 0.05,
+        fails_below_m: float = 0.0,
+        range_m: float = 0.0,
+    ):
         self.vehicle = vehicle
+        self.fails_below_m = fails_below_m  # a failed camera: no frame below this true height (0: never)
+        self.range_m = range_m  # no frame above this true height (0: unlimited)
         self.camera = camera
         self.rate_hz = rate_hz
         self.latency_s = latency_s
@@ -139,6 +149,9 @@ class SimCameraSource:
 
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
+        h = -self.vehicle.pd
+        if (self.fails_below_m > 0.0 and h < self.fails_below_m) or (self.range_m > 0.0 and h > self.range_m):
+            return None  # failed, or out of range: nothing rendered, nothing read
         self._polled = True
         now = self._clock.now()
         # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
@@ -183,8 +196,16 @@ class SimCameraSource:
 class SimUwbSource:
     api_version: ClassVar[int] = 1
 
-    def __init__(self, vehicle: SimVehicle, uwb: SimulatedUwb, T_world_anchors_true: Transform, rate_hz: float = 10.0):
+    def __init__(
+        self,
+        vehicle: SimVehicle,
+        uwb: SimulatedUwb,
+        T_world_anchors_true: Transform,
+        rate_hz: float = 10.0,
+        fails_below_m: float = 0.0,
+    ):
         self.vehicle = vehicle
+        self.fails_below_m = fails_below_m  # a failed UWB: no ranging below this true height (0: never)
         self.uwb = uwb
         self.T_anchors_world = T_world_anchors_true.inverse()
         self.rate_hz = rate_hz
@@ -201,6 +222,8 @@ class SimUwbSource:
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
+            if self.fails_below_m > 0.0 and -self.vehicle.pd < self.fails_below_m:
+                continue
             tag = self.T_anchors_world.apply(np.array([self.vehicle.pn, self.vehicle.pe, self.vehicle.pd]))
             m = self.uwb.twr(t, tag)
             if len(m.anchor_ids) > 0:
@@ -300,7 +323,14 @@ def sim_landing_kit(
         detector = PadDetector(det_model, layout, markers=markers)
     elif lc.use_camera:
         sim_cam = SimulatedCamera(cam_model, layout, T_body_camera=mount, T_world_pad=T_world_pad_true, seed=seed)
-        camera = SimCameraSource(vehicle, sim_cam, lc.camera_rate_hz, lc.camera_latency_s)
+        camera = SimCameraSource(
+            vehicle,
+            sim_cam,
+            lc.camera_rate_hz,
+            lc.camera_latency_s,
+            fails_below_m=config.sim.camera_fails_below_m,
+            range_m=config.sim.camera_range_m,
+        )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera
 
@@ -313,7 +343,13 @@ def sim_landing_kit(
         detector = PadDetector(cam_model, layout, markers=markers)
     anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
     if lc.use_uwb:
-        uwb = SimUwbSource(vehicle, SimulatedUwb(anchors, seed=seed + 1), T_world_pad_true, lc.uwb_rate_hz)
+        uwb = SimUwbSource(
+            vehicle,
+            SimulatedUwb(anchors, seed=seed + 1),
+            T_world_pad_true,
+            lc.uwb_rate_hz,
+            fails_below_m=config.sim.uwb_fails_below_m,
+        )
         multi = Multilaterator(anchors)
     from companion.geometry.se3 import Transform
 

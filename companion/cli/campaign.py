@@ -76,13 +76,15 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
-    for col in ("variant", "mean", "median", "p90", "p95", "max", "on the pad"):
+    for col in ("variant", "mean", "median", "p90", "p95", "max", "on the pad", "released", "home w/ parcel"):
         table.add_column(col, justify="right" if col != "variant" else "left")
     for v, s in result["summary"].items():
         table.add_row(
             v,
             *(format_cm(s[k]) for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
             f"{s['on_pad_pct']:.0f} %",
+            f"{s['released']} of {s['n']}" if "released" in s else "-",
+            f"{s['home_with_parcel']} of {s['n']}" if "home_with_parcel" in s else "-",
         )
     console.print(table)
     console.print(f"written: {', '.join(str(f) for f in files)}")
@@ -135,7 +137,11 @@ def register_campaign(csub: Any) -> None:
     cl = csub.add_parser("landing", help="Monte Carlo precision landings: fusion vs GPS-only (delivery Fig. 15)")
     cl.add_argument("--n", type=positive_int, default=100, help="landings per variant")
     cl.add_argument("--seed", type=int, default=1, help="seed of the draws")
-    cl.add_argument("--failures", action="store_true", help="also: no_camera, no_uwb, outer_only, inner_only")
+    cl.add_argument(
+        "--failures",
+        action="store_true",
+        help="also: no_camera, no_uwb, outer_only, inner_only, sensors_failed, camera_blind_5m, pad_4m, pad_4m_search",
+    )
     cl.add_argument(
         "--variants",
         help="comma-separated variants, overrides --failures (default: fusion,gps_only, and the failure "

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
-from companion.config import MissionConfig
+from companion.config import MissionConfig, PadLockPolicyConfig
+from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
 from companion.delivery.planning import plan_delivery
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
@@ -32,7 +33,17 @@ from companion.guidance.vector_field import VectorField
 
 log = logging.getLogger(__name__)
 
-FOLLOW_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.INBOUND, Phase.LANDING_HOME)
+FOLLOW_PHASES = (
+    Phase.OUTBOUND,
+    Phase.LANDING_PAD,
+    Phase.INBOUND,
+    Phase.LANDING_HOME,
+    Phase.PAD_HOLD,
+    Phase.PAD_SEARCH,
+)
+PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (then capped)
+PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
+PAD_HEIGHT_TOLERANCE_M = 0.3  # the approach height is reached this close
 OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OFFBOARD
 MAX_REQUEST_TRIES = 3
 REQUEST_RETRY_DELAY_S = 1.0  # between tries of a request the autopilot refused for now
@@ -75,6 +86,9 @@ class MissionInputs:
     status: VehicleStatus | None
     home: HomePosition | None
     link_ok: bool = True
+    # the pad's lock (camera/UWB observation age, EKF 1-sigma), measured by the shell; None: the
+    # mission runs without the no-release-off-the-pad policy's inputs (judged as no lock)
+    pad_lock: PadLock | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,13 +117,22 @@ class MissionSummary:
     home_touchdown_ned: tuple[float, float, float] | None = None
     failure: str = ""
     events: list[MissionEvent] = field(default_factory=list)
+    home_with_parcel: bool = False  # landed at home with the parcel still aboard
+    pad_tries: int = 0  # descents onto the pad that the no-release-off-the-pad policy stopped
 
 
 class DeliveryMission:
-    def __init__(self, cfg: MissionConfig, landing_controller: str = "companion"):
+    def __init__(
+        self,
+        cfg: MissionConfig,
+        landing_controller: str = "companion",
+        pad_policy: PadLockPolicyConfig | None = None,
+    ):
         """``landing_controller``: "companion" flies the descent onto the pad with velocity
         setpoints; "autopilot" hands it to the autopilot's own precision landing (fed
-        LANDING_TARGET by the shell) and only watches for the touchdown."""
+        LANDING_TARGET by the shell) and only watches for the touchdown. ``pad_policy``: no
+        release off the pad (docs/delivery-policy.md); None or require_pad_lock = false: the
+        parcel is released wherever the vehicle lands on the way out."""
         if landing_controller not in ("companion", "autopilot"):
             raise ValueError(f"landing_controller {landing_controller!r}: expected 'companion' or 'autopilot'")
         self.cfg = cfg
@@ -141,6 +164,11 @@ class DeliveryMission:
         self._now = 0.0
         self._low_since: float | None = None
         self._precland_requested = False
+        self.pad_policy = pad_policy if pad_policy is not None and pad_policy.require_pad_lock else None
+        self._pad_target_ne: tuple[float, float] | None = None  # PAD_HOLD: where to hold while not locked
+        self._search: list[tuple[float, float]] = []  # PAD_SEARCH: corners left (NED north, east)
+        self._corner_t0: float | None = None  # PAD_SEARCH: when the current corner was reached
+        self._touchdown_lock: tuple[bool, str] = (True, "")
 
     # ------------------------------------------------------------------ public API
     def abort(self, time_s: float, reason: str) -> None:
@@ -204,7 +232,7 @@ class DeliveryMission:
             self._goto(Phase.ABORT_HOLD)
             return "holding position until the pilot takes over or a land/abort command"
         if kind == "return":
-            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH):
                 self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
                 self.summary.failure = "returned on ground command"
                 self._goto(Phase.INBOUND)
@@ -445,6 +473,10 @@ class DeliveryMission:
             return sp, req, lyap
         target_sector = 5 if s == 1 else 1
         if self._sector == target_sector and self._height_above_ground(est) < self.cfg.final_descent_alt_m:
+            if s == 1 and self.pad_policy is not None:
+                ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
+                if not ok:
+                    return self._pad_try_failed(inp, f"no pad lock at the approach height: {why}"), None, lyap
             self._goto(landing)
         return sp, None, lyap
 
@@ -459,6 +491,8 @@ class DeliveryMission:
         if st is not None and st.landed is LandedState.ON_GROUND:
             if not self._touched_down:
                 self._touched_down = True
+                if s == 1 and self.pad_policy is not None:
+                    self._touchdown_lock = judge_pad_lock(inp.pad_lock, self.pad_policy)
                 if est is not None:
                     if s == 1:
                         self.summary.pad_touchdown_ned = est.position_ned
@@ -466,6 +500,12 @@ class DeliveryMission:
                         self.summary.home_touchdown_ned = est.position_ned
                 self._emit(EventKind.TOUCHDOWN, "pad" if s == 1 else "home")
             if not st.armed:
+                if s == 1 and not self._touchdown_lock[0]:
+                    return (
+                        None,
+                        self._home_with_parcel(f"no pad lock at touchdown: {self._touchdown_lock[1]}"),
+                        math.nan,
+                    )
                 self._after_touchdown(s)
                 return None, None, math.nan
             return None, self._ask_to_disarm(inp), math.nan
@@ -487,6 +527,11 @@ class DeliveryMission:
             return None, None, math.nan
         if self._expect_mode_change:
             return None, None, math.nan
+        if s == 1 and self.pad_policy is not None:
+            h = self._height_above_ground(est)
+            ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
+            if not ok and h > self.pad_policy.commit_height_m:
+                return self._pad_try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"), None, math.nan
         return self._precision_descent(est, s, inp.time_s), None, math.nan
 
     def _precision_descent(self, est: StateEstimate, s: int, time_s: float) -> VelocitySetpoint:
@@ -552,12 +597,149 @@ class DeliveryMission:
             self._landing_int = (ix, iy)
         return self._landing_int
 
+    # ------------------------------------------------------------------ no release off the pad
+    def _pad_try_failed(self, inp: MissionInputs, reason: str) -> VelocitySetpoint | None:
+        """A descent onto the pad cannot go on, or a hold and search found no lock: the policy's
+        next step (docs/delivery-policy.md). Returns the setpoint of this tick (None: none)."""
+        pol = self.pad_policy
+        assert pol is not None
+        self.summary.pad_tries += 1
+        n, total = self.summary.pad_tries, pol.descent_tries
+        lock = inp.pad_lock
+        if lock is None or not lock.sensors:
+            self._emit(EventKind.PAD_LOCK, reason)
+            self._pad_fallback("no pad sensor: no pad lock can come")
+            return None
+        if n >= total:
+            self._emit(EventKind.PAD_LOCK, f"try {n} of {total} failed: {reason}")
+            self._pad_fallback(f"{total} tries without a pad lock")
+            return None
+        self._emit(
+            EventKind.PAD_LOCK,
+            f"try {n} of {total} failed: {reason}; holding at the approach height "
+            f"({self.cfg.final_descent_alt_m} m) for up to {pol.hold_s} s",
+        )
+        self._searched = False
+        self._goto(Phase.PAD_HOLD)
+        return None
+
+    def _pad_fallback(self, reason: str) -> None:
+        """The last step: fly home with the parcel, in the air from here (on the ground after a
+        touchdown without lock: :meth:`_home_with_parcel`)."""
+        self.summary.failure = f"parcel not delivered: {reason}"
+        self._emit(EventKind.PAD_LOCK, f"{reason}: flying home with the parcel, to land there without releasing it")
+        self._goto(Phase.INBOUND)
+
+    def _home_with_parcel(self, reason: str) -> Request | None:
+        """Landed on the way out without a pad lock: nothing is released; take off and fly home."""
+        if not self._idle():
+            return None
+        self.summary.failure = f"parcel not delivered: {reason}"
+        self._emit(EventKind.PAD_LOCK, f"{reason}: parcel not released; taking off to fly home with it")
+        self._left_pad = True  # the next ARM is for the way home
+        self._goto(Phase.ARMING)
+        return self._make_request(RequestKind.ARM)
+
+    def _pad_setpoint(
+        self, est: StateEstimate, north_m: float, east_m: float, down_m: float, speed_m_s: float
+    ) -> VelocitySetpoint:
+        """Hold and search: towards a point (NED), horizontally at most ``speed_m_s``, vertically at
+        most the S5 descent speed."""
+        assert self.frame is not None
+        k = PAD_POSITION_GAIN_1_S
+        vn, ve = k * (north_m - est.north_m), k * (east_m - est.east_m)
+        vh = math.hypot(vn, ve)
+        if vh > speed_m_s:
+            vn, ve = vn * speed_m_s / vh, ve * speed_m_s / vh
+        vz_max = self.cfg.sector_speed_m_s[4]
+        vd = min(vz_max, max(-vz_max, k * (down_m - est.down_m)))
+        return VelocitySetpoint(vn, ve, vd, self.frame.yaw_to_ned(0.0))
+
+    def _pad_reentry(self, inp: MissionInputs) -> Request | None:
+        """Back from a link loss in a hold or search: OFFBOARD again (as _follow does)."""
+        if not self._reenter:
+            return None
+        req = self._enter_offboard(inp)
+        if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
+            self._reenter = False
+            self._expect_mode_change = False
+            self._offboard_requested = False
+            self._stream_t0 = None
+        return req
+
+    def _do_pad_hold(self, inp: MissionInputs) -> tuple:
+        """Step 1: at the approach height over the configured pad until locked (then onto the pad
+        as the lock puts it, and the descent again), for up to hold_s."""
+        est, pol = inp.estimate, self.pad_policy
+        if est is None or self.frame is None or pol is None:
+            return None, None, math.nan
+        pad = self.frame.pad_ned
+        down = float(pad[2]) - self.cfg.final_descent_alt_m
+        sp = self._pad_setpoint(est, float(pad[0]), float(pad[1]), down, pol.search_speed_m_s)
+        req = self._pad_reentry(inp)
+        if req is not None or self._reenter:
+            return sp, req, math.nan
+        ok, why = judge_pad_lock(inp.pad_lock, pol)
+        if ok:
+            off = math.hypot(est.north_m - float(pad[0]), est.east_m - float(pad[1]))
+            if off < pol.approach_tolerance_m and abs(est.down_m - down) < PAD_HEIGHT_TOLERANCE_M:
+                self._emit(
+                    EventKind.PAD_LOCK,
+                    f"pad locked ({why}), {off:.2f} m off it: descent try {self.summary.pad_tries + 1} "
+                    f"of {pol.descent_tries}",
+                )
+                self._goto(Phase.LANDING_PAD)
+            return sp, None, math.nan
+        if inp.time_s - self._phase_t0 < pol.hold_s:
+            return sp, None, math.nan
+        if pol.search_radius_m > 0.0 and not self._searched:
+            self._searched = True
+            pts = expanding_square(pol.search_radius_m, pol.search_spacing_m)
+            self._search = [(float(pad[0]) + n, float(pad[1]) + e) for n, e in pts]
+            self._corner_t0 = None
+            self._emit(
+                EventKind.PAD_LOCK,
+                f"no pad lock after holding {pol.hold_s} s ({why}): searching within {pol.search_radius_m} m of the "
+                f"configured pad at {pol.search_height_m} m, {len(pts)} corners at {pol.search_speed_m_s} m/s",
+            )
+            self._goto(Phase.PAD_SEARCH)
+            return sp, None, math.nan
+        return self._pad_try_failed(inp, f"no pad lock after holding {pol.hold_s} s: {why}"), None, math.nan
+
+    def _do_pad_search(self, inp: MissionInputs) -> tuple:
+        """Step 2: the expanding square at the search height until the pad is locked."""
+        est, pol = inp.estimate, self.pad_policy
+        if est is None or self.frame is None or pol is None:
+            return None, None, math.nan
+        down = float(self.frame.pad_ned[2]) - pol.search_height_m
+        if not self._search:
+            reason = f"search pattern flown within {pol.search_radius_m} m: pad not found"
+            return self._pad_try_failed(inp, reason), None, math.nan
+        n, e = self._search[0]
+        sp = self._pad_setpoint(est, n, e, down, pol.search_speed_m_s)
+        req = self._pad_reentry(inp)
+        if req is not None or self._reenter:
+            return sp, req, math.nan
+        ok, why = judge_pad_lock(inp.pad_lock, pol)
+        if ok:
+            self._emit(EventKind.PAD_LOCK, f"pad found in the search ({why}): flying onto it")
+            self._goto(Phase.PAD_HOLD)
+            return sp, None, math.nan
+        if math.hypot(est.north_m - n, est.east_m - e) < PAD_CORNER_TOLERANCE_M and abs(est.down_m - down) < 1.0:
+            if self._corner_t0 is None:
+                self._corner_t0 = inp.time_s
+            if inp.time_s - self._corner_t0 >= pol.search_dwell_s:
+                self._search.pop(0)
+                self._corner_t0 = None
+        return sp, None, math.nan
+
     def _after_touchdown(self, s: int) -> None:
         if s == 1:
             self._left_pad = True  # the next ARM is for the return leg
             self._goto(Phase.RELEASE)
         else:
             self.summary.returned = True
+            self.summary.home_with_parcel = not self.summary.delivered
             self.summary.end_time_s = self._now
             self._emit(EventKind.RETURNED, "landed at home")
             self._goto(Phase.DONE)
@@ -661,6 +843,7 @@ class DeliveryMission:
     _left_pad = False
     _release_requested = False
     _release_error = ""
+    _searched = False  # the search was flown in this try
 
     def _idle(self) -> bool:
         """No request in flight and none waiting for its retry: a phase may issue a new one."""

@@ -259,6 +259,17 @@ class _ReplayShell:
             return self.tick(*inp.payload)
         return None
 
+    def _pad_lock(self, now: float) -> Any:
+        """As DeliveryShell._pad_lock, from the recorded kit and the replayed fusion."""
+        from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
+
+        lc = self.config.landing
+        if not self.landing or not (lc.use_camera or lc.use_uwb):
+            return NO_SENSORS
+        if self.fusion is None:
+            return PadLock(now, math.inf, math.inf)
+        return measure_pad_lock(self.fusion, now)
+
     def tick(self, now: float, link_ok: bool) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
@@ -272,7 +283,7 @@ class _ReplayShell:
             fused = self.fusion.estimate() if self.fusion is not None else None
             if fused is not None and not mission.summary.delivered and not mission.returning:
                 estimate = fused
-        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok)
+        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now))
         out = mission.step(inp)
         setpoint, clamped = None, False
         if out.setpoint is not None:

@@ -44,6 +44,7 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
+from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
@@ -162,7 +163,7 @@ class DeliveryShell:
         self.before_flight = before_flight
         self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
-        self.mission = DeliveryMission(config.mission, config.landing.controller)
+        self.mission = DeliveryMission(config.mission, config.landing.controller, config.landing.policy)
         self.estimator = AutopilotPoseEstimator()
         mc = config.mission
         self._velocity_bias = (
@@ -324,7 +325,7 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
-            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok)
+            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok, self._pad_lock(now))
             out = mission.step(inp)
             for ev in out.events:
                 self.events.append(ev)
@@ -354,6 +355,16 @@ class DeliveryShell:
                 self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
             if self.on_tick is not None:
                 self.on_tick(self, out)
+
+    def _pad_lock(self, now: float) -> PadLock:
+        """The pad's lock for the mission's no-release-off-the-pad policy: none without a camera or
+        UWB in the landing kit (GPS-only)."""
+        kit = self.landing
+        if kit is None or (kit.camera is None and kit.uwb is None):
+            return NO_SENSORS
+        if self.fusion is None:
+            return PadLock(now, math.inf, math.inf)
+        return measure_pad_lock(self.fusion, now)
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
@@ -427,7 +438,9 @@ class DeliveryShell:
 
     def _vision_wanted(self) -> bool:
         m = self.mission
-        return m.phase is Phase.LANDING_PAD or (m.phase is Phase.OUTBOUND and m._sector >= 5)
+        return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH) or (
+            m.phase is Phase.OUTBOUND and m._sector >= 5
+        )
 
     async def _sensor_loop(self) -> None:
         """Lock-step (vision inline under virtual time): at each tick of the kit's poll rate, the
