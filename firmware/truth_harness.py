@@ -101,13 +101,16 @@ async def fly_on_truth(
     recorder: Any | None = None,
     pad_ne: tuple[float, float] | None = None,
 ) -> HarnessResult:
-    """One delivery with fusion; ``truth`` must be started (and is not stopped here). ``pad_ne``
+    """One delivery (with the landing sensors rendered from ``truth`` when ``landing.fusion``);
+    ``truth`` must be started (and is not stopped here). ``pad_ne``
     gives the true pad in the truth frame directly (a vehicle that does not start at the truth
     origin); otherwise it is the configured pad from ``origin`` plus ``pad_offset_m``."""
     if pad_ne is None:
         pad_ne = true_pad_ne(config, origin, pad_offset_m)
-    kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
-    kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
+    kit = None
+    if config.landing.fusion:  # a GPS-only flight has no landing sensors: it fuses nothing
+        kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
+        kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
     believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
     path_d: list[float] = []

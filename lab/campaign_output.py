@@ -65,11 +65,16 @@ def landing_scatter(result: dict[str, Any]) -> Figure:
         pts = np.array(
             [(x["east_m"], x["north_m"]) for x in ls if x["north_m"] is not None and math.isfinite(x["north_m"])]
         )
-        if pts.size == 0:
-            continue
         c = COLOURS.get(v, "gray")
         s = result["summary"][v]
+        if pts.size == 0:  # still in the legend: every variant's landings are counted
+            ax.scatter([], [], marker="x", color=c, label=f"{v}: no touchdown drawn ({s.get('failed', 0)} failed)")
+            continue
         label = f"{v}: mean {format_cm(s['mean_m'])}, on pad {s['on_pad_pct']:.0f} %"
+        if "landed" in s and s["landed"] < s["n"]:  # the landings not drawn: no touchdown on the pad's side
+            label += f", {s['landed']} of {s['n']} drawn"
+        if s.get("failed"):
+            label += f", {s['failed']} failed"
         ax.scatter(pts[:, 0], pts[:, 1], marker="x", color=c, label=label)
         ax_pad.scatter(pts[:, 0], pts[:, 1], marker="x", color=c)
         lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))

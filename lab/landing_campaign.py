@@ -45,11 +45,18 @@ FAILURE_VARIANTS = (
 
 
 def _outcomes(rows: list[dict[str, Any]]) -> dict[str, int]:
-    """How each delivery ended under the no-release-off-the-pad policy (docs/delivery-policy.md)."""
-    return {
-        "released": sum(bool(x["delivered"]) for x in rows),
-        "home_with_parcel": sum(bool(x.get("home_with_parcel")) for x in rows),
-    }
+    """How each delivery ended under the no-release-off-the-pad policy (docs/delivery-policy.md);
+    ``failed``: neither released nor brought home (no touchdown, a crash, a mission that failed)."""
+    released = sum(bool(x["delivered"]) for x in rows)
+    home = sum(bool(x.get("home_with_parcel")) for x in rows)
+    failed = sum(not x["delivered"] and not x.get("home_with_parcel") for x in rows)
+    return {"released": released, "home_with_parcel": home, "failed": failed}
+
+
+def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One variant's summary: the touchdown figures over the landings that touched down on the
+    pad's side of the flight (``landed`` of ``n``), and how every one of the ``n`` ended."""
+    return {**_stats([x["error_m"] for x in rows], [x["on_pad"] for x in rows]), **_outcomes(rows)}
 
 
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:
@@ -133,10 +140,7 @@ def run_landing_campaign(
     landings: dict[str, list[dict[str, Any]]] = {v: [] for v in variants}
     for task, row in zip(tasks, rows, strict=True):
         landings[task.variant].append(row)
-    summary = {
-        v: {**_stats([x["error_m"] for x in ls], [x["on_pad"] for x in ls]), **_outcomes(ls)}
-        for v, ls in landings.items()
-    }
+    summary = {v: summarize(ls) for v, ls in landings.items()}
     out = {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
     if profile != "ideal":
         out["profile"] = profile

@@ -76,18 +76,31 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
-    for col in ("variant", "mean", "median", "p90", "p95", "max", "on the pad", "released", "home w/ parcel"):
+    columns = ("variant", "landed", "mean", "median", "p90", "p95", "max", "on the pad", "released", "home w/ parcel")
+    for col in (*columns, "failed"):
         table.add_column(col, justify="right" if col != "variant" else "left")
     for v, s in result["summary"].items():
         table.add_row(
             v,
+            f"{s['landed']} of {s['n']}",
             *(format_cm(s[k]) for k in ("mean_m", "median_m", "p90_m", "p95_m", "max_m")),
             f"{s['on_pad_pct']:.0f} %",
-            f"{s['released']} of {s['n']}" if "released" in s else "-",
-            f"{s['home_with_parcel']} of {s['n']}" if "home_with_parcel" in s else "-",
+            f"{s['released']} of {s['n']}",
+            f"{s['home_with_parcel']} of {s['n']}",
+            f"{s['failed']} of {s['n']}",
         )
     console.print(table)
     console.print(f"written: {', '.join(str(f) for f in files)}")
+    failed = {v: s["failed"] for v, s in result["summary"].items() if s["failed"]}
+    if failed:
+        # every landing counts: one that neither released nor brought the parcel home is a failure
+        print(
+            "companion campaign landing: failed landings (no touchdown, a crash or a failed mission): "
+            + ", ".join(f"{v} {k} of {result['summary'][v]['n']}" for v, k in failed.items())
+            + f"; each one's 'failure' is in {out / 'landing_campaign.json'}",
+            file=sys.stderr,
+        )
+        return exits.FAILED
     return 0
 
 
@@ -118,7 +131,8 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
             f"(disagreeing seeds: {c['failure_class_disagreements'] or 'none'})"
         )
     console.print(f"written: {result['out_dir']}/parity.json, parity.png")
-    return 0
+    agree = all(c["mean_and_p90_within_factor"] and c["failure_classes_agree"] for c in result["comparison"].values())
+    return 0 if agree else exits.FAILED
 
 
 def cmd_campaign_probe(args: argparse.Namespace) -> int:
