@@ -134,3 +134,18 @@ def format_cell(v: object) -> str:
     """A value as the writer puts it in the file: ``str(v)``, which for a float is its shortest
     decimal that reads back as the same double."""
     return "" if v is None else str(v)
+
+
+def read_csv(path: str | Path) -> dict[str, list[str]]:
+    """Columns of any CSV file written by :class:`CsvFile`, as strings (tests, tools); a row of the
+    wrong length is a ValueError naming the file and line. Run-folder streams are read with
+    ``flightlog.reader`` instead (a torn last line dropped, the MCAP as fallback)."""
+    with Path(path).open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise ValueError(f"{path}: empty CSV file")
+    header, body = rows[0], rows[1:]
+    for k, r in enumerate(body):
+        if len(r) != len(header):
+            raise ValueError(f"{path}: line {k + 2}: {len(r)} fields, the header has {len(header)}")
+    return {h: [r[i] for r in body] for i, h in enumerate(header)}
