@@ -59,6 +59,8 @@ from companion.scheduling import LoopClock, RateLoop
 
 log = logging.getLogger(__name__)
 
+REQUEST_TIMEOUT_S = 10.0  # an autopilot call that takes longer has failed (and is retried)
+
 FLIGHT_LOG_COLUMNS = (
     "time_s",
     "phase",
@@ -609,11 +611,16 @@ class DeliveryShell:
         }
         # Every way out of here answers the request: a request left without a result would keep
         # the mission from ever issuing another (an abort's HOLD and LAND included), silently.
+        # a call the autopilot never answers ends here; an arm that waits for the autopilot's
+        # checks by design (ArduPilot's arm_timeout_s, retried until then) gets its own time
+        limit_s = REQUEST_TIMEOUT_S
+        if req.kind is RequestKind.ARM:
+            limit_s = max(limit_s, float(getattr(ap, "arm_timeout_s", 0.0)) + REQUEST_TIMEOUT_S)
         try:
             if req.kind is RequestKind.TAKEOFF:
-                await asyncio.wait_for(ap.takeoff(req.alt_rel_m), 10.0)
+                await asyncio.wait_for(ap.takeoff(req.alt_rel_m), limit_s)
             else:
-                await asyncio.wait_for(calls[req.kind](), 10.0)
+                await asyncio.wait_for(calls[req.kind](), limit_s)
         except (AutopilotError, TimeoutError) as err:
             permanent = isinstance(err, CommandRejected) and err.permanent
             self._failed(req, str(err) or type(err).__name__, permanent)

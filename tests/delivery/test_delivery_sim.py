@@ -22,6 +22,13 @@ def cfg(**sim):
     return load_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": sim} if sim else None)
 
 
+def no_sensors_cfg(**sim):
+    """For a shell flown without landing sensors (the tests of its requests): GPS-only release by
+    explicit choice, else the pad-lock policy brings the parcel home (docs/delivery-policy.md)."""
+    over = {"sim": sim, "landing": {"policy": {"require_pad_lock": False}}}
+    return load_config(shipped_params_path("delivery_paper.toml"), overrides=over)
+
+
 def test_full_mission_no_wind():
     r = run_demo(cfg(seed=1))
     assert r.delivered and r.returned and r.phase == "done", r.failure
@@ -130,7 +137,7 @@ def test_a_backend_that_raises_or_is_cancelled_inside_fails_the_request_and_the_
     """A request whose backend call ends any other way than accepted or AutopilotError (a bug
     raising, a native call's future cancelled under it) is answered as failed and retried:
     never left without a result, which would keep the mission from issuing anything again."""
-    config = cfg(seed=1)
+    config = no_sensors_cfg(seed=1)
     broken = {"takeoff": 1, "start_offboard": 1}
 
     class FlakyAutopilot(SimAutopilot):
@@ -166,8 +173,34 @@ def test_a_backend_that_raises_or_is_cancelled_inside_fails_the_request_and_the_
     assert any("takeoff: the backend raised KeyError" in r.getMessage() and r.exc_info for r in caplog.records)
 
 
+def test_an_arm_that_waits_for_the_autopilot_gets_the_backends_own_arm_timeout():
+    """ArduPilot's backend retries an arm refused while the EKF settles until its arm_timeout_s
+    (90 s in the real-firmware harness); the shell's call limit must not cut it at 10 s."""
+    config = no_sensors_cfg(seed=1)
+
+    class SlowToArm(SimAutopilot):
+        arm_timeout_s = 30.0
+
+        async def arm(self):
+            await asyncio.sleep(15.0)  # refused, retried, then accepted within arm_timeout_s
+            await super().arm()
+
+    async def go():
+        vehicle = SimVehicle(config.sim)
+        ap = SlowToArm(config.sim, vehicle)
+        shell = DeliveryShell(config, ap)
+        try:
+            return shell, await shell.run(timeout_s=600.0)
+        finally:
+            await ap.close()
+
+    shell, summary = run_virtual(go())
+    assert summary.delivered and summary.returned, summary.failure
+    assert shell.stats.requests_failed == 0, [e.detail for e in shell.events if e.kind is EventKind.REQUEST_FAILED]
+
+
 def test_stalled_control_task_stops_the_stream_and_the_autopilot_failsafe_fires():
-    config = cfg(seed=1)
+    config = no_sensors_cfg(seed=1)
     out = {}
 
     class StallingShell(DeliveryShell):
