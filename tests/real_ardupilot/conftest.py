@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,6 +25,8 @@ def ardupilot_root() -> Path:
     try:
         return find_ardupilot()
     except ArduPilotNotFound as err:
+        if os.environ.get("COMPANION_REQUIRE_FIRMWARE") == "1":  # CI with the builds shipped: absent is a failure
+            pytest.fail(f"COMPANION_REQUIRE_FIRMWARE=1 but {err}")
         pytest.skip(str(err))
 
 

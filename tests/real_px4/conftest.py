@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -14,4 +15,6 @@ def px4_root() -> Path:
     try:
         return find_px4()
     except Px4NotFound as err:
+        if os.environ.get("COMPANION_REQUIRE_FIRMWARE") == "1":  # CI with the builds shipped: absent is a failure
+            pytest.fail(f"COMPANION_REQUIRE_FIRMWARE=1 but {err}")
         pytest.skip(str(err))
