@@ -149,9 +149,10 @@ class SimCameraSource:
 
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
-        h = -self.vehicle.pd
-        if (self.fails_below_m > 0.0 and h < self.fails_below_m) or (self.range_m > 0.0 and h > self.range_m):
-            return None  # failed, or out of range: nothing rendered, nothing read
+        if self.fails_below_m > 0.0 or self.range_m > 0.0:  # a simulated failure or a short range
+            h = -self.vehicle.pd
+            if (self.fails_below_m > 0.0 and h < self.fails_below_m) or (self.range_m > 0.0 and h > self.range_m):
+                return None  # failed, or out of range: nothing rendered, nothing read
         self._polled = True
         now = self._clock.now()
         # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
