@@ -187,7 +187,13 @@ async def fly(
     ``mavlink`` = "px4" or "ardupilot": the simulator is served over real MAVLink on loopback UDP
     (MavlinkSimVehicle, stepped in real time) and flown through the matching backend (MAVSDK or
     pymavlink); otherwise the in-process SimAutopilot is used.
+
+    ``fusion`` = False flies the paper's GPS-only baseline: no landing sensors, and the parcel
+    released where the vehicle lands (an explicit opt-out of the pad-lock policy).
     """
+    if fusion is False and config.landing.policy.require_pad_lock:
+        policy = config.landing.policy.model_copy(update={"require_pad_lock": False})
+        config = config.model_copy(update={"landing": config.landing.model_copy(update={"policy": policy})})
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)

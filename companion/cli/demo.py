@@ -38,8 +38,8 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
     if args.pad_offset is not None:
         sim["pad_offset_m"] = _parse_vec(args.pad_offset, "--pad-offset")[:2]
     overrides: dict[str, Any] = {"sim": sim} if sim else {}
-    if args.gps_only:
-        overrides["landing"] = {"fusion": False}
+    if args.gps_only:  # the paper's GPS-only baseline: released where it lands (docs/delivery-policy.md)
+        overrides["landing"] = {"fusion": False, "policy": {"require_pad_lock": False}}
     if getattr(args, "zenoh_config", None):
         overrides["telemetry"] = {"zenoh_config": args.zenoh_config}
     return load_config(*paths, overrides=overrides or None)

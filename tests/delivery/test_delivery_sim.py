@@ -222,7 +222,7 @@ def test_stalled_control_task_stops_the_stream_and_the_autopilot_failsafe_fires(
 
 
 def test_link_loss_stops_commanding_and_reconnect_resumes_the_field():
-    config = cfg(seed=4)
+    config = no_sensors_cfg(seed=4)
     out = {}
 
     async def monitor(shell, ap, vehicle):
@@ -243,7 +243,7 @@ def test_link_loss_stops_commanding_and_reconnect_resumes_the_field():
 
 
 def test_nan_telemetry_is_rejected_and_the_mission_goes_on():
-    config = cfg(seed=1)
+    config = no_sensors_cfg(seed=1)
 
     async def monitor(shell, ap, vehicle):
         await _wait_until(20.0)

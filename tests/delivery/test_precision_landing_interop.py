@@ -43,7 +43,7 @@ def test_autopilot_precision_landing_fed_landing_target_ends_on_the_displaced_pa
 def test_without_targets_the_autopilots_landing_misses_by_the_bias():
     """Control: the same flight with our controller but GPS only lands about the bias away, so the
     interop test above cannot pass by accident."""
-    r = run_demo(_cfg({"fusion": False}))
+    r = run_demo(_cfg({"fusion": False, "policy": {"require_pad_lock": False}}))  # released where it lands
     assert r.delivered
     assert r.pad_landing_error_m > 1.0
     assert math.isfinite(r.pad_landing_error_m)
