@@ -3,16 +3,44 @@ session: inputs tried, escapes (goal: 0) and how the inputs ended."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from .harness import BUDGETS, COUNTS
+from companion.config import load_config, shipped_params_path
+
+from .harness import BUDGETS, COUNTS, RUN_FOLDER_BUDGETS
 
 
 @pytest.fixture(scope="session")
-def fuzz_budget(request: pytest.FixtureRequest) -> int:
+def fuzz_budget(fuzz_tier: str) -> int:
     """Examples per fuzz test: small in the fast tier, large in ``--tier fuzz`` / ``--tier all``."""
-    tier = request.config.getoption("--tier")
-    return BUDGETS["fast" if tier == "fast" else "fuzz"]
+    return BUDGETS[fuzz_tier]
+
+
+@pytest.fixture(scope="session")
+def fuzz_tier(request: pytest.FixtureRequest) -> str:
+    """"fast" (the small budget) or "fuzz" (``--tier fuzz`` and ``--tier all``)."""
+    return "fast" if request.config.getoption("--tier") == "fast" else "fuzz"
+
+
+@pytest.fixture(scope="session")
+def run_folder_budget(fuzz_tier: str) -> int:
+    """Generated run folders per test (each replay or report takes one to three seconds)."""
+    return RUN_FOLDER_BUDGETS[fuzz_tier]
+
+
+@pytest.fixture(scope="session")
+def fuzz_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One real run folder (the short delivery with fusion, about 2 s), built once: the seed the
+    run-folder tests mutate copies of."""
+    from companion_lab.demo import run_demo
+
+    run = tmp_path_factory.mktemp("fuzz-demo") / "run"
+    over = {"sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]}}
+    r = run_demo(load_config(shipped_params_path("sitl_short.toml"), overrides=over), run_dir=run)
+    assert r.delivered and r.returned, r.failure
+    return run
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:

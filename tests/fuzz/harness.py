@@ -16,7 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 #: examples per fuzz test and tier (``--tier fuzz`` and ``--tier all`` take the larger)
-BUDGETS = {"fast": 30, "fuzz": 1000}
+BUDGETS = {"fast": 25, "fuzz": 1000}
+#: mutated run folders per test (a replay or a report takes about a second each)
+RUN_FOLDER_BUDGETS = {"fast": 1, "fuzz": 60}
 #: one input may take this long; longer is a hang (an escape)
 TIMEOUT_S = 10.0
 #: COMPANION_FUZZ_KEEP_GOING=1: count escapes and go on instead of failing at the first (a survey)
