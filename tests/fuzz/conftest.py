@@ -20,7 +20,7 @@ def fuzz_budget(fuzz_tier: str) -> int:
 
 @pytest.fixture(scope="session")
 def fuzz_tier(request: pytest.FixtureRequest) -> str:
-    """"fast" (the small budget) or "fuzz" (``--tier fuzz`` and ``--tier all``)."""
+    """The budget tier: fast, or fuzz (``--tier fuzz`` and ``--tier all``)."""
     return "fast" if request.config.getoption("--tier") == "fast" else "fuzz"
 
 

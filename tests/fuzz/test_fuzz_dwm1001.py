@@ -7,6 +7,7 @@ complete line is lost without a count."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -55,7 +56,7 @@ def test_lec_bytes_into_the_driver(fuzz_budget) -> None:
         drv = Dwm1001Driver("/dev/fuzz", clock=_Clock())
         drv._ser = object()  # read() refuses to run before start()
         bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-        for a, b in zip(bounds, bounds[1:], strict=False):
+        for a, b in itertools.pairwise(bounds):
             drv._buf += data[a:b]
             drv._parse_buffer()
         got = drv.read()
@@ -91,7 +92,11 @@ def test_lec_lines_as_text(fuzz_budget) -> None:
     for line in text_seeds:
         harness.check("dwm1001 lec lines (parser)", feed, line, ())
     harness.run(
-        st.one_of(st.text(max_size=300), st.sampled_from(text_seeds)),
+        st.one_of(
+            st.text(max_size=300),
+            st.sampled_from(text_seeds),
+            harness.mutated([t.encode() for t in text_seeds if t]).map(lambda b: b.decode("utf-8", "replace")),
+        ),
         lambda line: harness.check("dwm1001 lec lines (parser)", feed, line, ()),
         fuzz_budget,
     )

@@ -47,6 +47,8 @@ def test_mavlink_datagrams_into_the_sim_vehicle(dialect, fuzz_budget) -> None:
     try:
         for data in SEEDS:
             harness.check(surface, feed, data, ())
-        harness.run(harness.fuzz_bytes(SEEDS, max_random=1024), lambda d: harness.check(surface, feed, d, ()), fuzz_budget)
+        harness.run(
+            harness.fuzz_bytes(SEEDS, max_random=1024), lambda d: harness.check(surface, feed, d, ()), fuzz_budget
+        )
     finally:
         sock.close()
