@@ -755,6 +755,10 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(str(p), [f"not valid TOML: {err}"]) from None
     except UnicodeDecodeError as err:
         raise ConfigError(str(p), [f"not UTF-8 text, as TOML must be: {err}"]) from None
+    except ValueError as err:  # an integer of more digits than int() converts (sys.get_int_max_str_digits)
+        raise ConfigError(str(p), [f"not valid TOML: a number TOML parsing refuses: {err}"]) from None
+    except RecursionError:
+        raise ConfigError(str(p), ["not valid TOML: arrays or tables nested too deeply"]) from None
     except OSError as err:
         raise ConfigError(str(p), [f"cannot read: {err.strerror}"]) from None
 

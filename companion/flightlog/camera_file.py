@@ -49,6 +49,10 @@ def load_frame_times(path: str | Path) -> list[float]:
             rows = list(csv.reader(fh))
     except OSError as exc:
         raise CameraFileError(f"{p}: cannot read frame times: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise CameraFileError(f"{p}: not UTF-8 text: {exc}") from None
+    except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit()
+        raise CameraFileError(f"{p}: not a frame-times CSV: {exc}") from None
     if not rows or tuple(c.strip() for c in rows[0]) != TIMES_COLUMNS:
         head = rows[0] if rows else []
         raise CameraFileError(f"{p}: line 1: header {head!r}: expected the columns {','.join(TIMES_COLUMNS)}")

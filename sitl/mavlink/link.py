@@ -56,6 +56,7 @@ class LinkStats:
     landing_targets: int = 0
     signature_rejects: int = 0  # dropped by the signing check (unsigned, or another key)
     signed_in: int = 0  # accepted with a verified signature
+    handle_errors: int = 0  # accepted messages whose handling raised (logged, dropped)
     commands: Counter[int] = field(default_factory=Counter)
     unsupported_commands: Counter[int] = field(default_factory=Counter)
     by_type_in: Counter[str] = field(default_factory=Counter)
@@ -278,6 +279,7 @@ class MavlinkLink(abc.ABC):
                     self.vehicle.step_to(self.now)
                     self._handle(m)
             except Exception:
+                self.stats.handle_errors += 1
                 log.exception("error handling %s", m.get_type())
 
     # ------------------------------------------------------------------ sending

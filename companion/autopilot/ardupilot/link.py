@@ -63,6 +63,7 @@ class LinkCounters:
     bad_data: int = 0
     garbage_bytes: int = 0
     read_errors: int = 0
+    decode_errors: int = 0  # messages the telemetry decoder raised on (dropped, logged)
     setpoints_sent: int = 0
     setpoints_dropped: int = 0
     commands_sent: int = 0
@@ -356,6 +357,7 @@ class ArduPilotLink:
             try:
                 self._on_message(m)
             except Exception:
+                self.counters.decode_errors += 1
                 log.exception("error decoding %s", m.get_type())
 
     def _log_sent(self, msg: Any) -> None:

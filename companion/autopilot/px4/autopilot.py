@@ -37,6 +37,7 @@ from companion.autopilot.interface import (
     TelemetryCache,
 )
 from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.requests import Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.autopilot.types import (
@@ -103,6 +104,7 @@ class Px4Autopilot(Px4Requests, Autopilot):
         self.tlog: PacketSink | None = None
         self._tlog_opened = False  # a reconnect appends to the same file
         self._tlog_unhook: list[Callable[[], None]] = []
+        self.intercept_counters = InterceptCounters()  # messages the MAVLink log's interceptor dropped
         self._mavsdk: Any = None
         self._system: Any = None
         self._action: Any = None

@@ -36,11 +36,12 @@ from companion.autopilot.interface import (
     PacketSink,
     TelemetryCache,
 )
-from companion.autopilot.mavlink_messages import MavlinkPacker
 from companion.autopilot.px4.mavsdk_core import (
+    InterceptCounters,
     check_connection_url,
     collect_connect_problems,
     intercept_messages_json,
+    message_logger,
     route_mavsdk_log,
 )
 from companion.autopilot.types import (
@@ -70,6 +71,7 @@ class Px4Link:
     tlog: PacketSink | None
     _tlog_opened: bool
     _tlog_unhook: list[Callable[[], None]]
+    intercept_counters: InterceptCounters
     _mavsdk: Any
     _system: Any
     _action: Any
@@ -146,15 +148,9 @@ class Px4Link:
     def _open_tlog(self, open_sink: OpenPacketSink) -> None:
         tlog = self.tlog = open_sink(self._tlog_opened)
         self._tlog_opened = True
-        packer = MavlinkPacker()  # used on the writer thread only
-
-        def log_message(msg: Any) -> None:
-            name, fields = msg.message_name.decode(), msg.fields_json.decode()
-            sysid, compid = msg.system_id, msg.component_id
-            tlog.write(lambda: packer.pack_json(name, fields, sysid, compid))
-
+        log_message = message_logger(tlog)
         for direction in ("incoming", "outgoing"):
-            unhook = intercept_messages_json(self._mavsdk, direction, log_message)
+            unhook = intercept_messages_json(self._mavsdk, direction, log_message, self.intercept_counters)
             if unhook is None:
                 where = getattr(tlog, "path", "the MAVLink log")
                 log.warning("this MAVSDK build does not report %s messages: %s lacks them", direction, where)

@@ -8,27 +8,71 @@ import ctypes
 import logging
 import os
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 from companion.autopilot.interface import (
     ConnectionUrlError,
     LinkDeviceMissing,
+    PacketSink,
     check_port,
 )
+from companion.autopilot.mavlink_messages import MavlinkPacker
 
 log = logging.getLogger(__name__)
 
 
-def intercept_messages_json(mavsdk: Any, direction: str, fn: Callable[[Any], None]) -> Any:
+@dataclass
+class InterceptCounters:
+    """Messages MAVSDK handed to an interceptor: passed on, or dropped because the handler raised."""
+
+    delivered: int = 0
+    errors: int = 0
+
+
+def deliver_intercepted(fn: Callable[[Any], None], msg: Any, counters: InterceptCounters) -> int:
+    """Hand one intercepted message to ``fn`` on MAVSDK's thread, where nothing may raise: a
+    handler that raises drops the message, counted in ``counters.errors`` and logged (the first
+    and every 1000th). Always 1: MAVSDK drops a message whose interceptor returns 0."""
+    try:
+        fn(msg)
+    except Exception as err:
+        counters.errors += 1
+        if counters.errors == 1 or counters.errors % 1000 == 0:
+            why = f"{type(err).__name__}: {err}"
+            log.warning("%d intercepted MAVLink message(s) dropped, the last: %s", counters.errors, why)
+        return 1
+    counters.delivered += 1
+    return 1
+
+
+def message_logger(tlog: PacketSink) -> Callable[[Any], None]:
+    """An interceptor writing each message MAVSDK decoded into ``tlog``, packed again from its
+    name and fields JSON on the sink's writer thread (a packing failure is the sink's count)."""
+    packer = MavlinkPacker()  # used on the writer thread only
+
+    def log_message(msg: Any) -> None:
+        name, fields = msg.message_name.decode(), msg.fields_json.decode()
+        sysid, compid = msg.system_id, msg.component_id
+        tlog.write(lambda: packer.pack_json(name, fields, sysid, compid))
+
+    return log_message
+
+
+def intercept_messages_json(
+    mavsdk: Any, direction: str, fn: Callable[[Any], None], counters: InterceptCounters | None = None
+) -> Any:
     """Call ``fn`` with every MAVLink message MAVSDK receives (``direction="incoming"``) or sends
     (``"outgoing"``), decoded: a ``mavsdk.types.MavsdkMessage`` with ``message_name``,
     ``system_id``, ``component_id`` and ``fields_json``. Runs on MAVSDK's thread (or the sender's).
 
     The C library exports ``mavsdk_subscribe_{incoming,outgoing}_messages_json`` but the mavsdk 4
     Python binding does not wrap them, so they are called through ctypes. The callback always
-    returns 1 (MAVSDK drops a message whose interceptor returns 0). Returns an unsubscribe
-    function, or None if this MAVSDK build lacks the interface.
+    returns 1 (MAVSDK drops a message whose interceptor returns 0); a message ``fn`` raises on is
+    counted in ``counters`` (:func:`deliver_intercepted`). Returns an unsubscribe function, or
+    None if this MAVSDK build lacks the interface.
     """
+    counts = counters if counters is not None else InterceptCounters()
     try:
         from mavsdk.cmavsdk_loader import _cmavsdk_lib as lib
         from mavsdk.types import InterceptJsonCallback
@@ -45,9 +89,7 @@ def intercept_messages_json(mavsdk: Any, direction: str, fn: Callable[[Any], Non
     unsub.restype = None
 
     def trampoline(msg: Any, _user_data: Any) -> int:
-        with contextlib.suppress(Exception):
-            fn(msg)
-        return 1
+        return deliver_intercepted(fn, msg, counts)
 
     cb = InterceptJsonCallback(trampoline)
     handle = sub(core, cb, None)
