@@ -88,13 +88,10 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
     # GPS only would land ~0.75 m off (the displacement); the fused landing is on the true pad
     assert math.isfinite(r.pad_landing_error_m) and r.pad_landing_error_m < 0.3, r
     # the landing error splits into the companion's control error (where it believed it was from
-    # the pad) and its estimation error; the first is small once it lands on its own estimate, and
-    # the triangle inequality ties the three together
-    assert math.isfinite(r.believed_offset_m) and math.isfinite(r.estimate_error_m), r
+    # the pad) and its estimation error at touchdown, each bound at ~3x the larger of the two
+    # profiles' measured figures (believed 0.018 / 0.094 m, estimate error 0.021 / 0.027 m)
     assert r.believed_offset_m < 0.3, r
-    assert r.pad_landing_error_m <= r.believed_offset_m + r.estimate_error_m + 1e-9, r
-    assert r.estimate_error_m <= r.pad_landing_error_m + r.believed_offset_m + 1e-9, r
-    assert r.guidance_overruns >= 0 and r.setpoint_overruns >= 0
+    assert r.estimate_error_m < 0.1, r
     # the arcs' overshoot: within the path's plane, in sectors 2 and 4; never more than the whole
     # distance there (the lateral part left out)
     arcs = [row[3] for row in r.path_trace if row[2] in (2, 4)]
