@@ -216,7 +216,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     # every companion flying on the autopilot's estimate flies on, reads high in flight
     # (docs/simulation.md, "Path tracking").
     assert r.tracking_max_arcs_m < 0.65, r.tracking_max_arcs_m
-    assert math.isfinite(r.path_max_arcs_m), r
+    assert r.path_max_arcs_m < 2.5, r  # on truth: 0.5-1.3 m recorded (docs/performance.md), ~2x
 
 
 async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):
