@@ -17,9 +17,10 @@ pytestmark = pytest.mark.firmware
 
 
 def test_parity_on_three_seeds(px4_root, tmp_path):
-    r = run_parity("px4", 3, 1, shipped_params_path("landing_campaign_short.toml"), tmp_path)
+    # seed 7: draws no profile was traced on (the px4-sih profile's estimator states come from seed 1)
+    r = run_parity("px4", 3, 7, shipped_params_path("landing_campaign_short.toml"), tmp_path)
     saved = json.loads((tmp_path / "parity.json").read_text())
-    assert saved["comparison"]["fusion"]["seeds"] == [1000, 1001, 1002]
+    assert saved["comparison"]["fusion"]["seeds"] == [7000, 7001, 7002]
     assert (tmp_path / "parity.png").stat().st_size > 10_000
     real = r["real"]["landings"]["fusion"]
     pred = r["predicted"]["landings"]["fusion"]
@@ -39,11 +40,9 @@ def test_parity_on_three_seeds(px4_root, tmp_path):
     assert max(math.hypot(*x["pad_displacement_m"]) for x in real) > 1.0
     c = r["comparison"]["fusion"]
     assert c["failure_classes_agree"]
-    # three landings are too few for the 1.5x criterion (the command's 10+ are for that): the
-    # prediction must be of the same order as the firmware. The real side depends on the machine
-    # (a slow CI machine lands several times farther off than a fast one on the same draws): the
-    # bound admits that and still fails a prediction off by more than 5x either way
-    assert 1 / 5 < c["ratio_predicted_to_real"]["mean_m"] < 5, c
+    # three landings are too few for the 1.5x criterion (the command's 10+ are for that); their
+    # mean ratio is held within 3x either way (0.66-1.5x on seeds 1-4)
+    assert 1 / 3 < c["ratio_predicted_to_real"]["mean_m"] < 3, c
 
 
 def test_gps_only_fuses_nothing_and_lands_where_gps_leads(px4_root, tmp_path):
