@@ -63,6 +63,15 @@ def velocity_setpoint_fields(
 _FLOAT_TYPES = ("float", "double")
 
 
+class UnknownMessage(KeyError):
+    """A message pymavlink's ardupilotmega dialect does not define (a newer common message, a
+    PX4-only one): it cannot be packed into a .tlog; the writer counts these by name."""
+
+    def __init__(self, name_or_id: str | int):
+        super().__init__(f"MAVLink message {name_or_id!r} is not in pymavlink's ardupilotmega dialect")
+        self.name_or_id = name_or_id
+
+
 class MavlinkPacker:
     """MAVLink 2 packets in pymavlink's ``ardupilotmega`` dialect (a superset of ``common``),
     with one sequence counter per source (system, component). Messages from decoded fields
@@ -93,7 +102,7 @@ class MavlinkPacker:
         else:
             cls = getattr(mavlink2, f"MAVLink_{name_or_id.lower()}_message", None)
         if cls is None:
-            raise KeyError(f"MAVLink message {name_or_id!r} is not in pymavlink's ardupilotmega dialect")
+            raise UnknownMessage(name_or_id)
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))  # wire order
         args: list[Any] = []
         for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=True):  # constructor order

@@ -23,6 +23,7 @@ from pathlib import Path
 from types import TracebackType
 
 from companion.autopilot.interface import PacketSource
+from companion.autopilot.mavlink_messages import UnknownMessage
 from companion.flightlog.tlog import TIMESTAMP, tlog_timestamp_us, write_all
 
 log = logging.getLogger(__name__)
@@ -76,6 +77,7 @@ class TlogWriter:
         self.written = 0  # records on disk
         self.dropped = 0  # packets refused: queue full, or the writer has failed or closed
         self.encode_errors = 0  # deferred packets whose build function raised
+        self.unknown_messages: dict[str, int] = {}  # messages the dialect does not define, by name or id
         self.error: str | None = None  # why the writer thread stopped early, if it did
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -180,6 +182,13 @@ class TlogWriter:
             )
         if self.encode_errors:
             log.warning("%s: %d MAVLink packets could not be encoded", self.path, self.encode_errors)
+        if self.unknown_messages:
+            log.info(
+                "%s: left out %d messages pymavlink's ardupilotmega dialect does not define: %s",
+                self.path,
+                sum(self.unknown_messages.values()),
+                ", ".join(f"{k} x {n}" for k, n in sorted(self.unknown_messages.items())),
+            )
 
     def __enter__(self) -> TlogWriter:
         return self
@@ -233,6 +242,10 @@ class TlogWriter:
                 usec, src = it  # type: ignore[misc]
                 try:
                     packet: bytes | bytearray | None = src() if callable(src) else src
+                except UnknownMessage as err:  # expected of a newer autopilot: counted, said once at close
+                    key = str(err.name_or_id)
+                    self.unknown_messages[key] = self.unknown_messages.get(key, 0) + 1
+                    continue
                 except Exception:
                     self.encode_errors += 1
                     if self.encode_errors in (1, 100, 10000):

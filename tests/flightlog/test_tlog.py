@@ -447,3 +447,25 @@ def test_an_exception_mid_flight_leaves_a_readable_tlog_with_everything_before(t
     assert len(got_before) == len(ref_msgs) > 1000  # nothing before the crash is missing...
     for a, b in zip(got_before, ref_msgs, strict=True):  # ...or different from the uncrashed flight
         assert a.get_msgbuf() == b.get_msgbuf()
+
+
+def test_a_message_the_dialect_lacks_is_left_out_counted_and_named_once(tmp_path, caplog):
+    # PX4 sends messages newer than pymavlink's ardupilotmega dialect (e.g. CURRENT_MODE, 436)
+    packer = MavlinkPacker()
+    attitude = {"time_boot_ms": 5, "roll": 0.1, "pitch": 0.2, "yaw": 0.3}
+    path = tmp_path / "c.tlog"
+    caplog.set_level("INFO", logger="companion.flightlog.tlog_writer")
+    with TlogWriter(path, clock=lambda: T0) as w:
+        for _ in range(3):
+            assert w.write(lambda: packer.pack_fields(99999, {}, 1, 1))
+            assert w.write(lambda: packer.pack_fields("ATTITUDE", attitude, 1, 1))
+    assert w.unknown_messages == {"99999": 3} and w.encode_errors == 0
+    assert not [r for r in caplog.records if r.exc_info]  # no traceback
+    said = [r.getMessage() for r in caplog.records if "does not define" in r.getMessage()]
+    assert len(said) == 1 and "99999 x 3" in said[0]
+    conn = mavutil.mavlink_connection(str(path))
+    got = []
+    while (r := conn.recv_match()) is not None:
+        got.append(r.get_type())
+    conn.close()
+    assert got == ["ATTITUDE"] * 3
