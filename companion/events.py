@@ -41,6 +41,7 @@ class EventKind(enum.Enum):
     LINK_RESTORED = "link_restored"
     REQUEST_FAILED = "request_failed"
     WARNING = "warning"
+    GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.types import (
     Attitude,
     GlobalPosition,
@@ -312,3 +313,12 @@ class Autopilot(abc.ABC):
         """Hand the descent to the autopilot's own precision landing (PX4 AUTO.PRECLAND,
         ArduPilot LAND with PLND enabled). Backends without one fall back to plain LAND."""
         await self.land()
+
+    # The autopilot's own fence (companion.autopilot.fence; MAVLink fence protocol).
+    async def upload_fence(self, fence: AutopilotFence) -> None:
+        """Replace the autopilot's fence with ``fence`` (raises :class:`AutopilotError`)."""
+        raise AutopilotError(f"{type(self).__name__} cannot upload a fence")
+
+    async def download_fence(self) -> AutopilotFence:
+        """The fence the autopilot holds (raises :class:`AutopilotError`)."""
+        raise AutopilotError(f"{type(self).__name__} cannot download a fence")

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from companion.autopilot.ardupilot.dialect import mavlink
+from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
 from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ
@@ -53,7 +54,7 @@ log = logging.getLogger(__name__)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
 
-class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
+class ArduPilotAutopilot(ArduPilotFence, ArduPilotTelemetry, Autopilot):
     def __init__(
         self,
         connection: str = "udpin:0.0.0.0:14550",

@@ -37,6 +37,7 @@ from companion.autopilot.interface import (
     TelemetryCache,
 )
 from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.requests import Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.autopilot.types import (
@@ -63,7 +64,7 @@ MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
 
 
-class Px4Autopilot(Px4Requests, Autopilot):
+class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",
