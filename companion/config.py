@@ -351,6 +351,16 @@ class GoNoGoConfig(_Section):
         ge=0.0,
         le=30.0,
     )
+    wind_exceed_s: float = _f(
+        3.0,
+        "s",
+        "in flight, the wind estimate must stay above wind_limit_m_s this long before the return (a gust passes)",
+        ge=0.0,
+        le=120.0,
+    )
+    wind_max_age_s: float = _f(
+        3.0, "s", "a wind estimate older than this is none (before take-off the check waits for one)", gt=0.0, le=60.0
+    )
     remote_id_required: bool = _f(
         False,
         "-",

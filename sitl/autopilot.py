@@ -25,7 +25,7 @@ from typing import Any
 
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
-from companion.autopilot.types import FlightMode, LandingTarget, StatusText
+from companion.autopilot.types import FlightMode, LandingTarget, StatusText, Wind
 from companion.config import SimConfig
 from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
@@ -223,6 +223,7 @@ class SimAutopilot(Autopilot):
                 tc.push(v.gps_raw())
             if k % n_status == 0:
                 tc.push(v.status())
+                tc.push_wind(Wind(t, *v.wind_ned()))  # the autopilot's wind estimate (no listener sees it)
                 home = v.home()
                 if home is not None:
                     tc.push(home)

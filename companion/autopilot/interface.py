@@ -25,6 +25,7 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
+    Wind,
 )
 from companion.guidance.setpoint import VelocitySetpoint
 
@@ -166,6 +167,7 @@ class TelemetryCache:
         self.rejected: dict[str, int] = {}
         self.last_rejection: str = ""
         self.rc_input: RcInput | None = None
+        self.wind: Wind | None = None  # the autopilot's wind estimate, when asked for (push_wind)
         self._listeners: list[Callable[[TelemetrySample], None]] = []
         self._rc_listeners: list[Callable[[RcInput], None]] = []
 
@@ -196,6 +198,18 @@ class TelemetryCache:
         self.rc_input = rc
         for fn in self._rc_listeners:
             fn(rc)
+        return True
+
+    def push_wind(self, wind: Wind) -> bool:
+        """Store the autopilot's newest wind estimate (rejected and counted when not finite). Kept
+        apart from :meth:`push`: no listener (log, telemetry) sees it."""
+        try:
+            wind.validate()
+        except ValueError as err:
+            self.rejected["Wind"] = self.rejected.get("Wind", 0) + 1
+            self.last_rejection = str(err)
+            return False
+        self.wind = wind
         return True
 
     def push(self, sample: TelemetrySample) -> bool:

@@ -1,5 +1,6 @@
-"""Go / no-go on the battery (docs/go-no-go.md): is there the charge to get home from here, at the
-speeds the mission flies, and land with the reserve left?
+"""Go / no-go on the battery and the wind (docs/go-no-go.md). Battery: is there the charge to get
+home from here, at the speeds the mission flies, and land with the reserve left? Wind: is the wind
+the autopilot estimates within the limit (:class:`WindMonitor`)?
 
 Pure. The charge is the autopilot's own remaining % (BATTERY_STATUS / SYS_STATUS on ArduPilot,
 MAVSDK telemetry.battery on PX4: ``VehicleStatus.battery_pct``). The use per second is the
@@ -13,6 +14,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from companion.autopilot.types import Wind
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,4 +117,44 @@ class BatteryMonitor:
             t_home_s,
             measured,
             what,
+        )
+
+
+class WindMonitor:
+    """The wind the autopilot estimates against ``limit_m_s``: none above it for a take-off, and in
+    flight a return once it has stayed above it for ``exceed_s`` (a gust alone does not turn the
+    delivery back)."""
+
+    def __init__(self, limit_m_s: float, exceed_s: float = 3.0, max_age_s: float = 3.0):
+        self.limit_m_s = limit_m_s
+        self.exceed_s = exceed_s
+        self.max_age_s = max_age_s
+        self._above_since: float | None = None
+
+    def fresh(self, time_s: float, wind: Wind | None) -> bool:
+        return wind is not None and time_s - wind.time_s <= self.max_age_s
+
+    def take_off_problem(self, time_s: float, wind: Wind | None) -> str | None:
+        """Why the wind forbids a take-off now (None: it allows it). Call with a fresh estimate."""
+        if wind is None or not self.fresh(time_s, wind):
+            return "no fresh wind estimate from the autopilot"
+        if wind.speed_m_s > self.limit_m_s:
+            return (
+                f"wind {wind.speed_m_s:.1f} m/s (the autopilot's estimate) above go_no_go.wind_limit_m_s = "
+                f"{self.limit_m_s:g} m/s"
+            )
+        return None
+
+    def update(self, time_s: float, wind: Wind | None) -> str | None:
+        """In flight: the reason to return once the wind has stayed above the limit for ``exceed_s``."""
+        if wind is None or not self.fresh(time_s, wind) or wind.speed_m_s <= self.limit_m_s:
+            self._above_since = None
+            return None
+        if self._above_since is None:
+            self._above_since = time_s
+        if time_s - self._above_since < self.exceed_s:
+            return None
+        return (
+            f"wind {wind.speed_m_s:.1f} m/s (the autopilot's estimate) above go_no_go.wind_limit_m_s = "
+            f"{self.limit_m_s:g} m/s for {time_s - self._above_since:.1f} s"
         )

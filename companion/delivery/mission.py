@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
+from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus, Wind
 from companion.config import FenceConfig, GoNoGoConfig, LimitsConfig, MissionConfig
-from companion.delivery.gonogo import BatteryMonitor, WayHome, time_home_s
+from companion.delivery.gonogo import BatteryMonitor, WayHome, WindMonitor, time_home_s
 from companion.delivery.planning import plan_delivery
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
@@ -77,6 +77,7 @@ class MissionInputs:
     status: VehicleStatus | None
     home: HomePosition | None
     link_ok: bool = True
+    wind: Wind | None = None  # the autopilot's wind estimate (the wind go / no-go)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +163,11 @@ class DeliveryMission:
         self.battery = (
             BatteryMonitor(g.battery_reserve_pct, g.battery_use_pct_per_s, g.battery_measure_s)
             if g is not None and g.battery_check
+            else None
+        )
+        self.wind = (
+            WindMonitor(g.wind_limit_m_s, g.wind_exceed_s, g.wind_max_age_s)
+            if g is not None and g.wind_limit_m_s > 0
             else None
         )
 
@@ -313,6 +319,12 @@ class DeliveryMission:
 
         if self.battery is not None:
             self._check_battery(inp)
+        if self.wind is not None and self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+            why = self.wind.update(inp.time_s, inp.wind)
+            if why:
+                self._emit(EventKind.GO_NO_GO, f"abandoning the delivery, flying home: {why}")
+                self.summary.failure = f"returned without delivering: {why}"
+                self._goto(Phase.INBOUND)
 
         handler = getattr(self, f"_do_{self.phase.value}", None)
         if handler is not None:
@@ -356,6 +368,13 @@ class DeliveryMission:
                 f"heading {math.degrees(self.frame.heading_rad):.1f} deg",
             )
         ready = st is not None and st.healthy and self.frame is not None
+        wind_ok = self.wind is None or self._left_pad or self.wind.fresh(inp.time_s, inp.wind)
+        if ready and wind_ok and self.wind is not None and not self._left_pad:
+            why = self.wind.take_off_problem(inp.time_s, inp.wind)
+            if why:
+                self.refuse(inp.time_s, why)
+                return None, None, math.nan
+        ready = ready and wind_ok
         if ready and st is not None and self.battery is not None and not self._left_pad:
             why = self._battery_round_trip(st.battery_pct)
             if why:
@@ -366,6 +385,8 @@ class DeliveryMission:
             return None, self._make_request(RequestKind.ARM), math.nan
         if inp.time_s - self._phase_t0 > self.cfg.ready_timeout_s:
             why = "no status" if st is None else ("not healthy" if not st.healthy else "no home/estimate")
+            if st is not None and st.healthy and self.frame is not None and not wind_ok:
+                why = "no wind estimate from the autopilot (go_no_go.wind_limit_m_s is set)"
             self.summary.failure = f"vehicle not ready after {self.cfg.ready_timeout_s} s: {why}"
             self._goto(Phase.FAILED)
         return None, None, math.nan

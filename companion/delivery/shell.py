@@ -345,7 +345,7 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
-            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok)
+            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok, tc.wind)
             out = mission.step(inp)
             for ev in out.events:
                 self.events.append(ev)

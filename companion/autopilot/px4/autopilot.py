@@ -144,7 +144,10 @@ class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
         kwargs.setdefault("release_actuator", pl.actuator_index)
         kwargs.setdefault("release_actuator_value", pl.actuator_value)
-        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+        ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+        gng = getattr(config, "go_no_go", None)
+        ap.want_wind = gng is not None and gng.wind_limit_m_s > 0  # the wind check's input (WIND_COV)
+        return ap
 
     async def arm(self) -> None:
         if not self._armed and self._mode is not FlightMode.HOLD:
