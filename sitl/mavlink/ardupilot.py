@@ -88,6 +88,8 @@ def fltmode_slot(pwm: int) -> int:
 class ArduPilotSimVehicle(MavlinkSimVehicle):
     """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
+    FENCE_VERTEX_COUNT_PER_ITEM = False  # write_fence checks the polygons once the upload is complete
+
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
     SIGNING: ClassVar[bool] = True  # SETUP_SIGNING as GCS_Signing.cpp (see MavlinkSimVehicle)

@@ -3,7 +3,10 @@ mission_type = MAV_MISSION_TYPE_FENCE, answered as PX4 (mavlink_mission.cpp) and
 (MissionItemProtocol_Fence) answer it: MISSION_COUNT -> MISSION_REQUEST_INT for each item ->
 MISSION_ACK once the last has come (the stored fence is replaced only then); MISSION_REQUEST_LIST
 -> MISSION_COUNT, MISSION_REQUEST(_INT) -> MISSION_ITEM_INT. Polygon vertices only (5001/5002);
-anything else is answered MAV_MISSION_UNSUPPORTED, as a fence item neither firmware stores is."""
+another command is answered MAV_MISSION_UNSUPPORTED, a frame that is not global
+MAV_MISSION_UNSUPPORTED_FRAME. A polygon of fewer than 3 vertices: PX4 refuses the item
+(MAV_MISSION_INVALID_PARAM1, mavlink_mission.cpp), ArduPilot takes every item and fails the upload
+at the end (MAV_MISSION_ERROR: AC_PolyFence_loader::write_fence validates the polygons)."""
 
 from __future__ import annotations
 
@@ -15,6 +18,14 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE
+GLOBAL_FRAMES = (
+    mavlink.MAV_FRAME_GLOBAL,
+    mavlink.MAV_FRAME_GLOBAL_INT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+)
 VERTEX_COMMANDS = (
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
@@ -43,6 +54,7 @@ class FenceServer:
     fence: tuple[StoredFenceItem, ...] = ()  # what the vehicle holds
     _fence_in: list[StoredFenceItem | None] | None = None  # an upload in progress
     fence_uploads = 0
+    FENCE_VERTEX_COUNT_PER_ITEM = True  # PX4; ArduPilot checks the polygons once all items are in
 
     def _fence_message(self, m: Any) -> bool:
         """Handle a fence-protocol message; False when it is not one (another mission type)."""
@@ -62,11 +74,15 @@ class FenceServer:
             if items is None or not 0 <= m.seq < len(items):
                 self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_OPERATION_CANCELLED)
                 return True
+            if m.frame not in GLOBAL_FRAMES:
+                self._fence_in = None
+                self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_UNSUPPORTED_FRAME)
+                return True
             if m.command not in VERTEX_COMMANDS:
                 self._fence_in = None
                 self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_UNSUPPORTED)
                 return True
-            if m.param1 < 3:
+            if self.FENCE_VERTEX_COUNT_PER_ITEM and m.param1 < 3:
                 self._fence_in = None
                 self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_INVALID_PARAM1)
                 return True
@@ -109,11 +125,27 @@ class FenceServer:
         return False
 
     def _fence_commit(self, src_s: int, src_c: int) -> None:
-        items = self._fence_in or []
+        items = [it for it in self._fence_in or [] if it is not None]
         self._fence_in = None
-        self.fence = tuple(it for it in items if it is not None)
+        if not _polygons_valid(items):
+            self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_ERROR)  # the stored fence stays as it was
+            return
+        self.fence = tuple(items)
         self.fence_uploads += 1
         self._fence_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
 
     def _fence_ack(self, src_s: int, src_c: int, result: int) -> None:
         self._send(self._enc.mission_ack_encode(src_s, src_c, result, FENCE))
+
+
+def _polygons_valid(items: list[StoredFenceItem]) -> bool:
+    """Each polygon is at least 3 vertices, each carrying the polygon's vertex count (ArduPilot's
+    write_fence validation)."""
+    i = 0
+    while i < len(items):
+        n = int(items[i].param1)
+        group = items[i : i + n]
+        if n < 3 or len(group) < n or any(g.command != items[i].command or int(g.param1) != n for g in group):
+            return False
+        i += n
+    return True

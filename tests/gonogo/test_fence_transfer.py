@@ -66,22 +66,36 @@ def test_px4_fence_round_trip_through_mavsdk() -> None:
     assert len(sim.fence) == 7  # type: ignore[attr-defined]
 
 
-def test_sim_vehicle_refuses_a_two_vertex_polygon() -> None:
+@pytest.mark.parametrize(
+    "dialect, answer",
+    [
+        # ArduPilot takes every item and fails the whole upload (write_fence's validation)
+        ("ardupilot", "refused by the vehicle: MAV_MISSION_ERROR"),
+        # PX4 refuses the vertex itself (mavlink_mission.cpp); MAVSDK names it an invalid argument
+        ("px4", "fence upload refused"),
+    ],
+)
+def test_a_two_vertex_polygon_is_refused_as_the_firmware_refuses_it(dialect: str, answer: str) -> None:
     bad = AutopilotFence((FencePolygon(True, ((LAT, LON), (LAT + 1, LON))),))
     port = free_udp_port()
-    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), "ardupilot", remote=("127.0.0.1", port)).start()
+    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", port)).start()  # type: ignore[arg-type]
 
     async def go() -> None:
-        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{port}")
+        ap = (
+            ArduPilotAutopilot(f"udpin:127.0.0.1:{port}")
+            if dialect == "ardupilot"
+            else Px4Autopilot(f"udpin://127.0.0.1:{port}")
+        )
         await ap.connect(5.0)
         try:
+            await ap.upload_fence(FENCE)
             await ap.upload_fence(bad)
         finally:
             await ap.close()
 
     try:
-        with pytest.raises(AutopilotError, match="refused by the vehicle: MAV_MISSION_INVALID_PARAM1"):
+        with pytest.raises(AutopilotError, match=answer):
             asyncio.run(go())
     finally:
         sim.stop()
-    assert sim.fence == ()
+    assert len(sim.fence) == 7  # the fence stored before stays

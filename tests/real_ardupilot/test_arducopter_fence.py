@@ -36,5 +36,6 @@ async def test_fence_round_trip_on_arducopter(ardupilot_root, tmp_path):
             assert await ap.download_fence() == smaller
             with pytest.raises(AutopilotError, match="refused by the vehicle"):
                 await ap.upload_fence(AutopilotFence((FencePolygon(True, ((LAT, LON), (LAT + D, LON))),)))
+            assert await ap.download_fence() == smaller  # the stored fence stays
         finally:
             await ap.close()

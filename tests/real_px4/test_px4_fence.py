@@ -1,11 +1,13 @@
 """The companion's fence round trip on the real PX4 SIH through MAVSDK's geofence plugin (the
-MAVLink mission protocol, mission_type = FENCE): uploaded, read back identical, replaced."""
+MAVLink mission protocol, mission_type = FENCE): uploaded, read back identical, replaced; a
+polygon of two vertices refused, the stored fence kept."""
 
 from __future__ import annotations
 
 import pytest
 
 from companion.autopilot.fence import AutopilotFence, FencePolygon, fence_mismatch
+from companion.autopilot.interface import AutopilotError
 from companion.autopilot.px4 import Px4Autopilot
 from companion_firmware.px4_sitl import Px4Sitl
 
@@ -32,5 +34,8 @@ async def test_fence_round_trip_on_px4(px4_root, tmp_path):
             smaller = AutopilotFence(FENCE.polygons[:1])
             await ap.upload_fence(smaller)
             assert fence_mismatch(smaller, await ap.download_fence()) is None
+            with pytest.raises(AutopilotError, match="fence upload refused"):  # a polygon of 2 vertices
+                await ap.upload_fence(AutopilotFence((FencePolygon(True, ((LAT, LON), (LAT + D, LON))),)))
+            assert fence_mismatch(smaller, await ap.download_fence()) is None  # the stored fence stays
         finally:
             await ap.close()
