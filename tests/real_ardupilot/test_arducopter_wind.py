@@ -18,6 +18,10 @@ from .conftest import GRIPPER_SERVO9, arducopter
 
 pytestmark = pytest.mark.firmware
 
+# The pad 80 m out at 15 m: ~30 s in the wind before the pad.
+MISSION = {"height_m": 15.0, "pad": {"north_m": 56.6, "east_m": 56.6}}
+# EK3_DRAG_* are not this SITL frame's: the estimate reads ~1/3 of SIM_WIND_SPD (3.2 m/s from the
+# west in 10 m/s, measured after a flight), so the limit is 2 m/s.
 WINDY = {
     "SIM_WIND_SPD": 10.0,
     "SIM_WIND_DIR": 270.0,
@@ -35,9 +39,9 @@ async def test_wind_above_the_limit_in_flight_brings_the_parcel_home(ardupilot_r
             overrides={
                 "autopilot": "ardupilot",
                 "connection": sitl.connection,
-                "mission": {**tuning["mission"], "ready_timeout_s": 120.0},
+                "mission": {**tuning["mission"], **MISSION, "ready_timeout_s": 120.0},
                 "landing": tuning["landing"],
-                "go_no_go": {"wind_limit_m_s": 4.0, "wind_exceed_s": 2.0},
+                "go_no_go": {"wind_limit_m_s": 2.0, "wind_exceed_s": 2.0},
             },
         )
         assert truth is not None
@@ -53,5 +57,5 @@ async def test_wind_above_the_limit_in_flight_brings_the_parcel_home(ardupilot_r
     print(f"\nfailure: {r.failure}; last wind estimate {ap.telemetry.wind}")
     assert r.returned and not r.delivered, r.failure
     assert (
-        r.failure.startswith("returned without delivering: wind ") and "above go_no_go.wind_limit_m_s = 4" in r.failure
+        r.failure.startswith("returned without delivering: wind ") and "above go_no_go.wind_limit_m_s = 2" in r.failure
     )
