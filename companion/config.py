@@ -15,6 +15,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from companion.geometry.polygon import point_in_polygon, polygon_problem
+
 
 class ConfigError(ValueError):
     """A parameter file is unreadable or a value in it breaks a rule."""
@@ -233,6 +235,138 @@ class LimitsConfig(_Section):
     max_yaw_rate_deg_s: float = _f(60.0, "deg/s", "yaw rate limit", gt=0.0, le=360.0)
     geofence_radius_m: float = _f(500.0, "m", "max horizontal distance from home", gt=10.0, le=20000.0)
     geofence_max_alt_m: float = _f(120.0, "m", "max height above home", gt=5.0, le=1000.0)
+
+
+class FencePolygonConfig(_Section):
+    """One fence polygon: its vertices as [latitude, longitude] pairs in order, closed implicitly."""
+
+    vertices_deg: tuple[tuple[float, float], ...] = _f(
+        ...,
+        "deg",
+        "vertices as [lat, lon] pairs (WGS-84), in order around the polygon; the last joins the first "
+        "(a repeated first vertex at the end is dropped)",
+    )
+
+    @field_validator("vertices_deg")
+    @classmethod
+    def _polygon(cls, v: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+        if len(v) > 1 and v[0] == v[-1]:
+            v = v[:-1]
+        for i, (lat, lon) in enumerate(v):
+            if not (math.isfinite(lat) and -90.0 <= lat <= 90.0):
+                raise ValueError(f"vertex {i} latitude {lat}: must be in [-90, 90] deg")
+            if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
+                raise ValueError(f"vertex {i} longitude {lon}: must be in [-180, 180] deg")
+        problem = polygon_problem([(lon, lat) for lat, lon in v])
+        if problem is not None:
+            raise ValueError(f"not a closed simple polygon: {problem}")
+        return v
+
+    def contains(self, lat_deg: float, lon_deg: float) -> bool:
+        """Whether the point lies inside (or on) the polygon, in the lat/lon plane."""
+        return point_in_polygon((lon_deg, lat_deg), [(lon, lat) for lat, lon in self.vertices_deg])
+
+
+class FenceConfig(_Section):
+    """The geofence (docs/go-no-go.md): the planned path must lie inside, and the autopilot keeps it
+    as its own fence (uploaded with the MAVLink fence protocol, read back before arming)."""
+
+    enabled: bool = _f(False, "-", "check the planned path against the fence and refuse a delivery that leaves it")
+    inclusion: tuple[FencePolygonConfig, ...] = _f(
+        (),
+        "-",
+        "[[fence.inclusion]] polygons: the vehicle must stay inside every one (ArduPilot's rule; PX4 asks "
+        "for one of them) - at least one when enabled",
+    )
+    exclusion: tuple[FencePolygonConfig, ...] = _f((), "-", "[[fence.exclusion]] polygons: the vehicle must stay out")
+    max_alt_rel_m: float | None = _f(
+        None,
+        "m",
+        "altitude ceiling above home (none: no ceiling); the autopilot's own ceiling (ArduPilot FENCE_ALT_MAX, "
+        "PX4 GF_MAX_VER_DIST) is checked by preflight",
+        gt=2.0,
+        le=1000.0,
+    )
+    margin_m: float = _f(
+        5.0,
+        "m",
+        "the planned path must keep this far inside every fence edge and below the ceiling (path following error, "
+        "the autopilot's fence reaction)",
+        ge=0.0,
+        le=500.0,
+    )
+    upload: bool = _f(
+        True,
+        "-",
+        "upload the polygons to the autopilot as its own fence (MAV_MISSION_TYPE_FENCE) and read them back before "
+        "arming: the autopilot's fence action holds if the companion dies",
+    )
+
+    @model_validator(mode="after")
+    def _has_inclusion(self) -> FenceConfig:
+        if self.enabled and not self.inclusion:
+            raise ValueError("fence.enabled needs at least one [[fence.inclusion]] polygon")
+        return self
+
+    def problem_at(self, lat_deg: float, lon_deg: float, what: str) -> str | None:
+        """Why ``what`` at (lat, lon) is not allowed by the polygons, or None."""
+        for i, p in enumerate(self.inclusion):  # inside every one: ArduPilot's rule, stricter than PX4's
+            if not p.contains(lat_deg, lon_deg):
+                return f"{what} ({lat_deg:.7f}, {lon_deg:.7f}) is outside inclusion polygon {i}"
+        for i, p in enumerate(self.exclusion):
+            if p.contains(lat_deg, lon_deg):
+                return f"{what} ({lat_deg:.7f}, {lon_deg:.7f}) is inside exclusion polygon {i}"
+        return None
+
+
+class GoNoGoConfig(_Section):
+    """Go / no-go before and during the flight (docs/go-no-go.md): the battery, the wind, and what the
+    pre-flight check expects of the autopilot's own failsafes."""
+
+    battery_check: bool = _f(
+        False,
+        "-",
+        "refuse a take-off without the charge for the round trip, and abandon the delivery and fly home once the "
+        "charge left falls to what the way home needs plus battery_reserve_pct (the autopilot's remaining %)",
+    )
+    battery_reserve_pct: float = _f(
+        20.0, "%", "charge that must be left on landing at home, on top of what the way home takes", ge=0.0, le=80.0
+    )
+    battery_use_pct_per_s: float = _f(
+        0.0,
+        "%/s",
+        "the vehicle's battery use in flight (0: measured in flight from the autopilot's remaining %, once "
+        "battery_measure_s have been flown; until then the battery check waits)",
+        ge=0.0,
+        le=10.0,
+    )
+    battery_measure_s: float = _f(
+        30.0, "s", "flight time before the measured use counts (the remaining % moves in 1 % steps)", ge=5.0, le=600.0
+    )
+    wind_limit_m_s: float = _f(
+        0.0,
+        "m/s",
+        "largest wind the autopilot estimates (ArduPilot WIND, PX4 WIND_COV) for a take-off; a return home when it "
+        "is exceeded in flight (0: off)",
+        ge=0.0,
+        le=30.0,
+    )
+    wind_exceed_s: float = _f(
+        3.0,
+        "s",
+        "in flight, the wind estimate must stay above wind_limit_m_s this long before the return (a gust passes)",
+        ge=0.0,
+        le=120.0,
+    )
+    wind_max_age_s: float = _f(
+        3.0, "s", "a wind estimate older than this is none (before take-off the check waits for one)", gt=0.0, le=60.0
+    )
+    remote_id_required: bool = _f(
+        False,
+        "-",
+        "preflight expects the autopilot to refuse arming without Remote ID (PX4 COM_ARM_ODID = 2, ArduPilot "
+        "DID_ENABLE = 1); false: the setting is only reported",
+    )
 
 
 class RuntimeConfig(_Section):
@@ -652,6 +786,27 @@ class CompanionConfig(_Section):
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     landing: LandingConfig = Field(default_factory=LandingConfig)
     payload: PayloadConfig = Field(default_factory=PayloadConfig)
+    fence: FenceConfig = Field(default_factory=FenceConfig)
+    go_no_go: GoNoGoConfig = Field(default_factory=GoNoGoConfig)
+
+    @model_validator(mode="after")
+    def _fence_holds_home_and_pad(self) -> CompanionConfig:
+        """The simulated home and a pad given in lat/lon must lie inside the fence (a real home is
+        only known in flight: the mission checks it when it plans)."""
+        f = self.fence
+        if not f.enabled:
+            return self
+        problems = []
+        if self.autopilot == "sim":
+            h = self.sim.home
+            problems.append(f.problem_at(h.lat_deg, h.lon_deg, "sim.home"))
+        pad = self.mission.pad
+        if pad.lat_deg is not None and pad.lon_deg is not None:
+            problems.append(f.problem_at(pad.lat_deg, pad.lon_deg, "mission.pad"))
+        bad = [p for p in problems if p]
+        if bad:
+            raise ValueError("fence: " + "; ".join(bad))
+        return self
 
     @model_validator(mode="after")
     def _timeouts(self) -> CompanionConfig:

@@ -44,6 +44,7 @@ class EventKind(enum.Enum):
     REQUEST_FAILED = "request_failed"
     WARNING = "warning"
     PAD_LOCK = "pad_lock"  # a step of the no-release-off-the-pad policy, with its reason
+    GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
 
 
 @dataclass(frozen=True, slots=True)

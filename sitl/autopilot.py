@@ -23,8 +23,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
-from companion.autopilot.types import FlightMode, LandingTarget, StatusText
+from companion.autopilot.types import FlightMode, LandingTarget, StatusText, Wind
 from companion.config import SimConfig
 from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
@@ -165,6 +166,22 @@ class SimAutopilot(Autopilot):
     async def precision_land(self) -> None:
         await self._command("precision_land", self.vehicle.precision_land)
 
+    # the autopilot's fence storage: kept as sent, checked as the firmware checks the items
+    fence: AutopilotFence | None = None
+
+    async def upload_fence(self, fence: AutopilotFence) -> None:
+        if not self.link_ok:
+            raise AutopilotError("fence upload: link is down")
+        for i, p in enumerate(fence.polygons):
+            if len(p.vertices_e7) < 3:
+                raise AutopilotError(f"fence upload refused: polygon {i} has {len(p.vertices_e7)} vertices")
+        self.fence = fence
+
+    async def download_fence(self) -> AutopilotFence:
+        if not self.link_ok:
+            raise AutopilotError("fence download: link is down")
+        return self.fence if self.fence is not None else AutopilotFence(())
+
     def send_landing_target(self, target: LandingTarget) -> None:
         """The in-process vehicle reads the local-NED form (as PX4 does); angles are not used."""
         if not self.link_ok:
@@ -206,6 +223,7 @@ class SimAutopilot(Autopilot):
                 tc.push(v.gps_raw())
             if k % n_status == 0:
                 tc.push(v.status())
+                tc.push_wind(Wind(t, *v.wind_ned()))  # the autopilot's wind estimate (no listener sees it)
                 home = v.home()
                 if home is not None:
                     tc.push(home)

@@ -661,6 +661,16 @@ class SimVehicle:
             r + sg * na[5],
         )
 
+    def wind_ned(self) -> tuple[float, float]:
+        """The wind at the vehicle now (mean and gust; where the air moves, N and E, m/s): what the
+        autopilot's estimate converges to, reported as it by the simulated autopilots."""
+        return self._wind[0], self._wind[1]
+
+    def set_wind(self, speed_m_s: float, from_deg: float) -> None:
+        """Change the mean wind (a test's weather change); the gusts go on around it."""
+        wf = math.radians(from_deg)
+        self._wind_mean = (-speed_m_s * math.cos(wf), -speed_m_s * math.sin(wf), 0.0)
+
     def status(self) -> VehicleStatus:
         return VehicleStatus(
             self.time_s, self.armed, self.mode, self.landed, self.healthy, self.battery_pct, self.payload_released

@@ -53,7 +53,7 @@ CORE = BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetr
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
     "geometry": set(),
-    "config": set(),
+    "config": {"geometry"},  # the fence polygons are checked at load (geometry.polygon)
     "param_kinds": {"config"},
     "events": set(),
     "scheduling": set(),

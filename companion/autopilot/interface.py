@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.types import (
     Attitude,
     GlobalPosition,
@@ -24,6 +25,7 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
+    Wind,
 )
 from companion.guidance.setpoint import VelocitySetpoint
 
@@ -172,6 +174,7 @@ class TelemetryCache:
         self.rejected: dict[str, int] = {}
         self.last_rejection: str = ""
         self.rc_input: RcInput | None = None
+        self.wind: Wind | None = None  # the autopilot's wind estimate, when asked for (push_wind)
         self._listeners: list[Callable[[TelemetrySample], None]] = []
         self._rc_listeners: list[Callable[[RcInput], None]] = []
 
@@ -202,6 +205,18 @@ class TelemetryCache:
         self.rc_input = rc
         for fn in self._rc_listeners:
             fn(rc)
+        return True
+
+    def push_wind(self, wind: Wind) -> bool:
+        """Store the autopilot's newest wind estimate (rejected and counted when not finite). Kept
+        apart from :meth:`push`: no listener (log, telemetry) sees it."""
+        try:
+            wind.validate()
+        except ValueError as err:
+            self.rejected["Wind"] = self.rejected.get("Wind", 0) + 1
+            self.last_rejection = str(err)
+            return False
+        self.wind = wind
         return True
 
     def push(self, sample: TelemetrySample) -> bool:
@@ -319,3 +334,12 @@ class Autopilot(abc.ABC):
         """Hand the descent to the autopilot's own precision landing (PX4 AUTO.PRECLAND,
         ArduPilot LAND with PLND enabled). Backends without one fall back to plain LAND."""
         await self.land()
+
+    # The autopilot's own fence (companion.autopilot.fence; MAVLink fence protocol).
+    async def upload_fence(self, fence: AutopilotFence) -> None:
+        """Replace the autopilot's fence with ``fence`` (raises :class:`AutopilotError`)."""
+        raise AutopilotError(f"{type(self).__name__} cannot upload a fence")
+
+    async def download_fence(self) -> AutopilotFence:
+        """The fence the autopilot holds (raises :class:`AutopilotError`)."""
+        raise AutopilotError(f"{type(self).__name__} cannot download a fence")

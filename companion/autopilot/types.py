@@ -123,6 +123,19 @@ class VehicleStatus(_Finite):
 
 
 @dataclass(frozen=True, slots=True)
+class Wind(_Finite):
+    """The autopilot's wind estimate: the air's velocity over the ground (where it blows to), NED."""
+
+    time_s: float
+    north_m_s: float
+    east_m_s: float
+
+    @property
+    def speed_m_s(self) -> float:
+        return math.hypot(self.north_m_s, self.east_m_s)
+
+
+@dataclass(frozen=True, slots=True)
 class HomePosition(_Finite):
     """Home as the autopilot reports it (MAVLink HOME_POSITION): geodetic, and where it lies in
     the autopilot's local NED frame, whose origin (the EKF origin) need not be home (PX4 may put

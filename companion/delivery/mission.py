@@ -18,14 +18,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
-from companion.config import MissionConfig, PadLockPolicyConfig
+from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus, Wind
+from companion.config import FenceConfig, GoNoGoConfig, LimitsConfig, MissionConfig, PadLockPolicyConfig
+from companion.delivery.gonogo import BatteryMonitor, WayHome, WindMonitor, time_home_s
 from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
 from companion.delivery.planning import plan_delivery
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
 from companion.geometry.mission_frame import MissionFrame
+from companion.guidance.geofence import FenceNed, check_leg, fence_in_ned
 from companion.guidance.path import DeliveryPath, PathGeometryError
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.speed_schedule import speed_scale as schedule_speed
@@ -89,6 +91,7 @@ class MissionInputs:
     # the pad's lock (camera/UWB observation age, EKF 1-sigma), measured by the shell; None: the
     # mission runs without the no-release-off-the-pad policy's inputs (judged as no lock)
     pad_lock: PadLock | None = None
+    wind: Wind | None = None  # the autopilot's wind estimate (the wind go / no-go)
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,12 +130,18 @@ class DeliveryMission:
         cfg: MissionConfig,
         landing_controller: str = "companion",
         pad_policy: PadLockPolicyConfig | None = None,
+        fence: FenceConfig | None = None,
+        limits: LimitsConfig | None = None,
+        go_no_go: GoNoGoConfig | None = None,
     ):
         """``landing_controller``: "companion" flies the descent onto the pad with velocity
         setpoints; "autopilot" hands it to the autopilot's own precision landing (fed
         LANDING_TARGET by the shell) and only watches for the touchdown. ``pad_policy``: no
         release off the pad (docs/delivery-policy.md); None or require_pad_lock = false: the
-        parcel is released wherever the vehicle lands on the way out."""
+        parcel is released wherever the vehicle lands on the way out. ``fence`` (when enabled)
+        and ``limits`` (the setpoint clamp): the planned legs must lie inside, or the delivery is
+        refused before take-off (guidance.geofence). ``go_no_go`` (battery_check): the charge
+        must cover the round trip before take-off and the way home in flight (delivery.gonogo)."""
         if landing_controller not in ("companion", "autopilot"):
             raise ValueError(f"landing_controller {landing_controller!r}: expected 'companion' or 'autopilot'")
         self.cfg = cfg
@@ -169,6 +178,22 @@ class DeliveryMission:
         self._search: list[tuple[float, float]] = []  # PAD_SEARCH: corners left (NED north, east)
         self._corner_t0: float | None = None  # PAD_SEARCH: when the current corner was reached
         self._touchdown_lock: tuple[bool, str] = (True, "")
+        self.fence_cfg = fence if fence is not None and fence.enabled else None
+        self.limits = limits
+        self._fence_ned: FenceNed | None = None
+        self._home_geo: GeoPoint | None = None
+        self._home_ned = (0.0, 0.0, 0.0)
+        g = go_no_go
+        self.battery = (
+            BatteryMonitor(g.battery_reserve_pct, g.battery_use_pct_per_s, g.battery_measure_s)
+            if g is not None and g.battery_check
+            else None
+        )
+        self.wind = (
+            WindMonitor(g.wind_limit_m_s, g.wind_exceed_s, g.wind_max_age_s)
+            if g is not None and g.wind_limit_m_s > 0
+            else None
+        )
 
     # ------------------------------------------------------------------ public API
     def abort(self, time_s: float, reason: str) -> None:
@@ -188,6 +213,20 @@ class DeliveryMission:
             self._goto(Phase.FAILED)
         else:
             self._goto(Phase.ABORT_HOLD)
+
+    def refuse(self, time_s: float, reason: str) -> None:
+        """Refuse the delivery before take-off (a go/no-go check failed): nothing is armed."""
+        if not self._on_ground_phase() or self._left_pad or self.phase.terminal:
+            return
+        self._now = time_s
+        self.summary.failure = f"refused before take-off: {reason}"
+        self._emit(EventKind.GO_NO_GO, self.summary.failure)
+        self._goto(Phase.FAILED)
+
+    def go_no_go(self, time_s: float, detail: str) -> None:
+        """Report a go/no-go check's verdict that changes nothing (e.g. the fence verified)."""
+        self._now = time_s
+        self._emit(EventKind.GO_NO_GO, detail)
 
     def waiting_for(self) -> str:
         """The request the mission waits on, if any (for a mission that ends without finishing)."""
@@ -302,6 +341,15 @@ class DeliveryMission:
         if self.phase in FOLLOW_PHASES:
             self._check_pilot(inp)
 
+        if self.battery is not None:
+            self._check_battery(inp)
+        if self.wind is not None and self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+            why = self.wind.update(inp.time_s, inp.wind)
+            if why:
+                self._emit(EventKind.GO_NO_GO, f"abandoning the delivery, flying home: {why}")
+                self.summary.failure = f"returned without delivering: {why}"
+                self._goto(Phase.INBOUND)
+
         handler = getattr(self, f"_do_{self.phase.value}", None)
         if handler is not None:
             setpoint, request, lyap = handler(inp)
@@ -331,6 +379,12 @@ class DeliveryMission:
                 return None, None, math.nan
             self._start_ned = np.array(est.position_ned, dtype=float)
             self.pad_ned = np.array(self.frame.pad_ned, dtype=float)  # kept when the way home is replanned
+            self._home_geo = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
+            self._home_ned = (home.north_m, home.east_m, home.down_m)
+            violation = self._fence_violation(self._start_ned, self.pad_ned)
+            if violation:
+                self.refuse(inp.time_s, violation)
+                return None, None, math.nan
             self.field = VectorField(self.path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
             self._emit(
                 EventKind.PHASE,
@@ -338,11 +392,25 @@ class DeliveryMission:
                 f"heading {math.degrees(self.frame.heading_rad):.1f} deg",
             )
         ready = st is not None and st.healthy and self.frame is not None
+        wind_ok = self.wind is None or self._left_pad or self.wind.fresh(inp.time_s, inp.wind)
+        if ready and wind_ok and self.wind is not None and not self._left_pad:
+            why = self.wind.take_off_problem(inp.time_s, inp.wind)
+            if why:
+                self.refuse(inp.time_s, why)
+                return None, None, math.nan
+        ready = ready and wind_ok
+        if ready and st is not None and self.battery is not None and not self._left_pad:
+            why = self._battery_round_trip(st.battery_pct)
+            if why:
+                self.refuse(inp.time_s, why)
+                return None, None, math.nan
         if ready and st is not None and st.armed is False and self._idle():
             self._goto(Phase.ARMING)
             return None, self._make_request(RequestKind.ARM), math.nan
         if inp.time_s - self._phase_t0 > self.cfg.ready_timeout_s:
             why = "no status" if st is None else ("not healthy" if not st.healthy else "no home/estimate")
+            if st is not None and st.healthy and self.frame is not None and not wind_ok:
+                why = "no wind estimate from the autopilot (go_no_go.wind_limit_m_s is set)"
             self.summary.failure = f"vehicle not ready after {self.cfg.ready_timeout_s} s: {why}"
             self._goto(Phase.FAILED)
         return None, None, math.nan
@@ -400,6 +468,9 @@ class DeliveryMission:
             z_start = float(frame.point_from_ned(self._start_ned)[2])
             if z_start >= self.cfg.height_m - self.cfg.arc_radius_m:
                 raise PathGeometryError(f"home is {z_start:.1f} m above the landing point, at or above the arcs")
+            violation = self._fence_violation(land, self._start_ned, legs=("return",))
+            if violation:
+                raise PathGeometryError(violation)
         except (PathGeometryError, ValueError) as err:
             self._emit(
                 EventKind.WARNING, f"return path from the landing point failed ({err}): flying the outbound path back"
@@ -844,6 +915,70 @@ class DeliveryMission:
     _release_requested = False
     _release_error = ""
     _searched = False  # the search was flown in this try
+
+    def _way_home(self) -> WayHome:
+        c = self.cfg
+        v = c.sector_speed_m_s
+        return WayHome(v[2], v[0], c.land_speed_m_s, c.final_descent_alt_m, v[4], c.height_m, c.arc_radius_m)
+
+    def _battery_round_trip(self, battery_pct: float) -> str:
+        """Before take-off, with a configured use: why the charge cannot cover out and back ("" if it can)."""
+        assert self.battery is not None and self.path is not None
+        use = self.battery.use_pct_per_s()
+        if use is None:
+            return ""  # measured in flight only: judged once airborne
+        t_leg = time_home_s(self._way_home(), self.path.d, 0.0)
+        v = self.battery.verdict(battery_pct, 2.0 * t_leg, "the round trip")
+        if v is not None and v.go_home:
+            return f"not enough charge for the round trip: {v.reason()}"
+        return ""
+
+    def _check_battery(self, inp: MissionInputs) -> None:
+        """Abandon the delivery and fly home once the charge left covers no more than the way home
+        plus the reserve (outbound and on the pad descent, with the parcel)."""
+        st, est = inp.status, inp.estimate
+        assert self.battery is not None
+        if st is None:
+            return
+        self.battery.update(inp.time_s, st.battery_pct, st.landed is LandedState.IN_AIR)
+        if self.phase not in (Phase.OUTBOUND, Phase.LANDING_PAD) or est is None or self._start_ned is None:
+            return
+        p = np.asarray(est.position_ned, dtype=float)
+        dist = math.hypot(p[0] - self._start_ned[0], p[1] - self._start_ned[1])
+        height = self._home_ned[2] - float(p[2])
+        v = self.battery.verdict(st.battery_pct, time_home_s(self._way_home(), dist, height))
+        if v is None or not v.go_home:
+            return
+        self._emit(EventKind.GO_NO_GO, f"abandoning the delivery, flying home: {v.reason()}")
+        self.summary.failure = f"returned without delivering: {v.reason()}"
+        self._goto(Phase.INBOUND)
+
+    def _fence_violation(
+        self, start_ned: np.ndarray, pad_ned: np.ndarray, legs: tuple[str, ...] = ("outbound", "return")
+    ) -> str:
+        """Why the legs between ``start_ned`` (home) and ``pad_ned`` leave the fence or the
+        setpoint clamp ("" when they stay inside)."""
+        if self.limits is None or self._home_geo is None:
+            return ""
+        if self.fence_cfg is not None and self._fence_ned is None:
+            self._fence_ned = fence_in_ned(self.fence_cfg, self._home_geo, self._home_ned)
+        cruise_down = float(pad_ned[2]) - self.cfg.height_m
+        for leg in legs:
+            a, b = (start_ned, pad_ned) if leg == "outbound" else (pad_ned, start_ned)
+            v = check_leg(
+                self._fence_ned,
+                self.limits,
+                self._home_geo,
+                (float(a[0]), float(a[1]), float(a[2])),
+                (float(b[0]), float(b[1]), float(b[2])),
+                cruise_down,
+                self.cfg.arc_radius_m,
+                leg,
+                self._home_ned,
+            )
+            if v is not None:
+                return str(v)
+        return ""
 
     def _idle(self) -> bool:
         """No request in flight and none waiting for its retry: a phase may issue a new one."""

@@ -165,7 +165,14 @@ class DeliveryShell:
         self.before_flight = before_flight
         self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
-        self.mission = DeliveryMission(config.mission, config.landing.controller, config.landing.policy)
+        self.mission = DeliveryMission(
+            config.mission,
+            config.landing.controller,
+            config.landing.policy,
+            fence=config.fence,
+            limits=config.limits,
+            go_no_go=config.go_no_go,
+        )
         self.estimator = AutopilotPoseEstimator()
         mc = config.mission
         self._velocity_bias = (
@@ -248,6 +255,8 @@ class DeliveryShell:
                 self._connecting = None
             if self.before_flight is not None:
                 await self.before_flight()
+            if self.config.fence.enabled and self.config.fence.upload:
+                await self._upload_fence()
             stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
             if timeout_s is None:
                 await self._guidance_loop()
@@ -282,6 +291,23 @@ class DeliveryShell:
             if self.recorder is not None:
                 self.recorder.detach()  # its owner closes it
         return self.mission.summary
+
+    async def _upload_fence(self) -> None:
+        """The autopilot's own fence: upload ``[fence]``, read it back and compare, before anything
+        is armed; a failure refuses the delivery (docs/go-no-go.md)."""
+        from companion.autopilot.fence import fence_from_config, fence_mismatch
+
+        fence = fence_from_config(self.config.fence)
+        try:
+            await self.autopilot.upload_fence(fence)
+            why = fence_mismatch(fence, await self.autopilot.download_fence())
+            if why is not None:
+                raise AutopilotError(f"the fence read back differs from the one uploaded: {why}")
+        except AutopilotError as err:
+            log.error("fence refused: %s", err)
+            self.mission.refuse(self._clock.now(), f"the autopilot's fence: {err}")
+            return
+        self.mission.go_no_go(self._clock.now(), f"fence uploaded to the autopilot and read back: {fence.describe()}")
 
     def where_it_stands(self, now: float) -> str:
         """The mission's phase, the request it waits on, and what the autopilot last said (mode,
@@ -327,7 +353,9 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
-            inp = MissionInputs(now, self.estimate, tc.status, tc.home, self.autopilot.link_ok, self._pad_lock(now))
+            inp = MissionInputs(
+                now, self.estimate, tc.status, tc.home, self.autopilot.link_ok, self._pad_lock(now), wind=tc.wind
+            )
             out = mission.step(inp)
             for ev in out.events:
                 self.events.append(ev)

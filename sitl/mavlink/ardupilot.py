@@ -88,6 +88,8 @@ def fltmode_slot(pwm: int) -> int:
 class ArduPilotSimVehicle(MavlinkSimVehicle):
     """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
+    FENCE_VERTEX_COUNT_PER_ITEM = False  # write_fence checks the polygons once the upload is complete
+
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
     SIGNING: ClassVar[bool] = True  # SETUP_SIGNING as GCS_Signing.cpp (see MavlinkSimVehicle)
@@ -121,6 +123,17 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             "FS_GCS_ENABLE": 0.0,  # copter.parm: GCS failsafe off
             "PLND_ENABLED": 0.0,  # copter.parm: no precision landing (LAND ignores LANDING_TARGET)
             "PLND_TYPE": 0.0,
+            # ArduCopter 4.7's fence and battery failsafe defaults (no DID_ENABLE: SITL has no OpenDroneID)
+            "FENCE_ENABLE": 0.0,
+            "FENCE_TYPE": 7.0,  # max altitude, circle, polygon
+            "FENCE_ACTION": 1.0,  # RTL or Land
+            "FENCE_ALT_MAX": 100.0,
+            "BATT_FS_LOW_ACT": 0.0,
+            "BATT_FS_CRT_ACT": 0.0,
+            "BATT_LOW_VOLT": 10.5,
+            "BATT_CRT_VOLT": 0.0,
+            "BATT_LOW_MAH": 0.0,
+            "BATT_CRT_MAH": 0.0,
             # outputs 1-4 drive the motors (33-36), the others have no function
             **{f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)},
             "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,

@@ -101,6 +101,11 @@ class Px4SimVehicle(MavlinkSimVehicle):
             "EKF2_HGT_REF": 1.0,
             "PLD_BTOUT": 5.0,
             "PLD_HACC_RAD": 0.2,
+            "GF_ACTION": 2.0,  # Hold
+            "GF_MAX_VER_DIST": 0.0,
+            "COM_LOW_BAT_ACT": 3.0,  # the SITL's rcS: return at critical, land at emergency
+            "BAT_CRIT_THR": 0.07,
+            "COM_ARM_ODID": 0.0,
         }
 
     # PX4 v1.16 SIH, measured over MAVLink (see companion/autopilot/px4.py):

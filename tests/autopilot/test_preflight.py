@@ -61,6 +61,8 @@ AP = Requirements("ardupilot", setpoint_rate_hz=20.0, link_loss_resume_modes=("h
 
 PX4_DEFAULTS = {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "COM_RC_OVERRIDE": 1.0, "EKF2_GPS_CTRL": 7.0}
 PX4_DEFAULTS |= {"EKF2_HGT_REF": 1.0, "PLD_BTOUT": 5.0, "PLD_HACC_RAD": 0.2}
+# the SITL's: GF_ACTION Hold, COM_LOW_BAT_ACT 3 (rcS), BAT_CRIT_THR 7 %, Remote ID not checked
+PX4_DEFAULTS |= {"GF_ACTION": 2.0, "COM_LOW_BAT_ACT": 3.0, "BAT_CRIT_THR": 0.07, "COM_ARM_ODID": 0.0}
 AP_DEFAULTS = {"GUID_TIMEOUT": 3.0, "RC_OVERRIDE_TIME": 3.0, "FS_GCS_ENABLE": 0.0, "FLTMODE_CH": 5.0}
 AP_DEFAULTS |= {"GRIP_ENABLE": 0.0, "PLND_ENABLED": 0.0, "PLND_TYPE": 0.0}
 AP_DEFAULTS |= {f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)}
@@ -81,6 +83,10 @@ def test_px4_firmware_defaults_pass() -> None:
         "COM_RC_OVERRIDE",
         "EKF2_GPS_CTRL",
         "EKF2_HGT_REF",
+        "GF_ACTION",
+        "COM_LOW_BAT_ACT",
+        "BAT_CRIT_THR",
+        "COM_ARM_ODID",
         "clock",
     ]
     assert all(c.status is Status.OK for c in report.checks)
@@ -115,7 +121,8 @@ def test_unread_and_missing_parameters_are_unknown_with_the_reason() -> None:
     assert check_px4_offboard_loss(PX4, {"COM_OF_LOSS_T": float("nan")}).status is Status.UNKNOWN
     report = run_checks(PX4, {}, clock=ClockProbe(offset_s=0.0))
     assert report.passed  # unknown rows do not fail the check
-    assert sum(c.status is Status.UNKNOWN for c in report.checks) == 5
+    # 5 rules, and the fence action, battery failsafe (action, critical level) and Remote ID
+    assert sum(c.status is Status.UNKNOWN for c in report.checks) == 9
 
 
 @pytest.mark.parametrize(

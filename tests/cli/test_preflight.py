@@ -22,7 +22,9 @@ from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
 TIME_LIMIT_S = 60.0
 URLS = {"px4": "udpin://127.0.0.1:{port}", "ardupilot": "udpin:127.0.0.1:{port}"}
-GRIPPER_SERVO9 = {"GRIP_ENABLE": 1.0, "SERVO9_FUNCTION": 28.0}
+# the vehicle the shipped parameters expect: a gripper on output 9, and a battery failsafe (RTL at
+# BATT_LOW_VOLT; copter.parm has none, which the pre-flight check names as wrong)
+GRIPPER_SERVO9 = {"GRIP_ENABLE": 1.0, "SERVO9_FUNCTION": 28.0, "BATT_FS_LOW_ACT": 2.0}
 
 
 def _free_udp_port() -> int:

@@ -154,7 +154,8 @@ async def test_guided_velocity_times_out_and_the_vehicle_stops(copter):
 async def test_preflight_names_arducopters_default_gripper_as_wrong(copter):
     """`companion preflight --json` as a user runs it against this SITL: copter.parm's defaults
     are right for the companion except the gripper (GRIP_ENABLE = 0, no output with function 28),
-    which the shipped parameters release with: exit 6, those two rows wrong, the rest ok."""
+    which the shipped parameters release with, and the battery failsafe (BATT_FS_LOW_ACT and
+    BATT_FS_CRT_ACT 0: nothing acts with the companion gone): exit 6, those rows wrong."""
     import json
     import subprocess
     import sys
@@ -168,6 +169,9 @@ async def test_preflight_names_arducopters_default_gripper_as_wrong(copter):
     rows = {r["check"]: r for r in json.loads(proc.stdout)["checks"]}
     assert rows["GRIP_ENABLE"]["status"] == "wrong" and "set GRIP_ENABLE = 1" in rows["GRIP_ENABLE"]["detail"]
     assert rows["gripper output"]["status"] == "wrong"
+    assert rows["battery failsafe"]["status"] == "wrong" and "BATT_FS_LOW_ACT = 2" in rows["battery failsafe"]["detail"]
+    for name in ("FENCE_ENABLE", "BATT_FS_LOW_ACT", "BATT_FS_CRT_ACT", "DID_ENABLE"):
+        assert rows[name]["status"] == "ok", rows[name]
     for name in ("GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_GCS_ENABLE", "FLTMODE_CH", "attitude rate"):
         assert rows[name]["status"] == "ok", rows[name]
     # ok once the EKF has an origin and GPS time (after the flights above); on a fresh boot nothing

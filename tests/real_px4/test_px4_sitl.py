@@ -76,6 +76,10 @@ async def test_commands_are_answered_the_way_px4_answers_and_close_never_hangs(p
             "COM_RC_OVERRIDE": "ok",
             "EKF2_GPS_CTRL": "ok",
             "EKF2_HGT_REF": "ok",
+            "GF_ACTION": "ok",  # [fence] off in the shipped parameters: reported
+            "COM_LOW_BAT_ACT": "ok",  # the SITL's rcS sets 3 (return, then land)
+            "BAT_CRIT_THR": "ok",
+            "COM_ARM_ODID": "ok",  # Remote ID not required by the shipped parameters
             "local position rate": "ok",
             "attitude rate": "ok",
             "clock": "ok",

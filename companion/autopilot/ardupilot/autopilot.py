@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from companion.autopilot.ardupilot.dialect import mavlink
+from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
 from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ
@@ -49,11 +50,13 @@ from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
+WIND_MSG_ID = 168  # WIND (ardupilotmega): EKF3's wind estimate
+
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
 
-class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
+class ArduPilotAutopilot(ArduPilotFence, ArduPilotTelemetry, Autopilot):
     def __init__(
         self,
         connection: str = "udpin:0.0.0.0:14550",
@@ -149,6 +152,9 @@ class ArduPilotAutopilot(ArduPilotTelemetry, Autopilot):
         kwargs.setdefault("release", pl.release)
         kwargs.setdefault("release_servo", pl.servo_channel)
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
+        gng = getattr(config, "go_no_go", None)
+        if gng is not None and gng.wind_limit_m_s > 0 and "stream_rates_hz" not in kwargs:
+            kwargs["stream_rates_hz"] = {**DEFAULT_STREAM_RATES_HZ, WIND_MSG_ID: 2.0}  # the wind check's input
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)

@@ -11,6 +11,7 @@ import time
 from typing import Any
 
 from companion.autopilot.ardupilot.dialect import mavlink
+from companion.autopilot.ardupilot.fence import MISSION_MESSAGES
 from companion.autopilot.ardupilot.modes import COPTER_TO_FLIGHT_MODE, LANDED_STATES
 from companion.autopilot.ardupilot.requests import ArduPilotRequests
 from companion.autopilot.interface import (
@@ -28,6 +29,7 @@ from companion.autopilot.types import (
     StatusText,
     TelemetrySample,
     VehicleStatus,
+    Wind,
 )
 
 log = logging.getLogger(__name__)
@@ -146,6 +148,13 @@ class ArduPilotTelemetry(ArduPilotRequests):
         elif t == "COMMAND_ACK":
             if m.target_system in (0, self.source_system):
                 self._post(self._resolve_ack, m.command, m.result)
+        elif t == "WIND":  # direction: where the wind comes from (deg); the air moves the other way
+            d = math.radians(m.direction)
+            self._post(self.telemetry.push_wind, Wind(now, -m.speed * math.cos(d), -m.speed * math.sin(d)))
+        elif t in MISSION_MESSAGES:  # the fence transfer (ardupilot.fence), when one is running
+            handler = getattr(self, "_on_mission_message", None)
+            if handler is not None and m.target_system in (0, self.source_system):
+                self._post(handler, m)
         elif t == "SERVO_OUTPUT_RAW":
             if m.port == 0:
                 outs = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]

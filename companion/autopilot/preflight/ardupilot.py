@@ -26,6 +26,7 @@ from companion.autopilot.preflight.rules import (
     fmt,
     param_or_unknown,
 )
+from companion.autopilot.preflight.safety import ardupilot_safety_param_names, check_ardupilot_safety
 
 AP_FS_GCS_ACTIONS: dict[int, tuple[str, str | None]] = {  # FS_GCS_ENABLE -> (ArduCopter name, FlightMode value)
     1: ("RTL", "rtl"),
@@ -49,7 +50,7 @@ def ardupilot_param_names(req: Requirements) -> list[str]:
         names += ["GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
     elif req.release == "servo":
         names.append(f"SERVO{req.servo_channel}_FUNCTION")
-    return names
+    return names + ardupilot_safety_param_names(req)
 
 
 def check_ardupilot_guided_timeout(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
@@ -243,4 +244,5 @@ def check_ardupilot(req: Requirements, params: Mapping[str, ParamValue]) -> list
         check_ardupilot_mode_switch(req, params),
         *check_ardupilot_precland(req, params),
         *check_ardupilot_release(req, params),
+        *check_ardupilot_safety(req, params),
     ]

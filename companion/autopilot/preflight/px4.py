@@ -27,6 +27,7 @@ from companion.autopilot.preflight.rules import (
     fmt,
     param_or_unknown,
 )
+from companion.autopilot.preflight.safety import check_px4_safety, px4_safety_param_types
 
 PX4_OBL_ACTIONS: dict[int, tuple[str, str | None]] = {  # COM_OBL_RC_ACT -> (PX4 name, FlightMode value)
     0: ("Position mode", "position"),
@@ -52,6 +53,7 @@ def px4_param_types(req: Requirements) -> dict[str, Literal["int", "float"]]:
     }
     if req.landing_controller == "autopilot":
         names.update({"PLD_BTOUT": "float", "PLD_HACC_RAD": "float"})
+    names.update(px4_safety_param_types(req))
     return names
 
 
@@ -179,4 +181,5 @@ def check_px4(req: Requirements, params: Mapping[str, ParamValue]) -> list[Check
         check_px4_ekf_gps(req, params),
         check_px4_ekf_height(req, params),
         *check_px4_precland(req, params),
+        *check_px4_safety(req, params),
     ]

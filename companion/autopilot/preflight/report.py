@@ -98,6 +98,13 @@ class Requirements:
     # a simulator's GPS time may lag by about a second; a real GPS's UTC is within milliseconds
     clock_tolerance_s: float = 2.0
     guidance_rate_hz: float = 20.0
+    # go / no-go (docs/go-no-go.md): what the autopilot's own fence, battery failsafe and Remote ID
+    # must do for the companion's [fence] and [go_no_go]
+    fence_enabled: bool = False
+    fence_max_alt_rel_m: float | None = None
+    battery_check: bool = False
+    battery_reserve_pct: float = 20.0
+    remote_id_required: bool = False
 
 
 @dataclass(frozen=True)
@@ -142,4 +149,9 @@ def requirements_from_config(config: Any) -> Requirements:
         servo_channel=config.payload.servo_channel,
         pad_size_m=config.mission.pad.size_m,
         camera_rate_hz=lc.camera_rate_hz,
+        fence_enabled=config.fence.enabled,
+        fence_max_alt_rel_m=config.fence.max_alt_rel_m,
+        battery_check=config.go_no_go.battery_check,
+        battery_reserve_pct=config.go_no_go.battery_reserve_pct,
+        remote_id_required=config.go_no_go.remote_id_required,
     )

@@ -37,6 +37,7 @@ from companion.autopilot.interface import (
     TelemetryCache,
 )
 from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.requests import Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
@@ -64,7 +65,7 @@ MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
 
 
-class Px4Autopilot(Px4Requests, Autopilot):
+class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",
@@ -145,7 +146,10 @@ class Px4Autopilot(Px4Requests, Autopilot):
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
         kwargs.setdefault("release_actuator", pl.actuator_index)
         kwargs.setdefault("release_actuator_value", pl.actuator_value)
-        return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+        ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
+        gng = getattr(config, "go_no_go", None)
+        ap.want_wind = gng is not None and gng.wind_limit_m_s > 0  # the wind check's input (WIND_COV)
+        return ap
 
     async def arm(self) -> None:
         if not self._armed and self._mode is not FlightMode.HOLD:

@@ -29,6 +29,7 @@ from companion.autopilot.types import (
     PositionNed,
     StatusText,
     VehicleStatus,
+    Wind,
 )
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,7 @@ def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
 
 
 class Px4Telemetry(Px4Link):
+    want_wind = False  # subscribe to the wind estimate ([go_no_go] wind_limit_m_s)
     """The telemetry streams, the connection watch and the stale-setpoint guard."""
 
     def _start_streams(self) -> None:
@@ -217,6 +219,12 @@ class Px4Telemetry(Px4Link):
             (tel.subscribe_status_text, on_text),
             (tel.subscribe_home, on_home),
         ]
+        if self.want_wind:
+
+            def on_wind(w: Any) -> None:  # MAVSDK's Wind: PX4's WIND_COV, where the air moves, NED
+                self.telemetry.push_wind(Wind(now(), w.wind_x_ned_m_s, w.wind_y_ned_m_s))
+
+            streams.append((tel.subscribe_wind, on_wind))
         for sub, fn in streams:
             self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
         self._tasks.append(
