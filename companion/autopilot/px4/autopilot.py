@@ -340,7 +340,8 @@ class Px4Autopilot(Px4Component, Px4Requests, Autopilot):
         h = self._health
         parts = []
         if h is not None:
-            bad = [n[3:-3].replace("_", " ") for n in _HEALTH_FLAGS if not getattr(h, n, True)]
+            failing = [n for n in _HEALTH_FLAGS if not getattr(h, n, True)]
+            bad = [n.removeprefix("is_").removesuffix("_ok").replace("_", " ") for n in failing]
             if bad:
                 parts.append("PX4 health: not " + ", not ".join(bad))
         if not self._armed and self._mode not in (FlightMode.HOLD, FlightMode.UNKNOWN):
