@@ -321,6 +321,8 @@ class DeliveryShell:
         """Leave (or find) the autopilot disarmed in a mode it arms in, so mission after mission
         starts (:meth:`Autopilot.make_ready`); a refusal is said, not raised: the mission's own
         pre-flight wait then says why it cannot arm."""
+        if type(self.autopilot).make_ready is Autopilot.make_ready:
+            return  # nothing to do (the embedded simulator): not a tick of virtual time spent on it
         if not self.autopilot.link_ok and when == "after the mission":
             return
         if when == "before the mission":
