@@ -334,6 +334,7 @@ class Px4Autopilot(Px4Component, Px4Requests, Autopilot):
             "make ready (HOLD)", MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MAIN_AUTO, PX4_AUTO_LOITER
         )
         self._mode = FlightMode.HOLD
+        self._push_status()
         return f"disarmed in {was}: switched to HOLD so PX4 arms again"
 
     def not_ready_reason(self) -> str:
