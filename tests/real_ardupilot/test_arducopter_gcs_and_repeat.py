@@ -73,7 +73,7 @@ async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardu
             s = shell.mission.summary
             assert s.delivered and s.returned and not s.failure, (flight, s.failure)
             print(
-                f"\nflight {flight}: delivered and home {shell.home_error_m:.2f} m from where it took off; {shell.made_ready}"
+                f"\nflight {flight}: delivered, landed {shell.home_error_m:.2f} m from its take-off; {shell.made_ready}"
             )
 
         state: dict = {"sent": None}

@@ -70,7 +70,7 @@ async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, t
             assert any("after the mission" in d and "HOLD" in d for d in shell.made_ready), shell.made_ready
             assert shell.final_mode is FlightMode.HOLD, shell.final_mode
             print(
-                f"\nflight {flight}: delivered and home {shell.home_error_m:.2f} m from where it took off; {shell.made_ready}"
+                f"\nflight {flight}: delivered, landed {shell.home_error_m:.2f} m from its take-off; {shell.made_ready}"
             )
 
         # 3: the operator's GCS sends RTL to the companion on the way out
