@@ -1,7 +1,7 @@
 """On a real ArduCopter SITL, without restarting it: two sitl_short deliveries in a row, each by a
 fresh companion, then a third flight returned home by the operator's GCS. The ground station is
 on SERIAL2 (as QGroundControl on a telemetry radio); ArduPilot's routing passes it the
-companion's own component (1/191): heartbeat, STATUSTEXTs, ONBOARD_COMPUTER_STATUS, and passes
+companion's own component (1/191): heartbeat and STATUSTEXTs (not ONBOARD_COMPUTER_STATUS), and passes
 its NAV_RETURN_TO_LAUNCH addressed to 1/191 to the companion (docs/gcs.md, docs/flying.md)."""
 
 from __future__ import annotations
@@ -96,6 +96,8 @@ async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardu
     texts = gcs.texts(1, 191)
     assert (6, "phase outbound") in texts and (5, "delivered: parcel released on the pad") in texts, texts
     assert any(sev == 4 and "ground command from gcs" in t for sev, t in texts), texts
+    # ArduCopter 4.7 SITL passes neither a full nor a zero-trimmed ONBOARD_COMPUTER_STATUS on (measured;
+    # docs/gcs.md): if this fails, it has started to, and the page should say so
     status = gcs.messages(1, 191, "ONBOARD_COMPUTER_STATUS")
-    assert len(status) > 60 and status[-1].ram_total > 0
+    assert status == []
     print(f"GCS saw from 1/191: {len(hb)} heartbeats, {len(texts)} texts, {len(status)} computer status")
