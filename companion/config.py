@@ -662,6 +662,34 @@ class PadLockPolicyConfig(_Section):
     )
 
 
+class GcsConfig(_Section):
+    """The companion as a MAVLink component the operator's GCS sees and commands (docs/gcs.md)."""
+
+    enabled: bool = _f(
+        True,
+        "-",
+        "speak as a MAVLink component of our own on the autopilot link: heartbeat, mission events as "
+        "STATUSTEXT, ONBOARD_COMPUTER_STATUS, hold/return/land COMMAND_LONGs with COMMAND_ACK",
+    )
+    component_id: int = _f(
+        191, "-", "our MAVLink component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER; not the autopilot's 1)", ge=2, le=254
+    )
+    system_id: int = _f(
+        0,
+        "-",
+        "our MAVLink system id; 0 = the vehicle's (ArduPilot: as it heartbeats; PX4: 1, MAVSDK's identity is "
+        "fixed before the vehicle answers, so set it when MAV_SYS_ID is not 1)",
+        ge=0,
+        le=255,
+    )
+    status_rate_hz: float = _f(1.0, "Hz", "ONBOARD_COMPUTER_STATUS rate", ge=0.1, le=10.0)
+    accept_commands: bool = _f(
+        True,
+        "-",
+        "act on hold, return and land COMMAND_LONGs addressed to our component (false: answered DENIED)",
+    )
+
+
 class LandingConfig(_Section):
     """Precision landing (delivery 4.2): fuse the camera and UWB with the GPS pose in the EKF."""
 
@@ -786,6 +814,7 @@ class CompanionConfig(_Section):
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     landing: LandingConfig = Field(default_factory=LandingConfig)
     payload: PayloadConfig = Field(default_factory=PayloadConfig)
+    gcs: GcsConfig = Field(default_factory=GcsConfig)
     fence: FenceConfig = Field(default_factory=FenceConfig)
     go_no_go: GoNoGoConfig = Field(default_factory=GoNoGoConfig)
 

@@ -11,8 +11,9 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
+from companion.autopilot.component import ComponentCommand
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.types import (
     Attitude,
@@ -343,3 +344,35 @@ class Autopilot(abc.ABC):
     async def download_fence(self) -> AutopilotFence:
         """The fence the autopilot holds (raises :class:`AutopilotError`)."""
         raise AutopilotError(f"{type(self).__name__} cannot download a fence")
+
+    # Optional: the companion as a MAVLink component of its own (companion.autopilot.component,
+    # docs/gcs.md). A backend without it raises AutopilotError from open_component.
+    def open_component(
+        self, component_id: int, system_id: int, on_command: Callable[[ComponentCommand], None]
+    ) -> tuple[int, int]:
+        """Start speaking as the companion's component once connected: its heartbeat, and every
+        COMMAND_LONG addressed to it handed to ``on_command`` on the event loop. ``system_id`` 0:
+        the vehicle's. Returns the (system id, component id) it speaks with."""
+        raise AutopilotError(f"{type(self).__name__} cannot speak as a MAVLink component of its own")
+
+    def send_from_component(self, name: str, fields: dict[str, Any]) -> bool:
+        """Send one message (MAVLink name, fields by name; arrays as lists, strings as str) from
+        the companion's component; non-blocking; False when it could not go out."""
+        return False
+
+    def close_component(self) -> None:
+        """Stop the component's heartbeat and command hand-over (safe without open_component)."""
+        return None
+
+    # Optional: delivery after delivery (docs/flying.md). The embedded simulator needs neither.
+    async def make_ready(self) -> str | None:
+        """Disarmed on the ground in a mode the autopilot refuses to arm in (PX4 leaves OFFBOARD
+        after a companion-flown landing): switch to one it arms in, so the next mission (or the
+        pilot) can start. Returns what was done, None when nothing was needed."""
+        return None
+
+    def not_ready_reason(self) -> str:
+        """Why the autopilot does not report itself ready to arm, in its own words where it gave
+        them (its health flags, its mode, its last STATUSTEXT); "" when nothing is known."""
+        st = self.telemetry.last_status_text
+        return f'last autopilot message: "{st.text}"' if st is not None else ""

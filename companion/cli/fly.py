@@ -64,6 +64,12 @@ def register(subparsers: Any) -> None:
         "and their exposure times to VIDEO.csv, for `companion demo --camera-file` (default: not recorded)",
     )
     p.add_argument(
+        "--json",
+        action="store_true",
+        help="print only one JSON line at the end (delivered, returned, failure, run_dir), for scripts "
+        "(default: the phase, distance to go and progress while flying, then the summary table)",
+    )
+    p.add_argument(
         "--no-preflight",
         action="store_true",
         help="skip the pre-flight check of the autopilot's parameters, sensors and clock (default: checked "
@@ -88,6 +94,7 @@ async def run_delivery(
     run_dir: Path | None = None,
     landing: Any = None,
     before_flight: Callable[[], Awaitable[None]] | None = None,
+    on_tick: Callable[[DeliveryShell, Any], None] | None = None,
 ) -> MissionSummary:
     """Run :class:`DeliveryShell` on ``autopilot``; SIGINT/SIGTERM abort (hold, then land).
     With ``run_dir`` the per-stream CSV logs go there (closed on landing, abort or crash);
@@ -101,6 +108,7 @@ async def run_delivery(
         recorder=recorder,
         landing=landing,
         before_flight=before_flight,
+        on_tick=on_tick,
     )
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -198,9 +206,18 @@ def cmd_fly(args: argparse.Namespace) -> int:
             autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
             skip = getattr(args, "no_preflight", False)
             check = None if skip else preflight_hook(config, autopilot, kit, args.params)
-            summary = asyncio.run(
-                run_delivery(config, autopilot, args.timeout, run_dir, landing=kit, before_flight=check)
-            )
+            with _FlyDisplay(quiet=getattr(args, "json", False)) as display:
+                summary = asyncio.run(
+                    run_delivery(
+                        config,
+                        autopilot,
+                        args.timeout,
+                        run_dir,
+                        landing=kit,
+                        before_flight=check,
+                        **display.run_kwargs(),
+                    )
+                )
         except AbortedBeforeFlight as err:
             raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
         except SigningKeyError as err:
@@ -219,17 +236,80 @@ def cmd_fly(args: argparse.Namespace) -> int:
             ) from None
     finally:
         _stop_sensors(kit)
-    print(
-        json.dumps(
-            {
-                "delivered": summary.delivered,
-                "returned": summary.returned,
-                "failure": summary.failure,
-                "run_dir": str(run_dir),
-            }
+    if getattr(args, "json", False):
+        print(
+            json.dumps(
+                {
+                    "delivered": summary.delivered,
+                    "returned": summary.returned,
+                    "failure": summary.failure,
+                    "run_dir": str(run_dir),
+                }
+            )
         )
-    )
+    else:
+        display.print_summary(summary, run_dir)
     return exits.OK if summary.delivered and not summary.failure else exits.FAILED
+
+
+class _FlyDisplay:
+    """The operator's view of a flight (:mod:`companion.cli.fly_display`): a rich progress line
+    while flying, the summary table after; nothing with ``quiet`` (``--json``)."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.shell: DeliveryShell | None = None
+        self._progress: Any = None
+        self._task: Any = None
+        self.console: Any = None
+
+    def __enter__(self) -> _FlyDisplay:
+        if self.quiet:
+            return self
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from companion.cli.console import make_console
+        from companion.cli.fly_display import PHASES
+
+        self.console = make_console()
+        self._progress = Progress(
+            TextColumn("{task.description:<16}"),
+            BarColumn(),
+            TextColumn("{task.fields[where]}"),
+            TimeElapsedColumn(),
+            console=self.console,
+        )
+        self._progress.__enter__()
+        self._task = self._progress.add_task("connecting", total=len(PHASES) - 1, where="")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._progress is not None:
+            self._progress.__exit__(None, None, None)
+
+    def run_kwargs(self) -> dict[str, Any]:
+        return {"on_tick": self.on_tick}
+
+    def on_tick(self, shell: DeliveryShell, out: Any) -> None:
+        self.shell = shell
+        if self._progress is None:
+            return
+        from companion.cli.fly_display import progress_fields
+
+        f = progress_fields(shell, out)
+        if f["completed"] is None:
+            del f["completed"]
+        self._progress.update(self._task, **f)
+
+    def print_summary(self, summary: MissionSummary, run_dir: Path) -> None:
+        from companion.cli.fly_display import headline, summary_rows
+
+        if self.console is None:
+            return
+        self.console.print()
+        self.console.print(headline(summary))
+        for k, v in summary_rows(summary, self.shell, run_dir):
+            self.console.print(f"  {k:<46} {v}")
 
 
 def cmd_bench_link(args: argparse.Namespace) -> int:

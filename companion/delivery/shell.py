@@ -86,6 +86,8 @@ FLIGHT_LOG_COLUMNS = (
 )
 
 
+NOT_READY_SAY_S = 5.0  # how often a pre-flight wait on an autopilot that is not ready says why
+
 _SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
 
 
@@ -207,15 +209,23 @@ class DeliveryShell:
         self.ground_commands: list[tuple[str, str]] = []
         self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
         self.landing_targets_sent = 0
+        self.gcs: Any = None  # delivery.gcs.GcsComponent while speaking to the operator's GCS
+        self.made_ready: list[str] = []  # what make_ready did, before the mission and after it
+        self._not_ready_said_s = -math.inf
 
     def on_ground_command(self, cmd: Any) -> str:
         """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
+        return self.command(cmd.kind.value, cmd.sender)
+
+    def command(self, kind: str, sender: str) -> str:
+        """A hold / return / land / abort from the ground (Zenoh) or the operator's GCS (MAVLink,
+        sender "gcs"), on the loop thread: to the mission, recorded; returns the mission's reply."""
         now = self._clock.now()
-        reply = self.mission.command(now, cmd.kind.value, cmd.sender)
+        reply = self.mission.command(now, kind, sender)
         if self.recorder is not None:
-            self.recorder.on_command(now, cmd.kind.value, cmd.sender, reply)
-        self.ground_commands.append((cmd.kind.value, reply))
-        log.warning("ground command %s from %s: %s", cmd.kind.value, cmd.sender, reply)
+            self.recorder.on_command(now, kind, sender, reply)
+        self.ground_commands.append((kind, reply))
+        log.warning("ground command %s from %s: %s", kind, sender, reply)
         return reply
 
     def abort(self, reason: str) -> None:
@@ -253,8 +263,15 @@ class DeliveryShell:
                 raise AbortedBeforeFlight(f"{self._abort_reason} while waiting for the autopilot") from None
             finally:
                 self._connecting = None
+            if self.config.gcs.enabled:
+                from companion.delivery.gcs import GcsComponent
+
+                self.gcs = GcsComponent(self.config.gcs, self.autopilot, self.command)
+                if not self.gcs.open():
+                    self.gcs = None
             if self.before_flight is not None:
                 await self.before_flight()
+            await self._make_ready("before the mission")  # once the pre-flight check has passed
             if self.config.fence.enabled and self.config.fence.upload:
                 await self._upload_fence()
             stream = loop.create_task(self._setpoint_stream(), name="setpoint-stream")
@@ -268,6 +285,11 @@ class DeliveryShell:
                         f"mission did not finish within {timeout_s} s ({self.where_it_stands(self._clock.now())})"
                     )
                     log.error(self.mission.summary.failure)
+            if self.mission.summary.failure.startswith("vehicle not ready"):
+                why = self.autopilot.not_ready_reason()
+                if why:
+                    self.mission.summary.failure += f" ({why})"
+            await self._make_ready("after the mission")
         finally:
             if stream is not None:
                 stream.cancel()
@@ -290,6 +312,10 @@ class DeliveryShell:
                 await self.telemetry.publisher.astop()
             if self.recorder is not None:
                 self.recorder.detach()  # its owner closes it
+            if self.gcs is not None:
+                if self.mission.phase.terminal:
+                    self.gcs.send_text(self._end_text(), self._end_severity())
+                await self.gcs.close()
         return self.mission.summary
 
     async def _upload_fence(self) -> None:
@@ -308,6 +334,47 @@ class DeliveryShell:
             self.mission.refuse(self._clock.now(), f"the autopilot's fence: {err}")
             return
         self.mission.go_no_go(self._clock.now(), f"fence uploaded to the autopilot and read back: {fence.describe()}")
+
+    def _end_text(self) -> str:
+        s = self.mission.summary
+        if s.failure:
+            return f"mission ended: {s.failure}"
+        return "mission done: " + ("delivered" if s.delivered else "not delivered") + (", home" if s.returned else "")
+
+    def _end_severity(self) -> int:
+        from companion.autopilot.component import SEVERITY_NOTICE, SEVERITY_WARNING
+
+        return SEVERITY_WARNING if self.mission.summary.failure else SEVERITY_NOTICE
+
+    async def _make_ready(self, when: str) -> None:
+        """Leave (or find) the autopilot disarmed in a mode it arms in, so mission after mission
+        starts (:meth:`Autopilot.make_ready`); a refusal is said, not raised: the mission's own
+        pre-flight wait then says why it cannot arm."""
+        if type(self.autopilot).make_ready is Autopilot.make_ready:
+            return  # nothing to do (the embedded simulator): not a tick of virtual time spent on it
+        if not self.autopilot.link_ok and when == "after the mission":
+            return
+        if when == "before the mission":
+            # the mode arrives with the first telemetry after connecting
+            for _ in range(20):
+                st = self.autopilot.telemetry.status
+                if st is not None and st.mode.value != "unknown":
+                    break
+                await asyncio.sleep(0.1)
+        else:
+            await asyncio.sleep(0.5)  # the disarm's mode and armed state have arrived
+        try:
+            done = await asyncio.wait_for(self.autopilot.make_ready(), 10.0)
+        except (AutopilotError, TimeoutError) as err:
+            log.warning("%s: the autopilot's mode could not be made ready to arm: %s", when, err or "no answer")
+            return
+        if done:
+            self.made_ready.append(f"{when}: {done}")
+            log.info("%s: %s", when, done)
+            if self.gcs is not None:
+                from companion.autopilot.component import SEVERITY_NOTICE
+
+                self.gcs.send_text(done, SEVERITY_NOTICE)
 
     def where_it_stands(self, now: float) -> str:
         """The mission's phase, the request it waits on, and what the autopilot last said (mode,
@@ -361,6 +428,10 @@ class DeliveryShell:
                 self.events.append(ev)
                 level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
                 log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
+            if self.gcs is not None:
+                self.gcs.on_events(out.events)
+            if out.phase is Phase.PREFLIGHT:
+                self._say_not_ready(now, tc.status)
             clamped = False
             if self._velocity_bias is not None:
                 self._velocity_bias.update(tc.position_ned)
@@ -395,6 +466,22 @@ class DeliveryShell:
         if self.fusion is None:
             return PadLock(now, math.inf, math.inf)
         return measure_pad_lock(self.fusion, now)
+
+    def _say_not_ready(self, now: float, st: Any) -> None:
+        """In pre-flight, while the autopilot does not report itself ready to arm: say why every
+        NOT_READY_SAY_S, with the autopilot's own words (log, and the operator's GCS)."""
+        if st is None or st.healthy or now - self._not_ready_said_s < NOT_READY_SAY_S:
+            return
+        if self._not_ready_said_s == -math.inf:
+            self._not_ready_said_s = now  # the first reports after connecting may still be settling
+            return
+        self._not_ready_said_s = now
+        why = self.autopilot.not_ready_reason() or "no reason given"
+        log.warning("waiting for the autopilot to be ready to arm: %s", why)
+        if self.gcs is not None:
+            from companion.autopilot.component import SEVERITY_WARNING
+
+            self.gcs.send_text(f"not ready to arm: {why}", SEVERITY_WARNING)
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion

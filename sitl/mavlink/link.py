@@ -94,6 +94,8 @@ class MavlinkLink(abc.ABC):
     peers: list[tuple[str, int]]
     lock: threading.RLock  # held while the vehicle is stepped or commanded
     trusted_link: bool
+    route_peers: bool
+    _rx_addr: tuple[str, int] | None
     on_message: Callable[[Any], None] | None  # test hook: every decoded message
     _bind: tuple[str, int]
     _sock: socket.socket | None
@@ -242,6 +244,7 @@ class MavlinkLink(abc.ABC):
                 self.peers.append(addr)
                 if len(self.peers) > 8:
                     del self.peers[0]
+            self._rx_addr = addr
             self._parse(data)
 
     def _parse(self, data: bytes) -> None:
@@ -271,6 +274,8 @@ class MavlinkLink(abc.ABC):
                 continue
             self.stats.messages_in += 1
             self.stats.signed_in += m.get_signed()
+            if self.route_peers:
+                self._route(m)
             self.stats.by_type_in[m.get_type()] += 1
             if self.on_message is not None:
                 self.on_message(m)
@@ -281,6 +286,21 @@ class MavlinkLink(abc.ABC):
             except Exception:
                 self.stats.handle_errors += 1
                 log.exception("error handling %s", m.get_type())
+
+    def _route(self, m: Any) -> None:
+        """Forward ``m`` to the peers other than its sender, unless it is addressed to the vehicle
+        (PX4's Mavlink::forward_message, ArduPilot's MAVLink_routing)."""
+        if getattr(m, "target_system", None) == self.system_id and getattr(m, "target_component", None) in (
+            self.component_id,
+        ):
+            return
+        buf = m.get_msgbuf()
+        for addr in list(self.peers):
+            if addr != self._rx_addr and self._sock is not None:
+                try:
+                    self._sock.sendto(buf, addr)
+                except OSError:
+                    self.stats.send_errors += 1
 
     # ------------------------------------------------------------------ sending
     def _send(self, msg: Any) -> None:

@@ -133,6 +133,10 @@ class MessageStreams(RcInput):
         dz = self.LOCAL_Z_OFFSET_M
         return p.north_m, p.east_m, p.down_m + dz, p.north_m_s, p.east_m_s, p.down_m_s
 
+    def _prearm_ok(self) -> bool:
+        """SYS_STATUS's pre-arm bit (what MAVSDK reads as ``is_armable``): the estimate is ready."""
+        return bool(self.vehicle.healthy)
+
     def _landed_state(self) -> int:
         v = self.vehicle
         if v.landed is LandedState.ON_GROUND:
@@ -226,7 +230,7 @@ class MessageStreams(RcInput):
             )
         if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
             present = SENSORS_BASE | SENSORS_GPS | SENSORS_PREARM
-            health = SENSORS_BASE | (SENSORS_GPS | SENSORS_PREARM if v.healthy else 0)
+            health = SENSORS_BASE | (SENSORS_GPS if v.healthy else 0) | (SENSORS_PREARM if self._prearm_ok() else 0)
             volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
             return e.sys_status_encode(
                 present, present, health, 250, volts, 1000 if v.armed else 50, int(v.battery_pct), 0, 0, 0, 0, 0, 0

@@ -118,6 +118,14 @@ class Px4SimVehicle(MavlinkSimVehicle):
     OFFBOARD_LOSS_MODE: ClassVar[FlightMode] = FlightMode.POSITION
     release_actuator: int = 1
 
+    def _prearm_ok(self) -> bool:
+        """PX4 reports itself not armable while disarmed in OFFBOARD without a setpoint stream (the
+        mode a companion-flown landing leaves): its arming checks run for the current mode."""
+        v = self.vehicle
+        if not v.armed and v.mode is FlightMode.OFFBOARD and not v.setpoint_fresh():
+            return False
+        return bool(v.healthy)
+
     def _arm_refused(self) -> int | None:
         v = self.vehicle
         if v.armed:

@@ -62,6 +62,7 @@ class MavlinkSimVehicle(FenceServer, CommandHandler):
         signing_timestamp: int | None = None,
         trusted_link: bool = False,
         clock_offset_s: float = 0.0,
+        route_peers: bool = False,
     ):
         if dialect is not None and dialect != self.dialect:
             raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
@@ -76,6 +77,10 @@ class MavlinkSimVehicle(FenceServer, CommandHandler):
         self.stats = LinkStats()
         self.remote = remote
         self.peers: list[tuple[str, int]] = []
+        # pass what one peer sends, unless addressed to the vehicle itself, to the others (the
+        # firmware's routing between its links: a GCS peer sees the companion's component)
+        self.route_peers = route_peers
+        self._rx_addr: tuple[str, int] | None = None
         self.release_servo = release_servo
         self.release_pwm = release_pwm
         self.lock = threading.RLock()  # held while the vehicle is stepped or commanded

@@ -65,6 +65,10 @@ async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
     # the .tlog holds both directions, as they crossed the link
     log = _tlog_by_source(tmp_path / "flight.tlog")
     ours, vehicle = log.pop((ap.source_system, ap.source_component)), log.pop((sim.system_id, sim.component_id))
+    # the companion's own component (docs/gcs.md): the vehicle's system id, its heartbeat, the
+    # mission's events and the computer's status
+    component = log.pop((sim.system_id, 191))
+    assert {"HEARTBEAT", "STATUSTEXT", "ONBOARD_COMPUTER_STATUS"} <= _types(component)
     assert not log  # nobody else on the link
     sent = _setpoints(ours)
     assert len(sent) == ap.counters.setpoints_sent and sent == _setpoints(received)
@@ -96,7 +100,8 @@ async def test_full_delivery_px4_over_mavsdk(mav, udp_port, tmp_path):
     log = _tlog_by_source(tmp_path / "flight.tlog")
     vehicle = log.pop((sim.system_id, sim.component_id))
     (mavsdk_id, ours), *others = log.items()
-    assert not others and mavsdk_id[0] == ap.system_id  # MAVSDK speaks as a component of the vehicle
+    assert not others and mavsdk_id == (ap.system_id, 191)  # MAVSDK speaks as the companion's component
+    assert {"STATUSTEXT", "ONBOARD_COMPUTER_STATUS"} <= _types(ours)
     sent = _setpoints(ours)
     assert len(sent) == ap.setpoints_sent and sent == _setpoints(received)
     _turned_to_the_path(sent, vehicle)

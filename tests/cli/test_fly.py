@@ -37,7 +37,7 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
         seen.update(kwargs, backend=config.autopilot, connection=config.connection)
         return object()
 
-    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None):
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None, on_tick=None):
         seen["run_dir"], seen["landing"], seen["before_flight"] = run_dir, landing, before_flight
         return MissionSummary(delivered=True, returned=True)
 
@@ -45,7 +45,7 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
     monkeypatch.setattr(commands, "run_delivery", run_delivery)
     parser, _ = build_parser()
     params = str(shipped_params_path("ardupilot_quad.toml"))
-    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run"), "--no-preflight"])
+    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run"), "--no-preflight", "--json"])
     assert args.func(args) == 0
     assert seen["run_dir"] == tmp_path / "run" and seen["tlog_path"] == tmp_path / "run" / "flight.tlog"
     assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")

@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
+from companion.autopilot.ardupilot.component import ArduPilotComponent
 from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
@@ -56,7 +57,7 @@ WIND_MSG_ID = 168  # WIND (ardupilotmega): EKF3's wind estimate
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
 
-class ArduPilotAutopilot(ArduPilotFence, ArduPilotTelemetry, Autopilot):
+class ArduPilotAutopilot(ArduPilotFence, ArduPilotComponent, ArduPilotTelemetry, Autopilot):
     def __init__(
         self,
         connection: str = "udpin:0.0.0.0:14550",
@@ -138,6 +139,8 @@ class ArduPilotAutopilot(ArduPilotFence, ArduPilotTelemetry, Autopilot):
         self._system_time_waiters: list[asyncio.Future[tuple[int, float]]] = []
         self.releases_unconfirmed = 0
         self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
+        self._component: Any = None  # (system id, component id, on_command) once open_component
+        self.component_commands = 0  # COMMAND_LONGs addressed to the companion's component
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
@@ -342,3 +345,15 @@ class ArduPilotAutopilot(ArduPilotFence, ArduPilotTelemetry, Autopilot):
         log.info("gripper output: %s", found)
         self._gripper_output = found
         return found
+
+    def not_ready_reason(self) -> str:
+        """ArduPilot's pre-arm flag (SYS_STATUS) and GPS fix, with its last STATUSTEXT (it repeats
+        its "PreArm: ..." reasons every 30 s while they hold)."""
+        parts = []
+        if self._prearm_ok is False:
+            parts.append("ArduPilot pre-arm checks failing")
+        if self._gps_fix < 3:
+            parts.append(f"GPS fix type {self._gps_fix} (3D needed)")
+        if self._last_text:
+            parts.append(f'last ArduPilot message: "{self._last_text}"')
+        return "; ".join(parts)

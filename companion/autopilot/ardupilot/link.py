@@ -341,6 +341,7 @@ class ArduPilotLink:
                         mavlink.MAV_STATE_ACTIVE,
                     )
                 )
+                self._component_heartbeat()
             try:
                 m = conn.recv_match(blocking=True, timeout=0.1)
             except Exception as err:  # a read error (bad bytes, serial hiccup) must not kill the reader
@@ -370,6 +371,9 @@ class ArduPilotLink:
             self._first_hb.set_result(None)
 
     # ------------------------------------------------------------------ hooks of the subclasses
+    def _component_heartbeat(self) -> None:
+        """The companion component's heartbeat, once open (:class:`~.component.ArduPilotComponent`)."""
+
     def _on_message(self, m: Any) -> None:
         """Decode one received message (:class:`~.telemetry.ArduPilotTelemetry`)."""
         raise NotImplementedError

@@ -40,6 +40,9 @@ G = 9.80665
 class ArduPilotTelemetry(ArduPilotRequests):
     """Vehicle state and telemetry samples from what the reader thread receives."""
 
+    def _on_component_command(self, m: Any) -> None:
+        """A COMMAND_LONG (:class:`~.component.ArduPilotComponent`)."""
+
     @property
     def mode(self) -> FlightMode:
         return COPTER_TO_FLIGHT_MODE.get(self.copter_mode, FlightMode.UNKNOWN)
@@ -78,6 +81,9 @@ class ArduPilotTelemetry(ArduPilotRequests):
             return
         src = m.get_srcSystem()
         now = time.monotonic()
+        if t == "COMMAND_LONG":  # from the operator's GCS (any system), for the companion's component
+            self._on_component_command(m)
+            return
         if t == "HEARTBEAT":
             if m.autopilot == mavlink.MAV_AUTOPILOT_INVALID or m.type == mavlink.MAV_TYPE_GCS:
                 return  # a GCS or another companion

@@ -37,6 +37,7 @@ from companion.autopilot.interface import (
     TelemetryCache,
 )
 from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.requests import Px4Requests
@@ -65,7 +66,7 @@ MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
 
 
-class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
+class Px4Autopilot(Px4Fence, Px4Component, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",
@@ -82,8 +83,16 @@ class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
         command_timeout_s: float = 5.0,
         destroy_timeout_s: float = 3.0,
         tlog: OpenPacketSink | None = None,
+        component_id: int = 191,
+        component_system_id: int = 1,
     ):
         self.connection = connection
+        # MAVSDK's own identity, which is the companion's component (companion.autopilot.px4.component):
+        # MAV_COMP_ID_ONBOARD_COMPUTER rather than MAVSDK's default 195 (MAV_COMP_ID_PATHPLANNER)
+        self.component_id = component_id
+        self.component_system_id = component_system_id
+        self.component_commands = 0
+        self._component_unhook: Callable[[], None] | None = None
         self.link_timeout_s = link_timeout_s
         self.setpoint_transport = setpoint_transport
         self.setpoint_stale_s = setpoint_stale_s
@@ -135,6 +144,7 @@ class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
         self._gps_fix = 0
         self._gps_sats = 0
         self._last_text = ""
+        self._health: Any = None  # MAVSDK's last Telemetry.Health
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> Px4Autopilot:
@@ -146,6 +156,10 @@ class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
         kwargs.setdefault("release_actuator", pl.actuator_index)
         kwargs.setdefault("release_actuator_value", pl.actuator_value)
+        gcs = getattr(config, "gcs", None)
+        if gcs is not None and gcs.enabled:
+            kwargs.setdefault("component_id", gcs.component_id)
+            kwargs.setdefault("component_system_id", gcs.system_id or 1)
         ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
         gng = getattr(config, "go_no_go", None)
         ap.want_wind = gng is not None and gng.wind_limit_m_s > 0  # the wind check's input (WIND_COV)
@@ -314,3 +328,43 @@ class Px4Autopilot(Px4Fence, Px4Requests, Autopilot):
             await self._direct_command("release (servo)", MAV_CMD_DO_SET_SERVO, self.release_servo, self.release_pwm)
         self._payload_released = True
         self._push_status()
+
+    async def make_ready(self) -> str | None:
+        """Disarmed in any mode but HOLD (OFFBOARD once our setpoints stopped, AUTO.LAND, POSCTL
+        without RC: PX4 reports itself not armable in them, and refuses to arm): switch to HOLD
+        (AUTO.LOITER), where PX4 arms and a pilot can take it from."""
+        if self._system is None or self._armed or self._mode in (FlightMode.HOLD, FlightMode.UNKNOWN):
+            return None
+        was = self._mode.value
+        await self._direct_command(
+            "make ready (HOLD)", MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MAIN_AUTO, PX4_AUTO_LOITER
+        )
+        self._mode = FlightMode.HOLD
+        self._push_status()
+        return f"disarmed in {was}: switched to HOLD so PX4 arms again"
+
+    def not_ready_reason(self) -> str:
+        h = self._health
+        parts = []
+        if h is not None:
+            failing = [n for n in _HEALTH_FLAGS if not getattr(h, n, True)]
+            bad = [n.removeprefix("is_").removesuffix("_ok").replace("_", " ") for n in failing]
+            if bad:
+                parts.append("PX4 health: not " + ", not ".join(bad))
+        if not self._armed and self._mode not in (FlightMode.HOLD, FlightMode.UNKNOWN):
+            parts.append(f"mode {self._mode.value} (PX4 arms in HOLD)")
+        if self._last_text:
+            parts.append(f'last PX4 message: "{self._last_text}"')
+        return "; ".join(parts)
+
+
+# MAVSDK Telemetry.Health flags, in the order worth reading
+_HEALTH_FLAGS = (
+    "is_armable",
+    "is_global_position_ok",
+    "is_home_position_ok",
+    "is_local_position_ok",
+    "is_gyrometer_calibration_ok",
+    "is_accelerometer_calibration_ok",
+    "is_magnetometer_calibration_ok",
+)

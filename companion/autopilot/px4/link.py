@@ -67,6 +67,8 @@ class Px4Link:
     calls_unanswered: int
     telemetry: TelemetryCache
     system_id: int
+    component_system_id: int
+    component_id: int
     open_tlog: OpenPacketSink | None
     tlog: PacketSink | None
     _tlog_opened: bool
@@ -99,6 +101,7 @@ class Px4Link:
     _gps_fix: int
     _gps_sats: int
     _last_text: str
+    _health: Any
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._system is not None:
@@ -111,7 +114,10 @@ class Px4Link:
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
         route_mavsdk_log()
-        self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
+        mavsdk_config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
+        mavsdk_config.system_id = self.component_system_id
+        mavsdk_config.component_id = self.component_id
+        self._mavsdk = Mavsdk(mavsdk_config)
         if self.open_tlog is not None:
             try:
                 self._open_tlog(self.open_tlog)
@@ -189,6 +195,7 @@ class Px4Link:
             tlog.close()
 
     async def close(self) -> None:
+        self.close_component()
         tasks, self._tasks = self._tasks, []
         for t in tasks:
             t.cancel()
@@ -212,6 +219,9 @@ class Px4Link:
         now = time.monotonic()
         fresh = self._connected and now - self._last_rx <= self.link_timeout_s
         return self._latch.check(now, fresh, self._last_hb)
+
+    def close_component(self) -> None:
+        """Stop handing over the companion component's commands (:mod:`.component`)."""
 
     def _start_streams(self) -> None:
         """Subscribe to the telemetry streams (:class:`~.telemetry.Px4Telemetry`)."""

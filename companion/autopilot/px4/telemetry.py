@@ -160,6 +160,7 @@ class Px4Telemetry(Px4Link):
                 self._battery_pct = pct * 100.0 if pct <= 1.0 else pct
 
         def on_health(h: Any) -> None:
+            self._health = h
             self._healthy = bool(h.is_armable and h.is_global_position_ok and h.is_home_position_ok)
             self._push_status()
 

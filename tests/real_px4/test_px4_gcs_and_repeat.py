@@ -1,0 +1,101 @@
+"""On the real PX4 v1.16 SIH, without restarting it: two sitl_short deliveries in a row, each by a
+fresh companion (as two `companion fly` runs are), then a third flight returned home by the
+operator's GCS. A ground station on PX4's GCS link (UDP 14550, as QGroundControl) sees the
+companion's own component (1/191) through PX4's forwarding: its heartbeat, its STATUSTEXTs and
+ONBOARD_COMPUTER_STATUS; its NAV_RETURN_TO_LAUNCH addressed to 1/191 is acknowledged by the
+companion and brings the vehicle home without delivering (docs/gcs.md, docs/flying.md)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import pytest
+
+from companion.autopilot.px4 import Px4Autopilot
+from companion.autopilot.types import FlightMode
+from companion.config import load_config, shipped_params_path
+from companion.delivery.shell import DeliveryShell
+from companion.events import Phase
+from companion_firmware.gcs_probe import GcsProbe
+from companion_firmware.px4_sitl import Px4Sitl
+from companion_lab.real_campaign import firmware_tuning
+
+pytestmark = pytest.mark.firmware
+
+MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
+
+
+def _config():
+    tuning = firmware_tuning("px4")
+    return load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "connection": "udpin://127.0.0.1:14540",
+            "autopilot": "px4",
+            "mission": {**tuning["mission"], "ready_timeout_s": 60.0},
+            "landing": tuning["landing"],
+            "telemetry": {"enabled": False},
+        },
+    )
+
+
+async def _fly(config, on_tick=None) -> tuple[DeliveryShell, Px4Autopilot]:
+    ap = Px4Autopilot.from_config(config)
+    shell = DeliveryShell(config, ap, on_tick=on_tick)
+    try:
+        await shell.run(timeout_s=240.0)
+        mode = ap.telemetry.status.mode if ap.telemetry.status else None
+        shell.final_mode = mode  # type: ignore[attr-defined]
+        # back where this flight took off (the autopilot's HOME_POSITION moves when it re-arms on the pad)
+        pos, start = ap.telemetry.position_ned, shell.mission._start_ned
+        shell.home_error_m = (  # type: ignore[attr-defined]
+            math.hypot(pos.north_m - start[0], pos.east_m - start[1])
+            if pos is not None and start is not None
+            else math.inf
+        )
+    finally:
+        await ap.close()
+    return shell, ap
+
+
+async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, tmp_path):
+    config = _config()
+    with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), GcsProbe("udpin:127.0.0.1:14550") as gcs:
+        # 1, 2: delivery after delivery; each leaves PX4 in HOLD, where the next one arms
+        for flight in (1, 2):
+            shell, _ = await _fly(config)
+            s = shell.mission.summary
+            assert s.delivered and s.returned and not s.failure, (flight, s.failure, shell.made_ready)
+            assert any("after the mission" in d and "HOLD" in d for d in shell.made_ready), shell.made_ready
+            assert shell.final_mode is FlightMode.HOLD, shell.final_mode
+            print(
+                f"\nflight {flight}: delivered, landed {shell.home_error_m:.2f} m from its take-off; {shell.made_ready}"
+            )
+
+        # 3: the operator's GCS sends RTL to the companion on the way out
+        state: dict = {"sent": None}
+
+        def tick(sh: DeliveryShell, out) -> None:
+            if out.phase is Phase.OUTBOUND and sh.mission._sector >= 2 and state["sent"] is None:
+                state["sent"] = asyncio.get_running_loop().run_in_executor(
+                    None, gcs.command, 1, 191, MAV_CMD_NAV_RETURN_TO_LAUNCH
+                )
+
+        shell, _ = await _fly(config, tick)
+        assert state["sent"] is not None, "the flight never reached sector 2"
+        assert await state["sent"] == 0  # COMMAND_ACK ACCEPTED from 1/191
+        s = shell.mission.summary
+        assert s.returned and not s.delivered and s.failure == "returned on ground command", s
+        assert ("return", "returning home along the path") in shell.ground_commands
+        assert shell.home_error_m < 1.5, shell.home_error_m
+
+    hb = gcs.messages(1, 191, "HEARTBEAT")
+    assert hb and hb[0].type == 18 and hb[0].autopilot == 8  # MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID
+    texts = gcs.texts(1, 191)
+    assert (6, "phase outbound") in texts and (5, "delivered: parcel released on the pad") in texts, texts
+    assert any(sev == 4 and "ground command from gcs" in t for sev, t in texts), texts
+    assert (5, "returning home along the path") in texts
+    status = gcs.messages(1, 191, "ONBOARD_COMPUTER_STATUS")
+    assert len(status) > 60 and status[-1].ram_total > 0
+    print(f"GCS saw from 1/191: {len(hb)} heartbeats, {len(texts)} texts, {len(status)} computer status")
