@@ -3,8 +3,9 @@ the PX4 backend's MAVLink log: ``deliver_intercepted`` around ``message_logger``
 ``TlogWriter``.
 
 Rule: every message ends as a record in flight.tlog or a counted drop: the interceptor's
-``errors`` (a name or JSON that is not text), the writer's ``encode_errors`` (a message that
-cannot be packed again) or ``dropped``; nothing raises into MAVSDK's thread."""
+``errors`` (a name or JSON that is not text), the writer's ``unknown_messages`` (a message the
+dialect does not define), ``encode_errors`` (one that cannot be packed again) or ``dropped``;
+nothing raises into MAVSDK's thread."""
 
 from __future__ import annotations
 
@@ -83,7 +84,8 @@ def test_intercepted_messages_into_the_tlog(tmp_path, fuzz_budget) -> None:
         harness.check("px4 interceptor -> tlog", feed, (seed, 1, 1), ())
     harness.run(items, lambda it: harness.check("px4 interceptor -> tlog", feed, it, ()), fuzz_budget)
     tlog.close()
-    assert tlog.written + tlog.encode_errors + tlog.dropped == counters.delivered, (
-        f"{counters.delivered} messages handed over, {tlog.written} written, "
+    unknown = sum(tlog.unknown_messages.values())
+    assert tlog.written + unknown + tlog.encode_errors + tlog.dropped == counters.delivered, (
+        f"{counters.delivered} messages handed over, {tlog.written} written, {unknown} not in the dialect, "
         f"{tlog.encode_errors} not encodable, {tlog.dropped} dropped"
     )
