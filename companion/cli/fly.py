@@ -33,6 +33,8 @@ from companion.scheduling import LoopClock, RateLoop
 
 log = logging.getLogger(__name__)
 
+OPERATOR_ABORT = "operator abort"  # the abort reason a signal gives (exit 130 when it ended the flight)
+
 
 def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwargs: Any) -> Autopilot:
     """The backend ``config.autopilot`` names: the embedded simulator for "sim", else the PX4 or
@@ -113,7 +115,7 @@ async def run_delivery(
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, shell.abort, f"operator abort ({signal.Signals(sig).name})")
+            loop.add_signal_handler(sig, shell.abort, f"{OPERATOR_ABORT} ({signal.Signals(sig).name})")
     try:
         return await shell.run(timeout_s=timeout_s)
     finally:
@@ -249,6 +251,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         )
     else:
         display.print_summary(summary, run_dir)
+    if OPERATOR_ABORT in summary.failure:  # Ctrl-C / SIGTERM in flight: held, landed, then ended
+        return exits.INTERRUPTED
     return exits.OK if summary.delivered and not summary.failure else exits.FAILED
 
 

@@ -51,3 +51,29 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
     assert (seen["backend"], seen["connection"]) == ("ardupilot", "tcpout://127.0.0.1:5760")
     assert '"delivered": true' in capsys.readouterr().out
     assert seen["before_flight"] is None  # --no-preflight
+
+
+def test_a_flight_ended_by_ctrl_c_exits_130(tmp_path, monkeypatch):
+    """SIGINT in flight aborts (hold, land); the mission's failure then carries the signal's abort
+    reason, and fly exits 130 as for Ctrl-C before the flight, not 1."""
+    from companion.cli import exits
+    from companion.cli import fly as commands
+    from companion.cli.main import build_parser
+    from companion.config import shipped_params_path
+    from companion.delivery.mission import MissionSummary
+
+    outcome = {}
+
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None, on_tick=None):
+        return outcome["summary"]
+
+    monkeypatch.setattr(commands, "make_autopilot", lambda config, **kw: object())
+    monkeypatch.setattr(commands, "run_delivery", run_delivery)
+    parser, _ = build_parser()
+    params = str(shipped_params_path("ardupilot_quad.toml"))
+    args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run"), "--no-preflight", "--json"])
+    # the reason the shell's signal handler gives, in the mission's failure text
+    outcome["summary"] = MissionSummary(failure=f"aborted: {commands.OPERATOR_ABORT} (SIGINT)")
+    assert args.func(args) == exits.INTERRUPTED == 130
+    outcome["summary"] = MissionSummary(failure="aborted: ground command from ground: land")
+    assert args.func(args) == exits.FAILED
