@@ -106,13 +106,15 @@ def print_report(report: PreflightReport) -> None:
     table = Table(title=f"pre-flight check ({report.autopilot})")
     for col in ("check", "status", "value", "detail"):
         table.add_column(col, overflow="fold")
-    style = {Status.OK: "green", Status.WRONG: "bold red", Status.UNKNOWN: "yellow"}
+    style = {Status.OK: "green", Status.WRONG: "bold red", Status.UNKNOWN: "yellow", Status.WARN: "magenta"}
     for c in report.checks:
         table.add_row(escape(c.name), f"[{style[c.status]}]{c.status.value}[/]", escape(c.value), escape(c.detail))
     console.print(table)
     n_unknown = sum(c.status is Status.UNKNOWN for c in report.checks)
+    n_warn = sum(c.status is Status.WARN for c in report.checks)
     verdict = "PASSED" if report.passed else f"FAILED: {len(report.wrong)} wrong"
-    console.print(f"{verdict}, {n_unknown} unknown, {len(report.checks)} checks")
+    warned = f", {n_warn} warn" if n_warn else ""
+    console.print(f"{verdict}, {n_unknown} unknown, {len(report.checks)} checks{warned}")
 
 
 def cmd_preflight(args: argparse.Namespace) -> int:

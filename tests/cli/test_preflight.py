@@ -141,12 +141,15 @@ def test_sensors_that_cannot_be_opened_are_unknown_naming_the_setting(tmp_path: 
     assert "landing.uwb_port = '/dev/companion-no-such-uwb'" in rows["UWB anchors"]["detail"]
 
 
-def test_clock_off_by_seconds_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
+def test_clock_off_by_seconds_is_a_warning_not_a_failure(tmp_path: Path, vehicle: list[_Vehicle]) -> None:
+    # a SITL whose UTC lags the host (ArduCopter started at speed-up) must not stop a flight on that
     v = _start(vehicle, "px4", clock_offset_s=30.0)
     proc = _run(tmp_path, "preflight", "--params", str(v.params_file(tmp_path)), "--json")
-    assert proc.returncode == exits.PREFLIGHT_FAILED, proc.stdout + proc.stderr
-    (clock,) = [c for c in json.loads(proc.stdout)["checks"] if c["check"] == "clock"]
-    assert clock["status"] == "wrong" and "30.0 s behind" in clock["detail"]
+    assert proc.returncode == exits.OK, proc.stdout + proc.stderr
+    report = json.loads(proc.stdout)
+    (clock,) = [c for c in report["checks"] if c["check"] == "clock"]
+    assert clock["status"] == "warn" and "30.0 s behind" in clock["detail"]
+    assert report["passed"] and report["warn"] == 1
 
 
 def test_a_slow_position_stream_is_wrong(tmp_path: Path, vehicle: list[_Vehicle]) -> None:

@@ -14,6 +14,7 @@ class Status(enum.Enum):
     OK = "ok"
     WRONG = "wrong"
     UNKNOWN = "unknown"
+    WARN = "warn"  # off, but not a flight-safety matter: said, does not fail the check
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,7 @@ class PreflightReport:
             "passed": self.passed,
             "wrong": len(self.wrong),
             "unknown": sum(c.status is Status.UNKNOWN for c in self.checks),
+            "warn": sum(c.status is Status.WARN for c in self.checks),
             "checks": [c.to_json() for c in self.checks],
         }
 
