@@ -152,6 +152,27 @@ def preflight_hook(
     return check
 
 
+def _drop_unflown_run_folder(run_dir: Path) -> None:
+    """A start that failed before any stream logged a row (no autopilot answering, a bad key, a busy
+    telemetry port): the stream files hold only their header lines and say nothing, so they go (the
+    CSVs and flight.mcap); what was tried stays: run.json and the link's traffic in flight.tlog, or
+    nothing at all, folder included, when the link carried nothing. A stream that logged a row (a
+    pre-flight check that failed after telemetry came) keeps the folder as it is."""
+    csvs = list(run_dir.glob("*.csv"))
+    try:
+        if any(f.read_bytes().count(b"\n") > 1 for f in csvs):
+            return
+        for f in [*csvs, run_dir / "flight.mcap"]:
+            f.unlink(missing_ok=True)
+        tlog = run_dir / "flight.tlog"
+        if not (tlog.exists() and tlog.stat().st_size > 0):
+            for f in (tlog, run_dir / "run.json"):
+                f.unlink(missing_ok=True)
+            run_dir.rmdir()
+    except OSError as err:  # a folder someone else writes into: leave the rest
+        log.debug("keeping %s: %s", run_dir, err)
+
+
 def _stop_sensors(kit: Any) -> None:
     """Stop the landing sensors (idempotent: the shell stops them too when it ran)."""
     if kit is None:
@@ -204,38 +225,44 @@ def cmd_fly(args: argparse.Namespace) -> int:
             raise StartupError(
                 f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
             ) from None
+        new_folder = not any(run_dir.iterdir())
         try:
-            autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
-            skip = getattr(args, "no_preflight", False)
-            check = None if skip else preflight_hook(config, autopilot, kit, args.params)
-            with _FlyDisplay(quiet=getattr(args, "json", False)) as display:
-                summary = asyncio.run(
-                    run_delivery(
-                        config,
-                        autopilot,
-                        args.timeout,
-                        run_dir,
-                        landing=kit,
-                        before_flight=check,
-                        **display.run_kwargs(),
+            try:
+                autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
+                skip = getattr(args, "no_preflight", False)
+                check = None if skip else preflight_hook(config, autopilot, kit, args.params)
+                with _FlyDisplay(quiet=getattr(args, "json", False)) as display:
+                    summary = asyncio.run(
+                        run_delivery(
+                            config,
+                            autopilot,
+                            args.timeout,
+                            run_dir,
+                            landing=kit,
+                            before_flight=check,
+                            **display.run_kwargs(),
+                        )
                     )
-                )
-        except AbortedBeforeFlight as err:
-            raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
-        except SigningKeyError as err:
-            raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
-        except SigningError as err:
-            raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
-        except (AutopilotUnreachable, LinkDeviceMissing) as err:
-            raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
-        except ConnectionUrlError as err:
-            raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
-        except SessionOpenError as err:
-            raise StartupError(
-                f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) "
-                f"in {args.params}, or set telemetry.enabled = false",
-                exits.TELEMETRY_UNAVAILABLE,
-            ) from None
+            except AbortedBeforeFlight as err:
+                raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
+            except SigningKeyError as err:
+                raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
+            except SigningError as err:
+                raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
+            except (AutopilotUnreachable, LinkDeviceMissing) as err:
+                raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
+            except ConnectionUrlError as err:
+                raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
+            except SessionOpenError as err:
+                raise StartupError(
+                    f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) "
+                    f"in {args.params}, or set telemetry.enabled = false",
+                    exits.TELEMETRY_UNAVAILABLE,
+                ) from None
+        except StartupError:
+            if new_folder:  # nothing flew: the folder would only hold empty logs
+                _drop_unflown_run_folder(run_dir)
+            raise
     finally:
         _stop_sensors(kit)
     if getattr(args, "json", False):

@@ -87,6 +87,10 @@ def test_no_autopilot_answering(tmp_path: Path, zenoh_file: Path, silent_udp_por
     assert code == exits.AUTOPILOT_UNREACHABLE == 3
     assert f"'{url}' within 1.5 s" in line
     assert "change connection in" in line and "runtime.connect_timeout_s = 1.5 s" in line
+    # nothing flew: no header-only stream files left behind, only what was tried
+    run = tmp_path / "run"
+    left = {f.name for f in run.iterdir()} if run.exists() else set()
+    assert left <= {"run.json", "flight.tlog"}, left
 
 
 @pytest.mark.parametrize(
