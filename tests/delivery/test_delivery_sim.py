@@ -133,6 +133,17 @@ def test_a_mission_that_does_not_finish_in_time_says_where_it_stands():
     assert abs(float(m[2]) + vehicle.position_ned().down_m) < 0.2, (m[2], vehicle.position_ned())
 
 
+async def _fly_without_sensors(config, autopilot_cls):
+    """One delivery of the shell on ``autopilot_cls`` (a SimAutopilot), no landing sensors."""
+    vehicle = SimVehicle(config.sim)
+    ap = autopilot_cls(config.sim, vehicle)
+    shell = DeliveryShell(config, ap)
+    try:
+        return shell, await shell.run(timeout_s=600.0)
+    finally:
+        await ap.close()
+
+
 def test_a_backend_that_raises_or_is_cancelled_inside_fails_the_request_and_the_mission_goes_on(caplog):
     """A request whose backend call ends any other way than accepted or AutopilotError (a bug
     raising, a native call's future cancelled under it) is answered as failed and retried:
@@ -153,16 +164,7 @@ def test_a_backend_that_raises_or_is_cancelled_inside_fails_the_request_and_the_
                 raise asyncio.CancelledError()
             await super().start_offboard()
 
-    async def go():
-        vehicle = SimVehicle(config.sim)
-        ap = FlakyAutopilot(config.sim, vehicle)
-        shell = DeliveryShell(config, ap)
-        try:
-            return shell, await shell.run(timeout_s=600.0)
-        finally:
-            await ap.close()
-
-    shell, summary = run_virtual(go())
+    shell, summary = run_virtual(_fly_without_sensors(config, FlakyAutopilot))
     assert summary.delivered and summary.returned, summary.failure
     failed = [e.detail for e in shell.events if e.kind is EventKind.REQUEST_FAILED]
     assert failed == [
@@ -185,16 +187,7 @@ def test_an_arm_that_waits_for_the_autopilot_gets_the_backends_own_arm_timeout()
             await asyncio.sleep(15.0)  # refused, retried, then accepted within arm_timeout_s
             await super().arm()
 
-    async def go():
-        vehicle = SimVehicle(config.sim)
-        ap = SlowToArm(config.sim, vehicle)
-        shell = DeliveryShell(config, ap)
-        try:
-            return shell, await shell.run(timeout_s=600.0)
-        finally:
-            await ap.close()
-
-    shell, summary = run_virtual(go())
+    shell, summary = run_virtual(_fly_without_sensors(config, SlowToArm))
     assert summary.delivered and summary.returned, summary.failure
     assert shell.stats.requests_failed == 0, [e.detail for e in shell.events if e.kind is EventKind.REQUEST_FAILED]
 
