@@ -16,6 +16,7 @@ and every packet sent goes into the sink.
 
 from __future__ import annotations
 
+import abc
 import asyncio
 import collections
 import contextlib
@@ -109,7 +110,7 @@ def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
     return dev, int(b) if b else baud, "serial"
 
 
-class ArduPilotLink:
+class ArduPilotLink(abc.ABC):
     """The connection, the send lock and the reader thread of :class:`ArduPilotAutopilot`; the
     decoding and the requests are in its subclasses (:mod:`.requests`, :mod:`.telemetry`)."""
 
@@ -373,15 +374,16 @@ class ArduPilotLink:
     # ------------------------------------------------------------------ hooks of the subclasses
     def _component_heartbeat(self) -> None:
         """The companion component's heartbeat, once open (:class:`~.component.ArduPilotComponent`)."""
+        return None  # no component open: nothing to send
 
+    @abc.abstractmethod
     def _on_message(self, m: Any) -> None:
         """Decode one received message (:class:`~.telemetry.ArduPilotTelemetry`)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _check_streams(self, now: float) -> None:
         """Ask for the streams again when telemetry stopped (:class:`~.requests.ArduPilotRequests`)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     async def _request_streams(self) -> None:
         """Ask for the telemetry streams on connect (:class:`~.requests.ArduPilotRequests`)."""
-        raise NotImplementedError

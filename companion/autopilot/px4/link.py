@@ -19,6 +19,7 @@ discards before decoding (bad CRC, unknown ids) is not in the file.
 
 from __future__ import annotations
 
+import abc
 import asyncio
 import contextlib
 import logging
@@ -52,7 +53,7 @@ from companion.autopilot.types import (
 log = logging.getLogger(__name__)
 
 
-class Px4Link:
+class Px4Link(abc.ABC):
     """MAVSDK, the plugins and the link state of :class:`Px4Autopilot`; the telemetry streams and
     the requests are in its subclasses (:mod:`.telemetry`, :mod:`.requests`)."""
 
@@ -222,7 +223,8 @@ class Px4Link:
 
     def close_component(self) -> None:
         """Stop handing over the companion component's commands (:mod:`.component`)."""
+        return None  # no component open: nothing to stop
 
+    @abc.abstractmethod
     def _start_streams(self) -> None:
         """Subscribe to the telemetry streams (:class:`~.telemetry.Px4Telemetry`)."""
-        raise NotImplementedError
