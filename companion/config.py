@@ -181,6 +181,11 @@ class MissionConfig(_Section):
         "disarmed on the pad (stay); the mission reports the delivery as failed either way",
     )
     pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
+    alternate_pad: PadConfig | None = _f(
+        None,
+        "-",
+        "a second pad to divert to when the first cannot be locked (landing.policy.fallback); none by default",
+    )
 
     @model_validator(mode="after")
     def _geometry(self) -> MissionConfig:
@@ -829,9 +834,9 @@ class CompanionConfig(_Section):
         if self.autopilot == "sim":
             h = self.sim.home
             problems.append(f.problem_at(h.lat_deg, h.lon_deg, "sim.home"))
-        pad = self.mission.pad
-        if pad.lat_deg is not None and pad.lon_deg is not None:
-            problems.append(f.problem_at(pad.lat_deg, pad.lon_deg, "mission.pad"))
+        for key, pad in (("mission.pad", self.mission.pad), ("mission.alternate_pad", self.mission.alternate_pad)):
+            if pad is not None and pad.lat_deg is not None and pad.lon_deg is not None:
+                problems.append(f.problem_at(pad.lat_deg, pad.lon_deg, key))
         bad = [p for p in problems if p]
         if bad:
             raise ValueError("fence: " + "; ".join(bad))
