@@ -14,11 +14,14 @@ whatever paths are given (``pytest --tier firmware`` would otherwise read ``firm
 
 from __future__ import annotations
 
+import contextlib
+import os
 from pathlib import Path
 
 import pytest
 
 TIERS = ("fast", "flight", "firmware", "fuzz", "all")
+SITL_GROUP = "real-sitl"
 FIRMWARE_DIRS = tuple(Path(__file__).parent / "tests" / d for d in ("real_px4", "real_ardupilot"))
 
 
@@ -44,6 +47,11 @@ def tier_of(item: pytest.Item) -> str:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     tier = config.getoption("--tier")
+    for item in items:
+        if tier_of(item) == "firmware":
+            # one real SITL at a time (fixed ports): with pytest-xdist (`-n 2 --dist loadgroup`) the
+            # firmware tests run in order on one worker while the other runs the rest
+            item.add_marker(pytest.mark.xdist_group(SITL_GROUP))
     if tier == "all":
         return
     keep, drop = [], []
@@ -53,3 +61,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if drop:
         config.hook.pytest_deselected(items=drop)
         items[:] = keep
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """With pytest-xdist, the worker flying the real SITLs keeps the CPU first: those run on the
+    wall clock (a stalled setpoint stream trips the autopilot's failsafe), the rest on simulated time.
+    Other tests lower their worker's priority (and their subprocesses'); a firmware test raises it
+    back when allowed (as root)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return
+    niceness = os.getpriority(os.PRIO_PROCESS, 0)
+    want = 0 if tier_of(item) == "firmware" else 10
+    if niceness != want:
+        # raising the priority back needs root; without it the CPU is shared evenly
+        with contextlib.suppress(PermissionError):
+            os.setpriority(os.PRIO_PROCESS, 0, want)
