@@ -54,7 +54,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group(SITL_GROUP))
     if tier == "all":
         return
-    keep, drop = [], []
+    keep: list[pytest.Item] = []
+    drop: list[pytest.Item] = []
     for item in items:
         t = tier_of(item)
         (keep if t == tier or (tier == "fast" and t == "fuzz") else drop).append(item)
