@@ -19,6 +19,7 @@ the local pool (the same draw raises again wherever it flies, so it is not retri
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import importlib
 import logging
@@ -153,15 +154,43 @@ def _refused(worker: str, theirs: dict[str, str]) -> ClusterError:
     )
 
 
+class ClusterAddressError(ClusterError, ValueError):
+    """The scheduler's address is not one (scheme, host or port)."""
+
+
+async def _probe(address: str, timeout_s: float) -> None:
+    from distributed.comm import connect
+
+    comm = await connect(address, timeout=timeout_s)
+    await comm.close()
+
+
 def _connect(address: str, timeout_s: float) -> Any:
     try:
         from distributed import Client
+        from distributed.comm.addressing import parse_address, parse_host_port
+        from distributed.comm.registry import get_backend
     except ImportError:
         raise ClusterError("--cluster needs Dask distributed: pip install -e '.[cluster]'") from None
     try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)  # a scheme Dask speaks
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            parse_host_port(location)
+    except ValueError as err:
+        raise ClusterAddressError(f"{address!r} is not a Dask scheduler's address (tcp://HOST:PORT): {err}") from None
+    # the scheduler is reached once by hand first: a Client that cannot connect is left half-made,
+    # and stalls the interpreter's exit for twice its timeout
+    try:
+        asyncio.run(_probe(address, timeout_s))
+    except (OSError, TimeoutError) as err:
+        raise ClusterError(f"no Dask scheduler answered at {address} within {timeout_s:g} s ({err})") from None
+    except Exception as err:  # something answered, not in Dask's protocol
+        raise ClusterError(f"what answers at {address} is not a Dask scheduler ({_what(err)})") from None
+    try:
         client = Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as err:
-        raise ClusterError(f"no Dask scheduler answered at {address} within {timeout_s:g} s ({err})") from None
+        raise ClusterError(f"the Dask scheduler at {address} did not take this client ({_what(err)})") from None
     try:
         client.wait_for_workers(1, timeout=timeout_s)
     except (OSError, TimeoutError) as err:

@@ -22,7 +22,10 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from companion.cli.console import make_console
-    from companion_lab.campaign_cluster import ClusterError  # Dask itself is imported only with --cluster
+    from companion_lab.campaign_cluster import (
+        ClusterAddressError,
+        ClusterError,
+    )  # Dask itself is imported only with --cluster
     from companion_lab.campaign_landing import CampaignLandingError
     from companion_lab.campaign_output import write_outputs
     from companion_lab.landing_campaign import FAILURE_VARIANTS, run_landing_campaign, usable_cpus
@@ -82,7 +85,7 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
             except ClusterError as err:
                 progress.stop()
                 print(f"companion campaign landing: {err}", file=sys.stderr)
-                return exits.CLUSTER_UNAVAILABLE
+                return exits.BAD_INPUT if isinstance(err, ClusterAddressError) else exits.CLUSTER_UNAVAILABLE
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -182,16 +183,37 @@ def test_a_landing_that_kills_every_worker_is_named_and_counted_failed(params, l
     assert len(got["lost"]) == 1
 
 
-def test_a_scheduler_that_does_not_answer_is_one_line_and_exit_7(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(campaign_cluster, "CONNECT_TIMEOUT_S", 2.0)
-    t0 = time.monotonic()
-    code = main(
-        ["campaign", "landing", "--n", "1", "--cluster", "tcp://127.0.0.1:9", "--out", str(tmp_path), "--quiet"]
+def test_a_scheduler_that_does_not_answer_is_one_line_and_exit_7(tmp_path):
+    # in a process of its own: the command's whole life is bounded, its exit included
+    code = (
+        "import sys; from companion_lab import campaign_cluster; campaign_cluster.CONNECT_TIMEOUT_S = 2.0; "
+        "from companion.cli.main import main; "
+        "sys.exit(main(['campaign', 'landing', '--n', '1', '--cluster', 'tcp://127.0.0.1:9', "
+        f"'--out', {str(tmp_path)!r}]))"
     )
-    assert code == exits.CLUSTER_UNAVAILABLE and time.monotonic() - t0 < 8.0
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    elapsed_s = time.monotonic() - t0
+    assert done.returncode == exits.CLUSTER_UNAVAILABLE, done.stderr
+    assert done.stderr.startswith(
+        "companion campaign landing: no Dask scheduler answered at tcp://127.0.0.1:9 within 2 s"
+    )
+    assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1, done.stderr
+    # the command's imports (a few seconds on a loaded machine), the 2 s, and nothing after
+    assert elapsed_s < 20.0
+
+
+@pytest.mark.parametrize("address", ["localhost:port", "tcp://", "http://127.0.0.1:8786"])
+def test_a_malformed_scheduler_address_is_bad_input(address, tmp_path, capsys):
+    assert main(["campaign", "landing", "--n", "1", "--cluster", address, "--out", str(tmp_path)]) == exits.BAD_INPUT
     err = capsys.readouterr().err
-    assert err.startswith("companion campaign landing: no Dask scheduler answered at tcp://127.0.0.1:9 within 2 s")
-    assert "Traceback" not in err and err.count("\n") == 1
+    assert err.startswith(
+        f"companion campaign landing: {address!r} is not a Dask scheduler's address (tcp://HOST:PORT)"
+    )
+    assert err.count("\n") == 1
+
+
+def test_cluster_and_jobs_exclude_each_other(tmp_path, capsys):
     argv = ["campaign", "landing", "--n", "1", "--cluster", "tcp://127.0.0.1:9", "--jobs", "2", "--out", str(tmp_path)]
     assert main(argv) == exits.BAD_INPUT
     assert "--cluster and --jobs exclude each other" in capsys.readouterr().err
@@ -236,3 +258,21 @@ def test_a_worker_without_the_project_is_refused_by_name(params, monkeypatch):
         pattern = r"landing 1 of 1 \(seed 5000, fusion\) could not run on worker tcp://127\.0\.0\.1:\d+: "
         with pytest.raises(campaign_cluster.ClusterError, match=pattern + r".*No module named 'companion_lab'"):
             run_landing_campaign(1, 5, ("fusion",), params, cluster=c.scheduler_address)
+
+
+@pytest.mark.flight
+def test_ctrl_c_cancels_the_campaigns_landings_on_the_cluster(cluster, params):
+    def interrupt(variant, done, total):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_landing_campaign(3, 5, ("fusion", "gps_only"), params, interrupt, cluster=cluster.scheduler_address)
+
+    def tasks(dask_scheduler):
+        return len(dask_scheduler.tasks)
+
+    with distributed.Client(cluster.scheduler_address) as client:
+        end = time.monotonic() + 10.0
+        while client.run_on_scheduler(tasks) and time.monotonic() < end:
+            time.sleep(0.1)
+        assert client.run_on_scheduler(tasks) == 0  # nothing left flying or waiting
