@@ -150,7 +150,8 @@ def _what(err: BaseException) -> str:
 def _refused(worker: str, theirs: dict[str, str]) -> ClusterError:
     return ClusterError(
         f"worker {worker} runs a different environment: {_differences(environment(), theirs)}; "
-        "every worker needs `pip install -e '.[cluster]'` of this commit, with the same dependencies"
+        "every worker needs `pip install -e '.[cluster]'` of this commit (and a restart since), "
+        "with the same dependencies"
     )
 
 
@@ -179,8 +180,9 @@ def _connect(address: str, timeout_s: float) -> Any:
             parse_host_port(location)
     except ValueError as err:
         raise ClusterAddressError(f"{address!r} is not a Dask scheduler's address (tcp://HOST:PORT): {err}") from None
-    # the scheduler is reached once by hand first: a Client that cannot connect is left half-made,
-    # and stalls the interpreter's exit for twice its timeout
+    # the scheduler is reached once by hand first: a Client that fails in its constructor is left
+    # half-made (its close at the interpreter's exit prints a traceback after twice its timeout),
+    # and a reply that is not Dask's protocol is told apart from no reply
     try:
         asyncio.run(_probe(address, timeout_s))
     except (OSError, TimeoutError) as err:
@@ -255,10 +257,11 @@ def fly_on_cluster(
         env = environment()
         shipped = {t.base: t.base.read_text() for t in tasks}
         campaign = uuid.uuid4().hex[:8]  # keys unique to this run: the scheduler shares results by key
-        for t in tasks:
+        # the landings that render the camera are the long ones: handed out first (in this order
+        # to the workers idle as they arrive, then by priority), the short ones fill the end
+        for t in sorted(tasks, key=lambda t: (not renders_camera(t.variant), t.index)):
             landing = ClusterLanding(t, t.base.name, shipped[t.base], env)
             key = f"landing-{t.index}-seed-{t.draw.seed}-{t.variant}-{campaign}"
-            # the landings that render the camera are the long ones: first (higher priority first)
             payload = pickle.dumps(_FlownWhenLoaded(landing), protocol=pickle.HIGHEST_PROTOCOL)
             fut = client.submit(pickle.loads, payload, key=key, priority=int(renders_camera(t.variant)))
             futures[fut] = t
