@@ -189,7 +189,8 @@ def register_campaign(csub: Any) -> None:
         "--cluster",
         metavar="ADDRESS",
         help="fly the embedded landings on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:PORT; "
-        "its workers need this commit: pip install -e '.[cluster]'); the same results as --jobs",
+        "its workers need this commit: pip install -e '.[cluster]'); the same results as --jobs "
+        "(default: worker processes on this machine, --jobs)",
     )
     where = cl.add_mutually_exclusive_group()
     where.add_argument(
