@@ -142,6 +142,27 @@ class CampaignLandingError(RuntimeError):
     the landing: its index, the draw's seed and the variant."""
 
 
+def unflown_row(task: LandingTask, failure: str) -> dict[str, Any]:
+    """The row of a landing that could not be flown (every worker that tried it died): a failed
+    landing with no touchdown, counted like any other (``failure`` says why)."""
+    d = task.draw
+    return {
+        "seed": d.seed,
+        "error_m": math.nan,
+        "north_m": math.nan,
+        "east_m": math.nan,
+        "on_pad": False,
+        "delivered": False,
+        "home_with_parcel": False,
+        "pad_tries": 0,
+        "failure": failure,
+        "sim_time_s": 0.0,
+        "gps_bias_m": d.gps_bias_m[:2],
+        "pad_offset_m": d.pad_offset_m,
+        "wind_m_s": d.wind_speed_m_s if get_profile(task.profile).has_wind else 0.0,
+    }
+
+
 def fly_landing(task: LandingTask) -> dict[str, Any]:
     """Fly one landing on the embedded simulator and score it: the campaign JSON's row.
 

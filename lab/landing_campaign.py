@@ -91,12 +91,16 @@ def run_landing_campaign(
     profile: str = "ideal",
     tuning: dict[str, dict[str, Any]] | None = None,
     jobs: int = 1,
+    cluster: str | None = None,
 ) -> dict[str, Any]:
     """Fly ``n`` draws from ``seed``, each as every variant, and summarise them.
 
     ``jobs`` > 1 flies the landings in that many worker processes (``companion_lab.campaign_pool``);
     the result is the same, bit for bit, as with ``jobs = 1`` (one after the other, in this process):
     each landing depends on its draw alone and the rows are put back in the campaign's order.
+    ``cluster`` (a Dask scheduler's address) flies them on that cluster instead
+    (``companion_lab.campaign_cluster``; the same result); a landing it could not fly because its
+    workers died is a failed row, and named in the result's ``lost``.
     ``progress(variant, done, total)`` is called as each landing finishes."""
     if jobs < 1:
         raise ValueError(f"jobs = {jobs}: need at least one")
@@ -127,7 +131,12 @@ def run_landing_campaign(
             progress(task.variant, done, total)
 
     rows: list[dict[str, Any]]
-    if jobs == 1 or total == 1:
+    lost: list[str] = []
+    if cluster is not None:
+        from companion_lab.campaign_cluster import fly_on_cluster
+
+        rows, lost = fly_on_cluster(tasks, cluster, finished)
+    elif jobs == 1 or total == 1:
         rows = []
         for task in tasks:
             try:
@@ -144,4 +153,6 @@ def run_landing_campaign(
     out = {"n": n, "seed": seed, "params": str(base), "summary": summary, "landings": landings}
     if profile != "ideal":
         out["profile"] = profile
+    if lost:
+        out["lost"] = lost
     return out

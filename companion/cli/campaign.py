@@ -22,10 +22,18 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from companion.cli.console import make_console
+    from companion_lab.campaign_cluster import (
+        ClusterAddressError,
+        ClusterError,
+    )  # Dask itself is imported only with --cluster
     from companion_lab.campaign_landing import CampaignLandingError
     from companion_lab.campaign_output import write_outputs
     from companion_lab.landing_campaign import FAILURE_VARIANTS, run_landing_campaign, usable_cpus
 
+    if args.cluster and (args.autopilot or args.jobs is not None):
+        other = "--autopilot" if args.autopilot else "--jobs"
+        print(f"companion campaign landing: --cluster and {other} exclude each other", file=sys.stderr)
+        return exits.BAD_INPUT
     jobs = args.jobs if args.jobs is not None else usable_cpus()
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
     if args.variants:
@@ -67,12 +75,17 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
                     profile=args.profile,
                     tuning=tuning,
                     jobs=jobs,
+                    cluster=args.cluster,
                 )
             except CampaignLandingError as err:
                 progress.stop()
                 log.debug("the failed landing", exc_info=err)
                 print(f"companion campaign landing: {err}", file=sys.stderr)
                 return exits.FAILED
+            except ClusterError as err:
+                progress.stop()
+                print(f"companion campaign landing: {err}", file=sys.stderr)
+                return exits.BAD_INPUT if isinstance(err, ClusterAddressError) else exits.CLUSTER_UNAVAILABLE
     files = write_outputs(result, out)
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
@@ -91,6 +104,8 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         )
     console.print(table)
     console.print(f"written: {', '.join(str(f) for f in files)}")
+    for line in result.get("lost", []):
+        print(f"companion campaign landing: {line}", file=sys.stderr)
     failed = {v: s["failed"] for v, s in result["summary"].items() if s["failed"]}
     if failed:
         # every landing counts: one that neither released nor brought the parcel home is a failure
@@ -169,6 +184,13 @@ def register_campaign(csub: Any) -> None:
         type=positive_int,
         help="embedded landings flown at once, each in a worker process (default: the CPUs this process may "
         "use; 1: one after the other in this process); the results are the same whatever the number",
+    )
+    cl.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="fly the embedded landings on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:PORT; "
+        "its workers need this commit: pip install -e '.[cluster]'); the same results as --jobs "
+        "(default: worker processes on this machine, --jobs)",
     )
     where = cl.add_mutually_exclusive_group()
     where.add_argument(

@@ -23,6 +23,9 @@ TELEMETRY_UNAVAILABLE = 5
 #: the pre-flight check found the vehicle configured wrong (``companion preflight``, and ``companion
 #: fly`` before it arms): a parameter to set, a sensor or a clock out of line
 PREFLIGHT_FAILED = 6
+#: the Dask cluster of ``campaign landing --cluster`` could not be used: no scheduler answered, it
+#: has no worker, or a worker runs another environment (code, Python, numeric libraries)
+CLUSTER_UNAVAILABLE = 7
 #: Ctrl-C before the command finished
 INTERRUPTED = 130
 
