@@ -41,6 +41,7 @@ FAILURE_VARIANTS = (
     "camera_blind_5m",
     "pad_4m",
     "pad_4m_search",
+    "pad_missing_alternate",
 )
 
 
