@@ -8,7 +8,14 @@ import pytest
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import ConfigError, MissionConfig, PadConfig, PadLockPolicyConfig, load_config
 from companion.config import shipped_params_path as shipped
-from companion.delivery.mission import DeliveryMission, MissionInputs, RequestKind, RequestResult
+from companion.delivery.mission import (
+    DeliveryMission,
+    MissionInputs,
+    MissionOutput,
+    Request,
+    RequestKind,
+    RequestResult,
+)
 from companion.delivery.padlock import NO_SENSORS
 from companion.events import EventKind, Phase
 
@@ -25,13 +32,18 @@ def _cfg() -> MissionConfig:
     )
 
 
+def _req(out: MissionOutput) -> Request:
+    assert out.request is not None
+    return out.request
+
+
 def _mission(policy: PadLockPolicyConfig = DIVERT) -> tuple[DeliveryMission, float]:
     """A mission in OUTBOUND (as test_padlock._at_approach, with the alternate pad configured)."""
     m = DeliveryMission(_cfg(), pad_policy=policy)
     t = 0.0
-    m.on_result(RequestResult(m.step(MissionInputs(t, est(t), status(t), HOME)).request.id, True))
+    m.on_result(RequestResult(_req(m.step(MissionInputs(t, est(t), status(t), HOME))).id, True))
     out = m.step(MissionInputs(t, est(t), status(t, armed=True), HOME))
-    m.on_result(RequestResult(out.request.id, True))
+    m.on_result(RequestResult(_req(out).id, True))
     mode = FlightMode.TAKEOFF
     while m.phase is not Phase.OUTBOUND:
         t += 0.05
@@ -168,9 +180,9 @@ def test_an_alternate_too_close_to_divert_to_goes_home_saying_why() -> None:
     cfg = _cfg().model_copy(update={"alternate_pad": PadConfig(north_m=PAD[0] + 3.0, east_m=PAD[1])})
     m = DeliveryMission(cfg, pad_policy=DIVERT)
     t = 0.0
-    m.on_result(RequestResult(m.step(MissionInputs(t, est(t), status(t), HOME)).request.id, True))
+    m.on_result(RequestResult(_req(m.step(MissionInputs(t, est(t), status(t), HOME))).id, True))
     out = m.step(MissionInputs(t, est(t), status(t, armed=True), HOME))
-    m.on_result(RequestResult(out.request.id, True))
+    m.on_result(RequestResult(_req(out).id, True))
     mode = FlightMode.TAKEOFF
     while m.phase is not Phase.OUTBOUND:
         t += 0.05
