@@ -433,7 +433,7 @@ class DeliveryMission:
         if s == -1 and self._divert_after_takeoff:
             # took off again from the first pad after a touchdown without lock: to the alternate
             reason, self._divert_after_takeoff = self._divert_after_takeoff, ""
-            self._return_planned = self._divert_takeoff = self._plan_divert(est, reason)
+            self._divert_takeoff = self._plan_divert(est, reason)
             if not self._divert_takeoff:
                 self.summary.failure = f"parcel not delivered: {reason}"
         if self._divert_takeoff:
@@ -871,7 +871,7 @@ class DeliveryMission:
         self.pad_index = 1
         self.summary.diverted = True
         self._tries_before_pad = self.summary.pad_tries
-        self._home_planned = False
+        self._home_planned = self._return_planned = False  # the way home starts at the alternate
         self._emit(
             EventKind.PAD_LOCK,
             f"{reason}: diverting to the alternate pad, {path.d:.1f} m away at {self.cfg.height_m} m, "

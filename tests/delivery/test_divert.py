@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from companion.autopilot.types import FlightMode, LandedState
+from companion.autopilot.types import FlightMode, LandedState, VehicleStatus
 from companion.config import ConfigError, MissionConfig, PadConfig, PadLockPolicyConfig, load_config
 from companion.config import shipped_params_path as shipped
 from companion.delivery.mission import (
@@ -115,19 +115,31 @@ def test_the_last_failed_try_diverts_to_the_alternate_and_lands_there_locked() -
         and out.setpoint.down_m_s < -0.5
         and math.hypot(out.setpoint.north_m_s, out.setpoint.east_m_s) < 0.5
     )
-    # over the alternate under the approach height, locked: the descent there (try 1 of 1 again)
-    t += 0.1
+    _land_release_take_off(m, t + 0.1)
+
+
+def _land_release_take_off(m: DeliveryMission, t: float) -> None:
+    """Over the alternate under the approach height, locked: the descent, the release there, and
+    the take-off for home, whose path starts at the alternate."""
     _fly(m, t, LOCKED, *ALT, -2.5)
     assert m.phase is Phase.LANDING_PAD
     out = _fly(m, t + 0.05, LOCKED, ALT[0], ALT[1], 0.0, landed=LandedState.ON_GROUND)
-    assert out.request is not None and out.request.kind is RequestKind.DISARM
-    m.on_result(RequestResult(out.request.id, True))
-    out = _fly(m, t + 0.1, LOCKED, ALT[0], ALT[1], 0.0, landed=LandedState.ON_GROUND, armed=False)
+    m.on_result(RequestResult(_req(out).id, True))  # disarm
+    _fly(m, t + 0.1, LOCKED, ALT[0], ALT[1], 0.0, landed=LandedState.ON_GROUND, armed=False)
     assert m.phase is Phase.RELEASE
     out = _fly(m, t + 0.15, LOCKED, ALT[0], ALT[1], 0.0, landed=LandedState.ON_GROUND, armed=False)
-    assert out.request is not None and out.request.kind is RequestKind.RELEASE
-    m.on_result(RequestResult(out.request.id, True))
-    assert any(e.kind is EventKind.RELEASED for e in m.summary.events)
+    assert _req(out).kind is RequestKind.RELEASE
+    m.on_result(RequestResult(_req(out).id, True))
+    t += 0.2 + m.cfg.release_time_s
+    st = VehicleStatus(t, False, FlightMode.HOLD, LandedState.ON_GROUND, True, 90.0, True)  # parcel gone
+    out = m.step(MissionInputs(t, est(t, ALT[0], ALT[1], 0.0), st, HOME, pad_lock=LOCKED))
+    assert m.summary.delivered and "parcel released on the alternate pad" in m.summary.events[-2].detail
+    m.on_result(RequestResult(_req(out).id, True))  # arm for the way home
+    assert m.phase is Phase.TAKEOFF_RETURN
+    st = VehicleStatus(t + 0.05, True, FlightMode.TAKEOFF, LandedState.IN_AIR, True, 90.0, True)
+    m.step(MissionInputs(t + 0.05, est(t + 0.05, ALT[0], ALT[1], -0.5), st, HOME, pad_lock=LOCKED))
+    assert m.path is not None and m.path.d == pytest.approx(math.hypot(*ALT))  # alternate -> home
+    assert m.frame is not None and tuple(m.frame.pad_ned[:2]) == pytest.approx(ALT)
 
 
 def test_no_lock_on_the_alternate_either_flies_home_with_the_parcel() -> None:
@@ -168,6 +180,8 @@ def test_a_touchdown_without_lock_takes_off_again_and_diverts() -> None:
             m.on_result(RequestResult(out.request.id, True))
             mode = FlightMode.OFFBOARD
     assert m.phase is Phase.DIVERT and m.pad_index == 1 and not m.summary.delivered
+    assert m.frame is not None and tuple(m.frame.pad_ned[:2]) == ALT
+    _land_release_take_off(m, t + 0.05)
 
 
 def test_without_pad_sensors_there_is_no_divert() -> None:
