@@ -40,3 +40,22 @@ def test_first_pad_missing_diverts_releases_on_the_alternate_and_replays_identic
     assert any(k == "phase" and d.startswith("return path planned from the landing point") for k, _, d in kinds)
     rep = replay_run(run, tmp_path / "replayed")
     assert rep.identical, "\n".join(rep.lines())
+
+
+def test_no_lock_on_either_pad_brings_the_parcel_home(tmp_path: Path) -> None:
+    """Camera and UWB dead all flight: two tries on the first pad, the divert, two tries on the
+    alternate, then home with the parcel on a path planned from over the alternate."""
+    draw = draw_scenarios(1, 11)[0]
+    config = scenario_config(shipped_params_path("landing_campaign.toml"), draw, "pad_missing_alternate")
+    sim = config.sim.model_copy(update={"camera_fails_below_m": 10000.0, "uwb_fails_below_m": 10000.0})
+    config = config.model_copy(update={"sim": sim})
+    run = tmp_path / "run"
+    r = run_demo(config, run_dir=run)
+    assert not r.delivered and r.home_with_parcel and r.returned, r.failure
+    assert diverted(r.events) and r.pad_tries == 4
+    assert r.failure == "parcel not delivered: 2 tries without a pad lock on the alternate pad"
+    assert r.home_landing_error_m < 3.0
+    assert not any(kind == "released" for _, kind, _, _ in r.events)
+    assert any(kind == "phase" and d.startswith("return path planned from the divert") for _, kind, _, d in r.events)
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
