@@ -6,6 +6,8 @@ requests and feeds their results back with :meth:`DeliveryMission.on_result`.
 
 Phases: preflight -> arming -> takeoff -> outbound (s = +1) -> landing on the pad -> release
 -> (arming -> takeoff -> inbound (s = -1) -> landing at home) -> done. Abort: hold, then land.
+No pad lock: pad_hold, pad_search, then home with the parcel or divert (s = +1) to the alternate
+pad and the same policy there (docs/delivery-policy.md, docs/divert.md).
 The pilot always wins: a mode switch away from offboard that we did not ask for ends autonomy.
 """
 
@@ -891,13 +893,8 @@ class DeliveryMission:
         assert self.frame is not None and self._start_ned is not None
         below = np.array([est.north_m, est.east_m, float(self.frame.pad_ned[2])], dtype=float)
         try:
-            frame = MissionFrame.from_start_and_pad(self._start_ned, below)
-            path = DeliveryPath(
-                h=self.cfg.height_m, r=self.cfg.arc_radius_m, d=math.hypot(*(below - self._start_ned)[:2])
-            )
-            z_start = float(frame.point_from_ned(self._start_ned)[2])
-            if z_start >= self.cfg.height_m - self.cfg.arc_radius_m:
-                raise PathGeometryError(f"home is {z_start:.1f} m above the ground here, at or above the arcs")
+            # the leg flown backwards (s = -1): from home (its start) to the ground under the vehicle
+            frame, path, z_start = plan_leg(self.cfg, self._start_ned, below)
             violation = self._fence_violation(below, self._start_ned, legs=("return",))
             if violation:
                 raise PathGeometryError(violation)
