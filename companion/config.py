@@ -530,6 +530,12 @@ class SimConfig(_Section):
         ge=0.0,
         le=10000.0,
     )
+    pad_at_alternate: bool = _f(
+        False,
+        "-",
+        "the simulated pad (the camera's target, the UWB anchors) lies at mission.alternate_pad (plus "
+        "pad_offset_m), and none at mission.pad: a delivery whose first pad is missing",
+    )
     vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
 
     @model_validator(mode="after")
@@ -660,10 +666,12 @@ class PadLockPolicyConfig(_Section):
         ge=1,
         le=10,
     )
-    fallback: Literal["home"] = _f(
+    fallback: Literal["home", "alternate"] = _f(
         "home",
         "-",
-        "step 4: home = fly home with the parcel and land there without releasing it",
+        "step 4: home = fly home with the parcel and land there without releasing it; alternate = climb to "
+        "mission.height_m, fly to mission.alternate_pad and land there under this same policy (lock, hold, "
+        "search, tries), then home with the parcel if that fails too",
     )
 
 
@@ -840,6 +848,20 @@ class CompanionConfig(_Section):
         bad = [p for p in problems if p]
         if bad:
             raise ValueError("fence: " + "; ".join(bad))
+        return self
+
+    @model_validator(mode="after")
+    def _alternate_pad_given(self) -> CompanionConfig:
+        """A divert, or a simulated pad at the alternate, needs the alternate pad."""
+        if self.mission.alternate_pad is not None:
+            return self
+        if self.landing.policy.fallback == "alternate":
+            raise ValueError(
+                "landing.policy.fallback = 'alternate' needs mission.alternate_pad (the pad to divert to); "
+                "set [mission.alternate_pad] or fallback = 'home'"
+            )
+        if self.sim.pad_at_alternate:
+            raise ValueError("sim.pad_at_alternate = true needs mission.alternate_pad (where the simulated pad lies)")
         return self
 
     @model_validator(mode="after")

@@ -15,6 +15,7 @@ class Phase(enum.Enum):
     RELEASE = "release"  # parcel release on the ground
     PAD_HOLD = "pad_hold"  # no pad lock: hold at the approach height (or fly onto the pad once locked)
     PAD_SEARCH = "pad_search"  # no pad lock: the search pattern around the configured pad
+    DIVERT = "divert"  # no pad lock after the tries: vector field, s = +1, to the alternate pad
     TAKEOFF_RETURN = "takeoff_return"
     INBOUND = "inbound"  # vector field, s = -1, back along the path
     LANDING_HOME = "landing_home"

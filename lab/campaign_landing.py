@@ -31,6 +31,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "camera_blind_5m": {},
     "pad_4m": {},
     "pad_4m_search": {"use_uwb": False, "policy": {"search_height_m": 5.0}},
+    "pad_missing_alternate": {"policy": {"fallback": "alternate"}},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -40,6 +41,14 @@ SIM_VARIANTS: dict[str, dict[str, Any]] = {
     # no UWB and a camera that detects the pad only below 6 m: a pad 4 m away is outside its view on
     # the way down and at the approach height; only the search (at 5 m) can find it
     "pad_4m_search": {"camera_range_m": 6.0},
+    # the first pad is not there; the real one (camera target, UWB anchors) is at the alternate
+    "pad_missing_alternate": {"pad_at_alternate": True},
+}
+
+# [mission] overrides: the alternate pad, 25 m north of params/landing_campaign.toml's pad (beyond
+# what the search around the first pad sees: 6 m radius, the camera's view from 8 m, UWB's 10 m)
+MISSION_VARIANTS: dict[str, dict[str, Any]] = {
+    "pad_missing_alternate": {"alternate_pad": {"lat_deg": -19.868667, "lon_deg": -43.9637141, "alt_amsl_m": 850.0}},
 }
 
 # the pad lies this far from its configured place (in the draw's direction): outside the camera's
@@ -104,6 +113,8 @@ def scenario_config(
     tuning = tuning or {}
     landing = {**tuning.get("landing", {}), **VARIANTS[variant]}
     overrides = {**tuning, "sim": sim, "landing": landing}
+    if variant in MISSION_VARIANTS:
+        overrides["mission"] = {**tuning.get("mission", {}), **MISSION_VARIANTS[variant]}
     return load_config(base_file, overrides=overrides)
 
 
@@ -187,4 +198,9 @@ def fly_landing(task: LandingTask) -> dict[str, Any]:
         "gps_bias_m": d.gps_bias_m[:2],
         "pad_offset_m": d.pad_offset_m,
         "wind_m_s": d.wind_speed_m_s if get_profile(task.profile).has_wind else 0.0,
-    }
+    } | ({"diverted": diverted(r.events)} if task.variant in MISSION_VARIANTS else {})
+
+
+def diverted(events: list[tuple[float, str, str, str]]) -> bool:
+    """The flight entered the divert to the alternate pad (a ``phase divert`` event)."""
+    return any(kind == "phase" and detail == "divert" for _, kind, _, detail in events)

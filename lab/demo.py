@@ -23,7 +23,7 @@ import numpy as np
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion.delivery.mission import MissionOutput
-from companion.delivery.planning import pad_position_ned
+from companion.delivery.planning import pad_config_ned, pad_position_ned
 from companion.delivery.shell import FLIGHT_LOG_COLUMNS, DeliveryShell
 from companion.events import Phase
 from companion.flightlog.csvlog import CsvLog
@@ -161,9 +161,15 @@ def path_summary(config: CompanionConfig, scorer: _Scorer) -> dict[str, Any]:
 
 
 def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
-    """Where the pad really is in the simulator's truth frame (true home at the origin)."""
+    """Where the pad really is in the simulator's truth frame (true home at the origin): at the
+    alternate pad's place with ``sim.pad_at_alternate`` (the first pad missing)."""
     h = config.sim.home
-    pad = pad_position_ned(config.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    home = GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
+    alternate = config.mission.alternate_pad
+    if config.sim.pad_at_alternate and alternate is not None:
+        pad = pad_config_ned(alternate, home)
+    else:
+        pad = pad_position_ned(config.mission, home)
     return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
 
 

@@ -8,6 +8,8 @@ flies the *same* draws, so fusion and GPS-only are compared on identical conditi
 - ``fusion``: EKF with GPS pose, camera (both markers) and UWB (delivery 4.2.3)
 - ``gps_only``: the autopilot's GPS pose alone (the baseline, delivery Fig. 15 blue)
 - failure variants (delivery 5.2, Fig. 14): ``no_camera``, ``no_uwb``, ``outer_only``, ``inner_only``
+- the pad-lock policy's variants (docs/delivery-policy.md): ``sensors_failed``, ``camera_blind_5m``,
+  ``pad_4m``, ``pad_4m_search``, and ``pad_missing_alternate`` (the divert, docs/divert.md)
 
 One landing (draw, scenario, flight, score) is :mod:`companion_lab.campaign_landing`.
 """
@@ -41,6 +43,7 @@ FAILURE_VARIANTS = (
     "camera_blind_5m",
     "pad_4m",
     "pad_4m_search",
+    "pad_missing_alternate",
 )
 
 

@@ -169,7 +169,8 @@ def register_campaign(csub: Any) -> None:
     cl.add_argument(
         "--failures",
         action="store_true",
-        help="also: no_camera, no_uwb, outer_only, inner_only, sensors_failed, camera_blind_5m, pad_4m, pad_4m_search",
+        help="also: no_camera, no_uwb, outer_only, inner_only, sensors_failed, camera_blind_5m, pad_4m, pad_4m_search, "
+        "pad_missing_alternate",
     )
     cl.add_argument(
         "--variants",

@@ -6,6 +6,8 @@ requests and feeds their results back with :meth:`DeliveryMission.on_result`.
 
 Phases: preflight -> arming -> takeoff -> outbound (s = +1) -> landing on the pad -> release
 -> (arming -> takeoff -> inbound (s = -1) -> landing at home) -> done. Abort: hold, then land.
+No pad lock: pad_hold, pad_search, then home with the parcel or divert (s = +1) to the alternate
+pad and the same policy there (docs/delivery-policy.md, docs/divert.md).
 The pilot always wins: a mode switch away from offboard that we did not ask for ends autonomy.
 """
 
@@ -22,7 +24,7 @@ from companion.autopilot.types import FlightMode, HomePosition, LandedState, Veh
 from companion.config import FenceConfig, GoNoGoConfig, LimitsConfig, MissionConfig, PadLockPolicyConfig
 from companion.delivery.gonogo import BatteryMonitor, WayHome, WindMonitor, time_home_s
 from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
-from companion.delivery.planning import plan_delivery
+from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
@@ -42,6 +44,7 @@ FOLLOW_PHASES = (
     Phase.LANDING_HOME,
     Phase.PAD_HOLD,
     Phase.PAD_SEARCH,
+    Phase.DIVERT,
 )
 PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (then capped)
 PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
@@ -122,6 +125,7 @@ class MissionSummary:
     events: list[MissionEvent] = field(default_factory=list)
     home_with_parcel: bool = False  # landed at home with the parcel still aboard
     pad_tries: int = 0  # descents onto the pad that the no-release-off-the-pad policy stopped
+    diverted: bool = False  # flew to the alternate pad (landing.policy.fallback = "alternate")
 
 
 class DeliveryMission:
@@ -271,7 +275,7 @@ class DeliveryMission:
             self._goto(Phase.ABORT_HOLD)
             return "holding position until the pilot takes over or a land/abort command"
         if kind == "return":
-            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH):
+            if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT):
                 self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
                 self.summary.failure = "returned on ground command"
                 self._goto(Phase.INBOUND)
@@ -343,7 +347,7 @@ class DeliveryMission:
 
         if self.battery is not None:
             self._check_battery(inp)
-        if self.wind is not None and self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD):
+        if self.wind is not None and self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.DIVERT):
             why = self.wind.update(inp.time_s, inp.wind)
             if why:
                 self._emit(EventKind.GO_NO_GO, f"abandoning the delivery, flying home: {why}")
@@ -428,7 +432,15 @@ class DeliveryMission:
         est = inp.estimate
         if est is None or self.field is None or self.frame is None:
             return None, None, math.nan
-        if s == -1 and not self._return_planned:
+        if s == -1 and self._divert_after_takeoff:
+            # took off again from the first pad after a touchdown without lock: to the alternate
+            reason, self._divert_after_takeoff = self._divert_after_takeoff, ""
+            self._divert_takeoff = self._plan_divert(est, reason)
+            if not self._divert_takeoff:
+                self.summary.failure = f"parcel not delivered: {reason}"
+        if self._divert_takeoff:
+            s, nxt = 1, Phase.DIVERT
+        elif s == -1 and not self._return_planned:
             self._plan_return(est)
         if inp.time_s - self._phase_t0 > self.cfg.takeoff_timeout_s:
             self.abort(inp.time_s, f"takeoff did not reach {self.cfg.takeoff_alt_m} m in time")
@@ -448,6 +460,7 @@ class DeliveryMission:
         sp, lyap = self._field_setpoint(est, s)
         req = self._enter_offboard(inp)
         if self._offboard_requested and req is None and self._pending is None and self._in_offboard(inp):
+            self._divert_takeoff = False
             self._goto(nxt)
         return sp, req, lyap
 
@@ -455,8 +468,9 @@ class DeliveryMission:
         """The way home starts where the vehicle stands (the pad as it was found, which can lie metres
         from the configured one: GPS bias, a displaced pad), not at the configured pad: otherwise the
         vector field pulls the climb sideways onto the outbound path. Same h and r, home as before."""
-        self._return_planned = True
-        if not self.cfg.return_from_landing_point or self._start_ned is None or self.frame is None:
+        self._return_planned = self._home_planned = True
+        # after a divert the path flown last starts at the first pad, not home: always replanned
+        if not (self.cfg.return_from_landing_point or self.pad_index) or self._start_ned is None or self.frame is None:
             return
         # horizontally where the vehicle is (it has just armed there); the ground at the pad's level
         land = np.array([est.position_ned[0], est.position_ned[1], self.frame.pad_ned[2]], dtype=float)
@@ -472,6 +486,9 @@ class DeliveryMission:
             if violation:
                 raise PathGeometryError(violation)
         except (PathGeometryError, ValueError) as err:
+            if self.pad_index:
+                self.abort(self._now, f"no way home from the alternate pad: {err}")
+                return
             self._emit(
                 EventKind.WARNING, f"return path from the landing point failed ({err}): flying the outbound path back"
             )
@@ -526,6 +543,10 @@ class DeliveryMission:
         return self._follow(inp, s=1, landing=Phase.LANDING_PAD)
 
     def _do_inbound(self, inp: MissionInputs) -> tuple:
+        if self.pad_index and not self._home_planned and inp.estimate is not None:
+            self._plan_home_from(inp.estimate)  # the divert's path starts at the first pad, not home
+            if self.phase is not Phase.INBOUND:
+                return None, None, math.nan
         return self._follow(inp, s=-1, landing=Phase.LANDING_HOME)
 
     def _follow(self, inp: MissionInputs, s: int, landing: Phase) -> tuple:
@@ -675,15 +696,16 @@ class DeliveryMission:
         pol = self.pad_policy
         assert pol is not None
         self.summary.pad_tries += 1
-        n, total = self.summary.pad_tries, pol.descent_tries
+        n, total = self.summary.pad_tries - self._tries_before_pad, pol.descent_tries
         lock = inp.pad_lock
         if lock is None or not lock.sensors:
             self._emit(EventKind.PAD_LOCK, reason)
-            self._pad_fallback("no pad sensor: no pad lock can come")
+            self._pad_fallback("no pad sensor: no pad lock can come", None)
             return None
         if n >= total:
             self._emit(EventKind.PAD_LOCK, f"try {n} of {total} failed: {reason}")
-            self._pad_fallback(f"{total} tries without a pad lock")
+            where = " on the alternate pad" if self.pad_index else ""
+            self._pad_fallback(f"{total} tries without a pad lock{where}", inp.estimate)
             return None
         self._emit(
             EventKind.PAD_LOCK,
@@ -694,9 +716,13 @@ class DeliveryMission:
         self._goto(Phase.PAD_HOLD)
         return None
 
-    def _pad_fallback(self, reason: str) -> None:
-        """The last step: fly home with the parcel, in the air from here (on the ground after a
+    def _pad_fallback(self, reason: str, est: StateEstimate | None) -> None:
+        """The last step: divert to the alternate pad (fallback = "alternate", from the first pad, with
+        an estimate), else fly home with the parcel, in the air from here (on the ground after a
         touchdown without lock: :meth:`_home_with_parcel`)."""
+        if est is not None and self._can_divert() and self._plan_divert(est, reason):
+            self._goto(Phase.DIVERT)
+            return
         self.summary.failure = f"parcel not delivered: {reason}"
         self._emit(EventKind.PAD_LOCK, f"{reason}: flying home with the parcel, to land there without releasing it")
         self._goto(Phase.INBOUND)
@@ -705,6 +731,12 @@ class DeliveryMission:
         """Landed on the way out without a pad lock: nothing is released; take off and fly home."""
         if not self._idle():
             return None
+        if self._can_divert() and self._home_geo is not None:
+            self._divert_after_takeoff = reason  # planned from where it stands once armed (_takeoff_common)
+            self._emit(EventKind.PAD_LOCK, f"{reason}: parcel not released; taking off to divert to the alternate pad")
+            self._left_pad = True
+            self._goto(Phase.ARMING)
+            return self._make_request(RequestKind.ARM)
         self.summary.failure = f"parcel not delivered: {reason}"
         self._emit(EventKind.PAD_LOCK, f"{reason}: parcel not released; taking off to fly home with it")
         self._left_pad = True  # the next ARM is for the way home
@@ -754,10 +786,10 @@ class DeliveryMission:
         if ok:
             off = math.hypot(est.north_m - float(pad[0]), est.east_m - float(pad[1]))
             if off < pol.approach_tolerance_m and abs(est.down_m - down) < PAD_HEIGHT_TOLERANCE_M:
+                try_n = self.summary.pad_tries - self._tries_before_pad + 1
                 self._emit(
                     EventKind.PAD_LOCK,
-                    f"pad locked ({why}), {off:.2f} m off it: descent try {self.summary.pad_tries + 1} "
-                    f"of {pol.descent_tries}",
+                    f"pad locked ({why}), {off:.2f} m off it: descent try {try_n} of {pol.descent_tries}",
                 )
                 self._goto(Phase.LANDING_PAD)
             return sp, None, math.nan
@@ -804,6 +836,80 @@ class DeliveryMission:
                 self._corner_t0 = None
         return sp, None, math.nan
 
+    # ------------------------------------------------------------------ divert to the alternate pad
+    def _can_divert(self) -> bool:
+        pol = self.pad_policy
+        return (
+            pol is not None
+            and pol.fallback == "alternate"
+            and self.cfg.alternate_pad is not None
+            and self.pad_index == 0
+            and self.pad_ned is not None
+        )
+
+    def _plan_divert(self, est: StateEstimate, reason: str) -> bool:
+        """Plan the path from where the vehicle is (over the first pad's ground) to the alternate pad,
+        with the mission's height and arcs, inside the fence both ways; on success the mission's frame,
+        path, field and pad are the alternate's (the shell points the landing fusion at it) and its
+        tries count from one again. False (said in an event) when it cannot be flown."""
+        assert self.cfg.alternate_pad is not None and self.pad_ned is not None
+        if self._home_geo is None or self._start_ned is None:
+            return False
+        alt_ned = np.asarray(self._home_ned, dtype=float) + pad_config_ned(self.cfg.alternate_pad, self._home_geo)
+        start = np.array([est.north_m, est.east_m, float(self.pad_ned[2])], dtype=float)
+        try:
+            frame, path, z_start = plan_leg(self.cfg, start, alt_ned)
+            violation = self._fence_violation(start, alt_ned, legs=("outbound",)) or self._fence_violation(
+                self._start_ned, alt_ned, legs=("return",)
+            )
+            if violation:
+                raise PathGeometryError(violation)
+        except (PathGeometryError, ValueError) as err:
+            self._emit(EventKind.PAD_LOCK, f"{reason}: cannot divert to the alternate pad ({err})")
+            return False
+        self.frame, self.path, self.z_start = frame, path, z_start
+        self.field = VectorField(path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
+        self.pad_ned = np.array(frame.pad_ned, dtype=float)
+        self.pad_index = 1
+        self.summary.diverted = True
+        self._tries_before_pad = self.summary.pad_tries
+        self._home_planned = self._return_planned = False  # the way home starts at the alternate
+        self._emit(
+            EventKind.PAD_LOCK,
+            f"{reason}: diverting to the alternate pad, {path.d:.1f} m away at {self.cfg.height_m} m, "
+            "to land there under the same policy",
+        )
+        self._emit(
+            EventKind.PHASE,
+            f"divert path planned: d = {path.d:.2f} m, h = {path.h} m, r = {path.r} m, "
+            f"heading {math.degrees(frame.heading_rad):.1f} deg",
+        )
+        return True
+
+    def _plan_home_from(self, est: StateEstimate) -> None:
+        """After a divert, the way home in the air: from the ground under the vehicle to where the
+        outbound started (the divert's path starts at the first pad). No path: hold, then land."""
+        self._home_planned = True
+        assert self.frame is not None and self._start_ned is not None
+        below = np.array([est.north_m, est.east_m, float(self.frame.pad_ned[2])], dtype=float)
+        try:
+            # the leg flown backwards (s = -1): from home (its start) to the ground under the vehicle
+            frame, path, z_start = plan_leg(self.cfg, self._start_ned, below)
+            violation = self._fence_violation(below, self._start_ned, legs=("return",))
+            if violation:
+                raise PathGeometryError(violation)
+        except (PathGeometryError, ValueError) as err:
+            self.abort(self._now, f"no way home from the alternate pad: {err}")
+            return
+        self.frame, self.path, self.z_start = frame, path, z_start
+        self.field = VectorField(path, self.cfg.sector_speed_m_s, self.cfg.convergence_gain)
+        self._emit(EventKind.PHASE, f"return path planned from the divert: d = {path.d:.2f} m")
+
+    def _do_divert(self, inp: MissionInputs) -> tuple:
+        """The vector field to the alternate pad; at its approach height the same lock check as the
+        outbound's, then the descent, hold, search and tries there."""
+        return self._follow(inp, s=1, landing=Phase.LANDING_PAD)
+
     def _after_touchdown(self, s: int) -> None:
         if s == 1:
             self._left_pad = True  # the next ARM is for the return leg
@@ -831,7 +937,10 @@ class DeliveryMission:
             return self._release_failed(inp)
         if not self.summary.delivered:
             self.summary.delivered = True
-            self._emit(EventKind.DELIVERED, "parcel released on the pad")
+            self._emit(
+                EventKind.DELIVERED,
+                "parcel released on the alternate pad" if self.pad_index else "parcel released on the pad",
+            )
         if not self.cfg.return_home:
             self.summary.end_time_s = inp.time_s
             self._goto(Phase.DONE)
@@ -915,6 +1024,11 @@ class DeliveryMission:
     _release_requested = False
     _release_error = ""
     _searched = False  # the search was flown in this try
+    pad_index = 0  # the pad landed on: 0 mission.pad, 1 mission.alternate_pad (after a divert)
+    _tries_before_pad = 0  # summary.pad_tries when the current pad's tries began
+    _home_planned = False  # after a divert: the way home has been planned
+    _divert_after_takeoff = ""  # touchdown without lock on the first pad: divert once airborne (the reason)
+    _divert_takeoff = False  # that take-off flies the divert's field
 
     def _way_home(self) -> WayHome:
         c = self.cfg
@@ -941,7 +1055,11 @@ class DeliveryMission:
         if st is None:
             return
         self.battery.update(inp.time_s, st.battery_pct, st.landed is LandedState.IN_AIR)
-        if self.phase not in (Phase.OUTBOUND, Phase.LANDING_PAD) or est is None or self._start_ned is None:
+        if (
+            self.phase not in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.DIVERT)
+            or est is None
+            or self._start_ned is None
+        ):
             return
         p = np.asarray(est.position_ned, dtype=float)
         dist = math.hypot(p[0] - self._start_ned[0], p[1] - self._start_ned[1])

@@ -198,6 +198,7 @@ class _ReplayShell:
         self.mission = built.mission
         self.estimator = built.estimator
         self.fusion: Any = None
+        self._fusion_pad_index = 0  # mission.pad_index the fusion was started for
         self.landing = bool(meta.get("landing"))
         self.notes: list[str] = []
 
@@ -225,6 +226,14 @@ class _ReplayShell:
             )
         except (KeyError, TypeError, ValueError) as err:
             raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
+        if self.fusion is not None:
+            # diverted: the fusion starts again on the alternate pad, as DeliveryShell._start_fusion
+            self.telemetry.remove_listener(self.fusion.on_sample)
+            self._fusion_pad_index = self.mission.pad_index
+            self.fusion = LandingFusion(setup, now)
+            self.telemetry.add_listener(self.fusion.on_sample)
+            return
+        self._fusion_pad_index = self.mission.pad_index
         recorded_pad = transform_from_json(rec["T_world_pad"])
         if not (np.array_equal(recorded_pad.t, T_world_pad.t) and np.array_equal(recorded_pad.R, T_world_pad.R)):
             self.notes.append(
@@ -280,6 +289,8 @@ class _ReplayShell:
         if self.landing:
             if self.fusion is None and mission.frame is not None:
                 self._start_fusion(now)
+            elif self.fusion is not None and mission.pad_index != self._fusion_pad_index:
+                self._start_fusion(now)  # diverted: again on the alternate pad
             fused = self.fusion.estimate() if self.fusion is not None else None
             if fused is not None and not mission.summary.delivered and not mission.returning:
                 estimate = fused

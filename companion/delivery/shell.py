@@ -204,6 +204,7 @@ class DeliveryShell:
         self._want_telemetry = telemetry
         self.landing = landing
         self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
+        self._fusion_pad_index = 0  # mission.pad_index the fusion was started for
         self._sensor_tasks: list[asyncio.Task[None]] = []
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
@@ -415,6 +416,8 @@ class DeliveryShell:
             if self.landing is not None:
                 if self.fusion is None and mission.frame is not None:
                     self._start_fusion(now)
+                elif self.fusion is not None and mission.pad_index != self._fusion_pad_index:
+                    self._start_fusion(now)  # diverted: the fusion starts again on the alternate pad
                 # The fused frame puts the configured pad where the camera/UWB see it; home is a
                 # GPS point, so the way back (after the delivery) flies on the GPS-frame estimate.
                 fused = self.fusion.estimate() if self.fusion is not None else None
@@ -491,6 +494,12 @@ class DeliveryShell:
         kit = self.landing
         assert kit is not None and self.mission.frame is not None
         pad = self.mission.frame.pad_ned
+        # the camera and UWB see the pad the mission lands on: after a divert, the alternate (a new
+        # EKF: the first pad's GPS-bias estimate says nothing about where the alternate lies)
+        restart = self.fusion is not None
+        if restart:
+            self.autopilot.telemetry.remove_listener(self.fusion.on_sample)
+        self._fusion_pad_index = self.mission.pad_index
         setup = FusionSetup(
             T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2])),
             T_body_camera=kit.T_body_camera,
@@ -512,6 +521,9 @@ class DeliveryShell:
                 getattr(kit.detector, "layout", PadLayout()).outer_size_m,
             )
         self.autopilot.telemetry.add_listener(self.fusion.on_sample)
+        if restart:
+            log.info("landing fusion started again on the alternate pad at NED %s", [round(float(v), 2) for v in pad])
+            return
         for dev in (kit.camera, kit.uwb):
             if dev is not None and not kit.sensors_started:
                 dev.start()
@@ -556,7 +568,7 @@ class DeliveryShell:
     def _vision_wanted(self) -> bool:
         m = self.mission
         return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH) or (
-            m.phase is Phase.OUTBOUND and m._sector >= 5
+            m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m._sector >= 5
         )
 
     async def _sensor_loop(self) -> None:
