@@ -411,4 +411,6 @@ def cmd_fly_orders(
         for f in session.flights:
             what = ("DELIVERED" if f.delivered else "NOT DELIVERED") + (", returned home" if f.returned else "")
             print(f"  {f.order_id}: {what}{' - ' + f.failure if f.failure else ''} ({f.run_dir})")
+    if any(abort_reason in f.failure for f in session.flights):  # Ctrl-C in flight: held, landed, ended
+        return exits.INTERRUPTED
     return exits.OK if all(f.delivered and not f.failure for f in session.flights) else exits.FAILED
