@@ -46,22 +46,40 @@ def register(subparsers: Any) -> None:
     p.add_argument("--lat", type=float, required=True, help="pad latitude, degrees (WGS-84)")
     p.add_argument("--lon", type=float, required=True, help="pad longitude, degrees (WGS-84)")
     p.add_argument("--alt", type=float, help="pad ground altitude AMSL, metres (default: the home's ground altitude)")
-    p.add_argument("--alternate-lat", type=float, help="alternate pad latitude (with --alternate-lon)")
-    p.add_argument("--alternate-lon", type=float, help="alternate pad longitude (with --alternate-lat)")
-    p.add_argument("--alternate-alt", type=float, help="alternate pad altitude AMSL, metres")
+    p.add_argument(
+        "--alternate-lat", type=float, help="alternate pad latitude, with --alternate-lon (default: no alternate)"
+    )
+    p.add_argument(
+        "--alternate-lon", type=float, help="alternate pad longitude, with --alternate-lat (default: no alternate)"
+    )
+    p.add_argument(
+        "--alternate-alt", type=float, help="alternate pad altitude AMSL, metres (default: the home's ground altitude)"
+    )
     p.add_argument("--secret-file", required=True, help="file holding the shared secret (the vehicle's secret_file)")
     p.add_argument("--order-id", help="the order's id (default: the UTC time and 4 random hex digits)")
     p.add_argument("--sender", default="ground", help="who sends it, for the vehicle's logs (default: ground)")
-    p.add_argument("--note", default="", help="free text carried with the order (signed)")
+    p.add_argument("--note", default="", help="free text carried with the order, signed (default: none)")
     p.add_argument(
         "--zenoh-config",
         metavar="FILE",
         help="TOML file with a [zenoh] table (params/zenoh_*.toml); flags override it (default: Zenoh's defaults)",
     )
-    p.add_argument("--connect", action="append", metavar="EP", help="connect endpoint, e.g. tcp/10.0.0.2:7447")
-    p.add_argument("--listen", action="append", metavar="EP", help="listen endpoint, repeatable")
-    p.add_argument("--no-multicast", action="store_true", help="disable multicast scouting")
-    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="EP",
+        help="connect endpoint, e.g. tcp/10.0.0.2:7447, repeatable (default: none, or the session file's)",
+    )
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="EP",
+        help="listen endpoint, repeatable (default: none, or the session file's)",
+    )
+    p.add_argument(
+        "--no-multicast", action="store_true", help="disable multicast scouting (default: the session file's, else on)"
+    )
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default: %(default)s)")
     p.set_defaults(func=cmd_order)
 
 
@@ -78,9 +96,9 @@ def _ground_settings(args: argparse.Namespace) -> ZenohSettings:
 
 
 def cmd_order(args: argparse.Namespace) -> int:
-    from companion.telemetry.auth import CommandSettings
+    from companion.telemetry.auth import MAX_NOTE_CHARS, CommandSettings, sender_ok
     from companion.telemetry.ground import GroundStation
-    from companion.telemetry.orders import OrderPad
+    from companion.telemetry.orders import ORDER_ID_RULE, OrderPad, order_id_ok
     from companion.telemetry.schema import SchemaError, check_vehicle_id
 
     def bad(msg: str) -> int:
@@ -99,6 +117,12 @@ def cmd_order(args: argparse.Namespace) -> int:
         return bad("--alternate-lat and --alternate-lon go together")
     if args.alternate_alt is not None and args.alternate_lat is None:
         return bad("--alternate-alt needs --alternate-lat and --alternate-lon")
+    if args.order_id is not None and not order_id_ok(args.order_id):
+        return bad(f"--order-id {args.order_id!r}: expected {ORDER_ID_RULE}")
+    if not sender_ok(args.sender):
+        return bad(f"--sender {args.sender!r}: expected 1-64 letters, digits, '_', '.', '@' or '-'")
+    if len(args.note) > MAX_NOTE_CHARS:
+        return bad(f"--note: {len(args.note)} characters, at most {MAX_NOTE_CHARS}")
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         return bad(f"--timeout {args.timeout}: expected > 0 s")
     try:
@@ -132,8 +156,6 @@ def cmd_order(args: argparse.Namespace) -> int:
             note=args.note,
             timeout_s=args.timeout,
         )
-    except ValueError as e:  # a bad --order-id or --sender is refused by the vehicle; this is local
-        return bad(str(e))
     finally:
         station.stop()
     if not reply.replied:
@@ -207,7 +229,7 @@ async def serve_orders(
     ends); ``before_flight_for(config, kit)``: the flight's pre-flight check. Either raising ends
     that flight, not the session: it is reported as the order's failure."""
     from companion.delivery.orders import OrderDesk
-    from companion.delivery.shell import DeliveryShell
+    from companion.delivery.shell import AbortedBeforeFlight, DeliveryShell
     from companion.delivery.telemetry import zenoh_settings_from_config
     from companion.flightlog.recorder import FlightRecorder
     from companion.telemetry.schema import MissionMessage
@@ -226,8 +248,12 @@ async def serve_orders(
         if on_event is not None:
             on_event(ev)
 
+    connecting: asyncio.Task[None] | None = None
+
     def on_signal(name: str) -> None:
         stop.set()
+        if connecting is not None and not connecting.done():
+            connecting.cancel()  # nothing commanded yet: stop waiting for the autopilot
         if shell is not None:
             shell.abort(f"{abort_reason} ({name})")
 
@@ -272,7 +298,13 @@ async def serve_orders(
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, on_signal, signal.Signals(sig).name)
     try:
-        await autopilot.connect(timeout_s=config.runtime.connect_timeout_s)
+        connecting = loop.create_task(autopilot.connect(timeout_s=config.runtime.connect_timeout_s))
+        try:
+            await connecting
+        except asyncio.CancelledError:
+            if not stop.is_set():
+                raise
+            raise AbortedBeforeFlight(f"{abort_reason} while waiting for the autopilot") from None
         desk.start(session)
         n = 0
         while not stop.is_set():
@@ -286,8 +318,11 @@ async def serve_orders(
                 break
             stopper.cancel()
             accepted = getter.result()
-            n += 1
             order_id = accepted.order.order_id
+            if stop.is_set():  # accepted as Ctrl-C came: the operator ended the session first
+                desk.finished(order_id, "not flown: the session was ended (Ctrl-C)")
+                break
+            n += 1
             flight_dir = run_dir / f"{n:02d}-{order_id}"
             try:
                 summary_or_why = await _fly_one(accepted.config, flight_dir)
@@ -334,7 +369,8 @@ def cmd_fly_orders(
     from companion.autopilot.interface import AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
     from companion.autopilot.signing import SigningError, SigningKeyError
     from companion.cli.exits import StartupError
-    from companion.delivery.landing_setup import build_landing_kit, start_sensors
+    from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
+    from companion.delivery.shell import AbortedBeforeFlight
     from companion.telemetry.session import SessionOpenError
 
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
@@ -363,7 +399,14 @@ def cmd_fly_orders(
     def before_flight_for(cfg: CompanionConfig, kit: Any) -> Any:
         return None if getattr(args, "no_preflight", False) else preflight_hook(cfg, autopilot, kit, args.params)
 
-    landing_for(config)  # a missing sensor is said now, not at the first order
+    try:  # a missing sensor is said now, not at the first order
+        kit = landing_for(config)
+    except LandingSetupError as err:
+        code = exits.DEVICE_MISSING if err.device_missing else exits.BAD_INPUT
+        raise StartupError(f"{args.params}: {err}", code) from None
+    for dev in (kit.camera, kit.uwb) if kit is not None else ():
+        if dev is not None:
+            dev.stop()  # each flight starts its own (a flight's shell stops them when it ends)
     autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")
     if not quiet:
         print(f"taking delivery orders for {config.vehicle_id} (Ctrl-C ends); logs in {run_dir}", flush=True)
@@ -380,6 +423,8 @@ def cmd_fly_orders(
                 abort_reason=abort_reason,
             )
         )
+    except AbortedBeforeFlight as err:
+        raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
     except SigningKeyError as err:
         raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
     except SigningError as err:

@@ -57,6 +57,11 @@ _SENDER = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
 MAX_NOTE_CHARS = 256
 
 
+def sender_ok(sender: str) -> bool:
+    """Whether ``sender`` is a valid sender name (1-64 of letters, digits, ``_ . @ -``)."""
+    return bool(_SENDER.match(sender))
+
+
 class CommandKind(enum.Enum):
     HOLD = "hold"  # stop and hold position
     RETURN = "return"  # fly back home along the path

@@ -51,6 +51,11 @@ from companion.telemetry.auth import (
 ORDER_SCHEMA = "companion.order/1"
 ORDER_REPLY_SCHEMA = "companion.order-reply/1"
 _ORDER_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+ORDER_ID_RULE = "1-64 letters, digits, '_', '.' or '-'"
+
+
+def order_id_ok(order_id: str) -> bool:
+    return bool(_ORDER_ID.match(order_id))
 
 
 class OrderRefused(CommandRefused):
@@ -191,7 +196,7 @@ class OrderVerifier:
         f = parse_signed_fields(doc, ORDER_SCHEMA, "order", ("order_id", "pad"))
         order_id = doc["order_id"]
         if not isinstance(order_id, str) or not _ORDER_ID.match(order_id):
-            raise OrderRefused("malformed order: order_id must be 1-64 letters, digits, '_', '.' or '-'")
+            raise OrderRefused(f"malformed order: order_id must be {ORDER_ID_RULE}")
         pad = _pad(doc["pad"], "pad")
         alt_doc = doc.get("alternate")
         alternate = None if alt_doc is None else _pad(alt_doc, "alternate")
