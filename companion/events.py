@@ -46,6 +46,7 @@ class EventKind(enum.Enum):
     WARNING = "warning"
     PAD_LOCK = "pad_lock"  # a step of the no-release-off-the-pad policy, with its reason
     GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
+    ORDER = "order"  # a delivery order from the ground: received, accepted or refused (with the reason), flown
 
 
 @dataclass(frozen=True, slots=True)

@@ -59,6 +59,80 @@ async def fly(config, autopilot, monitor=None, timeout_s: float = 90.0):
     return shell, summary
 
 
+async def orders_scenario(
+    config, ap, secret: bytes, out_dir, ready_timeout_s: float = 90.0, flight_timeout_s: float = 300.0
+):
+    """One `fly --orders` session (docs/orders.md) on ``ap``, the ground on a loopback Zenoh peer:
+    order 1 (14, 14 m from home) delivered, an order while it flies refused as busy, one 150 m
+    away refused as out of range, order 2 (-12, 10 m) delivered. Returns the session and the
+    ground's replies by order id."""
+    from companion.cli.orders import serve_orders
+    from companion.geometry.earth import GeoPoint, ned_to_geo
+    from companion.telemetry.ground import GroundStation
+    from companion.telemetry.loopback import loopback_settings
+    from companion.telemetry.orders import OrderPad
+
+    zport = free_tcp_port()
+    events: list = []
+    replies: dict = {}
+    stop = asyncio.Event()
+    station = GroundStation(loopback_settings(connect_port=zport))
+    loop = asyncio.get_running_loop()
+
+    async def send(north_m: float, east_m: float, order_id: str):
+        h = ap.telemetry.home
+        g = ned_to_geo(GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m), north_m, east_m, 0.0)
+        pad = OrderPad(g.lat_deg, g.lon_deg)
+        replies[order_id] = await asyncio.to_thread(
+            station.send_order, config.vehicle_id, pad, secret, order_id=order_id
+        )
+        return replies[order_id]
+
+    async def until(cond, timeout_s: float, what: str) -> None:
+        t0 = loop.time()
+        while not cond():
+            assert loop.time() - t0 < timeout_s, f"timed out after {timeout_s} s waiting for {what}"
+            assert not task.done() or task.exception() is None, task.exception()
+            await asyncio.sleep(0.2)
+
+    def flown(order_id: str) -> bool:
+        return any(e.detail.startswith(f"order {order_id} flown") for e in events)
+
+    task = loop.create_task(
+        serve_orders(
+            config,
+            ap,
+            out_dir,
+            zenoh_settings=loopback_settings(listen_port=zport),
+            flight_timeout_s=flight_timeout_s,
+            stop=stop,
+            on_event=events.append,
+        )
+    )
+    try:
+        tc = ap.telemetry
+        await until(
+            lambda: tc.home is not None and tc.status is not None and tc.status.healthy, ready_timeout_s, "ready"
+        )
+        await asyncio.to_thread(station.start)
+        for _ in range(50):  # until the ground's session reaches the desk's queryable
+            if (await send(14.0, 14.0, "o-1")).replied:
+                break
+            await asyncio.sleep(0.1)
+        assert replies["o-1"].accepted, replies["o-1"]
+        await until(lambda: tc.status.armed, 120.0, "order 1 armed")
+        await send(-12.0, 10.0, "o-busy")
+        await until(lambda: flown("o-1"), flight_timeout_s, "order 1 flown")
+        await send(0.0, 150.0, "o-far")
+        assert (await send(-12.0, 10.0, "o-2")).accepted, replies["o-2"]
+        await until(lambda: flown("o-2"), flight_timeout_s, "order 2 flown")
+    finally:
+        stop.set()
+        session = await asyncio.wait_for(task, 60.0)
+        await asyncio.to_thread(station.stop)
+    return session, replies
+
+
 @pytest.fixture
 def udp_port() -> int:
     return free_udp_port()
@@ -76,4 +150,5 @@ def mav():
         sim_vehicle=sim_vehicle,
         wait_for=wait_for,
         fly=fly,
+        orders_scenario=orders_scenario,
     )

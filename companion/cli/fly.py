@@ -77,6 +77,13 @@ def register(subparsers: Any) -> None:
         help="skip the pre-flight check of the autopilot's parameters, sensors and clock (default: checked "
         "after connecting, before arming; see `companion preflight`)",
     )
+    p.add_argument(
+        "--orders",
+        action="store_true",
+        help="take delivery orders from the ground over Zenoh, one after another, until Ctrl-C: each accepted "
+        "order is flown to its pad in a run folder of its own under --out (docs/orders.md; default: one delivery "
+        "to the pad in the parameters)",
+    )
     p.set_defaults(func=cmd_fly)
 
 
@@ -204,6 +211,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
     except LinkDeviceMissing as err:
         raise StartupError(f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING) from None
 
+    if getattr(args, "orders", False):
+        from companion.cli.orders import cmd_fly_orders
+
+        return cmd_fly_orders(args, config, make_autopilot, preflight_hook, OPERATOR_ABORT)
     from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, record_camera, start_sensors
     from companion.telemetry.session import SessionOpenError
 

@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "companion.cli.vision",
     "companion.cli.telemetry",
     "companion.cli.fly",
+    "companion.cli.orders",
     "companion.cli.preflight",
     "companion.cli.logs",
     "companion.cli.dart",

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 from companion.autopilot.types import Wind
+from companion.config import MissionConfig
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,6 +30,12 @@ class WayHome:
     climb_m_s: float = 0.0  # to climb back to cruise height first (on the pad); 0: no climb
     cruise_height_m: float = 0.0
     arc_radius_m: float = 0.0  # farther than two arcs from home the path climbs to the cruise height
+
+
+def way_home(cfg: MissionConfig) -> WayHome:
+    """How the mission ``cfg`` flies home (its sector speeds, landing speed and heights)."""
+    v = cfg.sector_speed_m_s
+    return WayHome(v[2], v[0], cfg.land_speed_m_s, cfg.final_descent_alt_m, v[4], cfg.height_m, cfg.arc_radius_m)
 
 
 def time_home_s(way: WayHome, distance_m: float, height_m: float) -> float:
@@ -158,3 +165,15 @@ class WindMonitor:
             f"wind {wind.speed_m_s:.1f} m/s (the autopilot's estimate) above go_no_go.wind_limit_m_s = "
             f"{self.limit_m_s:g} m/s for {time_s - self._above_since:.1f} s"
         )
+
+
+def round_trip_problem(battery: BatteryMonitor, way: WayHome, distance_m: float, battery_pct: float) -> str:
+    """Before take-off: why the charge cannot cover out to a pad ``distance_m`` away and back
+    ("" if it can, or while the use per second is only measured in flight: judged once airborne)."""
+    if battery.use_pct_per_s() is None:
+        return ""
+    t_leg = time_home_s(way, distance_m, 0.0)
+    v = battery.verdict(battery_pct, 2.0 * t_leg, "the round trip")
+    if v is not None and v.go_home:
+        return f"not enough charge for the round trip: {v.reason()}"
+    return ""

@@ -22,14 +22,21 @@ import numpy as np
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus, Wind
 from companion.config import FenceConfig, GoNoGoConfig, LimitsConfig, MissionConfig, PadLockPolicyConfig
-from companion.delivery.gonogo import BatteryMonitor, WayHome, WindMonitor, time_home_s
+from companion.delivery.gonogo import (
+    BatteryMonitor,
+    WayHome,
+    WindMonitor,
+    round_trip_problem,
+    time_home_s,
+    way_home,
+)
 from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
 from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
 from companion.geometry.mission_frame import MissionFrame
-from companion.guidance.geofence import FenceNed, check_leg, fence_in_ned
+from companion.guidance.geofence import FenceNed, fence_in_ned, legs_problem
 from companion.guidance.path import DeliveryPath, PathGeometryError
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.speed_schedule import speed_scale as schedule_speed
@@ -1031,21 +1038,12 @@ class DeliveryMission:
     _divert_takeoff = False  # that take-off flies the divert's field
 
     def _way_home(self) -> WayHome:
-        c = self.cfg
-        v = c.sector_speed_m_s
-        return WayHome(v[2], v[0], c.land_speed_m_s, c.final_descent_alt_m, v[4], c.height_m, c.arc_radius_m)
+        return way_home(self.cfg)
 
     def _battery_round_trip(self, battery_pct: float) -> str:
         """Before take-off, with a configured use: why the charge cannot cover out and back ("" if it can)."""
         assert self.battery is not None and self.path is not None
-        use = self.battery.use_pct_per_s()
-        if use is None:
-            return ""  # measured in flight only: judged once airborne
-        t_leg = time_home_s(self._way_home(), self.path.d, 0.0)
-        v = self.battery.verdict(battery_pct, 2.0 * t_leg, "the round trip")
-        if v is not None and v.go_home:
-            return f"not enough charge for the round trip: {v.reason()}"
-        return ""
+        return round_trip_problem(self.battery, self._way_home(), self.path.d, battery_pct)
 
     def _check_battery(self, inp: MissionInputs) -> None:
         """Abandon the delivery and fly home once the charge left covers no more than the way home
@@ -1080,23 +1078,9 @@ class DeliveryMission:
             return ""
         if self.fence_cfg is not None and self._fence_ned is None:
             self._fence_ned = fence_in_ned(self.fence_cfg, self._home_geo, self._home_ned)
-        cruise_down = float(pad_ned[2]) - self.cfg.height_m
-        for leg in legs:
-            a, b = (start_ned, pad_ned) if leg == "outbound" else (pad_ned, start_ned)
-            v = check_leg(
-                self._fence_ned,
-                self.limits,
-                self._home_geo,
-                (float(a[0]), float(a[1]), float(a[2])),
-                (float(b[0]), float(b[1]), float(b[2])),
-                cruise_down,
-                self.cfg.arc_radius_m,
-                leg,
-                self._home_ned,
-            )
-            if v is not None:
-                return str(v)
-        return ""
+        return legs_problem(
+            self._fence_ned, self.limits, self._home_geo, self._home_ned, start_ned, pad_ned, self.cfg, legs
+        )
 
     def _idle(self) -> bool:
         """No request in flight and none waiting for its retry: a phase may issue a new one."""

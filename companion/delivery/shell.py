@@ -160,8 +160,12 @@ class DeliveryShell:
         landing: LandingKit | None = None,
         recorder: Any | None = None,
         before_flight: Callable[[], Awaitable[None]] | None = None,
+        zenoh_session: Any = None,
     ):
         self.config = config
+        # an open Zenoh session for the telemetry publisher (`fly --orders`: the order desk's, kept
+        # across flights); None: the publisher opens its own from [telemetry]
+        self._zenoh_session = zenoh_session
         # awaited once connected, before the setpoint stream and the mission start (nothing armed
         # yet): `companion fly`'s pre-flight check, which raises to stop the start-up
         self.before_flight = before_flight
@@ -250,7 +254,7 @@ class DeliveryShell:
             if self._want_telemetry:
                 from companion.delivery.telemetry import ShellTelemetry, command_handler, make_publisher
 
-                pub = make_publisher(self.config, command_handler(loop, self))
+                pub = make_publisher(self.config, command_handler(loop, self), session=self._zenoh_session)
                 pub.start()
                 self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
             self._connecting = loop.create_task(

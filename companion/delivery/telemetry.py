@@ -51,7 +51,10 @@ def make_publisher(
     cfg: CompanionConfig,
     on_command: Callable[[GroundCommand], None] | None,
     zenoh_settings: ZenohSettings | None = None,
+    session: Any = None,
 ) -> TelemetryPublisher:
+    """The vehicle's publisher; ``session``: an open Zenoh session to publish on (the order desk's,
+    which outlives each flight), else one is opened from ``zenoh_settings`` or the config."""
     t = cfg.telemetry
     c = t.commands
     try:
@@ -74,6 +77,8 @@ def make_publisher(
         "autopilot": cfg.autopilot,
         "mission": cfg.mission.model_dump(mode="json"),
     }
+    if session is not None:
+        return TelemetryPublisher(settings, session=session, params=params, on_command=on_command)
     return TelemetryPublisher(
         settings, zenoh_settings or zenoh_settings_from_config(cfg), params=params, on_command=on_command
     )

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
-from companion.config import FenceConfig, LimitsConfig
+from companion.config import FenceConfig, LimitsConfig, MissionConfig
 from companion.geometry.earth import GeoPoint, geo_to_ned, ned_to_geo
 from companion.geometry.polygon import (
     Point2,
@@ -172,3 +173,34 @@ def check_leg(
             if t_cross is not None and (first is None or t_cross < first[0]):
                 first = (t_cross, f"crosses the edge of {poly.name}")
     return at(*first) if first is not None else None
+
+
+def legs_problem(
+    fence: FenceNed | None,
+    limits: LimitsConfig,
+    home: GeoPoint,
+    home_ned: tuple[float, float, float],
+    start_ned: Any,
+    pad_ned: Any,
+    cfg: MissionConfig,
+    legs: tuple[str, ...] = ("outbound", "return"),
+) -> str:
+    """Why the mission ``cfg``'s legs between ``start_ned`` (home) and ``pad_ned`` leave the fence
+    or the companion's clamp ("" when they stay inside)."""
+    cruise_down = float(pad_ned[2]) - cfg.height_m
+    for leg in legs:
+        a, b = (start_ned, pad_ned) if leg == "outbound" else (pad_ned, start_ned)
+        v = check_leg(
+            fence,
+            limits,
+            home,
+            (float(a[0]), float(a[1]), float(a[2])),
+            (float(b[0]), float(b[1]), float(b[2])),
+            cruise_down,
+            cfg.arc_radius_m,
+            leg,
+            home_ned,
+        )
+        if v is not None:
+            return str(v)
+    return ""

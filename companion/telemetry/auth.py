@@ -57,6 +57,11 @@ _SENDER = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
 MAX_NOTE_CHARS = 256
 
 
+def sender_ok(sender: str) -> bool:
+    """Whether ``sender`` is a valid sender name (1-64 of letters, digits, ``_ . @ -``)."""
+    return bool(_SENDER.match(sender))
+
+
 class CommandKind(enum.Enum):
     HOLD = "hold"  # stop and hold position
     RETURN = "return"  # fly back home along the path
@@ -152,6 +157,121 @@ def sign_command(
     return json.dumps(doc, separators=(",", ":")).encode()
 
 
+class SignedRequestGuard:
+    """The checks every signed request from the ground shares (commands, delivery orders): the MAC
+    over the request's canonical bytes, the vehicle it is for, the issued time against the
+    vehicle clock (+-``window_s``) and the nonce replay cache. ``what`` names the request in the
+    refusal reasons ("command", "order"). Thread-safe; ``clock`` returns Unix seconds."""
+
+    def __init__(
+        self,
+        vehicle_id: str,
+        settings: CommandSettings,
+        what: str,
+        clock: Callable[[], float] = time.time,
+    ):
+        self.vehicle_id = check_vehicle_id(vehicle_id)
+        self.settings = settings
+        self.what = what
+        self._clock = clock
+        self._seen: OrderedDict[str, float] = OrderedDict()  # nonce -> expiry (unix s)
+        self._lock = threading.Lock()
+
+    def secret(self) -> bytes:
+        """The shared secret, or :class:`CommandRefused` when signed requests are off."""
+        s = self.settings
+        if not s.enabled or s.secret is None:
+            raise CommandRefused(f"{self.what}s are disabled on this vehicle")
+        return s.secret
+
+    def authenticate(self, data: bytes, mac: str, vehicle_id: str) -> None:
+        """The MAC over ``data`` is the shared secret's, and the request is for this vehicle."""
+        if not hmac.compare_digest(compute_mac(self.secret(), data), mac):
+            raise CommandRefused("authentication failed: bad HMAC")
+        if vehicle_id != self.vehicle_id:
+            raise CommandRefused(f"{self.what} is for vehicle {vehicle_id!r}, this is {self.vehicle_id!r}")
+
+    def admit(self, issued_ms: int, nonce: str) -> float:
+        """Refuse a stale (or future) or replayed request; else remember its nonce. Returns now."""
+        s = self.settings
+        now = self._clock()
+        issued = issued_ms / 1000.0
+        if abs(now - issued) > s.window_s:
+            raise CommandRefused(
+                f"stale {self.what}: issued {now - issued:+.1f} s from the vehicle clock (window +-{s.window_s:g} s)"
+            )
+        with self._lock:
+            # A nonce may be forgotten once issued + window has passed: from then on the time
+            # check above refuses its request anyway. Entries are in arrival order, which is
+            # nearly expiry order; the full sweep below catches the rest when the cache fills.
+            while self._seen and next(iter(self._seen.values())) < now:
+                self._seen.popitem(last=False)
+            if nonce in self._seen:
+                raise CommandRefused(f"replayed {self.what}: nonce already used")
+            if len(self._seen) >= s.max_nonces:
+                for n in [n for n, exp in self._seen.items() if exp < now]:
+                    del self._seen[n]
+                if len(self._seen) >= s.max_nonces:
+                    raise CommandRefused(f"too many {self.what}s in the replay window; try later")
+            self._seen[nonce] = issued + s.window_s
+        return now
+
+
+@dataclass(frozen=True, slots=True)
+class SignedFields:
+    """The fields every signed request carries besides its own."""
+
+    vehicle_id: str
+    issued_ms: int
+    nonce: str
+    sender: str
+    note: str
+    mac: str
+
+
+def parse_signed_fields(doc: Any, schema: str, what: str, own: tuple[str, ...] = ()) -> SignedFields:
+    """The common fields of a signed request ``doc`` (a JSON object of ``schema``), checked;
+    ``own``: the request's own required keys, reported missing in the same words."""
+    if not isinstance(doc, dict):
+        raise CommandRefused(f"malformed {what}: not a JSON object")
+    if doc.get("schema") != schema:
+        raise CommandRefused(f"malformed {what}: schema is not {schema!r}")
+    if "hmac_sha256" not in doc:
+        raise CommandRefused("authentication failed: no hmac_sha256")
+    for name in ("vehicle_id", *own, "issued_unix_ms", "nonce", "sender"):
+        if name not in doc:
+            raise CommandRefused(f"malformed {what}: missing {name!r}")
+    vehicle_id, issued_ms = doc["vehicle_id"], doc["issued_unix_ms"]
+    nonce, sender, note, mac = doc["nonce"], doc["sender"], doc.get("note", ""), doc["hmac_sha256"]
+    if not isinstance(vehicle_id, str):
+        raise CommandRefused(f"malformed {what}: vehicle_id must be a short string")
+    try:
+        check_vehicle_id(vehicle_id)
+    except SchemaError as e:
+        raise CommandRefused(f"malformed {what}: {e}") from None
+    if isinstance(issued_ms, bool) or not isinstance(issued_ms, int):
+        raise CommandRefused(f"malformed {what}: issued_unix_ms must be an integer")
+    if not isinstance(nonce, str) or not _NONCE.match(nonce):
+        raise CommandRefused(f"malformed {what}: nonce must be 16-64 lowercase hex characters")
+    if not isinstance(sender, str) or not _SENDER.match(sender):
+        raise CommandRefused(f"malformed {what}: bad sender")
+    if not isinstance(note, str) or len(note) > MAX_NOTE_CHARS:
+        raise CommandRefused(f"malformed {what}: note must be a string <= {MAX_NOTE_CHARS} chars")
+    if not isinstance(mac, str) or not re.fullmatch(r"[0-9a-f]{64}", mac):
+        raise CommandRefused("authentication failed: hmac_sha256 must be 64 lowercase hex chars")
+    return SignedFields(vehicle_id, issued_ms, nonce, sender, note, mac)
+
+
+def parse_payload(payload: bytes | bytearray | memoryview | None, what: str) -> Any:
+    """The JSON document of a request payload, or :class:`CommandRefused` (empty, not JSON)."""
+    if payload is None or len(payload) == 0:
+        raise CommandRefused(f"malformed {what}: empty payload")
+    try:
+        return parse_json(payload)
+    except SchemaError as e:
+        raise CommandRefused(f"malformed {what}: {e}") from None
+
+
 class CommandVerifier:
     """Checks command payloads for one vehicle: format, MAC, time window, nonce replay.
 
@@ -164,92 +284,32 @@ class CommandVerifier:
         settings: CommandSettings,
         clock: Callable[[], float] = time.time,
     ):
-        self.vehicle_id = check_vehicle_id(vehicle_id)
+        self._guard = SignedRequestGuard(vehicle_id, settings, "command", clock)
+        self.vehicle_id = self._guard.vehicle_id
         self.settings = settings
-        self._clock = clock
-        self._seen: OrderedDict[str, float] = OrderedDict()  # nonce -> expiry (unix s)
-        self._lock = threading.Lock()
 
     def verify(self, payload: bytes | bytearray | memoryview | None) -> GroundCommand:
         """The command in ``payload``, or :class:`CommandRefused` with the reason."""
-        s = self.settings
-        if not s.enabled or s.secret is None:
-            raise CommandRefused("commands are disabled on this vehicle")
-        if payload is None or len(payload) == 0:
-            raise CommandRefused("malformed command: empty payload")
-        try:
-            doc = parse_json(payload)
-        except SchemaError as e:
-            raise CommandRefused(f"malformed command: {e}") from None
-        fields_ = _parse_fields(doc)
-        vehicle_id, command, issued_ms, nonce, sender, note, mac = fields_
-        expected = compute_mac(s.secret, mac_input(vehicle_id, command, issued_ms, nonce, sender, note))
-        if not hmac.compare_digest(expected, mac):
-            raise CommandRefused("authentication failed: bad HMAC")
-        if vehicle_id != self.vehicle_id:
-            raise CommandRefused(f"command is for vehicle {vehicle_id!r}, this is {self.vehicle_id!r}")
+        g = self._guard
+        g.secret()
+        doc = parse_payload(payload, "command")
+        f = parse_signed_fields(doc, COMMAND_SCHEMA, "command", ("command",))
+        command = doc["command"]
+        if not isinstance(command, str) or len(command) > 32:
+            raise CommandRefused("malformed command: vehicle_id and command must be short strings")
+        g.authenticate(mac_input(f.vehicle_id, command, f.issued_ms, f.nonce, f.sender, f.note), f.mac, f.vehicle_id)
         try:
             kind = CommandKind(command)
         except ValueError:
             allowed = ", ".join(k.value for k in CommandKind)
             raise CommandRefused(f"unknown command {command!r} (allowed: {allowed})") from None
-        now = self._clock()
-        issued = issued_ms / 1000.0
-        if abs(now - issued) > s.window_s:
-            raise CommandRefused(
-                f"stale command: issued {now - issued:+.1f} s from the vehicle clock (window +-{s.window_s:g} s)"
-            )
-        with self._lock:
-            # A nonce may be forgotten once issued + window has passed: from then on the time
-            # check above refuses its command anyway. Entries are in arrival order, which is
-            # nearly expiry order; the full sweep below catches the rest when the cache fills.
-            while self._seen and next(iter(self._seen.values())) < now:
-                self._seen.popitem(last=False)
-            if nonce in self._seen:
-                raise CommandRefused("replayed command: nonce already used")
-            if len(self._seen) >= s.max_nonces:
-                for n in [n for n, exp in self._seen.items() if exp < now]:
-                    del self._seen[n]
-                if len(self._seen) >= s.max_nonces:
-                    raise CommandRefused("too many commands in the replay window; try later")
-            self._seen[nonce] = issued + s.window_s
+        now = g.admit(f.issued_ms, f.nonce)
         return GroundCommand(
-            vehicle_id=vehicle_id,
+            vehicle_id=f.vehicle_id,
             kind=kind,
-            issued_unix_s=issued,
+            issued_unix_s=f.issued_ms / 1000.0,
             received_unix_s=now,
-            nonce=nonce,
-            sender=sender,
-            note=note,
+            nonce=f.nonce,
+            sender=f.sender,
+            note=f.note,
         )
-
-
-def _parse_fields(doc: Any) -> tuple[str, str, int, str, str, str, str]:
-    if not isinstance(doc, dict):
-        raise CommandRefused("malformed command: not a JSON object")
-    if doc.get("schema") != COMMAND_SCHEMA:
-        raise CommandRefused(f"malformed command: schema is not {COMMAND_SCHEMA!r}")
-    if "hmac_sha256" not in doc:
-        raise CommandRefused("authentication failed: no hmac_sha256")
-    for name in ("vehicle_id", "command", "issued_unix_ms", "nonce", "sender"):
-        if name not in doc:
-            raise CommandRefused(f"malformed command: missing {name!r}")
-    vehicle_id, command, issued_ms = doc["vehicle_id"], doc["command"], doc["issued_unix_ms"]
-    nonce, sender, note, mac = doc["nonce"], doc["sender"], doc.get("note", ""), doc["hmac_sha256"]
-    if not isinstance(vehicle_id, str) or not isinstance(command, str) or len(command) > 32:
-        raise CommandRefused("malformed command: vehicle_id and command must be short strings")
-    try:
-        check_vehicle_id(vehicle_id)
-    except SchemaError as e:
-        raise CommandRefused(f"malformed command: {e}") from None
-    if isinstance(issued_ms, bool) or not isinstance(issued_ms, int):
-        raise CommandRefused("malformed command: issued_unix_ms must be an integer")
-    if not isinstance(nonce, str) or not _NONCE.match(nonce):
-        raise CommandRefused("malformed command: nonce must be 16-64 lowercase hex characters")
-    if not isinstance(sender, str) or not _SENDER.match(sender):
-        raise CommandRefused("malformed command: bad sender")
-    if not isinstance(note, str) or len(note) > MAX_NOTE_CHARS:
-        raise CommandRefused(f"malformed command: note must be a string <= {MAX_NOTE_CHARS} chars")
-    if not isinstance(mac, str) or not re.fullmatch(r"[0-9a-f]{64}", mac):
-        raise CommandRefused("authentication failed: hmac_sha256 must be 64 lowercase hex chars")
-    return vehicle_id, command, issued_ms, nonce, sender, note, mac

@@ -37,6 +37,7 @@ from rich.table import Table
 
 from companion.events import Phase
 from companion.telemetry.auth import CommandKind, sign_command
+from companion.telemetry.orders import OrderPad, sign_order
 from companion.telemetry.schema import (
     ALL_ALIVE_KEY,
     ALL_VEHICLES_KEY,
@@ -50,6 +51,7 @@ from companion.telemetry.schema import (
     command_key,
     decode,
     info_key,
+    order_key,
     parse_json,
     parse_key,
 )
@@ -343,7 +345,30 @@ class GroundStation:
 
     def send_raw_command(self, vehicle_id: str, payload: bytes, *, timeout_s: float = 2.0) -> CommandReply:
         """Send an already-encoded command payload (also used to test refusals)."""
-        replies = self.session.get(command_key(vehicle_id), payload=payload, timeout=timeout_s)
+        return self._signed_query(command_key(vehicle_id), payload, timeout_s)
+
+    def send_order(
+        self,
+        vehicle_id: str,
+        pad: OrderPad,
+        secret: bytes,
+        *,
+        order_id: str | None = None,
+        alternate: OrderPad | None = None,
+        sender: str = "ground",
+        note: str = "",
+        timeout_s: float = 5.0,
+    ) -> CommandReply:
+        """Sign and send one delivery order (docs/orders.md); the vehicle's answer."""
+        payload = sign_order(vehicle_id, pad, secret, order_id=order_id, alternate=alternate, sender=sender, note=note)
+        return self.send_raw_order(vehicle_id, payload, timeout_s=timeout_s)
+
+    def send_raw_order(self, vehicle_id: str, payload: bytes, *, timeout_s: float = 5.0) -> CommandReply:
+        """Send an already-encoded order payload (also used to test refusals)."""
+        return self._signed_query(order_key(vehicle_id), payload, timeout_s)
+
+    def _signed_query(self, key: str, payload: bytes, timeout_s: float) -> CommandReply:
+        replies = self.session.get(key, payload=payload, timeout=timeout_s)
         for reply in replies:
             ok, err = reply.ok, reply.err
             if ok is not None:

@@ -110,6 +110,11 @@ def command_key(vehicle_id: str) -> str:
     return f"{KEY_ROOT}/{check_vehicle_id(vehicle_id)}/command"
 
 
+def order_key(vehicle_id: str) -> str:
+    """The queryable a vehicle takes delivery orders on (:mod:`companion.telemetry.orders`)."""
+    return f"{KEY_ROOT}/{check_vehicle_id(vehicle_id)}/order"
+
+
 ALL_VEHICLES_KEY = f"{KEY_ROOT}/**"
 ALL_ALIVE_KEY = f"{KEY_ROOT}/*/alive"
 
