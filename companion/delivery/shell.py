@@ -331,9 +331,20 @@ class DeliveryShell:
                 raise AutopilotError(f"the fence read back differs from the one uploaded: {why}")
         except AutopilotError as err:
             log.error("fence refused: %s", err)
-            self.mission.refuse(self._clock.now(), f"the autopilot's fence: {err}")
+            self._go_no_go("refuse", f"the autopilot's fence: {err}")
             return
-        self.mission.go_no_go(self._clock.now(), f"fence uploaded to the autopilot and read back: {fence.describe()}")
+        self._go_no_go("go", f"fence uploaded to the autopilot and read back: {fence.describe()}")
+
+    def _go_no_go(self, verdict: str, detail: str) -> None:
+        """A go/no-go verdict reached outside a guidance tick, to the mission (``refuse``: the
+        delivery is refused; ``go``: said, nothing changes) and to the recorder, for replay."""
+        now = self._clock.now()
+        if self.recorder is not None:
+            self.recorder.on_go_no_go(now, verdict, detail)
+        if verdict == "refuse":
+            self.mission.refuse(now, detail)
+        else:
+            self.mission.go_no_go(now, detail)
 
     def _end_text(self) -> str:
         s = self.mission.summary
