@@ -298,7 +298,11 @@ class _ReplayShell:
         from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 
         lc = self.config.landing
-        if not self.landing or not (lc.use_camera or lc.use_uwb):
+        # the kit the shell had (run.json; logs before it: the kit the configuration builds)
+        sensors = self.meta.get("pad_sensors")
+        if sensors is None:
+            sensors = self.landing and (lc.use_camera or lc.use_uwb)
+        if not sensors:
             return NO_SENSORS
         if self.fusion is None:
             return PadLock(now, math.inf, math.inf)

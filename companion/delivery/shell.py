@@ -243,7 +243,12 @@ class DeliveryShell:
             apply_opencv_threads(self.config.runtime.opencv_threads)  # process-wide, before the camera starts
         if self.recorder is not None:
             # first listener: every sample gets a seq
-            self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)
+            kit = self.landing
+            self.recorder.attach(
+                self.autopilot.telemetry,
+                landing=kit is not None,
+                pad_sensors=kit is not None and (kit.camera is not None or kit.uwb is not None),
+            )
         stream: asyncio.Task[None] | None = None
         try:  # everything started here is stopped in the finally, a failed start-up included
             if self._want_telemetry:

@@ -223,12 +223,16 @@ class FlightRecorder:
             raise
 
     # ---- attachment ---------------------------------------------------------------------
-    def attach(self, telemetry: Any, landing: bool) -> None:
+    def attach(self, telemetry: Any, landing: bool, pad_sensors: bool | None = None) -> None:
         """Listen to a TelemetryCache (before anything else, so every sample gets a seq);
-        ``landing``: the shell runs the landing fusion (replay must start it at the same tick)."""
+        ``landing``: the shell runs the landing fusion (replay must start it at the same tick);
+        ``pad_sensors``: its landing kit carries a camera or a UWB (the pad lock the mission is
+        handed is measured, not "no sensors"; None: not said, replay goes by the configuration)."""
         self._telemetry = telemetry
         telemetry.add_listener(self.on_sample)
         self.meta["landing"] = bool(landing)
+        if pad_sensors is not None:
+            self.meta["pad_sensors"] = bool(pad_sensors)
         self._write_meta()
 
     def detach(self) -> None:

@@ -217,3 +217,49 @@ def test_a_go_no_go_verdict_of_an_unknown_kind_is_named(run_copy):
         csv.writer(fh).writerow([0.0, 10**9, "go_no_go", "maybe", "fence", ""])
     with pytest.raises(LogFormatError, match=r"commands\.csv: line 2, column 'kind': 'maybe' is not one of 'go'"):
         replay_run(run_copy)
+
+
+def test_replay_measures_the_pad_lock_when_the_flight_had_pad_sensors(tmp_path):
+    """The pad lock the mission is handed comes from the kit the shell flew with (run.json
+    pad_sensors), not from what the configuration would build: here a kit with camera and UWB on
+    a configuration that names neither, with the pad-lock policy on (the test harnesses of the
+    real firmwares hand the shell such a kit)."""
+    from companion.delivery.shell import DeliveryShell
+    from companion.flightlog.recorder import FlightRecorder
+    from companion_lab.demo import true_pad_ned
+    from companion_sitl.autopilot import SimAutopilot
+    from companion_sitl.clock import run_virtual
+    from companion_sitl.landing_sensors import sim_landing_kit
+    from companion_sitl.vehicle import SimVehicle
+
+    with_sensors = short_config(gps_bias_m=[1.0, -0.5, 0.0], pad_offset_m=[0.3, -0.2])
+    lc = with_sensors.landing
+    policy = lc.policy.model_copy(update={"require_pad_lock": True})
+    config = with_sensors.model_copy(
+        update={"landing": lc.model_copy(update={"use_camera": False, "use_uwb": False, "policy": policy})}
+    )
+    run = tmp_path / "run"
+
+    async def flight():
+        vehicle = SimVehicle(config.sim)
+        pad = true_pad_ned(config)
+        vehicle.set_pad_truth(*pad)
+        ap = SimAutopilot(config.sim, vehicle)
+        kit = sim_landing_kit(with_sensors, vehicle, pad)
+        with FlightRecorder(run, config, mcap=False) as rec:
+            try:
+                return await DeliveryShell(config, ap, landing=kit, recorder=rec).run(timeout_s=300.0)
+            finally:
+                await ap.close()
+
+    summary = run_virtual(flight())
+    assert summary.delivered and summary.returned, summary.failure
+    assert json.loads((run / "run.json").read_text())["pad_sensors"] is True
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    # without the key (a log from before it) the replay goes by the configuration: no sensors,
+    # no pad lock, so the policy's fallback takes over where the flight had its lock
+    meta = json.loads((run / "run.json").read_text())
+    del meta["pad_sensors"]
+    (run / "run.json").write_text(json.dumps(meta))
+    assert not replay_run(run, tmp_path / "replayed2").identical
