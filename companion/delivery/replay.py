@@ -8,10 +8,12 @@ in that order, to fresh core objects built from the recorded configuration:
 - samples go through a :class:`~companion.autopilot.interface.TelemetryCache` (the fusion listens
   to it from the tick it was started at, as in flight);
 - pad observations and UWB fixes go to :class:`~companion.delivery.fusion.LandingFusion`;
-- request results, aborts and ground commands to :class:`~companion.delivery.mission.DeliveryMission`;
+- request results, aborts, ground commands and go/no-go verdicts to
+  :class:`~companion.delivery.mission.DeliveryMission`;
 - each tick repeats the shell's guidance step (:meth:`companion.delivery.shell.DeliveryShell._guidance_loop`):
   autopilot pose estimate, fusion start once the mission has a frame, the fused estimate on the
-  way to the pad, ``mission.step``, the setpoint clamp.
+  way to the pad, the wind estimate the tick handed the mission (``wind.csv``, written when the
+  wind go/no-go is on), ``mission.step``, the velocity-bias correction and the setpoint clamp.
 
 The replayed ``ekf.csv``, ``guidance.csv`` and ``events.csv`` are written (same columns) and
 compared cell by cell with the recorded ones: floats are written as shortest round-trip decimals,
@@ -41,6 +43,8 @@ from companion.flightlog.streams import (
     META_FILE,
     SAMPLE_FILES,
     STREAM_FILES,
+    WIND_COLUMNS,
+    WIND_FILE,
     PadObservation,
     ekf_row,
     guidance_row,
@@ -66,11 +70,15 @@ OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
 # ---------------------------------------------------------------------------------------------
 # the merged input stream
 
+# commands.csv's sources -> input kinds: operator aborts, ground commands, go/no-go verdicts
+# reached outside a tick (the fence upload; logs before them have none)
+_COMMAND_SOURCES = {"operator": "abort", "ground": "command", "go_no_go": "go_no_go"}
+
 
 @dataclass(frozen=True)
 class _Input:
     seq: int
-    kind: str  # sample, marker, uwb, result, abort, command, tick
+    kind: str  # sample, marker, uwb, result, abort, command, go_no_go, tick
     payload: Any
     where: str  # file:line, for messages
 
@@ -144,12 +152,15 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
     t = table("commands.csv")
     for k in range(len(t)):
         src = t.text(k, "source")
-        if src not in ("operator", "ground"):
-            raise LogFormatError(f"{t.path}: line {k + 2}, column 'source': {src!r} is not one of 'operator', 'ground'")
+        if src not in _COMMAND_SOURCES:
+            raise LogFormatError(
+                f"{t.path}: line {k + 2}, column 'source': {src!r} is not one of "
+                + ", ".join(repr(s) for s in _COMMAND_SOURCES)
+            )
         cmd = (t.value(k, "time_s"), t.text(k, "kind"), t.text(k, "detail"), t.text(k, "reply"))
-        inputs.append(
-            _Input(_int(t, k, "seq"), "abort" if src == "operator" else "command", cmd, f"commands.csv:{k + 2}")
-        )
+        if src == "go_no_go" and cmd[1] not in ("go", "refuse"):
+            raise LogFormatError(f"{t.path}: line {k + 2}, column 'kind': {cmd[1]!r} is not one of 'go', 'refuse'")
+        inputs.append(_Input(_int(t, k, "seq"), _COMMAND_SOURCES[src], cmd, f"commands.csv:{k + 2}"))
     t = table("guidance.csv")
     for k in range(len(t)):
         payload = (t.value(k, "time_s"), t.value(k, "link_ok", bool))
@@ -197,10 +208,29 @@ class _ReplayShell:
         built = DeliveryShell(self.config, cast(Any, _LogLink(self.telemetry)))
         self.mission = built.mission
         self.estimator = built.estimator
+        self.velocity_bias = built._velocity_bias  # [mission] velocity_bias_tau_s (None: off)
         self.fusion: Any = None
         self._fusion_pad_index = 0  # mission.pad_index the fusion was started for
         self.landing = bool(meta.get("landing"))
         self.notes: list[str] = []
+        # the wind estimate each tick handed the mission (wind.csv), when the mission reads one
+        self.wind_by_seq: dict[int, Any] = {}
+        if self.mission.wind is not None:
+            self._read_wind()
+
+    def _read_wind(self) -> None:
+        from companion.autopilot.types import Wind
+
+        if not (self.run_dir / WIND_FILE).exists() and WIND_FILE not in (self.meta.get("streams") or {}):
+            self.notes.append(
+                f"{WIND_FILE} missing (a log from before it was recorded): the wind go/no-go is replayed "
+                "without the autopilot's wind estimate"
+            )
+            return
+        t = open_table(self.run_dir, WIND_FILE, WIND_COLUMNS)
+        for k in range(len(t)):
+            w = (t.value(k, "wind_time_s"), t.value(k, "north_m_s"), t.value(k, "east_m_s"))
+            self.wind_by_seq[_int(t, k, "seq")] = Wind(*w) if math.isfinite(w[0]) else None
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
@@ -257,6 +287,9 @@ class _ReplayShell:
         elif k == "abort":
             now, _kind, reason, _reply = inp.payload
             self.mission.abort(now, reason)
+        elif k == "go_no_go":
+            now, verdict, detail, _reply = inp.payload
+            (self.mission.refuse if verdict == "refuse" else self.mission.go_no_go)(now, detail)
         elif k == "command":
             now, kind, sender, reply = inp.payload
             got = self.mission.command(now, kind, sender)
@@ -265,7 +298,8 @@ class _ReplayShell:
                     f"{inp.where}: ground command {kind!r} replied {got!r} in replay, {reply!r} in flight"
                 )
         elif k == "tick":
-            return self.tick(*inp.payload)
+            now, link_ok = inp.payload
+            return self.tick(now, link_ok, wind=self.wind_by_seq.get(inp.seq))
         return None
 
     def _pad_lock(self, now: float) -> Any:
@@ -273,13 +307,17 @@ class _ReplayShell:
         from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 
         lc = self.config.landing
-        if not self.landing or not (lc.use_camera or lc.use_uwb):
+        # the kit the shell had (run.json; logs before it: the kit the configuration builds)
+        sensors = self.meta.get("pad_sensors")
+        if sensors is None:
+            sensors = self.landing and (lc.use_camera or lc.use_uwb)
+        if not sensors:
             return NO_SENSORS
         if self.fusion is None:
             return PadLock(now, math.inf, math.inf)
         return measure_pad_lock(self.fusion, now)
 
-    def tick(self, now: float, link_ok: bool) -> tuple[Any, Any, Any, bool]:
+    def tick(self, now: float, link_ok: bool, wind: Any = None) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
         from companion.guidance.limits import clamp_velocity
@@ -294,12 +332,15 @@ class _ReplayShell:
             fused = self.fusion.estimate() if self.fusion is not None else None
             if fused is not None and not mission.summary.delivered and not mission.returning:
                 estimate = fused
-        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now))
+        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now), wind=wind)
         out = mission.step(inp)
         setpoint, clamped = None, False
+        if self.velocity_bias is not None:
+            self.velocity_bias.update(tc.position_ned)
         if out.setpoint is not None:
             pos = estimate.position_ned if estimate else None
-            res = clamp_velocity(out.setpoint, self.config.limits, pos)
+            sp = self.velocity_bias.correct(out.setpoint) if self.velocity_bias is not None else out.setpoint
+            res = clamp_velocity(sp, self.config.limits, pos)
             setpoint, clamped = res.setpoint, res.clamped
         return inp, out, setpoint, clamped
 

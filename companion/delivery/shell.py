@@ -248,7 +248,12 @@ class DeliveryShell:
             apply_opencv_threads(self.config.runtime.opencv_threads)  # process-wide, before the camera starts
         if self.recorder is not None:
             # first listener: every sample gets a seq
-            self.recorder.attach(self.autopilot.telemetry, landing=self.landing is not None)
+            kit = self.landing
+            self.recorder.attach(
+                self.autopilot.telemetry,
+                landing=kit is not None,
+                pad_sensors=kit is not None and (kit.camera is not None or kit.uwb is not None),
+            )
         stream: asyncio.Task[None] | None = None
         try:  # everything started here is stopped in the finally, a failed start-up included
             if self._want_telemetry:
@@ -336,9 +341,20 @@ class DeliveryShell:
                 raise AutopilotError(f"the fence read back differs from the one uploaded: {why}")
         except AutopilotError as err:
             log.error("fence refused: %s", err)
-            self.mission.refuse(self._clock.now(), f"the autopilot's fence: {err}")
+            self._go_no_go("refuse", f"the autopilot's fence: {err}")
             return
-        self.mission.go_no_go(self._clock.now(), f"fence uploaded to the autopilot and read back: {fence.describe()}")
+        self._go_no_go("go", f"fence uploaded to the autopilot and read back: {fence.describe()}")
+
+    def _go_no_go(self, verdict: str, detail: str) -> None:
+        """A go/no-go verdict reached outside a guidance tick, to the mission (``refuse``: the
+        delivery is refused; ``go``: said, nothing changes) and to the recorder, for replay."""
+        now = self._clock.now()
+        if self.recorder is not None:
+            self.recorder.on_go_no_go(now, verdict, detail)
+        if verdict == "refuse":
+            self.mission.refuse(now, detail)
+        else:
+            self.mission.go_no_go(now, detail)
 
     def _end_text(self) -> str:
         s = self.mission.summary

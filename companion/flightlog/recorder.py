@@ -21,8 +21,11 @@ headers), so PlotJuggler opens every file as is:
                        mission's setpoint and the clamped one sent, the request issued
 ``setpoints.csv``      every setpoint the stream sent to the autopilot
 ``requests.csv``       results of autopilot requests as fed back to the mission
-``commands.csv``       operator aborts (Ctrl-C) and ground commands as applied to the mission
+``commands.csv``       operator aborts (Ctrl-C), ground commands and go/no-go verdicts reached
+                       outside a tick (the fence upload) as applied to the mission
 ``events.csv``         mission events as they happen
+``wind.csv``           the autopilot's wind estimate each tick handed the mission (only with the
+                       wind go/no-go on, ``go_no_go.wind_limit_m_s`` > 0)
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
 ``flight.mcap``        every stream above, plus the camera frames the pad was detected in (JPEG)
                        with the marker corners, the EKF pose and its 1-sigma, and the planned
@@ -31,7 +34,7 @@ headers), so PlotJuggler opens every file as is:
 
 Replay (:mod:`companion.delivery.replay`) needs every input in the order the core saw it: every
 input row carries ``seq``, one counter across all streams (samples, observations, fixes, request
-results, commands and guidance ticks). Floats are written as shortest round-trip decimals, so
+results, commands, go/no-go verdicts and guidance ticks). Floats are written as shortest round-trip decimals, so
 they read back as the same doubles.
 """
 
@@ -62,6 +65,8 @@ from companion.flightlog.streams import (
     SAMPLE_FIELDS,
     SAMPLE_FILES,
     STREAM_FILES,
+    WIND_COLUMNS,
+    WIND_FILE,
     camera_row,
     ekf_row,
     guidance_row,
@@ -182,13 +187,17 @@ class FlightRecorder:
         self.logs: dict[str, CsvLog] = {}
         self.ignored_after_close = 0
         self.errors = 0  # hook failures (the log is then incomplete; replay reports the seq gaps)
+        streams = dict(STREAM_FILES)
+        go_no_go = getattr(config, "go_no_go", None)
+        if go_no_go is not None and go_no_go.wind_limit_m_s > 0:  # the mission reads the wind
+            streams[WIND_FILE] = WIND_COLUMNS
         self.meta: dict[str, Any] = {
             "format": FORMAT,
             "config": config.model_dump(mode="json"),
             "landing": None,  # set by attach(): does the shell run the landing fusion?
             "fusion": None,
             "mission": None,
-            "streams": {name: list(cols) for name, cols in STREAM_FILES.items()},
+            "streams": {name: list(cols) for name, cols in streams.items()},
             "closed": False,
             "mcap": None,
         }
@@ -196,9 +205,9 @@ class FlightRecorder:
         self._planned_path: Any = None
         try:
             if self.write_mcap if mcap is None else mcap:
-                self.mcap = McapFlightLog(self.run_dir / MCAP_FILE, STREAM_FILES)
+                self.mcap = McapFlightLog(self.run_dir / MCAP_FILE, streams)
                 self.meta["mcap"] = MCAP_FILE
-            for name, cols in STREAM_FILES.items():
+            for name, cols in streams.items():
                 sink = self.mcap.stream_sink(name) if self.mcap is not None else None
                 self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
             # the two hooks at the telemetry / setpoint rate queue their rows with no further checks
@@ -214,12 +223,16 @@ class FlightRecorder:
             raise
 
     # ---- attachment ---------------------------------------------------------------------
-    def attach(self, telemetry: Any, landing: bool) -> None:
+    def attach(self, telemetry: Any, landing: bool, pad_sensors: bool | None = None) -> None:
         """Listen to a TelemetryCache (before anything else, so every sample gets a seq);
-        ``landing``: the shell runs the landing fusion (replay must start it at the same tick)."""
+        ``landing``: the shell runs the landing fusion (replay must start it at the same tick);
+        ``pad_sensors``: its landing kit carries a camera or a UWB (the pad lock the mission is
+        handed is measured, not "no sensors"; None: not said, replay goes by the configuration)."""
         self._telemetry = telemetry
         telemetry.add_listener(self.on_sample)
         self.meta["landing"] = bool(landing)
+        if pad_sensors is not None:
+            self.meta["pad_sensors"] = bool(pad_sensors)
         self._write_meta()
 
     def detach(self) -> None:
@@ -321,6 +334,12 @@ class FlightRecorder:
         """A ground command just applied to the mission (``mission.command(now, kind, sender)``)."""
         self._write("commands.csv", (now_s, next(self._seq), "ground", kind, sender, reply))
 
+    @_guarded
+    def on_go_no_go(self, now_s: float, verdict: str, detail: str) -> None:
+        """A go/no-go verdict about to be applied to the mission outside a guidance tick (the
+        fence uploaded and read back: ``go``; refused: ``refuse``)."""
+        self._write("commands.csv", (now_s, next(self._seq), "go_no_go", verdict, detail, ""))
+
     # ---- outputs of the core ------------------------------------------------------------
     @_guarded
     def on_tick(
@@ -339,6 +358,11 @@ class FlightRecorder:
             return
         seq = next(self._seq)
         self._write("guidance.csv", guidance_row(seq, inp, out, setpoint, clamped))
+        if WIND_FILE in self.logs:
+            w = inp.wind
+            nan = math.nan
+            wind = (w.time_s, w.north_m_s, w.east_m_s) if w is not None else (nan, nan, nan)
+            self._write(WIND_FILE, (inp.time_s, seq, *wind))
         for ev in out.events:
             self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))
         if fusion is not None:

@@ -228,6 +228,13 @@ REQUEST_COLUMNS = ("time_s", "seq", "id", "kind", "ok", "error", "permanent")
 COMMAND_COLUMNS = ("time_s", "seq", "source", "kind", "detail", "reply")
 EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
 
+# The wind estimate each guidance tick handed the mission (MissionInputs.wind; NaN: none), keyed by
+# the tick's seq. Written only when the mission reads it (go_no_go.wind_limit_m_s > 0): the
+# autopilot's wind is no telemetry sample (no listener sees it), so without this replay cannot
+# know what the wind go/no-go saw.
+WIND_FILE = "wind.csv"
+WIND_COLUMNS = ("time_s", "seq", "wind_time_s", "north_m_s", "east_m_s")
+
 STREAM_FILES: dict[str, tuple[str, ...]] = {
     **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},
     "camera.csv": CAMERA_COLUMNS,

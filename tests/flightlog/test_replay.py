@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
+import math
 import os
 import signal
 
@@ -148,4 +149,117 @@ def test_replay_of_a_flight_on_anchors_at_one_height_is_identical(tmp_path):
         row[i] = "0"
     with (run / "uwb.csv").open("w", newline="") as fh:
         csv.writer(fh).writerows(rows)
+    assert not replay_run(run, tmp_path / "replayed2").identical
+
+
+def test_replay_of_a_flight_with_every_shell_input_is_identical(tmp_path):
+    """Everything the shell hands the core besides samples, fixes, results and commands is
+    recorded and replayed: the velocity-bias correction of every setpoint (PX4 SIH's tuning), the
+    fence's verdict reached before the first tick (commands.csv, source go_no_go) and the wind
+    estimate each tick handed the wind go/no-go (wind.csv)."""
+    from companion.config import load_config, shipped_params_path
+    from companion.geometry.earth import GeoPoint, ned_to_geo
+    from companion_lab.demo import run_demo
+
+    home = GeoPoint(-19.869, -43.9638, 850.0)  # sitl_short.toml's [sim.home]
+    corners = [ned_to_geo(home, n, e, 0.0) for n, e in ((-50, -50), (100, -50), (100, 100), (-50, 100))]
+    config = load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "sim": {"seed": 3, "profile": "px4-sih"},
+            "mission": {"velocity_bias_tau_s": 1.0},
+            "fence": {"enabled": True, "inclusion": [{"vertices_deg": [[p.lat_deg, p.lon_deg] for p in corners]}]},
+            "go_no_go": {"wind_limit_m_s": 12.0},
+        },
+    )
+    run = tmp_path / "run"
+    r = run_demo(config, run_dir=run)
+    assert r.delivered and r.returned, r.failure
+    cmds = Table(run / "commands.csv")
+    assert [(cmds.text(k, "source"), cmds.text(k, "kind")) for k in range(len(cmds))] == [("go_no_go", "go")]
+    wind = Table(run / "wind.csv")
+    assert len(wind) == len(Table(run / "guidance.csv"))
+    # the autopilot's estimate (none at the first ticks; px4-sih has no wind: 0 m/s), refreshed
+    stamps = [wind.value(k, "wind_time_s") for k in range(len(wind))]
+    assert sum(math.isfinite(t) for t in stamps) > 0.9 * len(stamps) and len(set(stamps)) > len(stamps) / 20
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    assert rep.streams["ekf.csv"].recorded_rows > 500
+
+    # each of them matters: without the correction the setpoints differ (up to ~0.8 m/s on
+    # px4-sih), without the fence's verdict the events do, and without the wind the mission
+    # waits on the ground for an estimate
+    meta = json.loads((run / "run.json").read_text())
+    meta["config"]["mission"]["velocity_bias_tau_s"] = 0.0
+    (run / "run.json").write_text(json.dumps(meta))
+    r1 = replay_run(run, tmp_path / "r1")
+    assert r1.streams["guidance.csv"].max_abs_diff.get("sp_north_m_s", 0.0) > 0.05, "\n".join(r1.lines())
+    meta["config"]["mission"]["velocity_bias_tau_s"] = 1.0
+    (run / "run.json").write_text(json.dumps(meta))
+    rows = list(csv.reader((run / "commands.csv").open(newline="")))
+    with (run / "commands.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows[:1])
+    r2 = replay_run(run, tmp_path / "r2")
+    assert r2.streams["events.csv"].text_diffs and r2.missing_seq == 1, "\n".join(r2.lines())
+    with (run / "commands.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    # a log from before wind.csv (not in run.json's streams; the MCAP holds it too, so it goes)
+    (run / "wind.csv").unlink()
+    (run / "flight.mcap").unlink()
+    del meta["streams"]["wind.csv"]
+    (run / "run.json").write_text(json.dumps(meta))
+    r3 = replay_run(run, tmp_path / "r3")
+    assert not r3.identical and any("wind.csv missing" in n for n in r3.notes), "\n".join(r3.lines())
+
+
+def test_a_go_no_go_verdict_of_an_unknown_kind_is_named(run_copy):
+    with (run_copy / "commands.csv").open("a", newline="") as fh:
+        csv.writer(fh).writerow([0.0, 10**9, "go_no_go", "maybe", "fence", ""])
+    with pytest.raises(LogFormatError, match=r"commands\.csv: line 2, column 'kind': 'maybe' is not one of 'go'"):
+        replay_run(run_copy)
+
+
+def test_replay_measures_the_pad_lock_when_the_flight_had_pad_sensors(tmp_path):
+    """The pad lock the mission is handed comes from the kit the shell flew with (run.json
+    pad_sensors), not from what the configuration would build: here a kit with camera and UWB on
+    a configuration that names neither, with the pad-lock policy on (the test harnesses of the
+    real firmwares hand the shell such a kit)."""
+    from companion.delivery.shell import DeliveryShell
+    from companion.flightlog.recorder import FlightRecorder
+    from companion_lab.demo import true_pad_ned
+    from companion_sitl.autopilot import SimAutopilot
+    from companion_sitl.clock import run_virtual
+    from companion_sitl.landing_sensors import sim_landing_kit
+    from companion_sitl.vehicle import SimVehicle
+
+    with_sensors = short_config(gps_bias_m=[1.0, -0.5, 0.0], pad_offset_m=[0.3, -0.2])
+    lc = with_sensors.landing
+    policy = lc.policy.model_copy(update={"require_pad_lock": True})
+    config = with_sensors.model_copy(
+        update={"landing": lc.model_copy(update={"use_camera": False, "use_uwb": False, "policy": policy})}
+    )
+    run = tmp_path / "run"
+
+    async def flight():
+        vehicle = SimVehicle(config.sim)
+        pad = true_pad_ned(config)
+        vehicle.set_pad_truth(*pad)
+        ap = SimAutopilot(config.sim, vehicle)
+        kit = sim_landing_kit(with_sensors, vehicle, pad)
+        with FlightRecorder(run, config, mcap=False) as rec:
+            try:
+                return await DeliveryShell(config, ap, landing=kit, recorder=rec).run(timeout_s=300.0)
+            finally:
+                await ap.close()
+
+    summary = run_virtual(flight())
+    assert summary.delivered and summary.returned, summary.failure
+    assert json.loads((run / "run.json").read_text())["pad_sensors"] is True
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    # without the key (a log from before it) the replay goes by the configuration: no sensors,
+    # no pad lock, so the policy's fallback takes over where the flight had its lock
+    meta = json.loads((run / "run.json").read_text())
+    del meta["pad_sensors"]
+    (run / "run.json").write_text(json.dumps(meta))
     assert not replay_run(run, tmp_path / "replayed2").identical

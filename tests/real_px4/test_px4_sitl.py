@@ -17,6 +17,7 @@ from companion.autopilot.interface import CommandRejected
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import load_config, shipped_params_path
+from companion.delivery.replay import replay_run
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.px4_sitl import Px4NotFound, Px4Sitl, find_px4
 from companion_firmware.truth_feed import MavlinkTruth
@@ -181,6 +182,11 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     assert r.delivered and r.returned, r.failure
     assert r.failure == ""
     assert r.markers_used > 20
+    # the flight replays bit for bit (docs/logs.md): every input the core consumed on the real
+    # firmware (MAVSDK's telemetry, camera and UWB on their own tasks, the velocity-bias tuning)
+    rep = replay_run(tmp_path / "run", tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    assert rep.missing_seq == 0 and rep.streams["ekf.csv"].recorded_rows > 500
     # one flight of sitl_short's short, fast descent (8 m at 2 m/s, then 0.7 m/s) on PX4's drifting
     # velocity estimate (GPS alone: 1.5 m); measured 6.5, 19.0 and 15.3 cm (docs/performance.md): the
     # bound is ~3x their mean. Landing accuracy is what test_px4_campaign.py measures
