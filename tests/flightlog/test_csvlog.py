@@ -38,7 +38,12 @@ def _crash_after_rows(path, n):
     lg = CsvLog(path, ("time_s", "x_m"))
     for i in range(n):
         lg.write((float(i), 2.0 * i))
-    time.sleep(0.5)  # the writer thread flushes as it goes
+    # the writer flushes each period without close(): wait (up to 30 s, a loaded machine delays the
+    # writer) until the rows are in the file, then crash; a writer that only flushed on close
+    # leaves the file without them
+    deadline = time.monotonic() + 30.0
+    while path.read_bytes().count(b"\n") < n + 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
     os._exit(1)  # a crash: no close(), no atexit
 
 
@@ -46,7 +51,7 @@ def test_rows_survive_a_crash(tmp_path):
     p = tmp_path / "crash.csv"
     proc = mp.get_context("fork").Process(target=_crash_after_rows, args=(p, 100))
     proc.start()
-    proc.join(10)
+    proc.join(60)
     assert proc.exitcode == 1
     cols = read_csv(p)
     assert len(cols["time_s"]) == 100 and cols["x_m"][-1] == "198.0"

@@ -96,7 +96,10 @@ for i in range(300):
     lg.write((float(i), 0.5 * i))
     plain.write((float(i), -0.5 * i))
 m.add_meta('{"closed": false}')
-time.sleep(1.0)  # the writer thread hands everything over
+# the writer thread hands everything over (waiting on its count: a loaded machine delays it)
+deadline = time.monotonic() + 30.0
+while (lg.written < 300 or plain.written < 300 or m._pending) and time.monotonic() < deadline:
+    time.sleep(0.01)
 print(LogProcess._current.child.pid, flush=True)
 os._exit(1)  # a crash: no close(), no atexit
 """
