@@ -98,8 +98,9 @@ for i in range(300):
 m.add_meta('{"closed": false}')
 # the writer thread hands everything over (waiting on its count: a loaded machine delays it)
 deadline = time.monotonic() + 30.0
-while (lg.written < 300 or plain.written < 300 or m._pending) and time.monotonic() < deadline:
+while (lg.written < 300 or plain.written < 300) and time.monotonic() < deadline:
     time.sleep(0.01)
+time.sleep(1.0)  # and the hand-over after it carries the metadata
 print(LogProcess._current.child.pid, flush=True)
 os._exit(1)  # a crash: no close(), no atexit
 """
