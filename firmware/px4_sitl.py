@@ -3,7 +3,9 @@
 The build is looked up in ``$PX4_DIR`` else ``~/PX4-Autopilot``:
 ``build/px4_sitl_default/bin/px4`` run with ``-d`` and the build's ``etc`` as data directory from
 ``rootfs/<instance>`` (parameters cleared first unless ``clean=False``) and
-``PX4_SIM_MODEL=sihsim_quadx``. PX4 then sends MAVLink to udp 14540 (the onboard/offboard link).
+``PX4_SIM_MODEL=sihsim_quadx``; ``params`` are set at boot through the SITL's ``PX4_PARAM_<name>``
+environment variables (rcS sets them after the airframe's defaults). PX4 then sends MAVLink to
+udp 14540 (the onboard/offboard link).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import signal
 import socket
 import subprocess
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -45,6 +47,7 @@ class Px4Sitl:
     instance: int = 0
     log_path: Path | None = None
     clean: bool = True
+    params: dict[str, float] = field(default_factory=dict)
     proc: subprocess.Popen[bytes] | None = None
 
     @property
@@ -65,6 +68,7 @@ class Px4Sitl:
             for name in ("parameters.bson", "parameters_backup.bson", "dataman"):
                 (rootfs / name).unlink(missing_ok=True)
         env = dict(os.environ, PX4_SIM_MODEL=self.model, HEADLESS="1")
+        env.update({f"PX4_PARAM_{name}": f"{value:g}" for name, value in self.params.items()})
         out = open(self.log_path, "wb") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
         self.proc = subprocess.Popen(
             # the data directory argument makes px4 link rootfs/etc to the build's etc

@@ -109,6 +109,7 @@ class MavlinkTruth:
         rate_hz: float = 50.0,
         source_system: int = 246,
         message: str = "HIL_STATE_QUATERNION",
+        watch: tuple[str, ...] = (),
     ):
         if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1000.0):
             raise ValueError(f"truth rate {rate_hz!r} Hz: expected 0.5..1000")
@@ -132,6 +133,11 @@ class MavlinkTruth:
         self._last_fix: tuple[float, float, float] | None = None  # sample time s, vn, ve (m/s)
         self.params: dict[str, float] = {}  # PARAM_VALUE answers seen on this link
         self.acks: dict[int, int] = {}  # command id -> MAV_RESULT of its last COMMAND_ACK
+        # the autopilot's (component 1) messages of the ``watch`` types, kept with their arrival
+        # time (monotonic s): HEARTBEAT, EXTENDED_SYS_STATE, SERVO_OUTPUT_RAW for a test to follow
+        self.watch = frozenset(watch)
+        self.watched: list[tuple[float, Any]] = []
+        self._watch_lock = threading.Lock()
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> MavlinkTruth:
@@ -184,6 +190,9 @@ class MavlinkTruth:
             if msg is None:
                 continue
             kind = msg.get_type()
+            if kind in self.watch and msg.get_srcComponent() == 1:
+                with self._watch_lock:
+                    self.watched.append((time.monotonic(), msg))
             if kind == "HEARTBEAT" and self._target is None and msg.get_srcComponent() == 1:
                 self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 self._last_request = -math.inf
@@ -243,6 +252,11 @@ class MavlinkTruth:
             timeout_s,
         )
         return result
+
+    def watched_messages(self, kind: str, since: float = -math.inf) -> list[tuple[float, Any]]:
+        """The watched messages of type ``kind`` that arrived at or after ``since`` (monotonic s)."""
+        with self._watch_lock:
+            return [(t, m) for t, m in self.watched if t >= since and m.get_type() == kind]
 
     def _request(self, conn: Any) -> None:
         """SET_MESSAGE_INTERVAL for the truth message; repeated every 2 s until it flows (a

@@ -4,7 +4,9 @@ dropping out), for link-loss tests on the real firmware.
 PX4 SITL sends its onboard MAVLink link to a fixed port (14540); the relay listens there and
 forwards everything to the port the companion listens on, and the companion's replies back to
 wherever the autopilot sent from. While cut, datagrams in both directions are dropped (counted),
-as a dead radio would.
+as a dead radio would. With ``watch_commands`` the relay also decodes what the companion sends and
+keeps the COMMAND_LONG / COMMAND_INT command ids that reached the autopilot (a test's proof that a
+release command was, or was not, sent).
 """
 
 from __future__ import annotations
@@ -14,12 +16,15 @@ import select
 import socket
 import threading
 import time
+from typing import Any
+
+from pymavlink import mavutil
 
 log = logging.getLogger(__name__)
 
 
 class UdpRelay:
-    def __init__(self, listen_port: int, forward_port: int, host: str = "127.0.0.1"):
+    def __init__(self, listen_port: int, forward_port: int, host: str = "127.0.0.1", watch_commands: bool = False):
         self.host = host
         self.listen_port = listen_port
         self.forward = (host, forward_port)
@@ -31,6 +36,11 @@ class UdpRelay:
         self._thread = threading.Thread(target=self._run, name="udp-relay", daemon=True)
         self.forwarded = 0
         self.dropped = 0
+        # (monotonic s, command id) of every COMMAND_LONG / COMMAND_INT forwarded to the autopilot
+        self.commands_to_autopilot: list[tuple[float, int]] = []
+        self._parser: Any = mavutil.mavlink.MAVLink(None) if watch_commands else None
+        if self._parser is not None:
+            self._parser.robust_parsing = True
 
     def start(self) -> UdpRelay:
         self._a.bind((self.host, self.listen_port))
@@ -82,3 +92,16 @@ class UdpRelay:
                     self.forwarded += 1
                 except OSError as err:
                     log.debug("relay: %s", err)
+                    continue
+                if s is self._b and self._parser is not None:
+                    self._watch(data)
+
+    def _watch(self, data: bytes) -> None:
+        try:
+            msgs = self._parser.parse_buffer(data) or []
+        except Exception as err:  # a packet pymavlink cannot decode (unknown or signed): not a command we know
+            log.debug("relay: undecoded packet: %s", err)
+            return
+        for m in msgs:
+            if m.get_type() in ("COMMAND_LONG", "COMMAND_INT"):
+                self.commands_to_autopilot.append((time.monotonic(), int(m.command)))

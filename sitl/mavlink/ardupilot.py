@@ -121,6 +121,8 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             "GUID_TIMEOUT": guided_timeout_s,
             "RC_OVERRIDE_TIME": self.rc_override_timeout_s,
             "FS_GCS_ENABLE": 0.0,  # copter.parm: GCS failsafe off
+            "FS_GCS_TIMEOUT": 5.0,  # ArduCopter 4.7's defaults
+            "FS_OPTIONS": 16.0,  # continue in pilot-controlled modes on a GCS failsafe; gripper not released
             "PLND_ENABLED": 0.0,  # copter.parm: no precision landing (LAND ignores LANDING_TARGET)
             "PLND_TYPE": 0.0,
             # ArduCopter 4.7's fence and battery failsafe defaults (no DID_ENABLE: SITL has no OpenDroneID)

@@ -11,6 +11,7 @@ import pytest
 
 from companion.autopilot.preflight.ardupilot import (
     ardupilot_param_names,
+    check_ardupilot_failsafe_release,
     check_ardupilot_gcs_failsafe,
     check_ardupilot_guided_timeout,
     check_ardupilot_mode_switch,
@@ -89,7 +90,9 @@ def test_px4_firmware_defaults_pass() -> None:
         "COM_ARM_ODID",
         "clock",
     ]
-    assert all(c.status is Status.OK for c in report.checks)
+    # PX4's default offboard-loss action is Position mode: said, not a failure (docs/companion-death.md)
+    assert {c.name for c in report.checks if c.status is not Status.OK} == {"COM_OBL_RC_ACT"}
+    assert _row(report.checks, "COM_OBL_RC_ACT").status is Status.WARN
 
 
 @pytest.mark.parametrize(
@@ -128,9 +131,11 @@ def test_unread_and_missing_parameters_are_unknown_with_the_reason() -> None:
 @pytest.mark.parametrize(
     "action, resume, status, words",
     [
-        (0, ("hold", "position"), Status.OK, ["Position mode", "resumes"]),
+        (0, ("hold", "position"), Status.WARN, ["Position mode", "without RC", "COM_OBL_RC_ACT = 4 (Land)"]),
+        (4, ("hold", "position"), Status.OK, ["lands where it is", "leaves it to LAND"]),
+        (4, ("land",), Status.OK, ["the mission resumes"]),
         (5, ("hold", "position"), Status.OK, ["Hold"]),
-        (3, ("hold", "position"), Status.WRONG, ["Return", "add 'rtl' to link_loss_resume_modes", "ACT = 0"]),
+        (3, ("hold", "position"), Status.WRONG, ["Return", "add 'rtl' to link_loss_resume_modes", "ACT = 4"]),
         (3, ("rtl",), Status.OK, ["Return"]),
         (0, ("hold",), Status.WRONG, ["add 'position'"]),
         (6, ("hold", "position"), Status.WRONG, ["Terminate"]),
@@ -222,20 +227,45 @@ def test_ardupilot_rc_override_time() -> None:
 @pytest.mark.parametrize(
     "value, resume, status, words",
     [
-        (0, ("hold", "position"), Status.OK, ["no GCS failsafe"]),
-        (1, ("hold", "position"), Status.WRONG, ["ArduCopter RTL", "add 'rtl'", "FS_GCS_ENABLE = 0"]),
+        (0, ("hold", "position"), Status.WARN, ["no GCS failsafe", "companion dies", "FS_GCS_ENABLE = 5"]),
+        (1, ("hold", "position"), Status.WRONG, ["ArduCopter RTL", "add 'rtl'", "FS_GCS_ENABLE = 5"]),
         (1, ("rtl",), Status.OK, ["resumes"]),
-        (5, ("hold", "position"), Status.WRONG, ["Land", "'land'"]),
+        (5, ("hold", "position"), Status.OK, ["5 s after", "lands where it is", "leaves it to LAND"]),
+        (5, ("land",), Status.OK, ["the mission resumes"]),
         (7, ("hold", "position"), Status.OK, ["Brake"]),
         (9, ("hold", "position"), Status.WRONG, ["0-7"]),
     ],
 )
 def test_ardupilot_gcs_failsafe(value: int, resume: tuple[str, ...], status: Status, words: list[str]) -> None:
     req = dataclasses.replace(AP, link_loss_resume_modes=resume)
-    row = check_ardupilot_gcs_failsafe(req, {"FS_GCS_ENABLE": float(value)})
+    row = check_ardupilot_gcs_failsafe(req, {"FS_GCS_ENABLE": float(value), "FS_GCS_TIMEOUT": 5.0})
     assert row.status is status, row
     for w in words:
         assert w in row.detail
+
+
+@pytest.mark.parametrize(
+    "value, release, status, words",
+    [
+        (16, "gripper", Status.OK, ["does not release"]),
+        (48, "gripper", Status.WRONG, ["releases the gripper on any failsafe", "set FS_OPTIONS = 16"]),
+        (-1, "gripper", Status.WRONG, ["not a bitmask"]),
+        (48, "servo", None, []),  # DO_SET_SERVO's output is not the gripper FS_OPTIONS releases
+    ],
+)
+def test_ardupilot_failsafe_must_not_release_the_gripper(
+    value: int, release: str, status: Status | None, words: list[str]
+) -> None:
+    req = dataclasses.replace(AP, release=release)
+    rows = check_ardupilot_failsafe_release(req, {"FS_OPTIONS": float(value)})
+    if status is None:
+        assert rows == []
+        return
+    (row,) = rows
+    assert row.status is status, row
+    for w in words:
+        assert w in row.detail
+    assert check_ardupilot_failsafe_release(req, {})[0].status is Status.UNKNOWN
 
 
 @pytest.mark.parametrize(

@@ -172,8 +172,10 @@ async def test_preflight_names_arducopters_default_gripper_as_wrong(copter):
     assert rows["battery failsafe"]["status"] == "wrong" and "BATT_FS_LOW_ACT = 2" in rows["battery failsafe"]["detail"]
     for name in ("FENCE_ENABLE", "BATT_FS_LOW_ACT", "BATT_FS_CRT_ACT", "DID_ENABLE"):
         assert rows[name]["status"] == "ok", rows[name]
-    for name in ("GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_GCS_ENABLE", "FLTMODE_CH", "attitude rate"):
+    for name in ("GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_OPTIONS", "FLTMODE_CH", "attitude rate"):
         assert rows[name]["status"] == "ok", rows[name]
+    # copter.parm leaves the GCS failsafe off: a dead companion would leave the vehicle hovering
+    assert rows["FS_GCS_ENABLE"]["status"] == "warn" and "FS_GCS_ENABLE = 5" in rows["FS_GCS_ENABLE"]["detail"]
     # ok once the EKF has an origin and GPS time (after the flights above); on a fresh boot nothing
     # arrives yet: unknown, never wrong
     for name in ("local position rate", "clock"):

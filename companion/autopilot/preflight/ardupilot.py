@@ -4,8 +4,15 @@ Parameters (copter.parm): GUID_TIMEOUT (s, default 3), RC_OVERRIDE_TIME (s, defa
 lapses), FS_GCS_ENABLE (0 off, 1 RTL, 2 RTL/continue in AUTO, 3 SmartRTL or RTL, 4 SmartRTL or
 Land, 5 Land, 6 DO_LAND_START or RTL, 7 Brake or Land; default 0), FLTMODE_CH (0 none, else the
 RC channel; default 5), GRIP_ENABLE (default 0), SERVOn_FUNCTION (28 = gripper, 0 = no
-function), PLND_ENABLED (default 0), PLND_TYPE (1 = MAVLink companion). ArduPilot sends every
-parameter as a float.
+function), PLND_ENABLED (default 0), PLND_TYPE (1 = MAVLink companion), FS_GCS_TIMEOUT (s, default
+5), FS_OPTIONS (bitmask, default 16; bit 5, 32, releases the gripper on any failsafe). ArduPilot
+sends every parameter as a float.
+
+The GCS failsafe is what acts when the companion dies: ArduCopter counts the heartbeats of
+MAV_GCS_SYSID (255, the companion's system id) and, FS_GCS_TIMEOUT after the last, takes the
+FS_GCS_ENABLE action; with 0 a dead companion leaves the vehicle hovering in GUIDED (it stops
+GUID_TIMEOUT after the last setpoint) until the battery fails safe (docs/flying.md, "Who is in
+control").
 """
 
 from __future__ import annotations
@@ -37,17 +44,19 @@ AP_FS_GCS_ACTIONS: dict[int, tuple[str, str | None]] = {  # FS_GCS_ENABLE -> (Ar
     6: ("DO_LAND_START or RTL", "rtl"),
     7: ("Brake or Land", "hold"),
 }
+AP_FS_GCS_LAND = 5
+AP_FS_OPTION_RELEASE_GRIPPER = 32  # FS_OPTIONS bit 5: release the gripper on any failsafe
 AP_GRIPPER_FUNCTION = 28
 AP_SERVO_OUTPUTS = 16
 
 
 def ardupilot_param_names(req: Requirements) -> list[str]:
     """The ArduPilot parameters the checks read."""
-    names = ["GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_GCS_ENABLE", "FLTMODE_CH"]
+    names = ["GUID_TIMEOUT", "RC_OVERRIDE_TIME", "FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "FLTMODE_CH"]
     if req.landing_controller == "autopilot":
         names += ["PLND_ENABLED", "PLND_TYPE"]
     if req.release == "gripper":
-        names += ["GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
+        names += ["FS_OPTIONS", "GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
     elif req.release == "servo":
         names.append(f"SERVO{req.servo_channel}_FUNCTION")
     return names + ardupilot_safety_param_names(req)
@@ -78,24 +87,61 @@ def check_ardupilot_rc_override(req: Requirements, params: Mapping[str, ParamVal
 
 
 def check_ardupilot_gcs_failsafe(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
+    """FS_GCS_ENABLE: what ArduCopter does when the companion's heartbeat stops (it dies, or the
+    link is lost for longer than FS_GCS_TIMEOUT). The companion expects 5, Land: the vehicle lands
+    where it is with the parcel aboard (measured: tests/real_ardupilot/test_arducopter_companion_killed.py)."""
     v = param_or_unknown(params, "FS_GCS_ENABLE")
     if isinstance(v, CheckResult):
         return v
+    t = param_or_unknown(params, "FS_GCS_TIMEOUT")
+    after = f"{fmt(t)} s" if not isinstance(t, CheckResult) else "FS_GCS_TIMEOUT"
     if v == 0:
         return CheckResult(
             "FS_GCS_ENABLE",
-            Status.OK,
+            Status.WARN,
             fmt(v),
-            "no GCS failsafe: a lost link leaves ArduCopter in GUIDED, stopped after GUID_TIMEOUT; the mission "
-            "flies on when the link is back",
+            "no GCS failsafe: if the companion dies ArduCopter hovers in GUIDED (stopped after GUID_TIMEOUT) until "
+            "its battery fails safe; set FS_GCS_ENABLE = 5 (Land) to land where it is, parcel aboard",
         )
     action = AP_FS_GCS_ACTIONS.get(int(v)) if v == int(v) else None
     if action is None:
         return CheckResult(
-            "FS_GCS_ENABLE", Status.WRONG, fmt(v), "not an ArduCopter value (0-7): set FS_GCS_ENABLE = 0"
+            "FS_GCS_ENABLE", Status.WRONG, fmt(v), "not an ArduCopter value (0-7): set FS_GCS_ENABLE = 5 (Land)"
         )
     name, mode = action
-    return check_link_loss_resume("FS_GCS_ENABLE", v, mode, f"ArduCopter {name}", req, "set FS_GCS_ENABLE = 0")
+    if v == AP_FS_GCS_LAND:
+        resume = "the mission resumes" if mode in req.link_loss_resume_modes else "the companion leaves it to LAND"
+        return CheckResult(
+            "FS_GCS_ENABLE",
+            Status.OK,
+            fmt(v),
+            f"{after} after the companion's last heartbeat (it died, or a link loss) ArduCopter lands where it is; "
+            f"on a reconnect {resume}",
+        )
+    return check_link_loss_resume("FS_GCS_ENABLE", v, mode, f"ArduCopter {name}", req, "set FS_GCS_ENABLE = 5 (Land)")
+
+
+def check_ardupilot_failsafe_release(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    """FS_OPTIONS bit 5 releases the gripper on any failsafe (GCS, radio, battery): the parcel
+    would drop wherever the failsafe fires, over people or in the cruise."""
+    if req.release != "gripper":
+        return []
+    v = param_or_unknown(params, "FS_OPTIONS")
+    if isinstance(v, CheckResult):
+        return [v]
+    if v != int(v) or v < 0:
+        return [CheckResult("FS_OPTIONS", Status.WRONG, fmt(v), "not a bitmask: set FS_OPTIONS = 16 (the default)")]
+    if int(v) & AP_FS_OPTION_RELEASE_GRIPPER:
+        return [
+            CheckResult(
+                "FS_OPTIONS",
+                Status.WRONG,
+                fmt(v),
+                "bit 5 (32) releases the gripper on any failsafe: a dead companion or a lost link would drop the "
+                f"parcel wherever the vehicle is; set FS_OPTIONS = {int(v) & ~AP_FS_OPTION_RELEASE_GRIPPER}",
+            )
+        ]
+    return [CheckResult("FS_OPTIONS", Status.OK, fmt(v), "a failsafe does not release the gripper (bit 5 clear)")]
 
 
 def check_ardupilot_mode_switch(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
@@ -244,5 +290,6 @@ def check_ardupilot(req: Requirements, params: Mapping[str, ParamValue]) -> list
         check_ardupilot_mode_switch(req, params),
         *check_ardupilot_precland(req, params),
         *check_ardupilot_release(req, params),
+        *check_ardupilot_failsafe_release(req, params),
         *check_ardupilot_safety(req, params),
     ]

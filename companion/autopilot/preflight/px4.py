@@ -39,6 +39,8 @@ PX4_OBL_ACTIONS: dict[int, tuple[str, str | None]] = {  # COM_OBL_RC_ACT -> (PX4
     6: ("Terminate", None),
     7: ("Disarm", None),
 }
+PX4_OBL_POSITION = 0
+PX4_OBL_LAND = 4
 PX4_HGT_REF = {0: "baro", 1: "GNSS", 2: "range sensor", 3: "vision"}
 
 
@@ -74,9 +76,27 @@ def check_px4_offboard_loss_action(req: Requirements, params: Mapping[str, Param
             "COM_OBL_RC_ACT", Status.WRONG, fmt(v), "not a PX4 v1.16 value (0-7): set COM_OBL_RC_ACT = 0"
         )
     name, mode = action
-    return check_link_loss_resume(
-        "COM_OBL_RC_ACT", v, mode, f"PX4 {name}", req, "set COM_OBL_RC_ACT = 0 (Position) or 5 (Hold)"
-    )
+    if int(v) == PX4_OBL_LAND:
+        resume = "the mission resumes" if mode in req.link_loss_resume_modes else "the companion leaves it to LAND"
+        return CheckResult(
+            "COM_OBL_RC_ACT",
+            Status.OK,
+            fmt(v),
+            "COM_OF_LOSS_T after our last setpoint (the companion died, or a link loss) PX4 lands where it is; on a "
+            f"reconnect {resume}",
+        )
+    row = check_link_loss_resume("COM_OBL_RC_ACT", v, mode, f"PX4 {name}", req, "set COM_OBL_RC_ACT = 4 (Land)")
+    if int(v) == PX4_OBL_POSITION and row.status is Status.OK:
+        # measured on v1.16 SIH (tests/real_px4/test_px4_companion_killed.py, docs/companion-death.md)
+        return CheckResult(
+            "COM_OBL_RC_ACT",
+            Status.WARN,
+            fmt(v),
+            "if the companion dies PX4 goes to Position mode: with a pilot's RC it hovers for the pilot; without RC "
+            "Position mode cannot run and PX4 only sinks on its failsafe setpoint; set COM_OBL_RC_ACT = 4 (Land) to "
+            "land where it is (a link loss longer than COM_OF_LOSS_T then lands it too)",
+        )
+    return row
 
 
 def check_px4_rc_override(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
