@@ -45,8 +45,11 @@ async def test_the_plan_uploaded_from_the_gcs_is_flown(mav, udp_port, dialect: s
     h = config.sim.home
     home = GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
     items, pad = _plan(home, -10.0, 16.0)  # the parameters' pad is N 14, E 14
-    with mav.sim_vehicle(config, dialect, udp_port) as sim:
-        _upload(sim, items, dialect)
+    with (
+        mav.sim_vehicle(config, dialect, udp_port, route_peers=True) as sim,
+        GcsProbe(f"udpout:127.0.0.1:{sim.address[1]}") as gcs,
+    ):
+        assert gcs.upload_mission(1, items, home_item=dialect == "ardupilot") == 0  # MAV_MISSION_ACCEPTED
         ap = (
             ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
             if dialect == "ardupilot"
@@ -54,6 +57,9 @@ async def test_the_plan_uploaded_from_the_gcs_is_flown(mav, udp_port, dialect: s
         )
         _shell, summary = await mav.fly(config, ap)
         assert sim.mission_downloads == 1 and sim.mission_uploads == 1
+    # the operator's GCS is told which plan is flown (the companion's component, docs/gcs.md)
+    texts = [t for _, t in gcs.texts(1, 191)]
+    assert any(t.startswith("go_no_go: destination: autopilot mission item 2 NAV_WAYPOINT (16)") for t in texts), texts
     assert summary.delivered and summary.returned, summary.failure
     said = [e.detail for e in summary.events if e.kind.value == "go_no_go"]
     # the operator's numbering on both firmwares: item 2 (ArduPilot seq 2 after its home, PX4 seq 1)
