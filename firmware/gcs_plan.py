@@ -26,7 +26,7 @@ def delivery_plan(
         GcsMissionItem(rel, MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, alt_rel_m),
         GcsMissionItem(rel, MAV_CMD_NAV_WAYPOINT, pad.lat_deg, pad.lon_deg, alt_rel_m),
         GcsMissionItem(MAV_FRAME_MISSION, MAV_CMD_DO_GRIPPER, 0.0, 0.0, 0.0, param1=1.0, param2=0.0),  # release
-        GcsMissionItem(rel, MAV_CMD_NAV_RETURN_TO_LAUNCH, 0.0, 0.0, 0.0),
+        GcsMissionItem(MAV_FRAME_MISSION, MAV_CMD_NAV_RETURN_TO_LAUNCH, 0.0, 0.0, 0.0),  # PX4: no other frame
     ]
     return items, pad
 

@@ -5,7 +5,9 @@ MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST(_INT) -> MISSION_ITEM_INT
 
 An item in a frame neither global nor MAV_FRAME_MISSION is answered MAV_MISSION_UNSUPPORTED_FRAME
 (PX4 mavlink_mission.cpp; ArduPilot's mission_cmd conversion), a global position out of range
-MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y.
+MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y. PX4 also refuses the terrain frames and a command it does
+not list for the item's frame (MAV_MISSION_UNSUPPORTED): no NAV_PAYLOAD_PLACE, and NAV_RETURN_TO_LAUNCH
+or DO_GRIPPER only in MAV_FRAME_MISSION, as QGroundControl sends them.
 
 ArduPilot (``MISSION_HOME_ITEM``): item 0 is its home. What a GCS uploads as item 0 is not kept;
 a download answers item 0 with the current home (AP_Mission::read_cmd_from_storage), so the count
@@ -124,10 +126,19 @@ class MissionServer:
             return (self._mission_home_item(), *self.mission_items)
         return self.mission_items
 
-    @staticmethod
-    def _item_problem(m: Any) -> int | None:
-        if m.frame not in ACCEPTED_FRAMES:
+    # PX4 (mavlink_mission.cpp parse_mavlink_mission_item): the commands it takes in each frame;
+    # None: any (ArduPilot takes what its mission storage can hold)
+    MISSION_GLOBAL_FRAMES: tuple[int, ...] | None = None
+    MISSION_GLOBAL_COMMANDS: frozenset[int] | None = None
+    MISSION_FRAME_COMMANDS: frozenset[int] | None = None
+
+    def _item_problem(self, m: Any) -> int | None:
+        frames = ACCEPTED_FRAMES if self.MISSION_GLOBAL_FRAMES is None else (*self.MISSION_GLOBAL_FRAMES, 2)
+        if m.frame not in frames:
             return int(mavlink.MAV_MISSION_UNSUPPORTED_FRAME)
+        allowed = self.MISSION_FRAME_COMMANDS if m.frame == mavlink.MAV_FRAME_MISSION else self.MISSION_GLOBAL_COMMANDS
+        if allowed is not None and m.command not in allowed:
+            return int(mavlink.MAV_MISSION_UNSUPPORTED)
         if m.frame in GLOBAL_FRAMES:
             if not -900_000_000 <= m.x <= 900_000_000:
                 return int(mavlink.MAV_MISSION_INVALID_PARAM5_X)

@@ -15,22 +15,14 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
 from companion.cli import exits
 from companion.config import shipped_params_path
-from companion.geometry.earth import GeoPoint, geo_to_ned, ned_to_geo
+from companion.geometry.earth import GeoPoint, geo_to_ned
+from companion_firmware.gcs_plan import delivery_plan
 from companion_firmware.gcs_probe import MAV_FRAME_GLOBAL_RELATIVE_ALT, GcsMissionItem, GcsProbe
-
-MAV_FRAME_MISSION = 2
 
 
 def _plan(home: GeoPoint, north_m: float, east_m: float) -> tuple[list[GcsMissionItem], GeoPoint]:
     """Take-off, a waypoint at the pad, a gripper release, return: as QGroundControl plans it."""
-    pad = ned_to_geo(home, north_m, east_m, 0.0)
-    rel = MAV_FRAME_GLOBAL_RELATIVE_ALT
-    return [
-        GcsMissionItem(rel, 22, 0.0, 0.0, 8.0),
-        GcsMissionItem(rel, 16, pad.lat_deg, pad.lon_deg, 8.0),
-        GcsMissionItem(MAV_FRAME_MISSION, 211, 0.0, 0.0, 0.0, param1=1.0, param2=0.0),
-        GcsMissionItem(rel, 20, 0.0, 0.0, 0.0),
-    ], pad
+    return delivery_plan(home.lat_deg, home.lon_deg, north_m, east_m)
 
 
 def _upload(sim, items: list[GcsMissionItem], dialect: str) -> None:
@@ -103,3 +95,19 @@ def test_fly_refuses_a_plan_without_a_delivery_before_arming(mav, udp_port, tmp_
     assert proc.stderr.startswith("companion fly: the autopilot's mission (items 1 NAV_TAKEOFF (22), 2 NAV_WAYPOINT")
     assert "has no delivery item: expected a NAV_PAYLOAD_PLACE (94)" in proc.stderr
     assert "or set mission.destination = 'params' in" in proc.stderr and "nothing was armed" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("item", "answer"),
+    [
+        (GcsMissionItem(MAV_FRAME_GLOBAL_RELATIVE_ALT, 20, 0.0, 0.0, 0.0), 3),  # RTL in a global frame: UNSUPPORTED
+        (GcsMissionItem(MAV_FRAME_GLOBAL_RELATIVE_ALT, 94, 47.4, 8.5, 8.0), 3),  # NAV_PAYLOAD_PLACE: UNSUPPORTED
+        (GcsMissionItem(11, 16, 47.4, 8.5, 8.0), 2),  # a terrain frame: MAV_MISSION_UNSUPPORTED_FRAME
+        (GcsMissionItem(1, 16, 47.4, 8.5, 8.0), 2),  # a local frame
+    ],
+)
+def test_the_px4_sim_vehicle_refuses_at_upload_what_px4_refuses(mav, udp_port, item: GcsMissionItem, answer: int):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "px4", udp_port) as sim, GcsProbe(f"udpout:127.0.0.1:{sim.address[1]}") as gcs:
+        assert gcs.upload_mission(1, [item]) == answer
+        assert sim.mission_items == ()
