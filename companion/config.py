@@ -186,6 +186,13 @@ class MissionConfig(_Section):
         "-",
         "a second pad to divert to when the first cannot be locked (landing.policy.fallback); none by default",
     )
+    destination: Literal["params", "autopilot_mission"] = _f(
+        "params",
+        "-",
+        "where the pad comes from: params (mission.pad and mission.alternate_pad here) or autopilot_mission "
+        "(the mission the operator uploaded to the autopilot from the GCS, downloaded after connecting, before "
+        "arming: a NAV_PAYLOAD_PLACE, or a waypoint or landing followed by a gripper release; docs/gcs.md)",
+    )
 
     @model_validator(mode="after")
     def _geometry(self) -> MissionConfig:

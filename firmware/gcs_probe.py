@@ -10,6 +10,7 @@ import logging
 import threading
 import time
 from collections import defaultdict
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink import mavutil
@@ -121,3 +122,67 @@ class GcsProbe:
                         return int(a.result)
                 time.sleep(0.02)
         return None
+
+    def upload_mission(
+        self,
+        target_system: int,
+        items: list[GcsMissionItem],
+        home_item: bool = False,
+        target_component: int = 1,
+        timeout_s: float = 15.0,
+    ) -> int | None:
+        """Upload a mission (mission_type 0) as a GCS does: MISSION_COUNT, a MISSION_ITEM_INT for
+        each MISSION_REQUEST(_INT), until the vehicle's MISSION_ACK; its MAV_MISSION_RESULT, None
+        without one. ``home_item``: send a placeholder item 0 first, as QGroundControl and Mission
+        Planner do for ArduPilot (whose item 0 is its home)."""
+        sent = list(items)
+        if home_item:
+            sent.insert(0, GcsMissionItem(MAV_FRAME_GLOBAL, 16, 0, 0, 0))
+        seen = len(self.messages(target_system, target_component))
+        t_end = time.monotonic() + timeout_s
+        next_count = 0.0
+        answered = False
+        while time.monotonic() < t_end:
+            if not answered and time.monotonic() >= next_count:  # the count was lost: say it again
+                self._conn.mav.mission_count_send(target_system, target_component, len(sent), 0)
+                next_count = time.monotonic() + 1.0
+            msgs = self.messages(target_system, target_component)
+            for m in msgs[seen:]:
+                seen += 1
+                t = m.get_type()
+                if getattr(m, "mission_type", 0) != 0 or getattr(m, "target_system", self.source_system) not in (
+                    0,
+                    self.source_system,
+                ):
+                    continue
+                if t == "MISSION_ACK":
+                    return int(m.type)
+                if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and 0 <= m.seq < len(sent):
+                    answered = True
+                    it = sent[m.seq]
+                    self._conn.mav.mission_item_int_send(
+                        target_system, target_component, m.seq, it.frame, it.command, 0, 1,
+                        it.param1, it.param2, it.param3, it.param4,
+                        round(it.lat_deg * 1e7), round(it.lon_deg * 1e7), it.alt_m, 0,
+                    )  # fmt: skip
+            time.sleep(0.02)
+        return None
+
+
+MAV_FRAME_GLOBAL = 0
+MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
+
+
+@dataclass(frozen=True, slots=True)
+class GcsMissionItem:
+    """One item of a plan as a GCS sends it (MISSION_ITEM_INT; position in degrees)."""
+
+    frame: int
+    command: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0

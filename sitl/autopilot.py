@@ -25,6 +25,7 @@ from typing import Any
 
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
+from companion.autopilot.mission_plan import PlanItem
 from companion.autopilot.types import FlightMode, LandingTarget, StatusText, Wind
 from companion.config import SimConfig
 from companion.flightlog.telemetry_tlog import TelemetryTlog
@@ -181,6 +182,14 @@ class SimAutopilot(Autopilot):
         if not self.link_ok:
             raise AutopilotError("fence download: link is down")
         return self.fence if self.fence is not None else AutopilotFence(())
+
+    # the autopilot's mission storage (what a GCS uploaded), numbered as a GCS shows it
+    mission_items: tuple[PlanItem, ...] = ()
+
+    async def download_mission(self) -> tuple[PlanItem, ...]:
+        if not self.link_ok:
+            raise AutopilotError("mission download: link is down")
+        return self.mission_items
 
     def send_landing_target(self, target: LandingTarget) -> None:
         """The in-process vehicle reads the local-NED form (as PX4 does); angles are not used."""

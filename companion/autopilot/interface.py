@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 from companion.autopilot.component import ComponentCommand
 from companion.autopilot.fence import AutopilotFence
+from companion.autopilot.mission_plan import PlanItem
 from companion.autopilot.types import (
     Attitude,
     GlobalPosition,
@@ -344,6 +345,12 @@ class Autopilot(abc.ABC):
     async def download_fence(self) -> AutopilotFence:
         """The fence the autopilot holds (raises :class:`AutopilotError`)."""
         raise AutopilotError(f"{type(self).__name__} cannot download a fence")
+
+    # The operator's mission (companion.autopilot.mission_plan; MAVLink mission protocol).
+    async def download_mission(self) -> tuple[PlanItem, ...]:
+        """The mission the autopilot holds (mission_type 0), numbered as a GCS shows it; ArduPilot's
+        home item is left out (raises :class:`AutopilotError`)."""
+        raise AutopilotError(f"{type(self).__name__} cannot download a mission")
 
     # Optional: the companion as a MAVLink component of its own (companion.autopilot.component,
     # docs/gcs.md). A backend without it raises AutopilotError from open_component.

@@ -25,6 +25,7 @@ from companion.autopilot.signing import SigningError, SigningKeyError
 from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
+from companion.delivery.autopilot_mission import MissionDownloadError, MissionPlanError
 from companion.delivery.mission import MissionSummary
 from companion.delivery.shell import AbortedBeforeFlight, DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
@@ -256,6 +257,14 @@ def cmd_fly(args: argparse.Namespace) -> int:
                     )
             except AbortedBeforeFlight as err:
                 raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
+            except MissionPlanError as err:  # mission.destination = "autopilot_mission" (docs/gcs.md)
+                raise StartupError(
+                    f"{err}; upload a delivery plan from the GCS, or set mission.destination = 'params' in "
+                    f"{args.params}: nothing was armed",
+                    exits.BAD_INPUT,
+                ) from None
+            except MissionDownloadError as err:
+                raise StartupError(f"{err}: nothing was armed", exits.AUTOPILOT_UNREACHABLE) from None
             except SigningKeyError as err:
                 raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
             except SigningError as err:

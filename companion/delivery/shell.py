@@ -149,6 +149,17 @@ class ShellStats:
     frames_notified: int = 0  # wake-ups of the camera task by its frame listener
 
 
+def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
+    return DeliveryMission(
+        config.mission,
+        config.landing.controller,
+        config.landing.policy,
+        fence=config.fence,
+        limits=config.limits,
+        go_no_go=config.go_no_go,
+    )
+
+
 class DeliveryShell:
     def __init__(
         self,
@@ -171,14 +182,7 @@ class DeliveryShell:
         self.before_flight = before_flight
         self.recorder = recorder  # flightlog.FlightRecorder: per-stream CSV logs of the core's inputs/outputs
         self.autopilot = autopilot
-        self.mission = DeliveryMission(
-            config.mission,
-            config.landing.controller,
-            config.landing.policy,
-            fence=config.fence,
-            limits=config.limits,
-            go_no_go=config.go_no_go,
-        )
+        self.mission = _delivery_mission(config)
         self.estimator = AutopilotPoseEstimator()
         mc = config.mission
         self._velocity_bias = (
@@ -279,6 +283,8 @@ class DeliveryShell:
                 self.gcs = GcsComponent(self.config.gcs, self.autopilot, self.command)
                 if not self.gcs.open():
                     self.gcs = None
+            if self.config.mission.destination == "autopilot_mission":
+                await self._take_autopilot_mission()
             if self.before_flight is not None:
                 await self.before_flight()
             await self._make_ready("before the mission")  # once the pre-flight check has passed
@@ -327,6 +333,16 @@ class DeliveryShell:
                     self.gcs.send_text(self._end_text(), self._end_severity())
                 await self.gcs.close()
         return self.mission.summary
+
+    async def _take_autopilot_mission(self) -> None:
+        """The delivery the operator planned in the GCS (docs/gcs.md): download the autopilot's
+        mission, fly to its pad. Nothing is armed yet; a mission the companion cannot fly raises
+        :class:`~companion.delivery.autopilot_mission.MissionPlanError` (or MissionDownloadError)."""
+        from companion.delivery.autopilot_mission import config_from_autopilot_mission
+
+        self.config, said = await config_from_autopilot_mission(self.config, self.autopilot)
+        self.mission = _delivery_mission(self.config)
+        self.mission.go_no_go(self._clock.now(), said)
 
     async def _upload_fence(self) -> None:
         """The autopilot's own fence: upload ``[fence]``, read it back and compare, before anything

@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.autopilot.types import FlightMode
 from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.mavlink.mission import StoredMissionItem
 from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
 
 # ArduCopter mode numbers
@@ -89,6 +90,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
     """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
     FENCE_VERTEX_COUNT_PER_ITEM = False  # write_fence checks the polygons once the upload is complete
+    MISSION_HOME_ITEM = True  # item 0 of a download is the home (sitl/mavlink/mission.py)
 
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
@@ -99,6 +101,14 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
         self._ap_mode = COPTER_STABILIZE
         super().__init__(*args, **kwargs)
         self._fltmode_slot = fltmode_slot(self._rc[4])
+
+    def _mission_home_item(self) -> StoredMissionItem:
+        h = self.vehicle.home()
+        home = self.cfg.home if h is None else h
+        return StoredMissionItem(
+            mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, 0.0, 0.0, 0.0, 0.0,
+            round(home.lat_deg * 1e7), round(home.lon_deg * 1e7), float(home.alt_amsl_m),
+        )  # fmt: skip
 
     @property
     def copter_mode(self) -> int:

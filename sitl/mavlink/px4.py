@@ -75,6 +75,16 @@ def px4_flight_mode(custom_mode: int) -> FlightMode:
 class Px4SimVehicle(MavlinkSimVehicle):
     """The sim vehicle speaking PX4 (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
+    # mavlink_mission.cpp parse_mavlink_mission_item (v1.16): the frames and commands PX4's mission takes
+    MISSION_GLOBAL_FRAMES = (0, 3, 5, 6)  # GLOBAL, GLOBAL_RELATIVE_ALT and their _INT
+    MISSION_GLOBAL_COMMANDS = frozenset(
+        {16, 17, 19, 21, 22, 31, 80, 201, 195, 84, 85, 4501, 5000, 5001, 5002, 5003, 5004, 5100}
+    )  # fmt: skip
+    MISSION_FRAME_COMMANDS = frozenset(
+        {177, 80, 201, 42600, 211, 178, 179, 189, 2003, 203, 204, 205, 1000, 1001, 531, 2000, 2001, 2500, 2501,
+         200, 206, 260, 214, 530, 532, 534, 3000, 93, 20, 196, 197, 112, 114, 187, 212, 400}
+    )  # fmt: skip
+
     dialect: Dialect = "px4"
     DEFAULT_STREAMS_HZ: ClassVar[dict[int, float]] = PX4_DEFAULT_STREAMS_HZ
     HOME_ALWAYS: ClassVar[bool] = True

@@ -20,12 +20,13 @@ from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion_sitl.mavlink.commands import CommandHandler
 from companion_sitl.mavlink.fence import FenceServer
 from companion_sitl.mavlink.link import LinkStats, PacketWriter
+from companion_sitl.mavlink.mission import MissionServer
 from companion_sitl.vehicle import SimVehicle
 
 Dialect = Literal["px4", "ardupilot"]
 
 
-class MavlinkSimVehicle(FenceServer, CommandHandler):
+class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
     """A :class:`SimVehicle` behind a real MAVLink 2 UDP endpoint, stepped in real time.
 
     ``bind`` is the vehicle's own address (port 0 picks a free one; see :attr:`address`).
@@ -149,7 +150,11 @@ class MavlinkSimVehicle(FenceServer, CommandHandler):
         t = m.get_type()
         if t == "HEARTBEAT":
             return
-        if t.startswith("MISSION_") and m.target_system in (0, self.system_id) and self._fence_message(m):
+        if (
+            t.startswith("MISSION_")
+            and m.target_system in (0, self.system_id)
+            and (self._fence_message(m) or self._mission_message(m))
+        ):
             return
         if t == "SETUP_SIGNING":
             self._setup_signing(m)

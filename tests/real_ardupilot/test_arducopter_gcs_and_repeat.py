@@ -1,5 +1,7 @@
 """On a real ArduCopter SITL, without restarting it: two sitl_short deliveries in a row, each by a
-fresh companion, then a third flight returned home by the operator's GCS. The ground station is
+fresh companion, the second to the pad of a plan the GCS uploads to ArduCopter (a waypoint and a
+gripper release, downloaded with the MAVLink mission protocol), then a third flight returned home
+by the operator's GCS. The ground station is
 on SERIAL2 (as QGroundControl on a telemetry radio); ArduPilot's routing passes it the
 companion's own component (1/191): heartbeat and STATUSTEXTs (not ONBOARD_COMPUTER_STATUS), and passes
 its NAV_RETURN_TO_LAUNCH addressed to 1/191 to the companion (docs/gcs.md, docs/flying.md)."""
@@ -16,6 +18,7 @@ from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
+from companion_firmware.gcs_plan import ReleaseWhere, delivery_plan
 from companion_firmware.gcs_probe import GcsProbe
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink.link import free_udp_port
@@ -39,6 +42,11 @@ def _config(connection: str):
             "telemetry": {"enabled": False},
         },
     )
+
+
+def _gcs_plan(config):
+    """The same flight, to the pad of the mission the GCS uploaded (docs/gcs.md)."""
+    return config.model_copy(update={"mission": config.mission.model_copy(update={"destination": "autopilot_mission"})})
 
 
 async def _fly(config, on_tick=None) -> DeliveryShell:
@@ -68,13 +76,26 @@ async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardu
     )
     with sitl, GcsProbe(f"udpin:127.0.0.1:{gcs_port}") as gcs:
         config = _config(sitl.connection)
+        where = ReleaseWhere()
+        home = None  # flight 1's, where the plan is drawn from
+        pad = None
         for flight in (1, 2):
-            shell = await _fly(config)
+            if home is not None:  # the operator's plan: another pad (sitl_short's is N 14, E 14)
+                plan, pad = delivery_plan(home.lat_deg, home.lon_deg, -12.0, 15.0)
+                assert gcs.upload_mission(1, plan, home_item=True) == 0  # MAV_MISSION_ACCEPTED
+            shell = await _fly(*((config, None) if flight == 1 else (_gcs_plan(config), where)))
             s = shell.mission.summary
             assert s.delivered and s.returned and not s.failure, (flight, s.failure)
             print(
                 f"\nflight {flight}: delivered, landed {shell.home_error_m:.2f} m from its take-off; {shell.made_ready}"
             )
+            if flight == 1:
+                home = shell.autopilot.telemetry.home
+                assert home is not None, "no HOME_POSITION from ArduCopter"
+        said = [e.detail for e in s.events if e.kind.value == "go_no_go"]
+        assert said[0].startswith("destination: autopilot mission item 2 NAV_WAYPOINT (16): pad "), said
+        print(f"flight 2, the GCS's plan: released {where.distance_m(pad):.2f} m from the uploaded pad")
+        assert pad is not None and where.distance_m(pad) < 1.5
 
         state: dict = {"sent": None}
 

@@ -1,6 +1,7 @@
 """On the real PX4 v1.16 SIH, without restarting it: two sitl_short deliveries in a row, each by a
-fresh companion (as two `companion fly` runs are), then a third flight returned home by the
-operator's GCS. A ground station on PX4's GCS link (UDP 14550, as QGroundControl) sees the
+fresh companion (as two `companion fly` runs are), the second to the pad of a plan the GCS uploads
+to PX4 (a waypoint and a gripper release, downloaded through MAVSDK's mission_raw), then a third
+flight returned home by the operator's GCS. A ground station on PX4's GCS link (UDP 14550, as QGroundControl) sees the
 companion's own component (1/191) through PX4's forwarding: its heartbeat, its STATUSTEXTs and
 ONBOARD_COMPUTER_STATUS; its NAV_RETURN_TO_LAUNCH addressed to 1/191 is acknowledged by the
 companion and brings the vehicle home without delivering (docs/gcs.md, docs/flying.md)."""
@@ -17,6 +18,7 @@ from companion.autopilot.types import FlightMode
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
+from companion_firmware.gcs_plan import ReleaseWhere, delivery_plan
 from companion_firmware.gcs_probe import GcsProbe
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_lab.real_campaign import firmware_tuning
@@ -38,6 +40,11 @@ def _config():
             "telemetry": {"enabled": False},
         },
     )
+
+
+def _gcs_plan(config):
+    """The same flight, to the pad of the mission the GCS uploaded (docs/gcs.md)."""
+    return config.model_copy(update={"mission": config.mission.model_copy(update={"destination": "autopilot_mission"})})
 
 
 async def _fly(config, on_tick=None) -> tuple[DeliveryShell, Px4Autopilot]:
@@ -62,9 +69,17 @@ async def _fly(config, on_tick=None) -> tuple[DeliveryShell, Px4Autopilot]:
 async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, tmp_path):
     config = _config()
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), GcsProbe("udpin:127.0.0.1:14550") as gcs:
-        # 1, 2: delivery after delivery; each leaves PX4 in HOLD, where the next one arms
+        # 1, 2: delivery after delivery; each leaves PX4 in HOLD, where the next one arms. The second
+        # is the plan the operator's GCS uploads to PX4 (docs/gcs.md): a waypoint at another pad and
+        # a gripper release, downloaded by the companion (MAVSDK mission_raw) and flown there
+        where = ReleaseWhere()
+        home = None  # flight 1's, where the plan is drawn from
+        pad = None
         for flight in (1, 2):
-            shell, _ = await _fly(config)
+            if home is not None:
+                plan, pad = delivery_plan(home.lat_deg, home.lon_deg, -12.0, 15.0)  # sitl_short's pad: N 14, E 14
+                assert gcs.upload_mission(1, plan) == 0  # MAV_MISSION_ACCEPTED
+            shell, ap = await _fly(*((config, None) if flight == 1 else (_gcs_plan(config), where)))
             s = shell.mission.summary
             assert s.delivered and s.returned and not s.failure, (flight, s.failure, shell.made_ready)
             assert any("after the mission" in d and "HOLD" in d for d in shell.made_ready), shell.made_ready
@@ -72,6 +87,13 @@ async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, t
             print(
                 f"\nflight {flight}: delivered, landed {shell.home_error_m:.2f} m from its take-off; {shell.made_ready}"
             )
+            if flight == 1:
+                home = ap.telemetry.home
+                assert home is not None, "no HOME_POSITION from PX4"
+        said = [e.detail for e in s.events if e.kind.value == "go_no_go"]
+        assert said[0].startswith("destination: autopilot mission item 2 NAV_WAYPOINT (16): pad "), said
+        print(f"flight 2, the GCS's plan: released {where.distance_m(pad):.2f} m from the uploaded pad")
+        assert pad is not None and where.distance_m(pad) < 1.5
 
         # 3: the operator's GCS sends RTL to the companion on the way out
         state: dict = {"sent": None}

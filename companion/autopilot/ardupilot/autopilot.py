@@ -25,6 +25,7 @@ from companion.autopilot.ardupilot.component import ArduPilotComponent
 from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
+from companion.autopilot.ardupilot.mission import ArduPilotMission
 from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ
 from companion.autopilot.ardupilot.telemetry import ArduPilotTelemetry
@@ -57,7 +58,7 @@ WIND_MSG_ID = 168  # WIND (ardupilotmega): EKF3's wind estimate
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
 
 
-class ArduPilotAutopilot(ArduPilotFence, ArduPilotComponent, ArduPilotTelemetry, Autopilot):
+class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, ArduPilotTelemetry, Autopilot):
     def __init__(
         self,
         connection: str = "udpin:0.0.0.0:14550",

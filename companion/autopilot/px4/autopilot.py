@@ -40,6 +40,7 @@ from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
 from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
+from companion.autopilot.px4.mission import Px4Mission
 from companion.autopilot.px4.requests import Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.autopilot.types import (
@@ -66,7 +67,7 @@ MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
 
 
-class Px4Autopilot(Px4Fence, Px4Component, Px4Requests, Autopilot):
+class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",

@@ -1,0 +1,157 @@
+"""The sim vehicle's mission storage (mission_type MAV_MISSION_TYPE_MISSION) and its side of the
+MAVLink mission protocol, as the firmware answers a GCS: MISSION_COUNT -> MISSION_REQUEST_INT for
+each item -> MISSION_ACK once the last has come (the stored mission is replaced only then);
+MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST(_INT) -> MISSION_ITEM_INT; MISSION_CLEAR_ALL.
+
+An item in a frame neither global nor MAV_FRAME_MISSION is answered MAV_MISSION_UNSUPPORTED_FRAME
+(PX4 mavlink_mission.cpp; ArduPilot's mission_cmd conversion), a global position out of range
+MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y. PX4 also refuses the terrain frames and a command it does
+not list for the item's frame (MAV_MISSION_UNSUPPORTED): no NAV_PAYLOAD_PLACE, and NAV_RETURN_TO_LAUNCH
+or DO_GRIPPER only in MAV_FRAME_MISSION, as QGroundControl sends them.
+
+ArduPilot (``MISSION_HOME_ITEM``): item 0 is its home. What a GCS uploads as item 0 is not kept;
+a download answers item 0 with the current home (AP_Mission::read_cmd_from_storage), so the count
+is the operator's items + 1, and 1 for an empty mission. PX4 keeps the items as sent, from seq 0."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+MISSION = mavlink.MAV_MISSION_TYPE_MISSION
+GLOBAL_FRAMES = (
+    mavlink.MAV_FRAME_GLOBAL,
+    mavlink.MAV_FRAME_GLOBAL_INT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+)
+ACCEPTED_FRAMES = (*GLOBAL_FRAMES, mavlink.MAV_FRAME_MISSION)
+
+
+@dataclass(frozen=True, slots=True)
+class StoredMissionItem:
+    frame: int
+    command: int
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+    x: int
+    y: int
+    z: float
+    autocontinue: int = 1
+
+
+class MissionServer:
+    """Mixin of :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`."""
+
+    _enc: Any
+    _send: Any
+    MISSION_HOME_ITEM = False  # ArduPilot: item 0 is the home (see the module's docstring)
+
+    mission_items: tuple[StoredMissionItem, ...] = ()  # what the vehicle holds (ArduPilot: without home)
+    _mission_in: list[StoredMissionItem | None] | None = None  # an upload in progress
+    mission_uploads = 0
+    mission_downloads = 0
+
+    def _mission_home_item(self) -> StoredMissionItem:
+        """ArduPilot's item 0: the home, in MAV_FRAME_GLOBAL (altitude AMSL)."""
+        raise NotImplementedError
+
+    def _mission_message(self, m: Any) -> bool:
+        """Handle a message of the mission protocol for mission_type 0; False when it is not one."""
+        if getattr(m, "mission_type", 0) != MISSION:
+            return False
+        t = m.get_type()
+        src_s, src_c = m.get_srcSystem(), m.get_srcComponent()
+        if t == "MISSION_COUNT":
+            self._mission_in = [None] * m.count
+            if m.count == 0:
+                self._mission_commit(src_s, src_c)
+            else:
+                self._send(self._enc.mission_request_int_encode(src_s, src_c, 0, MISSION))
+            return True
+        if t == "MISSION_ITEM_INT":
+            items = self._mission_in
+            if items is None or not 0 <= m.seq < len(items):
+                self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_OPERATION_CANCELLED)
+                return True
+            result = self._item_problem(m)
+            if result is not None:
+                self._mission_in = None
+                self._mission_ack(src_s, src_c, result)
+                return True
+            items[m.seq] = StoredMissionItem(
+                m.frame, m.command, m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z, m.autocontinue
+            )
+            missing = [i for i, it in enumerate(items) if it is None]
+            if missing:
+                self._send(self._enc.mission_request_int_encode(src_s, src_c, missing[0], MISSION))
+            else:
+                self._mission_commit(src_s, src_c)
+            return True
+        if t == "MISSION_REQUEST_LIST":
+            self.mission_downloads += 1
+            self._send(self._enc.mission_count_encode(src_s, src_c, len(self._served()), MISSION))
+            return True
+        if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            served = self._served()
+            if not 0 <= m.seq < len(served):
+                self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_INVALID_SEQUENCE)
+                return True
+            it = served[m.seq]
+            self._send(
+                self._enc.mission_item_int_encode(
+                    src_s, src_c, m.seq, it.frame, it.command, 0, it.autocontinue,
+                    it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z, MISSION,
+                )
+            )  # fmt: skip
+            return True
+        if t == "MISSION_ACK":
+            return True  # the end of a download
+        if t == "MISSION_CLEAR_ALL":
+            self.mission_items = ()
+            self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
+            return True
+        return False
+
+    def _served(self) -> tuple[StoredMissionItem, ...]:
+        if self.MISSION_HOME_ITEM:
+            return (self._mission_home_item(), *self.mission_items)
+        return self.mission_items
+
+    # PX4 (mavlink_mission.cpp parse_mavlink_mission_item): the commands it takes in each frame;
+    # None: any (ArduPilot takes what its mission storage can hold)
+    MISSION_GLOBAL_FRAMES: tuple[int, ...] | None = None
+    MISSION_GLOBAL_COMMANDS: frozenset[int] | None = None
+    MISSION_FRAME_COMMANDS: frozenset[int] | None = None
+
+    def _item_problem(self, m: Any) -> int | None:
+        frames = ACCEPTED_FRAMES if self.MISSION_GLOBAL_FRAMES is None else (*self.MISSION_GLOBAL_FRAMES, 2)
+        if m.frame not in frames:
+            return int(mavlink.MAV_MISSION_UNSUPPORTED_FRAME)
+        allowed = self.MISSION_FRAME_COMMANDS if m.frame == mavlink.MAV_FRAME_MISSION else self.MISSION_GLOBAL_COMMANDS
+        if allowed is not None and m.command not in allowed:
+            return int(mavlink.MAV_MISSION_UNSUPPORTED)
+        if m.frame in GLOBAL_FRAMES:
+            if not -900_000_000 <= m.x <= 900_000_000:
+                return int(mavlink.MAV_MISSION_INVALID_PARAM5_X)
+            if not -1_800_000_000 <= m.y <= 1_800_000_000:
+                return int(mavlink.MAV_MISSION_INVALID_PARAM6_Y)
+        return None
+
+    def _mission_commit(self, src_s: int, src_c: int) -> None:
+        items = [it for it in self._mission_in or [] if it is not None]
+        self._mission_in = None
+        self.mission_items = tuple(items[1:] if self.MISSION_HOME_ITEM else items)
+        self.mission_uploads += 1
+        self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
+
+    def _mission_ack(self, src_s: int, src_c: int, result: int) -> None:
+        self._send(self._enc.mission_ack_encode(src_s, src_c, result, MISSION))
