@@ -376,6 +376,12 @@ def cmd_fly_orders(
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
     if getattr(args, "record_camera", None):
         raise StartupError("--record-camera is for one flight; leave it out with --orders", exits.BAD_INPUT)
+    if config.mission.destination != "params":
+        raise StartupError(
+            f"mission.destination = {config.mission.destination!r} {where}: with --orders each order names the pad; "
+            "set mission.destination = 'params' (the default) or fly without --orders",
+            exits.BAD_INPUT,
+        )
     order_settings(config)  # no secret: refused before anything is opened
     run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("orders-%Y%m%d-%H%M%S")
     try:

@@ -115,3 +115,17 @@ def test_fly_orders_needs_the_commands_secret(tmp_path, capsys) -> None:  # type
     err = capsys.readouterr().err
     assert "telemetry.commands" in err and "fly --orders needs enabled = true and secret_file" in err
     assert not (tmp_path / "s").exists()  # refused before anything was opened or created
+
+
+def test_fly_orders_refuses_a_destination_from_the_autopilot_mission(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    secret = tmp_path / "secret"
+    secret.write_bytes(b"orders-cli-secret-0123456789")
+    text = shipped_params_path("sitl_short.toml").read_text().replace('autopilot = "sim"', 'autopilot = "px4"')
+    params = tmp_path / "v.toml"
+    text = text.replace("[mission]\n", '[mission]\ndestination = "autopilot_mission"\n', 1)
+    params.write_text(text + f'\n[telemetry.commands]\nenabled = true\nsecret_file = "{secret}"\n')
+    code = main(["fly", "--params", str(params), "--orders", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == exits.BAD_INPUT, err
+    assert "mission.destination = 'autopilot_mission'" in err and "each order names the pad" in err
+    assert not (tmp_path / "s").exists()
