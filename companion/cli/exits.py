@@ -7,6 +7,13 @@ the setting to change``, and one of these codes; nothing is left running.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from companion.config import CompanionConfig
+
 OK = 0
 #: the command ran but its result is a failure: mission not delivered, a check found problems,
 #: a replay differs
@@ -52,3 +59,45 @@ def link_startup_error(err: Exception, where: str, connect_timeout_s: float) -> 
         f"(runtime.connect_timeout_s = {connect_timeout_s:g} s)",
         AUTOPILOT_UNREACHABLE,
     )
+
+
+@contextlib.contextmanager
+def flight_startup_errors(
+    where: str, params_file: str, config: CompanionConfig, telemetry_optional: bool = True
+) -> Iterator[None]:
+    """The one line and exit code for each way a flight's start can fail once the autopilot link
+    is being opened (``fly`` and ``fly --orders``). ``where``: the parameter file the connection
+    comes from, as the commands name it; ``telemetry_optional``: the hint may say to turn it off."""
+    from companion.autopilot.interface import AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
+    from companion.autopilot.signing import SigningError, SigningKeyError
+    from companion.delivery.autopilot_mission import MissionDownloadError, MissionPlanError
+    from companion.delivery.shell import AbortedBeforeFlight
+    from companion.telemetry.session import SessionOpenError
+
+    try:
+        yield
+    except AbortedBeforeFlight as err:
+        raise StartupError(f"{err}: nothing was commanded", INTERRUPTED) from None
+    except MissionPlanError as err:  # mission.destination = "autopilot_mission" (docs/gcs.md)
+        raise StartupError(
+            f"{err}; upload a delivery plan from the GCS, or set mission.destination = 'params' in "
+            f"{params_file}: nothing was armed",
+            BAD_INPUT,
+        ) from None
+    except MissionDownloadError as err:
+        raise StartupError(f"{err}: nothing was armed", AUTOPILOT_UNREACHABLE) from None
+    except SigningKeyError as err:
+        raise StartupError(f"{err}; fix signing.key_file {where}", BAD_INPUT) from None
+    except SigningError as err:
+        raise StartupError(str(err), AUTOPILOT_UNREACHABLE) from None
+    except (AutopilotUnreachable, LinkDeviceMissing) as err:
+        raise link_startup_error(err, where, config.runtime.connect_timeout_s) from None
+    except ConnectionUrlError as err:
+        raise StartupError(f"{err}; change connection {where}", BAD_INPUT) from None
+    except SessionOpenError as err:
+        off = ", or set telemetry.enabled = false" if telemetry_optional else ""
+        raise StartupError(
+            f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) "
+            f"in {params_file}{off}",
+            TELEMETRY_UNAVAILABLE,
+        ) from None

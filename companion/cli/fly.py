@@ -20,14 +20,12 @@ from pathlib import Path
 from typing import Any
 
 from companion.autopilot import factory
-from companion.autopilot.interface import Autopilot, AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
-from companion.autopilot.signing import SigningError, SigningKeyError
+from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDeviceMissing
 from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
-from companion.delivery.autopilot_mission import MissionDownloadError, MissionPlanError
 from companion.delivery.mission import MissionSummary
-from companion.delivery.shell import AbortedBeforeFlight, DeliveryShell
+from companion.delivery.shell import DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
@@ -217,7 +215,6 @@ def cmd_fly(args: argparse.Namespace) -> int:
 
         return cmd_fly_orders(args, config, make_autopilot, preflight_hook, OPERATOR_ABORT)
     from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, record_camera, start_sensors
-    from companion.telemetry.session import SessionOpenError
 
     kit = None
     try:
@@ -239,7 +236,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
             ) from None
         new_folder = not any(run_dir.iterdir())
         try:
-            try:
+            with exits.flight_startup_errors(where, args.params, config):
                 autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")  # the MAVLink link traffic
                 skip = getattr(args, "no_preflight", False)
                 check = None if skip else preflight_hook(config, autopilot, kit, args.params)
@@ -255,30 +252,6 @@ def cmd_fly(args: argparse.Namespace) -> int:
                             **display.run_kwargs(),
                         )
                     )
-            except AbortedBeforeFlight as err:
-                raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
-            except MissionPlanError as err:  # mission.destination = "autopilot_mission" (docs/gcs.md)
-                raise StartupError(
-                    f"{err}; upload a delivery plan from the GCS, or set mission.destination = 'params' in "
-                    f"{args.params}: nothing was armed",
-                    exits.BAD_INPUT,
-                ) from None
-            except MissionDownloadError as err:
-                raise StartupError(f"{err}: nothing was armed", exits.AUTOPILOT_UNREACHABLE) from None
-            except SigningKeyError as err:
-                raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
-            except SigningError as err:
-                raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
-            except (AutopilotUnreachable, LinkDeviceMissing) as err:
-                raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
-            except ConnectionUrlError as err:
-                raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
-            except SessionOpenError as err:
-                raise StartupError(
-                    f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) "
-                    f"in {args.params}, or set telemetry.enabled = false",
-                    exits.TELEMETRY_UNAVAILABLE,
-                ) from None
         except StartupError:
             if new_folder:  # nothing flew: the folder would only hold empty logs
                 _drop_unflown_run_folder(run_dir)

@@ -366,12 +366,8 @@ def cmd_fly_orders(
     hands over its autopilot factory, pre-flight hook and operator-abort reason."""
     import json
 
-    from companion.autopilot.interface import AutopilotUnreachable, ConnectionUrlError, LinkDeviceMissing
-    from companion.autopilot.signing import SigningError, SigningKeyError
     from companion.cli.exits import StartupError
     from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
-    from companion.delivery.shell import AbortedBeforeFlight
-    from companion.telemetry.session import SessionOpenError
 
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
     if getattr(args, "record_camera", None):
@@ -416,7 +412,7 @@ def cmd_fly_orders(
     autopilot = make_autopilot(config, tlog_path=run_dir / "flight.tlog")
     if not quiet:
         print(f"taking delivery orders for {config.vehicle_id} (Ctrl-C ends); logs in {run_dir}", flush=True)
-    try:
+    with exits.flight_startup_errors(where, args.params, config, telemetry_optional=False):
         session = asyncio.run(
             serve_orders(
                 config,
@@ -429,21 +425,6 @@ def cmd_fly_orders(
                 abort_reason=abort_reason,
             )
         )
-    except AbortedBeforeFlight as err:
-        raise StartupError(f"{err}: nothing was commanded", exits.INTERRUPTED) from None
-    except SigningKeyError as err:
-        raise StartupError(f"{err}; fix signing.key_file {where}", exits.BAD_INPUT) from None
-    except SigningError as err:
-        raise StartupError(str(err), exits.AUTOPILOT_UNREACHABLE) from None
-    except (AutopilotUnreachable, LinkDeviceMissing) as err:
-        raise exits.link_startup_error(err, where, config.runtime.connect_timeout_s) from None
-    except ConnectionUrlError as err:
-        raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
-    except SessionOpenError as err:
-        raise StartupError(
-            f"telemetry: {err}; change telemetry.zenoh_config (now {config.telemetry.zenoh_config!r}) in {args.params}",
-            exits.TELEMETRY_UNAVAILABLE,
-        ) from None
     flights = [
         {
             "order_id": f.order_id,
