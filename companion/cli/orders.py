@@ -19,14 +19,14 @@ import signal
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
 from companion.config import CompanionConfig
 from companion.events import MissionEvent
-from companion.telemetry.session import SettingsError, ZenohSettings, load_settings
+from companion.telemetry.session import SettingsError, ZenohSettings
 
 log = logging.getLogger(__name__)
 
@@ -83,18 +83,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_order)
 
 
-def _ground_settings(args: argparse.Namespace) -> ZenohSettings:
-    base = load_settings(args.zenoh_config) if args.zenoh_config else ZenohSettings()
-    changes: dict[str, Any] = {}
-    if args.listen:
-        changes["listen"] = tuple(args.listen)
-    if args.connect:
-        changes["connect"] = tuple(args.connect)
-    if args.no_multicast:
-        changes["multicast_scouting"] = False
-    return replace(base, **changes)
-
-
 def cmd_order(args: argparse.Namespace) -> int:
     from companion.telemetry.auth import MAX_NOTE_CHARS, CommandSettings, sender_ok
     from companion.telemetry.ground import GroundStation
@@ -132,7 +120,9 @@ def cmd_order(args: argparse.Namespace) -> int:
     except ValueError as e:
         return bad(f"--secret-file: {e}")
     try:
-        settings = _ground_settings(args)
+        from companion.cli.telemetry import ground_settings
+
+        settings = ground_settings(args)
     except SettingsError as e:
         return bad(str(e))
     pad = OrderPad(args.lat, args.lon, args.alt)

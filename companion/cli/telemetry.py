@@ -116,7 +116,8 @@ def vehicle_counts(text: str) -> tuple[int, ...]:
 
 
 def ground_settings(args: argparse.Namespace) -> ZenohSettings:
-    """The ground's Zenoh settings from the CLI flags (and optional config file)."""
+    """The ground's Zenoh settings from the CLI flags (and optional config file); ``companion ground``
+    and ``companion order`` share them (``--router`` only the former)."""
     base = load_settings(args.zenoh_config) if args.zenoh_config else ZenohSettings()
     changes: dict[str, Any] = {}
     if args.listen:
@@ -125,7 +126,7 @@ def ground_settings(args: argparse.Namespace) -> ZenohSettings:
         changes["connect"] = tuple(args.connect)
     if args.no_multicast:
         changes["multicast_scouting"] = False
-    if args.router:
+    if getattr(args, "router", False):
         changes["mode"] = "router"
         if not (args.listen or base.listen):
             changes["listen"] = (DEFAULT_ROUTER_LISTEN,)
