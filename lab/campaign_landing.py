@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import CompanionConfig, load_config
+from companion.config import CompanionConfig, PadConfig, SimConfig, load_config
 from companion_lab.demo import run_demo
 from companion_sitl.profiles import get_profile
 
@@ -63,6 +63,15 @@ def pad_heading_draw(seed: int) -> tuple[float, float]:
     seed: from their own generator, so the other draws of the campaign are unchanged."""
     rng = np.random.default_rng([seed, 37])
     return float(rng.uniform(-180.0, 180.0)), float(rng.uniform(-PAD_HEADING_PLACED_DEG, PAD_HEADING_PLACED_DEG))
+
+
+def with_pad_heading(config: CompanionConfig, seed: int) -> CompanionConfig:
+    """``config`` with the pad_heading variant's draw for ``seed``: the pad's configured heading and
+    the true pad's rotation from it (the real-firmware campaign, whose configuration is per variant)."""
+    heading_deg, placed_deg = pad_heading_draw(seed)
+    pad = PadConfig.model_validate({**config.mission.pad.model_dump(), "heading_deg": heading_deg})
+    sim = SimConfig.model_validate({**config.sim.model_dump(), "pad_heading_offset_deg": placed_deg})
+    return config.model_copy(update={"mission": config.mission.model_copy(update={"pad": pad}), "sim": sim})
 
 
 # the pad lies this far from its configured place (in the draw's direction): outside the camera's
