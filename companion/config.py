@@ -51,6 +51,25 @@ class PadConfig(_Section):
     east_m: float | None = _f(None, "m", "pad east of home (local alternative to lat/lon)")
     up_m: float = _f(0.0, "m", "pad height above home ground (with north/east)", ge=-100, le=100)
     size_m: float = _f(1.0, "m", "side of the square landing pad", gt=0.1, le=10.0)
+    heading_deg: float | None = _f(
+        None,
+        "deg",
+        "the pad's heading (a dock, a charger, a locker): the NED direction, clockwise from north, in "
+        "which the printed pad's 'up' edge (the ArUco marker's +y axis) points; the vehicle turns its "
+        "nose to it in the final descent and touches down aligned. None = no alignment (the vehicle "
+        "keeps the path's heading, as before). The heading the camera measures wins once measured "
+        "(docs/pad-heading.md)",
+        ge=-180.0,
+        le=360.0,
+    )
+    heading_tolerance_deg: float = _f(
+        20.0,
+        "deg",
+        "sanity bound on the measured pad heading: a camera measurement further than this from "
+        "heading_deg is rejected (a wrong marker, a flipped pose) and the configured heading stays",
+        gt=0.0,
+        le=180.0,
+    )
 
     @model_validator(mode="after")
     def _one_form(self) -> PadConfig:
@@ -513,6 +532,14 @@ class SimConfig(_Section):
     baro_noise_m: float = _f(0.1, "m", "barometer white noise", ge=0.0, le=10.0)
     ready_delay_s: float = _f(2.0, "s", "time after boot until the vehicle is healthy (GPS, EKF)", ge=0.0, le=120.0)
     pad_offset_m: tuple[float, float] = _f((0.0, 0.0), "m", "true pad displacement from its configured position (N, E)")
+    pad_heading_offset_deg: float = _f(
+        0.0,
+        "deg",
+        "the true pad's heading minus its configured mission.pad.heading_deg (a dock placed slightly "
+        "rotated; only with a pad heading configured)",
+        ge=-180.0,
+        le=180.0,
+    )
     camera_fails_below_m: float = _f(
         0.0,
         "m",

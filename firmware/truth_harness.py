@@ -30,7 +30,7 @@ from companion.events import EventKind, Phase
 from companion.geometry.earth import GeoPoint
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.landing_sensors import sim_landing_kit
-from companion_sitl.scoring import PathScorer, rms
+from companion_sitl.scoring import PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -73,6 +73,8 @@ class HarnessResult:
     # the same in-plane distance in the arcs for the estimate flown on against the mission's path:
     # the overshoot the guidance controls, apart from the autopilot's own estimation error
     tracking_max_arcs_m: float = math.nan
+    # a pad with a heading (docs/pad-heading.md): |true yaw - true pad heading| at the touchdown, deg
+    pad_heading_error_deg: float = math.nan
     # per tick while following: time s, phase, sector of the true position, distance of truth and of
     # the estimate flown on to the path m, truth and estimate in the mission frame F_I m
     path_trace: tuple[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]], ...] = ()
@@ -112,6 +114,7 @@ async def fly_on_truth(
         kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
         kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     touchdown: list[tuple[float, float]] = []
+    touchdown_yaw: list[float] = []
     believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
     path_d: list[float] = []
     path_out: list[float] = []
@@ -169,6 +172,7 @@ async def fly_on_truth(
             and truth.age_s < 1.0
         ):
             touchdown.append((truth.pn, truth.pe))
+            touchdown_yaw.append(truth.yaw)
             est, pad_cfg = shell.estimate, shell.mission.pad_ned
             if est is not None and pad_cfg is not None:
                 believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
@@ -209,6 +213,11 @@ async def fly_on_truth(
         pad_tries=summary.pad_tries,
         releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
         pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
+        pad_heading_error_deg=(
+            heading_error_deg(touchdown_yaw[0], true_pad_heading_rad(config))
+            if touchdown_yaw and simulated_pad(config).heading_deg is not None
+            else math.nan
+        ),
     )
 
 

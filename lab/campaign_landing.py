@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import CompanionConfig, load_config
+from companion.config import CompanionConfig, PadConfig, SimConfig, load_config
 from companion_lab.demo import run_demo
 from companion_sitl.profiles import get_profile
 
@@ -32,6 +32,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "pad_4m": {},
     "pad_4m_search": {"use_uwb": False, "policy": {"search_height_m": 5.0}},
     "pad_missing_alternate": {"policy": {"fallback": "alternate"}},
+    "pad_heading": {},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -50,6 +51,28 @@ SIM_VARIANTS: dict[str, dict[str, Any]] = {
 MISSION_VARIANTS: dict[str, dict[str, Any]] = {
     "pad_missing_alternate": {"alternate_pad": {"lat_deg": -19.868667, "lon_deg": -43.9637141, "alt_amsl_m": 850.0}},
 }
+
+# pad_heading: a dock with a heading drawn per draw (uniform over the circle), placed up to
+# PAD_HEADING_PLACED_DEG off its configured heading (the camera's measured heading must win)
+PAD_HEADING_PLACED_DEG = 5.0
+HEADING_VARIANTS = ("pad_heading",)
+
+
+def pad_heading_draw(seed: int) -> tuple[float, float]:
+    """The pad_heading variant's (configured heading, true - configured) in degrees for a draw's
+    seed: from their own generator, so the other draws of the campaign are unchanged."""
+    rng = np.random.default_rng([seed, 37])
+    return float(rng.uniform(-180.0, 180.0)), float(rng.uniform(-PAD_HEADING_PLACED_DEG, PAD_HEADING_PLACED_DEG))
+
+
+def with_pad_heading(config: CompanionConfig, seed: int) -> CompanionConfig:
+    """``config`` with the pad_heading variant's draw for ``seed``: the pad's configured heading and
+    the true pad's rotation from it (the real-firmware campaign, whose configuration is per variant)."""
+    heading_deg, placed_deg = pad_heading_draw(seed)
+    pad = PadConfig.model_validate({**config.mission.pad.model_dump(), "heading_deg": heading_deg})
+    sim = SimConfig.model_validate({**config.sim.model_dump(), "pad_heading_offset_deg": placed_deg})
+    return config.model_copy(update={"mission": config.mission.model_copy(update={"pad": pad}), "sim": sim})
+
 
 # the pad lies this far from its configured place (in the draw's direction): outside the camera's
 # view at the approach height
@@ -115,6 +138,11 @@ def scenario_config(
     overrides = {**tuning, "sim": sim, "landing": landing}
     if variant in MISSION_VARIANTS:
         overrides["mission"] = {**tuning.get("mission", {}), **MISSION_VARIANTS[variant]}
+    if variant in HEADING_VARIANTS:
+        heading_deg, placed_deg = pad_heading_draw(d.seed)
+        mission = overrides.setdefault("mission", dict(tuning.get("mission", {})))
+        mission["pad"] = {**mission.get("pad", {}), "heading_deg": heading_deg}
+        sim["pad_heading_offset_deg"] = placed_deg
     return load_config(base_file, overrides=overrides)
 
 
@@ -184,21 +212,25 @@ def fly_landing(task: LandingTask) -> dict[str, Any]:
     d = task.draw
     r = run_demo(scenario_config(task.base, d, task.variant, task.profile, task.tuning))
     dn, de = r.pad_landing_error_ne_m
-    return {
-        "seed": d.seed,
-        "error_m": r.pad_landing_error_m,
-        "north_m": dn,
-        "east_m": de,
-        "on_pad": on_pad(dn, de, task.pad_half_m, r.delivered),
-        "delivered": r.delivered,
-        "home_with_parcel": r.home_with_parcel,
-        "pad_tries": r.pad_tries,
-        "failure": r.failure,
-        "sim_time_s": r.sim_time_s,
-        "gps_bias_m": d.gps_bias_m[:2],
-        "pad_offset_m": d.pad_offset_m,
-        "wind_m_s": d.wind_speed_m_s if get_profile(task.profile).has_wind else 0.0,
-    } | ({"diverted": diverted(r.events)} if task.variant in MISSION_VARIANTS else {})
+    return (
+        {
+            "seed": d.seed,
+            "error_m": r.pad_landing_error_m,
+            "north_m": dn,
+            "east_m": de,
+            "on_pad": on_pad(dn, de, task.pad_half_m, r.delivered),
+            "delivered": r.delivered,
+            "home_with_parcel": r.home_with_parcel,
+            "pad_tries": r.pad_tries,
+            "failure": r.failure,
+            "sim_time_s": r.sim_time_s,
+            "gps_bias_m": d.gps_bias_m[:2],
+            "pad_offset_m": d.pad_offset_m,
+            "wind_m_s": d.wind_speed_m_s if get_profile(task.profile).has_wind else 0.0,
+        }
+        | ({"diverted": diverted(r.events)} if task.variant in MISSION_VARIANTS else {})
+        | ({"heading_error_deg": r.pad_heading_error_deg} if task.variant in HEADING_VARIANTS else {})
+    )
 
 
 def diverted(events: list[tuple[float, str, str, str]]) -> bool:

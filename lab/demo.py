@@ -33,7 +33,7 @@ from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.landing_sensors import CameraPlayback, sim_landing_kit
 from companion_sitl.mavlink.link import free_udp_port
-from companion_sitl.scoring import REFERENCE, PathScorer, rms
+from companion_sitl.scoring import REFERENCE, PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -81,6 +81,8 @@ class DemoResult:
     events: list[tuple[float, str, str, str]] = field(default_factory=list)
     home_with_parcel: bool = False  # landed at home with the parcel aboard (docs/delivery-policy.md)
     pad_tries: int = 0  # descents onto the pad the no-release-off-the-pad policy stopped
+    # |true yaw - true pad heading| at the pad touchdown (deg); NaN for a pad without a heading
+    pad_heading_error_deg: float = math.nan
 
     @property
     def speedup(self) -> float:
@@ -311,9 +313,16 @@ async def fly(
         events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
         home_with_parcel=summary.home_with_parcel,
         pad_tries=summary.pad_tries,
+        pad_heading_error_deg=(
+            heading_error_deg(pad_td[0].yaw_rad, true_pad_heading_rad(config))
+            if pad_td and simulated_pad(config).heading_deg is not None
+            else math.nan
+        ),
     )
     if run_dir is not None:
         summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
+        if math.isnan(result.pad_heading_error_deg):
+            del summary_json["pad_heading_error_deg"]  # a pad without a heading: as before
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]
         summary_json.update(path_summary(config, scorer))

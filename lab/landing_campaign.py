@@ -59,7 +59,22 @@ def _outcomes(rows: list[dict[str, Any]]) -> dict[str, int]:
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """One variant's summary: the touchdown figures over the landings that touched down on the
     pad's side of the flight (``landed`` of ``n``), and how every one of the ``n`` ended."""
-    return {**_stats([x["error_m"] for x in rows], [x["on_pad"] for x in rows]), **_outcomes(rows)}
+    out = {**_stats([x["error_m"] for x in rows], [x["on_pad"] for x in rows]), **_outcomes(rows)}
+    if any("heading_error_deg" in x for x in rows):
+        out |= _heading_stats([x.get("heading_error_deg", math.nan) for x in rows])
+    return out
+
+
+def _heading_stats(errs: list[float]) -> dict[str, float]:
+    """A pad with a heading: |true yaw - true pad heading| at touchdown (docs/pad-heading.md)."""
+    a = np.array(errs, dtype=float)
+    ok = a[np.isfinite(a)]
+    return {
+        "heading_mean_deg": float(ok.mean()) if ok.size else math.nan,
+        "heading_p90_deg": float(np.percentile(ok, 90)) if ok.size else math.nan,
+        "heading_max_deg": float(ok.max()) if ok.size else math.nan,
+        "heading_within_3deg_pct": 100.0 * int((ok <= 3.0).sum()) / len(errs) if errs else math.nan,
+    }
 
 
 def _stats(errs: list[float], on_pad: list[bool]) -> dict[str, float]:

@@ -37,7 +37,7 @@ from companion.geometry.earth import GeoPoint
 from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_firmware.truth_harness import fly_on_truth
-from companion_lab.campaign_landing import VARIANTS, Draw, draw_scenarios, on_pad
+from companion_lab.campaign_landing import HEADING_VARIANTS, VARIANTS, Draw, draw_scenarios, on_pad, with_pad_heading
 from companion_lab.landing_campaign import run_landing_campaign, summarize
 
 log = logging.getLogger(__name__)
@@ -114,6 +114,7 @@ async def _one_landing(
         await ap.connect(timeout_s=20.0)
         r = await fly_on_truth(config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne)
         err, td, delivered, failure = r.pad_landing_error_m, r.touchdown_truth_ne_m, r.delivered, r.failure
+        heading_err = r.pad_heading_error_deg
         used = {
             "markers_used": r.markers_used,
             "uwb_used": r.uwb_used,
@@ -126,6 +127,7 @@ async def _one_landing(
     except Exception as exc:  # a landing that cannot be flown is a result, not the end of the campaign
         log.exception("landing seed %d failed", d.seed)
         err, td, delivered, failure = math.nan, (math.nan, math.nan), False, f"{type(exc).__name__}: {exc}"
+        heading_err = math.nan
         used = {
             "markers_used": 0,
             "uwb_used": 0,
@@ -150,7 +152,7 @@ async def _one_landing(
         "pad_displacement_m": disp,
         "wind_m_s": d.wind_speed_m_s if rv.autopilot_name == "ardupilot" else 0.0,
         **used,
-    }
+    } | ({"heading_error_deg": heading_err} if config.mission.pad.heading_deg is not None else {})
 
 
 async def run_real_landing_campaign_async(
@@ -178,7 +180,8 @@ async def run_real_landing_campaign_async(
     async def fly_all(rv: RealVehicle, todo: list[tuple[Draw, str]]) -> None:
         nonlocal done
         for d, v in todo:
-            row = await _one_landing(rv, configs[v], d, rel_pad)
+            cfg = with_pad_heading(configs[v], d.seed) if v in HEADING_VARIANTS else configs[v]
+            row = await _one_landing(rv, cfg, d, rel_pad)
             row["on_pad"] = on_pad(row["north_m"], row["east_m"], pad_half, row["delivered"])
             landings[v].append(row)
             done += 1

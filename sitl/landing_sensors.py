@@ -285,11 +285,12 @@ def sim_landing_kit(
     from companion.vision.pad import PadLayout
     from companion_sitl.camera import SimulatedCamera
     from companion_sitl.landing_sensors import SimCameraSource, SimUwbSource
+    from companion_sitl.scoring import true_pad_heading_rad
     from companion_sitl.uwb import SimulatedUwb
 
     lc = config.landing
     seed = config.sim.seed
-    T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0)
+    T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0, yaw_rad=true_pad_heading_rad(config))
     mount = downward_mount(lc.camera_offset_body_m)
     cam_model = load_default_camera()
     layout = PadLayout()

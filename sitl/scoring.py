@@ -14,8 +14,10 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
+from companion.config import CompanionConfig, PadConfig
 from companion.delivery.mission import DeliveryMission
 from companion.events import Phase
+from companion.geometry.heading import heading_difference_rad
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath
 
@@ -71,3 +73,24 @@ class PathScorer:
 
 def rms(xs: list[float]) -> float:
     return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
+
+
+def simulated_pad(config: CompanionConfig) -> PadConfig:
+    """The configured pad the simulator places: the alternate with ``sim.pad_at_alternate``."""
+    alternate = config.mission.alternate_pad
+    return alternate if config.sim.pad_at_alternate and alternate is not None else config.mission.pad
+
+
+def true_pad_heading_rad(config: CompanionConfig) -> float:
+    """The simulated pad's true heading (NED): the configured heading of the pad the simulator
+    places plus ``sim.pad_heading_offset_deg``; a pad without a heading lies as it always has
+    (heading 0: its up edge north)."""
+    pad = simulated_pad(config)
+    if pad.heading_deg is None:
+        return 0.0
+    return math.radians(pad.heading_deg + config.sim.pad_heading_offset_deg)
+
+
+def heading_error_deg(yaw_rad: float, pad_heading_rad: float) -> float:
+    """Touchdown heading error on truth: |vehicle yaw - pad heading|, the short way round (deg)."""
+    return abs(math.degrees(heading_difference_rad(yaw_rad, pad_heading_rad)))

@@ -57,6 +57,7 @@ class Touchdown:
     north_m: float
     east_m: float
     payload_released: bool
+    yaw_rad: float = math.nan  # true heading at touchdown (NED)
 
 
 @dataclass
@@ -557,7 +558,7 @@ class SimVehicle:
                 self._landed_since = t
                 if self._airborne:
                     self._airborne = False
-                    self.touchdowns.append(Touchdown(t, self.pn, self.pe, self.payload_released))
+                    self.touchdowns.append(Touchdown(t, self.pn, self.pe, self.payload_released, self.yaw))
                     self._text(f"landed at N {self.pn:.2f} E {self.pe:.2f}")
             if (
                 self.armed

@@ -103,6 +103,13 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
             f"{s['failed']} of {s['n']}",
         )
     console.print(table)
+    for v, s in result["summary"].items():
+        if "heading_mean_deg" in s:  # a pad with a heading (docs/pad-heading.md)
+            console.print(
+                f"{v}: heading error at touchdown mean {s['heading_mean_deg']:.2f} deg, p90 "
+                f"{s['heading_p90_deg']:.2f} deg, max {s['heading_max_deg']:.2f} deg, within 3 deg "
+                f"{s['heading_within_3deg_pct']:.0f} %"
+            )
     console.print(f"written: {', '.join(str(f) for f in files)}")
     for line in result.get("lost", []):
         print(f"companion campaign landing: {line}", file=sys.stderr)

@@ -19,9 +19,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
+from companion.delivery.pad_heading import PadHeadingEstimator
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
+from companion.geometry.heading import pad_heading_rad
+from companion.geometry.mounts import pad_pose_ned
 from companion.geometry.rotations import euler_to_rotmat
 from companion.geometry.se3 import Transform
 
@@ -35,6 +38,9 @@ class FusionSetup:
     T_pad_anchors: Transform = field(default_factory=Transform.identity)  # UWB anchor frame in the pad frame
     ekf: EkfConfig = field(default_factory=EkfConfig)
     history_s: float = 1.0  # how late a measurement may arrive and still be applied at its stamp
+    # a pad with a heading (mission.pad.heading_deg, in T_world_pad's yaw): the camera measures it
+    # (delivery.pad_heading) within this bound of the configured one; None: no heading measured
+    heading_tolerance_rad: float | None = None
 
 
 @dataclass
@@ -65,7 +71,11 @@ class LandingFusion:
         self.setup = setup
         self.ekf = DeliveryEkf(setup.ekf, T_body_camera=setup.T_body_camera, pad_down_m=float(setup.T_world_pad.t[2]))
         self.buffer = DelayedMeasurementBuffer(self.ekf, start_time_s, history_s=setup.history_s)
+        self.T_world_pad = setup.T_world_pad  # its rotation follows the measured pad heading
         self.T_world_anchors = setup.T_world_pad @ setup.T_pad_anchors
+        self.heading: PadHeadingEstimator | None = None
+        if setup.heading_tolerance_rad is not None:
+            self.heading = PadHeadingEstimator(pad_heading_rad(setup.T_world_pad.R), setup.heading_tolerance_rad)
         self.counters = FusionCounters()
         self._vel = np.zeros(3)
         self._rates = np.zeros(3)
@@ -81,6 +91,8 @@ class LandingFusion:
         if isinstance(sample, Attitude):
             self._rates = np.array([sample.rollspeed_rad_s, sample.pitchspeed_rad_s, sample.yawspeed_rad_s])
             self._euler = np.array([sample.roll_rad, sample.pitch_rad, sample.yaw_rad])
+            if self.heading is not None:
+                self.heading.on_attitude(sample.time_s, sample.roll_rad, sample.pitch_rad, sample.yaw_rad)
             self._predict(sample.time_s)
         elif isinstance(sample, PositionNed):
             self._vel = np.array([sample.north_m_s, sample.east_m_s, sample.down_m_s])
@@ -97,13 +109,30 @@ class LandingFusion:
         if getattr(obs, "ambiguous", False):
             self.counters.markers_ambiguous += 1
             return None  # never fused blindly (the IPPE flip)
-        out = self.buffer.update_aruco(obs.time_s, obs.T_camera_pad, self.setup.T_world_pad)  # type: ignore[attr-defined]
+        if self.heading is not None:
+            self._measure_heading(obs)
+        out = self.buffer.update_aruco(obs.time_s, obs.T_camera_pad, self.T_world_pad)  # type: ignore[attr-defined]
         self.counters.count("aruco", out)
         if out is UpdateOutcome.ACCEPTED:
             self.counters.markers_used += 1
             self._last_marker_s = obs.time_s  # type: ignore[attr-defined]
             self.last_sighting = self._sighting(obs)
         return out
+
+    def _measure_heading(self, obs: object) -> None:
+        """The pad's heading from this observation; once measured, the pad's pose the EKF fuses
+        against (and the anchors fixed to it) turns to it: a dock placed a few degrees off its
+        configured heading would otherwise pull the EKF's yaw by that much."""
+        assert self.heading is not None
+        T_camera_pad: Transform = obs.T_camera_pad  # type: ignore[attr-defined]
+        if not self.heading.on_observation(obs.time_s, T_camera_pad.R, self.setup.T_body_camera.R):  # type: ignore[attr-defined]
+            return
+        h = self.heading.measured_rad
+        if h is None:
+            return
+        T = self.setup.T_world_pad
+        self.T_world_pad = pad_pose_ned(float(T.t[0]), float(T.t[1]), float(T.t[2]), yaw_rad=h)
+        self.T_world_anchors = self.T_world_pad @ self.setup.T_pad_anchors
 
     def _sighting(self, obs: object) -> PadSighting:
         T_camera_pad: Transform = obs.T_camera_pad  # type: ignore[attr-defined]

@@ -35,6 +35,7 @@ from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
+from companion.geometry.heading import yaw_toward
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.geofence import FenceNed, fence_in_ned, legs_problem
 from companion.guidance.path import DeliveryPath, PathGeometryError
@@ -102,6 +103,8 @@ class MissionInputs:
     # mission runs without the no-release-off-the-pad policy's inputs (judged as no lock)
     pad_lock: PadLock | None = None
     wind: Wind | None = None  # the autopilot's wind estimate (the wind go / no-go)
+    # the heading of the pad landed on (NED rad: measured, else configured); None: no alignment
+    pad_heading_rad: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,6 +194,7 @@ class DeliveryMission:
         self._touchdown_lock: tuple[bool, str] = (True, "")
         self.fence_cfg = fence if fence is not None and fence.enabled else None
         self.limits = limits
+        self._yaw_sp: tuple[float, float] | None = None  # (time, yaw) of the last setpoint (pad heading)
         self._fence_ned: FenceNed | None = None
         self._home_geo: GeoPoint | None = None
         self._home_ned = (0.0, 0.0, 0.0)
@@ -364,6 +368,7 @@ class DeliveryMission:
         handler = getattr(self, f"_do_{self.phase.value}", None)
         if handler is not None:
             setpoint, request, lyap = handler(inp)
+        setpoint = self._align_with_pad(inp, setpoint)
         if request is None and self._retry is not None and self._pending is None:
             # (a phase change drops the retry: see _goto)
             kind, alt, not_before = self._retry
@@ -1201,6 +1206,28 @@ class DeliveryMission:
         v_ned = self.frame.vector_to_ned(fs.velocity)
         yaw = self.frame.yaw_to_ned(0.0)  # psi_r = 0 in F_I (delivery 4.3)
         return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), yaw), lyap
+
+    def _align_with_pad(self, inp: MissionInputs, sp: VelocitySetpoint | None) -> VelocitySetpoint | None:
+        """A pad with a heading: at the approach height (hold, search) and in the final descent
+        onto it, the yaw setpoint turns from where it was to the pad's heading the shortest way,
+        at most limits.max_yaw_rate_deg_s, so the vehicle touches down aligned (docs/pad-heading.md).
+        Elsewhere the path's heading (delivery 4.3) is kept."""
+        target = inp.pad_heading_rad
+        if sp is None or target is None or self.phase not in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH):
+            self._yaw_sp = (inp.time_s, sp.yaw_rad) if sp is not None else None
+            return sp
+        rate = math.radians(self.limits.max_yaw_rate_deg_s if self.limits is not None else 60.0)
+        prev = self._yaw_sp
+        if prev is None:
+            est = inp.estimate
+            start = est.yaw_rad if est is not None else sp.yaw_rad
+            step = 0.0
+        else:
+            start = prev[1]
+            step = rate * min(max(inp.time_s - prev[0], 0.0), 1.0)
+        yaw = yaw_toward(start, target, step)
+        self._yaw_sp = (inp.time_s, yaw)
+        return VelocitySetpoint(sp.north_m_s, sp.east_m_s, sp.down_m_s, yaw)
 
     def _check_link(self, inp: MissionInputs) -> bool:
         st = inp.status

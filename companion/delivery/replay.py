@@ -234,6 +234,7 @@ class _ReplayShell:
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
+        from companion.delivery.pad_heading import pad_yaw_and_tolerance_rad
         from companion.estimation.ekf import EkfConfig
         from companion.geometry.mounts import pad_pose_ned
 
@@ -245,10 +246,12 @@ class _ReplayShell:
             )
         assert self.mission.frame is not None
         pad = self.mission.frame.pad_ned
-        T_world_pad = pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2]))
+        yaw, heading_tol = pad_yaw_and_tolerance_rad(self.config.mission, self.mission.pad_index)
+        T_world_pad = pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2]), yaw_rad=yaw)
         try:
             setup = FusionSetup(
                 T_world_pad=T_world_pad,
+                heading_tolerance_rad=heading_tol,
                 T_body_camera=transform_from_json(rec["T_body_camera"]),
                 T_pad_anchors=transform_from_json(rec["T_pad_anchors"]),
                 ekf=EkfConfig(**rec["ekf"]),
@@ -320,6 +323,7 @@ class _ReplayShell:
     def tick(self, now: float, link_ok: bool, wind: Any = None) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
+        from companion.delivery.pad_heading import landing_heading_rad
         from companion.guidance.limits import clamp_velocity
 
         mission, tc = self.mission, self.telemetry
@@ -332,7 +336,12 @@ class _ReplayShell:
             fused = self.fusion.estimate() if self.fusion is not None else None
             if fused is not None and not mission.summary.delivered and not mission.returning:
                 estimate = fused
-        inp = MissionInputs(now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now), wind=wind)
+        heading = landing_heading_rad(
+            self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
+        )
+        inp = MissionInputs(
+            now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now), wind=wind, pad_heading_rad=heading
+        )
         out = mission.step(inp)
         setpoint, clamped = None, False
         if self.velocity_bias is not None:

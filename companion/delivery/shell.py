@@ -44,6 +44,7 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
+from companion.delivery.pad_heading import landing_heading_rad
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.estimation.ekf import UpdateOutcome
@@ -460,7 +461,16 @@ class DeliveryShell:
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
             inp = MissionInputs(
-                now, self.estimate, tc.status, tc.home, self.autopilot.link_ok, self._pad_lock(now), wind=tc.wind
+                now,
+                self.estimate,
+                tc.status,
+                tc.home,
+                self.autopilot.link_ok,
+                self._pad_lock(now),
+                wind=tc.wind,
+                pad_heading_rad=landing_heading_rad(
+                    self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
+                ),
             )
             out = mission.step(inp)
             for ev in out.events:
@@ -524,6 +534,7 @@ class DeliveryShell:
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
+        from companion.delivery.pad_heading import pad_yaw_and_tolerance_rad
         from companion.estimation.ekf import EkfConfig
         from companion.geometry.mounts import pad_pose_ned
 
@@ -536,8 +547,10 @@ class DeliveryShell:
         if restart:
             self.autopilot.telemetry.remove_listener(self.fusion.on_sample)
         self._fusion_pad_index = self.mission.pad_index
+        yaw, heading_tol = pad_yaw_and_tolerance_rad(self.config.mission, self.mission.pad_index)
         setup = FusionSetup(
-            T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2])),
+            T_world_pad=pad_pose_ned(float(pad[0]), float(pad[1]), float(pad[2]), yaw_rad=yaw),
+            heading_tolerance_rad=heading_tol,
             T_body_camera=kit.T_body_camera,
             T_pad_anchors=kit.T_pad_anchors,
             ekf=kit.ekf_config
