@@ -40,6 +40,8 @@ PYTHON_VERSION = "3.11"  # Debian bookworm's python3, and the Dockerfile's base 
 AARCH64_PLATFORMS = (*(f"manylinux_2_{minor}_aarch64" for minor in range(36, 16, -1)), "manylinux2014_aarch64")
 DEBIAN_PACKAGES = ("python3", "python3-venv", "python3-pip", "ca-certificates", "git")
 SRC_IN_ROOT = "/src"  # where the project is copied inside the root
+HOST_CA_BUNDLE = "/etc/ssl/certs/ca-certificates.crt"
+ROOT_CA_BUNDLE = "/etc/ssl/certs/host-ca-bundle.crt"
 
 
 def runtime_requirements(pyproject: Path = REPO / "pyproject.toml") -> list[str]:
@@ -157,11 +159,14 @@ def build_root(root: Path) -> None:
 
 
 def copy_project(root: Path) -> str:
-    """Copy the git-tracked files of the checkout into the root; return the commit (with -dirty if changed)."""
+    """Copy the git-tracked files of the checkout into the root; return the commit (with -dirty if changed).
+
+    The root's .venv is kept, so a second run reinstalls only what changed."""
     dest = root / SRC_IN_ROOT.lstrip("/")
-    if dest.exists():
-        shutil.rmtree(dest)
-    dest.mkdir(parents=True)
+    dest.mkdir(parents=True, exist_ok=True)
+    for old in dest.iterdir():
+        if old.name != ".venv":
+            shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
     files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, check=True, capture_output=True).stdout
     for rel in files.decode().split("\0"):
         if rel and (REPO / rel).is_file():
@@ -176,8 +181,10 @@ def copy_project(root: Path) -> str:
 
 @contextlib.contextmanager
 def mounted(root: Path) -> Iterator[None]:
-    """/proc, /sys, /dev, /dev/pts, /dev/shm and the host's resolv.conf inside the root, undone on exit."""
+    """/proc, /sys, /dev, the host's resolv.conf and CA bundle inside the root; the mounts undone on exit."""
     shutil.copy2("/etc/resolv.conf", root / "etc/resolv.conf")
+    # the root trusts what the host trusts (a network behind a TLS-inspecting proxy has its own CA)
+    shutil.copy2(HOST_CA_BUNDLE, root / ROOT_CA_BUNDLE.lstrip("/"))
     mounts = [("proc", "proc", ["-t", "proc"]), ("sys", "sys", ["-t", "sysfs"]), ("/dev", "dev", ["--rbind"])]
     done: list[Path] = []
     try:
@@ -195,12 +202,15 @@ def mounted(root: Path) -> Iterator[None]:
 def in_root(root: Path, script: str, log: Path) -> int:
     """Run a shell script inside the root (aarch64 binaries, through qemu-user); tee its output to log."""
     env = {"PATH": "/usr/local/bin:/usr/bin:/bin", "HOME": "/root", "LANG": "C.UTF-8", "MPLBACKEND": "Agg",
-           "PIP_DISABLE_PIP_VERSION_CHECK": "1", "PYTHONUNBUFFERED": "1"}  # fmt: skip
+           "PIP_DISABLE_PIP_VERSION_CHECK": "1", "PYTHONUNBUFFERED": "1", "PIP_DEFAULT_TIMEOUT": "180",
+           "PIP_CERT": ROOT_CA_BUNDLE, "SSL_CERT_FILE": ROOT_CA_BUNDLE}  # fmt: skip
     print(f"[arm64] $ {script}", flush=True)
     with log.open("a") as f:
         f.write(f"\n$ {script}\n")
         f.flush()
-        proc = subprocess.Popen(["chroot", str(root), "/bin/sh", "-c", f"cd {SRC_IN_ROOT} && {script}"],
+        # chroot by its host path: env's PATH (the root's) is the one Popen searches
+        chroot = shutil.which("chroot") or "/usr/sbin/chroot"
+        proc = subprocess.Popen([chroot, str(root), "/bin/sh", "-c", f"cd {SRC_IN_ROOT} && {script}"],
                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
         assert proc.stdout is not None
         for line in proc.stdout:
