@@ -41,6 +41,7 @@ import json
 import math
 import numbers
 import re
+import threading
 import types
 import typing
 from collections.abc import Callable
@@ -426,6 +427,9 @@ class Envelope:
 _Conv = Callable[[Any, str], Any]
 _decoders: dict[type, _Conv] = {}
 _encoders: dict[type, _Conv] = {}
+# Building a codec registers a forwarding stub first (recursive types); another thread must wait for
+# the finished codec, not call the stub (endless recursion), so lookups and builds hold this lock.
+_codec_lock = threading.RLock()
 
 
 def _dec_float(v: Any, path: str) -> float:
@@ -525,6 +529,11 @@ def _fixed_tuple_dec(items: list[_Conv]) -> _Conv:
 
 
 def _dataclass_decoder(cls: type) -> _Conv:
+    with _codec_lock:
+        return _build_dataclass_decoder(cls)
+
+
+def _build_dataclass_decoder(cls: type) -> _Conv:
     if cls in _decoders:
         return _decoders[cls]
     hints = typing.get_type_hints(cls)
@@ -604,6 +613,11 @@ def _tuple_enc(items: list[_Conv], variadic: bool = False) -> _Conv:
 
 
 def _dataclass_encoder(cls: type) -> _Conv:
+    with _codec_lock:
+        return _build_dataclass_encoder(cls)
+
+
+def _build_dataclass_encoder(cls: type) -> _Conv:
     if cls in _encoders:
         return _encoders[cls]
     _encoders[cls] = lambda v, p: _encoders[cls](v, p)

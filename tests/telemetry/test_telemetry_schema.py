@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+import time
+from dataclasses import dataclass
 
 import pytest
 from hypothesis import given, settings
@@ -13,6 +16,7 @@ from hypothesis import strategies as st
 from companion.autopilot.types import FlightMode, GlobalPosition, GpsRaw, LandedState, StatusText, VehicleStatus
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
+from companion.telemetry import schema
 from companion.telemetry.schema import (
     ESTIMATE_STATES,
     MAX_PAYLOAD_BYTES,
@@ -257,3 +261,31 @@ def test_encode_accepts_numpy_scalars_and_refuses_wrong_types() -> None:
         encode("d", LogMessage(0.0, 6, 123), 0, 0.0)  # type: ignore[arg-type]
     with pytest.raises(SchemaError, match="armed"):
         encode("d", StateMessage(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, armed=1), 0, 0.0)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class _Pair:
+    a_m: float
+    b_m: float
+
+
+def test_a_codec_being_built_is_waited_for_not_called(monkeypatch) -> None:
+    # A thread that needs a codec another thread is building must wait for it: calling the
+    # forwarding stub meanwhile recursed without end (seen with five publisher threads on a slow core).
+    building, real_hints = threading.Event(), schema.typing.get_type_hints
+
+    def slow_hints(cls, *args, **kwargs):
+        if cls is _Pair:
+            building.set()
+            time.sleep(0.3)
+        return real_hints(cls, *args, **kwargs)
+
+    monkeypatch.setattr(schema.typing, "get_type_hints", slow_hints)
+    builder = threading.Thread(target=schema._dataclass_encoder, args=(_Pair,))
+    builder.start()
+    assert building.wait(5.0)
+    try:
+        assert schema._dataclass_encoder(_Pair)(_Pair(1.0, 2.0), "pair") == {"a_m": 1.0, "b_m": 2.0}
+        assert schema._dataclass_decoder(_Pair)({"a_m": 1.0, "b_m": 2.0}, "pair") == _Pair(1.0, 2.0)
+    finally:
+        builder.join()
