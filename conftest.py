@@ -48,9 +48,9 @@ def tier_of(item: pytest.Item) -> str:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     tier = config.getoption("--tier")
     for item in items:
-        if tier_of(item) == "firmware":
+        if any(Path(item.path).is_relative_to(d) for d in FIRMWARE_DIRS):
             # one real SITL at a time (fixed ports): with pytest-xdist (`-n 2 --dist loadgroup`) the
-            # firmware tests run in order on one worker while the other runs the rest
+            # real-SITL tests run in order on one worker while the other runs the rest
             item.add_marker(pytest.mark.xdist_group(SITL_GROUP))
     if tier == "all":
         return
