@@ -15,7 +15,10 @@ whatever paths are given (``pytest --tier firmware`` would otherwise read ``firm
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -45,13 +48,19 @@ def tier_of(item: pytest.Item) -> str:
     return "fast"
 
 
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """One real SITL at a time (fixed ports): with pytest-xdist (`-n 2 --dist loadgroup`) the
+    real-SITL tests are one group, run in order on one worker while the other runs the rest. Marked
+    as each test is collected, before xdist's worker names the groups."""
+    if any(Path(item.path).is_relative_to(d) for d in FIRMWARE_DIRS):
+        item.add_marker(pytest.mark.xdist_group(SITL_GROUP))
+
+
+@pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     tier = config.getoption("--tier")
-    for item in items:
-        if any(Path(item.path).is_relative_to(d) for d in FIRMWARE_DIRS):
-            # one real SITL at a time (fixed ports): with pytest-xdist (`-n 2 --dist loadgroup`) the
-            # real-SITL tests run in order on one worker while the other runs the rest
-            item.add_marker(pytest.mark.xdist_group(SITL_GROUP))
+    if os.environ.get("PYTEST_XDIST_WORKER") and config.getvalue("dist") == "no":
+        _name_sitl_group(items)
     if tier == "all":
         return
     keep: list[pytest.Item] = []
@@ -77,3 +86,29 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         # raising the priority back needs root; without it the CPU is shared evenly
         with contextlib.suppress(PermissionError):
             os.setpriority(os.PRIO_PROCESS, 0, want)
+
+
+def _name_sitl_group(items: list[pytest.Item]) -> None:
+    """xdist's loadgroup schedules by a ``@group`` suffix on each test id, which xdist 3.8 sets in
+    ``item._nodeid``; pytest 9.2 keeps the id in ``item._id``, so the suffix is lost and the group
+    split over both workers. Set it where pytest reads it (once: a fixed xdist sets it first)."""
+    from _pytest.nodeid import coerce_node_id
+
+    suffix = f"@{SITL_GROUP}"
+    for item in items:
+        if item.get_closest_marker("xdist_group") is not None and not item.nodeid.endswith(suffix):
+            item._id = coerce_node_id(item.nodeid + suffix)  # type: ignore[attr-defined]
+
+
+@pytest.fixture(autouse=True)
+def _one_real_sitl_at_a_time(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Whatever the scheduling, a real-SITL test waits for the other worker's to end (fixed ports)."""
+    if not any(Path(request.node.path).is_relative_to(d) for d in FIRMWARE_DIRS):
+        yield
+        return
+    with open(Path(tempfile.gettempdir()) / "companion-real-sitl.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

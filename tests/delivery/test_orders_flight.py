@@ -227,6 +227,9 @@ def test_fly_orders_answers_and_ends_cleanly_on_ctrl_c(mav, udp_port, tmp_path) 
             out, err = proc.communicate(timeout=30)
     assert proc.returncode == exits.OK, (out, err[-3000:])
     assert "taking delivery orders for sitl1" in out and "REFUSED: out of range" in out
-    assert "orders: 0 accepted, 1 refused, 0 flown" in out
+    # orders sent before the vehicle was ready were refused too ("vehicle not ready"): a loaded
+    # machine makes more of them
+    counts = re.search(r"orders: 0 accepted, (\d+) refused, 0 flown", out)
+    assert counts is not None and int(counts.group(1)) >= 1, out
     rows = list(csv.DictReader((tmp_path / "s" / "orders.csv").open()))
     assert rows[-1]["order_id"] == "o-far" and rows[-1]["accepted"] == "0"
