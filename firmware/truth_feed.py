@@ -238,6 +238,12 @@ class MavlinkTruth:
             timeout_s,
         )
 
+    def send_param(self, name: str, value: float) -> None:
+        """PARAM_SET on this link without waiting for the echo (a simulator setting driven several
+        times a second, such as the weather of lab/real_weather.py)."""
+        ts, tc = self._target or (0, 0)
+        self._conn.mav.param_set_send(ts, tc, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+
     def command(self, command: int, *params: float, timeout_s: float = 5.0) -> int:
         """COMMAND_LONG on this link (a test harness acting as a ground station, e.g.
         MAV_CMD_DO_SET_HOME between campaign landings), resent every 0.5 s until acknowledged;

@@ -90,6 +90,9 @@ class _GaussMarkov:
         return self.x
 
 
+GaussMarkov = _GaussMarkov  # the same process where a harness drives a real SITL (lab/real_weather.py)
+
+
 @dataclass
 class SimVehicle:
     cfg: SimConfig
