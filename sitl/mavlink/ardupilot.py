@@ -90,7 +90,6 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
     """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
     FENCE_VERTEX_COUNT_PER_ITEM = False  # write_fence checks the polygons once the upload is complete
-    MISSION_HOME_ITEM = True  # item 0 of a download is the home (sitl/mavlink/mission.py)
 
     dialect: Dialect = "ardupilot"
     SOFTWARE_VERSION: ClassVar[int] = (4 << 24) | (8 << 16) | (0 << 8) | 0  # 4.8.0 dev
@@ -103,6 +102,7 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
         self._fltmode_slot = fltmode_slot(self._rc[4])
 
     def _mission_home_item(self) -> StoredMissionItem:
+        """Item 0 of a download is the home, in MAV_FRAME_GLOBAL (altitude AMSL; sitl/mavlink/mission.py)."""
         h = self.vehicle.home()
         home = self.cfg.home if h is None else h
         return StoredMissionItem(

@@ -9,7 +9,7 @@ MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y. PX4 also refuses the terrain frames an
 not list for the item's frame (MAV_MISSION_UNSUPPORTED): no NAV_PAYLOAD_PLACE, and NAV_RETURN_TO_LAUNCH
 or DO_GRIPPER only in MAV_FRAME_MISSION, as QGroundControl sends them.
 
-ArduPilot (``MISSION_HOME_ITEM``): item 0 is its home. What a GCS uploads as item 0 is not kept;
+ArduPilot (``_mission_home_item``): item 0 is its home. What a GCS uploads as item 0 is not kept;
 a download answers item 0 with the current home (AP_Mission::read_cmd_from_storage), so the count
 is the operator's items + 1, and 1 for an empty mission. PX4 keeps the items as sent, from seq 0."""
 
@@ -53,16 +53,16 @@ class MissionServer:
 
     _enc: Any
     _send: Any
-    MISSION_HOME_ITEM = False  # ArduPilot: item 0 is the home (see the module's docstring)
 
     mission_items: tuple[StoredMissionItem, ...] = ()  # what the vehicle holds (ArduPilot: without home)
     _mission_in: list[StoredMissionItem | None] | None = None  # an upload in progress
     mission_uploads = 0
     mission_downloads = 0
 
-    def _mission_home_item(self) -> StoredMissionItem:
-        """ArduPilot's item 0: the home, in MAV_FRAME_GLOBAL (altitude AMSL)."""
-        raise NotImplementedError
+    def _mission_home_item(self) -> StoredMissionItem | None:
+        """The item 0 a download starts with, the vehicle's home (ArduPilot), or None: the mission
+        holds only the operator's items (PX4)."""
+        return None
 
     def _mission_message(self, m: Any) -> bool:
         """Handle a message of the mission protocol for mission_type 0; False when it is not one."""
@@ -122,9 +122,8 @@ class MissionServer:
         return False
 
     def _served(self) -> tuple[StoredMissionItem, ...]:
-        if self.MISSION_HOME_ITEM:
-            return (self._mission_home_item(), *self.mission_items)
-        return self.mission_items
+        home = self._mission_home_item()
+        return self.mission_items if home is None else (home, *self.mission_items)
 
     # PX4 (mavlink_mission.cpp parse_mavlink_mission_item): the commands it takes in each frame;
     # None: any (ArduPilot takes what its mission storage can hold)
@@ -149,7 +148,7 @@ class MissionServer:
     def _mission_commit(self, src_s: int, src_c: int) -> None:
         items = [it for it in self._mission_in or [] if it is not None]
         self._mission_in = None
-        self.mission_items = tuple(items[1:] if self.MISSION_HOME_ITEM else items)
+        self.mission_items = tuple(items[1:] if self._mission_home_item() is not None else items)
         self.mission_uploads += 1
         self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
 
