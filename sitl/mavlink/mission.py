@@ -1,7 +1,5 @@
-"""The sim vehicle's mission storage (mission_type MAV_MISSION_TYPE_MISSION) and its side of the
-MAVLink mission protocol, as the firmware answers a GCS: MISSION_COUNT -> MISSION_REQUEST_INT for
-each item -> MISSION_ACK once the last has come (the stored mission is replaced only then);
-MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST(_INT) -> MISSION_ITEM_INT; MISSION_CLEAR_ALL.
+"""The sim vehicle's mission storage (mission_type MAV_MISSION_TYPE_MISSION), answered over the
+mission protocol as the firmware answers a GCS (sitl/mavlink/item_transfer.py).
 
 An item in a frame neither global nor MAV_FRAME_MISSION is answered MAV_MISSION_UNSUPPORTED_FRAME
 (PX4 mavlink_mission.cpp; ArduPilot's mission_cmd conversion), a global position out of range
@@ -21,6 +19,8 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion_sitl.mavlink.item_transfer import ItemTransfer
 
 MISSION = mavlink.MAV_MISSION_TYPE_MISSION
 GLOBAL_FRAMES = (
@@ -55,71 +55,37 @@ class MissionServer:
     _send: Any
 
     mission_items: tuple[StoredMissionItem, ...] = ()  # what the vehicle holds (ArduPilot: without home)
-    _mission_in: list[StoredMissionItem | None] | None = None  # an upload in progress
     mission_uploads = 0
-    mission_downloads = 0
+    _mission_t: ItemTransfer[StoredMissionItem] | None = None
 
     def _mission_home_item(self) -> StoredMissionItem | None:
         """The item 0 a download starts with, the vehicle's home (ArduPilot), or None: the mission
         holds only the operator's items (PX4)."""
         return None
 
+    @property
+    def mission_downloads(self) -> int:
+        return 0 if self._mission_t is None else self._mission_t.downloads
+
     def _mission_message(self, m: Any) -> bool:
         """Handle a message of the mission protocol for mission_type 0; False when it is not one."""
-        if getattr(m, "mission_type", 0) != MISSION:
-            return False
-        t = m.get_type()
-        src_s, src_c = m.get_srcSystem(), m.get_srcComponent()
-        if t == "MISSION_COUNT":
-            self._mission_in = [None] * m.count
-            if m.count == 0:
-                self._mission_commit(src_s, src_c)
-            else:
-                self._send(self._enc.mission_request_int_encode(src_s, src_c, 0, MISSION))
-            return True
-        if t == "MISSION_ITEM_INT":
-            items = self._mission_in
-            if items is None or not 0 <= m.seq < len(items):
-                self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_OPERATION_CANCELLED)
-                return True
-            result = self._item_problem(m)
-            if result is not None:
-                self._mission_in = None
-                self._mission_ack(src_s, src_c, result)
-                return True
-            items[m.seq] = StoredMissionItem(
-                m.frame, m.command, m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z, m.autocontinue
-            )
-            missing = [i for i, it in enumerate(items) if it is None]
-            if missing:
-                self._send(self._enc.mission_request_int_encode(src_s, src_c, missing[0], MISSION))
-            else:
-                self._mission_commit(src_s, src_c)
-            return True
-        if t == "MISSION_REQUEST_LIST":
-            self.mission_downloads += 1
-            self._send(self._enc.mission_count_encode(src_s, src_c, len(self._served()), MISSION))
-            return True
-        if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
-            served = self._served()
-            if not 0 <= m.seq < len(served):
-                self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_INVALID_SEQUENCE)
-                return True
-            it = served[m.seq]
-            self._send(
-                self._enc.mission_item_int_encode(
-                    src_s, src_c, m.seq, it.frame, it.command, 0, it.autocontinue,
-                    it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z, MISSION,
-                )
+        if self._mission_t is None:
+            self._mission_t = ItemTransfer(
+                MISSION,
+                self._send,
+                self._enc,
+                item_of=lambda m: StoredMissionItem(
+                    m.frame, m.command, m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z, m.autocontinue
+                ),
+                problem=self._item_problem,
+                commit=self._mission_commit,
+                served=self._served,
+                wire=lambda it: (
+                    it.frame, it.command, it.autocontinue, it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z
+                ),
+                clear=self._mission_clear,
             )  # fmt: skip
-            return True
-        if t == "MISSION_ACK":
-            return True  # the end of a download
-        if t == "MISSION_CLEAR_ALL":
-            self.mission_items = ()
-            self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
-            return True
-        return False
+        return self._mission_t.handle(m)
 
     def _served(self) -> tuple[StoredMissionItem, ...]:
         home = self._mission_home_item()
@@ -145,12 +111,10 @@ class MissionServer:
                 return int(mavlink.MAV_MISSION_INVALID_PARAM6_Y)
         return None
 
-    def _mission_commit(self, src_s: int, src_c: int) -> None:
-        items = [it for it in self._mission_in or [] if it is not None]
-        self._mission_in = None
+    def _mission_commit(self, items: list[StoredMissionItem]) -> int:
         self.mission_items = tuple(items[1:] if self._mission_home_item() is not None else items)
         self.mission_uploads += 1
-        self._mission_ack(src_s, src_c, mavlink.MAV_MISSION_ACCEPTED)
+        return int(mavlink.MAV_MISSION_ACCEPTED)
 
-    def _mission_ack(self, src_s: int, src_c: int, result: int) -> None:
-        self._send(self._enc.mission_ack_encode(src_s, src_c, result, MISSION))
+    def _mission_clear(self) -> None:
+        self.mission_items = ()
