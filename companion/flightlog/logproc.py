@@ -9,16 +9,20 @@ writer thread (:class:`~companion.flightlog.handover.SharedWriter`) posts each l
 (:func:`flush_current`). Closing a log is a request: it returns once the child has closed the file
 and answered with its counts.
 
-A parent killed with ``kill -9`` loses only the rows it had not handed over yet (at most one
-flush period): the child sees its socket close, writes everything it was sent and closes its
-files. If the child cannot be started, or dies (a failed send, an answer that does not come),
-every log continues in the parent (the in-process path), said once at ERROR level with the reason;
-the batches not yet sent are written there. Set :data:`IN_PROCESS` (or
+Batches are sent as soon as they are posted, also while the child is still starting: the socket
+holds them until it reads them. A parent killed with ``kill -9`` (even before the child is ready)
+loses only the rows it had not handed over yet (at most one flush period): the child sees its
+socket close, writes everything it was sent and closes its files. If the child cannot be started,
+or dies (a failed send, an answer that does not come, no ready message within
+:data:`START_TIMEOUT_S`), every log continues in the parent (the in-process path), said once at
+ERROR level with the reason; the batches not yet sent are written there, and so are those sent
+before the child said it was ready (it never read them). Set :data:`IN_PROCESS` (or
 ``COMPANION_LOG_IN_PROCESS=1``) to write in process from the start.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import pickle
@@ -27,6 +31,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, ClassVar
@@ -94,7 +99,9 @@ class LogProcess:
         self._lock = threading.Lock()
         self._outbox: list[Op] = []
         self._next_id = 0
-        self.ready = False  # the child said it is ready (it has been handed batches since)
+        self.ready = False  # the child said it is ready (it reads what it is sent from then on)
+        self._started_s = time.monotonic()
+        self._unconfirmed: list[Op] = []  # sent before the child said it is ready
         self.dead = False
         self.reason = ""
         self._returned: dict[int, list[Op]] = defaultdict(list)
@@ -218,10 +225,14 @@ class LogProcess:
         assert sock is not None
         try:
             if not self.ready:
-                msg = recv(sock) if select.select([sock], [], [], START_TIMEOUT_S)[0] else None
-                if msg is None or msg[0] != "ready":
+                self._read_available()  # its ready message, if it has come
+                if not self.ready and self.child.poll() is not None:
+                    raise EOFError("exited before it was ready")
+                left_s = START_TIMEOUT_S - (time.monotonic() - self._started_s)
+                if not self.ready and left_s <= 0.0:
                     raise EOFError(f"no ready message in {START_TIMEOUT_S:g} s")
-                self.ready = True
+                # a child that never reads must not hold a send longer than its start may take
+                sock.settimeout(REPLY_TIMEOUT_S if self.ready else max(0.1, left_s))
             try:
                 data = pickle.dumps(ops, protocol=5)
             except Exception:
@@ -231,6 +242,8 @@ class LogProcess:
                     raise _Unpicklable(f"a batch does not pickle: {err}") from err
             sock.sendall(HEADER.pack(len(data)))
             sock.sendall(data)
+            if not self.ready:
+                self._unconfirmed.extend(ops)
         except _Unpicklable as err:
             self._die(str(err), ops)
             return False
@@ -245,12 +258,20 @@ class LogProcess:
             self._handle(recv(sock))
 
     def _handle(self, msg: Any) -> None:
-        if msg[0] == "log":
+        if msg[0] == "ready":
+            self.ready = True
+            self._unconfirmed = []
+            if self._sock is not None:
+                self._sock.settimeout(REPLY_TIMEOUT_S)
+        elif msg[0] == "log":
             _, level, name, text = msg
             logging.getLogger(name).log(level, "%s", text)
 
     def _die(self, reason: str, unsent: list[Op]) -> None:
         """Give up on the child: every log continues in process (see the module doc)."""
+        if not self.ready and self._sock is not None:
+            with contextlib.suppress(OSError, EOFError, pickle.UnpicklingError):
+                self._read_available()  # did it start (and so read what it was sent) after all?
         self.dead = True
         code = self.child.poll()
         if code is None:
@@ -260,7 +281,9 @@ class LogProcess:
             except subprocess.TimeoutExpired:
                 code = None
         self.reason = f"{reason}; exit code {code}" if code is not None else reason
-        for op in [*unsent, *self._outbox]:
+        never_read = [] if self.ready else self._unconfirmed
+        self._unconfirmed = []
+        for op in [*never_read, *unsent, *self._outbox]:
             if op[0] in ("rows", "mops", "trecs"):
                 self._returned[op[1]].append(op)
         self._outbox = []

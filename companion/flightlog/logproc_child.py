@@ -54,8 +54,14 @@ class _Child:
         self.mcaps: dict[int, Any] = {}
         self.tlogs: dict[int, Any] = {}
 
+    def tell(self, msg: Any) -> None:
+        """Send the parent ``msg``; a parent that is gone (killed) is not an error: the rows it
+        sent are still to be written."""
+        with contextlib.suppress(OSError):
+            send(self.sock, msg)
+
     def run(self) -> None:
-        send(self.sock, ("ready", os.getpid()))
+        self.tell(("ready", os.getpid()))
         try:
             while True:
                 try:
@@ -68,7 +74,7 @@ class _Child:
                     except Exception:
                         log.exception("logging process: %s op failed", op[0])
                         if op[0] in _ANSWERED:  # the parent waits for an answer: one saying it failed
-                            send(self.sock, ("reply", _ANSWERED[op[0]]))
+                            self.tell(("reply", _ANSWERED[op[0]]))
                 for m in self.mcaps.values():
                     m.flush()
         finally:
@@ -85,7 +91,7 @@ class _Child:
         elif kind == "close":
             f = self.csvs.pop(op[1])
             f.close()
-            send(self.sock, ("reply", (f.written, f.dropped)))
+            self.tell(("reply", (f.written, f.dropped)))
         elif kind == "mcap":
             from companion.flightlog.mcap_file import McapFile
 
@@ -97,7 +103,7 @@ class _Child:
         elif kind == "mclose":
             m = self.mcaps.pop(op[1])
             m.close()
-            send(self.sock, ("reply", (m.errors, m.messages)))
+            self.tell(("reply", (m.errors, m.messages)))
         elif kind == "trecs":
             if op[1] in self.tlogs:  # else it could not be opened (said then)
                 self.tlogs[op[1]].apply(op[2])
@@ -109,13 +115,13 @@ class _Child:
         elif kind == "tclose":
             t = self.tlogs.pop(op[1], None)
             if t is None:
-                send(self.sock, ("reply", _ANSWERED["tclose"]))
+                self.tell(("reply", _ANSWERED["tclose"]))
             else:
                 t.close()
-                send(self.sock, ("reply", (t.written, t.dropped, t.encode_errors)))
+                self.tell(("reply", (t.written, t.dropped, t.encode_errors)))
         elif kind == "cpu":
             t = os.times()
-            send(self.sock, ("reply", t.user + t.system))
+            self.tell(("reply", t.user + t.system))
         else:
             raise ValueError(f"unknown op {kind!r}")
 

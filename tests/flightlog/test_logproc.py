@@ -84,10 +84,14 @@ def test_one_logging_process_for_every_log(tmp_path):
 
 _CRASH = """
 import os, sys, time
+from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.logproc import LogProcess
 from companion.flightlog.mcaplog import McapFlightLog
 run = sys.argv[1]
+if len(sys.argv) > 2:  # a logging process slow to start: ready only after this many seconds
+    logproc.CHILD_COMMAND = [sys.executable, "-c", "import runpy, sys, time; time.sleep(" + sys.argv[2] + "); "
+        "runpy.run_module('companion.flightlog.logproc_child', run_name='__main__')"]
 cols = ("time_s", "x_m")
 m = McapFlightLog(run + "/flight.mcap", {"a.csv": cols})
 lg = CsvLog(run + "/a.csv", cols, sink=m.stream_sink("a.csv"))
@@ -101,16 +105,21 @@ deadline = time.monotonic() + 30.0
 while (lg.written < 300 or plain.written < 300) and time.monotonic() < deadline:
     time.sleep(0.01)
 time.sleep(1.0)  # and the hand-over after it carries the metadata
-print(LogProcess._current.child.pid, flush=True)
+print(LogProcess._current.child.pid, LogProcess._current.ready, flush=True)
 os._exit(1)  # a crash: no close(), no atexit
 """
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="waits on /proc")
-def test_a_crashed_parent_leaves_complete_files(tmp_path):
-    proc = subprocess.run([sys.executable, "-c", _CRASH, str(tmp_path)], capture_output=True, text=True, timeout=120)
+@pytest.mark.parametrize("child_start_delay_s", [None, "4"])
+def test_a_crashed_parent_leaves_complete_files(tmp_path, child_start_delay_s):
+    argv = [sys.executable, "-c", _CRASH, str(tmp_path), *([child_start_delay_s] if child_start_delay_s else [])]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr
-    wait_gone(int(proc.stdout.split()[0]))
+    pid, ready = proc.stdout.split()
+    if child_start_delay_s:  # the parent died before its logging process was ready: nothing lost
+        assert ready == "False"
+    wait_gone(int(pid))
     a, b = read_csv(tmp_path / "a.csv"), read_csv(tmp_path / "b.csv")
     assert len(a["time_s"]) == len(b["time_s"]) == 300 and b["x_m"][-1] == "-149.5"
     msgs = _messages(tmp_path / "flight.mcap")  # the child closed it: summary and all
