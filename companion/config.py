@@ -505,6 +505,13 @@ class SimConfig(_Section):
         "autopilot behaviour measured on the real firmware SITL (estimate errors, velocity response, land "
         "detector, start-up delay, wind model; sitl/profiles.py); it overrides the fields it fixes",
     )
+    profile_weather: bool = _f(
+        False,
+        "-",
+        "with a firmware profile: keep this file's gusts and GPS noise and wander instead of the profile's "
+        "calm SITL defaults (the weather `campaign landing --autopilot ardupilot --weather` drives on the real "
+        "SITL; docs/weather.md)",
+    )
     home: GeoConfig = Field(default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0))
     wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
     wind_from_deg: float = _f(270.0, "deg", "direction the wind blows from (0 = north)", ge=0.0, lt=360.0)
@@ -578,6 +585,11 @@ class SimConfig(_Section):
             for v in getattr(self, name):
                 if not math.isfinite(v) or abs(v) > 1000.0:
                     raise ValueError(f"{name} component {v} must be finite and within +-1000 m")
+        if self.profile_weather and self.profile != "arducopter-sitl":
+            raise ValueError(
+                f"profile_weather = true with profile {self.profile!r}: only the arducopter-sitl profile has a "
+                "weather to keep (PX4 SIH v1.16 has no wind; ideal flies this file's weather anyway)"
+            )
         return self
 
     @property

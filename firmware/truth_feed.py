@@ -238,6 +238,19 @@ class MavlinkTruth:
             timeout_s,
         )
 
+    def get_param(self, name: str, timeout_s: float = 5.0) -> float:
+        """PARAM_REQUEST_READ on this link, resent every 0.5 s until the autopilot answers; the
+        value, or TimeoutError."""
+        ts, tc = self._target or (0, 0)
+        self.params.pop(name, None)
+        value: float = self._until_answered(
+            f"read {name}",
+            lambda mav: mav.param_request_read_send(ts, tc, name.encode(), -1),
+            lambda: self.params.get(name),
+            timeout_s,
+        )
+        return value
+
     def send_param(self, name: str, value: float) -> None:
         """PARAM_SET on this link without waiting for the echo (a simulator setting driven several
         times a second, such as the weather of lab/real_weather.py)."""

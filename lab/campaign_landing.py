@@ -127,6 +127,7 @@ def scenario_config(
     }
     if profile != "ideal":
         sim["profile"] = profile
+    sim.update(tuning.get("sim", {}) if tuning else {})  # e.g. profile_weather (docs/weather.md)
     sim.update(SIM_VARIANTS.get(variant, {}))
     if variant in PAD_MOVED_M:
         n, e = d.pad_offset_m

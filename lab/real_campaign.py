@@ -11,6 +11,8 @@ needs ~41 s of simulated time to become armable, ~4 s at its boot speed-up); PX4
 restarted from clean parameters for each (~6 s).
 Wind: ArduCopter's SIM_WIND_SPD / SIM_WIND_DIR from the draw (SIM_WIND_TURB = 0); PX4 SIH v1.16
 has no wind model, so its landings fly in still air (the ``px4-sih`` profile drops wind too).
+``weather=True`` (ArduCopter only) adds the embedded campaign's gusts, GPS error and sensor noise
+(lab/real_weather.py).
 
 Landings are scored on the firmware's truth (HIL_STATE_QUATERNION / SIM_STATE) at the first
 ON_GROUND of the landing phase, as the embedded campaign scores its truth.
@@ -37,8 +39,17 @@ from companion.geometry.earth import GeoPoint
 from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_firmware.truth_harness import fly_on_truth
-from companion_lab.campaign_landing import HEADING_VARIANTS, VARIANTS, Draw, draw_scenarios, on_pad, with_pad_heading
+from companion_lab.campaign_landing import (
+    HEADING_VARIANTS,
+    VARIANTS,
+    Draw,
+    draw_scenarios,
+    on_pad,
+    pad_heading_draw,
+    with_pad_heading,
+)
 from companion_lab.landing_campaign import run_landing_campaign, summarize
+from companion_lab.real_weather import FirmwareWeather, WeatherDriver, WeatherError, WeatherProcess, static_params
 
 log = logging.getLogger(__name__)
 
@@ -91,15 +102,43 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     return cfg.model_copy(update={"mission": mission, "autopilot": autopilot})
 
 
+def draw_weather(config: CompanionConfig, d: Draw) -> FirmwareWeather:
+    """The draw's weather as the embedded campaign flies it: its wind, the [sim] gusts and noise."""
+    return FirmwareWeather.of(
+        config.sim.model_copy(update={"wind_speed_m_s": d.wind_speed_m_s, "wind_from_deg": d.wind_from_deg})
+    )
+
+
+async def _set_sensor_noise(rv: RealVehicle, w: FirmwareWeather) -> None:
+    """The draw's sensor noise on the SITL (the same for every draw of a campaign: [sim] fields)."""
+    for name in ("SIM_GPS1_GLTCH_X", "SIM_GPS1_GLTCH_Y"):  # the driver sends these unanswered: exist?
+        try:
+            await asyncio.to_thread(rv.truth.get_param, name)
+        except TimeoutError:
+            raise WeatherError(f"the SITL has no parameter {name}: it cannot fly the drawn GPS error") from None
+    hover = await asyncio.to_thread(rv.truth.get_param, "MOT_THST_HOVER")
+    for name, value in static_params(w, hover):
+        await asyncio.to_thread(rv.truth.set_param, name, value)
+    log.info("sensor noise set on the SITL (hover throttle %.3f): %s", hover, static_params(w, hover))
+
+
 async def _one_landing(
-    rv: RealVehicle, config: CompanionConfig, d: Draw, rel_pad: tuple[float, float]
+    rv: RealVehicle, config: CompanionConfig, d: Draw, rel_pad: tuple[float, float], weather: bool = False
 ) -> dict[str, Any]:
     truth = rv.truth
     disp = real_pad_displacement(d)
+    driver: WeatherDriver | None = None
     if rv.autopilot_name == "ardupilot":
         wind = (("SIM_WIND_SPD", d.wind_speed_m_s), ("SIM_WIND_DIR", d.wind_from_deg), ("SIM_WIND_TURB", 0.0))
         for name, value in wind:
             await asyncio.to_thread(truth.set_param, name, value)
+        if weather:
+            w = draw_weather(config, d)
+            if rv.landings_flown == 0:
+                await _set_sensor_noise(rv, w)
+            origin = truth.origin
+            lat = origin.lat_deg if origin is not None else config.sim.home.lat_deg
+            driver = WeatherDriver(WeatherProcess(w, d.seed), truth.send_param, lat).start()
     if rv.autopilot_name == "ardupilot" and rv.landings_flown > 0:
         # the next landing starts where the last one ended: home there, as a ground station
         # would set it (ArduPilot sets home only at arming; the mission plans from home first)
@@ -139,20 +178,38 @@ async def _one_landing(
     finally:
         await ap.close()
         rv.landings_flown += 1
+        if driver is not None:
+            await asyncio.to_thread(driver.stop)
     dn, de = td[0] - pad_ne[0], td[1] - pad_ne[1]
-    return {
-        "seed": d.seed,
-        "error_m": err,
-        "north_m": dn,
-        "east_m": de,
-        "delivered": delivered,
-        "failure": failure,
-        "gps_bias_m": d.gps_bias_m[:2],
-        "pad_offset_m": d.pad_offset_m,
-        "pad_displacement_m": disp,
-        "wind_m_s": d.wind_speed_m_s if rv.autopilot_name == "ardupilot" else 0.0,
-        **used,
-    } | ({"heading_error_deg": heading_err} if config.mission.pad.heading_deg is not None else {})
+    return (
+        {
+            "seed": d.seed,
+            "error_m": err,
+            "north_m": dn,
+            "east_m": de,
+            "delivered": delivered,
+            "failure": failure,
+            "gps_bias_m": d.gps_bias_m[:2],
+            "pad_offset_m": d.pad_offset_m,
+            "pad_displacement_m": disp,
+            "wind_m_s": d.wind_speed_m_s if rv.autopilot_name == "ardupilot" else 0.0,
+            **used,
+        }
+        | (
+            {
+                "weather": {
+                    "gust_std_m_s": driver.process.w.gust_std_m_s,
+                    "max_gust_m_s": driver.max_gust_m_s,
+                    "max_gps_error_m": driver.max_gps_error_m,
+                    "ticks": driver.ticks,
+                    "late_ticks": driver.overruns,
+                }
+            }
+            if driver is not None
+            else {}
+        )
+        | ({"heading_error_deg": heading_err} if config.mission.pad.heading_deg is not None else {})
+    )
 
 
 async def run_real_landing_campaign_async(
@@ -163,9 +220,12 @@ async def run_real_landing_campaign_async(
     params: str | Path | None = None,
     log_dir: Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    weather: bool = False,
 ) -> dict[str, Any]:
     if autopilot not in REAL_AUTOPILOTS:
         raise ValueError(f"autopilot {autopilot!r}: expected one of {REAL_AUTOPILOTS}")
+    if weather and autopilot != "ardupilot":
+        raise ValueError(f"weather on {autopilot}: only ArduCopter's SITL has wind and noise parameters to drive")
     base = Path(params) if params else shipped_params_path("landing_campaign.toml")
     draws = draw_scenarios(n, seed)
     configs = {v: real_config(base, autopilot, v) for v in variants}
@@ -181,7 +241,7 @@ async def run_real_landing_campaign_async(
         nonlocal done
         for d, v in todo:
             cfg = with_pad_heading(configs[v], d.seed) if v in HEADING_VARIANTS else configs[v]
-            row = await _one_landing(rv, cfg, d, rel_pad)
+            row = await _one_landing(rv, cfg, d, rel_pad, weather)
             row["on_pad"] = on_pad(row["north_m"], row["east_m"], pad_half, row["delivered"])
             landings[v].append(row)
             done += 1
@@ -203,7 +263,8 @@ async def run_real_landing_campaign_async(
         "seed": seed,
         "params": str(base),
         "autopilot": autopilot,
-        "source": f"real {autopilot} SITL",
+        "source": f"real {autopilot} SITL" + (" in drawn weather" if weather else ""),
+        "weather": weather,
         "wall_time_s": time.monotonic() - t0,
         "summary": summary,
         "landings": landings,
@@ -298,23 +359,27 @@ def run_parity(
     out_dir: Path | None = None,
     variants: tuple[str, ...] = ("fusion",),
     progress: Callable[[str, int, int], None] | None = None,
+    weather: bool = False,
 ) -> dict[str, Any]:
     """The embedded campaign with the firmware's profile and the real-SITL campaign on the same
-    draws; writes parity.json and parity.png into ``out_dir``."""
+    draws (``weather``: both in the drawn weather, ArduCopter only); writes parity.json and
+    parity.png into ``out_dir``."""
     if autopilot not in PROFILE_FOR:
         raise ValueError(f"autopilot {autopilot!r}: expected one of {tuple(PROFILE_FOR)}")
     out = out_dir or Path("runs") / time.strftime(f"parity-{autopilot}-%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
     profile = PROFILE_FOR[autopilot]
     t0 = time.monotonic()
-    predicted = run_landing_campaign(
-        n, seed, variants, params, progress, profile=profile, tuning=firmware_tuning(autopilot)
-    )
+    tuning = firmware_tuning(autopilot)
+    if weather:
+        tuning["sim"] = {"profile_weather": True}
+    predicted = run_landing_campaign(n, seed, variants, params, progress, profile=profile, tuning=tuning)
     t_pred = time.monotonic() - t0
-    real = run_real_landing_campaign(autopilot, n, seed, variants, params, out / "sitl", progress)
+    real = run_real_landing_campaign(autopilot, n, seed, variants, params, out / "sitl", progress, weather=weather)
     result = {
         "autopilot": autopilot,
         "profile": profile,
+        "weather": weather,
         "n": n,
         "seed": seed,
         "predicted_wall_time_s": t_pred,
@@ -360,3 +425,23 @@ def parity_figure(result: dict[str, Any], dest: Path) -> Path:
     fig.savefig(dest, dpi=110)
     plt.close(fig)
     return dest
+
+
+def aligned_landing_problem(autopilot: str, out_dir: Path) -> str | None:
+    """One ``pad_heading`` draw (seed 11, params/landing_campaign_short.toml) on the real SITL, the
+    dock placed off its configured heading: None when it was delivered on the pad within 3 deg of
+    the pad's true heading (docs/pad-heading.md), else what went wrong with the landing's
+    diagnostics."""
+    r = run_real_landing_campaign(
+        autopilot, 1, 11, ("pad_heading",), shipped_params_path("landing_campaign_short.toml"), out_dir
+    )
+    (x,) = r["landings"]["pad_heading"]
+    _, placed_deg = pad_heading_draw(x["seed"])
+    if abs(placed_deg) <= 1.0:
+        return f"the draw placed the dock {placed_deg:.2f} deg off: too close to test the measured heading"
+    if not (x["delivered"] and x["failure"] == "" and x["on_pad"]):
+        return f"not delivered on the pad: {x['failure'] or 'off the pad'}; {landing_diagnostics([x])}"
+    err = x["heading_error_deg"]
+    if not (math.isfinite(err) and err < 3.0):
+        return f"heading error at touchdown {err} deg (within 3 expected); {landing_diagnostics([x])}"
+    return None

@@ -190,12 +190,19 @@ def get_profile(name: str) -> AutopilotProfile:
         raise ValueError(f"autopilot profile {name!r}: expected one of {', '.join(PROFILE_NAMES)}") from None
 
 
+# the [sim] fields of the weather and GPS error that `sim.profile_weather` keeps from the file
+WEATHER_KEYS = ("gust_std_m_s", "gust_time_constant_s", "gps_noise_m", "gps_walk_m", "gps_walk_time_constant_s")
+
+
 def apply_profile(sim: SimConfig) -> SimConfig:
     """``sim`` with the fields its profile fixes; ``ideal`` returns ``sim`` itself."""
     p = get_profile(sim.profile)
     if p.ideal:
         return sim
     update: dict[str, Any] = dict(p.sim)
+    if sim.profile_weather:  # the drawn weather the real SITL is driven with (lab/real_weather.py)
+        for key in WEATHER_KEYS:
+            update.pop(key, None)
     if not p.has_wind:
         update.update(wind_speed_m_s=0.0, gust_std_m_s=0.0)
     update["vehicle"] = sim.vehicle.model_copy(update=p.vehicle)

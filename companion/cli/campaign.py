@@ -34,6 +34,13 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         other = "--autopilot" if args.autopilot else "--jobs"
         print(f"companion campaign landing: --cluster and {other} exclude each other", file=sys.stderr)
         return exits.BAD_INPUT
+    if args.weather and args.autopilot != "ardupilot" and args.profile != "arducopter-sitl":
+        print(
+            "companion campaign landing: --weather needs --autopilot ardupilot or --profile arducopter-sitl "
+            "(the embedded ideal profile flies the drawn weather anyway; PX4 SIH has no wind)",
+            file=sys.stderr,
+        )
+        return exits.BAD_INPUT
     jobs = args.jobs if args.jobs is not None else usable_cpus()
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
     if args.variants:
@@ -57,7 +64,14 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
             from companion_lab.real_campaign import run_real_landing_campaign
 
             result = run_real_landing_campaign(
-                args.autopilot, args.n, args.seed, tuple(variants), args.params, out / "sitl", on_progress
+                args.autopilot,
+                args.n,
+                args.seed,
+                tuple(variants),
+                args.params,
+                out / "sitl",
+                on_progress,
+                weather=args.weather,
             )
         else:
             from companion_lab.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
@@ -65,6 +79,8 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
             # a firmware's profile flies with the landing tuning shipped for that firmware
             fw = FIRMWARE_OF_PROFILE.get(args.profile)
             tuning = firmware_tuning(fw) if fw else None
+            if args.weather and tuning is not None:
+                tuning["sim"] = {"profile_weather": True}
             try:
                 result = run_landing_campaign(
                     args.n,
@@ -134,7 +150,10 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
 
     variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
     out = Path(args.out) if args.out else None
-    result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants)
+    if args.weather and args.autopilot != "ardupilot":
+        print("companion campaign parity: --weather needs --autopilot ardupilot (PX4 SIH has no wind)", file=sys.stderr)
+        return exits.BAD_INPUT
+    result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants, weather=args.weather)
     console = make_console()
     for v, c in result["comparison"].items():
         title = f"{v}: {result['profile']} profile vs real {args.autopilot} SITL, same {len(c['seeds'])} draws"
@@ -213,6 +232,12 @@ def register_campaign(csub: Any) -> None:
         help="fly the landings on the real SITL build (PX4_DIR / ARDUPILOT_DIR), in real time "
         "(default: the embedded simulator)",
     )
+    cl.add_argument(
+        "--weather",
+        action="store_true",
+        help="gusts, GPS error and sensor noise from the embedded campaign's distributions, driven on the real "
+        "ArduCopter SITL (--autopilot ardupilot) or kept by the arducopter-sitl profile (docs/weather.md)",
+    )
     cl.set_defaults(func=cmd_campaign_landing)
     cp = csub.add_parser(
         "parity",
@@ -224,6 +249,7 @@ def register_campaign(csub: Any) -> None:
     cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
     cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
     cp.add_argument("--out", help="output folder (default runs/parity-<autopilot>-<time>)")
+    cp.add_argument("--weather", action="store_true", help="both sides fly the drawn weather (docs/weather.md)")
     cp.set_defaults(func=cmd_campaign_parity)
     pr = csub.add_parser(
         "probe",

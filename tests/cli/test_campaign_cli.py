@@ -82,3 +82,33 @@ def test_parity_exits_1_when_it_prints_no(monkeypatch, tmp_path, capsys, within,
     assert main(["campaign", "parity", "--autopilot", "px4", "--n", "3"]) == code
     out = capsys.readouterr().out
     assert ("NO" in out) == (code == 1)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["campaign", "landing", "--weather", "--n", "1"],  # the ideal profile
+        ["campaign", "landing", "--weather", "--n", "1", "--profile", "px4-sih"],
+        ["campaign", "landing", "--weather", "--n", "1", "--autopilot", "px4"],
+        ["campaign", "parity", "--weather", "--n", "1", "--autopilot", "px4"],
+    ],
+)
+def test_weather_is_refused_where_there_is_no_firmware_weather(argv, tmp_path, capsys):
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    assert "--weather needs" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_weather_on_the_profile_keeps_the_drawn_gusts(monkeypatch, tmp_path):
+    seen = {}
+
+    def fake(n, seed, variants, params, progress, **kw):
+        seen.update(kw)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(landing_campaign, "run_landing_campaign", fake)
+    with pytest.raises(SystemExit):
+        main(["campaign", "landing", "--weather", "--n", "1", "--profile", "arducopter-sitl", "--out", str(tmp_path)])
+    assert seen["profile"] == "arducopter-sitl"
+    assert seen["tuning"]["sim"] == {"profile_weather": True}
+    assert "velocity_bias_tau_s" in seen["tuning"]["mission"]  # still the firmware's tuning
