@@ -15,17 +15,9 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion_sitl.mavlink.item_transfer import ItemTransfer
+from companion_sitl.mavlink.item_transfer import GLOBAL_FRAMES, ItemTransfer
 
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE
-GLOBAL_FRAMES = (
-    mavlink.MAV_FRAME_GLOBAL,
-    mavlink.MAV_FRAME_GLOBAL_INT,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-)
 VERTEX_COMMANDS = (
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,

@@ -17,6 +17,16 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 T = TypeVar("T")
 
+# the frames of a position on the globe (the fence's vertices, a mission's positions)
+GLOBAL_FRAMES = (
+    mavlink.MAV_FRAME_GLOBAL,
+    mavlink.MAV_FRAME_GLOBAL_INT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+)
+
 # an item as MISSION_ITEM_INT carries it: frame, command, autocontinue, param1-4, x, y, z
 WireItem = tuple[int, int, int, float, float, float, float, int, int, float]
 

@@ -20,17 +20,9 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion_sitl.mavlink.item_transfer import ItemTransfer
+from companion_sitl.mavlink.item_transfer import GLOBAL_FRAMES, ItemTransfer
 
 MISSION = mavlink.MAV_MISSION_TYPE_MISSION
-GLOBAL_FRAMES = (
-    mavlink.MAV_FRAME_GLOBAL,
-    mavlink.MAV_FRAME_GLOBAL_INT,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-)
 ACCEPTED_FRAMES = (*GLOBAL_FRAMES, mavlink.MAV_FRAME_MISSION)
 
 
