@@ -18,6 +18,7 @@ from companion_lab.bench.app import (
     LatencyTracker,
     classify_thread,
     percentiles,
+    setpoint_stream_gaps,
     thread_cpu_s,
 )
 
@@ -108,6 +109,50 @@ def test_percentiles():
 )
 def test_classify_thread(comm, py_name, group):
     assert classify_thread(comm, py_name) == group
+
+
+def test_setpoint_stream_gaps_on_synthetic_timestamps():
+    ts = [i * 0.05 for i in range(100)]  # 20 Hz for 5 s
+    r = setpoint_stream_gaps(ts)
+    assert r["setpoints"] == 100 and r["max_gap_ms"] == pytest.approx(50.0)
+    assert r["gaps_over_100_ms"] == 0
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": False, "ardupilot_GUID_TIMEOUT": False}
+    # a 1.2 s stall: PX4's 1 s offboard loss trips, ArduCopter's 3 s GUID_TIMEOUT does not
+    stalled = [*ts[:50], *(t + 1.15 for t in ts[50:])]
+    r = setpoint_stream_gaps(list(reversed(stalled)))  # order does not matter
+    assert r["max_gap_ms"] == pytest.approx(1200.0)
+    assert r["gaps_over_100_ms"] == 1
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": True, "ardupilot_GUID_TIMEOUT": False}
+    # a stream that stops 3.5 s before the end of the window: both trip
+    r = setpoint_stream_gaps(ts, end_s=ts[-1] + 3.5)
+    assert r["max_gap_ms"] == pytest.approx(3500.0)
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": True, "ardupilot_GUID_TIMEOUT": True}
+    # a gap while the autopilot does not expect the stream (landing, disarmed on the pad) does not count
+    modes = [(i * 0.02, not (3.0 < i * 0.02 < 4.0)) for i in range(300)]
+    landed = [*ts[:50], *(t + 1.15 for t in ts[50:])]  # the 1.2 s gap spans 2.45-3.65 s
+    r = setpoint_stream_gaps(landed, offboard=modes)
+    assert r["max_gap_ms"] == pytest.approx(50.0) and not any(r["would_trip"].values())
+    r = setpoint_stream_gaps(landed, offboard=[(t, True) for t, _ in modes])
+    assert r["max_gap_ms"] == pytest.approx(1200.0)
+    # exactly at the limit is not over it
+    assert setpoint_stream_gaps([0.0, 1.0])["would_trip"]["px4_COM_OF_LOSS_T"] is False
+    assert setpoint_stream_gaps([]) == {
+        "setpoints": 0,
+        "max_gap_ms": None,
+        "gaps_over_100_ms": 0,
+        "would_trip": {"px4_COM_OF_LOSS_T": False, "ardupilot_GUID_TIMEOUT": False},
+    }
+
+
+def test_bad_cpu_cap_is_refused():
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--cpu-cap", "lots"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "--cpu-cap 'lots'" in proc.stderr + proc.stdout
 
 
 def test_bad_duration_is_refused():
