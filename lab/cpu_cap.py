@@ -304,10 +304,10 @@ class CpuCgroup:
             self.path.rmdir()
 
 
-def open_cgroup(fraction: float, name: str | None = None) -> CpuCgroup:
-    """A capped child cgroup of this process's own cgroup."""
+def open_cgroup(fraction: float, name: str | None = None, period_us: int | None = None) -> CpuCgroup:
+    """A capped child cgroup of this process's own cgroup (``period_us``: see :data:`PERIOD_US`)."""
     ctl = find_cpu_controller(Path("/proc/self/mountinfo").read_text(), Path("/proc/self/cgroup").read_text())
-    return CpuCgroup(ctl, fraction, name or f"companion-cpucap-{os.getpid()}")
+    return CpuCgroup(ctl, fraction, name or f"companion-cpucap-{os.getpid()}", period_us)
 
 
 @contextlib.contextmanager

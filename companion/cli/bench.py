@@ -462,6 +462,7 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
                 logging_core=not args.cap_logging_with_app,
                 vision_cpu_budget=args.vision_cpu_budget,
                 vision_thread_nice=args.vision_thread_nice,
+                cap_period_us=None if args.cpu_cap_period_ms is None else round(args.cpu_cap_period_ms * 1000),
             )
         except CpuCapError as err:
             raise StartupError(str(err), exits.FAILED) from None
@@ -494,6 +495,13 @@ def register_bench_app(bench_subparsers: Any) -> None:
         metavar="FRACTION",
         help="run the companion (not the simulator) in a cgroup capped to this share of one core: "
         "'pi4' (one Raspberry Pi 4 core, see docs/cpu-budget.md), a fraction (0.25) or a percentage (25%%)",
+    )
+    p.add_argument(
+        "--cpu-cap-period-ms",
+        type=float,
+        metavar="MS",
+        help="with --cpu-cap: the CFS period (default 10 ms: a capped app stalls at most the rest of a period; "
+        "the kernel's usual 100 ms stalls it up to 87 ms at the pi4 cap)",
     )
     p.add_argument(
         "--cap-logging-with-app",

@@ -414,6 +414,7 @@ async def _run_delivery(
     run_dir: Path,
     cpu_cap: float | None = None,
     logging_core: bool = True,
+    cap_period_us: int | None = None,
 ) -> dict[str, Any]:
     from companion.autopilot.ardupilot import ArduPilotAutopilot
     from companion.autopilot.px4 import Px4Autopilot
@@ -561,10 +562,10 @@ async def _run_delivery(
     if cpu_cap is not None:
         from companion_lab.cpu_cap import open_cgroup
 
-        cgroup = open_cgroup(cpu_cap)
+        cgroup = open_cgroup(cpu_cap, period_us=cap_period_us)
         cgroup.add_pid(os.getpid())
         if logging_core:
-            log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}")
+            log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}", cap_period_us)
         keeper = _CapKeeper(cgroup, logging_cgroup=log_cgroup)
         keeper.sweep()
         keeper_task = loop.create_task(keeper.run(), name="bench-cpu-cap")
@@ -849,6 +850,7 @@ def bench_app(
     logging_core: bool = True,
     vision_cpu_budget: float | None = None,
     vision_thread_nice: int | None = None,
+    cap_period_us: int | None = None,
 ) -> dict[str, Any]:
     """Run the delivery application for ``duration_s`` of real time and measure it."""
     from companion.telemetry.loopback import free_tcp_port
@@ -876,7 +878,9 @@ def bench_app(
             _wait_port(gport, 15.0, ground)
             run_dir = folder / "run"
             run_dir.mkdir()
-            return asyncio.run(_run_delivery(config, duration_s, backend, run_dir, cpu_cap, logging_core))
+            return asyncio.run(
+                _run_delivery(config, duration_s, backend, run_dir, cpu_cap, logging_core, cap_period_us)
+            )
         finally:
             ground.terminate()
             try:
