@@ -494,7 +494,8 @@ def register_bench_app(bench_subparsers: Any) -> None:
         "--cpu-cap",
         metavar="FRACTION",
         help="run the companion (not the simulator) in a cgroup capped to this share of one core: "
-        "'pi4' (one Raspberry Pi 4 core, see docs/cpu-budget.md), a fraction (0.25) or a percentage (25%%)",
+        "'pi4' (one Raspberry Pi 4 core, see docs/cpu-budget.md), a fraction (0.25) or a percentage (25%%) "
+        "(default: no cap)",
     )
     p.add_argument(
         "--cpu-cap-period-ms",
@@ -512,13 +513,15 @@ def register_bench_app(bench_subparsers: Any) -> None:
         "--vision-cpu-budget",
         type=float,
         metavar="CORE",
-        help="runtime.vision_cpu_budget for this run: the share of one core the detector may use (0: every frame)",
+        help="runtime.vision_cpu_budget for this run: the share of one core the detector may use (0: every frame; "
+        "default: the parameter file's)",
     )
     p.add_argument(
         "--vision-thread-nice",
         type=int,
         metavar="N",
-        help="runtime.vision_thread_nice for this run: the detector thread's nice value (0-19)",
+        help="runtime.vision_thread_nice for this run: the detector thread's nice value (0-19; default: the "
+        "parameter file's)",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=cmd_bench_app)

@@ -4,6 +4,7 @@ accounting pieces it is built from."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -242,3 +243,35 @@ def test_bench_app_dart_report_structure_and_sanity():
     rates = sorted(lp["rate_hz"] for lp in r["loops"])
     assert rates == [20.0, 22.0, 44.0, 200.0]
     assert r["commands_sent"] > 0.5 * 44 * duration_s
+
+
+def _cgroup_writable() -> bool:
+    from companion_lab.cpu_cap import CpuCapError, open_cgroup
+
+    try:
+        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
+    except (CpuCapError, OSError):
+        return False
+    return True
+
+
+@pytest.mark.flight
+@pytest.mark.skipif(not _cgroup_writable(), reason="no writable cgroup cpu controller (needs root)")
+def test_bench_app_under_a_cpu_cap_reports_the_cap_and_the_stream():
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--duration-s", "6", "--cpu-cap", "0.5", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout)
+    cap = r["cpu_cap"]
+    assert cap["fraction_of_one_core"] == 0.5 and "of one core" in cap["cgroup"]
+    assert cap["simulator_inside_the_cap"] is False  # cgroup v1 here: the simulator's threads moved out
+    assert cap["periods"] > 0 and 0 <= cap["throttled_periods"] <= cap["periods"]
+    ss = r["setpoint_stream"]
+    assert ss["setpoints"] == r["setpoints_sent"] > 0 and ss["max_gap_ms"] > 0
+    assert set(ss["would_trip"]) == {"px4_COM_OF_LOSS_T", "ardupilot_GUID_TIMEOUT"}
+    assert 0.0 <= r["guidance_overruns_pct"] <= 100.0 and r["camera"]["frames_dropped"] >= 0
+    assert r["offboard_failsafes"] == [] or all(m.startswith("offboard lost") for m in r["offboard_failsafes"])
