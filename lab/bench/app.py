@@ -248,6 +248,24 @@ def setpoint_stream_gaps(
     }
 
 
+def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
+    """:func:`setpoint_stream_gaps` of a run folder: the setpoints ``setpoints.csv`` recorded as sent,
+    the autopilot's mode from ``ap_status.csv`` (offboard: PX4 offboard or ArduCopter GUIDED)."""
+    import csv
+
+    def rows(name: str) -> list[dict[str, str]]:
+        path = run_dir / name
+        try:
+            with path.open(newline="") as f:
+                return list(csv.DictReader(f))
+        except OSError as err:
+            raise BenchInputError(f"{path}: cannot read the run folder's stream ({err})") from None
+
+    times = [float(r["time_s"]) for r in rows("setpoints.csv")]
+    modes = [(float(r["time_s"]), r["mode"].strip().lower() == "offboard") for r in rows("ap_status.csv")]
+    return setpoint_stream_gaps(times, None, modes)
+
+
 class _CapKeeper:
     """Keeps the companion, and only it, in the capped cgroups: this process moved in whole, the
     simulator's threads (MAVLink sim vehicle, camera rendering) moved back out (cgroup v1), the

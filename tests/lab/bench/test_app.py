@@ -275,3 +275,23 @@ def test_bench_app_under_a_cpu_cap_reports_the_cap_and_the_stream():
     assert set(ss["would_trip"]) == {"px4_COM_OF_LOSS_T", "ardupilot_GUID_TIMEOUT"}
     assert 0.0 <= r["guidance_overruns_pct"] <= 100.0 and r["camera"]["frames_dropped"] >= 0
     assert r["offboard_failsafes"] == [] or all(m.startswith("offboard lost") for m in r["offboard_failsafes"])
+
+
+def test_setpoint_stream_of_a_run_folder(tmp_path):
+    from companion_lab.bench.app import BenchInputError, run_setpoint_stream
+
+    sp = ["time_s,north_m_s,east_m_s,down_m_s,yaw_rad"] + [f"{t:.2f},0,0,0,0" for t in (0.0, 0.05, 0.10, 1.70, 1.75)]
+    (tmp_path / "setpoints.csv").write_text("\n".join(sp) + "\n")
+    # GUIDED (offboard) throughout but for a LAND from 0.5 s to 1.6 s
+    st = ["time_s,seq,armed,mode,landed,healthy,battery_pct,payload_released"] + [
+        f"{t / 10:.1f},{t},1,{'land' if 5 <= t <= 16 else 'offboard'},in_air,1,90,0" for t in range(18)
+    ]
+    (tmp_path / "ap_status.csv").write_text("\n".join(st) + "\n")
+    r = run_setpoint_stream(tmp_path)
+    assert r["setpoints"] == 5 and r["max_gap_ms"] == pytest.approx(50.0)
+    (tmp_path / "ap_status.csv").write_text("\n".join(st).replace("land", "offboard") + "\n")
+    r = run_setpoint_stream(tmp_path)
+    assert r["max_gap_ms"] == pytest.approx(1600.0) and r["would_trip"]["px4_COM_OF_LOSS_T"]
+    (tmp_path / "setpoints.csv").unlink()
+    with pytest.raises(BenchInputError, match=r"setpoints\.csv"):
+        run_setpoint_stream(tmp_path)
