@@ -224,10 +224,11 @@ def setpoint_stream_gaps(
     """The largest gap between consecutive setpoints (and, with ``end_s``, from the last one to the
     end of the window), and whether it would have tripped each autopilot's offboard failsafe.
 
-    ``offboard``: samples (time, the autopilot was in the mode that expects the stream: PX4 offboard,
-    ArduCopter GUIDED). A gap counts only if every sample inside it is in that mode: the stream
-    stops on purpose when the mission hands the vehicle to the autopilot (landing, disarmed on the
-    pad), and the autopilot then expects none."""
+    ``offboard``: samples (time, the autopilot expected the stream: armed, in the air, in PX4's
+    offboard mode or ArduCopter's GUIDED). A gap counts only if every sample inside it expected it:
+    the stream stops on purpose when the mission hands the vehicle to the autopilot (its own
+    take-off and landing, on the ground at the pad; ArduCopter stays in GUIDED through all of
+    them), and the autopilot then expects none."""
     ts = sorted(times_s)
     if end_s is not None and ts:
         ts.append(max(end_s, ts[-1]))
@@ -250,7 +251,8 @@ def setpoint_stream_gaps(
 
 def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
     """:func:`setpoint_stream_gaps` of a run folder: the setpoints ``setpoints.csv`` recorded as sent,
-    the autopilot's mode from ``ap_status.csv`` (offboard: PX4 offboard or ArduCopter GUIDED)."""
+    the autopilot's state from ``ap_status.csv`` (armed, in the air, in offboard: PX4 offboard or
+    ArduCopter GUIDED)."""
     import csv
 
     def rows(name: str) -> list[dict[str, str]]:
@@ -262,7 +264,10 @@ def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
             raise BenchInputError(f"{path}: cannot read the run folder's stream ({err})") from None
 
     times = [float(r["time_s"]) for r in rows("setpoints.csv")]
-    modes = [(float(r["time_s"]), r["mode"].strip().lower() == "offboard") for r in rows("ap_status.csv")]
+    modes = [
+        (float(r["time_s"]), r["armed"] == "1" and r["mode"] == "offboard" and r["landed"] == "in_air")
+        for r in rows("ap_status.csv")
+    ]
     return setpoint_stream_gaps(times, None, modes)
 
 
@@ -590,10 +595,11 @@ async def _run_delivery(
     offboard: list[tuple[float, bool]] = []
 
     async def sample_mode() -> None:  # whether the vehicle expects the setpoint stream, every 20 ms
-        from companion.autopilot.types import FlightMode
+        from companion.autopilot.types import FlightMode, LandedState
 
         while True:
-            offboard.append((loop.time(), vehicle.mode is FlightMode.OFFBOARD))
+            expects = vehicle.armed and vehicle.mode is FlightMode.OFFBOARD and vehicle.landed is LandedState.IN_AIR
+            offboard.append((loop.time(), expects))
             await asyncio.sleep(0.02)
 
     mode_task = loop.create_task(sample_mode(), name="bench-offboard-mode")

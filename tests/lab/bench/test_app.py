@@ -282,14 +282,19 @@ def test_setpoint_stream_of_a_run_folder(tmp_path):
 
     sp = ["time_s,north_m_s,east_m_s,down_m_s,yaw_rad"] + [f"{t:.2f},0,0,0,0" for t in (0.0, 0.05, 0.10, 1.70, 1.75)]
     (tmp_path / "setpoints.csv").write_text("\n".join(sp) + "\n")
-    # GUIDED (offboard) throughout but for a LAND from 0.5 s to 1.6 s
-    st = ["time_s,seq,armed,mode,landed,healthy,battery_pct,payload_released"] + [
-        f"{t / 10:.1f},{t},1,{'land' if 5 <= t <= 16 else 'offboard'},in_air,1,90,0" for t in range(18)
-    ]
+    # GUIDED (offboard), armed, in the air throughout but for a LAND from 0.5 s to 1.6 s
+    head = "time_s,seq,armed,mode,landed,healthy,battery_pct,payload_released"
+    st = [head] + [f"{t / 10:.1f},{t},1,{'land' if 5 <= t <= 16 else 'offboard'},in_air,1,90,0" for t in range(18)]
     (tmp_path / "ap_status.csv").write_text("\n".join(st) + "\n")
     r = run_setpoint_stream(tmp_path)
     assert r["setpoints"] == 5 and r["max_gap_ms"] == pytest.approx(50.0)
-    (tmp_path / "ap_status.csv").write_text("\n".join(st).replace("land", "offboard") + "\n")
+    # ArduCopter stays in GUIDED on the ground at the pad and in its own take-off: no stream expected
+    on_pad = [head] + [
+        f"{t / 10:.1f},{t},1,offboard,{'on_ground' if 5 <= t <= 16 else 'in_air'},1,90,0" for t in range(18)
+    ]
+    (tmp_path / "ap_status.csv").write_text("\n".join(on_pad) + "\n")
+    assert run_setpoint_stream(tmp_path)["max_gap_ms"] == pytest.approx(50.0)
+    (tmp_path / "ap_status.csv").write_text("\n".join(st).replace(",land,", ",offboard,") + "\n")
     r = run_setpoint_stream(tmp_path)
     assert r["max_gap_ms"] == pytest.approx(1600.0) and r["would_trip"]["px4_COM_OF_LOSS_T"]
     (tmp_path / "setpoints.csv").unlink()
