@@ -293,21 +293,60 @@ class CpuCgroup:
                     out[k] = int(v)
         return out
 
-    def remove(self) -> None:
-        """Move what is left back to the parent and delete the cgroup."""
+    def remove(self, attempts: int = 50) -> bool:
+        """Move what is left back to the parent and delete the cgroup; True when it is gone. A thread
+        started from inside while the others move out lands inside again (the kernel then refuses
+        the deletion): moved and tried again, ``attempts`` times 10 ms apart; a cgroup left behind is
+        logged with its path."""
         procs = self.path / ("cgroup.procs" if self.controller.version == 2 else "tasks")
-        with contextlib.suppress(OSError):
-            for tid in procs.read_text().split():
-                with contextlib.suppress(OSError):
-                    (self.controller.path / procs.name).write_text(tid + "\n")
-        with contextlib.suppress(OSError):
-            self.path.rmdir()
+        errors: dict[str, str] = {}
+        for _ in range(attempts):
+            with contextlib.suppress(OSError):
+                for tid in procs.read_text().split():
+                    try:
+                        (self.controller.path / procs.name).write_text(tid + "\n")
+                    except OSError as e:
+                        errors[tid] = e.strerror or str(e)
+            try:
+                self.path.rmdir()
+                return True
+            except FileNotFoundError:
+                return True
+            except OSError as e:
+                errors["rmdir"] = e.strerror or str(e)
+                time.sleep(0.01)
+        left = procs.read_text().split() if procs.exists() else []
+        log.info(
+            "%s: not deleted yet (tasks %s%s): the kernel keeps a cgroup while exited tasks still refer to "
+            "it; the next cap deletes it",
+            self.path,
+            " ".join(left) or "none listed",
+            "; " + ", ".join(f"{t}: {e}" for t, e in errors.items()) if errors else "",
+        )
+        return False
+
+
+CGROUP_PREFIX = "companion-cpucap-"
+
+
+def sweep_stale(controller: CpuController) -> list[Path]:
+    """Delete the caps earlier runs left behind (empty by now; one still in use is refused by the
+    kernel and stays). The ones deleted."""
+    gone = []
+    for d in sorted(controller.path.glob(CGROUP_PREFIX + "*")):
+        try:
+            d.rmdir()
+        except OSError:
+            continue
+        gone.append(d)
+    return gone
 
 
 def open_cgroup(fraction: float, name: str | None = None, period_us: int | None = None) -> CpuCgroup:
     """A capped child cgroup of this process's own cgroup (``period_us``: see :data:`PERIOD_US`)."""
     ctl = find_cpu_controller(Path("/proc/self/mountinfo").read_text(), Path("/proc/self/cgroup").read_text())
-    return CpuCgroup(ctl, fraction, name or f"companion-cpucap-{os.getpid()}", period_us)
+    sweep_stale(ctl)
+    return CpuCgroup(ctl, fraction, name or f"{CGROUP_PREFIX}{os.getpid()}", period_us)
 
 
 @contextlib.contextmanager

@@ -158,8 +158,23 @@ def test_remove_moves_what_is_left_back_to_the_parent(tmp_path):
     d = _v1_tree(tmp_path)
     cg = CpuCgroup(CpuController(1, d), 0.2, "cap-test")
     (d / "cap-test/tasks").write_text("11\n12\n")
-    cg.remove()  # the fake directory keeps its files (a real cgroup's go with it) and stays
+    assert cg.remove(attempts=2) is False  # the fake directory keeps its files (a real cgroup's go with it)
     assert (d / "tasks").read_text() == "12\n"  # each written in turn (the kernel moves each one)
+    for f in (d / "cap-test").iterdir():
+        f.unlink()
+    assert cg.remove() is True and not (d / "cap-test").exists()
+
+
+def test_caps_left_behind_are_swept_and_one_in_use_is_kept(tmp_path):
+    d = _v1_tree(tmp_path)
+    (d / "companion-cpucap-1").mkdir()  # empty: an earlier run's
+    busy = d / "companion-cpucap-2"
+    busy.mkdir()
+    (busy / "tasks").write_text("77\n")  # in use (a real cgroup refuses rmdir; the fake, not empty)
+    (d / "someone-else").mkdir()
+    gone = cpu_cap.sweep_stale(CpuController(1, d))
+    assert gone == [d / "companion-cpucap-1"]
+    assert busy.exists() and (d / "someone-else").exists()
 
 
 def test_cli_refuses_a_bad_cap():
