@@ -418,6 +418,24 @@ class RuntimeConfig(_Section):
         "tick guidance as soon as a camera observation of the pad is fused while the fused estimate steers, so the "
         "setpoint that uses it leaves at once instead of at the next guidance_rate_hz tick (false: fixed rate only)",
     )
+    vision_cpu_budget: float = _f(
+        0.0,
+        "core",
+        "share of one core the landing camera's detector may use: each detection's own CPU time sets when the "
+        "next may start (cost / budget later), the frames between are skipped; for boards whose core is several "
+        "times slower than a server's (docs/cpu-budget.md). 0: every frame the camera offers",
+        ge=0.0,
+        le=8.0,
+    )
+    vision_thread_nice: int = _f(
+        0,
+        "-",
+        "nice value the detector's executor thread sets for itself (Linux, per thread; 0-19, higher yields more): "
+        "with a core shared by the detector and the loop that runs guidance and the setpoint stream, the loop "
+        "gets the CPU first when both are ready. 0: unchanged",
+        ge=0,
+        le=19,
+    )
     opencv_threads: int = _f(
         1,
         "-",

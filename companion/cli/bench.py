@@ -392,12 +392,52 @@ def print_app_report(r: dict[str, Any]) -> None:
     for name, t in r["targets"].items():
         on = f" ({t['judged_on']})" if "judged_on" in t else ""
         print(f"    {name:<30} {t['target']:<60} measured {t['measured']}{on}  {_ok(t['ok'])}")
+    _print_cap_lines(r)
     print("  method: " + cpu["method"].replace("\n", " "))
+
+
+def _print_cap_lines(r: dict[str, Any]) -> None:
+    """The delivery run's budget figures (with or without --cpu-cap)."""
+    if "setpoint_stream" not in r:
+        return
+    cap = r.get("cpu_cap")
+    if cap:
+        sim = "inside the cap" if cap["simulator_inside_the_cap"] else "outside the cap"
+        print(
+            f"  CPU cap: {cap['cgroup']}; simulator {sim}; throttled in {cap['throttled_periods']} of "
+            f"{cap['periods']} periods ({cap['throttled_ms']:.0f} ms); logging process: {cap['logging_process']}"
+        )
+    ss = r["setpoint_stream"]
+    trips = ", ".join(f"{k} {'TRIPS' if v else 'holds'}" for k, v in ss["would_trip"].items())
+    print(
+        f"  setpoint stream: {ss['setpoints']} sent, largest gap {ss['max_gap_ms']} ms, "
+        f"{ss['gaps_over_100_ms']} gaps > 100 ms: {trips}; sim vehicle failsafes: {len(r['offboard_failsafes'])}"
+    )
+    cam = r["camera"]
+    print(
+        f"  guidance overruns {r['guidance_overruns_pct']:.2f} % (target < 1 %); camera frames dropped "
+        f"{cam['frames_dropped']} ({cam['frames_dropped_pct']:.1f} % of those readable; "
+        f"{cam['frames_paced']} wake-ups paced by the vision budget {r['vision_cpu_budget']:g} core)"
+    )
+    err = r.get("pad_landing_error_m")
+    print(
+        f"  delivered: {r['delivered']}; pad landing error "
+        + (f"{100 * err:.1f} cm (truth)" if err is not None else "none (no touchdown at the pad)")
+    )
 
 
 def cmd_bench_app(args: argparse.Namespace) -> int:
     from companion_lab.bench.app import BenchInputError, BenchStartError, bench_app, bench_dart
+    from companion_lab.cpu_cap import CpuCapError, parse_cap
 
+    cap: float | None = None
+    if args.cpu_cap is not None:
+        if args.dart:
+            raise StartupError("--cpu-cap: the Dart bench has no CPU cap; drop --dart or --cpu-cap", exits.BAD_INPUT)
+        try:
+            cap = parse_cap(args.cpu_cap)
+        except CpuCapError as err:
+            raise StartupError(str(err), exits.BAD_INPUT) from None
     if not (args.duration_s > 0 and math.isfinite(args.duration_s)):
         raise StartupError(f"--duration-s {args.duration_s}: must be a positive number of seconds", exits.BAD_INPUT)
     if args.dart:
@@ -414,7 +454,18 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
         r = bench_dart(args.duration_s, args.backend)
     else:
         try:
-            r = bench_app(args.duration_s, args.backend, Path(args.params) if args.params else None)
+            r = bench_app(
+                args.duration_s,
+                args.backend,
+                Path(args.params) if args.params else None,
+                cap,
+                logging_core=not args.cap_logging_with_app,
+                vision_cpu_budget=args.vision_cpu_budget,
+                vision_thread_nice=args.vision_thread_nice,
+                cap_period_us=None if args.cpu_cap_period_ms is None else round(args.cpu_cap_period_ms * 1000),
+            )
+        except CpuCapError as err:
+            raise StartupError(str(err), exits.FAILED) from None
         except BenchInputError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
         except BenchStartError as err:
@@ -438,6 +489,39 @@ def register_bench_app(bench_subparsers: Any) -> None:
         "--dart",
         action="store_true",
         help="bench the Dart shell (IMU 200 Hz, vision 30 Hz, control 22 Hz, commands 44 Hz) against the Dart link sim",
+    )
+    p.add_argument(
+        "--cpu-cap",
+        metavar="FRACTION",
+        help="run the companion (not the simulator) in a cgroup capped to this share of one core: "
+        "'pi4' (one Raspberry Pi 4 core, see docs/cpu-budget.md), a fraction (0.25) or a percentage (25%%) "
+        "(default: no cap)",
+    )
+    p.add_argument(
+        "--cpu-cap-period-ms",
+        type=float,
+        metavar="MS",
+        help="with --cpu-cap: the CFS period (default 10 ms: a capped app stalls at most the rest of a period; "
+        "the kernel's usual 100 ms stalls it up to 87 ms at the pi4 cap)",
+    )
+    p.add_argument(
+        "--cap-logging-with-app",
+        action="store_true",
+        help="with --cpu-cap: the logging process shares the app's cap (default: its own, the same size: another core)",
+    )
+    p.add_argument(
+        "--vision-cpu-budget",
+        type=float,
+        metavar="CORE",
+        help="runtime.vision_cpu_budget for this run: the share of one core the detector may use (0: every frame; "
+        "default: the parameter file's)",
+    )
+    p.add_argument(
+        "--vision-thread-nice",
+        type=int,
+        metavar="N",
+        help="runtime.vision_thread_nice for this run: the detector thread's nice value (0-19; default: the "
+        "parameter file's)",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=cmd_bench_app)

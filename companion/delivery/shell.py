@@ -28,6 +28,9 @@ import contextlib
 import functools
 import logging
 import math
+import os
+import threading
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +38,7 @@ from typing import Any
 from companion.autopilot.interface import Autopilot, AutopilotError, CommandRejected
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.config import CompanionConfig
+from companion.delivery.detection_pacer import DetectionPacer
 from companion.delivery.mission import (
     DeliveryMission,
     MissionInputs,
@@ -148,6 +152,32 @@ class ShellStats:
     # how the camera is read: "" (no camera task), "frame listener", "polled"
     camera_read: str = ""
     frames_notified: int = 0  # wake-ups of the camera task by its frame listener
+    frames_paced: int = 0  # frames not read: the detector's CPU budget (runtime.vision_cpu_budget) was spent
+
+
+_niced_threads: set[int] = set()
+
+
+def _nice_this_thread(nice: int) -> None:
+    """Lower this thread's scheduling priority to ``nice`` once (Linux: a thread id is a pid to
+    setpriority); where that is not possible the thread keeps its priority, said once."""
+    tid = threading.get_native_id()
+    if nice <= 0 or tid in _niced_threads:
+        return
+    _niced_threads.add(tid)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, nice)
+    except (OSError, AttributeError) as err:
+        log.warning("runtime.vision_thread_nice = %d: the detector thread keeps its priority (%s)", nice, err)
+
+
+def _cpu_timed(fn: Callable[..., Any], *args: Any, nice: int = 0) -> tuple[Any, float]:
+    """``fn(*args)`` and the CPU seconds its thread spent in it (the thread niced first, see
+    ``runtime.vision_thread_nice``)."""
+    _nice_this_thread(nice)
+    t0 = time.thread_time()
+    out = fn(*args)
+    return out, time.thread_time() - t0
 
 
 def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
@@ -206,6 +236,8 @@ class DeliveryShell:
         # set when a camera observation is fused while the fused estimate steers: guidance ticks
         # at once instead of at its next deadline ([runtime] guidance_on_marker)
         self._marker_fused = asyncio.Event()
+        budget = config.runtime.vision_cpu_budget
+        self._pacer = DetectionPacer(budget) if budget > 0.0 else None
         self._request_task: asyncio.Task[None] | None = None
         self._streaming = False
         self._abort_reason: str | None = None
@@ -678,15 +710,25 @@ class DeliveryShell:
         assert kit is not None and kit.camera is not None and kit.detector is not None and self.fusion is not None
         if not self._vision_wanted():
             return
+        pacer, start_s = self._pacer, self._clock.now()
+        if pacer is not None and not pacer.due(start_s):
+            self.stats.frames_paced += 1
+            return
         frame = kit.camera.read()
         if frame is None:
             return
         down_cam = self._down_in_camera() if kit.vision_attitude else None
-        detect = functools.partial(kit.detector.detect, down_cam=down_cam)
+        detect = functools.partial(
+            _cpu_timed,
+            functools.partial(kit.detector.detect, down_cam=down_cam),
+            nice=self.config.runtime.vision_thread_nice if kit.vision_in_thread else 0,
+        )
         if kit.vision_in_thread:
-            obs = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, frame.time_s)
+            obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, frame.time_s)
         else:
-            obs = detect(frame.image, frame.time_s)
+            obs, cpu_s = detect(frame.image, frame.time_s)
+        if pacer is not None:
+            pacer.done(start_s, cpu_s)
         if obs is None:
             return
         if self.recorder is not None:

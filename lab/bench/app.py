@@ -26,8 +26,10 @@ and the end of the window: the difference is added to ``logging`` and to the com
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import dataclasses
+import itertools
 import logging
 import math
 import os
@@ -210,6 +212,100 @@ def percentiles(xs: list[float]) -> dict[str, float | int | None]:
     return {"n": len(ys), "p50": q(0.5), "p99": q(0.99), "max": round(ys[-1], 3)}
 
 
+# ---------------------------------------------------------------------------- stale setpoint stream
+# how long each autopilot waits without a setpoint before its offboard failsafe: PX4 COM_OF_LOSS_T
+# (default 1 s), ArduCopter GUID_TIMEOUT (default 3 s)
+OFFBOARD_LOSS_S = {"px4_COM_OF_LOSS_T": 1.0, "ardupilot_GUID_TIMEOUT": 3.0}
+
+
+def setpoint_stream_gaps(
+    times_s: list[float], end_s: float | None = None, offboard: list[tuple[float, bool]] | None = None
+) -> dict[str, Any]:
+    """The largest gap between consecutive setpoints (and, with ``end_s``, from the last one to the
+    end of the window), and whether it would have tripped each autopilot's offboard failsafe.
+
+    ``offboard``: samples (time, the autopilot expected the stream: armed, in the air, in PX4's
+    offboard mode or ArduCopter's GUIDED). A gap counts only if every sample inside it expected it:
+    the stream stops on purpose when the mission hands the vehicle to the autopilot (its own
+    take-off and landing, on the ground at the pad; ArduCopter stays in GUIDED through all of
+    them), and the autopilot then expects none."""
+    ts = sorted(times_s)
+    if end_s is not None and ts:
+        ts.append(max(end_s, ts[-1]))
+    samples = sorted(offboard or [])
+    sample_t = [t for t, _ in samples]
+
+    def expected(a: float, b: float) -> bool:
+        i, j = bisect.bisect_left(sample_t, a), bisect.bisect_right(sample_t, b)
+        return all(on for _, on in samples[i:j])
+
+    gaps = [b - a for a, b in itertools.pairwise(ts) if expected(a, b)]
+    max_gap = max(gaps) if gaps else None
+    return {
+        "setpoints": len(times_s),
+        "max_gap_ms": None if max_gap is None else round(max_gap * 1e3, 3),
+        "gaps_over_100_ms": sum(g > 0.1 for g in gaps),
+        "would_trip": {k: max_gap is not None and max_gap > v for k, v in OFFBOARD_LOSS_S.items()},
+    }
+
+
+def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
+    """:func:`setpoint_stream_gaps` of a run folder: the setpoints ``setpoints.csv`` recorded as sent,
+    the autopilot's state from ``ap_status.csv`` (armed, in the air, in offboard: PX4 offboard or
+    ArduCopter GUIDED)."""
+    import csv
+
+    def rows(name: str) -> list[dict[str, str]]:
+        path = run_dir / name
+        try:
+            with path.open(newline="") as f:
+                return list(csv.DictReader(f))
+        except OSError as err:
+            raise BenchInputError(f"{path}: cannot read the run folder's stream ({err})") from None
+
+    times = [float(r["time_s"]) for r in rows("setpoints.csv")]
+    modes = [
+        (float(r["time_s"]), r["armed"] == "1" and r["mode"] == "offboard" and r["landed"] == "in_air")
+        for r in rows("ap_status.csv")
+    ]
+    return setpoint_stream_gaps(times, None, modes)
+
+
+class _CapKeeper:
+    """Keeps the companion, and only it, in the capped cgroups: this process moved in whole, the
+    simulator's threads (MAVLink sim vehicle, camera rendering) moved back out (cgroup v1), the
+    logging process moved into ``logging_cgroup`` (its own core's worth: the logging process exists
+    to run on another core, and a Pi has four), or into ``cgroup`` when there is none. Re-checked
+    every ``period_s`` since threads come and go."""
+
+    def __init__(self, cgroup: Any, period_s: float = 0.2, logging_cgroup: Any = None) -> None:
+        self.cgroup = cgroup
+        self.logging_cgroup = logging_cgroup if logging_cgroup is not None else cgroup
+        self.period_s = period_s
+        self.sim_inside = cgroup.controller.version != 1  # v2: a process's threads share one cgroup
+        self._released: set[int] = set()
+        self._logging_pid: int | None = None
+
+    def sweep(self) -> None:
+        if not self.sim_inside:
+            for t in threading.enumerate():
+                tid = t.native_id
+                if tid is None or tid in self._released or classify_thread(t.name, t.name) != "sim":
+                    continue
+                with contextlib.suppress(Exception):
+                    self.cgroup.release_tid(tid)
+                    self._released.add(tid)
+        cur = _logging_process()
+        if cur is not None and cur.child.pid != self._logging_pid:
+            self.logging_cgroup.add_pid(cur.child.pid)
+            self._logging_pid = cur.child.pid
+
+    async def run(self) -> None:
+        while True:
+            self.sweep()
+            await asyncio.sleep(self.period_s)
+
+
 # ---------------------------------------------------------------------------- rate loops
 class _CountedRateLoop(scheduling.RateLoop):
     """A RateLoop that registers itself so the bench can read every loop's ticks and overruns."""
@@ -334,7 +430,15 @@ def _timed_detector(detect: Callable[..., Any], lat: Any, loop: asyncio.Abstract
     return timed_detect
 
 
-async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str, run_dir: Path) -> dict[str, Any]:
+async def _run_delivery(
+    config: CompanionConfig,
+    duration_s: float,
+    backend: str,
+    run_dir: Path,
+    cpu_cap: float | None = None,
+    logging_core: bool = True,
+    cap_period_us: int | None = None,
+) -> dict[str, Any]:
     from companion.autopilot.ardupilot import ArduPilotAutopilot
     from companion.autopilot.px4 import Px4Autopilot
     from companion.delivery import shell as shell_mod
@@ -373,9 +477,20 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
         """Renders every exposure (the flight camera skips those without the pad in view): the
         detector then runs on all 30 frames a second, searching whole frames when the pad is out of view."""
 
+        dropped = 0  # exposures that became readable and were never read (a newer one was)
+
         def _pad_in_view(self, T_camera_pad: Any) -> bool:
             T = T_camera_pad
             return float((-T.R.T @ T.t)[2]) > 0.05  # the camera above the pad plane (on the ground it is not)
+
+        def read(self) -> Any:
+            now = self._clock.now()
+            ready = sum(1 for p in self._poses if p[0] > self._last_read_t and p[0] + self.latency_s <= now)
+            last = self._last_read_t
+            frame = super().read()
+            if self._last_read_t != last:
+                BenchCamera.dropped += max(0, ready - 1)
+            return frame
 
     with _patched(landing_sensors, "SimCameraSource", BenchCamera):
         kit = sim_landing_kit(config, _ThreadedTruth(mav_sim), (pad_n, pad_e))  # type: ignore[arg-type]
@@ -405,10 +520,13 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     acct.patch(ap, "set_velocity_ned", "link")
     acct.patch(ap, "send_landing_target", "link")
     raw_send = ap.set_velocity_ned
+    sp_times: list[float] = []
 
     def send(sp: Any) -> Any:
         r = raw_send(sp)
-        lat.setpoint_sent(loop.time())
+        now = loop.time()
+        sp_times.append(now)
+        lat.setpoint_sent(now)
         return r
 
     ap.set_velocity_ned = send
@@ -460,6 +578,33 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
     tel_tick = acct.wrap("telemetry", shell_telemetry.ShellTelemetry.tick)
     tel_sample = acct.wrap("telemetry", shell_telemetry.ShellTelemetry._on_sample)
 
+    cgroup: Any = None
+    log_cgroup: Any = None
+    keeper_task: asyncio.Task[None] | None = None
+    keeper: _CapKeeper | None = None
+    if cpu_cap is not None:
+        from companion_lab.cpu_cap import open_cgroup
+
+        cgroup = open_cgroup(cpu_cap, period_us=cap_period_us)
+        cgroup.add_pid(os.getpid())
+        if logging_core:
+            log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}", cap_period_us)
+        keeper = _CapKeeper(cgroup, logging_cgroup=log_cgroup)
+        keeper.sweep()
+        keeper_task = loop.create_task(keeper.run(), name="bench-cpu-cap")
+    offboard: list[tuple[float, bool]] = []
+
+    async def sample_mode() -> None:  # whether the vehicle expects the setpoint stream, every 20 ms
+        from companion.autopilot.types import FlightMode, LandedState
+
+        while True:
+            expects = vehicle.armed and vehicle.mode is FlightMode.OFFBOARD and vehicle.landed is LandedState.IN_AIR
+            offboard.append((loop.time(), expects))
+            await asyncio.sleep(0.02)
+
+    mode_task = loop.create_task(sample_mode(), name="bench-offboard-mode")
+    throttle0 = cgroup.throttled() if cgroup is not None else {}
+    log_throttle0 = log_cgroup.throttled() if log_cgroup is not None else {}
     proc0 = time.process_time()
     wall0 = time.monotonic()
     threads0 = thread_cpu_s()
@@ -476,12 +621,54 @@ async def _run_delivery(config: CompanionConfig, duration_s: float, backend: str
             summary = await shell.run(timeout_s=duration_s + 30.0)
         snapshot_end()  # already taken unless the guidance loop never started
     finally:
+        throttle1 = cgroup.throttled() if cgroup is not None else {}
+        log_throttle1 = log_cgroup.throttled() if log_cgroup is not None else {}
         try:
             await ap.close()
         finally:
             mav_sim.stop()
             recorder.close()
+            mode_task.cancel()
+            if keeper_task is not None:
+                keeper_task.cancel()
+            for cg in (cgroup, log_cgroup):
+                if cg is not None:
+                    cg.remove()
     r = _report(acct, lat, threads0, end, proc0, wall0, TASKS, config.landing.camera_latency_s * 1e3)
+    window_end = end["wall_s"] - time.monotonic() + loop.time()  # the window's end on the loop's clock
+    r["setpoint_stream"] = setpoint_stream_gaps(sp_times, window_end if sp_times else None, offboard)
+    r["camera"]["frames_dropped"] = BenchCamera.dropped
+    r["camera"]["frames_paced"] = shell.stats.frames_paced
+    r["vision_cpu_budget"] = config.runtime.vision_cpu_budget
+    r["vision_thread_nice"] = config.runtime.vision_thread_nice
+    r["camera"]["frames_dropped_pct"] = round(100.0 * BenchCamera.dropped / max(1, BenchCamera.dropped + lat.frames), 2)
+    # the guidance loop and the setpoint stream (the shell's other loops poll the landing sensors)
+    rt = config.runtime
+    names = {f"shell {rt.guidance_rate_hz:g} Hz", f"shell {rt.setpoint_rate_hz:g} Hz"}
+    guidance = [(n, rl) for n, rl in _CountedRateLoop.registry if n in names]
+    ticks = sum(rl.ticks for _, rl in guidance)
+    r["guidance_overruns_pct"] = round(100.0 * sum(rl.overruns for _, rl in guidance) / max(1, ticks), 3)
+    r["offboard_failsafes"] = [m for _, m in vehicle.status_texts if m.startswith("offboard lost")]
+
+    def near_pad(t: Any) -> bool:
+        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
+
+    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
+    r["pad_landing_error_m"] = (
+        round(math.hypot(pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e), 4) if pad_td else None
+    )
+    r["delivered"] = summary.delivered
+    if cgroup is not None and keeper is not None:
+        r["cpu_cap"] = {
+            "fraction_of_one_core": cpu_cap,
+            "cgroup": cgroup.describe(),
+            "simulator_inside_the_cap": keeper.sim_inside,
+            "periods": throttle1.get("nr_periods", 0) - throttle0.get("nr_periods", 0),
+            "throttled_periods": throttle1.get("nr_throttled", 0) - throttle0.get("nr_throttled", 0),
+            "throttled_ms": round((throttle1.get("throttled_time", 0) - throttle0.get("throttled_time", 0)) / 1e6, 1),
+            "logging_process": "its own cgroup at the same cap (another core)" if log_cgroup else "inside the cap",
+            "logging_throttled_periods": log_throttle1.get("nr_throttled", 0) - log_throttle0.get("nr_throttled", 0),
+        }
     r["camera"]["rate_hz"] = config.landing.camera_rate_hz
     # "frame listener": the camera task woke when each frame became readable; "polled": at the poll rate
     r["camera"]["read"] = shell.stats.camera_read
@@ -679,7 +866,16 @@ def _report(
     }
 
 
-def bench_app(duration_s: float, backend: str = "ardupilot", params: Path | None = None) -> dict[str, Any]:
+def bench_app(
+    duration_s: float,
+    backend: str = "ardupilot",
+    params: Path | None = None,
+    cpu_cap: float | None = None,
+    logging_core: bool = True,
+    vision_cpu_budget: float | None = None,
+    vision_thread_nice: int | None = None,
+    cap_period_us: int | None = None,
+) -> dict[str, Any]:
     """Run the delivery application for ``duration_s`` of real time and measure it."""
     from companion.telemetry.loopback import free_tcp_port
 
@@ -690,7 +886,14 @@ def bench_app(duration_s: float, backend: str = "ardupilot", params: Path | None
         zfile = _write_zenoh_file(folder, gport)
         config = load_config(
             cfg_path,
-            overrides={"telemetry": {"enabled": True, "zenoh_config": str(zfile)}, "landing": {"fusion": True}},
+            overrides={
+                "telemetry": {"enabled": True, "zenoh_config": str(zfile)},
+                "landing": {"fusion": True},
+                "runtime": {
+                    **({"vision_cpu_budget": vision_cpu_budget} if vision_cpu_budget is not None else {}),
+                    **({"vision_thread_nice": vision_thread_nice} if vision_thread_nice is not None else {}),
+                },
+            },
         )
         if not config.landing.use_camera:
             raise BenchInputError(f"{cfg_path}: landing.use_camera = false; the app bench needs the camera")
@@ -699,7 +902,9 @@ def bench_app(duration_s: float, backend: str = "ardupilot", params: Path | None
             _wait_port(gport, 15.0, ground)
             run_dir = folder / "run"
             run_dir.mkdir()
-            return asyncio.run(_run_delivery(config, duration_s, backend, run_dir))
+            return asyncio.run(
+                _run_delivery(config, duration_s, backend, run_dir, cpu_cap, logging_core, cap_period_us)
+            )
         finally:
             ground.terminate()
             try:

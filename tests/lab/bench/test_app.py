@@ -4,6 +4,7 @@ accounting pieces it is built from."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -18,6 +19,7 @@ from companion_lab.bench.app import (
     LatencyTracker,
     classify_thread,
     percentiles,
+    setpoint_stream_gaps,
     thread_cpu_s,
 )
 
@@ -110,6 +112,50 @@ def test_classify_thread(comm, py_name, group):
     assert classify_thread(comm, py_name) == group
 
 
+def test_setpoint_stream_gaps_on_synthetic_timestamps():
+    ts = [i * 0.05 for i in range(100)]  # 20 Hz for 5 s
+    r = setpoint_stream_gaps(ts)
+    assert r["setpoints"] == 100 and r["max_gap_ms"] == pytest.approx(50.0)
+    assert r["gaps_over_100_ms"] == 0
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": False, "ardupilot_GUID_TIMEOUT": False}
+    # a 1.2 s stall: PX4's 1 s offboard loss trips, ArduCopter's 3 s GUID_TIMEOUT does not
+    stalled = [*ts[:50], *(t + 1.15 for t in ts[50:])]
+    r = setpoint_stream_gaps(list(reversed(stalled)))  # order does not matter
+    assert r["max_gap_ms"] == pytest.approx(1200.0)
+    assert r["gaps_over_100_ms"] == 1
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": True, "ardupilot_GUID_TIMEOUT": False}
+    # a stream that stops 3.5 s before the end of the window: both trip
+    r = setpoint_stream_gaps(ts, end_s=ts[-1] + 3.5)
+    assert r["max_gap_ms"] == pytest.approx(3500.0)
+    assert r["would_trip"] == {"px4_COM_OF_LOSS_T": True, "ardupilot_GUID_TIMEOUT": True}
+    # a gap while the autopilot does not expect the stream (landing, disarmed on the pad) does not count
+    modes = [(i * 0.02, not (3.0 < i * 0.02 < 4.0)) for i in range(300)]
+    landed = [*ts[:50], *(t + 1.15 for t in ts[50:])]  # the 1.2 s gap spans 2.45-3.65 s
+    r = setpoint_stream_gaps(landed, offboard=modes)
+    assert r["max_gap_ms"] == pytest.approx(50.0) and not any(r["would_trip"].values())
+    r = setpoint_stream_gaps(landed, offboard=[(t, True) for t, _ in modes])
+    assert r["max_gap_ms"] == pytest.approx(1200.0)
+    # exactly at the limit is not over it
+    assert setpoint_stream_gaps([0.0, 1.0])["would_trip"]["px4_COM_OF_LOSS_T"] is False
+    assert setpoint_stream_gaps([]) == {
+        "setpoints": 0,
+        "max_gap_ms": None,
+        "gaps_over_100_ms": 0,
+        "would_trip": {"px4_COM_OF_LOSS_T": False, "ardupilot_GUID_TIMEOUT": False},
+    }
+
+
+def test_bad_cpu_cap_is_refused():
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--cpu-cap", "lots"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "--cpu-cap 'lots'" in proc.stderr + proc.stdout
+
+
 def test_bad_duration_is_refused():
     proc = subprocess.run(
         [sys.executable, "-m", "companion", "bench", "app", "--duration-s", "-1"],
@@ -197,3 +243,60 @@ def test_bench_app_dart_report_structure_and_sanity():
     rates = sorted(lp["rate_hz"] for lp in r["loops"])
     assert rates == [20.0, 22.0, 44.0, 200.0]
     assert r["commands_sent"] > 0.5 * 44 * duration_s
+
+
+def _cgroup_writable() -> bool:
+    from companion_lab.cpu_cap import CpuCapError, open_cgroup
+
+    try:
+        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
+    except (CpuCapError, OSError):
+        return False
+    return True
+
+
+@pytest.mark.flight
+@pytest.mark.skipif(not _cgroup_writable(), reason="no writable cgroup cpu controller (needs root)")
+def test_bench_app_under_a_cpu_cap_reports_the_cap_and_the_stream():
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion", "bench", "app", "--duration-s", "6", "--cpu-cap", "0.5", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout)
+    cap = r["cpu_cap"]
+    assert cap["fraction_of_one_core"] == 0.5 and "of one core" in cap["cgroup"]
+    assert cap["simulator_inside_the_cap"] is False  # cgroup v1 here: the simulator's threads moved out
+    assert cap["periods"] > 0 and 0 <= cap["throttled_periods"] <= cap["periods"]
+    ss = r["setpoint_stream"]
+    assert ss["setpoints"] == r["setpoints_sent"] > 0 and ss["max_gap_ms"] > 0
+    assert set(ss["would_trip"]) == {"px4_COM_OF_LOSS_T", "ardupilot_GUID_TIMEOUT"}
+    assert 0.0 <= r["guidance_overruns_pct"] <= 100.0 and r["camera"]["frames_dropped"] >= 0
+    assert r["offboard_failsafes"] == [] or all(m.startswith("offboard lost") for m in r["offboard_failsafes"])
+
+
+def test_setpoint_stream_of_a_run_folder(tmp_path):
+    from companion_lab.bench.app import BenchInputError, run_setpoint_stream
+
+    sp = ["time_s,north_m_s,east_m_s,down_m_s,yaw_rad"] + [f"{t:.2f},0,0,0,0" for t in (0.0, 0.05, 0.10, 1.70, 1.75)]
+    (tmp_path / "setpoints.csv").write_text("\n".join(sp) + "\n")
+    # GUIDED (offboard), armed, in the air throughout but for a LAND from 0.5 s to 1.6 s
+    head = "time_s,seq,armed,mode,landed,healthy,battery_pct,payload_released"
+    st = [head] + [f"{t / 10:.1f},{t},1,{'land' if 5 <= t <= 16 else 'offboard'},in_air,1,90,0" for t in range(18)]
+    (tmp_path / "ap_status.csv").write_text("\n".join(st) + "\n")
+    r = run_setpoint_stream(tmp_path)
+    assert r["setpoints"] == 5 and r["max_gap_ms"] == pytest.approx(50.0)
+    # ArduCopter stays in GUIDED on the ground at the pad and in its own take-off: no stream expected
+    on_pad = [head] + [
+        f"{t / 10:.1f},{t},1,offboard,{'on_ground' if 5 <= t <= 16 else 'in_air'},1,90,0" for t in range(18)
+    ]
+    (tmp_path / "ap_status.csv").write_text("\n".join(on_pad) + "\n")
+    assert run_setpoint_stream(tmp_path)["max_gap_ms"] == pytest.approx(50.0)
+    (tmp_path / "ap_status.csv").write_text("\n".join(st).replace(",land,", ",offboard,") + "\n")
+    r = run_setpoint_stream(tmp_path)
+    assert r["max_gap_ms"] == pytest.approx(1600.0) and r["would_trip"]["px4_COM_OF_LOSS_T"]
+    (tmp_path / "setpoints.csv").unlink()
+    with pytest.raises(BenchInputError, match=r"setpoints\.csv"):
+        run_setpoint_stream(tmp_path)

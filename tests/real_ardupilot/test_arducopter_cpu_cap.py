@@ -1,0 +1,60 @@
+"""The sitl_short delivery against a real ArduCopter SITL with the companion's process capped to one
+Raspberry Pi 4 core's share of this machine's core (docs/cpu-budget.md): the SITL is started first
+and stays outside the cap; this process (the companion, and the truth reader and camera and UWB
+rendering that stand in for the sensors) runs inside it. The figures (overruns, the largest setpoint
+gap in GUIDED against GUID_TIMEOUT, the landing on truth) are printed; the test asserts the mission's
+goal, which an offboard failsafe would have ended."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.flightlog.recorder import FlightRecorder
+from companion_firmware.truth_harness import flight_story, fly_on_truth
+from companion_lab.bench.app import run_setpoint_stream
+from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
+
+from .conftest import GRIPPER_SERVO9, arducopter
+from .test_arducopter_delivery import PAD_OFFSET, _config
+
+pytestmark = pytest.mark.firmware
+
+
+def _cap_available() -> str:
+    try:
+        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
+    except (CpuCapError, OSError) as err:
+        return str(err)
+    return ""
+
+
+async def test_delivery_on_arducopter_with_the_companion_at_the_pi4_cpu_cap(ardupilot_root, tmp_path):
+    why = _cap_available()
+    if why:
+        pytest.skip(f"no CPU cap here: {why}")
+    with arducopter(ardupilot_root, tmp_path, extra_params=GRIPPER_SERVO9) as (sitl, truth):
+        config = _config(sitl.connection)
+        ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
+        rec = FlightRecorder(tmp_path / "run", config)
+        try:
+            with capped_process(PI4_FACTOR) as cg:
+                r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=400.0, recorder=rec)
+                throttled = cg.throttled()
+        finally:
+            rec.close()
+            await ap.close()
+    if not (r.delivered and r.returned):
+        print(flight_story(tmp_path / "run", tmp_path / "arducopter.log"))
+    ss = run_setpoint_stream(tmp_path / "run")
+    print(
+        f"\nArduCopter, companion at {PI4_FACTOR} of one core: pad error on truth {r.pad_landing_error_m * 100:.1f} "
+        f"cm; markers {r.markers_used}, uwb {r.uwb_used}; overruns guidance {r.guidance_overruns}, setpoints "
+        f"{r.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in GUIDED {ss['max_gap_ms']} ms, "
+        f"{ss['gaps_over_100_ms']} over 100 ms (GUID_TIMEOUT 3 s: {ss['would_trip']['ardupilot_GUID_TIMEOUT']}); "
+        f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"
+    )
+    assert r.delivered and r.returned, r.failure
+    assert r.pad_landing_error_m < 0.5, r  # on the pad

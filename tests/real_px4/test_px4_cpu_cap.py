@@ -1,0 +1,87 @@
+"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to one and
+to two Raspberry Pi 4 cores' share of this machine's core (docs/cpu-budget.md): PX4 is started first and
+stays outside the cap; this process (the companion, MAVSDK's server it starts, and the truth reader
+and camera and UWB rendering that stand in for the sensors) runs inside it. The figures (overruns,
+the largest setpoint gap in offboard against COM_OF_LOSS_T, the landing on truth) are printed; the
+test asserts the mission's goal, which an offboard failsafe would have ended.
+
+At one Pi 4 core's worth the goal is not met today (2026-11-27, docs/performance.md): MAVSDK's
+server and the companion starved together, the companion's own watchdogs stopped the stream
+(setpoints 0.5-2.4 s old) and declared the link lost, no marker was fused, and the take-off for the
+way home did not reach 2.5 m in time, so the mission aborted after delivering."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+
+import pytest
+
+from companion.autopilot.px4 import Px4Autopilot
+from companion.config import load_config, shipped_params_path
+from companion.flightlog.recorder import FlightRecorder
+from companion_firmware.px4_sitl import Px4Sitl
+from companion_firmware.truth_feed import MavlinkTruth
+from companion_firmware.truth_harness import flight_story, fly_on_truth
+from companion_lab.bench.app import run_setpoint_stream
+from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
+from companion_lab.real_campaign import firmware_tuning
+
+from .test_px4_sitl import PAD_OFFSET_M
+
+pytestmark = pytest.mark.firmware
+
+
+def _cap_available() -> str:
+    try:
+        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
+    except (CpuCapError, OSError) as err:
+        return str(err)
+    return ""
+
+
+@pytest.mark.parametrize(
+    "pi4_cores",
+    [
+        pytest.param(
+            1,
+            marks=pytest.mark.xfail(
+                reason="measured 2026-11-27: stream stalls, link lost, the take-off home aborted (docs/performance.md)"
+            ),
+        ),
+        2,
+    ],
+)
+async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, tmp_path, pi4_cores):
+    why = _cap_available()
+    if why:
+        pytest.skip(f"no CPU cap here: {why}")
+    tuning = firmware_tuning("px4")
+    config = load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={"mission": tuning["mission"], "landing": tuning["landing"]},
+    )
+    with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
+        await asyncio.to_thread(truth.wait, 30.0)
+        with capped_process(pi4_cores * PI4_FACTOR) as cg:
+            ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))
+            rec = FlightRecorder(tmp_path / "run", config)
+            try:
+                r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET_M, timeout_s=400.0, recorder=rec)
+                throttled = cg.throttled()
+            finally:
+                rec.close()
+                await ap.close()
+    if not (r.delivered and r.returned):
+        print(flight_story(tmp_path / "run", tmp_path / "px4.log"))
+    ss = run_setpoint_stream(tmp_path / "run")
+    print(
+        f"\nPX4 SIH, companion at {pi4_cores * PI4_FACTOR:.2f} of one core: pad error on truth "
+        f"{r.pad_landing_error_m * 100:.1f} cm; "
+        f"markers {r.markers_used}, uwb {r.uwb_used}; overruns guidance {r.guidance_overruns}, setpoints "
+        f"{r.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in offboard {ss['max_gap_ms']} ms, "
+        f"{ss['gaps_over_100_ms']} over 100 ms (COM_OF_LOSS_T 1 s: {ss['would_trip']['px4_COM_OF_LOSS_T']}); "
+        f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"
+    )
+    assert r.delivered and r.returned, r.failure
+    assert r.pad_landing_error_m < 0.5, r  # on the pad
