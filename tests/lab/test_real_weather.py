@@ -141,3 +141,16 @@ def test_profile_weather_only_on_the_arducopter_profile():
     assert kept.ready_delay_s == calm.ready_delay_s == 41.0  # the rest of the profile still applies
     with pytest.raises(ValueError, match="profile_weather = true with profile 'px4-sih'"):
         SimConfig(profile="px4-sih", profile_weather=True)
+
+
+def test_gps_step_figures_on_synthetic_rows():
+    from companion_lab.gps_step_probe import figures
+
+    rows = [(0.1 * k, "hover", 0.0, 0.0) for k in range(10)]
+    # a first-order move of -1 m with a 1 s time constant; the estimate stays put
+    rows += [(1.0 + 0.1 * k, "glitch", -(1.0 - math.exp(-0.1 * k)), 0.0) for k in range(101)]
+    f = figures(rows, 1.0)
+    assert f["truth_63pct_s"] == pytest.approx(1.0, abs=0.1)
+    assert f["truth_move_m"] == pytest.approx(-1.0, abs=0.01) and f["estimate_move_m"] == 0.0
+    with pytest.raises(ValueError, match="no hover or glitch"):
+        figures(rows[:10], 1.0)
