@@ -1,0 +1,171 @@
+"""The winch delivery's sequence (mission.delivery = "winch"; docs/winch.md).
+
+Pure. The mission holds the vehicle over the locked pad at winch.hover_height_m and steps this
+sequence each guidance tick with whether the hover is ready (locked, on the pad's centre, at the
+height) and the winch's newest report; the sequence says which DO_WINCH or release to send and
+when it has ended:
+
+settle (ready for settle_s) -> payout (the line to the hover height plus slack: the parcel is down)
+-> release (the existing parcel release, then release_time_s) -> reel in -> done: fly home.
+
+A payout the winch refuses, or a line that does not reach its length within payout_timeout_s, or a
+release the autopilot refuses: the line is reeled in and the vehicle flies home with the parcel,
+the reason said once. A reel-in that is refused or does not finish within reel_timeout_s: home
+anyway, said (hovering on with a line out would not bring it in).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
+from companion.config import WinchConfig
+
+
+class WinchStep(enum.Enum):
+    SETTLE = "settle"
+    PAYOUT = "payout"
+    RELEASE = "release"
+    REEL = "reel"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True)
+class WinchTick:
+    """What the sequence wants this tick: a DO_WINCH to send, the parcel release to send, what to
+    say (EventKind.WINCH details). ``done``: the sequence has ended (the line is in, or given up
+    on): fly home; ``delivered`` then says whether the parcel was released on the pad."""
+
+    command: WinchCommand | None = None
+    release: bool = False
+    say: tuple[str, ...] = ()
+    done: bool = False
+
+
+class WinchSequence:
+    def __init__(self, cfg: WinchConfig, release_time_s: float):
+        self.cfg = cfg
+        self.release_time_s = release_time_s
+        self.step_now = WinchStep.SETTLE
+        self.delivered = False
+        self.failure = ""  # why the parcel was not delivered (or a later problem), "" on success
+        self.paid_out = False  # a payout was accepted: the line may be out, the hover must hold
+        self._ready_since: float | None = None
+        self._t0 = 0.0  # when the current step's command was accepted (or sent)
+        self._sent = False  # the current step's request is out (or answered)
+        self._accepted = False
+        self._say: list[str] = []
+
+    @property
+    def target_m(self) -> float:
+        """The line length at which the parcel stands on the pad with the line slack."""
+        return self.cfg.hover_height_m + self.cfg.slack_m
+
+    # ------------------------------------------------------------------ results
+    def on_result(self, now_s: float, ok: bool, error: str = "") -> None:
+        """The answer to the request this sequence asked for last (DO_WINCH or the release)."""
+        st = self.step_now
+        if ok:
+            self._accepted = True
+            self._t0 = now_s
+            if st is WinchStep.PAYOUT:
+                self.paid_out = True
+                self._say.append(f"payout accepted: lowering the parcel {self.target_m:.2f} m")
+            elif st is WinchStep.RELEASE:
+                self._say.append(f"release commanded; waiting {self.release_time_s} s for the actuator")
+            return
+        if st is WinchStep.PAYOUT:
+            self._fail(now_s, f"the winch refused the payout ({error})")
+        elif st is WinchStep.RELEASE:
+            self._fail(now_s, f"parcel not released: the autopilot refused the release ({error})")
+        elif st is WinchStep.REEL:
+            self._end(f"the winch refused the reel-in ({error}): flying home with the line as it is")
+
+    # ------------------------------------------------------------------ the tick
+    def step(self, now_s: float, ready: bool, status: WinchStatus | None, idle: bool) -> WinchTick:
+        """``ready``: the hover is locked on the pad's centre at the height (judged by the mission);
+        ``status``: the winch's newest report (None: none yet); ``idle``: no request in flight."""
+        st = self.step_now
+        command: WinchCommand | None = None
+        release = False
+        length = status.line_length_m if status is not None else math.nan
+        if st is WinchStep.SETTLE:
+            if not ready:
+                self._ready_since = None
+            elif self._ready_since is None:
+                self._ready_since = now_s
+            if self._ready_since is not None and now_s - self._ready_since >= self.cfg.settle_s and idle:
+                self.step_now = WinchStep.PAYOUT
+                self._begin(now_s)
+                out = self.target_m - (length if math.isfinite(length) else 0.0)
+                command = WinchCommand(
+                    self.cfg.instance, WinchAction.RELATIVE_LENGTH_CONTROL, out, self.cfg.payout_rate_m_s
+                )
+                self._say.append(f"over the pad: paying out {out:.2f} m at {self.cfg.payout_rate_m_s} m/s")
+        elif st is WinchStep.PAYOUT and self._accepted:
+            if math.isfinite(length) and length >= self.target_m - self.cfg.length_tolerance_m:
+                self._say.append(f"parcel down: line {length:.2f} m out after {now_s - self._t0:.1f} s")
+                self.step_now = WinchStep.RELEASE
+                self._begin(now_s)
+            elif now_s - self._t0 > self.cfg.payout_timeout_s:
+                seen = f"line {length:.2f} m" if math.isfinite(length) else "no WINCH_STATUS from the winch"
+                self._fail(
+                    now_s,
+                    f"the line did not pay out: {seen} of {self.target_m:.2f} m after {self.cfg.payout_timeout_s} s",
+                )
+        elif st is WinchStep.RELEASE:
+            if not self._sent and idle:
+                self._sent = True
+                release = True
+            elif self._accepted and now_s - self._t0 >= self.release_time_s:
+                self.delivered = True
+                self._say.append("parcel released on the pad")
+                self.step_now = WinchStep.REEL
+                self._begin(now_s)
+        if self.step_now is WinchStep.REEL and command is None and not release:
+            command = self._reel(now_s, length, idle)
+        tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE)
+        self._say = []
+        return tick
+
+    def _reel(self, now_s: float, length: float, idle: bool) -> WinchCommand | None:
+        if not self._sent:
+            if not idle:
+                return None
+            self._sent = True
+            self._t0 = now_s
+            # back to zero from what the winch reports (from the target when it reports nothing)
+            out = length if math.isfinite(length) else self.target_m
+            self._say.append(f"reeling in {max(out, 0.0):.2f} m at {self.cfg.reel_rate_m_s} m/s")
+            return WinchCommand(
+                self.cfg.instance, WinchAction.RELATIVE_LENGTH_CONTROL, -max(out, 0.0), self.cfg.reel_rate_m_s
+            )
+        if self.step_now is not WinchStep.REEL:
+            return None
+        if math.isfinite(length) and length <= self.cfg.reeled_in_m and self._accepted:
+            self._end(f"line reeled in ({length:.2f} m)")
+        elif now_s - self._t0 > self.cfg.reel_timeout_s:
+            seen = f"{length:.2f} m still out" if math.isfinite(length) else "no WINCH_STATUS from the winch"
+            self._end(f"the line is not back in after {self.cfg.reel_timeout_s} s ({seen}): flying home as it is")
+        return None
+
+    # ------------------------------------------------------------------ helpers
+    def _begin(self, now_s: float) -> None:
+        self._t0 = now_s
+        self._sent = self.step_now is WinchStep.PAYOUT  # the payout command goes out with this tick
+        self._accepted = False
+
+    def _fail(self, now_s: float, reason: str) -> None:
+        """The parcel stays aboard: reel the line in, then home with it."""
+        self.failure = reason
+        self._say.append(f"{reason}: reeling in, flying home with the parcel")
+        self.step_now = WinchStep.REEL
+        self._begin(now_s)
+
+    def _end(self, detail: str) -> None:
+        self._say.append(detail)
+        if not self.delivered and not self.failure:
+            self.failure = detail
+        self.step_now = WinchStep.DONE

@@ -1,0 +1,67 @@
+"""Whole winch deliveries on the embedded simulator (mission.delivery = "winch"): the vehicle
+hovers over the locked pad, lowers the parcel on the simulated winch, releases it where it
+touches the ground (scored on truth against the pad), reels in and flies home without landing at
+the pad; a winch that is missing or stuck brings the parcel home."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion.config import CompanionConfig, load_config, shipped_params_path
+from companion_lab.campaign_landing import draw_scenarios
+from companion_lab.demo import run_demo
+
+pytestmark = pytest.mark.flight
+
+
+def _config(fitted: bool = True, stuck: bool = False) -> CompanionConfig:
+    d = draw_scenarios(5, 11)[3]  # seed 11003: 1.2 m/s of wind, pad 0.4 m off its configured place
+    sim = {
+        "seed": d.seed,
+        "gps_bias_m": list(d.gps_bias_m),
+        "pad_offset_m": list(d.pad_offset_m),
+        "wind_speed_m_s": d.wind_speed_m_s,
+        "wind_from_deg": d.wind_from_deg,
+        "winch": {"fitted": fitted, "stuck": stuck},
+    }
+    return load_config(
+        shipped_params_path("landing_campaign.toml"), overrides={"sim": sim, "mission": {"delivery": "winch"}}
+    )
+
+
+def _kinds(r, kind: str) -> list[str]:  # type: ignore[no-untyped-def]
+    return [d for _, k, _, d in r.events if k == kind]
+
+
+def test_winch_delivery_lowers_the_parcel_onto_the_pad_and_flies_home() -> None:
+    r = run_demo(_config())
+    assert r.delivered and r.returned and not r.home_with_parcel, r.failure
+    assert math.isnan(r.pad_landing_error_m)  # never touched down at the pad
+    dn, de = r.parcel_touchdown_ne_m
+    assert abs(dn) < 0.5 and abs(de) < 0.5, (dn, de)  # on the 1 x 1 m pad
+    assert r.parcel_touchdown_error_m < 0.3
+    winch = _kinds(r, "winch")
+    assert any(s.startswith("over the pad: paying out 5.30 m") for s in winch)
+    assert any(s.startswith("parcel down") for s in winch)
+    assert any(s.startswith("line reeled in") for s in winch)
+    assert "parcel lowered and released on the pad" in _kinds(r, "delivered")
+    assert "winch" in _kinds(r, "phase") and "landing_pad" not in _kinds(r, "phase")
+    assert r.home_landing_error_m < 3.0
+
+
+def test_stuck_winch_times_out_and_brings_the_parcel_home() -> None:
+    r = run_demo(_config(stuck=True))
+    assert not r.delivered and r.returned and r.home_with_parcel
+    assert r.failure.startswith("parcel not delivered: the line did not pay out: line 0.00 m of 5.30 m after 30.0 s")
+    assert math.isnan(r.parcel_touchdown_error_m) and math.isnan(r.pad_landing_error_m)
+    assert not _kinds(r, "released")
+
+
+def test_no_winch_fitted_refuses_and_brings_the_parcel_home() -> None:
+    r = run_demo(_config(fitted=False))
+    assert not r.delivered and r.returned and r.home_with_parcel
+    assert r.failure.startswith("parcel not delivered: the winch refused the payout"), r.failure
+    assert "no winch fitted" in r.failure
+    assert any(d.startswith("winch: ") for d in _kinds(r, "request_failed"))
