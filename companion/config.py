@@ -303,6 +303,18 @@ class WinchConfig(_Section):
         gt=0.0,
         le=600.0,
     )
+    wind_drift_s_m: float = _f(
+        0.0,
+        "s/m",
+        "the parcel's steady drift downwind per metre of line per m/s of wind (its linear drag per unit mass over "
+        "g; 0.03 for 0.3 1/s): the hover moves upwind by this x hover_height_m x the autopilot's wind estimate, "
+        "so the parcel lands on the pad (0: hover over the pad's centre)",
+        ge=0.0,
+        le=0.5,
+    )
+    wind_filter_s: float = _f(
+        3.0, "s", "time constant of the low-pass on the wind estimate the hover correction uses", gt=0.0, le=60.0
+    )
     reeled_in_m: float = _f(0.1, "m", "the line counts as reeled in at or below this length", ge=0.0, le=2.0)
     length_tolerance_m: float = _f(
         0.1, "m", "the line counts as paid out within this of the hover height plus slack", gt=0.0, le=2.0

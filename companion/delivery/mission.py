@@ -40,7 +40,7 @@ from companion.delivery.gonogo import (
 )
 from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
 from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
-from companion.delivery.winch import WinchSequence
+from companion.delivery.winch import WinchSequence, WindCorrection
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
@@ -227,6 +227,7 @@ class DeliveryMission:
         # winch delivery (docs/winch.md): the descent onto the pad becomes a hover and a winch sequence
         self.winch_cfg = (winch or WinchConfig()) if cfg.delivery == "winch" else None
         self.winch: WinchSequence | None = None
+        self._winch_wind = WindCorrection(self.winch_cfg or WinchConfig())
 
     # ------------------------------------------------------------------ public API
     def abort(self, time_s: float, reason: str) -> None:
@@ -978,7 +979,9 @@ class DeliveryMission:
         est, wc, seq = inp.estimate, self.winch_cfg, self.winch
         if est is None or self.frame is None or wc is None or seq is None:
             return None, None, math.nan
-        sp = self._winch_hover_setpoint(est, wc)
+        dn, de = self._winch_wind.offset_ne_m(inp.time_s, inp.wind)
+        hover_n, hover_e = float(self.frame.pad_ned[0]) + dn, float(self.frame.pad_ned[1]) + de
+        sp = self._winch_hover_setpoint(est, wc, hover_n, hover_e)
         req = self._pad_reentry(inp)
         if req is not None or self._reenter:
             return sp, req, math.nan
@@ -986,9 +989,8 @@ class DeliveryMission:
         if not locked and not seq.paid_out:
             h = self._height_above_ground(est)
             return self._pad_try_failed(inp, f"pad lock lost in the winch hover at {h:.1f} m: {why}"), None, math.nan
-        pad = self.frame.pad_ned
-        off = math.hypot(est.north_m - float(pad[0]), est.east_m - float(pad[1]))
-        down = float(pad[2]) - wc.hover_height_m
+        off = math.hypot(est.north_m - hover_n, est.east_m - hover_e)
+        down = float(self.frame.pad_ned[2]) - wc.hover_height_m
         ready = (
             locked
             and off < wc.xy_tolerance_m
@@ -1017,15 +1019,17 @@ class DeliveryMission:
             self._goto(Phase.INBOUND)
         return sp, req, math.nan
 
-    def _winch_hover_setpoint(self, est: StateEstimate, wc: WinchConfig) -> VelocitySetpoint:
-        """Towards the point hover_height_m over the pad (NED): horizontally as the final descent closes
-        its error (landing_xy_gain_1_s, at most landing_max_xy_speed_m_s), vertically at 1/s up to the
-        S5 speed."""
+    def _winch_hover_setpoint(
+        self, est: StateEstimate, wc: WinchConfig, north_m: float, east_m: float
+    ) -> VelocitySetpoint:
+        """Towards the hover point (NED north, east; hover_height_m over the pad): horizontally as the
+        final descent closes its error (landing_xy_gain_1_s, at most landing_max_xy_speed_m_s),
+        vertically at 1/s up to the S5 speed."""
         assert self.frame is not None
         c = self.cfg
         pad = self.frame.pad_ned
-        vn = c.landing_xy_gain_1_s * (float(pad[0]) - est.north_m)
-        ve = c.landing_xy_gain_1_s * (float(pad[1]) - est.east_m)
+        vn = c.landing_xy_gain_1_s * (north_m - est.north_m)
+        ve = c.landing_xy_gain_1_s * (east_m - est.east_m)
         vh = math.hypot(vn, ve)
         if vh > c.landing_max_xy_speed_m_s:
             vn, ve = vn * c.landing_max_xy_speed_m_s / vh, ve * c.landing_max_xy_speed_m_s / vh
@@ -1220,6 +1224,7 @@ class DeliveryMission:
         if phase is Phase.LANDING_PAD and self.winch_cfg is not None:
             phase = Phase.WINCH  # a winch delivery never lands on the pad: it hovers over it
             self.winch = WinchSequence(self.winch_cfg, self.cfg.release_time_s)
+            self._winch_wind = WindCorrection(self.winch_cfg)
         if phase is self.phase:
             return
         log.info("mission phase %s -> %s", self.phase.value, phase.value)

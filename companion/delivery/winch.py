@@ -20,6 +20,7 @@ import enum
 import math
 from dataclasses import dataclass
 
+from companion.autopilot.types import Wind
 from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
 from companion.config import WinchConfig
 
@@ -42,6 +43,33 @@ class WinchTick:
     release: bool = False
     say: tuple[str, ...] = ()
     done: bool = False
+
+
+class WindCorrection:
+    """Where to hover so the parcel, blown downwind on its line, lands on the pad: upwind of the pad
+    by wind_drift_s_m x hover_height_m x the wind (small angles: a linear drag k per unit mass
+    holds the line at tan(theta) = k w / g from the vertical), on the autopilot's wind estimate
+    low-passed over wind_filter_s (the gusts the parcel's swing does not follow)."""
+
+    def __init__(self, cfg: WinchConfig):
+        self.cfg = cfg
+        self._wind: tuple[float, float] | None = None
+        self._t: float | None = None
+
+    def offset_ne_m(self, now_s: float, wind: Wind | None) -> tuple[float, float]:
+        """(north, east) offset of the hover from the pad's centre (m)."""
+        c = self.cfg
+        if c.wind_drift_s_m <= 0.0 or wind is None:
+            return (0.0, 0.0)
+        w = (wind.north_m_s, wind.east_m_s)
+        if self._wind is None or self._t is None:
+            self._wind = w
+        else:
+            a = 1.0 - math.exp(-max(0.0, now_s - self._t) / c.wind_filter_s)
+            self._wind = (self._wind[0] + a * (w[0] - self._wind[0]), self._wind[1] + a * (w[1] - self._wind[1]))
+        self._t = now_s
+        k = -c.wind_drift_s_m * c.hover_height_m  # upwind: against where the air moves
+        return (k * self._wind[0], k * self._wind[1])
 
 
 class WinchSequence:

@@ -3,9 +3,14 @@ in; a refused command or a line that does not pay out ends with the line in and 
 
 from __future__ import annotations
 
+import math
+
+import pytest
+
+from companion.autopilot.types import Wind
 from companion.autopilot.winch import WinchAction, WinchStatus
 from companion.config import WinchConfig
-from companion.delivery.winch import WinchSequence, WinchStep
+from companion.delivery.winch import WinchSequence, WinchStep, WindCorrection
 
 CFG = WinchConfig(hover_height_m=5.0, slack_m=0.3, settle_s=2.0, payout_timeout_s=20.0, reel_timeout_s=20.0)
 
@@ -114,3 +119,15 @@ def test_reel_in_that_never_finishes_ends_after_its_timeout() -> None:
     tick = seq.step(t + 31.3, True, _status(t + 31.3, 5.3), True)
     assert tick.done and seq.delivered and seq.failure == ""
     assert any("not back in after 20.0 s (5.30 m still out)" in s for s in tick.say)
+
+
+def test_wind_correction_hovers_upwind_by_the_parcels_drift() -> None:
+    cfg = WinchConfig(hover_height_m=5.0, wind_drift_s_m=0.03, wind_filter_s=2.0)
+    wc = WindCorrection(cfg)
+    # the air moves north at 4 m/s: the parcel hangs 0.03 * 5 * 4 = 0.6 m north; hover 0.6 m south
+    assert wc.offset_ne_m(0.0, Wind(0.0, 4.0, 0.0)) == pytest.approx((-0.6, 0.0))
+    # a step to 0 m/s is followed over wind_filter_s: after one time constant 1/e of it remains
+    n, _ = wc.offset_ne_m(2.0, Wind(2.0, 0.0, 0.0))
+    assert n == pytest.approx(-0.6 * math.exp(-1.0))
+    assert WindCorrection(WinchConfig()).offset_ne_m(0.0, Wind(0.0, 4.0, 0.0)) == (0.0, 0.0)  # off by default
+    assert wc.offset_ne_m(3.0, None) == (0.0, 0.0)  # no estimate: over the centre

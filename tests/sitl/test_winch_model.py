@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -27,7 +28,7 @@ def _swing(length_m: float, theta0_rad: float, seconds: float, drag_1_s: float =
 
 
 def _period_s(xs: list[tuple[float, float]]) -> float:
-    ups = [t0 + (t1 - t0) * (-x0) / (x1 - x0) for (t0, x0), (t1, x1) in zip(xs, xs[1:], strict=False) if x0 < 0 <= x1]
+    ups = [t0 + (t1 - t0) * (-x0) / (x1 - x0) for (t0, x0), (t1, x1) in itertools.pairwise(xs) if x0 < 0 <= x1]
     return (ups[-1] - ups[0]) / (len(ups) - 1)
 
 
