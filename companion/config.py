@@ -1029,8 +1029,8 @@ class CompanionConfig(_Section):
             )
         if self.mission.delivery == "winch" and self.autopilot == "px4":
             raise ValueError(
-                "mission.delivery = 'winch' with autopilot = 'px4': PX4 v1.16 has no winch driver (its payload "
-                "deliverer handles DO_WINCH as a gripper open/close, without a line length; docs/winch.md); "
+                "mission.delivery = 'winch' with autopilot = 'px4': PX4 v1.16 has no winch (its commander leaves "
+                "DO_WINCH to other modules and none handles it: no COMMAND_ACK, no WINCH_STATUS; docs/winch.md); "
                 "fly winch deliveries with autopilot = 'ardupilot'"
             )
         pol = lc.policy

@@ -37,7 +37,15 @@ from companion.geometry.earth import GeoPoint
 from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_firmware.truth_harness import fly_on_truth
-from companion_lab.campaign_landing import HEADING_VARIANTS, VARIANTS, Draw, draw_scenarios, on_pad, with_pad_heading
+from companion_lab.campaign_landing import (
+    HEADING_VARIANTS,
+    VARIANTS,
+    WINCH_VARIANTS,
+    Draw,
+    draw_scenarios,
+    on_pad,
+    with_pad_heading,
+)
 from companion_lab.landing_campaign import run_landing_campaign, summarize
 
 log = logging.getLogger(__name__)
@@ -80,6 +88,11 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
+    if variant in WINCH_VARIANTS:
+        raise ValueError(
+            "variant 'winch' scores the parcel on the embedded simulator's line model; on real firmware the "
+            "winch delivery is tested by tests/real_ardupilot/test_arducopter_winch.py (docs/winch.md)"
+        )
     tuning = firmware_tuning(autopilot)
     cfg = load_config(
         base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
