@@ -6,10 +6,12 @@ the pad; a winch that is missing or stuck brings the parcel home."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
 from companion.config import CompanionConfig, load_config, shipped_params_path
+from companion.delivery.replay import replay_run
 from companion_lab.campaign_landing import draw_scenarios
 from companion_lab.demo import run_demo
 
@@ -41,8 +43,9 @@ def _kinds(r, kind: str) -> list[str]:  # type: ignore[no-untyped-def]
     return [d for _, k, _, d in r.events if k == kind]
 
 
-def test_winch_delivery_lowers_the_parcel_onto_the_pad_and_flies_home() -> None:
-    r = run_demo(_config())
+def test_winch_delivery_lowers_the_parcel_onto_the_pad_and_flies_home_and_replays(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    r = run_demo(_config(drift_s_m=DRIFT_S_M), run_dir=run)
     assert r.delivered and r.returned and not r.home_with_parcel, r.failure
     assert math.isnan(r.pad_landing_error_m)  # never touched down at the pad
     dn, de = r.parcel_touchdown_ne_m
@@ -55,6 +58,9 @@ def test_winch_delivery_lowers_the_parcel_onto_the_pad_and_flies_home() -> None:
     assert "parcel lowered and released on the pad" in _kinds(r, "delivered")
     assert "winch" in _kinds(r, "phase") and "landing_pad" not in _kinds(r, "phase")
     assert r.home_landing_error_m < 3.0
+    # the winch's reports and the wind each tick handed the mission are logged: replay is exact
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
 
 
 def test_in_a_strong_wind_the_parcel_drifts_off_the_pad_unless_the_hover_moves_upwind() -> None:
