@@ -8,6 +8,8 @@ Phases: preflight -> arming -> takeoff -> outbound (s = +1) -> landing on the pa
 -> (arming -> takeoff -> inbound (s = -1) -> landing at home) -> done. Abort: hold, then land.
 No pad lock: pad_hold, pad_search, then home with the parcel or divert (s = +1) to the alternate
 pad and the same policy there (docs/delivery-policy.md, docs/divert.md).
+Winch delivery (mission.delivery = "winch"): the descent onto the pad becomes phase winch: hover
+over the locked pad, lower, release, reel in (delivery.winch), then inbound (docs/winch.md).
 The pilot always wins: a mode switch away from offboard that we did not ask for ends autonomy.
 """
 

@@ -161,6 +161,14 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         gng = getattr(config, "go_no_go", None)
         if gng is not None and gng.wind_limit_m_s > 0 and "stream_rates_hz" not in kwargs:
             kwargs["stream_rates_hz"] = {**DEFAULT_STREAM_RATES_HZ, WIND_MSG_ID: 2.0}  # the wind check's input
+        winch = getattr(config, "winch", None)
+        if getattr(getattr(config, "mission", None), "delivery", "land") == "winch" and winch is not None:
+            # the winch's line length, and the wind for the hover's correction (docs/winch.md)
+            rates = dict(kwargs.get("stream_rates_hz", DEFAULT_STREAM_RATES_HZ))
+            rates[WINCH_STATUS_MSG_ID] = 5.0
+            if winch.wind_drift_s_m > 0:
+                rates[WIND_MSG_ID] = 2.0
+            kwargs["stream_rates_hz"] = rates
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)
