@@ -70,6 +70,7 @@ PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (
 PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
 PAD_HEIGHT_TOLERANCE_M = 0.3  # the approach height is reached this close
 PAD_HOVER_SPEED_M_S = 0.3  # winch: the payout starts only below this horizontal speed
+WINCH_APPROACH_LEAD_S = 0.5  # winch: the hover takes over this long of the S5 descent before its height
 OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OFFBOARD
 MAX_REQUEST_TRIES = 3
 REQUEST_RETRY_DELAY_S = 1.0  # between tries of a request the autopilot refused for now
@@ -615,7 +616,10 @@ class DeliveryMission:
         target_sector = 5 if s == 1 else 1
         approach_m = self.cfg.final_descent_alt_m
         if s == 1 and self.winch_cfg is not None:
-            approach_m = max(approach_m, self.winch_cfg.hover_height_m)  # the hover starts on the way down
+            # the hover starts on the way down, one velocity-loop lag above its height: the descent at
+            # v5 then slows onto it instead of sinking ~v5 x lag below (1.6 m on ArduCopter SITL)
+            lead_m = self.cfg.sector_speed_m_s[4] * WINCH_APPROACH_LEAD_S
+            approach_m = max(approach_m, self.winch_cfg.hover_height_m + lead_m)
         if self._sector == target_sector and self._height_above_ground(est) < approach_m:
             if s == 1 and self.pad_policy is not None:
                 ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)

@@ -63,17 +63,19 @@ def test_winch_delivery_lowers_the_parcel_onto_the_pad_and_flies_home_and_replay
     assert rep.identical, "\n".join(rep.lines())
 
 
-def test_in_a_strong_wind_the_parcel_drifts_off_the_pad_unless_the_hover_moves_upwind() -> None:
-    """4.6 m/s of wind: the parcel hangs downwind at tan(theta) = k w / g (0.14: 0.7 m at 5 m of line)
-    and lands off the 1 x 1 m pad from a hover over its centre; hovering upwind by the same drift
-    (winch.wind_drift_s_m) puts it back on the pad."""
-    plain = run_demo(_config(draw=0))
-    corrected = run_demo(_config(draw=0, drift_s_m=DRIFT_S_M))
-    assert plain.delivered and corrected.delivered
-    assert plain.parcel_touchdown_error_m > 0.6, plain.parcel_touchdown_ne_m  # 0.90 m measured
-    dn, de = corrected.parcel_touchdown_ne_m
-    assert abs(dn) < 0.5 and abs(de) < 0.5, (dn, de)
-    assert corrected.parcel_touchdown_error_m < 0.35  # 0.25 m measured
+def test_in_a_strong_wind_the_parcel_drifts_off_unless_the_hover_moves_upwind() -> None:
+    """3.3-4.6 m/s of wind (draws 11000, 11001, 11004): the parcel hangs downwind at tan(theta) =
+    k w / g (0.14 at 4.6 m/s: 0.7 m on 5 m of line), and gusts swing it on top. Hovering upwind by
+    the drift (winch.wind_drift_s_m) halves the mean miss; the gusts' swing remains."""
+    plain = [run_demo(_config(draw=k)) for k in (0, 1, 4)]
+    corrected = [run_demo(_config(draw=k, drift_s_m=DRIFT_S_M)) for k in (0, 1, 4)]
+    assert all(r.delivered and r.returned for r in plain + corrected)
+    miss_plain = sum(r.parcel_touchdown_error_m for r in plain) / 3
+    miss_corrected = sum(r.parcel_touchdown_error_m for r in corrected) / 3
+    # measured: 0.85 m over the centre (1.41, 0.66, 0.47), 0.41 m corrected (0.58, 0.25, 0.39)
+    assert miss_plain > 0.7, [r.parcel_touchdown_ne_m for r in plain]
+    assert miss_corrected < 0.5, [r.parcel_touchdown_ne_m for r in corrected]
+    assert miss_corrected < 0.7 * miss_plain
 
 
 def test_stuck_winch_times_out_and_brings_the_parcel_home() -> None:
