@@ -308,6 +308,12 @@ class DeliveryMission:
             self._goto(Phase.ABORT_HOLD)
             return "holding position until the pilot takes over or a land/abort command"
         if kind == "return":
+            if self.phase is Phase.WINCH and self.winch is not None:
+                # the line comes in first (a parcel on the line would be dragged home); then inbound
+                if self.winch.stop(time_s, f"ground command from {sender}: return"):
+                    self._emit(EventKind.WARNING, f"ground command from {sender}: reel in, then return home")
+                    return "reeling in, then returning home along the path"
+                return "ignored: the winch sequence is already ending (reel in, then home)"
             if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT):
                 self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
                 self.summary.failure = "returned on ground command"

@@ -24,6 +24,8 @@ from companion.autopilot.types import Wind
 from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
 from companion.config import WinchConfig
 
+LINE_MOVING_M_S = 0.05  # a winch reporting a faster payout is stopped before the reel-in
+
 
 class WinchStep(enum.Enum):
     SETTLE = "settle"
@@ -85,6 +87,8 @@ class WinchSequence:
         self._sent = False  # the current step's request is out (or answered)
         self._accepted = False
         self._say: list[str] = []
+        self._halt = 0  # reel-in: 1 the stop before it is out, 2 answered (at _halt_t)
+        self._halt_t = 0.0
 
     @property
     def target_m(self) -> float:
@@ -95,6 +99,12 @@ class WinchSequence:
     def on_result(self, now_s: float, ok: bool, error: str = "") -> None:
         """The answer to the request this sequence asked for last (DO_WINCH or the release)."""
         st = self.step_now
+        if st is WinchStep.REEL and self._halt == 1:  # the answer to the stop before the reel-in
+            if not ok:
+                self._end(f"the winch refused to stop the line ({error}): flying home with the line as it is")
+                return
+            self._halt, self._halt_t, self._sent = 2, now_s, False
+            return
         if ok:
             self._accepted = True
             self._t0 = now_s
@@ -153,15 +163,26 @@ class WinchSequence:
                 self.step_now = WinchStep.REEL
                 self._begin(now_s)
         if self.step_now is WinchStep.REEL and command is None and not release:
-            command = self._reel(now_s, length, idle)
+            command = self._reel(now_s, status, idle)
         tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE)
         self._say = []
         return tick
 
-    def _reel(self, now_s: float, length: float, idle: bool) -> WinchCommand | None:
+    def _reel(self, now_s: float, status: WinchStatus | None, idle: bool) -> WinchCommand | None:
+        length = status.line_length_m if status is not None else math.nan
         if not self._sent:
             if not idle:
                 return None
+            speed = status.speed_m_s if status is not None and math.isfinite(status.speed_m_s) else 0.0
+            if self._halt == 0 and speed > LINE_MOVING_M_S:
+                # still paying out (a payout given up): stop the line first, so the reel-in takes back
+                # the length it stopped at, not the one reported before the command took effect
+                self._halt, self._sent, self._t0 = 1, True, now_s
+                self._say.append(f"stopping the line first (paying out at {speed:.2f} m/s)")
+                return WinchCommand(self.cfg.instance, WinchAction.RATE_CONTROL, 0.0, 0.0)
+            stale = status is None or status.time_s <= self._halt_t
+            if self._halt == 2 and stale and now_s - self._halt_t < self.cfg.reel_timeout_s:
+                return None  # waiting for a report from after the stop
             self._sent = True
             self._t0 = now_s
             # back to zero from what the winch reports (from the target when it reports nothing)
@@ -179,9 +200,23 @@ class WinchSequence:
             self._end(f"the line is not back in after {self.cfg.reel_timeout_s} s ({seen}): flying home as it is")
         return None
 
+    def stop(self, now_s: float, reason: str) -> bool:
+        """Give the delivery up (a ground command to return): reel in from wherever the line is,
+        then done. False when the sequence ends by itself already (reeling in, or released)."""
+        if self.step_now in (WinchStep.REEL, WinchStep.DONE) or (self.step_now is WinchStep.RELEASE and self._sent):
+            return False  # coming in already, or the release is out: it reels in within release_time_s
+        if self.step_now is WinchStep.SETTLE:
+            self._say.append(f"{reason}: no line out")
+            self.failure = reason
+            self.step_now = WinchStep.DONE
+            return True
+        self._fail(now_s, reason)
+        return True
+
     # ------------------------------------------------------------------ helpers
     def _begin(self, now_s: float) -> None:
         self._t0 = now_s
+        self._halt = 0
         self._sent = self.step_now is WinchStep.PAYOUT  # the payout command goes out with this tick
         self._accepted = False
 

@@ -108,3 +108,19 @@ def test_winch_delivery_over_mavlink_against_the_ardupilot_sim_vehicle() -> None
     assert r.parcel_touchdown_error_m < 0.5  # GPS only (sitl_short has no pad sensors), no wind
     winch = _kinds(r, "winch")
     assert any(s.startswith("parcel down") for s in winch) and any(s.startswith("line reeled in") for s in winch)
+
+
+def test_a_return_command_during_the_payout_reels_in_and_brings_the_parcel_home() -> None:
+    replies: list[str] = []
+
+    def on_tick(shell, out) -> None:  # type: ignore[no-untyped-def]
+        w = shell.autopilot.telemetry.winch
+        if not replies and out.phase.value == "winch" and w is not None and w.line_length_m > 2.0:
+            replies.append(shell.command("return", "test"))
+
+    r = run_demo(_config(), on_tick=on_tick)
+    assert replies == ["reeling in, then returning home along the path"]
+    assert not r.delivered and r.returned and r.home_with_parcel
+    assert r.failure == "parcel not delivered: ground command from test: return"
+    assert math.isnan(r.parcel_touchdown_error_m)  # lifted back before it reached the ground
+    assert any(d.startswith("reeling in ") for d in _kinds(r, "winch"))

@@ -131,3 +131,46 @@ def test_wind_correction_hovers_upwind_by_the_parcels_drift() -> None:
     assert n == pytest.approx(-0.6 * math.exp(-1.0))
     assert WindCorrection(WinchConfig()).offset_ne_m(0.0, Wind(0.0, 4.0, 0.0)) == (0.0, 0.0)  # off by default
     assert wc.offset_ne_m(3.0, None) == (0.0, 0.0)  # no estimate: over the centre
+
+
+def test_stop_reels_in_from_the_payout_and_ends_at_once_before_it() -> None:
+    seq = WinchSequence(CFG, 1.0)
+    assert seq.stop(0.5, "ground command from gcs: return")  # settling: nothing is out
+    assert seq.step(0.6, True, None, True).done and seq.failure.startswith("ground command")
+    seq = WinchSequence(CFG, 1.0)
+    t = _settled(seq)
+    seq.on_result(t, True)
+    assert seq.stop(t + 3.0, "ground command from gcs: return")
+    tick = seq.step(t + 3.05, True, _status(t + 3.05, 1.5), True)
+    assert tick.command is not None and tick.command.length_m == -1.5  # in from where it is
+    assert not seq.stop(t + 3.1, "again")  # already coming in
+    seq.on_result(t + 3.1, True)
+    assert seq.step(t + 7.0, True, _status(t + 7.0, 0.05), True).done and not seq.delivered
+
+
+def test_a_line_still_paying_out_is_stopped_before_the_reel_in() -> None:
+    seq = WinchSequence(CFG, 1.0)
+    t = _settled(seq)
+    seq.on_result(t, True)
+    seq.stop(t + 3.0, "ground command from gcs: return")
+    tick = seq.step(t + 3.05, True, WinchStatus(t + 3.0, 1.5, 0.5), True)
+    assert tick.command is not None and tick.command.action is WinchAction.RATE_CONTROL
+    assert tick.command.rate_m_s == 0.0 and any("stopping the line first" in s for s in tick.say)
+    seq.on_result(t + 3.1, True)
+    # a report from before the stop's answer is not the length it stopped at
+    assert seq.step(t + 3.15, True, WinchStatus(t + 3.05, 1.55, 0.5), True).command is None
+    tick = seq.step(t + 3.3, True, WinchStatus(t + 3.25, 1.58, 0.0), True)
+    assert tick.command is not None and tick.command.length_m == -1.58
+    seq.on_result(t + 3.35, True)
+    assert seq.step(t + 8.0, True, WinchStatus(t + 8.0, 0.0, 0.0), True).done
+
+
+def test_a_refused_stop_ends_the_sequence_with_the_line_as_it_is() -> None:
+    seq = WinchSequence(CFG, 1.0)
+    t = _settled(seq)
+    seq.on_result(t, True)
+    seq.stop(t + 3.0, "ground command from gcs: return")
+    seq.step(t + 3.05, True, WinchStatus(t + 3.0, 1.5, 0.5), True)
+    seq.on_result(t + 3.1, False, "FAILED")
+    tick = seq.step(t + 3.15, True, WinchStatus(t + 3.1, 1.55, 0.5), True)
+    assert tick.done and any("refused to stop the line" in s for s in tick.say)
