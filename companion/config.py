@@ -199,6 +199,13 @@ class MissionConfig(_Section):
         "when the autopilot refuses or fails the release: fly home with the parcel (return) or stay "
         "disarmed on the pad (stay); the mission reports the delivery as failed either way",
     )
+    delivery: Literal["land", "winch"] = _f(
+        "land",
+        "-",
+        "how the parcel is delivered: land (land on the pad, release, take off again) or winch (hover over the "
+        "locked pad at winch.hover_height_m, lower the parcel on the autopilot's winch, release, reel in, fly "
+        "home without landing; docs/winch.md)",
+    )
     pad: PadConfig = Field(default_factory=lambda: PadConfig(north_m=70.0, east_m=71.0))
     alternate_pad: PadConfig | None = _f(
         None,
@@ -255,6 +262,77 @@ class PayloadConfig(_Section):
     servo_pwm_us: int = _f(1900, "us", "PWM that opens the release servo", ge=800, le=2200)
     actuator_index: int = _f(1, "-", "PX4 actuator set index for release = actuator", ge=1, le=6)
     actuator_value: float = _f(1.0, "-", "PX4 actuator value that opens the release (-1..1)", ge=-1.0, le=1.0)
+
+
+class WinchConfig(_Section):
+    """Winch delivery (mission.delivery = "winch"): the autopilot's winch (MAV_CMD_DO_WINCH) lowers
+    the parcel from a hover over the locked pad (docs/winch.md)."""
+
+    instance: int = _f(1, "-", "winch instance (DO_WINCH param 1; ArduCopter has one and ignores it)", ge=1, le=8)
+    hover_height_m: float = _f(
+        5.0, "m", "height above the pad the vehicle holds while the parcel is lowered", ge=1.0, le=30.0
+    )
+    slack_m: float = _f(
+        0.3,
+        "m",
+        "line paid out beyond the hover height, so the parcel stands on the pad with the line slack before the release",
+        ge=0.0,
+        le=5.0,
+    )
+    payout_rate_m_s: float = _f(
+        0.5,
+        "m/s",
+        "line payout rate asked for (DO_WINCH param 4; ArduCopter's length control drives at up to "
+        "WINCH_RATE_MAX: set it to this rate)",
+        gt=0.0,
+        le=5.0,
+    )
+    reel_rate_m_s: float = _f(0.5, "m/s", "line reel-in rate asked for (DO_WINCH param 4)", gt=0.0, le=5.0)
+    payout_timeout_s: float = _f(
+        30.0,
+        "s",
+        "the line must reach the hover height plus slack within this time after the payout command, else the "
+        "parcel is reeled back in and flown home",
+        gt=0.0,
+        le=600.0,
+    )
+    reel_timeout_s: float = _f(
+        30.0,
+        "s",
+        "the line must be back in (winch.reeled_in_m) within this time, else the vehicle flies home saying so",
+        gt=0.0,
+        le=600.0,
+    )
+    wind_drift_s_m: float = _f(
+        0.0,
+        "s/m",
+        "the parcel's steady drift downwind per metre of line per m/s of wind (its linear drag per unit mass over "
+        "g; 0.03 for 0.3 1/s): the hover moves upwind by this x hover_height_m x the autopilot's wind estimate, "
+        "so the parcel lands on the pad (0: hover over the pad's centre)",
+        ge=0.0,
+        le=0.5,
+    )
+    wind_filter_s: float = _f(
+        3.0, "s", "time constant of the low-pass on the wind estimate the hover correction uses", gt=0.0, le=60.0
+    )
+    reeled_in_m: float = _f(0.1, "m", "the line counts as reeled in at or below this length", ge=0.0, le=2.0)
+    length_tolerance_m: float = _f(
+        0.1, "m", "the line counts as paid out within this of the hover height plus slack", gt=0.0, le=2.0
+    )
+    settle_s: float = _f(
+        2.0, "s", "hold over the pad within the tolerances this long before the payout starts", ge=0.0, le=60.0
+    )
+    xy_tolerance_m: float = _f(
+        0.2, "m", "the payout starts only this close to the locked pad's centre (horizontally)", gt=0.0, le=5.0
+    )
+    status_timeout_s: float = _f(
+        3.0,
+        "s",
+        "the winch's line length (WINCH_STATUS) must be younger than this while the line moves, else the winch "
+        "counts as failed",
+        gt=0.0,
+        le=60.0,
+    )
 
 
 class LimitsConfig(_Section):
@@ -513,6 +591,25 @@ class VehicleSimConfig(_Section):
     battery_endurance_s: float = _f(1500.0, "s", "flight time from 100 % to 0 % battery", gt=10.0, le=36000.0)
 
 
+class SimWinchConfig(_Section):
+    """The simulated winch and parcel (sitl/winch.py; docs/winch.md)."""
+
+    fitted: bool = _f(
+        False,
+        "-",
+        "a winch is fitted (as ArduCopter with WINCH_TYPE = 1 and an output at SERVOn_FUNCTION = 88); false: "
+        "DO_WINCH answers FAILED, as ArduCopter does without one",
+    )
+    rate_max_m_s: float = _f(0.5, "m/s", "the winch's largest line speed (ArduCopter WINCH_RATE_MAX)", gt=0.0, le=10.0)
+    pos_p: float = _f(1.0, "1/s", "length control gain (ArduCopter WINCH_POS_P)", gt=0.0, le=10.0)
+    stuck: bool = _f(
+        False, "-", "the drum does not turn: the line never pays out (a failure; an encoder reports it as it is)"
+    )
+    parcel_drag_1_s: float = _f(
+        0.3, "1/s", "the parcel's linear air drag per unit air-relative speed (pulls it downwind)", ge=0.0, le=5.0
+    )
+
+
 class SimConfig(_Section):
     """A simulated scenario: seed, home, wind, sensors."""
 
@@ -596,6 +693,7 @@ class SimConfig(_Section):
         "pad_offset_m), and none at mission.pad: a delivery whose first pad is missing",
     )
     vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
+    winch: SimWinchConfig = Field(default_factory=SimWinchConfig)
 
     @model_validator(mode="after")
     def _finite(self) -> SimConfig:
@@ -894,6 +992,7 @@ class CompanionConfig(_Section):
     gcs: GcsConfig = Field(default_factory=GcsConfig)
     fence: FenceConfig = Field(default_factory=FenceConfig)
     go_no_go: GoNoGoConfig = Field(default_factory=GoNoGoConfig)
+    winch: WinchConfig = Field(default_factory=WinchConfig)
 
     @model_validator(mode="after")
     def _fence_holds_home_and_pad(self) -> CompanionConfig:
@@ -951,6 +1050,18 @@ class CompanionConfig(_Section):
             raise ValueError(
                 "landing.landing_target_output = 'local_ned' needs landing.fusion = true: the pad's position in the "
                 "autopilot's frame comes from the EKF's GPS-bias state"
+            )
+        if self.mission.delivery == "winch" and lc.controller == "autopilot":
+            raise ValueError(
+                "mission.delivery = 'winch' with landing.controller = 'autopilot': a winch delivery hovers on the "
+                "companion's fused pad estimate and never hands a descent to the autopilot; use "
+                "controller = 'companion'"
+            )
+        if self.mission.delivery == "winch" and self.autopilot == "px4":
+            raise ValueError(
+                "mission.delivery = 'winch' with autopilot = 'px4': PX4 v1.16 has no winch (its commander leaves "
+                "DO_WINCH to other modules and none handles it: no COMMAND_ACK, no WINCH_STATUS; docs/winch.md); "
+                "fly winch deliveries with autopilot = 'ardupilot'"
             )
         pol = lc.policy
         if pol.require_pad_lock and pol.search_radius_m > 0 and pol.search_height_m <= self.mission.final_descent_alt_m:

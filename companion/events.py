@@ -16,6 +16,7 @@ class Phase(enum.Enum):
     PAD_HOLD = "pad_hold"  # no pad lock: hold at the approach height (or fly onto the pad once locked)
     PAD_SEARCH = "pad_search"  # no pad lock: the search pattern around the configured pad
     DIVERT = "divert"  # no pad lock after the tries: vector field, s = +1, to the alternate pad
+    WINCH = "winch"  # winch delivery: hover over the locked pad, lower the parcel, release, reel in
     TAKEOFF_RETURN = "takeoff_return"
     INBOUND = "inbound"  # vector field, s = -1, back along the path
     LANDING_HOME = "landing_home"
@@ -46,6 +47,7 @@ class EventKind(enum.Enum):
     WARNING = "warning"
     PAD_LOCK = "pad_lock"  # a step of the no-release-off-the-pad policy, with its reason
     GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
+    WINCH = "winch"  # a step of the winch delivery (payout, parcel down, reeled in) or why it failed
     ORDER = "order"  # a delivery order from the ground: received, accepted or refused (with the reason), flown
 
 

@@ -83,6 +83,13 @@ class DemoResult:
     pad_tries: int = 0  # descents onto the pad the no-release-off-the-pad policy stopped
     # |true yaw - true pad heading| at the pad touchdown (deg); NaN for a pad without a heading
     pad_heading_error_deg: float = math.nan
+    # winch delivery: where the parcel first touched the ground minus the true pad centre (N, E, m);
+    # NaN without a winch delivery or when the parcel never reached the ground
+    parcel_touchdown_ne_m: tuple[float, float] = (math.nan, math.nan)
+
+    @property
+    def parcel_touchdown_error_m(self) -> float:
+        return math.hypot(*self.parcel_touchdown_ne_m)
 
     @property
     def speedup(self) -> float:
@@ -318,16 +325,31 @@ async def fly(
             if pad_td and simulated_pad(config).heading_deg is not None
             else math.nan
         ),
+        parcel_touchdown_ne_m=parcel_touchdown_ne(vehicle, (pad_n, pad_e)),
     )
     if run_dir is not None:
         summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
         if math.isnan(result.pad_heading_error_deg):
             del summary_json["pad_heading_error_deg"]  # a pad without a heading: as before
+        if math.isnan(result.parcel_touchdown_error_m):
+            del summary_json["parcel_touchdown_ne_m"]  # no winch delivery: as before
+        else:
+            summary_json["parcel_touchdown_error_m"] = result.parcel_touchdown_error_m
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]
         summary_json.update(path_summary(config, scorer))
         (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
     return result
+
+
+def parcel_touchdown_ne(vehicle: SimVehicle, pad_ne: tuple[float, float]) -> tuple[float, float]:
+    """Where the winch-lowered parcel first touched the ground, minus the true pad centre (truth
+    frame, m); NaN without a simulated winch or a touchdown."""
+    par = vehicle.parcel
+    td = par.touchdown if par is not None else None
+    if td is None:
+        return (math.nan, math.nan)
+    return (td.north_m - pad_ne[0], td.east_m - pad_ne[1])
 
 
 class _ThreadedTruth:

@@ -42,6 +42,7 @@ from companion_firmware.truth_harness import fly_on_truth
 from companion_lab.campaign_landing import (
     HEADING_VARIANTS,
     VARIANTS,
+    WINCH_VARIANTS,
     Draw,
     draw_scenarios,
     on_pad,
@@ -91,6 +92,11 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
+    if variant in WINCH_VARIANTS:
+        raise ValueError(
+            "variant 'winch' scores the parcel on the embedded simulator's line model; on real firmware the "
+            "winch delivery is tested by tests/real_ardupilot/test_arducopter_winch.py (docs/winch.md)"
+        )
     tuning = firmware_tuning(autopilot)
     cfg = load_config(
         base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}

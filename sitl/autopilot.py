@@ -27,6 +27,7 @@ from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.mission_plan import PlanItem
 from companion.autopilot.types import FlightMode, LandingTarget, StatusText, Wind
+from companion.autopilot.winch import WinchCommand, WinchStatus
 from companion.config import SimConfig
 from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
@@ -48,6 +49,7 @@ _MAV_COMMANDS: dict[str, tuple[int, tuple[float, ...]]] = {
     "land": (21, ()),  # NAV_LAND
     "precision_land": (176, (1.0, 4.0, 9.0)),  # DO_SET_MODE custom, PX4 AUTO.PRECLAND
     "release_payload": (211, (1.0, 0.0)),  # DO_GRIPPER 1 release
+    "winch": (42600, ()),  # DO_WINCH (params filled in)
 }
 
 
@@ -118,6 +120,9 @@ class SimAutopilot(Autopilot):
         enc = self.tlog
         cmd, params = _MAV_COMMANDS.get(name, (0, ()))
         if enc is not None and cmd:
+            if name == "winch":
+                w = args[0]
+                params = (float(w.instance), float(int(w.action)), w.length_m, w.rate_m_s)
             if name == "takeoff":  # PX4 takes the altitude AMSL in param7
                 home = self.telemetry.home
                 alt = (home.alt_amsl_m if home is not None else 0.0) + float(args[0])
@@ -166,6 +171,10 @@ class SimAutopilot(Autopilot):
 
     async def precision_land(self) -> None:
         await self._command("precision_land", self.vehicle.precision_land)
+
+    async def winch(self, command: WinchCommand) -> None:
+        command.validate()
+        await self._command("winch", self.vehicle.winch_command, command)
 
     # the autopilot's fence storage: kept as sent, checked as the firmware checks the items
     fence: AutopilotFence | None = None
@@ -233,6 +242,9 @@ class SimAutopilot(Autopilot):
             if k % n_status == 0:
                 tc.push(v.status())
                 tc.push_wind(Wind(t, *v.wind_ned()))  # the autopilot's wind estimate (no listener sees it)
+                if v.winch is not None:  # WINCH_STATUS (ArduCopter streams it with EXTRA3)
+                    w = v.winch
+                    tc.push_winch(WinchStatus(t, w.length_m, w.rate_desired_m_s, w.flags()))
                 home = v.home()
                 if home is not None:
                     tc.push(home)

@@ -29,11 +29,13 @@ from companion.autopilot.types import (
     PositionNed,
     VehicleStatus,
 )
+from companion.autopilot.winch import WinchCommand
 from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.profiles import VELOCITY_BIAS_HEIGHTS_M, EstimatorState, apply_profile, get_profile
+from companion_sitl.winch import ParcelOnLine, SimWinch
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +47,9 @@ AUTO_DISARM_AFTER_LAND_S = 2.0
 PLD_HACC_RAD_M = 0.2  # PX4 precision landing: horizontal acceptance radius before descending
 PLD_BTOUT_S = 5.0  # PX4 precision landing: target lost after this long -> plain landing
 YAW_RATE_MAX = math.radians(60.0)
+
+
+PARCEL_STEP_HZ = 1000.0  # the parcel pendulum's least integration rate (sitl/winch.py)
 
 
 class SimCommandError(RuntimeError):
@@ -121,6 +126,11 @@ class SimVehicle:
         # the autopilot profile fixes what the firmware decides (sitl/profiles.py)
         self.profile = get_profile(self.cfg.profile)
         self.cfg = apply_profile(self.cfg)
+        wc = self.cfg.winch
+        if wc.fitted:
+            self.winch = SimWinch(wc.rate_max_m_s, wc.pos_p, stuck=wc.stuck)
+            self.parcel = ParcelOnLine(wc.parcel_drag_1_s)
+            self._winch_prev = (self.pn, self.pe, self.pd)
         c = self.cfg
         ss = np.random.SeedSequence(c.seed)
         self._rng_wind, self._rng_gps, self._rng_imu, self._rng_misc = (np.random.default_rng(s) for s in ss.spawn(4))
@@ -295,6 +305,38 @@ class SimVehicle:
     def release_payload(self) -> None:
         if self._release_at is None and not self.payload_released:
             self._release_at = self.time_s + self.cfg.vehicle.release_delay_s
+
+    # ------------------------------------------------------------------ winch (sitl/winch.py)
+    winch: SimWinch | None = None  # set in __post_init__ when sim.winch.fitted
+    parcel: ParcelOnLine | None = None
+
+    def winch_command(self, cmd: WinchCommand) -> None:
+        """DO_WINCH as ArduCopter answers it: FAILED without a winch (WINCH_TYPE = 0)."""
+        if self.winch is None:
+            raise SimCommandError("no winch fitted (ArduCopter: WINCH_TYPE = 0 answers DO_WINCH with FAILED)")
+        self.winch.command(cmd)
+        self._text(f"winch: action {int(cmd.action)}, {cmd.length_m:+.2f} m")
+
+    def _step_winch(self, t: float, dt: float) -> None:
+        w, par = self.winch, self.parcel
+        assert w is not None and par is not None
+        l0 = w.length_m
+        w.step(dt)
+        l1 = w.length_m
+        if self.payload_released and not par.released:
+            par.release()
+        # the pendulum at >= 1 kHz: its numerical damping is then below 1 % of the swing per period
+        n = max(1, math.ceil(dt * PARCEL_STEP_HZ - 1e-9))
+        h = dt / n
+        a0 = self._winch_prev
+        a1 = (self.pn, self.pe, self.pd)
+        va = (self.vn, self.ve, self.vd)
+        wind = (self._wind[0], self._wind[1], self._wind[2])
+        for k in range(1, n + 1):
+            f = k / n
+            a = (a0[0] + f * (a1[0] - a0[0]), a0[1] + f * (a1[1] - a0[1]), a0[2] + f * (a1[2] - a0[2]))
+            par.step(t - dt + k * h, h, a, va, l0 + f * (l1 - l0), wind)
+        self._winch_prev = a1
 
     def pilot_set_mode(self, mode: FlightMode) -> None:
         """The pilot flips the RC mode switch (tests and the RC mixer use this)."""
@@ -521,6 +563,8 @@ class SimVehicle:
         self._land_detector(t)
         if self.armed and not on_ground:
             self.battery_pct = max(0.0, self.battery_pct - 100.0 * dt / vc.battery_endurance_s)
+        if self.winch is not None:
+            self._step_winch(t, dt)
         if t >= self._truth_next:
             self._truth_next = t + 0.1
             self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))

@@ -29,6 +29,7 @@ from companion.autopilot.types import (
     VehicleStatus,
     Wind,
 )
+from companion.autopilot.winch import WinchCommand, WinchStatus
 from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
@@ -177,6 +178,7 @@ class TelemetryCache:
         self.last_rejection: str = ""
         self.rc_input: RcInput | None = None
         self.wind: Wind | None = None  # the autopilot's wind estimate, when asked for (push_wind)
+        self.winch: WinchStatus | None = None  # the winch's newest report (push_winch), where one is fitted
         self._listeners: list[Callable[[TelemetrySample], None]] = []
         self._rc_listeners: list[Callable[[RcInput], None]] = []
 
@@ -219,6 +221,18 @@ class TelemetryCache:
             self.last_rejection = str(err)
             return False
         self.wind = wind
+        return True
+
+    def push_winch(self, status: WinchStatus) -> bool:
+        """Store the winch's newest report (rejected and counted when not finite); no listener sees it."""
+        try:
+            status.validate()
+        except ValueError as err:
+            self.rejected["WinchStatus"] = self.rejected.get("WinchStatus", 0) + 1
+            self.last_rejection = str(err)
+            return False
+        self.received["WinchStatus"] = self.received.get("WinchStatus", 0) + 1
+        self.winch = status
         return True
 
     def push(self, sample: TelemetrySample) -> bool:
@@ -315,6 +329,11 @@ class Autopilot(abc.ABC):
     @abc.abstractmethod
     async def release_payload(self) -> None:
         """Open the gripper / move the release servo."""
+
+    async def winch(self, command: WinchCommand) -> None:
+        """One MAV_CMD_DO_WINCH (companion.autopilot.winch); its line length arrives in
+        ``telemetry.winch``. Backends without a winch raise :class:`AutopilotError`."""
+        raise AutopilotError(f"{type(self).__name__} cannot operate a winch")
 
     # Optional capabilities of the Dart cyber-pilot (hybrid mixer). A backend without them
     # raises AutopilotError; RC channels, where reported, arrive in ``telemetry.rc_input``.

@@ -196,6 +196,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ("path RMS distance (estimate, sqrt(2V), delivery Fig. 9)", _fmt_m(result.path_rms_estimate_m)),
         ("landing error on the pad (truth)", _fmt_m(result.pad_landing_error_m)),
         ("landing error at home (truth)", _fmt_m(result.home_landing_error_m)),
+        *(
+            [("parcel touchdown from the pad centre (truth, winch)", _fmt_m(result.parcel_touchdown_error_m))]
+            if math.isfinite(result.parcel_touchdown_error_m)
+            else []
+        ),
         ("setpoints sent / clamped", f"{result.setpoints_sent} / {result.setpoints_clamped}"),
         (
             "simulated / wall time",

@@ -8,6 +8,8 @@ Phases: preflight -> arming -> takeoff -> outbound (s = +1) -> landing on the pa
 -> (arming -> takeoff -> inbound (s = -1) -> landing at home) -> done. Abort: hold, then land.
 No pad lock: pad_hold, pad_search, then home with the parcel or divert (s = +1) to the alternate
 pad and the same policy there (docs/delivery-policy.md, docs/divert.md).
+Winch delivery (mission.delivery = "winch"): the descent onto the pad becomes phase winch: hover
+over the locked pad, lower, release, reel in (delivery.winch), then inbound (docs/winch.md).
 The pilot always wins: a mode switch away from offboard that we did not ask for ends autonomy.
 """
 
@@ -21,7 +23,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus, Wind
-from companion.config import FenceConfig, GoNoGoConfig, LimitsConfig, MissionConfig, PadLockPolicyConfig
+from companion.autopilot.winch import WinchCommand, WinchStatus
+from companion.config import (
+    FenceConfig,
+    GoNoGoConfig,
+    LimitsConfig,
+    MissionConfig,
+    PadLockPolicyConfig,
+    WinchConfig,
+)
 from companion.delivery.gonogo import (
     BatteryMonitor,
     WayHome,
@@ -32,6 +42,7 @@ from companion.delivery.gonogo import (
 )
 from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
 from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
+from companion.delivery.winch import WinchSequence, WindCorrection
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
@@ -53,10 +64,13 @@ FOLLOW_PHASES = (
     Phase.PAD_HOLD,
     Phase.PAD_SEARCH,
     Phase.DIVERT,
+    Phase.WINCH,
 )
 PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (then capped)
 PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
 PAD_HEIGHT_TOLERANCE_M = 0.3  # the approach height is reached this close
+PAD_HOVER_SPEED_M_S = 0.3  # winch: the payout starts only below this horizontal speed
+WINCH_APPROACH_LEAD_S = 0.5  # winch: the hover takes over this long of the S5 descent before its height
 OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OFFBOARD
 MAX_REQUEST_TRIES = 3
 REQUEST_RETRY_DELAY_S = 1.0  # between tries of a request the autopilot refused for now
@@ -72,6 +86,7 @@ class RequestKind(enum.Enum):
     LAND = "land"
     PRECISION_LAND = "precision_land"
     RELEASE = "release"
+    WINCH = "winch"  # one MAV_CMD_DO_WINCH (Request.winch)
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,6 +94,7 @@ class Request:
     id: int
     kind: RequestKind
     alt_rel_m: float = 0.0
+    winch: WinchCommand | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,6 +121,7 @@ class MissionInputs:
     wind: Wind | None = None  # the autopilot's wind estimate (the wind go / no-go)
     # the heading of the pad landed on (NED rad: measured, else configured); None: no alignment
     pad_heading_rad: float | None = None
+    winch: WinchStatus | None = None  # the winch's newest report (mission.delivery = "winch")
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +164,7 @@ class DeliveryMission:
         fence: FenceConfig | None = None,
         limits: LimitsConfig | None = None,
         go_no_go: GoNoGoConfig | None = None,
+        winch: WinchConfig | None = None,
     ):
         """``landing_controller``: "companion" flies the descent onto the pad with velocity
         setpoints; "autopilot" hands it to the autopilot's own precision landing (fed
@@ -209,6 +227,10 @@ class DeliveryMission:
             if g is not None and g.wind_limit_m_s > 0
             else None
         )
+        # winch delivery (docs/winch.md): the descent onto the pad becomes a hover and a winch sequence
+        self.winch_cfg = (winch or WinchConfig()) if cfg.delivery == "winch" else None
+        self.winch: WinchSequence | None = None
+        self._winch_wind = WindCorrection(self.winch_cfg or WinchConfig())
 
     # ------------------------------------------------------------------ public API
     def abort(self, time_s: float, reason: str) -> None:
@@ -286,6 +308,12 @@ class DeliveryMission:
             self._goto(Phase.ABORT_HOLD)
             return "holding position until the pilot takes over or a land/abort command"
         if kind == "return":
+            if self.phase is Phase.WINCH and self.winch is not None:
+                # the line comes in first (a parcel on the line would be dragged home); then inbound
+                if self.winch.stop(time_s, f"ground command from {sender}: return"):
+                    self._emit(EventKind.WARNING, f"ground command from {sender}: reel in, then return home")
+                    return "reeling in, then returning home along the path"
+                return "ignored: the winch sequence is already ending (reel in, then home)"
             if self.phase in (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT):
                 self._emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
                 self.summary.failure = "returned on ground command"
@@ -300,6 +328,22 @@ class DeliveryMission:
             log.warning("result for unknown request %s ignored", result)
             return
         self._pending = None
+        if (
+            self.phase is Phase.WINCH
+            and self.winch is not None
+            and p.request.kind
+            in (
+                RequestKind.WINCH,
+                RequestKind.RELEASE,
+            )
+        ):
+            # the winch sequence decides what a refusal means (reel in, home with the parcel): no retries
+            if not result.ok:
+                self._emit(EventKind.REQUEST_FAILED, f"{p.request.kind.value}: {result.error}")
+            elif p.request.kind is RequestKind.RELEASE:
+                self._emit(EventKind.RELEASED, "release commanded over the pad (winch)")
+            self.winch.on_result(self._now, result.ok, result.error)
+            return
         if result.ok:
             self._on_request_ok(p.request)
             return
@@ -576,7 +620,13 @@ class DeliveryMission:
                 self._stream_t0 = None
             return sp, req, lyap
         target_sector = 5 if s == 1 else 1
-        if self._sector == target_sector and self._height_above_ground(est) < self.cfg.final_descent_alt_m:
+        approach_m = self.cfg.final_descent_alt_m
+        if s == 1 and self.winch_cfg is not None:
+            # the hover starts on the way down, one velocity-loop lag above its height: the descent at
+            # v5 then slows onto it instead of sinking ~v5 x lag below (1.6 m on ArduCopter SITL)
+            lead_m = self.cfg.sector_speed_m_s[4] * WINCH_APPROACH_LEAD_S
+            approach_m = max(approach_m, self.winch_cfg.hover_height_m + lead_m)
+        if self._sector == target_sector and self._height_above_ground(est) < approach_m:
             if s == 1 and self.pad_policy is not None:
                 ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
                 if not ok:
@@ -933,6 +983,72 @@ class DeliveryMission:
             self._emit(EventKind.RETURNED, "landed at home")
             self._goto(Phase.DONE)
 
+    def _do_winch(self, inp: MissionInputs) -> tuple:
+        """Winch delivery: hold over the pad (on the fused estimate) at the hover height and step the
+        winch sequence (delivery.winch). Until the payout starts, the pad-required policy holds as in
+        a descent: a lost lock is a failed try (hold, search, tries). Once the line may be out the
+        hover holds on the estimate whatever the lock. The sequence's end: fly home."""
+        est, wc, seq = inp.estimate, self.winch_cfg, self.winch
+        if est is None or self.frame is None or wc is None or seq is None:
+            return None, None, math.nan
+        dn, de = self._winch_wind.offset_ne_m(inp.time_s, inp.wind)
+        hover_n, hover_e = float(self.frame.pad_ned[0]) + dn, float(self.frame.pad_ned[1]) + de
+        sp = self._winch_hover_setpoint(est, wc, hover_n, hover_e)
+        req = self._pad_reentry(inp)
+        if req is not None or self._reenter:
+            return sp, req, math.nan
+        locked, why = (True, "") if self.pad_policy is None else judge_pad_lock(inp.pad_lock, self.pad_policy)
+        if not locked and not seq.paid_out:
+            h = self._height_above_ground(est)
+            return self._pad_try_failed(inp, f"pad lock lost in the winch hover at {h:.1f} m: {why}"), None, math.nan
+        off = math.hypot(est.north_m - hover_n, est.east_m - hover_e)
+        down = float(self.frame.pad_ned[2]) - wc.hover_height_m
+        ready = (
+            locked
+            and off < wc.xy_tolerance_m
+            and abs(est.down_m - down) < PAD_HEIGHT_TOLERANCE_M
+            and math.hypot(est.north_m_s, est.east_m_s) < PAD_HOVER_SPEED_M_S
+        )
+        tick = seq.step(inp.time_s, ready, inp.winch, self._idle())
+        for detail in tick.say:
+            self._emit(EventKind.WINCH, detail)
+        if tick.command is not None:
+            req = self._make_request(RequestKind.WINCH, winch=tick.command)
+        elif tick.release:
+            req = self._make_request(RequestKind.RELEASE)
+        if seq.delivered and not self.summary.delivered:
+            self.summary.delivered = True
+            self._emit(
+                EventKind.DELIVERED,
+                "parcel lowered and released on the alternate pad"
+                if self.pad_index
+                else "parcel lowered and released on the pad",
+            )
+        if tick.done:
+            self._left_pad = True
+            if seq.failure and not seq.delivered:
+                self.summary.failure = f"parcel not delivered: {seq.failure}"
+            self._goto(Phase.INBOUND)
+        return sp, req, math.nan
+
+    def _winch_hover_setpoint(
+        self, est: StateEstimate, wc: WinchConfig, north_m: float, east_m: float
+    ) -> VelocitySetpoint:
+        """Towards the hover point (NED north, east; hover_height_m over the pad): horizontally as the
+        final descent closes its error (landing_xy_gain_1_s, at most landing_max_xy_speed_m_s),
+        vertically at 1/s up to the S5 speed."""
+        assert self.frame is not None
+        c = self.cfg
+        pad = self.frame.pad_ned
+        vn = c.landing_xy_gain_1_s * (north_m - est.north_m)
+        ve = c.landing_xy_gain_1_s * (east_m - est.east_m)
+        vh = math.hypot(vn, ve)
+        if vh > c.landing_max_xy_speed_m_s:
+            vn, ve = vn * c.landing_max_xy_speed_m_s / vh, ve * c.landing_max_xy_speed_m_s / vh
+        vz_max = c.sector_speed_m_s[4]
+        vd = min(vz_max, max(-vz_max, PAD_POSITION_GAIN_1_S * (float(pad[2]) - wc.hover_height_m - est.down_m)))
+        return VelocitySetpoint(vn, ve, vd, self.frame.yaw_to_ned(0.0))
+
     def _do_release(self, inp: MissionInputs) -> tuple:
         st = inp.status
         if self._release_error:
@@ -1106,15 +1222,21 @@ class DeliveryMission:
         elif k is RequestKind.DISARM:
             pass  # the landing phase sees disarmed and moves on
 
-    def _make_request(self, kind: RequestKind, alt: float = 0.0, tries: int = 1) -> Request:
+    def _make_request(
+        self, kind: RequestKind, alt: float = 0.0, tries: int = 1, winch: WinchCommand | None = None
+    ) -> Request:
         if kind is RequestKind.TAKEOFF:
             alt = self.cfg.takeoff_alt_m
-        req = Request(self._next_id, kind, alt)
+        req = Request(self._next_id, kind, alt, winch)
         self._next_id += 1
         self._pending = _Pending(req, tries)
         return req
 
     def _goto(self, phase: Phase) -> None:
+        if phase is Phase.LANDING_PAD and self.winch_cfg is not None:
+            phase = Phase.WINCH  # a winch delivery never lands on the pad: it hovers over it
+            self.winch = WinchSequence(self.winch_cfg, self.cfg.release_time_s)
+            self._winch_wind = WindCorrection(self.winch_cfg)
         if phase is self.phase:
             return
         log.info("mission phase %s -> %s", self.phase.value, phase.value)

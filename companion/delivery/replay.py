@@ -43,6 +43,8 @@ from companion.flightlog.streams import (
     META_FILE,
     SAMPLE_FILES,
     STREAM_FILES,
+    WINCH_COLUMNS,
+    WINCH_FILE,
     WIND_COLUMNS,
     WIND_FILE,
     PadObservation,
@@ -215,8 +217,12 @@ class _ReplayShell:
         self.notes: list[str] = []
         # the wind estimate each tick handed the mission (wind.csv), when the mission reads one
         self.wind_by_seq: dict[int, Any] = {}
-        if self.mission.wind is not None:
+        if self.mission.wind is not None or self.mission.winch_cfg is not None:
             self._read_wind()
+        # the winch's report each tick handed the mission (winch.csv), for a winch delivery
+        self.winch_by_seq: dict[int, Any] = {}
+        if self.mission.winch_cfg is not None:
+            self._read_winch()
 
     def _read_wind(self) -> None:
         from companion.autopilot.types import Wind
@@ -231,6 +237,18 @@ class _ReplayShell:
         for k in range(len(t)):
             w = (t.value(k, "wind_time_s"), t.value(k, "north_m_s"), t.value(k, "east_m_s"))
             self.wind_by_seq[_int(t, k, "seq")] = Wind(*w) if math.isfinite(w[0]) else None
+
+    def _read_winch(self) -> None:
+        from companion.autopilot.winch import WinchStatus
+
+        if not (self.run_dir / WINCH_FILE).exists() and WINCH_FILE not in (self.meta.get("streams") or {}):
+            self.notes.append(f"{WINCH_FILE} missing: the winch delivery is replayed without the winch's reports")
+            return
+        t = open_table(self.run_dir, WINCH_FILE, WINCH_COLUMNS)
+        for k in range(len(t)):
+            w = (t.value(k, "winch_time_s"), t.value(k, "line_length_m"), t.value(k, "speed_m_s"))
+            ok = math.isfinite(w[0])
+            self.winch_by_seq[_int(t, k, "seq")] = WinchStatus(*w, _int(t, k, "flags")) if ok else None
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
@@ -302,7 +320,7 @@ class _ReplayShell:
                 )
         elif k == "tick":
             now, link_ok = inp.payload
-            return self.tick(now, link_ok, wind=self.wind_by_seq.get(inp.seq))
+            return self.tick(now, link_ok, wind=self.wind_by_seq.get(inp.seq), winch=self.winch_by_seq.get(inp.seq))
         return None
 
     def _pad_lock(self, now: float) -> Any:
@@ -320,10 +338,11 @@ class _ReplayShell:
             return PadLock(now, math.inf, math.inf)
         return measure_pad_lock(self.fusion, now)
 
-    def tick(self, now: float, link_ok: bool, wind: Any = None) -> tuple[Any, Any, Any, bool]:
+    def tick(self, now: float, link_ok: bool, wind: Any = None, winch: Any = None) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
         from companion.delivery.pad_heading import landing_heading_rad
+        from companion.events import Phase
         from companion.guidance.limits import clamp_velocity
 
         mission, tc = self.mission, self.telemetry
@@ -334,13 +353,23 @@ class _ReplayShell:
             elif self.fusion is not None and mission.pad_index != self._fusion_pad_index:
                 self._start_fusion(now)  # diverted: again on the alternate pad
             fused = self.fusion.estimate() if self.fusion is not None else None
-            if fused is not None and not mission.summary.delivered and not mission.returning:
+            # as DeliveryShell.fused_estimate_steers (a winch delivery keeps it until the line is in)
+            steers = (not mission.summary.delivered or mission.phase is Phase.WINCH) and not mission.returning
+            if fused is not None and steers:
                 estimate = fused
         heading = landing_heading_rad(
             self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
         )
         inp = MissionInputs(
-            now, estimate, tc.status, tc.home, link_ok, self._pad_lock(now), wind=wind, pad_heading_rad=heading
+            now,
+            estimate,
+            tc.status,
+            tc.home,
+            link_ok,
+            self._pad_lock(now),
+            wind=wind,
+            pad_heading_rad=heading,
+            winch=winch,
         )
         out = mission.step(inp)
         setpoint, clamped = None, False

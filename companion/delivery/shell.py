@@ -188,6 +188,7 @@ def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
         fence=config.fence,
         limits=config.limits,
         go_no_go=config.go_no_go,
+        winch=config.winch,
     )
 
 
@@ -500,6 +501,7 @@ class DeliveryShell:
                 self.autopilot.link_ok,
                 self._pad_lock(now),
                 wind=tc.wind,
+                winch=tc.winch,
                 pad_heading_rad=landing_heading_rad(
                     self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
                 ),
@@ -648,7 +650,7 @@ class DeliveryShell:
 
     def _vision_wanted(self) -> bool:
         m = self.mission
-        return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH) or (
+        return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH) or (
             m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m._sector >= 5
         )
 
@@ -757,7 +759,8 @@ class DeliveryShell:
         """Guidance flies on the fused estimate (the way out and the landing on the pad); the way
         back flies on the GPS-frame estimate (home is a GPS point)."""
         m = self.mission
-        return not m.summary.delivered and not m.returning
+        # (a winch delivery keeps the fused estimate over the pad until the line is in)
+        return (not m.summary.delivered or m.phase is Phase.WINCH) and not m.returning
 
     def _down_in_camera(self) -> Any:
         """World down in the camera frame from the autopilot's latest attitude (None without one)."""
@@ -837,6 +840,9 @@ class DeliveryShell:
         try:
             if req.kind is RequestKind.TAKEOFF:
                 await asyncio.wait_for(ap.takeoff(req.alt_rel_m), limit_s)
+            elif req.kind is RequestKind.WINCH:
+                assert req.winch is not None
+                await asyncio.wait_for(ap.winch(req.winch), limit_s)
             else:
                 await asyncio.wait_for(calls[req.kind](), limit_s)
         except (AutopilotError, TimeoutError) as err:

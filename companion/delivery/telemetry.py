@@ -184,7 +184,15 @@ def _age(age_s: float) -> float | None:
 
 #: The phases in which the pad is where the vehicle is going (or standing): the landing error
 #: is published in these only (on the way home the distance to the pad is no landing error).
-TOWARDS_PAD = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.RELEASE, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT)
+TOWARDS_PAD = (
+    Phase.OUTBOUND,
+    Phase.LANDING_PAD,
+    Phase.RELEASE,
+    Phase.PAD_HOLD,
+    Phase.PAD_SEARCH,
+    Phase.DIVERT,
+    Phase.WINCH,
+)
 
 
 def landing_message(now: float, fusion: Any, detector: Any = None, towards_pad: bool = True) -> LandingMessage:

@@ -25,7 +25,8 @@ headers), so PlotJuggler opens every file as is:
                        outside a tick (the fence upload) as applied to the mission
 ``events.csv``         mission events as they happen
 ``wind.csv``           the autopilot's wind estimate each tick handed the mission (only with the
-                       wind go/no-go on, ``go_no_go.wind_limit_m_s`` > 0)
+                       wind go/no-go on, ``go_no_go.wind_limit_m_s`` > 0, or a winch delivery)
+``winch.csv``          the winch's report each tick handed the mission (only for a winch delivery)
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
 ``flight.mcap``        every stream above, plus the camera frames the pad was detected in (JPEG)
                        with the marker corners, the EKF pose and its 1-sigma, and the planned
@@ -65,6 +66,8 @@ from companion.flightlog.streams import (
     SAMPLE_FIELDS,
     SAMPLE_FILES,
     STREAM_FILES,
+    WINCH_COLUMNS,
+    WINCH_FILE,
     WIND_COLUMNS,
     WIND_FILE,
     camera_row,
@@ -189,8 +192,11 @@ class FlightRecorder:
         self.errors = 0  # hook failures (the log is then incomplete; replay reports the seq gaps)
         streams = dict(STREAM_FILES)
         go_no_go = getattr(config, "go_no_go", None)
-        if go_no_go is not None and go_no_go.wind_limit_m_s > 0:  # the mission reads the wind
+        winch = getattr(getattr(config, "mission", None), "delivery", "land") == "winch"
+        if (go_no_go is not None and go_no_go.wind_limit_m_s > 0) or winch:  # the mission reads the wind
             streams[WIND_FILE] = WIND_COLUMNS
+        if winch:  # the mission reads the winch's line length
+            streams[WINCH_FILE] = WINCH_COLUMNS
         self.meta: dict[str, Any] = {
             "format": FORMAT,
             "config": config.model_dump(mode="json"),
@@ -363,6 +369,11 @@ class FlightRecorder:
             nan = math.nan
             wind = (w.time_s, w.north_m_s, w.east_m_s) if w is not None else (nan, nan, nan)
             self._write(WIND_FILE, (inp.time_s, seq, *wind))
+        if WINCH_FILE in self.logs:
+            ws = inp.winch
+            nan = math.nan
+            report = (ws.time_s, ws.line_length_m, ws.speed_m_s, ws.flags) if ws is not None else (nan, nan, nan, 0)
+            self._write(WINCH_FILE, (inp.time_s, seq, *report))
         for ev in out.events:
             self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))
         if fusion is not None:

@@ -235,6 +235,12 @@ EVENT_COLUMNS = ("time_s", "kind", "phase", "detail")
 WIND_FILE = "wind.csv"
 WIND_COLUMNS = ("time_s", "seq", "wind_time_s", "north_m_s", "east_m_s")
 
+# The winch's report each guidance tick handed the mission (MissionInputs.winch; NaN: none), keyed
+# by the tick's seq; written only for a winch delivery (mission.delivery = "winch"), which also
+# writes wind.csv (the hover's wind correction reads the wind). Like the wind, no listener sees it.
+WINCH_FILE = "winch.csv"
+WINCH_COLUMNS = ("time_s", "seq", "winch_time_s", "line_length_m", "speed_m_s", "flags")
+
 STREAM_FILES: dict[str, tuple[str, ...]] = {
     **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},
     "camera.csv": CAMERA_COLUMNS,

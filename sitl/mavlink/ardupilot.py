@@ -16,6 +16,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.autopilot.types import FlightMode
+from companion.autopilot.winch import WinchAction, WinchCommand
 from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink.mission import StoredMissionItem
@@ -150,6 +151,10 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
             **{f"SERVO{n}_FUNCTION": float(32 + n if n <= 4 else 0) for n in range(1, 17)},
             "WPNAV_SPEED_UP": 100.0 * cfg.vehicle.takeoff_speed_m_s,
             "LAND_SPEED": 100.0 * cfg.vehicle.land_speed_m_s,
+            # AP_Winch: WINCH_TYPE 1 (PWM) when the simulated winch is fitted, else none
+            "WINCH_TYPE": 1.0 if cfg.winch.fitted else 0.0,
+            "WINCH_RATE_MAX": cfg.winch.rate_max_m_s,
+            "WINCH_POS_P": cfg.winch.pos_p,
             **{f"FLTMODE{i + 1}": float(m) for i, m in enumerate(COPTER_FLTMODES)},
         }
 
@@ -179,6 +184,20 @@ class ArduPilotSimVehicle(MavlinkSimVehicle):
         if self._params.get("GRIP_ENABLE", 0.0) < 0.5:
             return mavlink.MAV_RESULT_FAILED
         return super()._gripper(p)
+
+    def _winch(self, p: tuple[float, ...]) -> int:
+        # GCS_MAVLINK_Copter::handle_MAV_CMD_DO_WINCH: FAILED without an enabled winch (WINCH_TYPE = 0)
+        # or for an action it does not implement; param 1 (instance) is ignored
+        if self.vehicle.winch is None or not math.isfinite(p[1]):
+            return mavlink.MAV_RESULT_FAILED
+        try:
+            action = WinchAction(int(p[1]))
+        except ValueError:
+            return mavlink.MAV_RESULT_FAILED
+        length = p[2] if math.isfinite(p[2]) else 0.0
+        rate = p[3] if math.isfinite(p[3]) else 0.0
+        self.vehicle.winch_command(WinchCommand(1, action, length, rate))
+        return mavlink.MAV_RESULT_ACCEPTED
 
     def _takeoff(self, p: tuple[float, ...]) -> int:
         if self._ap_mode != COPTER_GUIDED:

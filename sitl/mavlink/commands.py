@@ -55,6 +55,11 @@ class CommandHandler(MessageStreams):
             self.vehicle.release_payload()
         return mavlink.MAV_RESULT_ACCEPTED
 
+    def _winch(self, p: tuple[float, ...]) -> int:
+        """MAV_CMD_DO_WINCH (param 1 instance, 2 action, 3 length m, 4 rate m/s); a dialect without
+        a winch answers UNSUPPORTED."""
+        return mavlink.MAV_RESULT_UNSUPPORTED
+
     def _set_actuator(self, p: tuple[float, ...]) -> int | None:
         """MAV_CMD_DO_SET_ACTUATOR; None: not a command of this dialect."""
         return None
@@ -103,6 +108,11 @@ class CommandHandler(MessageStreams):
                 return self._gripper(p)
             if cmd == mavlink.MAV_CMD_DO_SET_SERVO:
                 result = self._set_servo(p)
+                if result == U:
+                    self.stats.unsupported_commands[cmd] += 1
+                return result
+            if cmd == mavlink.MAV_CMD_DO_WINCH:
+                result = self._winch(p)
                 if result == U:
                     self.stats.unsupported_commands[cmd] += 1
                 return result

@@ -295,6 +295,13 @@ class MessageStreams(RcInput):
         if mid == mavlink.MAVLINK_MSG_ID_RC_CHANNELS:
             n = max(8, max((i + 1 for i, us in enumerate(self._rc) if us), default=8))
             return e.rc_channels_encode(t_ms, n, *self._rc, 255)
+        if mid == mavlink.MAVLINK_MSG_ID_WINCH_STATUS:
+            # AP_Winch_PWM::send_status: its own line estimate and rate, no tension, voltage, current
+            w = getattr(v, "winch", None)
+            if w is None or self.dialect != "ardupilot":
+                return None  # nothing sent without a winch backend
+            nan = math.nan
+            return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, nan, nan, nan, 32767, w.flags())
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             caps = (
                 mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
@@ -329,6 +336,7 @@ class MessageStreams(RcInput):
                 mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                 mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
                 mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+                mavlink.MAVLINK_MSG_ID_WINCH_STATUS,  # ArduPilot accepts it with or without a winch
             )
         ):
             return mavlink.MAV_RESULT_UNSUPPORTED

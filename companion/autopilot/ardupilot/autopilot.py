@@ -48,11 +48,13 @@ from companion.autopilot.types import (
     LandedState,
     LandingTarget,
 )
+from companion.autopilot.winch import MAV_CMD_DO_WINCH, WinchCommand
 from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
 WIND_MSG_ID = 168  # WIND (ardupilotmega): EKF3's wind estimate
+WINCH_STATUS_MSG_ID = 9005  # WINCH_STATUS: the winch's line length (AP_Winch)
 
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
@@ -159,6 +161,14 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         gng = getattr(config, "go_no_go", None)
         if gng is not None and gng.wind_limit_m_s > 0 and "stream_rates_hz" not in kwargs:
             kwargs["stream_rates_hz"] = {**DEFAULT_STREAM_RATES_HZ, WIND_MSG_ID: 2.0}  # the wind check's input
+        winch = getattr(config, "winch", None)
+        if getattr(getattr(config, "mission", None), "delivery", "land") == "winch" and winch is not None:
+            # the winch's line length, and the wind for the hover's correction (docs/winch.md)
+            rates = dict(kwargs.get("stream_rates_hz", DEFAULT_STREAM_RATES_HZ))
+            rates[WINCH_STATUS_MSG_ID] = 5.0
+            if winch.wind_drift_s_m > 0:
+                rates[WIND_MSG_ID] = 2.0
+            kwargs["stream_rates_hz"] = rates
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)
@@ -273,6 +283,28 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
                 int(t.position_valid),
             )
         )
+
+    async def winch(self, command: WinchCommand) -> None:
+        """MAV_CMD_DO_WINCH (companion.autopilot.winch). ArduCopter answers FAILED without an enabled
+        winch (WINCH_TYPE = 0, or no output at SERVOn_FUNCTION = 88). WINCH_STATUS, the line
+        length the mission watches, is asked for at 5 Hz before the first command."""
+        command.validate()
+        if not self._winch_status_requested:
+            self._winch_status_requested = True
+            try:
+                await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, WINCH_STATUS_MSG_ID, 2e5, retries=2)
+            except CommandRejected as err:
+                log.warning("WINCH_STATUS not available: %s", err)
+        await self._command(
+            MAV_CMD_DO_WINCH,
+            command.instance,
+            int(command.action),
+            command.length_m,
+            command.rate_m_s,
+            what=f"winch ({command.action.name.lower()}, {command.length_m:+.2f} m)",
+        )
+
+    _winch_status_requested = False
 
     async def release_payload(self) -> None:
         """DO_GRIPPER release (or DO_SET_SERVO), then confirmed on the output itself.

@@ -31,6 +31,7 @@ from companion.autopilot.types import (
     VehicleStatus,
     Wind,
 )
+from companion.autopilot.winch import WinchStatus
 
 log = logging.getLogger(__name__)
 
@@ -157,6 +158,8 @@ class ArduPilotTelemetry(ArduPilotRequests):
         elif t == "WIND":  # direction: where the wind comes from (deg); the air moves the other way
             d = math.radians(m.direction)
             self._post(self.telemetry.push_wind, Wind(now, -m.speed * math.cos(d), -m.speed * math.sin(d)))
+        elif t == "WINCH_STATUS":
+            self._post(self.telemetry.push_winch, WinchStatus(now, float(m.line_length), float(m.speed), int(m.status)))
         elif t in MISSION_MESSAGES:  # the fence transfer (ardupilot.fence), when one is running
             handler = getattr(self, "_on_mission_message", None)
             if handler is not None and m.target_system in (0, self.source_system):

@@ -1,0 +1,234 @@
+"""The winch delivery's sequence (mission.delivery = "winch"; docs/winch.md).
+
+Pure. The mission holds the vehicle over the locked pad at winch.hover_height_m and steps this
+sequence each guidance tick with whether the hover is ready (locked, on the pad's centre, at the
+height) and the winch's newest report; the sequence says which DO_WINCH or release to send and
+when it has ended:
+
+settle (ready for settle_s) -> payout (the line to the hover height plus slack: the parcel is down)
+-> release (the existing parcel release, then release_time_s) -> reel in -> done: fly home.
+
+A payout the winch refuses, or a line that does not reach its length within payout_timeout_s, or a
+release the autopilot refuses: the line is reeled in and the vehicle flies home with the parcel,
+the reason said once. A reel-in that is refused or does not finish within reel_timeout_s: home
+anyway, said (hovering on with a line out would not bring it in).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from companion.autopilot.types import Wind
+from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
+from companion.config import WinchConfig
+
+LINE_MOVING_M_S = 0.05  # a winch reporting a faster payout is stopped before the reel-in
+
+
+class WinchStep(enum.Enum):
+    SETTLE = "settle"
+    PAYOUT = "payout"
+    RELEASE = "release"
+    REEL = "reel"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True)
+class WinchTick:
+    """What the sequence wants this tick: a DO_WINCH to send, the parcel release to send, what to
+    say (EventKind.WINCH details). ``done``: the sequence has ended (the line is in, or given up
+    on): fly home; ``delivered`` then says whether the parcel was released on the pad."""
+
+    command: WinchCommand | None = None
+    release: bool = False
+    say: tuple[str, ...] = ()
+    done: bool = False
+
+
+class WindCorrection:
+    """Where to hover so the parcel, blown downwind on its line, lands on the pad: upwind of the pad
+    by wind_drift_s_m x hover_height_m x the wind (small angles: a linear drag k per unit mass
+    holds the line at tan(theta) = k w / g from the vertical), on the autopilot's wind estimate
+    low-passed over wind_filter_s (the gusts the parcel's swing does not follow)."""
+
+    def __init__(self, cfg: WinchConfig):
+        self.cfg = cfg
+        self._wind: tuple[float, float] | None = None
+        self._t: float | None = None
+
+    def offset_ne_m(self, now_s: float, wind: Wind | None) -> tuple[float, float]:
+        """(north, east) offset of the hover from the pad's centre (m)."""
+        c = self.cfg
+        if c.wind_drift_s_m <= 0.0 or wind is None:
+            return (0.0, 0.0)
+        w = (wind.north_m_s, wind.east_m_s)
+        if self._wind is None or self._t is None:
+            self._wind = w
+        else:
+            a = 1.0 - math.exp(-max(0.0, now_s - self._t) / c.wind_filter_s)
+            self._wind = (self._wind[0] + a * (w[0] - self._wind[0]), self._wind[1] + a * (w[1] - self._wind[1]))
+        self._t = now_s
+        k = -c.wind_drift_s_m * c.hover_height_m  # upwind: against where the air moves
+        return (k * self._wind[0], k * self._wind[1])
+
+
+class WinchSequence:
+    def __init__(self, cfg: WinchConfig, release_time_s: float):
+        self.cfg = cfg
+        self.release_time_s = release_time_s
+        self.step_now = WinchStep.SETTLE
+        self.delivered = False
+        self.failure = ""  # why the parcel was not delivered (or a later problem), "" on success
+        self.paid_out = False  # a payout was accepted: the line may be out, the hover must hold
+        self._ready_since: float | None = None
+        self._t0 = 0.0  # when the current step's command was accepted (or sent)
+        self._sent = False  # the current step's request is out (or answered)
+        self._accepted = False
+        self._say: list[str] = []
+        self._halt = 0  # reel-in: 1 the stop before it is out, 2 answered (at _halt_t)
+        self._halt_t = 0.0
+
+    @property
+    def target_m(self) -> float:
+        """The line length at which the parcel stands on the pad with the line slack."""
+        return self.cfg.hover_height_m + self.cfg.slack_m
+
+    # ------------------------------------------------------------------ results
+    def on_result(self, now_s: float, ok: bool, error: str = "") -> None:
+        """The answer to the request this sequence asked for last (DO_WINCH or the release)."""
+        st = self.step_now
+        if st is WinchStep.REEL and self._halt == 1:  # the answer to the stop before the reel-in
+            if not ok:
+                self._end(f"the winch refused to stop the line ({error}): flying home with the line as it is")
+                return
+            self._halt, self._halt_t, self._sent = 2, now_s, False
+            return
+        if ok:
+            self._accepted = True
+            self._t0 = now_s
+            if st is WinchStep.PAYOUT:
+                self.paid_out = True
+                self._say.append(f"payout accepted: lowering the parcel {self.target_m:.2f} m")
+            elif st is WinchStep.RELEASE:
+                self._say.append(f"release commanded; waiting {self.release_time_s} s for the actuator")
+            return
+        if st is WinchStep.PAYOUT:
+            self._fail(now_s, f"the winch refused the payout ({error})")
+        elif st is WinchStep.RELEASE:
+            self._fail(now_s, f"parcel not released: the autopilot refused the release ({error})")
+        elif st is WinchStep.REEL:
+            self._end(f"the winch refused the reel-in ({error}): flying home with the line as it is")
+
+    # ------------------------------------------------------------------ the tick
+    def step(self, now_s: float, ready: bool, status: WinchStatus | None, idle: bool) -> WinchTick:
+        """``ready``: the hover is locked on the pad's centre at the height (judged by the mission);
+        ``status``: the winch's newest report (None: none yet); ``idle``: no request in flight."""
+        st = self.step_now
+        command: WinchCommand | None = None
+        release = False
+        length = status.line_length_m if status is not None else math.nan
+        if st is WinchStep.SETTLE:
+            if not ready:
+                self._ready_since = None
+            elif self._ready_since is None:
+                self._ready_since = now_s
+            if self._ready_since is not None and now_s - self._ready_since >= self.cfg.settle_s and idle:
+                self.step_now = WinchStep.PAYOUT
+                self._begin(now_s)
+                out = self.target_m - (length if math.isfinite(length) else 0.0)
+                command = WinchCommand(
+                    self.cfg.instance, WinchAction.RELATIVE_LENGTH_CONTROL, out, self.cfg.payout_rate_m_s
+                )
+                self._say.append(f"over the pad: paying out {out:.2f} m at {self.cfg.payout_rate_m_s} m/s")
+        elif st is WinchStep.PAYOUT and self._accepted:
+            if math.isfinite(length) and length >= self.target_m - self.cfg.length_tolerance_m:
+                self._say.append(f"parcel down: line {length:.2f} m out after {now_s - self._t0:.1f} s")
+                self.step_now = WinchStep.RELEASE
+                self._begin(now_s)
+            elif now_s - self._t0 > self.cfg.payout_timeout_s:
+                seen = f"line {length:.2f} m" if math.isfinite(length) else "no WINCH_STATUS from the winch"
+                self._fail(
+                    now_s,
+                    f"the line did not pay out: {seen} of {self.target_m:.2f} m after {self.cfg.payout_timeout_s} s",
+                )
+        elif st is WinchStep.RELEASE:
+            if not self._sent and idle:
+                self._sent = True
+                release = True
+            elif self._accepted and now_s - self._t0 >= self.release_time_s:
+                self.delivered = True
+                self._say.append("parcel released on the pad")
+                self.step_now = WinchStep.REEL
+                self._begin(now_s)
+        if self.step_now is WinchStep.REEL and command is None and not release:
+            command = self._reel(now_s, status, idle)
+        tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE)
+        self._say = []
+        return tick
+
+    def _reel(self, now_s: float, status: WinchStatus | None, idle: bool) -> WinchCommand | None:
+        length = status.line_length_m if status is not None else math.nan
+        if not self._sent:
+            if not idle:
+                return None
+            speed = status.speed_m_s if status is not None and math.isfinite(status.speed_m_s) else 0.0
+            if self._halt == 0 and speed > LINE_MOVING_M_S:
+                # still paying out (a payout given up): stop the line first, so the reel-in takes back
+                # the length it stopped at, not the one reported before the command took effect
+                self._halt, self._sent, self._t0 = 1, True, now_s
+                self._say.append(f"stopping the line first (paying out at {speed:.2f} m/s)")
+                return WinchCommand(self.cfg.instance, WinchAction.RATE_CONTROL, 0.0, 0.0)
+            stale = status is None or status.time_s <= self._halt_t
+            if self._halt == 2 and stale and now_s - self._halt_t < self.cfg.reel_timeout_s:
+                return None  # waiting for a report from after the stop
+            self._sent = True
+            self._t0 = now_s
+            # back to zero from what the winch reports (from the target when it reports nothing)
+            out = length if math.isfinite(length) else self.target_m
+            self._say.append(f"reeling in {max(out, 0.0):.2f} m at {self.cfg.reel_rate_m_s} m/s")
+            return WinchCommand(
+                self.cfg.instance, WinchAction.RELATIVE_LENGTH_CONTROL, -max(out, 0.0), self.cfg.reel_rate_m_s
+            )
+        if self.step_now is not WinchStep.REEL:
+            return None
+        if math.isfinite(length) and length <= self.cfg.reeled_in_m and self._accepted:
+            self._end(f"line reeled in ({length:.2f} m)")
+        elif now_s - self._t0 > self.cfg.reel_timeout_s:
+            seen = f"{length:.2f} m still out" if math.isfinite(length) else "no WINCH_STATUS from the winch"
+            self._end(f"the line is not back in after {self.cfg.reel_timeout_s} s ({seen}): flying home as it is")
+        return None
+
+    def stop(self, now_s: float, reason: str) -> bool:
+        """Give the delivery up (a ground command to return): reel in from wherever the line is,
+        then done. False when the sequence ends by itself already (reeling in, or released)."""
+        if self.step_now in (WinchStep.REEL, WinchStep.DONE) or (self.step_now is WinchStep.RELEASE and self._sent):
+            return False  # coming in already, or the release is out: it reels in within release_time_s
+        if self.step_now is WinchStep.SETTLE:
+            self._say.append(f"{reason}: no line out")
+            self.failure = reason
+            self.step_now = WinchStep.DONE
+            return True
+        self._fail(now_s, reason)
+        return True
+
+    # ------------------------------------------------------------------ helpers
+    def _begin(self, now_s: float) -> None:
+        self._t0 = now_s
+        self._halt = 0
+        self._sent = self.step_now is WinchStep.PAYOUT  # the payout command goes out with this tick
+        self._accepted = False
+
+    def _fail(self, now_s: float, reason: str) -> None:
+        """The parcel stays aboard: reel the line in, then home with it."""
+        self.failure = reason
+        self._say.append(f"{reason}: reeling in, flying home with the parcel")
+        self.step_now = WinchStep.REEL
+        self._begin(now_s)
+
+    def _end(self, detail: str) -> None:
+        self._say.append(detail)
+        if not self.delivered and not self.failure:
+            self.failure = detail
+        self.step_now = WinchStep.DONE
