@@ -122,25 +122,31 @@ async def _hold_velocity(
         await asyncio.sleep(0.02)
 
 
+async def hover_in_offboard(ap: Autopilot, truth: MavlinkTruth, alt_m: float) -> None:
+    """Arm, take off to ``alt_m`` (on truth, within 40 s), settle 2 s and enter offboard / GUIDED
+    velocity on a zero setpoint (streamed first, as the autopilot requires)."""
+    await ap.arm()
+    await ap.takeoff(alt_m)
+    t_end = time.monotonic() + 40.0
+    while truth.pd > -(alt_m - 0.5):
+        if time.monotonic() > t_end:
+            raise TimeoutError(f"take-off to {alt_m} m not done within 40 s (truth down {truth.pd:.2f} m)")
+        await asyncio.sleep(0.05)
+    await asyncio.sleep(2.0)
+    for _ in range(10):
+        ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        await asyncio.sleep(0.05)
+    await ap.start_offboard()
+
+
 async def fly_probe(ap: Autopilot, truth: MavlinkTruth, alt_m: float = 6.0) -> list[list[Any]]:
     """The probe flight (the autopilot connected and healthy, truth started); returns the rows."""
     rows: list[list[Any]] = []
     rec = _Recorder(ap, truth, rows, time.monotonic())
     sampler = asyncio.create_task(_sample_forever(rec))
     try:
-        await ap.arm()
         rec.phase = "takeoff"
-        await ap.takeoff(alt_m)
-        t_end = time.monotonic() + 40.0
-        while truth.pd > -(alt_m - 0.5):
-            if time.monotonic() > t_end:
-                raise TimeoutError(f"take-off to {alt_m} m not done within 40 s (truth down {truth.pd:.2f} m)")
-            await asyncio.sleep(0.05)
-        await asyncio.sleep(2.0)
-        for _ in range(10):
-            ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-            await asyncio.sleep(0.05)
-        await ap.start_offboard()
+        await hover_in_offboard(ap, truth, alt_m)
         rec.phase = "hover"
         await _hold_velocity(rec, ap, 0.0, 0.0, 15.0)
         rec.phase = "step"

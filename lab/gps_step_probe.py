@@ -19,6 +19,7 @@ from typing import Any
 from companion.config import CompanionConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.real_vehicle import real_vehicle
+from companion_lab.firmware_probe import hover_in_offboard
 from companion_lab.real_weather import glitch_deg
 
 COLUMNS = ("t_s", "phase", "truth_n_m", "est_n_m")
@@ -36,15 +37,7 @@ async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[
                 if time.monotonic() > t_end:
                     raise TimeoutError("ArduCopter SITL not healthy within 120 s")
                 await asyncio.sleep(0.2)
-            await ap.arm()
-            await ap.takeoff(alt_m)
-            while truth.pd > -(alt_m - 0.5):
-                await asyncio.sleep(0.05)
-            await asyncio.sleep(2.0)
-            for _ in range(10):
-                ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-                await asyncio.sleep(0.05)
-            await ap.start_offboard()
+            await hover_in_offboard(ap, truth, alt_m)
             t0 = time.monotonic()
 
             async def hold(seconds: float, phase: str) -> None:

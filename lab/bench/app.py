@@ -918,3 +918,26 @@ def bench_dart(duration_s: float, backend: str = "ardupilot") -> dict[str, Any]:
     """Run the Dart shell for ``duration_s`` of real time against the Dart link sim and measure it."""
     with tempfile.TemporaryDirectory(prefix="bench-dart-") as tmp:
         return asyncio.run(_run_dart(duration_s, backend, Path(tmp)))
+
+
+# what the stream is judged against on each firmware: its name, the mode that expects the stream,
+# the failsafe's key in setpoint_stream_gaps' would_trip and how it is said
+_STREAM_FAILSAFE = {
+    "ardupilot": ("ArduCopter", "GUIDED", "ardupilot_GUID_TIMEOUT", "GUID_TIMEOUT 3 s"),
+    "px4": ("PX4 SIH", "offboard", "px4_COM_OF_LOSS_T", "COM_OF_LOSS_T 1 s"),
+}
+
+
+def capped_flight_report(autopilot: str, cap: float, result: Any, run_dir: Path, throttled: dict[str, int]) -> str:
+    """One line on a real-firmware flight flown with the companion capped at ``cap`` of a core
+    (``result``: the truth harness's): the landing on truth, the sensors fused, the overruns, the
+    setpoint stream's largest gap against the firmware's failsafe, the periods throttled."""
+    name, mode, key, failsafe = _STREAM_FAILSAFE[autopilot]
+    ss = run_setpoint_stream(run_dir)
+    return (
+        f"{name}, companion at {cap:.2f} of one core: pad error on truth {result.pad_landing_error_m * 100:.1f} cm; "
+        f"markers {result.markers_used}, uwb {result.uwb_used}; overruns guidance {result.guidance_overruns}, "
+        f"setpoints {result.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in {mode} "
+        f"{ss['max_gap_ms']} ms, {ss['gaps_over_100_ms']} over 100 ms ({failsafe}: {ss['would_trip'][key]}); "
+        f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"
+    )

@@ -14,7 +14,7 @@ import pytest
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
-from companion_lab.bench.app import run_setpoint_stream
+from companion_lab.bench.app import capped_flight_report
 from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
 
 from .conftest import GRIPPER_SERVO9, arducopter
@@ -48,13 +48,6 @@ async def test_delivery_on_arducopter_with_the_companion_at_the_pi4_cpu_cap(ardu
             await ap.close()
     if not (r.delivered and r.returned):
         print(flight_story(tmp_path / "run", tmp_path / "arducopter.log"))
-    ss = run_setpoint_stream(tmp_path / "run")
-    print(
-        f"\nArduCopter, companion at {PI4_FACTOR} of one core: pad error on truth {r.pad_landing_error_m * 100:.1f} "
-        f"cm; markers {r.markers_used}, uwb {r.uwb_used}; overruns guidance {r.guidance_overruns}, setpoints "
-        f"{r.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in GUIDED {ss['max_gap_ms']} ms, "
-        f"{ss['gaps_over_100_ms']} over 100 ms (GUID_TIMEOUT 3 s: {ss['would_trip']['ardupilot_GUID_TIMEOUT']}); "
-        f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"
-    )
+    print("\n" + capped_flight_report("ardupilot", PI4_FACTOR, r, tmp_path / "run", throttled))
     assert r.delivered and r.returned, r.failure
     assert r.pad_landing_error_m < 0.5, r  # on the pad

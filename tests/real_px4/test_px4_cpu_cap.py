@@ -23,7 +23,7 @@ from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
-from companion_lab.bench.app import run_setpoint_stream
+from companion_lab.bench.app import capped_flight_report
 from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
 from companion_lab.real_campaign import firmware_tuning
 
@@ -63,14 +63,6 @@ async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp
                 await ap.close()
     if not (r.delivered and r.returned):
         print(flight_story(tmp_path / "run", tmp_path / "px4.log"))
-    ss = run_setpoint_stream(tmp_path / "run")
-    print(
-        f"\nPX4 SIH, companion at {pi4_cores * PI4_FACTOR:.2f} of one core: pad error on truth "
-        f"{r.pad_landing_error_m * 100:.1f} cm; "
-        f"markers {r.markers_used}, uwb {r.uwb_used}; overruns guidance {r.guidance_overruns}, setpoints "
-        f"{r.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in offboard {ss['max_gap_ms']} ms, "
-        f"{ss['gaps_over_100_ms']} over 100 ms (COM_OF_LOSS_T 1 s: {ss['would_trip']['px4_COM_OF_LOSS_T']}); "
-        f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"
-    )
+    print("\n" + capped_flight_report("px4", pi4_cores * PI4_FACTOR, r, tmp_path / "run", throttled))
     assert r.delivered and r.returned, r.failure
     assert r.pad_landing_error_m < 0.5, r  # on the pad
