@@ -349,6 +349,15 @@ def open_cgroup(fraction: float, name: str | None = None, period_us: int | None 
     return CpuCgroup(ctl, fraction, name or f"{CGROUP_PREFIX}{os.getpid()}", period_us)
 
 
+def cap_unavailable() -> str:
+    """Why no CPU cap can be set here ('' when one can): a probe cgroup opened and removed."""
+    try:
+        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
+    except (CpuCapError, OSError) as err:
+        return str(err)
+    return ""
+
+
 @contextlib.contextmanager
 def capped_process(fraction: float) -> Iterator[CpuCgroup]:
     """This whole process (and what it starts from now on) capped for the ``with`` block."""

@@ -7,15 +7,13 @@ goal, which an offboard failsafe would have ended."""
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.bench.app import capped_flight_report
-from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
+from companion_lab.cpu_cap import PI4_FACTOR, cap_unavailable, capped_process
 
 from .conftest import GRIPPER_SERVO9, arducopter
 from .test_arducopter_delivery import PAD_OFFSET, _config
@@ -23,16 +21,8 @@ from .test_arducopter_delivery import PAD_OFFSET, _config
 pytestmark = pytest.mark.firmware
 
 
-def _cap_available() -> str:
-    try:
-        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
-    except (CpuCapError, OSError) as err:
-        return str(err)
-    return ""
-
-
 async def test_delivery_on_arducopter_with_the_companion_at_the_pi4_cpu_cap(ardupilot_root, tmp_path):
-    why = _cap_available()
+    why = cap_unavailable()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
     with arducopter(ardupilot_root, tmp_path, extra_params=GRIPPER_SERVO9) as (sitl, truth):

@@ -13,7 +13,6 @@ way home did not reach 2.5 m in time, so the mission aborted after delivering.""
 from __future__ import annotations
 
 import asyncio
-import os
 
 import pytest
 
@@ -24,7 +23,7 @@ from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.bench.app import capped_flight_report
-from companion_lab.cpu_cap import PI4_FACTOR, CpuCapError, capped_process, open_cgroup
+from companion_lab.cpu_cap import PI4_FACTOR, cap_unavailable, capped_process
 from companion_lab.real_campaign import firmware_tuning
 
 from .test_px4_sitl import PAD_OFFSET_M
@@ -32,17 +31,9 @@ from .test_px4_sitl import PAD_OFFSET_M
 pytestmark = pytest.mark.firmware
 
 
-def _cap_available() -> str:
-    try:
-        open_cgroup(0.5, f"companion-cpucap-probe-{os.getpid()}").remove()
-    except (CpuCapError, OSError) as err:
-        return str(err)
-    return ""
-
-
 async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp_path):
     pi4_cores = 2  # at one the goal is not met (the module's docstring): nothing to assert there yet
-    why = _cap_available()
+    why = cap_unavailable()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
     tuning = firmware_tuning("px4")
