@@ -95,6 +95,16 @@ class Draw:
     wind_speed_m_s: float
     wind_from_deg: float
 
+    def sim_overrides(self) -> dict[str, Any]:
+        """The draw as [sim] overrides: its seed, GPS bias, pad displacement and wind."""
+        return {
+            "seed": self.seed,
+            "gps_bias_m": list(self.gps_bias_m),
+            "pad_offset_m": list(self.pad_offset_m),
+            "wind_speed_m_s": self.wind_speed_m_s,
+            "wind_from_deg": self.wind_from_deg,
+        }
+
 
 def draw_scenarios(
     n: int, seed: int, gps_sigma_m: float = 1.5, pad_offset_max_m: float = 1.0, wind_max_m_s: float = 5.0
@@ -126,13 +136,7 @@ def scenario_config(
     config overrides by table (a firmware's landing tuning, see real_campaign.firmware_tuning)."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
-    sim = {
-        "seed": d.seed,
-        "gps_bias_m": list(d.gps_bias_m),
-        "pad_offset_m": list(d.pad_offset_m),
-        "wind_speed_m_s": d.wind_speed_m_s,
-        "wind_from_deg": d.wind_from_deg,
-    }
+    sim = d.sim_overrides()
     if profile != "ideal":
         sim["profile"] = profile
     sim.update(tuning.get("sim", {}) if tuning else {})  # e.g. profile_weather (docs/weather.md)

@@ -21,14 +21,7 @@ pytestmark = pytest.mark.flight
 def _config(fitted: bool = True, stuck: bool = False, draw: int = 3, drift_s_m: float = 0.0) -> CompanionConfig:
     # seed 11003: 1.2 m/s of wind; 11000: 4.6 m/s (landing_campaign.toml's draws of seed 11)
     d = draw_scenarios(5, 11)[draw]
-    sim = {
-        "seed": d.seed,
-        "gps_bias_m": list(d.gps_bias_m),
-        "pad_offset_m": list(d.pad_offset_m),
-        "wind_speed_m_s": d.wind_speed_m_s,
-        "wind_from_deg": d.wind_from_deg,
-        "winch": {"fitted": fitted, "stuck": stuck},
-    }
+    sim = {**d.sim_overrides(), "winch": {"fitted": fitted, "stuck": stuck}}
     return load_config(
         shipped_params_path("landing_campaign.toml"),
         overrides={"sim": sim, "mission": {"delivery": "winch"}, "winch": {"wind_drift_s_m": drift_s_m}},
