@@ -85,6 +85,21 @@ class HarnessResult:
     estimate_error_m: float = math.nan
     guidance_overruns: int = 0
     setpoint_overruns: int = 0
+    # per tick of the descent onto the pad, until the first ON_GROUND: LANDING_TRACE_FIELDS
+    landing_trace: tuple[tuple[float, ...], ...] = ()
+
+
+#: a landing_trace row: time s; truth relative to the true pad (north, east m; height above the
+#: take-off level m; north, east velocity m/s; roll, pitch, yaw rad); the companion's estimate
+#: relative to the configured pad (north, east m; its pad-relative frame puts the pad there); the
+#: setpoint (north, east, down m/s); the autopilot's own velocity (north, east m/s) and attitude
+#: (roll, pitch, yaw rad); its landed state (LandedState value; nan: none yet)
+LANDING_TRACE_FIELDS = (
+    "t_s", "truth_n_m", "truth_e_m", "truth_h_m", "truth_vn_m_s", "truth_ve_m_s",
+    "truth_roll_rad", "truth_pitch_rad", "truth_yaw_rad", "est_n_m", "est_e_m",
+    "sp_vn_m_s", "sp_ve_m_s", "sp_vd_m_s", "ap_vn_m_s", "ap_ve_m_s",
+    "ap_roll_rad", "ap_pitch_rad", "ap_yaw_rad", "landed", "ap_t_s", "ap_n_m", "ap_e_m",
+)  # fmt: skip
 
 
 def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
@@ -121,11 +136,13 @@ async def fly_on_truth(
     arcs_in_plane: list[float] = []
     arcs_tracking: list[float] = []
     trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
+    landing_trace: list[tuple[float, ...]] = []
     t_start = time.monotonic()
     scorer: PathScorer | None = None
     # truth <-> the autopilot's local frame, fixed at the start (home, on the ground): the
     # autopilot may move home later (PX4 sets it again when it re-arms on the pad)
     ref: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
+    t_ground = truth.pd  # the take-off level (SIH's ground; the vehicle starts on it)
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
         nonlocal scorer
@@ -164,6 +181,8 @@ async def fly_on_truth(
                     arcs_in_plane.append(scorer.in_plane_distance(m, out.phase, p))
                     arcs_tracking.append(float(m.path.distance_in_plane(e_i)))
         st = tel.status
+        if not touchdown and out.phase is Phase.LANDING_PAD and truth.age_s < 1.0:
+            landing_trace.append(_landing_row(time.monotonic() - t_start, shell, out, truth, pad_ne, t_ground))
         if (
             not touchdown
             and out.phase is Phase.LANDING_PAD
@@ -209,6 +228,7 @@ async def fly_on_truth(
         estimate_error_m=est_err,
         guidance_overruns=shell.stats.guidance_overruns,
         setpoint_overruns=shell.stats.setpoint_overruns,
+        landing_trace=tuple(landing_trace),
         home_with_parcel=summary.home_with_parcel,
         pad_tries=summary.pad_tries,
         releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
@@ -218,6 +238,45 @@ async def fly_on_truth(
             if touchdown_yaw and simulated_pad(config).heading_deg is not None
             else math.nan
         ),
+    )
+
+
+def _landing_row(
+    t_s: float,
+    shell: DeliveryShell,
+    out: MissionOutput,
+    truth: MavlinkTruth,
+    pad_ne: tuple[float, float],
+    ground_d: float,
+) -> tuple[float, ...]:
+    """One LANDING_TRACE_FIELDS row."""
+    nan = math.nan
+    est, pad_cfg = shell.estimate, shell.mission.pad_ned
+    en, ee = (
+        (float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1]))
+        if est is not None and pad_cfg is not None
+        else (nan, nan)
+    )
+    sp = out.setpoint
+    tel = shell.autopilot.telemetry
+    pos, att, st = tel.position_ned, tel.attitude, tel.status
+    return (
+        t_s,
+        truth.pn - pad_ne[0],
+        truth.pe - pad_ne[1],
+        ground_d - truth.pd,
+        truth.vn,
+        truth.ve,
+        truth.roll,
+        truth.pitch,
+        truth.yaw,
+        en,
+        ee,
+        *((sp.north_m_s, sp.east_m_s, sp.down_m_s) if sp is not None else (nan, nan, nan)),
+        *((pos.north_m_s, pos.east_m_s) if pos is not None else (nan, nan)),
+        *((att.roll_rad, att.pitch_rad, att.yaw_rad) if att is not None else (nan, nan, nan)),
+        (1.0 if st.landed is LandedState.ON_GROUND else 0.0) if st is not None else nan,
+        *((pos.time_s, pos.north_m, pos.east_m) if pos is not None else (nan, nan, nan)),
     )
 
 

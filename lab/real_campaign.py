@@ -21,6 +21,7 @@ ON_GROUND of the landing phase, as the embedded campaign scores its truth.
 from __future__ import annotations
 
 import asyncio
+import csv
 import json
 import logging
 import math
@@ -35,10 +36,11 @@ import numpy as np
 
 from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
+from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
 from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
-from companion_firmware.truth_harness import fly_on_truth
+from companion_firmware.truth_harness import LANDING_TRACE_FIELDS, fly_on_truth
 from companion_lab.campaign_landing import (
     HEADING_VARIANTS,
     VARIANTS,
@@ -129,7 +131,12 @@ async def _set_sensor_noise(rv: RealVehicle, w: FirmwareWeather) -> None:
 
 
 async def _one_landing(
-    rv: RealVehicle, config: CompanionConfig, d: Draw, rel_pad: tuple[float, float], weather: bool = False
+    rv: RealVehicle,
+    config: CompanionConfig,
+    d: Draw,
+    rel_pad: tuple[float, float],
+    weather: bool = False,
+    flight_log: Path | None = None,
 ) -> dict[str, Any]:
     truth = rv.truth
     disp = real_pad_displacement(d)
@@ -155,9 +162,12 @@ async def _one_landing(
     pad_ne = (start[0] + rel_pad[0] + disp[0], start[1] + rel_pad[1] + disp[1])
     ap = rv.backend(config)
     failure = ""
+    rec = FlightRecorder(flight_log, config) if flight_log is not None else None
     try:
         await ap.connect(timeout_s=20.0)
-        r = await fly_on_truth(config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne)
+        r = await fly_on_truth(
+            config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne, recorder=rec
+        )
         err, td, delivered, failure = r.pad_landing_error_m, r.touchdown_truth_ne_m, r.delivered, r.failure
         heading_err = r.pad_heading_error_deg
         used = {
@@ -168,6 +178,7 @@ async def _one_landing(
             "estimate_error_m": r.estimate_error_m,
             "guidance_overruns": r.guidance_overruns,
             "setpoint_overruns": r.setpoint_overruns,
+            "landing_trace": r.landing_trace,
         }
     except Exception as exc:  # a landing that cannot be flown is a result, not the end of the campaign
         log.exception("landing seed %d failed", d.seed)
@@ -182,6 +193,8 @@ async def _one_landing(
             "setpoint_overruns": 0,
         }
     finally:
+        if rec is not None:
+            rec.close()
         await ap.close()
         rv.landings_flown += 1
         if driver is not None:
@@ -247,7 +260,9 @@ async def run_real_landing_campaign_async(
         nonlocal done
         for d, v in todo:
             cfg = with_pad_heading(configs[v], d.seed) if v in HEADING_VARIANTS else configs[v]
-            row = await _one_landing(rv, cfg, d, rel_pad, weather)
+            # every landing leaves its flight log (companion logs show / replay) and its descent trace
+            row = await _one_landing(rv, cfg, d, rel_pad, weather, logs / "flights" / f"{v}-{d.seed}")
+            _write_trace(logs / "landing_traces" / f"{v}-{d.seed}.csv", row.pop("landing_trace", ()))
             row["on_pad"] = on_pad(row["north_m"], row["east_m"], pad_half, row["delivered"])
             landings[v].append(row)
             done += 1
@@ -275,6 +290,18 @@ async def run_real_landing_campaign_async(
         "summary": summary,
         "landings": landings,
     }
+
+
+def _write_trace(path: Path, rows: tuple[tuple[float, ...], ...]) -> None:
+    """One landing's descent, tick by tick (LANDING_TRACE_FIELDS), for the parity work
+    (docs/simulation.md); nothing when the landing never reached its descent."""
+    if not rows:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(LANDING_TRACE_FIELDS)
+        w.writerows(rows)
 
 
 def run_real_landing_campaign(*args: Any, **kwargs: Any) -> dict[str, Any]:
