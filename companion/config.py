@@ -136,6 +136,14 @@ class MissionConfig(_Section):
         ge=0.0,
         le=10.0,
     )
+    velocity_bias_source: Literal["autopilot", "fusion"] = _f(
+        "autopilot",
+        "-",
+        "what the velocity bias is measured against: the autopilot's own position, or (fusion) the "
+        "landing fusion's camera / UWB position once it has pad data. PX4 v1.16 SIH's position drifts "
+        "with its biased velocity (up to 20 cm from the truth in 3 s near the ground), so its rate shows "
+        "only part of the bias",
+    )
     velocity_bias_max_m_s: float = _f(
         1.0, "m/s", "largest velocity-bias correction applied to a setpoint", ge=0.0, le=3.0
     )
@@ -906,6 +914,17 @@ class LandingConfig(_Section):
         "was measured 0.5 m/s off for seconds near the ground)",
         gt=0.0,
         le=5.0,
+    )
+    ekf_velocity_bias_tau_s: float = _f(
+        0.0,
+        "s",
+        "> 0: the autopilot's velocity, the EKF's process input, is corrected by its bias against the rate "
+        "of the autopilot's own position, low-passed with this time constant (as mission.velocity_bias_tau_s "
+        "does for the setpoints; at most mission.velocity_bias_max_m_s). Without it a velocity estimate "
+        "biased by b puts the fused position b x (camera latency + filter lag) off: PX4 v1.16 SIH, 0.3-0.5 "
+        "m/s east near the ground, 4-8 cm. 0: the velocity as reported",
+        ge=0.0,
+        le=60.0,
     )
     ekf_gate_reset_after_rejections: int = _f(
         20,

@@ -62,13 +62,20 @@ FIRMWARE_OF_PROFILE = {v: k for k, v in PROFILE_FOR.items()}
 # params/ardupilot_quad.toml): the same in the real and in the profile campaign
 FIRMWARE_PARAMS = {"px4": "px4_sih_quad.toml", "ardupilot": "ardupilot_quad.toml"}
 FIRMWARE_TUNING_KEYS = {
-    "landing": ("ekf_position_process_sigma_m_per_sqrt_s", "ekf_gate_reset_after_rejections"),
+    "landing": (
+        "ekf_position_process_sigma_m_per_sqrt_s",
+        "ekf_gate_reset_after_rejections",
+        "ekf_velocity_bias_tau_s",
+    ),
     "mission": (
         "landing_xy_gain_1_s",
         "landing_touchdown_height_m",
         "landing_xy_integral_gain_1_s2",
         "landing_xy_integral_max_m_s",
+        "landing_xy_tolerance_m",
+        "landing_hold_min_height_m",
         "velocity_bias_tau_s",
+        "velocity_bias_source",
         "autopilot_accel_xy_m_s2",
         "autopilot_accel_z_m_s2",
     ),

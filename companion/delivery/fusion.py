@@ -27,6 +27,7 @@ from companion.geometry.heading import pad_heading_rad
 from companion.geometry.mounts import pad_pose_ned
 from companion.geometry.rotations import euler_to_rotmat
 from companion.geometry.se3 import Transform
+from companion.guidance.velocity_bias import SetpointBiasCorrection
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,15 @@ class FusionSetup:
     # a pad with a heading (mission.pad.heading_deg, in T_world_pad's yaw): the camera measures it
     # (delivery.pad_heading) within this bound of the configured one; None: no heading measured
     heading_tolerance_rad: float | None = None
+    # > 0: the autopilot's velocity, the EKF's process input, is corrected by its bias against the
+    # rate of the autopilot's own position (guidance.velocity_bias, low-passed with this time
+    # constant, at most velocity_bias_max_m_s); 0: taken as reported
+    velocity_bias_tau_s: float = 0.0
+    velocity_bias_max_m_s: float = 1.0
+    velocity_bias_source: str = "autopilot"  # or "fusion": against this fusion's own position once locked
+
+
+PAD_DATA_FRESH_S = 0.5  # locked_position: pad data older than this no longer holds the position
 
 
 @dataclass
@@ -78,6 +88,11 @@ class LandingFusion:
             self.heading = PadHeadingEstimator(pad_heading_rad(setup.T_world_pad.R), setup.heading_tolerance_rad)
         self.counters = FusionCounters()
         self._vel = np.zeros(3)
+        self._vel_bias = (
+            SetpointBiasCorrection(setup.velocity_bias_tau_s, setup.velocity_bias_max_m_s, setup.velocity_bias_source)
+            if setup.velocity_bias_tau_s > 0.0
+            else None
+        )
         self._rates = np.zeros(3)
         self._euler: np.ndarray | None = None
         self._last_marker_s = -np.inf
@@ -96,6 +111,11 @@ class LandingFusion:
             self._predict(sample.time_s)
         elif isinstance(sample, PositionNed):
             self._vel = np.array([sample.north_m_s, sample.east_m_s, sample.down_m_s])
+            if self._vel_bias is not None:
+                # an autopilot whose velocity estimate drifts from its own GPS-held position (PX4 SIH
+                # near the ground, docs/firmware-px4.md) would otherwise carry the EKF's position off
+                # by bias x (camera latency + filter lag) between pad observations
+                self._vel = self._vel + np.asarray(self._vel_bias.update(sample, self.locked_position()))
             self._predict(sample.time_s)
             out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), self._euler)
             self.counters.count("sdk", out)
@@ -164,6 +184,16 @@ class LandingFusion:
         if not self.ekf.initialized:
             return None
         return self.buffer.estimate()
+
+    def locked_position(self) -> tuple[float, tuple[float, float, float]] | None:
+        """The estimate's time and NED position while pad data keeps coming (the last within
+        PAD_DATA_FRESH_S; None otherwise), for the velocity-bias correction against the fused
+        position (guidance.velocity_bias.SetpointBiasCorrection): without pad data the fused
+        position is only the autopilot's velocity integrated."""
+        est = self.estimate() if self.pad_locked else None
+        if est is None or self.pad_data_age_s(est.time_s) > PAD_DATA_FRESH_S:
+            return None
+        return (est.time_s, est.position_ned)
 
     def pad_data_age_s(self, now_s: float) -> float:
         return now_s - max(self._last_marker_s, self._last_uwb_s)

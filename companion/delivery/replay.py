@@ -274,6 +274,9 @@ class _ReplayShell:
                 T_pad_anchors=transform_from_json(rec["T_pad_anchors"]),
                 ekf=EkfConfig(**rec["ekf"]),
                 history_s=float(rec["history_s"]),
+                velocity_bias_tau_s=float(rec.get("velocity_bias_tau_s", 0.0)),
+                velocity_bias_max_m_s=float(rec.get("velocity_bias_max_m_s", 1.0)),
+                velocity_bias_source=str(rec.get("velocity_bias_source", "autopilot")),
             )
         except (KeyError, TypeError, ValueError) as err:
             raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
@@ -374,7 +377,9 @@ class _ReplayShell:
         out = mission.step(inp)
         setpoint, clamped = None, False
         if self.velocity_bias is not None:
-            self.velocity_bias.update(tc.position_ned)
+            self.velocity_bias.update(
+                tc.position_ned, self.fusion.locked_position() if self.fusion is not None else None
+            )
         if out.setpoint is not None:
             pos = estimate.position_ned if estimate else None
             sp = self.velocity_bias.correct(out.setpoint) if self.velocity_bias is not None else out.setpoint

@@ -58,7 +58,7 @@ from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.streams import ENUM_VALUE
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
-from companion.guidance.velocity_bias import VelocityBiasEstimator
+from companion.guidance.velocity_bias import SetpointBiasCorrection
 from companion.plugin_api import frame_listener_of
 from companion.scheduling import LoopClock, RateLoop
 
@@ -218,7 +218,7 @@ class DeliveryShell:
         self.estimator = AutopilotPoseEstimator()
         mc = config.mission
         self._velocity_bias = (
-            VelocityBiasEstimator(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s)
+            SetpointBiasCorrection(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s, mc.velocity_bias_source)
             if mc.velocity_bias_tau_s > 0
             else None
         )
@@ -517,7 +517,9 @@ class DeliveryShell:
                 self._say_not_ready(now, tc.status)
             clamped = False
             if self._velocity_bias is not None:
-                self._velocity_bias.update(tc.position_ned)
+                self._velocity_bias.update(
+                    tc.position_ned, self.fusion.locked_position() if self.fusion is not None else None
+                )
             if out.setpoint is not None:
                 pos = self.estimate.position_ned if self.estimate else None
                 sp_out = self._velocity_bias.correct(out.setpoint) if self._velocity_bias is not None else out.setpoint
@@ -592,6 +594,9 @@ class DeliveryShell:
                 position_process_sigma_m_per_sqrt_s=self.config.landing.ekf_position_process_sigma_m_per_sqrt_s,
                 gate_reset_after_rejections=self.config.landing.ekf_gate_reset_after_rejections,
             ),
+            velocity_bias_tau_s=self.config.landing.ekf_velocity_bias_tau_s,
+            velocity_bias_max_m_s=self.config.mission.velocity_bias_max_m_s,
+            velocity_bias_source=self.config.mission.velocity_bias_source,
         )
         self.fusion = LandingFusion(setup, now)
         if self.config.landing.landing_target_output != "off":

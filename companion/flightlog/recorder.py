@@ -418,6 +418,16 @@ class FlightRecorder:
             "T_pad_anchors": transform_json(s.T_pad_anchors),
             "ekf": dataclasses.asdict(s.ekf),
             "history_s": float(s.history_s),
+            # only when on, so the logs of every other flight keep their bytes
+            **(
+                {
+                    "velocity_bias_tau_s": float(s.velocity_bias_tau_s),
+                    "velocity_bias_max_m_s": float(s.velocity_bias_max_m_s),
+                    "velocity_bias_source": s.velocity_bias_source,
+                }
+                if s.velocity_bias_tau_s > 0.0
+                else {}
+            ),
         }
         self._write_meta()
 

@@ -89,11 +89,72 @@ class VelocityBiasEstimator:
     def settled(self) -> bool:
         return self._elapsed_s >= self.tau_s
 
-    def correct(self, sp: VelocitySetpoint) -> VelocitySetpoint:
-        """The setpoint to send so that the vehicle (not the autopilot's estimate) flies ``sp``."""
+    def applied_bias(self) -> tuple[float, float, float]:
+        """The bias corrections use: zero until settled, its magnitude held to max_m_s."""
         if not self.settled:
-            return sp
+            return (0.0, 0.0, 0.0)
         bn, be, bd = self.bias_ned_m_s
         mag = math.sqrt(bn * bn + be * be + bd * bd)
         k = 1.0 if mag <= self.max_m_s else self.max_m_s / mag
-        return VelocitySetpoint(sp.north_m_s - k * bn, sp.east_m_s - k * be, sp.down_m_s - k * bd, sp.yaw_rad)
+        return (k * bn, k * be, k * bd)
+
+    def correct(self, sp: VelocitySetpoint) -> VelocitySetpoint:
+        """The setpoint to send so that the vehicle (not the autopilot's estimate) flies ``sp``."""
+        bn, be, bd = self.applied_bias()
+        return VelocitySetpoint(sp.north_m_s - bn, sp.east_m_s - be, sp.down_m_s - bd, sp.yaw_rad)
+
+    def velocity_correction(self, s: PositionNed) -> tuple[float, float, float]:
+        """Feed ``s`` and return what to add to its reported velocity for the vehicle's real one."""
+        self.update(s)
+        return self.applied_bias()
+
+
+class _Sample:
+    """A PositionNed-shaped sample: the fused position with the autopilot's reported velocity."""
+
+    __slots__ = ("down_m", "down_m_s", "east_m", "east_m_s", "north_m", "north_m_s", "time_s")
+
+    def __init__(self, t: float, p: tuple[float, float, float], v: tuple[float, float, float]):
+        self.time_s = t
+        self.north_m, self.east_m, self.down_m = p
+        self.north_m_s, self.east_m_s, self.down_m_s = v
+
+
+class SetpointBiasCorrection:
+    """What the setpoints are corrected by ([mission] velocity_bias_tau_s, velocity_bias_source).
+
+    ``source = "autopilot"``: the bias against the autopilot's own position. ``"fusion"``: once the
+    landing fusion has pad data, against the fused (camera / UWB) position instead, in a second
+    estimator started then. The autopilot's position is held to GPS only loosely: PX4 v1.16 SIH's
+    drifts with its biased velocity, up to 20 cm from the truth within 3 s near the ground, so
+    its rate shows only part of the bias; the fused position is held by the pad itself.
+    """
+
+    def __init__(self, tau_s: float, max_m_s: float, source: str = "autopilot"):
+        if source not in ("autopilot", "fusion"):
+            raise ValueError(f"source = {source!r}: expected 'autopilot' or 'fusion'")
+        self.autopilot = VelocityBiasEstimator(tau_s, max_m_s)
+        self.fused = VelocityBiasEstimator(tau_s, max_m_s) if source == "fusion" else None
+        self._fused_fresh = False  # the last update brought a fused position
+
+    def update(
+        self, s: PositionNed | None, fused: tuple[float, tuple[float, float, float]] | None = None
+    ) -> tuple[float, float, float]:
+        """Feed the autopilot's newest position sample and, with source "fusion", the fused
+        estimate (its time, NED position; None: no pad data yet); the bias in use."""
+        self.autopilot.update(s)
+        self._fused_fresh = self.fused is not None and fused is not None and s is not None
+        if self.fused is not None and fused is not None and s is not None:
+            v = (s.north_m_s, s.east_m_s, s.down_m_s)
+            self.fused.update(_Sample(fused[0], fused[1], v))  # after a gap > MAX_GAP_S it starts again
+        return self.active.applied_bias()
+
+    @property
+    def active(self) -> VelocityBiasEstimator:
+        """The fused estimator while it is fed and settled, else the autopilot's."""
+        if self.fused is not None and self._fused_fresh and self.fused.settled:
+            return self.fused
+        return self.autopilot
+
+    def correct(self, sp: VelocitySetpoint) -> VelocitySetpoint:
+        return self.active.correct(sp)

@@ -263,3 +263,31 @@ def test_replay_measures_the_pad_lock_when_the_flight_had_pad_sensors(tmp_path):
     del meta["pad_sensors"]
     (run / "run.json").write_text(json.dumps(meta))
     assert not replay_run(run, tmp_path / "replayed2").identical
+
+
+def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp_path):
+    """PX4 SIH's landing tuning: the velocity bias measured against the fused position and the
+    EKF's input corrected by it ([mission] velocity_bias_source, [landing] ekf_velocity_bias_tau_s)
+    are replayed bit for bit from run.json; without the EKF's correction its estimates differ."""
+    from companion.config import load_config, shipped_params_path
+    from companion_lab.demo import run_demo
+
+    config = load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "sim": {"seed": 3, "profile": "px4-sih"},
+            "mission": {"velocity_bias_tau_s": 1.0, "velocity_bias_source": "fusion"},
+            "landing": {"ekf_velocity_bias_tau_s": 1.0},
+        },
+    )
+    run = tmp_path / "run"
+    r = run_demo(config, run_dir=run)
+    assert r.delivered and r.returned, r.failure
+    meta = json.loads((run / "run.json").read_text())
+    assert meta["fusion"]["velocity_bias_tau_s"] == 1.0 and meta["fusion"]["velocity_bias_source"] == "fusion"
+    rep = replay_run(run, tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    meta["fusion"]["velocity_bias_tau_s"] = 0.0
+    (run / "run.json").write_text(json.dumps(meta))
+    r1 = replay_run(run, tmp_path / "r1")
+    assert r1.streams["ekf.csv"].max_abs_diff.get("east_m_s", 0.0) > 0.01, "\n".join(r1.lines())

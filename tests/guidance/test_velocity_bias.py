@@ -86,3 +86,45 @@ def test_a_gap_or_a_repeated_sample_restarts_or_is_ignored():
 def test_bad_parameters_are_refused(tau, mx):
     with pytest.raises(ValueError, match="expected"):
         VelocityBiasEstimator(tau, mx)
+
+
+def test_the_fusion_source_measures_the_bias_against_the_fused_position():
+    """An autopilot whose own position drifts with its velocity bias (PX4 SIH) shows only part of
+    the bias in its position's rate; the fused position (held by the pad) shows all of it."""
+    from companion.guidance.velocity_bias import SetpointBiasCorrection
+
+    true_v, reported_v = 0.1, -0.3  # m/s north: the bias is +0.4
+    ap = SetpointBiasCorrection(1.0, 1.0, "autopilot")
+    fu = SetpointBiasCorrection(1.0, 1.0, "fusion")
+    dt = 0.05
+    for k in range(1, 200):
+        t = k * dt
+        # the autopilot's position drifts halfway with its velocity: its rate is -0.1
+        own = PositionNed(t, 0.5 * (true_v + reported_v) * t, 0.0, 0.0, reported_v, 0.0, 0.0)
+        fused = (t, (true_v * t, 0.0, 0.0)) if t >= 2.0 else None  # pad data from 2 s
+        ap.update(own)
+        b = fu.update(own, fused)
+        if t < 2.0 + 1.0:  # the fused estimator settles tau after it starts
+            assert fu.active is fu.autopilot
+    assert ap.update(own)[0] == pytest.approx(0.2, abs=1e-3)  # half the bias
+    assert fu.active is fu.fused and b[0] == pytest.approx(0.4, abs=0.01)
+    sp = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+    assert fu.correct(sp).north_m_s == pytest.approx(-0.4, abs=0.01)  # the vehicle then hovers
+    with pytest.raises(ValueError, match="source"):
+        SetpointBiasCorrection(1.0, 1.0, "gps")
+
+
+def test_the_fused_estimator_counts_only_while_it_is_fed():
+    """No fused position in the last update (pad data gone stale, the way home): the autopilot's
+    estimator again; a gap of more than MAX_GAP_S starts the fused one afresh."""
+    from companion.guidance.velocity_bias import SetpointBiasCorrection
+
+    c = SetpointBiasCorrection(0.2, 1.0, "fusion")
+    for k in range(1, 40):
+        t = k * 0.05
+        c.update(PositionNed(t, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), (t, (0.0, 0.0, 0.0)))
+    assert c.active is c.fused and c.fused.bias_ned_m_s[0] == pytest.approx(0.3, abs=1e-3)
+    c.update(PositionNed(2.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), None)
+    assert c.active is c.autopilot
+    c.update(PositionNed(4.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), (4.0, (0.0, 0.0, 0.0)))
+    assert c.active is c.autopilot and not c.fused.settled  # restarted after the 2 s gap

@@ -38,13 +38,20 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     assert math.hypot(n, e) == pytest.approx(15.0, abs=0.5)  # the shipped pad, 15 m from home
     # the firmware's own landing tuning comes from its shipped parameters (params/px4_sih_quad.toml)
     assert firmware_tuning("px4") == {
-        "landing": {"ekf_position_process_sigma_m_per_sqrt_s": 0.3, "ekf_gate_reset_after_rejections": 5},
+        "landing": {
+            "ekf_position_process_sigma_m_per_sqrt_s": 0.3,
+            "ekf_gate_reset_after_rejections": 5,
+            "ekf_velocity_bias_tau_s": 1.0,  # PX4's velocity, the EKF's input, corrected
+        },
         "mission": {
             "landing_xy_gain_1_s": 5.0,
             "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
             "landing_xy_integral_gain_1_s2": 2.5,
             "landing_xy_integral_max_m_s": 0.5,
+            "landing_xy_tolerance_m": 0.04,  # aligned within 4-8 cm before it goes on down
+            "landing_hold_min_height_m": 0.3,  # down to where the camera still sees the pad
             "velocity_bias_tau_s": 1.0,
+            "velocity_bias_source": "fusion",  # against the pad, not PX4's drifting position
             "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
             "autopilot_accel_z_m_s2": 1.0,
         },
