@@ -918,11 +918,11 @@ class LandingConfig(_Section):
     ekf_velocity_bias_tau_s: float = _f(
         0.0,
         "s",
-        "> 0: the autopilot's velocity, the EKF's process input, is corrected by its bias against the rate "
-        "of the autopilot's own position, low-passed with this time constant (as mission.velocity_bias_tau_s "
-        "does for the setpoints; at most mission.velocity_bias_max_m_s). Without it a velocity estimate "
-        "biased by b puts the fused position b x (camera latency + filter lag) off: PX4 v1.16 SIH, 0.3-0.5 "
-        "m/s east near the ground, 4-8 cm. 0: the velocity as reported",
+        "> 0: the autopilot's velocity, the EKF's process input, is corrected by its bias, measured "
+        "against mission.velocity_bias_source's position and low-passed with this time constant (as "
+        "mission.velocity_bias_tau_s does for the setpoints; at most mission.velocity_bias_max_m_s). "
+        "Without it a velocity estimate biased by b puts the fused position b x (camera latency + filter "
+        "lag) off: PX4 v1.16 SIH, 0.3-0.5 m/s east near the ground, 4-8 cm. 0: the velocity as reported",
         ge=0.0,
         le=60.0,
     )

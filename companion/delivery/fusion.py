@@ -27,7 +27,7 @@ from companion.geometry.heading import pad_heading_rad
 from companion.geometry.mounts import pad_pose_ned
 from companion.geometry.rotations import euler_to_rotmat
 from companion.geometry.se3 import Transform
-from companion.guidance.velocity_bias import SetpointBiasCorrection
+from companion.guidance.velocity_bias import VelocityBiasCorrection
 
 log = logging.getLogger(__name__)
 
@@ -42,9 +42,9 @@ class FusionSetup:
     # a pad with a heading (mission.pad.heading_deg, in T_world_pad's yaw): the camera measures it
     # (delivery.pad_heading) within this bound of the configured one; None: no heading measured
     heading_tolerance_rad: float | None = None
-    # > 0: the autopilot's velocity, the EKF's process input, is corrected by its bias against the
-    # rate of the autopilot's own position (guidance.velocity_bias, low-passed with this time
-    # constant, at most velocity_bias_max_m_s); 0: taken as reported
+    # > 0: the autopilot's velocity, the EKF's process input, is corrected by its bias
+    # (guidance.velocity_bias, low-passed with this time constant, at most velocity_bias_max_m_s),
+    # measured against velocity_bias_source's position; 0: taken as reported
     velocity_bias_tau_s: float = 0.0
     velocity_bias_max_m_s: float = 1.0
     velocity_bias_source: str = "autopilot"  # or "fusion": against this fusion's own position once locked
@@ -89,7 +89,7 @@ class LandingFusion:
         self.counters = FusionCounters()
         self._vel = np.zeros(3)
         self._vel_bias = (
-            SetpointBiasCorrection(setup.velocity_bias_tau_s, setup.velocity_bias_max_m_s, setup.velocity_bias_source)
+            VelocityBiasCorrection(setup.velocity_bias_tau_s, setup.velocity_bias_max_m_s, setup.velocity_bias_source)
             if setup.velocity_bias_tau_s > 0.0
             else None
         )
@@ -115,7 +115,8 @@ class LandingFusion:
                 # an autopilot whose velocity estimate drifts from its own GPS-held position (PX4 SIH
                 # near the ground, docs/firmware-px4.md) would otherwise carry the EKF's position off
                 # by bias x (camera latency + filter lag) between pad observations
-                self._vel = self._vel + np.asarray(self._vel_bias.update(sample, self.locked_position()))
+                fused = self.locked_position() if self._vel_bias.uses_fused else None
+                self._vel = self._vel + np.asarray(self._vel_bias.update(sample, fused))
             self._predict(sample.time_s)
             out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), self._euler)
             self.counters.count("sdk", out)
@@ -188,7 +189,7 @@ class LandingFusion:
     def locked_position(self) -> tuple[float, tuple[float, float, float]] | None:
         """The estimate's time and NED position while pad data keeps coming (the last within
         PAD_DATA_FRESH_S; None otherwise), for the velocity-bias correction against the fused
-        position (guidance.velocity_bias.SetpointBiasCorrection): without pad data the fused
+        position (guidance.velocity_bias.VelocityBiasCorrection): without pad data the fused
         position is only the autopilot's velocity integrated."""
         est = self.estimate() if self.pad_locked else None
         if est is None or self.pad_data_age_s(est.time_s) > PAD_DATA_FRESH_S:

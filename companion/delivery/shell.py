@@ -58,7 +58,7 @@ from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.streams import ENUM_VALUE
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
-from companion.guidance.velocity_bias import SetpointBiasCorrection
+from companion.guidance.velocity_bias import VelocityBiasCorrection
 from companion.plugin_api import frame_listener_of
 from companion.scheduling import LoopClock, RateLoop
 
@@ -218,7 +218,7 @@ class DeliveryShell:
         self.estimator = AutopilotPoseEstimator()
         mc = config.mission
         self._velocity_bias = (
-            SetpointBiasCorrection(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s, mc.velocity_bias_source)
+            VelocityBiasCorrection(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s, mc.velocity_bias_source)
             if mc.velocity_bias_tau_s > 0
             else None
         )
@@ -517,9 +517,9 @@ class DeliveryShell:
                 self._say_not_ready(now, tc.status)
             clamped = False
             if self._velocity_bias is not None:
-                self._velocity_bias.update(
-                    tc.position_ned, self.fusion.locked_position() if self.fusion is not None else None
-                )
+                vb = self._velocity_bias
+                fused = self.fusion.locked_position() if vb.uses_fused and self.fusion is not None else None
+                vb.update(tc.position_ned, fused)
             if out.setpoint is not None:
                 pos = self.estimate.position_ned if self.estimate else None
                 sp_out = self._velocity_bias.correct(out.setpoint) if self._velocity_bias is not None else out.setpoint

@@ -103,11 +103,6 @@ class VelocityBiasEstimator:
         bn, be, bd = self.applied_bias()
         return VelocitySetpoint(sp.north_m_s - bn, sp.east_m_s - be, sp.down_m_s - bd, sp.yaw_rad)
 
-    def velocity_correction(self, s: PositionNed) -> tuple[float, float, float]:
-        """Feed ``s`` and return what to add to its reported velocity for the vehicle's real one."""
-        self.update(s)
-        return self.applied_bias()
-
 
 class _Sample:
     """A PositionNed-shaped sample: the fused position with the autopilot's reported velocity."""
@@ -120,8 +115,9 @@ class _Sample:
         self.north_m_s, self.east_m_s, self.down_m_s = v
 
 
-class SetpointBiasCorrection:
-    """What the setpoints are corrected by ([mission] velocity_bias_tau_s, velocity_bias_source).
+class VelocityBiasCorrection:
+    """The bias the setpoints and the landing EKF's velocity input are corrected by ([mission]
+    velocity_bias_tau_s / velocity_bias_source, [landing] ekf_velocity_bias_tau_s).
 
     ``source = "autopilot"``: the bias against the autopilot's own position. ``"fusion"``: once the
     landing fusion has pad data, against the fused (camera / UWB) position instead, in a second
@@ -144,10 +140,16 @@ class SetpointBiasCorrection:
         estimate (its time, NED position; None: no pad data yet); the bias in use."""
         self.autopilot.update(s)
         self._fused_fresh = self.fused is not None and fused is not None and s is not None
-        if self.fused is not None and fused is not None and s is not None:
+        if self._fused_fresh:
+            assert self.fused is not None and fused is not None and s is not None
             v = (s.north_m_s, s.east_m_s, s.down_m_s)
             self.fused.update(_Sample(fused[0], fused[1], v))  # after a gap > MAX_GAP_S it starts again
         return self.active.applied_bias()
+
+    @property
+    def uses_fused(self) -> bool:
+        """Whether update wants the fused position (source "fusion"): callers skip building it otherwise."""
+        return self.fused is not None
 
     @property
     def active(self) -> VelocityBiasEstimator:

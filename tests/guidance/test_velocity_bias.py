@@ -91,11 +91,11 @@ def test_bad_parameters_are_refused(tau, mx):
 def test_the_fusion_source_measures_the_bias_against_the_fused_position():
     """An autopilot whose own position drifts with its velocity bias (PX4 SIH) shows only part of
     the bias in its position's rate; the fused position (held by the pad) shows all of it."""
-    from companion.guidance.velocity_bias import SetpointBiasCorrection
+    from companion.guidance.velocity_bias import VelocityBiasCorrection
 
     true_v, reported_v = 0.1, -0.3  # m/s north: the bias is +0.4
-    ap = SetpointBiasCorrection(1.0, 1.0, "autopilot")
-    fu = SetpointBiasCorrection(1.0, 1.0, "fusion")
+    ap = VelocityBiasCorrection(1.0, 1.0, "autopilot")
+    fu = VelocityBiasCorrection(1.0, 1.0, "fusion")
     dt = 0.05
     for k in range(1, 200):
         t = k * dt
@@ -111,15 +111,15 @@ def test_the_fusion_source_measures_the_bias_against_the_fused_position():
     sp = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
     assert fu.correct(sp).north_m_s == pytest.approx(-0.4, abs=0.01)  # the vehicle then hovers
     with pytest.raises(ValueError, match="source"):
-        SetpointBiasCorrection(1.0, 1.0, "gps")
+        VelocityBiasCorrection(1.0, 1.0, "gps")
 
 
 def test_the_fused_estimator_counts_only_while_it_is_fed():
     """No fused position in the last update (pad data gone stale, the way home): the autopilot's
     estimator again; a gap of more than MAX_GAP_S starts the fused one afresh."""
-    from companion.guidance.velocity_bias import SetpointBiasCorrection
+    from companion.guidance.velocity_bias import VelocityBiasCorrection
 
-    c = SetpointBiasCorrection(0.2, 1.0, "fusion")
+    c = VelocityBiasCorrection(0.2, 1.0, "fusion")
     for k in range(1, 40):
         t = k * 0.05
         c.update(PositionNed(t, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), (t, (0.0, 0.0, 0.0)))
