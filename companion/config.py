@@ -156,7 +156,12 @@ class MissionConfig(_Section):
         3.0, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=10.0
     )
     landing_xy_tolerance_m: float = _f(
-        0.1, "m", "final descent slows when farther than this off the target, and holds at twice it", gt=0.01, le=5.0
+        0.1,
+        "m",
+        "final descent, while the pad is in sight (camera or UWB): slows when farther than this off "
+        "the target, and holds at twice it",
+        gt=0.01,
+        le=5.0,
     )
     landing_max_xy_speed_m_s: float = _f(1.0, "m/s", "final descent: horizontal speed limit", gt=0.05, le=5.0)
     landing_hold_min_height_m: float = _f(

@@ -20,6 +20,7 @@ import numpy as np
 
 from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
 from companion.delivery.pad_heading import PadHeadingEstimator
+from companion.delivery.padlock import PAD_DATA_FRESH_S
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
@@ -48,9 +49,6 @@ class FusionSetup:
     velocity_bias_tau_s: float = 0.0
     velocity_bias_max_m_s: float = 1.0
     velocity_bias_source: str = "autopilot"  # or "fusion": against this fusion's own position once locked
-
-
-PAD_DATA_FRESH_S = 0.5  # locked_position: pad data older than this no longer holds the position
 
 
 @dataclass

@@ -40,7 +40,7 @@ from companion.delivery.gonogo import (
     time_home_s,
     way_home,
 )
-from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock
+from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock, pad_in_sight
 from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
 from companion.delivery.winch import WinchSequence, WindCorrection
 from companion.estimation.types import StateEstimate
@@ -686,9 +686,10 @@ class DeliveryMission:
             ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
             if not ok and h > self.pad_policy.commit_height_m:
                 return self._pad_try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"), None, math.nan
-        return self._precision_descent(est, s, inp.time_s), None, math.nan
+        in_sight = s == 1 and pad_in_sight(inp.pad_lock)
+        return self._precision_descent(est, s, inp.time_s, in_sight), None, math.nan
 
-    def _precision_descent(self, est: StateEstimate, s: int, time_s: float) -> VelocitySetpoint:
+    def _precision_descent(self, est: StateEstimate, s: int, time_s: float, in_sight: bool) -> VelocitySetpoint:
         """Final descent onto the target (the pad for s = +1, home for s = -1), in F_I.
 
         The vector field's convergence term scales with v_r, so at land speed it corrects only a
@@ -697,7 +698,11 @@ class DeliveryMission:
         taken back within a fraction of a second), plus an integral term when
         landing_xy_integral_gain_1_s2 > 0 (:meth:`_landing_integral`). The descent slows while the
         vehicle is off-centre and holds height at twice the tolerance (like PX4's precision
-        landing) down to landing_hold_min_height_m.
+        landing) down to landing_hold_min_height_m, while the target is in sight (a camera or UWB
+        observation of the pad within padlock.PAD_DATA_FRESH_S). Blind (GPS only, at home, or the
+        pad lost) it does not hold: holding cannot improve the estimate, and on an autopilot's
+        estimate drifting near the ground it can sit on the ground until the touchdown timeout
+        (docs/firmware-px4.md).
         """
         assert self.frame is not None and self.path is not None
         c = self.cfg
@@ -720,7 +725,7 @@ class DeliveryMission:
             # touching down: a sideways command on the ground keeps the autopilot's land detector
             # from ever firing (ArduCopter), so only the descent remains
             vx = vy = 0.0
-        gated = height > c.landing_hold_min_height_m
+        gated = in_sight and height > c.landing_hold_min_height_m
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
         vz = -c.land_speed_m_s * slow
         v_ned = self.frame.vector_to_ned((vx, vy, vz))

@@ -30,6 +30,15 @@ class PadLock:
 
 NO_SENSORS = PadLock(0.0, math.inf, math.inf, sensors=False)
 
+# pad data older than this no longer holds the fused position (the velocity-bias correction against
+# it) nor counts as the pad being in sight (the final descent's hold to align)
+PAD_DATA_FRESH_S = 0.5
+
+
+def pad_in_sight(lock: PadLock | None) -> bool:
+    """A camera or UWB observation of the pad within PAD_DATA_FRESH_S."""
+    return lock is not None and lock.sensors and lock.observation_age_s <= PAD_DATA_FRESH_S
+
 
 def horizontal_sigma_m(P: np.ndarray) -> float:
     """Largest 1-sigma of the north-east position block of a covariance (square root of its largest

@@ -175,7 +175,7 @@ def _descent_setpoints(m, offsets_ned, t0=0.0, dt=0.05, d=-2.0):
     out = []
     for k, (dn, de) in enumerate(offsets_ned):
         t = t0 + k * dt
-        sp = m._precision_descent(est(t, pn + dn, pe + de, d), 1, t)
+        sp = m._precision_descent(est(t, pn + dn, pe + de, d), 1, t, True)
         out.append((sp.north_m_s, sp.east_m_s))
     return out
 
@@ -289,3 +289,35 @@ def test_the_mission_says_which_request_it_waits_on():
     assert m.waiting_for() == f"waiting for the answer to arm #{req.id} (try 1)"
     m.on_result(RequestResult(req.id, False, "not ready"))
     assert m.waiting_for() == "arm to be retried at t = 1.0 s"
+
+
+def test_final_descent_holds_to_align_only_while_the_pad_is_in_sight():
+    """Off-centre at 2 m: with a pad observation within PAD_DATA_FRESH_S the descent slows (by
+    1 - (e - tol) / tol) and holds at twice the tolerance; blind (observation stale, no pad sensor,
+    no lock measured) it goes down at land speed, as it does below landing_hold_min_height_m."""
+    from companion.delivery.padlock import NO_SENSORS, PAD_DATA_FRESH_S, PadLock
+
+    c = cfg(landing_xy_tolerance_m=0.1, landing_hold_min_height_m=0.5, land_speed_m_s=0.5)
+    flying = dict(armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+
+    def down_m_s(offset_east_m, lock, height_m=2.0):
+        m = DeliveryMission(c)
+        m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+        m._goto(Phase.LANDING_PAD)
+        pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+        out = m.step(
+            MissionInputs(
+                0.05, est(0.05, pn, pe + offset_east_m, -height_m), status(0.05, **flying), HOME, pad_lock=lock
+            )
+        )
+        assert m.phase is Phase.LANDING_PAD and out.setpoint is not None
+        return out.setpoint.down_m_s
+
+    fresh = PadLock(0.05, PAD_DATA_FRESH_S, 0.02)
+    stale = PadLock(0.05, PAD_DATA_FRESH_S + 0.01, 0.02)
+    assert down_m_s(0.05, fresh) == pytest.approx(0.5)  # within the tolerance: full speed
+    assert down_m_s(0.15, fresh) == pytest.approx(0.25)  # half-way to twice it: half speed
+    assert down_m_s(0.25, fresh) == pytest.approx(0.0)  # beyond twice it: holds
+    assert down_m_s(0.25, fresh, height_m=0.4) == pytest.approx(0.5)  # below the hold's floor
+    for blind in (stale, NO_SENSORS, None):
+        assert down_m_s(0.25, blind) == pytest.approx(0.5), blind
