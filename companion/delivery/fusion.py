@@ -113,8 +113,7 @@ class LandingFusion:
                 # an autopilot whose velocity estimate drifts from its own GPS-held position (PX4 SIH
                 # near the ground, docs/firmware-px4.md) would otherwise carry the EKF's position off
                 # by bias x (camera latency + filter lag) between pad observations
-                fused = self.locked_position() if self._vel_bias.uses_fused else None
-                self._vel = self._vel + np.asarray(self._vel_bias.update(sample, fused))
+                self._vel = self._vel + np.asarray(self._vel_bias.update(sample, self.locked_position))
             self._predict(sample.time_s)
             out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), self._euler)
             self.counters.count("sdk", out)

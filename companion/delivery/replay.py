@@ -377,9 +377,7 @@ class _ReplayShell:
         out = mission.step(inp)
         setpoint, clamped = None, False
         if self.velocity_bias is not None:
-            vb = self.velocity_bias
-            fused = self.fusion.locked_position() if vb.uses_fused and self.fusion is not None else None
-            vb.update(tc.position_ned, fused)
+            self.velocity_bias.update(tc.position_ned, self.fusion.locked_position if self.fusion is not None else None)
         if out.setpoint is not None:
             pos = estimate.position_ned if estimate else None
             sp = self.velocity_bias.correct(out.setpoint) if self.velocity_bias is not None else out.setpoint

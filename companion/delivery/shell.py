@@ -517,9 +517,9 @@ class DeliveryShell:
                 self._say_not_ready(now, tc.status)
             clamped = False
             if self._velocity_bias is not None:
-                vb = self._velocity_bias
-                fused = self.fusion.locked_position() if vb.uses_fused and self.fusion is not None else None
-                vb.update(tc.position_ned, fused)
+                self._velocity_bias.update(
+                    tc.position_ned, self.fusion.locked_position if self.fusion is not None else None
+                )
             if out.setpoint is not None:
                 pos = self.estimate.position_ned if self.estimate else None
                 sp_out = self._velocity_bias.correct(out.setpoint) if self._velocity_bias is not None else out.setpoint

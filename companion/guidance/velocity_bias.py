@@ -16,6 +16,7 @@ brings the estimate to setpoint - bias and the vehicle to the setpoint. Not in t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Protocol
 
 from companion.guidance.setpoint import VelocitySetpoint
@@ -40,6 +41,9 @@ class PositionNed(Protocol):
     @property
     def down_m_s(self) -> float: ...
 
+
+# the landing fusion's position while it has pad data: (time, NED position), None without
+FusedPosition = Callable[[], "tuple[float, tuple[float, float, float]] | None"]
 
 MAX_GAP_S = 1.0  # a longer gap between samples (link loss) restarts the estimate
 
@@ -133,23 +137,19 @@ class VelocityBiasCorrection:
         self.fused = VelocityBiasEstimator(tau_s, max_m_s) if source == "fusion" else None
         self._fused_fresh = False  # the last update brought a fused position
 
-    def update(
-        self, s: PositionNed | None, fused: tuple[float, tuple[float, float, float]] | None = None
-    ) -> tuple[float, float, float]:
-        """Feed the autopilot's newest position sample and, with source "fusion", the fused
-        estimate (its time, NED position; None: no pad data yet); the bias in use."""
+    def update(self, s: PositionNed | None, fused_position: FusedPosition | None = None) -> tuple[float, float, float]:
+        """Feed the autopilot's newest position sample; with source "fusion", ``fused_position``
+        gives the fused estimate (its time, NED position; None: no pad data), asked for only
+        then. The bias in use."""
         self.autopilot.update(s)
-        self._fused_fresh = self.fused is not None and fused is not None and s is not None
-        if self._fused_fresh:
-            assert self.fused is not None and fused is not None and s is not None
-            v = (s.north_m_s, s.east_m_s, s.down_m_s)
-            self.fused.update(_Sample(fused[0], fused[1], v))  # after a gap > MAX_GAP_S it starts again
+        est, fused = self.fused, None
+        if est is not None and fused_position is not None and s is not None:
+            fused = fused_position()
+            if fused is not None:
+                v = (s.north_m_s, s.east_m_s, s.down_m_s)
+                est.update(_Sample(fused[0], fused[1], v))  # after a gap > MAX_GAP_S it starts again
+        self._fused_fresh = fused is not None
         return self.active.applied_bias()
-
-    @property
-    def uses_fused(self) -> bool:
-        """Whether update wants the fused position (source "fusion"): callers skip building it otherwise."""
-        return self.fused is not None
 
     @property
     def active(self) -> VelocityBiasEstimator:

@@ -103,7 +103,7 @@ def test_the_fusion_source_measures_the_bias_against_the_fused_position():
         own = PositionNed(t, 0.5 * (true_v + reported_v) * t, 0.0, 0.0, reported_v, 0.0, 0.0)
         fused = (t, (true_v * t, 0.0, 0.0)) if t >= 2.0 else None  # pad data from 2 s
         ap.update(own)
-        b = fu.update(own, fused)
+        b = fu.update(own, lambda f=fused: f)
         if t < 2.0 + 1.0:  # the fused estimator settles tau after it starts
             assert fu.active is fu.autopilot
     assert ap.update(own)[0] == pytest.approx(0.2, abs=1e-3)  # half the bias
@@ -122,9 +122,9 @@ def test_the_fused_estimator_counts_only_while_it_is_fed():
     c = VelocityBiasCorrection(0.2, 1.0, "fusion")
     for k in range(1, 40):
         t = k * 0.05
-        c.update(PositionNed(t, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), (t, (0.0, 0.0, 0.0)))
+        c.update(PositionNed(t, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), lambda t=t: (t, (0.0, 0.0, 0.0)))
     assert c.active is c.fused and c.fused.bias_ned_m_s[0] == pytest.approx(0.3, abs=1e-3)
     c.update(PositionNed(2.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), None)
     assert c.active is c.autopilot
-    c.update(PositionNed(4.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), (4.0, (0.0, 0.0, 0.0)))
+    c.update(PositionNed(4.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0), lambda: (4.0, (0.0, 0.0, 0.0)))
     assert c.active is c.autopilot and not c.fused.settled  # restarted after the 2 s gap
