@@ -40,14 +40,15 @@ from companion.delivery.gonogo import (
     time_home_s,
     way_home,
 )
-from companion.delivery.padlock import PadLock, expanding_square, judge_pad_lock, pad_in_sight
+from companion.delivery.padlock import PAD_DATA_FRESH_S, PadLock, expanding_square, judge_pad_lock, pad_in_sight
 from companion.delivery.planning import pad_config_ned, plan_delivery, plan_leg
 from companion.delivery.winch import WinchSequence, WindCorrection
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
-from companion.geometry.heading import yaw_toward
+from companion.geometry.heading import heading_difference_rad, yaw_toward
 from companion.geometry.mission_frame import MissionFrame
+from companion.geometry.rotations import wrap_angle
 from companion.guidance.geofence import FenceNed, fence_in_ned, legs_problem
 from companion.guidance.path import DeliveryPath, PathGeometryError
 from companion.guidance.setpoint import VelocitySetpoint
@@ -75,6 +76,7 @@ OFFBOARD_STREAM_BEFORE_SWITCH_S = 0.5  # PX4 wants setpoints at > 2 Hz before OF
 MAX_REQUEST_TRIES = 3
 REQUEST_RETRY_DELAY_S = 1.0  # between tries of a request the autopilot refused for now
 DISARM_REPEAT_S = 2.0  # after an accepted DISARM, the status may show armed for a moment
+ALIGNED_RAD = math.radians(1.0)  # pad heading: the yaw setpoint has finished its turn this close
 
 
 class RequestKind(enum.Enum):
@@ -121,6 +123,9 @@ class MissionInputs:
     wind: Wind | None = None  # the autopilot's wind estimate (the wind go / no-go)
     # the heading of the pad landed on (NED rad: measured, else configured); None: no alignment
     pad_heading_rad: float | None = None
+    # age of the camera's newest pad heading observation (s; inf: none): the heading is in sight
+    pad_heading_age_s: float = math.inf
+    autopilot_yaw_rad: float | None = None  # the autopilot's own yaw (ATTITUDE); None: not known
     winch: WinchStatus | None = None  # the winch's newest report (mission.delivery = "winch")
 
 
@@ -1338,13 +1343,33 @@ class DeliveryMission:
         """A pad with a heading: at the approach height (hold, search) and in the final descent
         onto it, the yaw setpoint turns from where it was to the pad's heading the shortest way,
         at most limits.max_yaw_rate_deg_s, so the vehicle touches down aligned (docs/pad-heading.md).
-        Elsewhere the path's heading (delivery 4.3) is kept."""
+        Elsewhere the path's heading (delivery 4.3) is kept.
+
+        Once turned, below landing_hold_min_height_m with the pad's heading out of sight (no
+        camera observation within PAD_DATA_FRESH_S: the camera too close), the setpoint is the
+        autopilot's own yaw: its yaw estimate drifts against the truth, and a held setpoint (or
+        the fusion's yaw, which converges on the autopilot's once blind) would turn the vehicle
+        by that drift, in the last metre and on the ground until the land detector fires (PX4 SIH)."""
         target = inp.pad_heading_rad
         if sp is None or target is None or self.phase not in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH):
             self._yaw_sp = (inp.time_s, sp.yaw_rad) if sp is not None else None
             return sp
         rate = math.radians(self.limits.max_yaw_rate_deg_s if self.limits is not None else 60.0)
         prev = self._yaw_sp
+        est, ap_yaw = inp.estimate, inp.autopilot_yaw_rad
+        if (
+            self.phase is Phase.LANDING_PAD
+            and est is not None
+            and ap_yaw is not None
+            and math.isfinite(ap_yaw)
+            and self.frame is not None
+            and prev is not None
+            and abs(heading_difference_rad(prev[1], target)) <= ALIGNED_RAD
+            and inp.pad_heading_age_s > PAD_DATA_FRESH_S
+            and self._height_above_ground(est) < self.cfg.landing_hold_min_height_m
+        ):
+            self._yaw_sp = (inp.time_s, target)  # still turned: the test above holds on the next tick
+            return VelocitySetpoint(sp.north_m_s, sp.east_m_s, sp.down_m_s, wrap_angle(ap_yaw))
         if prev is None:
             est = inp.estimate
             start = est.yaw_rad if est is not None else sp.yaw_rad

@@ -3,30 +3,41 @@
 The configured heading (``mission.pad.heading_deg``) is where the pad should point; the camera's
 observations, turned into NED by the autopilot's attitude at their exposure, say where it does.
 Each observation within ``heading_tolerance_deg`` of the configured heading counts (further: a
-wrong marker or a flipped pose, rejected); once ``MIN_OBSERVATIONS`` have counted, their circular
-mean is the pad's heading and wins over the configured one (docs/pad-heading.md).
+wrong marker or a flipped pose, rejected); once ``MIN_OBSERVATIONS`` have counted, the circular
+mean of the recent ones is the pad's heading and wins over the configured one (docs/pad-heading.md).
+
+Recent, not all: the heading is measured in the frame of the autopilot's yaw, and that frame
+drifts within a descent (PX4 SIH's does by degrees, docs/pad-heading.md), so a yaw setpoint lands
+aligned only if it is made from observations taken in the frame of now.
 """
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
+from collections import deque
 
 from numpy.typing import ArrayLike
 
 from companion.config import MissionConfig, PadConfig
+from companion.delivery.attitude_history import AttitudeHistory
 from companion.geometry.heading import heading_difference_rad, measured_pad_heading_rad
 from companion.geometry.rotations import wrap_angle
 
 log = logging.getLogger(__name__)
 
 MIN_OBSERVATIONS = 5  # accepted observations before the measured heading wins
-ATTITUDE_HISTORY_S = 2.0  # attitude samples kept to find the attitude at an exposure
+HEADING_WINDOW_S = 1.0  # observations averaged: those exposed this long before the newest one
 
 
 class PadHeadingEstimator:
-    def __init__(self, configured_rad: float, tolerance_rad: float, min_observations: int = MIN_OBSERVATIONS):
+    def __init__(
+        self,
+        configured_rad: float,
+        tolerance_rad: float,
+        min_observations: int = MIN_OBSERVATIONS,
+        attitudes: AttitudeHistory | None = None,
+    ):
         if not (math.isfinite(configured_rad) and math.isfinite(tolerance_rad) and tolerance_rad > 0):
             raise ValueError(
                 f"pad heading {configured_rad!r} rad, tolerance {tolerance_rad!r} rad: must be finite, tolerance > 0"
@@ -36,46 +47,21 @@ class PadHeadingEstimator:
         self.configured_rad = wrap_angle(configured_rad)
         self.tolerance_rad = tolerance_rad
         self.min_observations = min_observations
-        self._att_t: list[float] = []
-        self._att: list[tuple[float, float, float]] = []
-        self._sin = 0.0
-        self._cos = 0.0
+        self.attitudes = attitudes if attitudes is not None else AttitudeHistory()
+        self._recent: deque[tuple[float, float]] = deque()  # (exposure time s, heading rad), accepted
         self.accepted = 0
         self.rejected = 0
         self.last_measured_rad: float | None = None
+        self.last_accepted_s = -math.inf  # exposure time of the newest observation that counted
 
     def on_attitude(self, time_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> None:
-        """The autopilot's attitude (in time order; an older sample is ignored)."""
-        if self._att_t and time_s < self._att_t[-1]:
-            return
-        self._att_t.append(time_s)
-        self._att.append((roll_rad, pitch_rad, yaw_rad))
-        cut = bisect.bisect_left(self._att_t, time_s - ATTITUDE_HISTORY_S)
-        if cut > 0:
-            del self._att_t[:cut]
-            del self._att[:cut]
-
-    def attitude_at(self, time_s: float) -> tuple[float, float, float] | None:
-        """The attitude at ``time_s``, interpolated between the samples around it (yaw the
-        shortest way); the newest sample for a later time; None before the first sample."""
-        ts = self._att_t
-        if not ts or time_s < ts[0]:
-            return None
-        i = bisect.bisect_right(ts, time_s)
-        if i >= len(ts):
-            return self._att[-1]
-        t0, t1 = ts[i - 1], ts[i]
-        a0, a1 = self._att[i - 1], self._att[i]
-        f = (time_s - t0) / (t1 - t0) if t1 > t0 else 0.0
-        return (
-            a0[0] + f * (a1[0] - a0[0]),
-            a0[1] + f * (a1[1] - a0[1]),
-            wrap_angle(a0[2] + f * heading_difference_rad(a1[2], a0[2])),
-        )
+        """The autopilot's attitude (in time order; an older sample is ignored). A fusion that
+        shares its ``attitudes`` with other estimators feeds that history instead."""
+        self.attitudes.add(time_s, roll_rad, pitch_rad, yaw_rad)
 
     def on_observation(self, time_s: float, R_camera_pad: ArrayLike, R_body_camera: ArrayLike) -> bool:
         """One unambiguous pad observation exposed at ``time_s``; True when it counted."""
-        att = self.attitude_at(time_s)
+        att = self.attitudes.at(time_s)
         if att is None:
             return False
         h = measured_pad_heading_rad(att[0], att[1], att[2], R_body_camera, R_camera_pad)
@@ -92,8 +78,12 @@ class PadHeadingEstimator:
                     math.degrees(self.tolerance_rad),
                 )
             return False
-        self._sin += math.sin(h)
-        self._cos += math.cos(h)
+        self._recent.append((time_s, h))
+        self.last_accepted_s = max(self.last_accepted_s, time_s)
+        # keep the window behind the newest exposure, but never fewer than min_observations
+        oldest_s = self.last_accepted_s - HEADING_WINDOW_S
+        while len(self._recent) > self.min_observations and self._recent[0][0] < oldest_s:
+            self._recent.popleft()
         self.accepted += 1
         if self.accepted == self.min_observations:
             log.info(
@@ -105,16 +95,25 @@ class PadHeadingEstimator:
 
     @property
     def measured_rad(self) -> float | None:
-        """The circular mean of the counted observations, once there are enough; else None."""
+        """The circular mean of the recent counted observations (those within HEADING_WINDOW_S of
+        the newest, at least min_observations), once enough have counted; else None."""
         if self.accepted < self.min_observations:
             return None
-        return math.atan2(self._sin, self._cos)
+        return math.atan2(sum(math.sin(h) for _, h in self._recent), sum(math.cos(h) for _, h in self._recent))
 
     @property
     def target_rad(self) -> float:
         """The heading to land on: the measured one once there is one, else the configured one."""
         m = self.measured_rad
         return self.configured_rad if m is None else m
+
+
+def heading_observation_age_s(estimator: PadHeadingEstimator | None, time_s: float) -> float:
+    """Age of the newest heading observation that counted (MissionInputs.pad_heading_age_s); inf:
+    none yet, or no camera heading measured."""
+    if estimator is None:
+        return math.inf
+    return time_s - estimator.last_accepted_s
 
 
 def landed_pad(mission: MissionConfig, pad_index: int) -> PadConfig | None:

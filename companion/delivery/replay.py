@@ -344,7 +344,7 @@ class _ReplayShell:
     def tick(self, now: float, link_ok: bool, wind: Any = None, winch: Any = None) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
-        from companion.delivery.pad_heading import landing_heading_rad
+        from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad
         from companion.events import Phase
         from companion.guidance.limits import clamp_velocity
 
@@ -372,6 +372,8 @@ class _ReplayShell:
             self._pad_lock(now),
             wind=wind,
             pad_heading_rad=heading,
+            pad_heading_age_s=heading_observation_age_s(self.fusion.heading if self.fusion is not None else None, now),
+            autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             winch=winch,
         )
         out = mission.step(inp)

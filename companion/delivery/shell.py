@@ -48,7 +48,7 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
-from companion.delivery.pad_heading import landing_heading_rad
+from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.estimation.ekf import UpdateOutcome
@@ -505,6 +505,10 @@ class DeliveryShell:
                 pad_heading_rad=landing_heading_rad(
                     self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
                 ),
+                pad_heading_age_s=heading_observation_age_s(
+                    self.fusion.heading if self.fusion is not None else None, now
+                ),
+                autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             )
             out = mission.step(inp)
             for ev in out.events:

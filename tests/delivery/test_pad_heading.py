@@ -4,6 +4,7 @@ fallback, and the mission's yaw setpoint turning to it at the rate limit (docs/p
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from pydantic import ValidationError
@@ -11,7 +12,12 @@ from pydantic import ValidationError
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import LimitsConfig, MissionConfig, PadConfig
 from companion.delivery.mission import DeliveryMission, MissionInputs
-from companion.delivery.pad_heading import PadHeadingEstimator, landing_heading_rad, pad_yaw_and_tolerance_rad
+from companion.delivery.pad_heading import (
+    HEADING_WINDOW_S,
+    PadHeadingEstimator,
+    landing_heading_rad,
+    pad_yaw_and_tolerance_rad,
+)
 from companion.estimation.types import StateEstimate
 from companion.events import Phase
 from companion.geometry.heading import heading_difference_rad
@@ -64,6 +70,31 @@ def test_the_circular_mean_works_across_180() -> None:
     h.on_observation(0.0, observation((0.0, 0.0, 0.0), 178.0), R_BC)
     h.on_observation(0.0, observation((0.0, 0.0, 0.0), -176.0), R_BC)
     assert abs(math.degrees(heading_difference_rad(h.target_rad, math.radians(-179.0)))) < 1e-6
+
+
+def test_the_measured_heading_follows_a_drifting_autopilot_yaw_frame() -> None:
+    """The autopilot's yaw estimate drifts 1 deg/s against the truth while the vehicle truly holds
+    still over a dock at 139 deg: observed in the drifting frame, the dock's heading moves with it,
+    and the heading to land on must be that of the last HEADING_WINDOW_S, not of the whole descent."""
+    h = PadHeadingEstimator(math.radians(135.0), math.radians(20.0))
+    drift_deg_s = 1.0
+    for k in range(601):  # 6 s of observations and attitude at 100 Hz
+        t = k * 0.01
+        yaw_est = drift_deg_s * t  # reported yaw; the true yaw is 0
+        h.on_attitude(t, 0.0, 0.0, math.radians(yaw_est))
+        # the camera sees the dock 139 deg right of the true nose; turned by the reported yaw
+        assert h.on_observation(t, observation((0.0, 0.0, 0.0), 139.0), R_BC)
+    # in the frame of now (drift 6 deg) the dock is at 145 deg; the window's mean lags it by half
+    # its length (0.5 deg); the mean over all 6 s would say 142 deg
+    assert math.degrees(h.target_rad) == pytest.approx(145.0 - drift_deg_s * HEADING_WINDOW_S / 2, abs=1e-6)
+
+
+def test_the_window_keeps_the_minimum_count_after_a_gap() -> None:
+    h = PadHeadingEstimator(math.radians(0.0), math.radians(20.0), min_observations=3)
+    h.on_attitude(0.0, 0.0, 0.0, 0.0)
+    for t, pad_deg in ((0.0, 2.0), (0.1, 4.0), (5.0, 6.0)):  # the pad lost for 4.9 s before the last
+        h.on_observation(t, observation((0.0, 0.0, 0.0), pad_deg), R_BC)
+    assert math.degrees(h.target_rad) == pytest.approx(4.0, abs=1e-3)  # all three still count
 
 
 def test_estimator_rejects_bad_setup() -> None:
@@ -141,3 +172,34 @@ def test_without_a_pad_heading_or_outside_the_landing_the_setpoint_is_untouched(
         m = _mission_in(phase)
         assert m._align_with_pad(_inp(0.0, 90.0), sp) is sp
     assert m._align_with_pad(_inp(0.0, 90.0), None) is None
+
+
+def test_turned_and_blind_near_the_ground_the_yaw_setpoint_follows_the_vehicles_yaw() -> None:
+    """Turned to the pad (setpoint at the target), below landing_hold_min_height_m with no heading
+    observation within PAD_DATA_FRESH_S, the setpoint is the autopilot's own yaw (37 deg; not the
+    fusion's 38): no turn by the autopilot's yaw drift; with the heading in sight, higher up, still
+    turning or without the autopilot's attitude, the target."""
+    from companion.delivery.padlock import PAD_DATA_FRESH_S
+
+    c = MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0), landing_hold_min_height_m=0.3)
+    flying = VehicleStatus(0.0, True, FlightMode.OFFBOARD, LandedState.IN_AIR, True, 90.0, False)
+
+    def yaw_sp_deg(height_m: float, age_s: float, turned: bool, ap_yaw_deg: float | None = 37.0) -> float:
+        m = DeliveryMission(c, limits=LimitsConfig(max_yaw_rate_deg_s=60.0))
+        m.step(MissionInputs(0.0, StateEstimate(0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0, 0.0), None, HOME))
+        m._goto(Phase.LANDING_PAD)
+        pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+        m._yaw_sp = (0.0, math.radians(40.0 if turned else 20.0))
+        e = StateEstimate(0.05, pn, pe, -height_m, 0, 0, 0, 0, 0, math.radians(38.0))  # the fusion's yaw
+        inp = MissionInputs(0.05, e, flying, HOME, pad_heading_rad=math.radians(40.0), pad_heading_age_s=age_s)
+        out = m.step(replace(inp, autopilot_yaw_rad=None if ap_yaw_deg is None else math.radians(ap_yaw_deg)))
+        assert m.phase is Phase.LANDING_PAD and out.setpoint is not None
+        return math.degrees(out.setpoint.yaw_rad)
+
+    stale = PAD_DATA_FRESH_S + 0.01
+    assert yaw_sp_deg(0.2, stale, turned=True) == pytest.approx(37.0)
+    assert yaw_sp_deg(0.2, math.inf, turned=True) == pytest.approx(37.0)  # never measured: the same
+    assert yaw_sp_deg(0.2, PAD_DATA_FRESH_S, turned=True) == pytest.approx(40.0)  # in sight
+    assert yaw_sp_deg(0.4, stale, turned=True) == pytest.approx(40.0)  # above the hold's floor
+    assert yaw_sp_deg(0.2, stale, turned=False) == pytest.approx(23.0)  # still turning: 3 deg a tick
+    assert yaw_sp_deg(0.2, stale, turned=True, ap_yaw_deg=None) == pytest.approx(40.0)  # no attitude yet
