@@ -148,17 +148,16 @@ def scenario_config(
         sim["pad_offset_m"] = [PAD_MOVED_M[variant] * u[0], PAD_MOVED_M[variant] * u[1]]
     tuning = tuning or {}
     landing = {**tuning.get("landing", {}), **VARIANTS[variant]}
-    overrides = {**tuning, "sim": sim, "landing": landing}
-    if variant in MISSION_VARIANTS:
-        overrides["mission"] = {**tuning.get("mission", {}), **MISSION_VARIANTS[variant]}
+    # a copy of every table changed below: ``tuning`` is shared by all the campaign's landings, and
+    # a variant's change to it would carry over into the next landing's configuration
+    mission = {**tuning.get("mission", {}), **MISSION_VARIANTS.get(variant, {})}
+    overrides = {**tuning, "sim": sim, "landing": landing, "mission": mission}
     if variant in WINCH_VARIANTS:
-        mission = overrides.setdefault("mission", dict(tuning.get("mission", {})))
         mission["delivery"] = "winch"
         sim["winch"] = {"fitted": True}
         overrides["winch"] = {**tuning.get("winch", {}), "wind_drift_s_m": WINCH_DRIFT_S_M}
     if variant in HEADING_VARIANTS:
         heading_deg, placed_deg = pad_heading_draw(d.seed)
-        mission = overrides.setdefault("mission", dict(tuning.get("mission", {})))
         mission["pad"] = {**mission.get("pad", {}), "heading_deg": heading_deg}
         sim["pad_heading_offset_deg"] = placed_deg
     return load_config(base_file, overrides=overrides)

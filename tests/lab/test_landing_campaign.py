@@ -20,6 +20,28 @@ def test_draws_are_seeded_and_bounded():
         draw_scenarios(0, 1)
 
 
+def test_a_variants_configuration_does_not_carry_over_into_the_next_landing():
+    """The firmware tuning is shared by every landing of a campaign: the pad_heading and winch
+    variants change their own copy of its mission table, not the tuning the next landing uses."""
+    import copy
+
+    from companion.config import shipped_params_path
+    from companion_lab.campaign_landing import scenario_config
+    from companion_lab.real_campaign import firmware_tuning
+
+    base = shipped_params_path("landing_campaign.toml")
+    (d,) = draw_scenarios(1, 11)
+    tuning = firmware_tuning("px4")
+    before = copy.deepcopy(tuning)
+    headed = scenario_config(base, d, "pad_heading", "px4-sih", tuning)
+    winch = scenario_config(base, d, "winch", "px4-sih", tuning)
+    plain = scenario_config(base, d, "fusion", "px4-sih", tuning)
+    assert tuning == before
+    assert headed.mission.pad.heading_deg is not None and winch.mission.delivery == "winch"
+    assert plain.mission.pad.heading_deg is None and plain.mission.delivery == "land"
+    assert plain.mission.landing_xy_gain_1_s == tuning["mission"]["landing_xy_gain_1_s"]  # the tuning still applies
+
+
 def test_fusion_beats_gps_only_and_every_failure_variant_lands_on_the_pad():
     # 18 landings in two worker processes (52.6 s in one here, 40.6 s in two; the same result)
     r = run_landing_campaign(3, 11, ("fusion", "gps_only", "no_camera", "no_uwb", "outer_only", "inner_only"), jobs=2)
