@@ -920,6 +920,13 @@ class LandingConfig(_Section):
         gt=0.0,
         le=5.0,
     )
+    ekf_level_pad: bool = _f(
+        False,
+        "-",
+        "the pad lies level (within a few tenths of a degree): the tilt the camera sees on it is the "
+        "autopilot's roll / pitch error, taken out of the attitude the EKF fuses (a tilt error d puts "
+        "the fused position h x tan(d) off at height h); leave off for a pad on a slope",
+    )
     ekf_velocity_bias_tau_s: float = _f(
         0.0,
         "s",

@@ -66,6 +66,7 @@ FIRMWARE_TUNING_KEYS = {
         "ekf_position_process_sigma_m_per_sqrt_s",
         "ekf_gate_reset_after_rejections",
         "ekf_velocity_bias_tau_s",
+        "ekf_level_pad",
     ),
     "mission": (
         "landing_xy_gain_1_s",

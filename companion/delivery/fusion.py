@@ -19,7 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
+from companion.delivery.attitude_history import AttitudeHistory
 from companion.delivery.pad_heading import PadHeadingEstimator
+from companion.delivery.pad_tilt import PadTiltEstimator
 from companion.delivery.padlock import PAD_DATA_FRESH_S
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
@@ -49,6 +51,9 @@ class FusionSetup:
     velocity_bias_tau_s: float = 0.0
     velocity_bias_max_m_s: float = 1.0
     velocity_bias_source: str = "autopilot"  # or "fusion": against this fusion's own position once locked
+    # the pad lies level: its tilt as the camera sees it is taken out of the autopilot's attitude
+    # before the EKF fuses it (delivery.pad_tilt)
+    level_pad: bool = False
 
 
 @dataclass
@@ -81,9 +86,13 @@ class LandingFusion:
         self.buffer = DelayedMeasurementBuffer(self.ekf, start_time_s, history_s=setup.history_s)
         self.T_world_pad = setup.T_world_pad  # its rotation follows the measured pad heading
         self.T_world_anchors = setup.T_world_pad @ setup.T_pad_anchors
+        self.attitudes = AttitudeHistory()  # for the estimators that need the attitude at an exposure
         self.heading: PadHeadingEstimator | None = None
         if setup.heading_tolerance_rad is not None:
-            self.heading = PadHeadingEstimator(pad_heading_rad(setup.T_world_pad.R), setup.heading_tolerance_rad)
+            self.heading = PadHeadingEstimator(
+                pad_heading_rad(setup.T_world_pad.R), setup.heading_tolerance_rad, attitudes=self.attitudes
+            )
+        self.tilt = PadTiltEstimator(self.attitudes) if setup.level_pad else None
         self.counters = FusionCounters()
         self._vel = np.zeros(3)
         self._vel_bias = (
@@ -104,8 +113,8 @@ class LandingFusion:
         if isinstance(sample, Attitude):
             self._rates = np.array([sample.rollspeed_rad_s, sample.pitchspeed_rad_s, sample.yawspeed_rad_s])
             self._euler = np.array([sample.roll_rad, sample.pitch_rad, sample.yaw_rad])
-            if self.heading is not None:
-                self.heading.on_attitude(sample.time_s, sample.roll_rad, sample.pitch_rad, sample.yaw_rad)
+            if self.heading is not None or self.tilt is not None:
+                self.attitudes.add(sample.time_s, sample.roll_rad, sample.pitch_rad, sample.yaw_rad)
             self._predict(sample.time_s)
         elif isinstance(sample, PositionNed):
             self._vel = np.array([sample.north_m_s, sample.east_m_s, sample.down_m_s])
@@ -115,7 +124,10 @@ class LandingFusion:
                 # by bias x (camera latency + filter lag) between pad observations
                 self._vel = self._vel + np.asarray(self._vel_bias.update(sample, self.locked_position))
             self._predict(sample.time_s)
-            out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), self._euler)
+            euler = self._euler
+            if self.tilt is not None and euler is not None:
+                euler = self.tilt.corrected(euler)
+            out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), euler)
             self.counters.count("sdk", out)
 
     def _predict(self, t: float) -> None:
@@ -129,6 +141,8 @@ class LandingFusion:
             return None  # never fused blindly (the IPPE flip)
         if self.heading is not None:
             self._measure_heading(obs)
+        if self.tilt is not None:
+            self.tilt.on_observation(obs.time_s, obs.T_camera_pad.R, self.setup.T_body_camera.R)  # type: ignore[attr-defined]
         out = self.buffer.update_aruco(obs.time_s, obs.T_camera_pad, self.T_world_pad)  # type: ignore[attr-defined]
         self.counters.count("aruco", out)
         if out is UpdateOutcome.ACCEPTED:

@@ -277,6 +277,7 @@ class _ReplayShell:
                 velocity_bias_tau_s=float(rec.get("velocity_bias_tau_s", 0.0)),
                 velocity_bias_max_m_s=float(rec.get("velocity_bias_max_m_s", 1.0)),
                 velocity_bias_source=str(rec.get("velocity_bias_source", "autopilot")),
+                level_pad=bool(rec.get("level_pad", False)),
             )
         except (KeyError, TypeError, ValueError) as err:
             raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None

@@ -601,6 +601,7 @@ class DeliveryShell:
             velocity_bias_tau_s=self.config.landing.ekf_velocity_bias_tau_s,
             velocity_bias_max_m_s=self.config.mission.velocity_bias_max_m_s,
             velocity_bias_source=self.config.mission.velocity_bias_source,
+            level_pad=self.config.landing.ekf_level_pad,
         )
         self.fusion = LandingFusion(setup, now)
         if self.config.landing.landing_target_output != "off":

@@ -428,6 +428,7 @@ class FlightRecorder:
                 if s.velocity_bias_tau_s > 0.0
                 else {}
             ),
+            **({"level_pad": True} if s.level_pad else {}),
         }
         self._write_meta()
 

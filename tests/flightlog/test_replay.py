@@ -266,9 +266,10 @@ def test_replay_measures_the_pad_lock_when_the_flight_had_pad_sensors(tmp_path):
 
 
 def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp_path):
-    """PX4 SIH's landing tuning: the velocity bias measured against the fused position and the
+    """PX4 SIH's landing tuning: the velocity bias measured against the fused position, the
     EKF's input corrected by it ([mission] velocity_bias_source, [landing] ekf_velocity_bias_tau_s)
-    are replayed bit for bit from run.json; without the EKF's correction its estimates differ."""
+    and the attitude's tilt taken out on the level pad ([landing] ekf_level_pad) are replayed bit
+    for bit from run.json; without either correction the EKF's estimates differ."""
     from companion.config import load_config, shipped_params_path
     from companion_lab.demo import run_demo
 
@@ -277,7 +278,7 @@ def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp
         overrides={
             "sim": {"seed": 3, "profile": "px4-sih"},
             "mission": {"velocity_bias_tau_s": 1.0, "velocity_bias_source": "fusion"},
-            "landing": {"ekf_velocity_bias_tau_s": 1.0},
+            "landing": {"ekf_velocity_bias_tau_s": 1.0, "ekf_level_pad": True},
         },
     )
     run = tmp_path / "run"
@@ -285,9 +286,16 @@ def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp
     assert r.delivered and r.returned, r.failure
     meta = json.loads((run / "run.json").read_text())
     assert meta["fusion"]["velocity_bias_tau_s"] == 1.0 and meta["fusion"]["velocity_bias_source"] == "fusion"
+    assert meta["fusion"]["level_pad"] is True
     rep = replay_run(run, tmp_path / "replayed")
     assert rep.identical, "\n".join(rep.lines())
     meta["fusion"]["velocity_bias_tau_s"] = 0.0
     (run / "run.json").write_text(json.dumps(meta))
     r1 = replay_run(run, tmp_path / "r1")
     assert r1.streams["ekf.csv"].max_abs_diff.get("east_m_s", 0.0) > 0.01, "\n".join(r1.lines())
+    meta["fusion"]["velocity_bias_tau_s"] = 1.0
+    del meta["fusion"]["level_pad"]
+    (run / "run.json").write_text(json.dumps(meta))
+    r2 = replay_run(run, tmp_path / "r2")
+    # the px4-sih profile's attitude error is 1-2 deg: the EKF's attitude follows it without the level pad
+    assert r2.streams["ekf.csv"].max_abs_diff.get("roll_rad", 0.0) > 0.005, "\n".join(r2.lines())

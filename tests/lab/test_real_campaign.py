@@ -42,6 +42,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
             "ekf_position_process_sigma_m_per_sqrt_s": 0.3,
             "ekf_gate_reset_after_rejections": 5,
             "ekf_velocity_bias_tau_s": 1.0,  # PX4's velocity, the EKF's input, corrected
+            "ekf_level_pad": True,  # PX4's roll / pitch error, seen on the level pad, taken out
         },
         "mission": {
             "landing_xy_gain_1_s": 5.0,
