@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 
 from numpy.typing import ArrayLike
 
 from companion.config import MissionConfig, PadConfig
 from companion.delivery.attitude_history import AttitudeHistory
+from companion.delivery.recent_window import RecentWindow
 from companion.geometry.heading import heading_difference_rad, measured_pad_heading_rad
 from companion.geometry.rotations import wrap_angle
 
@@ -48,11 +48,11 @@ class PadHeadingEstimator:
         self.tolerance_rad = tolerance_rad
         self.min_observations = min_observations
         self.attitudes = attitudes if attitudes is not None else AttitudeHistory()
-        self._recent: deque[tuple[float, float]] = deque()  # (exposure time s, heading rad), accepted
+        self._recent: RecentWindow[float] = RecentWindow(HEADING_WINDOW_S, min_observations)  # accepted, rad
+        self._measured_rad: float | None = None  # their circular mean, once enough have counted
         self.accepted = 0
         self.rejected = 0
         self.last_measured_rad: float | None = None
-        self.last_accepted_s = -math.inf  # exposure time of the newest observation that counted
 
     def on_attitude(self, time_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> None:
         """The autopilot's attitude (in time order; an older sample is ignored). A fusion that
@@ -78,13 +78,11 @@ class PadHeadingEstimator:
                     math.degrees(self.tolerance_rad),
                 )
             return False
-        self._recent.append((time_s, h))
-        self.last_accepted_s = max(self.last_accepted_s, time_s)
-        # keep the window behind the newest exposure, but never fewer than min_observations
-        oldest_s = self.last_accepted_s - HEADING_WINDOW_S
-        while len(self._recent) > self.min_observations and self._recent[0][0] < oldest_s:
-            self._recent.popleft()
+        self._recent.add(time_s, h)
         self.accepted += 1
+        if self.accepted >= self.min_observations:
+            hs = self._recent.values()
+            self._measured_rad = math.atan2(sum(math.sin(x) for x in hs), sum(math.cos(x) for x in hs))
         if self.accepted == self.min_observations:
             log.info(
                 "pad heading measured %.1f deg (configured %.1f deg)",
@@ -97,9 +95,12 @@ class PadHeadingEstimator:
     def measured_rad(self) -> float | None:
         """The circular mean of the recent counted observations (those within HEADING_WINDOW_S of
         the newest, at least min_observations), once enough have counted; else None."""
-        if self.accepted < self.min_observations:
-            return None
-        return math.atan2(sum(math.sin(h) for _, h in self._recent), sum(math.cos(h) for _, h in self._recent))
+        return self._measured_rad
+
+    @property
+    def last_accepted_s(self) -> float:
+        """Exposure time of the newest observation that counted (-inf: none yet)."""
+        return self._recent.newest_s
 
     @property
     def target_rad(self) -> float:

@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from companion.delivery.attitude_history import AttitudeHistory
-from companion.geometry.level import pad_tilt_rotvec, untilted_euler
-from companion.geometry.rotations import euler_to_rotmat
+from companion.delivery.recent_window import RecentWindow
+from companion.geometry.level import pad_tilt_rotvec, tilt_rotation
+from companion.geometry.rotations import euler_to_rotmat, rotmat_to_euler
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +44,11 @@ class PadTiltEstimator:
         self.attitudes = attitudes
         self.max_tilt_rad = max_tilt_rad
         self.min_observations = min_observations
-        self._recent: deque[tuple[float, np.ndarray]] = deque()  # (exposure time s, tilt rotvec), accepted
-        self._newest_s = -math.inf
+        self._recent: RecentWindow[np.ndarray] = RecentWindow(TILT_WINDOW_S, min_observations)  # accepted rotvecs
+        # their mean and its rotation E, once enough have counted: computed per observation, used
+        # on every autopilot position sample
+        self._tilt: np.ndarray | None = None
+        self._E: np.ndarray | None = None
         self.accepted = 0
         self.rejected = 0
 
@@ -68,17 +71,15 @@ class PadTiltEstimator:
                     math.degrees(self.max_tilt_rad),
                 )
             return False
-        self._recent.append((time_s, e))
-        self._newest_s = max(self._newest_s, time_s)
-        oldest_s = self._newest_s - TILT_WINDOW_S
-        while len(self._recent) > self.min_observations and self._recent[0][0] < oldest_s:
-            self._recent.popleft()
+        self._recent.add(time_s, e)
         self.accepted += 1
+        if self.accepted >= self.min_observations:
+            self._tilt = np.mean(self._recent.values(), axis=0)
+            self._E = tilt_rotation(self._tilt)
         if self.accepted == self.min_observations:
-            t = self.tilt_rotvec
-            assert t is not None
             log.info(
-                "autopilot attitude error from the level pad: %.2f / %.2f deg about north / east", *np.degrees(t[:2])
+                "autopilot attitude error from the level pad: %.2f / %.2f deg about north / east",
+                *np.degrees(self._tilt[:2]),  # type: ignore[index]
             )
         return True
 
@@ -86,15 +87,12 @@ class PadTiltEstimator:
     def tilt_rotvec(self) -> np.ndarray | None:
         """The mean tilt of the recent counted observations (NED rotation vector, rad), once
         enough have counted; else None."""
-        if self.accepted < self.min_observations:
-            return None
-        return np.mean([e for _, e in self._recent], axis=0)
+        return self._tilt
 
     def corrected(self, euler_rad: ArrayLike) -> np.ndarray:
         """The autopilot's attitude (roll, pitch, yaw) with the measured tilt taken out; as given
         until the tilt is measured."""
         eul = np.asarray(euler_rad, dtype=float).reshape(3)
-        t = self.tilt_rotvec
-        if t is None:
+        if self._E is None:
             return eul
-        return np.array(untilted_euler(float(eul[0]), float(eul[1]), float(eul[2]), t))
+        return np.array(rotmat_to_euler(self._E.T @ euler_to_rotmat(float(eul[0]), float(eul[1]), float(eul[2]))))

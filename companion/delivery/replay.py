@@ -361,9 +361,8 @@ class _ReplayShell:
             steers = (not mission.summary.delivered or mission.phase is Phase.WINCH) and not mission.returning
             if fused is not None and steers:
                 estimate = fused
-        heading = landing_heading_rad(
-            self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
-        )
+        heading_est = self.fusion.heading if self.fusion is not None else None
+        heading = landing_heading_rad(self.config.mission, mission.pad_index, heading_est)
         inp = MissionInputs(
             now,
             estimate,
@@ -373,7 +372,7 @@ class _ReplayShell:
             self._pad_lock(now),
             wind=wind,
             pad_heading_rad=heading,
-            pad_heading_age_s=heading_observation_age_s(self.fusion.heading if self.fusion is not None else None, now),
+            pad_heading_age_s=heading_observation_age_s(heading_est, now),
             autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             winch=winch,
         )

@@ -493,6 +493,7 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
+            heading = self.fusion.heading if self.fusion is not None else None
             inp = MissionInputs(
                 now,
                 self.estimate,
@@ -502,12 +503,8 @@ class DeliveryShell:
                 self._pad_lock(now),
                 wind=tc.wind,
                 winch=tc.winch,
-                pad_heading_rad=landing_heading_rad(
-                    self.config.mission, mission.pad_index, self.fusion.heading if self.fusion is not None else None
-                ),
-                pad_heading_age_s=heading_observation_age_s(
-                    self.fusion.heading if self.fusion is not None else None, now
-                ),
+                pad_heading_rad=landing_heading_rad(self.config.mission, mission.pad_index, heading),
+                pad_heading_age_s=heading_observation_age_s(heading, now),
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             )
             out = mission.step(inp)

@@ -31,13 +31,17 @@ def pad_tilt_rotvec(R_world_pad: ArrayLike) -> np.ndarray:
     return np.array([axis[0] / s * angle, axis[1] / s * angle, 0.0])
 
 
+def tilt_rotation(tilt_rotvec: ArrayLike) -> np.ndarray:
+    """E, the rotation matrix of a tilt's rotation vector (:func:`pad_tilt_rotvec`)."""
+    return Rotation.from_rotvec(np.asarray(tilt_rotvec, dtype=float).reshape(3)).as_matrix()
+
+
 def untilted_euler(
     roll_rad: float, pitch_rad: float, yaw_rad: float, tilt_rotvec: ArrayLike
 ) -> tuple[float, float, float]:
     """The attitude (ZYX Euler, rad) with a world-frame tilt error taken out: E^T R_wb, E the
     rotation of ``tilt_rotvec`` (:func:`pad_tilt_rotvec` of an observation turned by this attitude)."""
-    E = Rotation.from_rotvec(np.asarray(tilt_rotvec, dtype=float).reshape(3)).as_matrix()
-    return rotmat_to_euler(E.T @ euler_to_rotmat(roll_rad, pitch_rad, yaw_rad))
+    return rotmat_to_euler(tilt_rotation(tilt_rotvec).T @ euler_to_rotmat(roll_rad, pitch_rad, yaw_rad))
 
 
 _UP = np.array([0.0, 0.0, -1.0])  # NED
