@@ -10,7 +10,8 @@ the two errors independently: the velocity loop (and the reported velocity) sees
 Gauss-Markov error; the reported position (and the position loops) truth + a separate
 Gauss-Markov wander. Its estimator also settles at start-up into one of a few states (a constant
 attitude offset, a horizontal velocity bias over height that the vehicle flies on); the traced
-states are ``data/px4_sih_traced.toml`` and one is drawn per flight.
+states are ``data/px4_sih_traced.toml`` and one is drawn per flight. PX4 steers its attitude
+estimate, so the vehicle's true attitude is the setpoint minus that offset.
 
 ArduCopter's GUIDED velocity is jerk-shaped and closes on its position estimate; its velocity
 gains are the firmware's own (PSC_VELXY_P / _I).
@@ -109,7 +110,8 @@ PROFILES: dict[str, AutopilotProfile] = {
     "px4-sih": AutopilotProfile(
         "px4-sih",
         "PX4 v1.16 SIH: one of ten traced flights' estimator errors per landing (attitude reported up to "
-        "2 deg off in tilt and 13 in heading, velocity estimate biased up to 0.6 m/s by height and flown on), "
+        "2 deg off in tilt and 13 in heading and steered on, velocity estimate biased up to 0.6 m/s by height "
+        "and flown on), "
         "position wander 0.12 m (2.5 s), take-off done 0.8 m short (NAV_MC_ALT_RAD), a soft ground (a steady "
         "descent sinks below the take-off level), 2.3 s land detector, no wind",
         # around the estimator state's bias: SD 0.01-0.14 m/s per band and flight in the traced landings

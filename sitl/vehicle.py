@@ -503,14 +503,19 @@ class SimVehicle:
             if not sat_v:
                 self._int[2] += ed * dt
 
-        # ---- attitude: tilt the thrust towards f_sp = a_sp - g with first-order lag
+        # ---- attitude: tilt the thrust towards f_sp = a_sp - g with first-order lag. The autopilot
+        # makes its attitude setpoint with its own yaw and drives its attitude *estimate* to it
+        # (PX4: the thrust vector and yaw setpoint become q_sp in the estimator's frame), so with an
+        # estimator state's offset the true tilt is the setpoint - the offset and the true thrust is
+        # f_sp turned by -yaw offset: the velocity loop's own response turns with the yaw error
         fn, fe, fd = an, ae, ad - G
         T = math.sqrt(fn * fn + fe * fe + fd * fd)
-        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+        yaw_ctrl = self.estimated_yaw()
+        cy, sy = math.cos(yaw_ctrl), math.sin(yaw_ctrl)
         fx = cy * fn + sy * fe
         fy = -sy * fn + cy * fe
-        roll_d = math.asin(max(-1.0, min(1.0, fy / T)))
-        pitch_d = math.atan2(-fx, -fd)
+        roll_d = math.asin(max(-1.0, min(1.0, fy / T))) - self._att_bias[0]
+        pitch_d = math.atan2(-fx, -fd) - self._att_bias[1]
         k = min(1.0, dt / vc.attitude_time_constant_s)
         d_roll = (roll_d - self.roll) * k
         d_pitch = (pitch_d - self.pitch) * k

@@ -209,6 +209,58 @@ def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
         assert (dy != 0.0) == (name == "px4-sih")
 
 
+def test_the_thrust_is_pointed_with_the_autopilots_attitude_estimate():
+    """An autopilot makes its attitude setpoint with its own yaw and drives its attitude estimate
+    to it (PX4: q_sp from the thrust vector in the estimator's frame): with a state whose yaw is
+    off by dy, a step north in the velocity setpoint first accelerates the vehicle truly towards
+    -dy, and the loop, closed on the NED velocity, ends where the same vehicle without the offset
+    does; hovering, the reported tilt is the commanded one, the true tilt that minus the offset."""
+    seed = next(
+        s
+        for s in range(100)
+        if abs(SimVehicle(SimConfig(profile="px4-sih", seed=s)).estimator_state.attitude_bias_deg[2]) > 12.0
+    )
+    ends = []
+    for keep_offset in (True, False):
+        v = SimVehicle(SimConfig(profile="px4-sih", seed=seed))
+        es = v.estimator_state
+        if not keep_offset:
+            v._att_bias = (0.0, 0.0, 0.0)
+        t = v.cfg.ready_delay_s + 0.5
+        v.step_to(t)
+        v.arm()
+        v.takeoff(3.0)
+        t += 8.0
+        v.step_to(t)
+        hold = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+        for _ in range(10):
+            v.set_velocity(hold)
+            t += 0.05
+            v.step_to(t)
+        v.start_offboard()
+        for _ in range(100):  # 5 s hovering on the setpoint
+            v.set_velocity(hold)
+            t += 0.05
+            v.step_to(t)
+        a = v.attitude()
+        offset = [math.radians(x) for x in es.attitude_bias_deg] if keep_offset else [0.0, 0.0, 0.0]
+        assert v.roll == pytest.approx(a.roll_rad - offset[0], abs=1e-9)
+        assert v.pitch == pytest.approx(a.pitch_rad - offset[1], abs=1e-9)
+        vn0, ve0 = v.vn, v.ve
+        for _ in range(6):  # 0.3 s of a 1 m/s step north
+            v.set_velocity(VelocitySetpoint(1.0, 0.0, 0.0, 0.0))
+            t += 0.05
+            v.step_to(t)
+        assert math.atan2(v.ve - ve0, v.vn - vn0) == pytest.approx(-offset[2], abs=math.radians(2.0))
+        for _ in range(400):  # 20 s more
+            v.set_velocity(VelocitySetpoint(1.0, 0.0, 0.0, 0.0))
+            t += 0.05
+            v.step_to(t)
+        ends.append((v.vn, v.ve))
+    assert abs(math.radians(es.attitude_bias_deg[2])) > math.radians(12.0)
+    assert ends[0] == pytest.approx(ends[1], abs=0.03)  # the loop on the NED velocity takes the turn out
+
+
 def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_in_hold():
     """PX4 leaves TAKEOFF for HOLD within NAV_MC_ALT_RAD (0.8 m) of the take-off height (v1.16
     SIH: at 1.95-2.0 m of 2.5 m) and climbs on to the height in HOLD; the ideal vehicle
