@@ -209,6 +209,28 @@ def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
         assert (dy != 0.0) == (name == "px4-sih")
 
 
+def _airborne(v: SimVehicle, takeoff_m: float) -> float:
+    """Armed when ready and taken off to ``takeoff_m``, 8 s later; the time."""
+    t = v.cfg.ready_delay_s + 0.5
+    v.step_to(t)
+    v.arm()
+    v.takeoff(takeoff_m)
+    t += 8.0
+    v.step_to(t)
+    return t
+
+
+def _switched_to_offboard(v: SimVehicle, t: float) -> float:
+    """A zero setpoint streamed for 0.5 s (PX4 wants a stream before the switch), then OFFBOARD;
+    the time."""
+    for _ in range(10):
+        t += 0.05
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        v.step_to(t)
+    v.start_offboard()
+    return t
+
+
 def test_the_thrust_is_pointed_with_the_autopilots_attitude_estimate():
     """An autopilot makes its attitude setpoint with its own yaw and drives its attitude estimate
     to it (PX4: q_sp from the thrust vector in the estimator's frame): with a state whose yaw is
@@ -226,18 +248,8 @@ def test_the_thrust_is_pointed_with_the_autopilots_attitude_estimate():
         es = v.estimator_state
         if not keep_offset:
             v._att_bias = (0.0, 0.0, 0.0)
-        t = v.cfg.ready_delay_s + 0.5
-        v.step_to(t)
-        v.arm()
-        v.takeoff(3.0)
-        t += 8.0
-        v.step_to(t)
+        t = _switched_to_offboard(v, _airborne(v, 3.0))
         hold = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
-        for _ in range(10):
-            v.set_velocity(hold)
-            t += 0.05
-            v.step_to(t)
-        v.start_offboard()
         for _ in range(100):  # 5 s hovering on the setpoint
             v.set_velocity(hold)
             t += 0.05
@@ -294,18 +306,9 @@ def _descend_to_the_ground(soft: bool) -> tuple[SimVehicle, float]:
     """Ideal vehicle (no estimate error, no wind) in OFFBOARD, 1 m up, descending at 0.5 m/s on
     a steady setpoint."""
     v = SimVehicle(SimConfig(seed=2, vehicle={"soft_ground": soft}))
-    t = v.cfg.ready_delay_s + 0.5
-    v.step_to(t)
-    v.arm()
-    v.takeoff(1.0)
-    t += 8.0
-    v.step_to(t)
+    t = _airborne(v, 1.0)
     assert -v.pd > 0.7
-    for _ in range(10):  # PX4 wants setpoints streaming before the switch
-        t += 0.05
-        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-        v.step_to(t)
-    v.start_offboard()
+    t = _switched_to_offboard(v, t)
     while v.pd < -0.01:
         t += 0.01
         v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.5, 0.0))
