@@ -80,6 +80,13 @@ class AutopilotProfile:
     # the estimator's states, one drawn per flight by probability (none: no per-flight bias)
     estimator_states: tuple[EstimatorState, ...] = ()
     land_detect_s: float = 0.6
+    # ArduCopter's GUIDED holds its position target on its estimate, so a change of the GPS error
+    # (the profile's wander and its 5 Hz fix noise) moves the vehicle the other way while the
+    # estimate returns: the estimate takes the error with gps_error_estimate_tau_s, the target
+    # held on it moves the vehicle with gps_error_moves_vehicle_tau_s (both first order, then the
+    # velocity loop's own lag); 0: the error moves only the estimate
+    gps_error_moves_vehicle_tau_s: float = 0.0
+    gps_error_estimate_tau_s: float = 1.0
     has_wind: bool = True
     # wind x sqrt(height / H) below H (ArduPilot SITL's default SIM_WIND_T = 0, SIM_WIND_T_ALT =
     # 60 m: no wind on the ground); 0 = the same wind at every height
@@ -165,6 +172,10 @@ PROFILES: dict[str, AutopilotProfile] = {
         # within a few cm (the probe), where a loop flying on this error would wander
         velocity_loop_on_estimate=False,
         land_detect_s=1.38,
+        # fitted to a 1 m SIM_GPS1_GLTCH_X step in GUIDED (gps_step_probe; firmware-ardupilot.md):
+        # truth 63 % moved in 2.3 s, 10 % overshoot; the fit 5.7 cm RMS over 8 s
+        gps_error_estimate_tau_s=0.8,
+        gps_error_moves_vehicle_tau_s=1.1,
         wind_ramp_height_m=60.0,  # SIM_WIND_T = 0 (WIND_TYPE_SQRT), SIM_WIND_T_ALT = 60 m (SITL.cpp defaults)
         sim={
             "gps_walk_m": 0.02,

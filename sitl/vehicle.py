@@ -47,6 +47,7 @@ AUTO_DISARM_AFTER_LAND_S = 2.0
 PLD_HACC_RAD_M = 0.2  # PX4 precision landing: horizontal acceptance radius before descending
 PLD_BTOUT_S = 5.0  # PX4 precision landing: target lost after this long -> plain landing
 YAW_RATE_MAX = math.radians(60.0)
+GPS_FIX_PERIOD_S = 0.2  # a GPS receiver's 5 Hz fixes (ArduPilot SITL's default SIM_GPS1_HZ)
 
 
 PARCEL_STEP_HZ = 1000.0  # the parcel pendulum's least integration rate (sitl/winch.py)
@@ -186,6 +187,16 @@ class SimVehicle:
         ]
         for w in self._walk:  # start from the stationary distribution
             w.x = w.sigma * float(self._rng_gps.standard_normal())
+        # where the wander has moved a vehicle that holds its position target on its estimate
+        # (profiles.gps_error_moves_vehicle_tau_s; N, E, m) and that motion's rate (m/s)
+        self._gps_moved = [-self._walk[0].x, -self._walk[1].x]
+        self._gps_in_est = [self._walk[0].x, self._walk[1].x]  # the part of the error the estimate has taken
+        self._gps_moved_rate = (0.0, 0.0)
+        # the GPS fix's white noise (gps_noise_m) at the receiver's 5 Hz, which that target follows
+        # too; its own generator, so the other draws stay as they were
+        self._rng_fix = np.random.default_rng([c.seed, 0x6F1C])
+        self._fix_noise = (0.0, 0.0)
+        self._fix_next_s = 0.0
         self._bias = tuple(c.gps_bias_m)
         self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
         self._ltp = LocalTangentPlane(self._home_true)
@@ -398,6 +409,23 @@ class SimVehicle:
         rg = self._rng_gps.standard_normal(3).tolist()
         for i in range(3):
             self._walk[i].step(dt, rg[i])
+        tau_g = self.profile.gps_error_moves_vehicle_tau_s
+        if tau_g > 0.0:  # exact step of do/dt = (-GPS error - o) / tau_g for the error held over dt
+            if t >= self._fix_next_s:
+                self._fix_next_s = t + GPS_FIX_PERIOD_S
+                r = self._rng_fix.standard_normal(2).tolist()
+                self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
+            # the estimate takes the error first (first order, gps_error_estimate_tau_s), then the
+            # position target held on the estimate moves the vehicle (first order, tau_g)
+            ae = 1.0 - math.exp(-dt / self.profile.gps_error_estimate_tau_s)
+            self._gps_in_est[0] += ae * (self._walk[0].x + self._fix_noise[0] - self._gps_in_est[0])
+            self._gps_in_est[1] += ae * (self._walk[1].x + self._fix_noise[1] - self._gps_in_est[1])
+            a = 1.0 - math.exp(-dt / tau_g)
+            dn = a * (-self._gps_in_est[0] - self._gps_moved[0])
+            de = a * (-self._gps_in_est[1] - self._gps_moved[1])
+            self._gps_moved[0] += dn
+            self._gps_moved[1] += de
+            self._gps_moved_rate = (dn / dt, de / dt)
         if self._verr:
             rv = self._rng_verr.standard_normal(3).tolist()
             for i in range(3):
@@ -435,6 +463,11 @@ class SimVehicle:
                         k_h = vc.offboard_max_horizontal_m_s / h
                         sp_n, sp_e = sp_n * k_h, sp_e * k_h
                     sp_d = min(max(sp_d, -vc.offboard_max_up_m_s), vc.offboard_max_down_m_s)
+                    # the position target held on the estimate carries the vehicle against a
+                    # changing GPS error (0 unless the profile says so)
+                    if self.profile.gps_error_moves_vehicle_tau_s > 0.0:
+                        sp_n += self._gps_moved_rate[0]
+                        sp_e += self._gps_moved_rate[1]
             if self.mode is FlightMode.TAKEOFF:
                 assert self._hold_target is not None
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
