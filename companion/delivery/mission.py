@@ -68,6 +68,9 @@ FOLLOW_PHASES = (
     Phase.WINCH,
 )
 PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (then capped)
+# an autopilot's land detector after contact (PX4 SIH: ON_GROUND 3-7 s after it; ArduCopter ~2 s):
+# what the final descent's hold leaves before the touchdown timeout, besides the descent itself
+TOUCHDOWN_REPORT_MARGIN_S = 5.0
 PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
 PAD_HEIGHT_TOLERANCE_M = 0.3  # the approach height is reached this close
 PAD_HOVER_SPEED_M_S = 0.3  # winch: the payout starts only below this horizontal speed
@@ -730,7 +733,12 @@ class DeliveryMission:
             # touching down: a sideways command on the ground keeps the autopilot's land detector
             # from ever firing (ArduCopter), so only the descent remains
             vx = vy = 0.0
-        gated = in_sight and height > c.landing_hold_min_height_m
+        # no hold that would run into the touchdown timeout: the autopilot's LAND after it flies the
+        # autopilot's own estimate (PX4 SIH: 77 cm off), worse than going on down mid-swing (a loop
+        # short of phase margin, e.g. a CPU-starved companion, can circle wider than the hold's gate)
+        time_left_s = c.touchdown_timeout_s - (time_s - self._phase_t0)
+        in_time = time_left_s > max(height, 0.0) / c.land_speed_m_s + TOUCHDOWN_REPORT_MARGIN_S
+        gated = in_sight and height > c.landing_hold_min_height_m and in_time
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
         vz = -c.land_speed_m_s * slow
         v_ned = self.frame.vector_to_ned((vx, vy, vz))

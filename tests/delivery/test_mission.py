@@ -321,3 +321,36 @@ def test_final_descent_holds_to_align_only_while_the_pad_is_in_sight():
     assert down_m_s(0.25, fresh, height_m=0.4) == pytest.approx(0.5)  # below the hold's floor
     for blind in (stale, NO_SENSORS, None):
         assert down_m_s(0.25, blind) == pytest.approx(0.5), blind
+
+
+def test_final_descent_holds_no_longer_than_the_touchdown_timeout_leaves_time_for():
+    """The hold to align ends once the time left before touchdown_timeout_s is no more than the
+    rest of the descent at land speed plus TOUCHDOWN_REPORT_MARGIN_S: a vehicle circling wider
+    than the hold's gate (real PX4 SIH with a CPU-starved companion, CI of 2026-11-27) goes on down
+    under the companion instead of waiting for the autopilot's LAND (1.3 m off then)."""
+    from companion.delivery.mission import TOUCHDOWN_REPORT_MARGIN_S
+    from companion.delivery.padlock import PAD_DATA_FRESH_S, PadLock
+
+    c = cfg(landing_xy_tolerance_m=0.1, landing_hold_min_height_m=0.5, land_speed_m_s=0.5, touchdown_timeout_s=15.0)
+    flying = dict(armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+    height_m = 2.0
+    last_hold_s = 15.0 - (height_m / 0.5 + TOUCHDOWN_REPORT_MARGIN_S)  # 6 s into the landing phase
+
+    def down_m_s(after_s):
+        m = DeliveryMission(c)
+        m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+        m._goto(Phase.LANDING_PAD)
+        m._phase_t0 = 0.0
+        pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+        lock = PadLock(after_s, PAD_DATA_FRESH_S, 0.02)
+        out = m.step(
+            MissionInputs(
+                after_s, est(after_s, pn, pe + 0.25, -height_m), status(after_s, **flying), HOME, pad_lock=lock
+            )
+        )
+        assert m.phase is Phase.LANDING_PAD and out.setpoint is not None
+        return out.setpoint.down_m_s
+
+    assert down_m_s(1.0) == pytest.approx(0.0)  # off-centre, in sight, time enough: holds
+    assert down_m_s(last_hold_s - 0.1) == pytest.approx(0.0)
+    assert down_m_s(last_hold_s + 0.1) == pytest.approx(0.5)  # no time left to hold: goes on down
