@@ -197,6 +197,16 @@ class SimVehicle:
         self._rng_fix = np.random.default_rng([c.seed, 0x6F1C])
         self._fix_noise = (0.0, 0.0)
         self._fix_next_s = 0.0
+        # the two lags' coefficients per physics step (computed once: _step runs at one dt)
+        pr = self.profile
+        self._gps_lag_a = (
+            (
+                1.0 - math.exp(-self._dt / pr.gps_error_estimate_tau_s),
+                1.0 - math.exp(-self._dt / pr.gps_error_moves_vehicle_tau_s),
+            )
+            if pr.gps_error_moves_vehicle_tau_s > 0.0
+            else (0.0, 0.0)
+        )
         self._bias = tuple(c.gps_bias_m)
         self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
         self._ltp = LocalTangentPlane(self._home_true)
@@ -417,10 +427,9 @@ class SimVehicle:
                 self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
             # the estimate takes the error first (first order, gps_error_estimate_tau_s), then the
             # position target held on the estimate moves the vehicle (first order, tau_g)
-            ae = 1.0 - math.exp(-dt / self.profile.gps_error_estimate_tau_s)
+            ae, a = self._gps_lag_a
             self._gps_in_est[0] += ae * (self._walk[0].x + self._fix_noise[0] - self._gps_in_est[0])
             self._gps_in_est[1] += ae * (self._walk[1].x + self._fix_noise[1] - self._gps_in_est[1])
-            a = 1.0 - math.exp(-dt / tau_g)
             dn = a * (-self._gps_in_est[0] - self._gps_moved[0])
             de = a * (-self._gps_in_est[1] - self._gps_moved[1])
             self._gps_moved[0] += dn
