@@ -14,6 +14,10 @@ from companion.autopilot.interface import AutopilotError
 log = logging.getLogger(__name__)
 
 TRANSFER_TIMEOUT_S = 30.0
+# MAVSDK's geofence plugin answers BUSY while its last download's work item is still alive, done
+# or not (geofence_impl.cpp checks the weak pointer only; mission_raw also checks is_done()), so a
+# download right after another transfer can be refused once. Real PX4 SIH hit it in CI.
+BUSY_RETRY_S = 0.2
 
 
 class Px4Fence:
@@ -57,7 +61,7 @@ class Px4Fence:
 
         plugin = self._geofence_plugin("download")
         try:
-            data = await asyncio.wait_for(plugin.download_geofence(), TRANSFER_TIMEOUT_S)
+            data = await asyncio.wait_for(self._download_past_busy(plugin), TRANSFER_TIMEOUT_S)
         except TimeoutError:
             raise AutopilotError(f"fence download: no end within {TRANSFER_TIMEOUT_S:g} s") from None
         except Exception as err:
@@ -73,3 +77,17 @@ class Px4Fence:
                 for p in data.polygons
             )
         )
+
+    @staticmethod
+    async def _download_past_busy(plugin: Any) -> Any:
+        """download_geofence(), asked again while MAVSDK answers BUSY (the caller's timeout ends it)."""
+        from mavsdk.plugins.geofence import GeofenceResult
+
+        while True:
+            try:
+                return await plugin.download_geofence()
+            except Exception as err:
+                if getattr(err, "result", None) != GeofenceResult.BUSY:
+                    raise
+                log.debug("fence download: MAVSDK busy, asking again in %g s", BUSY_RETRY_S)
+                await asyncio.sleep(BUSY_RETRY_S)
