@@ -118,6 +118,14 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     return cfg.model_copy(update={"mission": mission, "autopilot": autopilot})
 
 
+def landing_config(config: CompanionConfig, variant: str, d: Draw) -> CompanionConfig:
+    """The variant's configuration for draw ``d``: the draw's seed drives the noise of the camera
+    and UWB rendered from the truth, as in the embedded campaign (scenario_config), so that no two
+    landings share a noise sequence; the pad_heading variant takes its draw too."""
+    cfg = with_pad_heading(config, d.seed) if variant in HEADING_VARIANTS else config
+    return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"seed": d.seed})})
+
+
 def draw_weather(config: CompanionConfig, d: Draw) -> FirmwareWeather:
     """The draw's weather as the embedded campaign flies it: its wind, the [sim] gusts and noise."""
     return FirmwareWeather.of(
@@ -267,7 +275,7 @@ async def run_real_landing_campaign_async(
     async def fly_all(rv: RealVehicle, todo: list[tuple[Draw, str]]) -> None:
         nonlocal done
         for d, v in todo:
-            cfg = with_pad_heading(configs[v], d.seed) if v in HEADING_VARIANTS else configs[v]
+            cfg = landing_config(configs[v], v, d)
             # every landing leaves its flight log (companion logs show / replay) and its descent trace
             row = await _one_landing(rv, cfg, d, rel_pad, weather, logs / "flights" / f"{v}-{d.seed}")
             _write_trace(logs / "landing_traces" / f"{v}-{d.seed}.csv", row.pop("landing_trace", ()))

@@ -19,6 +19,7 @@ from companion_lab.landing_campaign import run_landing_campaign
 from companion_lab.real_campaign import (
     compare,
     firmware_tuning,
+    landing_config,
     landing_diagnostics,
     parity_figure,
     real_config,
@@ -64,6 +65,23 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     assert real_config(base, "px4", "gps_only").landing.fusion is False
     with pytest.raises(ValueError, match="unknown variant"):
         real_config(base, "px4", "no_such")
+
+
+def test_each_real_landing_renders_its_sensors_with_its_own_draw_seed():
+    # the camera's and UWB's noise come from sim.seed (sitl/landing_sensors.sim_landing_kit): one
+    # seed for every landing would give every draw the same noise, hence a shared error
+    base = shipped_params_path("landing_campaign.toml")
+    a, b = draw_scenarios(2, 61)
+    for variant in ("fusion", "pad_heading"):
+        cfg = real_config(base, "ardupilot", variant)
+        got = [landing_config(cfg, variant, d) for d in (a, b)]
+        embedded = [scenario_config(base, d, variant).sim.seed for d in (a, b)]
+        assert [c.sim.seed for c in got] == [a.seed, b.seed] == embedded
+        assert cfg.sim.seed == load_config(base).sim.seed  # the variant's own configuration is left as it was
+        assert got[0].mission.pad.north_m == cfg.mission.pad.north_m  # the pad stays where the SITL's home puts it
+    heading = landing_config(real_config(base, "ardupilot", "pad_heading"), "pad_heading", a)
+    assert heading.mission.pad.heading_deg == scenario_config(base, a, "pad_heading").mission.pad.heading_deg
+    assert landing_config(real_config(base, "ardupilot", "fusion"), "fusion", a).mission.pad.heading_deg is None
 
 
 def test_profile_campaign_flies_the_same_draws_without_wind_on_px4_sih():
