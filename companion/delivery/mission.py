@@ -722,7 +722,7 @@ class DeliveryMission:
         zeroed = height < c.landing_touchdown_height_m
         vx, vy = -c.landing_xy_gain_1_s * ex, -c.landing_xy_gain_1_s * ey
         if c.landing_xy_integral_gain_1_s2 > 0.0:
-            ix, iy = self._landing_integral(ex, ey, time_s, frozen=zeroed)
+            ix, iy = self._landing_integral(ex, ey, time_s, frozen=zeroed, p_cmd=(vx, vy))
             vx -= ix
             vy -= iy
         vh = math.hypot(vx, vy)
@@ -744,29 +744,37 @@ class DeliveryMission:
         v_ned = self.frame.vector_to_ned((vx, vy, vz))
         return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0))
 
-    def _landing_integral(self, ex: float, ey: float, time_s: float, frozen: bool) -> tuple[float, float]:
+    def _landing_integral(
+        self, ex: float, ey: float, time_s: float, frozen: bool, p_cmd: tuple[float, float] = (0.0, 0.0)
+    ) -> tuple[float, float]:
         """The final descent's integral term, k_i * integral of the error (m/s, F_I): an autopilot
         flying our velocity on a biased estimate of its own moves at setpoint - bias, so the
         proportional law alone settles bias / k_p off the target (PX4 SIH: 0.2-0.4 m/s of bias near
         the ground, 4-8 cm at 5 1/s; docs/notes.md). Off by default and in
         params/ardupilot_quad.toml; params/px4_sih_quad.toml turns it on. Rectangle rule per
-        guidance tick; the sum is held to landing_xy_integral_max_m_s (anti-windup) and frozen once
-        only the descent is commanded. Reset by every phase change (_goto)."""
+        guidance tick; the sum is held to landing_xy_integral_max_m_s and frozen once only the
+        descent is commanded. Anti-windup by conditional integration: no sum while the command
+        (``p_cmd``, the proportional part, minus the sum) is beyond landing_max_xy_speed_m_s and
+        the step would take it further, so a descent that starts far off (GPS only: 0.8 m) does
+        not carry a full sum past the target. Reset by every phase change (_goto)."""
         c = self.cfg
         last = self._landing_int_t
         self._landing_int_t = time_s
         if last is None:
             return self._landing_int
         dt = time_s - last
-        ix, iy = self._landing_int
+        ix0, iy0 = self._landing_int
         if not frozen and 0.0 < dt <= 1.0:  # a longer gap (link loss) adds nothing
             ki = c.landing_xy_integral_gain_1_s2
-            ix, iy = ix + ki * ex * dt, iy + ki * ey * dt
+            ix, iy = ix0 + ki * ex * dt, iy0 + ki * ey * dt
             n = math.hypot(ix, iy)
             lim = c.landing_xy_integral_max_m_s
             if n > lim:
                 ix, iy = ix * lim / n, iy * lim / n
-            self._landing_int = (ix, iy)
+            was = math.hypot(p_cmd[0] - ix0, p_cmd[1] - iy0)
+            now = math.hypot(p_cmd[0] - ix, p_cmd[1] - iy)
+            if not (now > c.landing_max_xy_speed_m_s and now > was):
+                self._landing_int = (ix, iy)
         return self._landing_int
 
     # ------------------------------------------------------------------ no release off the pad
