@@ -745,7 +745,7 @@ class DeliveryMission:
         return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0))
 
     def _landing_integral(
-        self, ex: float, ey: float, time_s: float, frozen: bool, p_cmd: tuple[float, float] = (0.0, 0.0)
+        self, ex: float, ey: float, time_s: float, frozen: bool, p_cmd: tuple[float, float]
     ) -> tuple[float, float]:
         """The final descent's integral term, k_i * integral of the error (m/s, F_I): an autopilot
         flying our velocity on a biased estimate of its own moves at setpoint - bias, so the
