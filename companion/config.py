@@ -527,6 +527,18 @@ class RuntimeConfig(_Section):
         ge=0,
         le=19,
     )
+    realtime_priority: int = _f(
+        0,
+        "-",
+        "Linux SCHED_RR priority of the companion's threads for the flight: the event loop's (guidance, fusion, "
+        "the setpoint stream) and those it starts (the autopilot link's, telemetry's, the logs' writers), the "
+        "detector's one lower (vision_thread_nice then does not apply); they preempt every normal-policy thread "
+        "when they wake, so exposure -> setpoint holds on a loaded core. The logging process stays at the normal "
+        "policy. Needs CAP_SYS_NICE or RLIMIT_RTPRIO at least this (docs/flying.md); where refused, a warning and "
+        "the normal policy. 0: the normal policy",
+        ge=0,
+        le=98,
+    )
     opencv_threads: int = _f(
         1,
         "-",

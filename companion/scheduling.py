@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import math
+import os
+import threading
+from dataclasses import dataclass
 from typing import Protocol
 
 
@@ -90,3 +94,52 @@ class RateLoop:
         await self.clock.sleep_until(deadline)
         self.ticks += 1
         return deadline, False
+
+
+# ---------------------------------------------------------------------------- thread priority
+@dataclass(frozen=True)
+class ThreadPolicy:
+    """A thread's scheduling policy (``os.SCHED_*``, reset-on-fork flag included) and its
+    real-time priority, as read before a change, to put back."""
+
+    tid: int
+    policy: int
+    priority: int
+
+
+def thread_policy(tid: int | None = None) -> ThreadPolicy:
+    """The scheduling policy of thread ``tid`` (Linux: a thread id is a pid to sched_*; None:
+    the calling thread)."""
+    tid = threading.get_native_id() if tid is None else tid
+    return ThreadPolicy(tid, os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+
+
+def set_thread_realtime(priority: int, tid: int | None = None) -> str | None:
+    """Run thread ``tid`` (None: the calling thread) under SCHED_RR at ``priority`` (1-99): it
+    preempts every thread of the normal policy the moment it wakes, whatever else loads the core
+    (a busy real-time thread is still bounded by the kernel's RT throttling, sched_rt_runtime_us).
+    The threads it starts later inherit the policy: a Python thread of the normal policy preempted
+    while it holds the interpreter lock would stall the real-time ones. Returns None when applied,
+    otherwise why not (no CAP_SYS_NICE and an RLIMIT_RTPRIO below ``priority``, a cgroup v1
+    without real-time runtime, not Linux); the thread then keeps its policy."""
+    if not 1 <= priority <= 99:
+        raise ValueError(f"real-time priority {priority!r}: expected 1..99")
+    try:
+        os.sched_setscheduler(0 if tid is None else tid, os.SCHED_RR, os.sched_param(priority))
+    except AttributeError:
+        return "this platform has no SCHED_RR"
+    except OSError as err:
+        if err.errno == errno.EPERM:
+            return (
+                f"not permitted ({err.strerror}): needs CAP_SYS_NICE or RLIMIT_RTPRIO >= {priority}, and on a "
+                "cgroup v1 host real-time runtime in the process's cpu cgroup (docs/flying.md)"
+            )
+        return f"{type(err).__name__}: {err}"
+    return None
+
+
+def restore_thread_policy(saved: ThreadPolicy) -> None:
+    """Put the calling thread back to the policy :func:`thread_policy` read from it."""
+    if saved.tid != threading.get_native_id():
+        raise ValueError(f"policy of thread {saved.tid} restored on thread {threading.get_native_id()}")
+    os.sched_setscheduler(0, saved.policy, os.sched_param(saved.priority))

@@ -1,6 +1,12 @@
 import asyncio
+import errno
+import os
+import threading
 
-from companion.scheduling import LoopClock, RateLoop
+import pytest
+
+from companion import scheduling
+from companion.scheduling import LoopClock, RateLoop, restore_thread_policy, set_thread_realtime, thread_policy
 from companion_sitl.clock import run_virtual
 
 
@@ -122,3 +128,60 @@ def test_tick_or_counts_overruns_once():
     assert not early  # the event came after the (missed) deadline: a periodic tick
     assert r.overruns == 2
     assert abs(t2 - t1 - 0.1) < 1e-9
+
+
+def _in_thread(fn):
+    out: dict = {}
+
+    def run():
+        try:
+            out["value"] = fn()
+        except BaseException as err:  # re-raised on the test's thread
+            out["error"] = err
+
+    t = threading.Thread(target=run)
+    t.start()
+    t.join()
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
+
+
+def test_a_real_time_thread_preempts_and_its_threads_inherit_then_it_is_restored():
+    def go():
+        before = thread_policy()
+        why = set_thread_realtime(7)
+        if why is not None:
+            pytest.skip(f"SCHED_RR refused on this machine: {why}")
+        during = thread_policy()
+        child = _in_thread(thread_policy)  # a thread started now
+        restore_thread_policy(before)
+        return before, during, child, thread_policy()
+
+    before, during, child, after = _in_thread(go)
+    assert (during.policy, during.priority) == (os.SCHED_RR, 7)
+    assert (child.policy, child.priority) == (os.SCHED_RR, 7) and child.tid != during.tid
+    assert (after.policy, after.priority) == (before.policy, before.priority)
+    assert thread_policy().policy == os.SCHED_OTHER  # the test's own thread never changed
+
+
+def test_a_refused_real_time_policy_says_what_it_needs(monkeypatch):
+    def refuse(*_args):
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(scheduling.os, "sched_setscheduler", refuse)
+    why = set_thread_realtime(20)
+    assert why is not None and "CAP_SYS_NICE" in why and "RLIMIT_RTPRIO >= 20" in why
+    assert thread_policy().policy == os.SCHED_OTHER
+
+
+@pytest.mark.parametrize("prio", [0, 100, -1])
+def test_a_real_time_priority_out_of_range_is_an_error(prio):
+    with pytest.raises(ValueError, match=r"expected 1\.\.99"):
+        set_thread_realtime(prio)
+
+
+def test_a_policy_is_restored_only_on_its_own_thread():
+    saved = _in_thread(thread_policy)
+    with pytest.raises(ValueError, match="restored on thread"):
+        restore_thread_policy(saved)

@@ -419,6 +419,8 @@ def _print_cap_lines(r: dict[str, Any]) -> None:
         f"{cam['frames_dropped']} ({cam['frames_dropped_pct']:.1f} % of those readable; "
         f"{cam['frames_paced']} wake-ups paced by the vision budget {r['vision_cpu_budget']:g} core)"
     )
+    if r.get("realtime"):
+        print(f"  runtime.realtime_priority {r['realtime_priority']}: {r['realtime']}")
     err = r.get("pad_landing_error_m")
     print(
         f"  delivered: {r['delivered']}; pad landing error "
@@ -438,6 +440,12 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
             cap = parse_cap(args.cpu_cap)
         except CpuCapError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
+    if cap is not None and args.realtime_priority:
+        raise StartupError(
+            "--cpu-cap with --realtime-priority: real-time threads are not held by the cap's CFS quota (cgroup v1 "
+            "gives them cpu.rt_runtime_us instead, none in the cap's group); drop one of them",
+            exits.BAD_INPUT,
+        )
     if not (args.duration_s > 0 and math.isfinite(args.duration_s)):
         raise StartupError(f"--duration-s {args.duration_s}: must be a positive number of seconds", exits.BAD_INPUT)
     if args.dart:
@@ -462,6 +470,7 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
                 logging_core=not args.cap_logging_with_app,
                 vision_cpu_budget=args.vision_cpu_budget,
                 vision_thread_nice=args.vision_thread_nice,
+                realtime_priority=args.realtime_priority,
                 cap_period_us=None if args.cpu_cap_period_ms is None else round(args.cpu_cap_period_ms * 1000),
             )
         except CpuCapError as err:
@@ -522,6 +531,13 @@ def register_bench_app(bench_subparsers: Any) -> None:
         metavar="N",
         help="runtime.vision_thread_nice for this run: the detector thread's nice value (0-19; default: the "
         "parameter file's)",
+    )
+    p.add_argument(
+        "--realtime-priority",
+        type=int,
+        metavar="N",
+        help="runtime.realtime_priority for this run: SCHED_RR priority of the loop's thread, the detector's one "
+        "lower (1-98, 0: normal policy; default: the parameter file's)",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=cmd_bench_app)

@@ -60,7 +60,7 @@ from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
 from companion.plugin_api import frame_listener_of
-from companion.scheduling import LoopClock, RateLoop
+from companion.scheduling import LoopClock, RateLoop, restore_thread_policy, set_thread_realtime, thread_policy
 
 log = logging.getLogger(__name__)
 
@@ -153,28 +153,35 @@ class ShellStats:
     camera_read: str = ""
     frames_notified: int = 0  # wake-ups of the camera task by its frame listener
     frames_paced: int = 0  # frames not read: the detector's CPU budget (runtime.vision_cpu_budget) was spent
+    realtime: str = ""  # runtime.realtime_priority: "SCHED_RR <priority>", "refused: <why>", "" (not asked)
 
 
-_niced_threads: set[int] = set()
+_thread_priority: dict[int, tuple[int, int]] = {}  # tid -> (nice, realtime priority) applied
 
 
-def _nice_this_thread(nice: int) -> None:
-    """Lower this thread's scheduling priority to ``nice`` once (Linux: a thread id is a pid to
-    setpriority); where that is not possible the thread keeps its priority, said once."""
+def _prioritise_this_thread(nice: int, realtime: int = 0) -> None:
+    """The detector thread's priority, set once per setting (Linux: a thread id is a pid to
+    setpriority): SCHED_RR one below the loop's ``realtime`` when that is set, otherwise the lower
+    ``nice``; where that is not possible the thread keeps its priority, said once."""
     tid = threading.get_native_id()
-    if nice <= 0 or tid in _niced_threads:
+    if (nice <= 0 and realtime <= 0) or _thread_priority.get(tid) == (nice, realtime):
         return
-    _niced_threads.add(tid)
+    _thread_priority[tid] = (nice, realtime)
+    if realtime > 0:
+        why = set_thread_realtime(max(1, realtime - 1))
+        if why is not None:
+            log.warning("runtime.realtime_priority = %d: the detector thread keeps its policy (%s)", realtime, why)
+        return
     try:
         os.setpriority(os.PRIO_PROCESS, tid, nice)
     except (OSError, AttributeError) as err:
         log.warning("runtime.vision_thread_nice = %d: the detector thread keeps its priority (%s)", nice, err)
 
 
-def _cpu_timed(fn: Callable[..., Any], *args: Any, nice: int = 0) -> tuple[Any, float]:
-    """``fn(*args)`` and the CPU seconds its thread spent in it (the thread niced first, see
-    ``runtime.vision_thread_nice``)."""
-    _nice_this_thread(nice)
+def _cpu_timed(fn: Callable[..., Any], *args: Any, nice: int = 0, realtime: int = 0) -> tuple[Any, float]:
+    """``fn(*args)`` and the CPU seconds its thread spent in it (the thread prioritised first, see
+    ``runtime.vision_thread_nice`` and ``runtime.realtime_priority``)."""
+    _prioritise_this_thread(nice, realtime)
     t0 = time.thread_time()
     out = fn(*args)
     return out, time.thread_time() - t0
@@ -280,6 +287,7 @@ class DeliveryShell:
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
         loop = asyncio.get_running_loop()
+        saved_policy = self._loop_thread_realtime(loop)
         if self.landing is not None and (self.landing.camera is not None or self.landing.detector is not None):
             from companion.vision.opencv_threads import apply_opencv_threads
 
@@ -366,7 +374,29 @@ class DeliveryShell:
                 if self.mission.phase.terminal:
                     self.gcs.send_text(self._end_text(), self._end_severity())
                 await self.gcs.close()
+            if saved_policy is not None:
+                restore_thread_policy(saved_policy)
         return self.mission.summary
+
+    def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
+        """``runtime.realtime_priority`` for the loop's thread, in real time only (a lock-step
+        simulation runs flat out: real time would take the core from everything else). Returns the
+        policy to put back at the end, None when nothing changed; ``stats.realtime`` says which."""
+        prio = self.config.runtime.realtime_priority
+        if prio <= 0:
+            return None
+        if abs(loop.time() - time.monotonic()) > 1.0:  # not the wall clock: virtual time
+            self.stats.realtime = "not applied: virtual time"
+            return None
+        saved = thread_policy()
+        why = set_thread_realtime(prio)
+        if why is not None:
+            self.stats.realtime = f"refused: {why}"
+            log.warning("runtime.realtime_priority = %d: the loop's thread keeps the normal policy (%s)", prio, why)
+            return None
+        self.stats.realtime = f"SCHED_RR {prio}"
+        log.info("the loop's thread runs SCHED_RR at priority %d, the detector's at %d", prio, max(1, prio - 1))
+        return saved
 
     async def _take_autopilot_mission(self) -> None:
         """The delivery the operator planned in the GCS (docs/gcs.md): download the autopilot's
@@ -731,6 +761,7 @@ class DeliveryShell:
             _cpu_timed,
             functools.partial(kit.detector.detect, down_cam=down_cam),
             nice=self.config.runtime.vision_thread_nice if kit.vision_in_thread else 0,
+            realtime=self.config.runtime.realtime_priority if kit.vision_in_thread else 0,
         )
         if kit.vision_in_thread:
             obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, frame.time_s)

@@ -142,6 +142,11 @@ def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent, which closes the logs
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the end is the socket closing
+    # started from a real-time thread (runtime.realtime_priority), the policy is inherited: the
+    # logs' formatting and I/O are not real-time work
+    with contextlib.suppress(AttributeError, OSError):
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     sock = socket.socket(fileno=int(args[0]))
     sock.setblocking(True)
     root = logging.getLogger()

@@ -536,6 +536,8 @@ async def _run_delivery(
     def snapshot_end() -> None:
         _snapshot(end)
 
+    sim_realtime: list[str] = []  # the simulator's threads given the companion's real-time priority
+
     class BenchShell(DeliveryShell):
         async def _guidance_loop(self) -> None:
             try:
@@ -547,6 +549,21 @@ async def _run_delivery(
 
         def _vision_wanted(self) -> bool:
             return True  # the camera and detector run at full rate from the start of fusion
+
+        def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
+            saved = super()._loop_thread_realtime(loop)
+            if saved is not None:
+                # the simulator stands in for the autopilot and the camera, hardware that does not
+                # share the companion's core; a thread of it preempted while it holds the
+                # interpreter lock would stall the companion's real-time threads
+                from companion.scheduling import set_thread_realtime
+
+                names = {t.native_id: t.name for t in threading.enumerate()}
+                for tid, (comm, _) in thread_cpu_s().items():
+                    sim = classify_thread(comm, names.get(tid)) == "sim"
+                    if sim and set_thread_realtime(config.runtime.realtime_priority, tid) is None:
+                        sim_realtime.append(names.get(tid) or comm)
+            return saved
 
         def _start_fusion(self, now: float) -> None:
             add = self.autopilot.telemetry.add_listener
@@ -641,6 +658,9 @@ async def _run_delivery(
     r["camera"]["frames_paced"] = shell.stats.frames_paced
     r["vision_cpu_budget"] = config.runtime.vision_cpu_budget
     r["vision_thread_nice"] = config.runtime.vision_thread_nice
+    r["realtime_priority"] = config.runtime.realtime_priority
+    r["realtime"] = shell.stats.realtime
+    r["realtime_simulator_threads"] = sim_realtime
     r["camera"]["frames_dropped_pct"] = round(100.0 * BenchCamera.dropped / max(1, BenchCamera.dropped + lat.frames), 2)
     # the guidance loop and the setpoint stream (the shell's other loops poll the landing sensors)
     rt = config.runtime
@@ -875,6 +895,7 @@ def bench_app(
     vision_cpu_budget: float | None = None,
     vision_thread_nice: int | None = None,
     cap_period_us: int | None = None,
+    realtime_priority: int | None = None,
 ) -> dict[str, Any]:
     """Run the delivery application for ``duration_s`` of real time and measure it."""
     from companion.telemetry.loopback import free_tcp_port
@@ -892,6 +913,7 @@ def bench_app(
                 "runtime": {
                     **({"vision_cpu_budget": vision_cpu_budget} if vision_cpu_budget is not None else {}),
                     **({"vision_thread_nice": vision_thread_nice} if vision_thread_nice is not None else {}),
+                    **({"realtime_priority": realtime_priority} if realtime_priority is not None else {}),
                 },
             },
         )

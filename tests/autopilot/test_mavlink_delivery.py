@@ -4,15 +4,19 @@ sim vehicle: PX4 dialect through MAVSDK, ArduPilot dialect through pymavlink."""
 from __future__ import annotations
 
 import math
+import os
+import threading
 
 import pytest
 
 from companion.autopilot import FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
+from companion.config import load_config, shipped_params_path
 from companion.events import EventKind, Phase
 from companion.flightlog.tlog import read_tlog
 from companion.flightlog.tlog_writer import open_tlog
+from companion.scheduling import thread_policy
 
 pytestmark = pytest.mark.flight
 
@@ -49,13 +53,33 @@ def _pad_error(sim, config):
 
 
 async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
-    config = mav.short_config()
+    # runtime.realtime_priority: the loop's thread and the threads it starts (the link's reader)
+    # fly SCHED_RR, and the loop's thread is back to its policy afterwards
+    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"runtime": {"realtime_priority": 9}})
     received = []  # what reached the vehicle
+    policies: dict[str, tuple[int, int]] = {}
+    before = thread_policy()
+
+    async def watch(shell):
+        await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 60.0, "the way out")
+        p = thread_policy()
+        policies["loop"] = (p.policy, p.priority)
+        reader = next(t for t in threading.enumerate() if t.name == "ardupilot-reader")
+        p = thread_policy(reader.native_id)
+        policies["reader"] = (p.policy, p.priority)
+
     with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
         sim.on_message = received.append
         ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", tlog=open_tlog(tmp_path / "flight.tlog"))
-        shell, summary = await mav.fly(config, ap)
+        shell, summary = await mav.fly(config, ap, watch)
     assert summary.delivered and summary.returned and shell.mission.phase is Phase.DONE, summary.failure
+    if shell.stats.realtime.startswith("refused"):  # no CAP_SYS_NICE here: said, and the flight is the same
+        assert "CAP_SYS_NICE" in shell.stats.realtime and policies["loop"][0] == os.SCHED_OTHER
+    else:
+        assert shell.stats.realtime == "SCHED_RR 9"
+        assert policies == {"loop": (os.SCHED_RR, 9), "reader": (os.SCHED_RR, 9)}
+    after = thread_policy()
+    assert (after.policy, after.priority) == (before.policy, before.priority)
     assert _pad_error(sim, config) < 1.0
     assert len(sim.vehicle.touchdowns) == 2 and not sim.vehicle.armed
     assert sim.stats.setpoints > 300 and sim.stats.bad_data == 0

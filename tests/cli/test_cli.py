@@ -127,3 +127,8 @@ def test_an_out_that_cannot_be_a_folder_is_refused_before_the_flight(tmp_path, c
     assert main([*command, "--out", str(in_the_way / "run")]) == 2
     assert f"--out {in_the_way / 'run'}: cannot create the folder" in capsys.readouterr().err
     assert in_the_way.read_text() == "not a folder"
+
+
+def test_bench_app_refuses_a_cap_with_real_time_threads(capsys):
+    assert main(["bench", "app", "--cpu-cap", "pi4", "--realtime-priority", "5"]) == 2
+    assert "--realtime-priority" in capsys.readouterr().err

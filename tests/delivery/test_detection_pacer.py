@@ -75,3 +75,26 @@ def test_the_detector_thread_lowers_its_own_priority_once():
     assert seen["out"] == 2 and seen["cpu_ok"] == 1
     assert seen["after"] == min(19, seen["before"] + 5)
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == seen["before"]  # only that thread
+
+
+def test_the_detector_thread_runs_one_below_the_loops_real_time_priority():
+    import os
+    import threading
+
+    from companion.delivery.shell import _cpu_timed
+    from companion.scheduling import thread_policy
+
+    seen: dict[str, object] = {}
+
+    def on_thread() -> None:
+        out, _ = _cpu_timed(lambda x: x * 2, 3, nice=10, realtime=12)
+        seen.update(out=out, policy=thread_policy())
+
+    t = threading.Thread(target=on_thread)
+    t.start()
+    t.join()
+    pol = seen["policy"]
+    assert seen["out"] == 6
+    if pol.policy == os.SCHED_OTHER:  # refused here: the warning said why, the thread kept its policy
+        pytest.skip("SCHED_RR refused on this machine")
+    assert (pol.policy, pol.priority) == (os.SCHED_RR, 11)  # the nice value does not apply

@@ -354,3 +354,31 @@ def test_the_writer_hands_over_before_the_period_while_rows_come_fast(tmp_path):
             lg.write((float(k), 3.0))
         wait_written(lg, 2 * n + 60, 1.0)  # the period is over ~2 s after the first round, not yet
     assert len(read_csv(tmp_path / "a.csv")["x"]) == 2 * n + 60
+
+
+_REALTIME_PARENT = """
+import os, time
+from companion.flightlog.logproc import LogProcess
+from companion.scheduling import set_thread_realtime
+why = set_thread_realtime(5)
+if why is not None:
+    print("refused", why.split()[0], flush=True)
+    raise SystemExit(0)
+proc = LogProcess.get()
+inherited = os.sched_getscheduler(proc.child.pid)  # before the child's interpreter has started
+deadline = time.monotonic() + 30.0
+while os.sched_getscheduler(proc.child.pid) != os.SCHED_OTHER and time.monotonic() < deadline:
+    time.sleep(0.05)
+print(os.sched_getscheduler(0), inherited, os.sched_getscheduler(proc.child.pid), flush=True)
+"""
+
+
+def test_the_logging_process_leaves_the_real_time_policy_it_inherits():
+    proc = subprocess.run([sys.executable, "-c", _REALTIME_PARENT], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.split()
+    if out[0] == "refused":
+        pytest.skip("SCHED_RR refused on this machine")
+    parent, inherited, child = map(int, out)
+    assert parent == inherited == os.SCHED_RR  # the child started real time, from its parent
+    assert child == os.SCHED_OTHER
