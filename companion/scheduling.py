@@ -138,6 +138,16 @@ def set_thread_realtime(priority: int, tid: int | None = None) -> str | None:
     return None
 
 
+def probe_realtime(priority: int) -> str | None:
+    """Whether this process may run a thread under SCHED_RR at ``priority``, tried on a thread
+    started for it (the caller's own keeps its policy): None when it may, otherwise why not."""
+    out: list[str | None] = []
+    t = threading.Thread(target=lambda: out.append(set_thread_realtime(priority)), name="realtime-probe")
+    t.start()
+    t.join()
+    return out[0]
+
+
 def restore_thread_policy(saved: ThreadPolicy) -> None:
     """Put the calling thread back to the policy :func:`thread_policy` read from it."""
     if saved.tid != threading.get_native_id():

@@ -145,11 +145,11 @@ def preflight_hook(
     async def check() -> None:
         from companion.autopilot.preflight.report import requirements_from_config
         from companion.autopilot.preflight.runner import preflight
-        from companion.cli.preflight import probe_sensors, report_line, sensor_requirements
+        from companion.cli.preflight import probe_realtime, probe_sensors, report_line, sensor_requirements
 
         req = sensor_requirements(config, requirements_from_config(config), kit)
         cam, uwb = await asyncio.to_thread(probe_sensors, config, kit, True)  # the sensors run already
-        report = await preflight(autopilot, req, camera=cam, uwb=uwb)
+        report = await preflight(autopilot, req, camera=cam, uwb=uwb, realtime=probe_realtime(config))
         for c in report.checks:
             log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)
         if not report.passed:

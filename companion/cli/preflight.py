@@ -18,6 +18,7 @@ from companion.autopilot.preflight.readers import probe_camera, probe_uwb
 from companion.autopilot.preflight.report import (
     CameraProbe,
     PreflightReport,
+    RealtimeProbe,
     Requirements,
     Status,
     UwbProbe,
@@ -76,6 +77,16 @@ def probe_sensors(config: CompanionConfig, kit: Any, started: bool) -> tuple[Cam
     return cam, uwb
 
 
+def probe_realtime(config: CompanionConfig) -> RealtimeProbe | None:
+    """Whether ``runtime.realtime_priority`` can be had here (None when it is 0)."""
+    prio = config.runtime.realtime_priority
+    if prio <= 0:
+        return None
+    from companion.scheduling import probe_realtime as probe
+
+    return RealtimeProbe(prio, probe(prio) or "")
+
+
 async def check_before_flight(
     config: CompanionConfig,
     autopilot: Autopilot,
@@ -86,7 +97,7 @@ async def check_before_flight(
     """Connect ``autopilot`` (within ``runtime.connect_timeout_s``) and run the check on it; the
     link stays open for the flight."""
     await autopilot.connect(timeout_s=config.runtime.connect_timeout_s)
-    return await preflight(autopilot, req, camera=camera, uwb=uwb)
+    return await preflight(autopilot, req, camera=camera, uwb=uwb, realtime=probe_realtime(config))
 
 
 def report_line(report: PreflightReport, params_file: str) -> str:

@@ -39,6 +39,7 @@ from companion.autopilot.preflight.report import (
     CheckResult,
     ClockProbe,
     ParamUnavailable,
+    RealtimeProbe,
     Requirements,
     Status,
     StreamProbe,
@@ -51,6 +52,7 @@ from companion.autopilot.preflight.runner import (
 from companion.autopilot.preflight.sensors import (
     check_camera,
     check_clock,
+    check_realtime,
     check_streams,
     check_uwb,
 )
@@ -351,6 +353,37 @@ def test_clock_rule() -> None:
     assert clock_probe_from(None).error == "no SYSTEM_TIME from the autopilot"
     assert "no UTC" in clock_probe_from((0, 1.0e9)).error
     assert clock_probe_from((1_700_000_002_500_000, 1_700_000_000.0)).offset_s == pytest.approx(2.5)
+
+
+def test_realtime_rule() -> None:
+    assert check_realtime(None) == []  # runtime.realtime_priority = 0: nothing to check
+    (row,) = check_realtime(RealtimeProbe(20))
+    assert row.status is Status.OK and row.value == "SCHED_RR 20"
+    (row,) = check_realtime(RealtimeProbe(20, "not permitted: needs CAP_SYS_NICE"))
+    assert row.status is Status.WARN and "CAP_SYS_NICE" in row.detail and "normal policy" in row.detail
+    report = run_checks(PX4, PX4_DEFAULTS, realtime=RealtimeProbe(20, "not permitted"))
+    assert report.passed and report.checks[-1].name == "real-time priority"  # a warning, not a refusal
+
+
+def test_the_realtime_probe_leaves_the_callers_thread_alone(monkeypatch) -> None:
+    import os
+
+    from companion import scheduling
+
+    before = scheduling.thread_policy()
+    refused = scheduling.probe_realtime(15)
+    assert scheduling.thread_policy() == before
+    if refused is None:  # permitted here: the probe's thread ran it; refused must say why
+        monkeypatch.setattr(scheduling.os, "sched_setscheduler", _refuse)
+        assert "CAP_SYS_NICE" in (scheduling.probe_realtime(15) or "")
+    else:
+        assert "CAP_SYS_NICE" in refused and before.policy == os.SCHED_OTHER
+
+
+def _refuse(*_args: object) -> None:
+    import errno
+
+    raise PermissionError(errno.EPERM, "Operation not permitted")
 
 
 # --------------------------------------------------------------------------------- the probes

@@ -73,6 +73,15 @@ class ClockProbe:
 
 
 @dataclass(frozen=True)
+class RealtimeProbe:
+    """Whether the companion may run its threads real time (``runtime.realtime_priority``):
+    ``refused`` says why not, empty when it may."""
+
+    priority: int
+    refused: str = ""
+
+
+@dataclass(frozen=True)
 class StreamProbe:
     """Telemetry samples the backend accepted per second over ``window_s``, by sample type
     (``PositionNed``: LOCAL_POSITION_NED / PX4's position-velocity, ``Attitude``)."""

@@ -16,11 +16,19 @@ from companion.autopilot.preflight.report import (
     ClockProbe,
     ParamValue,
     PreflightReport,
+    RealtimeProbe,
     Requirements,
     StreamProbe,
     UwbProbe,
 )
-from companion.autopilot.preflight.sensors import STREAMS, check_camera, check_clock, check_streams, check_uwb
+from companion.autopilot.preflight.sensors import (
+    STREAMS,
+    check_camera,
+    check_clock,
+    check_realtime,
+    check_streams,
+    check_uwb,
+)
 
 
 def run_checks(
@@ -31,6 +39,7 @@ def run_checks(
     uwb: UwbProbe | None = None,
     clock: ClockProbe | None = None,
     streams: StreamProbe | None = None,
+    realtime: RealtimeProbe | None = None,
 ) -> PreflightReport:
     rows = check_px4(req, params) if req.autopilot == "px4" else check_ardupilot(req, params)
     if streams is not None:
@@ -38,6 +47,7 @@ def run_checks(
     rows += check_camera(req, camera)
     rows += check_uwb(req, uwb)
     rows.append(check_clock(req, clock))
+    rows += check_realtime(realtime)
     return PreflightReport(req.autopilot, tuple(rows))
 
 
@@ -48,6 +58,7 @@ async def preflight(
     camera: CameraProbe | None = None,
     uwb: UwbProbe | None = None,
     stream_window_s: float = 1.5,
+    realtime: RealtimeProbe | None = None,
 ) -> PreflightReport:
     """Read the parameters and the clock from the connected ``autopilot``, measure its position and
     attitude rates meanwhile (over ``stream_window_s`` at least), and run every check."""
@@ -70,4 +81,4 @@ async def preflight(
     finally:
         tc.remove_listener(on_sample)
     streams = StreamProbe({k: stream_rate_hz(v) for k, v in arrivals.items()}, time.monotonic() - t0)
-    return run_checks(req, params, camera=camera, uwb=uwb, clock=clock, streams=streams)
+    return run_checks(req, params, camera=camera, uwb=uwb, clock=clock, streams=streams, realtime=realtime)

@@ -1,6 +1,7 @@
 """The pre-flight rules for the landing sensors, the clock and the telemetry rates: camera size
 and rate against the calibration, UWB anchors against the layout, the autopilot's UTC against
-the companion's clock, position and attitude rates against the guidance rate."""
+the companion's clock, position and attitude rates against the guidance rate, the companion's
+right to run real time."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from companion.autopilot.preflight.report import (
     CameraProbe,
     CheckResult,
     ClockProbe,
+    RealtimeProbe,
     Requirements,
     Status,
     StreamProbe,
@@ -90,6 +92,25 @@ def check_uwb(req: Requirements, probe: UwbProbe | None) -> list[CheckResult]:
     extra = sorted(probe.anchors_seen - want)
     note = f"; also heard, not in the layout: {', '.join(extra)}" if extra else ""
     return [CheckResult("UWB anchors", Status.OK, value, f"all anchors of the layout heard{note}")]
+
+
+def check_realtime(probe: RealtimeProbe | None) -> list[CheckResult]:
+    """``runtime.realtime_priority`` permitted on this computer (no row when it is 0). A refusal is
+    a warning: the flight runs at the normal policy, as it would without the setting."""
+    if probe is None:
+        return []
+    name, value = "real-time priority", f"SCHED_RR {probe.priority}"
+    if probe.refused:
+        return [
+            CheckResult(
+                name,
+                Status.WARN,
+                f"{value}: refused",
+                f"{probe.refused}; the flight runs at the normal policy, and on a core loaded by other "
+                "processes exposure -> setpoint grows",
+            )
+        ]
+    return [CheckResult(name, Status.OK, value, "permitted: the companion's threads run real time in flight")]
 
 
 def check_clock(req: Requirements, probe: ClockProbe | None) -> CheckResult:
