@@ -302,6 +302,13 @@ class DartRuntimeTable(_Section):
     opencv_threads: int = _s(
         1, "-", "threads OpenCV's parallel loops may use (1: the vision thread only; -1: one per CPU)", ge=-1, le=64
     )
+    realtime_priority: int = _s(
+        0,
+        "-",
+        "Linux SCHED_RR priority of the shell's threads, the vision thread one lower (docs/flying.md); 0: normal",
+        ge=0,
+        le=98,
+    )
 
 
 class DartFile(_Section):

@@ -13,6 +13,7 @@ import errno
 import math
 import os
 import threading
+import time
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -136,6 +137,23 @@ def set_thread_realtime(priority: int, tid: int | None = None) -> str | None:
             )
         return f"{type(err).__name__}: {err}"
     return None
+
+
+def realtime_loop_thread(loop: asyncio.AbstractEventLoop, priority: int) -> tuple[ThreadPolicy | None, str]:
+    """A shell's ``runtime.realtime_priority`` for the calling thread, the one running ``loop``, in
+    real time only (a lock-step simulation runs flat out: real time would take the core from
+    everything else). Returns the policy to put back at the end (None: nothing changed) and what
+    was done: ``"SCHED_RR <priority>"``, ``"not applied: virtual time"``, ``"refused: <why>"``, or
+    ``""`` for priority 0."""
+    if priority <= 0:
+        return None, ""
+    if abs(loop.time() - time.monotonic()) > 1.0:  # not the wall clock: virtual time
+        return None, "not applied: virtual time"
+    saved = thread_policy()
+    why = set_thread_realtime(priority)
+    if why is not None:
+        return None, f"refused: {why}"
+    return saved, f"SCHED_RR {priority}"
 
 
 def probe_realtime(priority: int) -> str | None:

@@ -146,6 +146,9 @@ class DartRuntimeConfig:
     pad_size_m: float = 0.6
     # threads OpenCV's parallel loops may use (companion.vision.opencv_threads; -1: OpenCV's default)
     opencv_threads: int = 1
+    # Linux SCHED_RR priority of the shell's threads (the loop's and those it starts; the vision
+    # thread one lower), as the delivery's runtime.realtime_priority (docs/flying.md); 0: normal
+    realtime_priority: int = 0
 
     def __post_init__(self) -> None:
         key = self.estimator.strip().upper().replace("_", "-")
@@ -175,6 +178,8 @@ class DartRuntimeConfig:
         if any(v < 0.0 for v in self.max_contribution_us):
             raise ValueError(f"max_contribution_us = {self.max_contribution_us!r}: must be >= 0")
         check_opencv_threads(self.opencv_threads)
+        if isinstance(self.realtime_priority, bool) or not 0 <= self.realtime_priority <= 98:
+            raise ValueError(f"realtime_priority = {self.realtime_priority!r}: an integer 0..98 (0: normal policy)")
         if not self.max_tilt_deg < 80.0:
             raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
         chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)

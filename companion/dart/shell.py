@@ -65,7 +65,14 @@ from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, atti
 from companion.dart.params import DartFlightParams, DartRuntimeConfig
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry import wrap_angle
-from companion.scheduling import Clock, LoopClock, RateLoop
+from companion.scheduling import (
+    Clock,
+    LoopClock,
+    RateLoop,
+    realtime_loop_thread,
+    restore_thread_policy,
+    set_thread_realtime,
+)
 from companion.vision.camera import CameraModel, load_camera, load_default_camera
 from companion.vision.detector import PadDetector
 from companion.vision.opencv_threads import apply_opencv_threads
@@ -130,6 +137,7 @@ class DartShellStats:
     rc_stale: int = 0
     send_errors: int = 0
     yaw_alignments: int = 0
+    realtime: str = ""  # runtime.realtime_priority: "SCHED_RR <priority>", "refused: <why>", "" (not asked)
 
 
 @dataclass(frozen=True, slots=True)
@@ -530,13 +538,22 @@ class DartShell:
         tel = self.autopilot.telemetry
         self._t0 = self.clock.now()
         apply_opencv_threads(self.rt.opencv_threads)  # process-wide, before the camera starts
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dart-vision")
+        loop = asyncio.get_running_loop()
+        prio = self.rt.realtime_priority
+        saved_policy, self.stats.realtime = realtime_loop_thread(loop, prio)
+        if self.stats.realtime.startswith("refused"):
+            log.warning("dart: realtime_priority = %d: the normal policy (%s)", prio, self.stats.realtime)
+        self._executor = ThreadPoolExecutor(
+            max_workers=1,
+            thread_name_prefix="dart-vision",
+            # the vision thread one below the loop's (it inherits the loop's at its start)
+            initializer=(lambda: set_thread_realtime(max(1, prio - 1))) if saved_policy is not None else None,
+        )
         if self.log_path is not None:
             self._csv = CsvLog(self.log_path, LOG_COLUMNS)
         tel.add_listener(self._on_sample)
         tel.add_rc_listener(self._on_rc)
         self.camera.start()
-        loop = asyncio.get_running_loop()
         tasks = [
             loop.create_task(self._imu_task(), name="dart-imu"),
             loop.create_task(self._vision_task(), name="dart-vision"),
@@ -566,6 +583,8 @@ class DartShell:
             self._executor.shutdown(wait=True)
             if self._csv is not None:
                 self._csv.close()
+            if saved_policy is not None:
+                restore_thread_policy(saved_policy)
         return DartRunSummary(
             duration_s=self.clock.now() - self._t0,
             output=self.output,

@@ -60,7 +60,7 @@ from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
 from companion.plugin_api import frame_listener_of
-from companion.scheduling import LoopClock, RateLoop, restore_thread_policy, set_thread_realtime, thread_policy
+from companion.scheduling import LoopClock, RateLoop, realtime_loop_thread, restore_thread_policy, set_thread_realtime
 
 log = logging.getLogger(__name__)
 
@@ -379,23 +379,18 @@ class DeliveryShell:
         return self.mission.summary
 
     def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
-        """``runtime.realtime_priority`` for the loop's thread, in real time only (a lock-step
-        simulation runs flat out: real time would take the core from everything else). Returns the
-        policy to put back at the end, None when nothing changed; ``stats.realtime`` says which."""
+        """``runtime.realtime_priority`` for the loop's thread (``stats.realtime`` says what was
+        done); returns the policy to put back at the end, None when nothing changed."""
         prio = self.config.runtime.realtime_priority
-        if prio <= 0:
-            return None
-        if abs(loop.time() - time.monotonic()) > 1.0:  # not the wall clock: virtual time
-            self.stats.realtime = "not applied: virtual time"
-            return None
-        saved = thread_policy()
-        why = set_thread_realtime(prio)
-        if why is not None:
-            self.stats.realtime = f"refused: {why}"
-            log.warning("runtime.realtime_priority = %d: the loop's thread keeps the normal policy (%s)", prio, why)
-            return None
-        self.stats.realtime = f"SCHED_RR {prio}"
-        log.info("the loop's thread runs SCHED_RR at priority %d, the detector's at %d", prio, max(1, prio - 1))
+        saved, self.stats.realtime = realtime_loop_thread(loop, prio)
+        if self.stats.realtime.startswith("refused"):
+            log.warning(
+                "runtime.realtime_priority = %d: the loop's thread keeps the normal policy (%s)",
+                prio,
+                self.stats.realtime.removeprefix("refused: "),
+            )
+        elif saved is not None:
+            log.info("the loop's thread runs SCHED_RR at priority %d, the detector's at %d", prio, max(1, prio - 1))
         return saved
 
     async def _take_autopilot_mission(self) -> None:

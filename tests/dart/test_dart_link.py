@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -25,6 +27,7 @@ from companion.dart.mission import DartMissionConfig, DartParamsError, DartPhase
 from companion.dart.params import DartFlightParams, DartRuntimeConfig, load_dart_flight_params
 from companion.dart.shell import DartShell
 from companion.geometry import Transform
+from companion.scheduling import ThreadPolicy, thread_policy
 from companion_sitl.dart_link import DartLinkSim, fly_dart_link
 from companion_sitl.dart_sim import DartParams, shipped_dart_params
 from companion_sitl.mavlink.link import free_udp_port
@@ -43,10 +46,20 @@ async def test_dart_hover_and_approach_over_ardupilot_link_reaches_1_5_m() -> No
     IMU stamped at receipt.
     """
     mission = DartMissionConfig(hover_s=5.0, max_speed_m_s=0.3)
-    params = DartParams(mission=mission)
+    # realtime_priority: the shell's loop and vision threads run SCHED_RR (where permitted)
+    params = DartParams(mission=mission, runtime=DartRuntimeConfig(realtime_priority=9))
     duration = mission.hover_s + mission.approach_duration_s + 9.0
-    r = await fly_dart_link(params, duration_s=duration, seed=1)
+    before = thread_policy()
+    vision_policy: list[ThreadPolicy] = []
+    r = await fly_dart_link(params, duration_s=duration, seed=1, pilot=_vision_policy_into(vision_policy))
     s = r.summary.stats
+    after = thread_policy()
+    assert (after.policy, after.priority) == (before.policy, before.priority)  # put back
+    if s.realtime.startswith("refused"):
+        assert "CAP_SYS_NICE" in s.realtime
+    else:
+        assert s.realtime == "SCHED_RR 9"
+        assert [(p.policy, p.priority) for p in vision_policy] == [(os.SCHED_RR, 8)]
     assert [ph for _, ph in r.summary.transitions] == [DartPhase.HOVER_START, DartPhase.APPROACH, DartPhase.HOVER_END]
     end = r.truth_in(DartPhase.HOVER_END, after_s=4.0)
     assert len(end) >= 60
@@ -66,6 +79,17 @@ async def test_dart_hover_and_approach_over_ardupilot_link_reaches_1_5_m() -> No
     assert s.estimates <= s.detections - s.ambiguous and s.estimates >= 0.5 * s.frames
     assert r.modes == {2}  # ALT_HOLD throughout: the cyber-pilot only adds to the sticks
     assert r.rc_overrides_end[:4] == [None] * 4  # released when the shell stopped
+
+
+def _vision_policy_into(out: list[ThreadPolicy]):
+    """A pilot script (switch on, sticks centred) that records the vision thread's policy."""
+
+    async def pilot(sim: DartLinkSim, shell: DartShell) -> None:
+        sim.set_pilot(switch_on=True)
+        await asyncio.sleep(3.0)
+        out.extend(thread_policy(t.native_id) for t in threading.enumerate() if t.name.startswith("dart-vision"))
+
+    return pilot
 
 
 def _contributions_used(shell: DartShell) -> list[DartCommand | None]:
@@ -197,6 +221,7 @@ def test_runtime_params_load_and_reject_bad_values(tmp_path: Path) -> None:
         ("pilot_channels = [1, 2, 3, 9]", "either the stick_channels themselves"),
         ("control_hz = 0.0", "control_hz = 0.0: must be > 0"),
         ("command_hz = 10.0", "command_hz = 10.0: must be >= control_hz"),
+        ("realtime_priority = 99", "realtime_priority = 99: an integer 0..98"),
         ("speed = 1.0", "unknown key"),
     ):
         f.write_text(f"[runtime]\n{text}\n")
