@@ -185,3 +185,26 @@ def test_a_policy_is_restored_only_on_its_own_thread():
     saved = _in_thread(thread_policy)
     with pytest.raises(ValueError, match="restored on thread"):
         restore_thread_policy(saved)
+
+
+def test_the_loop_thread_is_real_time_only_on_the_wall_clock():
+    async def on_the_loop():
+        return scheduling.realtime_loop_thread(asyncio.get_running_loop(), 11)
+
+    saved, said = run_virtual(on_the_loop())  # lock-step: runs flat out, must not take the core
+    assert (saved, said) == (None, "not applied: virtual time")
+    assert scheduling.realtime_loop_thread(None, 0) == (None, "")  # type: ignore[arg-type]
+
+    def on_a_thread():
+        saved, said = asyncio.run(on_the_loop())
+        during = thread_policy()
+        if saved is not None:
+            restore_thread_policy(saved)
+        return saved, said, during, thread_policy()
+
+    saved, said, during, after = _in_thread(on_a_thread)
+    if said.startswith("refused"):
+        assert saved is None and "CAP_SYS_NICE" in said
+    else:
+        assert said == "SCHED_RR 11" and (during.policy, during.priority) == (os.SCHED_RR, 11)
+        assert (after.policy, after.priority) == (saved.policy, saved.priority) == (os.SCHED_OTHER, 0)

@@ -286,8 +286,15 @@ class DeliveryShell:
             self._connecting.cancel()
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
+        saved_policy = self._loop_thread_realtime(asyncio.get_running_loop())
+        try:
+            return await self._run(timeout_s)
+        finally:
+            if saved_policy is not None:
+                restore_thread_policy(saved_policy)
+
+    async def _run(self, timeout_s: float | None) -> MissionSummary:
         loop = asyncio.get_running_loop()
-        saved_policy = self._loop_thread_realtime(loop)
         if self.landing is not None and (self.landing.camera is not None or self.landing.detector is not None):
             from companion.vision.opencv_threads import apply_opencv_threads
 
@@ -374,8 +381,6 @@ class DeliveryShell:
                 if self.mission.phase.terminal:
                     self.gcs.send_text(self._end_text(), self._end_severity())
                 await self.gcs.close()
-            if saved_policy is not None:
-                restore_thread_policy(saved_policy)
         return self.mission.summary
 
     def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
