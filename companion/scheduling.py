@@ -10,12 +10,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import logging
 import math
 import os
 import threading
 import time
 from dataclasses import dataclass
 from typing import Protocol
+
+log = logging.getLogger(__name__)
 
 
 class Clock(Protocol):
@@ -139,12 +142,18 @@ def set_thread_realtime(priority: int, tid: int | None = None) -> str | None:
     return None
 
 
+def vision_thread_priority(loop_priority: int) -> int:
+    """The vision thread's real-time priority: one below the loop's, so guidance and the setpoint
+    stream get the core first when both are ready."""
+    return max(1, loop_priority - 1)
+
+
 def realtime_loop_thread(loop: asyncio.AbstractEventLoop, priority: int) -> tuple[ThreadPolicy | None, str]:
     """A shell's ``runtime.realtime_priority`` for the calling thread, the one running ``loop``, in
     real time only (a lock-step simulation runs flat out: real time would take the core from
-    everything else). Returns the policy to put back at the end (None: nothing changed) and what
-    was done: ``"SCHED_RR <priority>"``, ``"not applied: virtual time"``, ``"refused: <why>"``, or
-    ``""`` for priority 0."""
+    everything else); a refusal is logged once. Returns the policy to put back at the end (None:
+    nothing changed) and what was done: ``"SCHED_RR <priority>"``, ``"not applied: virtual
+    time"``, ``"refused: <why>"``, or ``""`` for priority 0."""
     if priority <= 0:
         return None, ""
     if abs(loop.time() - time.monotonic()) > 1.0:  # not the wall clock: virtual time
@@ -152,7 +161,9 @@ def realtime_loop_thread(loop: asyncio.AbstractEventLoop, priority: int) -> tupl
     saved = thread_policy()
     why = set_thread_realtime(priority)
     if why is not None:
+        log.warning("realtime_priority = %d: the loop's thread keeps the normal policy (%s)", priority, why)
         return None, f"refused: {why}"
+    log.info("loop thread SCHED_RR %d, vision thread %d", priority, vision_thread_priority(priority))
     return saved, f"SCHED_RR {priority}"
 
 

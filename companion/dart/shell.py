@@ -72,6 +72,7 @@ from companion.scheduling import (
     realtime_loop_thread,
     restore_thread_policy,
     set_thread_realtime,
+    vision_thread_priority,
 )
 from companion.vision.camera import CameraModel, load_camera, load_default_camera
 from companion.vision.detector import PadDetector
@@ -541,13 +542,11 @@ class DartShell:
         loop = asyncio.get_running_loop()
         prio = self.rt.realtime_priority
         saved_policy, self.stats.realtime = realtime_loop_thread(loop, prio)
-        if self.stats.realtime.startswith("refused"):
-            log.warning("dart: realtime_priority = %d: the normal policy (%s)", prio, self.stats.realtime)
         self._executor = ThreadPoolExecutor(
             max_workers=1,
             thread_name_prefix="dart-vision",
             # the vision thread one below the loop's (it inherits the loop's at its start)
-            initializer=(lambda: set_thread_realtime(max(1, prio - 1))) if saved_policy is not None else None,
+            initializer=None if saved_policy is None else lambda: set_thread_realtime(vision_thread_priority(prio)),
         )
         if self.log_path is not None:
             self._csv = CsvLog(self.log_path, LOG_COLUMNS)

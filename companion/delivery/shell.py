@@ -60,7 +60,15 @@ from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
 from companion.plugin_api import frame_listener_of
-from companion.scheduling import LoopClock, RateLoop, realtime_loop_thread, restore_thread_policy, set_thread_realtime
+from companion.scheduling import (
+    LoopClock,
+    RateLoop,
+    ThreadPolicy,
+    realtime_loop_thread,
+    restore_thread_policy,
+    set_thread_realtime,
+    vision_thread_priority,
+)
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +176,7 @@ def _prioritise_this_thread(nice: int, realtime: int = 0) -> None:
         return
     _thread_priority[tid] = (nice, realtime)
     if realtime > 0:
-        why = set_thread_realtime(max(1, realtime - 1))
+        why = set_thread_realtime(vision_thread_priority(realtime))
         if why is not None:
             log.warning("runtime.realtime_priority = %d: the detector thread keeps its policy (%s)", realtime, why)
         return
@@ -383,19 +391,10 @@ class DeliveryShell:
                 await self.gcs.close()
         return self.mission.summary
 
-    def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
+    def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> ThreadPolicy | None:
         """``runtime.realtime_priority`` for the loop's thread (``stats.realtime`` says what was
         done); returns the policy to put back at the end, None when nothing changed."""
-        prio = self.config.runtime.realtime_priority
-        saved, self.stats.realtime = realtime_loop_thread(loop, prio)
-        if self.stats.realtime.startswith("refused"):
-            log.warning(
-                "runtime.realtime_priority = %d: the loop's thread keeps the normal policy (%s)",
-                prio,
-                self.stats.realtime.removeprefix("refused: "),
-            )
-        elif saved is not None:
-            log.info("the loop's thread runs SCHED_RR at priority %d, the detector's at %d", prio, max(1, prio - 1))
+        saved, self.stats.realtime = realtime_loop_thread(loop, self.config.runtime.realtime_priority)
         return saved
 
     async def _take_autopilot_mission(self) -> None:

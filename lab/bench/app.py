@@ -556,12 +556,10 @@ async def _run_delivery(
                 # the simulator stands in for the autopilot and the camera, hardware that does not
                 # share the companion's core; a thread of it preempted while it holds the
                 # interpreter lock would stall the companion's real-time threads
-                from companion.scheduling import set_thread_realtime
-
                 names = {t.native_id: t.name for t in threading.enumerate()}
                 for tid, (comm, _) in thread_cpu_s().items():
                     sim = classify_thread(comm, names.get(tid)) == "sim"
-                    if sim and set_thread_realtime(config.runtime.realtime_priority, tid) is None:
+                    if sim and scheduling.set_thread_realtime(config.runtime.realtime_priority, tid) is None:
                         sim_realtime.append(names.get(tid) or comm)
             return saved
 
