@@ -563,6 +563,24 @@ class RuntimeConfig(_Section):
         10.0, "s", "start-up: give up when no autopilot answers on the connection within this time", gt=0.0, le=600.0
     )
     log_rate_hz: float = _f(20.0, "Hz", "flight-log sampling rate of the shell state", gt=0.0, le=200.0)
+    autopilot_attitude_rate_hz: float | None = _f(
+        None,
+        "Hz",
+        "rate the companion asks the autopilot to stream its attitude and IMU at (ArduPilot: ATTITUDE, "
+        "HIGHRES_IMU / RAW_IMU; PX4 through MAVSDK: attitude, IMU); every message costs the link's decoding and "
+        "fusion's prediction, so a slow board lowers it (docs/cpu-budget.md). Unset: ArduPilot 50 Hz, PX4 the "
+        "rates of its MAVLink instance's mode",
+        ge=5.0,
+        le=200.0,
+    )
+    autopilot_position_rate_hz: float | None = _f(
+        None,
+        "Hz",
+        "rate the companion asks the autopilot to stream its position and velocity at (LOCAL_POSITION_NED, "
+        "GLOBAL_POSITION_INT). Unset: ArduPilot 30 Hz, PX4 the rates of its MAVLink instance's mode",
+        ge=2.0,
+        le=100.0,
+    )
 
 
 class VehicleSimConfig(_Section):

@@ -220,6 +220,7 @@ async def fly(
         ap = sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
     else:
         from companion.autopilot.ardupilot import ArduPilotAutopilot
+        from companion.autopilot.ardupilot.requests import configured_stream_rates
         from companion.autopilot.px4 import Px4Autopilot
         from companion.flightlog.tlog_writer import open_tlog
         from companion_sitl.mavlink.factory import mavlink_sim_vehicle
@@ -241,8 +242,18 @@ async def fly(
         ap = (
             Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
             if mavlink == "px4"
-            else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
+            else ArduPilotAutopilot(
+                f"udpin:127.0.0.1:{port}",
+                link_timeout_s=lt,
+                tlog=sink,
+                stream_rates_hz=configured_stream_rates(
+                    config.runtime.autopilot_attitude_rate_hz, config.runtime.autopilot_position_rate_hz
+                ),
+            )
         )
+        if isinstance(ap, Px4Autopilot):  # [runtime] stream rates (None: PX4's own)
+            ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
+            ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
     use_fusion = config.landing.fusion if fusion is None else fusion
     flight_log = truth_log = recorder = None
     if run_dir is not None:

@@ -440,6 +440,7 @@ async def _run_delivery(
     cap_period_us: int | None = None,
 ) -> dict[str, Any]:
     from companion.autopilot.ardupilot import ArduPilotAutopilot
+    from companion.autopilot.ardupilot.requests import configured_stream_rates
     from companion.autopilot.px4 import Px4Autopilot
     from companion.delivery import shell as shell_mod
     from companion.delivery import telemetry as shell_telemetry
@@ -470,8 +471,19 @@ async def _run_delivery(
     ap: Any = (
         Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
         if backend == "px4"
-        else ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
+        else ArduPilotAutopilot(
+            f"udpin:127.0.0.1:{port}",
+            link_timeout_s=lt,
+            tlog=sink,
+            stream_rates_hz=configured_stream_rates(
+                config.runtime.autopilot_attitude_rate_hz, config.runtime.autopilot_position_rate_hz
+            ),
+        )
     )
+
+    if isinstance(ap, Px4Autopilot):  # [runtime] stream rates (None: PX4's own)
+        ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
+        ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
 
     class BenchCamera(landing_sensors.SimCameraSource):
         """Renders every exposure (the flight camera skips those without the pad in view): the

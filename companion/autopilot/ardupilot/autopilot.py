@@ -27,7 +27,7 @@ from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
 from companion.autopilot.ardupilot.mission import ArduPilotMission
 from companion.autopilot.ardupilot.modes import COPTER_MODES
-from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ
+from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ, configured_stream_rates
 from companion.autopilot.ardupilot.telemetry import ArduPilotTelemetry
 from companion.autopilot.interface import (
     Autopilot,
@@ -120,6 +120,7 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         self._latch = LinkLatch()
         self._last_attitude = -math.inf
         self._last_stream_request = -math.inf
+        self._highres_accepted = False
         self._t_boot = time.monotonic()
         # vehicle state (reader thread writes, event loop reads)
         self.copter_mode = -1
@@ -158,13 +159,18 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         kwargs.setdefault("release", pl.release)
         kwargs.setdefault("release_servo", pl.servo_channel)
         kwargs.setdefault("release_pwm", pl.servo_pwm_us)
-        gng = getattr(config, "go_no_go", None)
-        if gng is not None and gng.wind_limit_m_s > 0 and "stream_rates_hz" not in kwargs:
-            kwargs["stream_rates_hz"] = {**DEFAULT_STREAM_RATES_HZ, WIND_MSG_ID: 2.0}  # the wind check's input
+        rt = config.runtime
+        if "stream_rates_hz" not in kwargs:
+            kwargs["stream_rates_hz"] = configured_stream_rates(
+                rt.autopilot_attitude_rate_hz, rt.autopilot_position_rate_hz
+            )
+            gng = getattr(config, "go_no_go", None)
+            if gng is not None and gng.wind_limit_m_s > 0:
+                kwargs["stream_rates_hz"][WIND_MSG_ID] = 2.0  # the wind check's input
         winch = getattr(config, "winch", None)
         if getattr(getattr(config, "mission", None), "delivery", "land") == "winch" and winch is not None:
             # the winch's line length, and the wind for the hover's correction (docs/winch.md)
-            rates = dict(kwargs.get("stream_rates_hz", DEFAULT_STREAM_RATES_HZ))
+            rates = dict(kwargs["stream_rates_hz"])
             rates[WINCH_STATUS_MSG_ID] = 5.0
             if winch.wind_drift_s_m > 0:
                 rates[WIND_MSG_ID] = 2.0

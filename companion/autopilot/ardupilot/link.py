@@ -146,6 +146,7 @@ class ArduPilotLink(abc.ABC):
     _latch: LinkLatch
     _last_attitude: float
     _last_stream_request: float
+    _highres_accepted: bool  # the vehicle took HIGHRES_IMU: RAW_IMU (its fallback) is not asked for
     _t_boot: float
     copter_mode: int
     _armed: bool

@@ -51,6 +51,21 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
     65: 5.0,  # RC_CHANNELS
 }
 
+HIGHRES_IMU_ID, RAW_IMU_ID = 105, 27
+ATTITUDE_STREAMS = (30, 105, 27)  # the streams [runtime] autopilot_attitude_rate_hz sets
+POSITION_STREAMS = (32, 33)  # ... and autopilot_position_rate_hz
+
+
+def configured_stream_rates(attitude_hz: float | None, position_hz: float | None) -> dict[int, float]:
+    """DEFAULT_STREAM_RATES_HZ with the attitude / IMU and the position streams at the configured
+    rates (None: the default's)."""
+    rates = dict(DEFAULT_STREAM_RATES_HZ)
+    for ids, hz in ((ATTITUDE_STREAMS, attitude_hz), (POSITION_STREAMS, position_hz)):
+        if hz is not None:
+            rates.update(dict.fromkeys(ids, float(hz)))
+    return rates
+
+
 TRY_PERIOD_TS = 100_000  # 1 s in signing timestamp units (10 us)
 
 
@@ -188,24 +203,35 @@ class ArduPilotRequests(ArduPilotLink):
             "unsigned one off channel 0 (SERIAL0/USB; SITL TCP 5760)"
         )
 
+    def _streams_to_request(self) -> list[tuple[int, float]]:
+        """The requested streams, RAW_IMU left out once HIGHRES_IMU was accepted: it is only the
+        fallback, and both at 50 Hz would have the link decode and drop 50 messages a second."""
+        return [(m, hz) for m, hz in self.stream_rates_hz.items() if not (m == RAW_IMU_ID and self._highres_accepted)]
+
     async def _request_streams(self) -> None:
         async def one(mid: int, hz: float) -> None:
             try:
                 await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mid, 1e6 / hz, retries=2)
             except AutopilotError as err:
                 log.info("message %d at %.1f Hz not available: %s", mid, hz, err)
+            else:
+                if mid == HIGHRES_IMU_ID:
+                    self._highres_accepted = True
 
         self._last_stream_request = time.monotonic()
         self.counters.stream_requests += 1
-        # one at a time: the ack futures are keyed by command
-        for mid, hz in self.stream_rates_hz.items():
+        self._highres_accepted = False
+        # one at a time (the ack futures are keyed by command), HIGHRES_IMU before RAW_IMU
+        for mid, hz in sorted(self.stream_rates_hz.items(), key=lambda kv: kv[0] == RAW_IMU_ID):
+            if mid == RAW_IMU_ID and self._highres_accepted:
+                continue
             await one(mid, hz)
         with contextlib.suppress(AutopilotError):
             await self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, 242, retries=1)
 
     def _rerequest_streams_fire_and_forget(self) -> None:
         ts, tc = self.target_system or 1, self.target_component
-        for mid, hz in self.stream_rates_hz.items():
+        for mid, hz in self._streams_to_request():
             self._send(
                 functools.partial(
                     _command_long,

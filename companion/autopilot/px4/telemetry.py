@@ -98,8 +98,32 @@ def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
 
 
 class Px4Telemetry(Px4Link):
-    want_wind = False  # subscribe to the wind estimate ([go_no_go] wind_limit_m_s)
     """The telemetry streams, the connection watch and the stale-setpoint guard."""
+
+    want_wind = False  # subscribe to the wind estimate ([go_no_go] wind_limit_m_s)
+    # [runtime] autopilot_attitude_rate_hz / autopilot_position_rate_hz (None: PX4's own rates)
+    attitude_rate_hz: float | None = None
+    position_rate_hz: float | None = None
+
+    async def _set_stream_rates(self) -> None:
+        """Ask PX4 for the configured rates (MAVSDK's set_rate_*: SET_MESSAGE_INTERVAL). A rate
+        refused is a warning: the stream goes on at PX4's own rate."""
+        tel = self._tel
+        asks = [
+            ("attitude", tel.set_rate_attitude_euler, self.attitude_rate_hz),
+            ("IMU", tel.set_rate_imu, self.attitude_rate_hz),
+            ("local position", tel.set_rate_position_velocity_ned, self.position_rate_hz),
+            ("global position", tel.set_rate_position, self.position_rate_hz),
+        ]
+        for what, set_rate, hz in asks:
+            if hz is None:
+                continue
+            try:
+                await set_rate(hz)
+            except Exception as err:  # MAVSDK's TelemetryError, or the link gone meanwhile
+                log.warning("PX4 did not take %s at %g Hz (%s): it streams at its own rate", what, hz, err)
+            else:
+                log.info("PX4 streams %s at %g Hz", what, hz)
 
     def _start_streams(self) -> None:
         tel, loop = self._tel, asyncio.get_running_loop()
@@ -250,6 +274,8 @@ class Px4Telemetry(Px4Link):
             loop.create_task(self._consume(lambda: self._direct.subscribe_message("RC_CHANNELS"), on_rc_channels))
         )
         self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
+        if self.attitude_rate_hz is not None or self.position_rate_hz is not None:
+            self._tasks.append(loop.create_task(self._set_stream_rates(), name="px4-stream-rates"))
         if self.setpoint_transport == "offboard":
             self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
 
