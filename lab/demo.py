@@ -182,6 +182,24 @@ def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
     return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
 
 
+def loopback_autopilot(config: CompanionConfig, backend: str, port: int, tlog: Any = None) -> Autopilot:
+    """The ``backend``'s autopilot ("px4": MAVSDK, else pymavlink) listening on loopback UDP
+    ``port`` for a MAVLink sim vehicle, with the configured link timeout and stream rates."""
+    from companion.autopilot.ardupilot import ArduPilotAutopilot
+    from companion.autopilot.ardupilot.requests import configured_stream_rates
+    from companion.autopilot.px4 import Px4Autopilot
+
+    rt = config.runtime
+    if backend == "px4":
+        px4 = Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=rt.link_timeout_s, tlog=tlog)
+        px4.attitude_rate_hz, px4.position_rate_hz = rt.autopilot_attitude_rate_hz, rt.autopilot_position_rate_hz
+        return px4
+    rates = configured_stream_rates(rt.autopilot_attitude_rate_hz, rt.autopilot_position_rate_hz)
+    return ArduPilotAutopilot(
+        f"udpin:127.0.0.1:{port}", link_timeout_s=rt.link_timeout_s, tlog=tlog, stream_rates_hz=rates
+    )
+
+
 async def fly(
     config: CompanionConfig,
     run_dir: Path | None = None,
@@ -219,9 +237,6 @@ async def fly(
     if mavlink is None:
         ap = sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
     else:
-        from companion.autopilot.ardupilot import ArduPilotAutopilot
-        from companion.autopilot.ardupilot.requests import configured_stream_rates
-        from companion.autopilot.px4 import Px4Autopilot
         from companion.flightlog.tlog_writer import open_tlog
         from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 
@@ -237,23 +252,7 @@ async def fly(
             vehicle=vehicle,
             params=grip,
         ).start()
-        lt = config.runtime.link_timeout_s
-        sink = open_tlog(tlog) if tlog is not None else None
-        ap = (
-            Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
-            if mavlink == "px4"
-            else ArduPilotAutopilot(
-                f"udpin:127.0.0.1:{port}",
-                link_timeout_s=lt,
-                tlog=sink,
-                stream_rates_hz=configured_stream_rates(
-                    config.runtime.autopilot_attitude_rate_hz, config.runtime.autopilot_position_rate_hz
-                ),
-            )
-        )
-        if isinstance(ap, Px4Autopilot):  # [runtime] stream rates (None: PX4's own)
-            ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
-            ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
+        ap = loopback_autopilot(config, mavlink, port, open_tlog(tlog) if tlog is not None else None)
     use_fusion = config.landing.fusion if fusion is None else fusion
     flight_log = truth_log = recorder = None
     if run_dir is not None:

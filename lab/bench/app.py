@@ -439,15 +439,12 @@ async def _run_delivery(
     logging_core: bool = True,
     cap_period_us: int | None = None,
 ) -> dict[str, Any]:
-    from companion.autopilot.ardupilot import ArduPilotAutopilot
-    from companion.autopilot.ardupilot.requests import configured_stream_rates
-    from companion.autopilot.px4 import Px4Autopilot
     from companion.delivery import shell as shell_mod
     from companion.delivery import telemetry as shell_telemetry
     from companion.delivery.shell import DeliveryShell
     from companion.flightlog.recorder import FlightRecorder
     from companion.flightlog.tlog_writer import open_tlog
-    from companion_lab.demo import _ThreadedTruth, true_pad_ned
+    from companion_lab.demo import _ThreadedTruth, loopback_autopilot, true_pad_ned
     from companion_sitl import landing_sensors
     from companion_sitl.landing_sensors import sim_landing_kit
     from companion_sitl.mavlink.factory import mavlink_sim_vehicle
@@ -466,24 +463,7 @@ async def _run_delivery(
     grip = {"GRIP_ENABLE": 1.0} if backend == "ardupilot" else None
     dialect = "px4" if backend == "px4" else "ardupilot"
     mav_sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), vehicle=vehicle, params=grip).start()
-    lt = config.runtime.link_timeout_s
-    sink = open_tlog(run_dir / "flight.tlog")
-    ap: Any = (
-        Px4Autopilot(f"udpin://127.0.0.1:{port}", link_timeout_s=lt, tlog=sink)
-        if backend == "px4"
-        else ArduPilotAutopilot(
-            f"udpin:127.0.0.1:{port}",
-            link_timeout_s=lt,
-            tlog=sink,
-            stream_rates_hz=configured_stream_rates(
-                config.runtime.autopilot_attitude_rate_hz, config.runtime.autopilot_position_rate_hz
-            ),
-        )
-    )
-
-    if isinstance(ap, Px4Autopilot):  # [runtime] stream rates (None: PX4's own)
-        ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
-        ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
+    ap: Any = loopback_autopilot(config, backend, port, open_tlog(run_dir / "flight.tlog"))
 
     class BenchCamera(landing_sensors.SimCameraSource):
         """Renders every exposure (the flight camera skips those without the pad in view): the
