@@ -52,7 +52,7 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
 }
 
 HIGHRES_IMU_ID, RAW_IMU_ID = 105, 27
-ATTITUDE_STREAMS = (30, 105, 27)  # the streams [runtime] autopilot_attitude_rate_hz sets
+ATTITUDE_STREAMS = (30, HIGHRES_IMU_ID, RAW_IMU_ID)  # the streams [runtime] autopilot_attitude_rate_hz sets
 POSITION_STREAMS = (32, 33)  # ... and autopilot_position_rate_hz
 
 
@@ -203,10 +203,15 @@ class ArduPilotRequests(ArduPilotLink):
             "unsigned one off channel 0 (SERIAL0/USB; SITL TCP 5760)"
         )
 
+    def _stream_wanted(self, mid: int) -> bool:
+        """RAW_IMU is left out once HIGHRES_IMU was accepted: it is only the fallback, and both at
+        50 Hz would have the link decode and drop 50 messages a second."""
+        return not (mid == RAW_IMU_ID and self._highres_accepted)
+
     def _streams_to_request(self) -> list[tuple[int, float]]:
-        """The requested streams, RAW_IMU left out once HIGHRES_IMU was accepted: it is only the
-        fallback, and both at 50 Hz would have the link decode and drop 50 messages a second."""
-        return [(m, hz) for m, hz in self.stream_rates_hz.items() if not (m == RAW_IMU_ID and self._highres_accepted)]
+        """The streams to ask for, HIGHRES_IMU before RAW_IMU (whether the fallback is wanted
+        depends on the answer to the first)."""
+        return sorted(self.stream_rates_hz.items(), key=lambda kv: kv[0] == RAW_IMU_ID)
 
     async def _request_streams(self) -> None:
         async def one(mid: int, hz: float) -> None:
@@ -221,17 +226,17 @@ class ArduPilotRequests(ArduPilotLink):
         self._last_stream_request = time.monotonic()
         self.counters.stream_requests += 1
         self._highres_accepted = False
-        # one at a time (the ack futures are keyed by command), HIGHRES_IMU before RAW_IMU
-        for mid, hz in sorted(self.stream_rates_hz.items(), key=lambda kv: kv[0] == RAW_IMU_ID):
-            if mid == RAW_IMU_ID and self._highres_accepted:
-                continue
-            await one(mid, hz)
+        for mid, hz in self._streams_to_request():  # one at a time: the ack futures are keyed by command
+            if self._stream_wanted(mid):
+                await one(mid, hz)
         with contextlib.suppress(AutopilotError):
             await self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, 242, retries=1)
 
     def _rerequest_streams_fire_and_forget(self) -> None:
         ts, tc = self.target_system or 1, self.target_component
         for mid, hz in self._streams_to_request():
+            if not self._stream_wanted(mid):
+                continue
             self._send(
                 functools.partial(
                     _command_long,
