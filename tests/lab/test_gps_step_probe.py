@@ -1,0 +1,50 @@
+"""The GPS-error probe's figures (lab/gps_step_probe.py) on synthetic rows."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion_lab.gps_step_probe import SINE_SETTLE_CYCLES, hover_figures, sine_response
+
+
+def test_sine_response_recovers_a_known_gain_and_lag_under_a_drift():
+    f, lag = 0.2, math.radians(100.0)
+    rows = []
+    for k in range(int((SINE_SETTLE_CYCLES + 8) / f / 0.05)):
+        t = 3.0 + 0.05 * k
+        err = 0.1 * math.sin(2 * math.pi * f * t)
+        truth = -0.7 * 0.1 * math.sin(2 * math.pi * f * t - lag) + 0.02 + 0.003 * t  # and a slow drift
+        est = 0.3 * 0.1 * math.sin(2 * math.pi * f * t)  # in phase with the error: lag 180 deg
+        rows.append((t, f, err, truth, est))
+    rows += [(0.05 * k, 0.0, 0.0, 0.0, 0.0) for k in range(60)]  # the hover before: not fitted
+    (r,) = sine_response(rows)
+    assert r["freq_hz"] == f
+    assert r["gain"] == pytest.approx(0.7, abs=1e-6)
+    assert r["phase_lag_deg"] == pytest.approx(100.0, abs=1e-4)
+    assert r["estimate_gain"] == pytest.approx(0.3, abs=1e-6)
+    with pytest.raises(ValueError, match=r"0\.2 Hz: 0 samples after the transient"):
+        sine_response([x for x in rows if x[0] < 3.0 + SINE_SETTLE_CYCLES / f])
+
+
+def test_hover_figures_on_synthetic_rows():
+    """A truth circling at 2 cm radius once every 4 s (speed 2 pi 0.02 / 4 m/s) and an estimate
+    error that is a constant plus a 1 cm east step every 2 s."""
+    rows = []
+    for k in range(400):
+        t = 0.05 * k
+        a = 2 * math.pi * t / 4.0
+        n, e = 0.02 * math.cos(a), 0.02 * math.sin(a)
+        step = 0.01 if int(t / 2.0) % 2 else -0.01
+        rows.append((t, "noise", n, e, n + 0.5, e + 0.1 + step))
+    rows += [(20.0 + 0.05 * k, "quiet", 0.0, 0.0, 0.0, 0.0) for k in range(200)]
+    f = hover_figures(rows)
+    assert f["noise"]["truth_rms_m"] == pytest.approx(0.02, rel=0.01)  # 3.75 turns after the first 5 s
+    chord = 2 * 0.02 * math.sin(math.pi * 0.5 / 4.0)  # the 0.5 s difference on the circle
+    assert f["noise"]["truth_speed_rms_m_s"] == pytest.approx(chord / 0.5, rel=0.01)
+    assert f["noise"]["estimate_error_rms_m"] == pytest.approx(0.01, rel=0.02)
+    assert f["noise"]["estimate_error_1s_rms_m"] == pytest.approx(math.sqrt(0.5) * 0.02, rel=0.05)
+    assert f["quiet"] == {k: 0.0 for k in f["quiet"]}
+    with pytest.raises(ValueError, match="phase 'quiet': 0 samples"):
+        hover_figures(rows[:400] + rows[400:402])
