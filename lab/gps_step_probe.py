@@ -13,7 +13,10 @@ each (OUT/hover_noise.csv; :func:`hover_figures`).
 
 ``--sine-hz 0.1,0.3,...`` drives the glitch as a sine of ``--amplitude-m`` at each frequency in
 turn instead (OUT/gps_sine.csv) and prints the frequency response: the truth's move against the
-GPS error's opposite, gain and phase lag per frequency (:func:`sine_response`).
+GPS error's opposite, gain and phase lag per frequency (:func:`sine_response`). With
+``--wind-mean-m-s M`` it drives the wind from the north instead, M plus a sine of
+``--amplitude-m`` in m/s (SIM_WIND_SPD; OUT/wind_sine.csv), and the gain is the truth's move north
+in m per m/s of wind blowing north (the SITL's wind at 60 m: it fades towards the ground).
 """
 
 from __future__ import annotations
@@ -32,11 +35,12 @@ from companion.config import CompanionConfig, SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.real_vehicle import real_vehicle
 from companion_lab.firmware_probe import hover_in_offboard
-from companion_lab.real_weather import FirmwareWeather, glitch_deg, static_params
+from companion_lab.real_weather import WIND_TC_S, FirmwareWeather, glitch_deg, static_params
 from companion_sitl.vehicle import GaussMarkov, SimVehicle
 
 COLUMNS = ("t_s", "phase", "truth_n_m", "est_n_m")
 SINE_COLUMNS = ("t_s", "freq_hz", "gps_error_n_m", "truth_n_m", "est_n_m")
+WIND_SINE_COLUMNS = ("t_s", "freq_hz", "wind_n_m_s", "truth_n_m", "est_n_m")
 SINE_SETTLE_CYCLES = 1.5  # the transient left out of each frequency's fit
 
 
@@ -81,11 +85,12 @@ async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[
 
 
 async def sine_probe(
-    out_dir: Path, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0
+    out_dir: Path, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0, wind_mean_m_s: float = 0.0
 ) -> list[dict[str, float]]:
     """Hover in GUIDED on a zero velocity and drive the GPS glitch north as a sine of
     ``amplitude_m`` at each frequency in turn (SINE_SETTLE_CYCLES, then at least 6 cycles and
-    12 s), sent every 50 ms; returns :func:`sine_response`."""
+    12 s), sent every 50 ms; returns :func:`sine_response`. ``wind_mean_m_s`` > 0: the wind from
+    the north instead, that mean plus the sine (m/s)."""
     rows: list[tuple[float, float, float, float, float]] = []
     async with real_vehicle("ardupilot", out_dir) as rv:
         ap = rv.backend(CompanionConfig(autopilot="ardupilot"))
@@ -100,26 +105,35 @@ async def sine_probe(
             await hover_in_offboard(ap, truth, alt_m)
             origin = truth.origin
             assert origin is not None
+            if wind_mean_m_s > 0.0:  # from the north, the SITL's low-pass short as the campaign sets it
+                for name, value in (("SIM_WIND_DIR", 0.0), ("SIM_WIND_TURB", 0.0), ("SIM_WIND_TC", WIND_TC_S)):
+                    await asyncio.to_thread(truth.set_param, name, value)
+                await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD", wind_mean_m_s)
             t0 = time.monotonic()
             for f in [0.0, *freqs_hz]:  # 0: 5 s of hover first
                 seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
                 tf = time.monotonic()
                 while (now := time.monotonic()) < tf + seconds:
-                    err = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
-                    truth.send_param("SIM_GPS1_GLTCH_X", glitch_deg(err, 0.0, origin.lat_deg)[0])
+                    x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
+                    if wind_mean_m_s > 0.0:
+                        truth.send_param("SIM_WIND_SPD", wind_mean_m_s + x)
+                        x = -(wind_mean_m_s + x)  # the air's velocity north
+                    else:
+                        truth.send_param("SIM_GPS1_GLTCH_X", glitch_deg(x, 0.0, origin.lat_deg)[0])
                     ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
                     p = ap.telemetry.position_ned
                     if p is not None:
-                        rows.append((now - t0, f, err, truth.pn, p.north_m))
+                        rows.append((now - t0, f, x, truth.pn, p.north_m))
                     await asyncio.sleep(0.05)
-            await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", 0.0)
+            await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
         finally:
             await ap.close()
-    with open(out_dir / "gps_sine.csv", "w", newline="") as f_out:
+    wind = wind_mean_m_s > 0.0
+    with open(out_dir / ("wind_sine.csv" if wind else "gps_sine.csv"), "w", newline="") as f_out:
         w = csv.writer(f_out)
-        w.writerow(SINE_COLUMNS)
+        w.writerow(WIND_SINE_COLUMNS if wind else SINE_COLUMNS)
         w.writerows(rows)
-    return sine_response(rows)
+    return sine_response(rows, input_sign=1.0 if wind else -1.0)
 
 
 HOVER_COLUMNS = ("t_s", "phase", "truth_n_m", "truth_e_m", "est_n_m", "est_e_m")
@@ -219,7 +233,7 @@ class _SineError(GaussMarkov):
 
 
 def profile_sine_response(
-    profile: str, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0
+    profile: str, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0, wind_mean_m_s: float = 0.0
 ) -> list[dict[str, float]]:
     """The same probe flown by the embedded vehicle with a firmware profile (sitl/profiles.py),
     calm air and no GPS wander but the sine: what the profile says the firmware does."""
@@ -241,20 +255,32 @@ def profile_sine_response(
     rows: list[tuple[float, float, float, float, float]] = []
     for f in [0.0, *freqs_hz]:
         seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
-        sine.freq_hz, sine.amplitude_m, sine.t0_s = f, amplitude_m, v.time_s
         t_stop = v.time_s + seconds
+        if wind_mean_m_s > 0.0:
+            t0 = v.time_s
+            while v.time_s < t_stop:
+                x = wind_mean_m_s + amplitude_m * math.sin(2.0 * math.pi * f * (v.time_s - t0))
+                v.set_wind(x, 0.0)  # from the north, held for the next 50 ms as the SITL's is
+                v.set_velocity(zero)
+                v.step_to(v.time_s + 0.05)
+                rows.append((v.time_s, f, -x, v.pn, v.position_ned().north_m))
+            continue
+        sine.freq_hz, sine.amplitude_m, sine.t0_s = f, amplitude_m, v.time_s
         while v.time_s < t_stop:
             v.set_velocity(zero)
             v.step_to(v.time_s + 0.05)
             rows.append((v.time_s, f, sine.x, v.pn, v.position_ned().north_m))
-    return sine_response(rows)
+    return sine_response(rows, input_sign=1.0 if wind_mean_m_s > 0.0 else -1.0)
 
 
-def sine_response(rows: list[tuple[float, float, float, float, float]]) -> list[dict[str, float]]:
-    """Per frequency (rows: t, f, GPS error, truth, estimate), the truth's move against the GPS
-    error's opposite (a vehicle held on an estimate that takes the error moves by -error at
-    DC): gain and phase lag (deg), each signal least-squares fitted with a sine, a cosine and a
-    straight line over the samples after SINE_SETTLE_CYCLES; the estimate's move the same way."""
+def sine_response(
+    rows: list[tuple[float, float, float, float, float]], input_sign: float = -1.0
+) -> list[dict[str, float]]:
+    """Per frequency (rows: t, f, input, truth, estimate), the truth's move against
+    ``input_sign`` x the input (-1 for a GPS error: a vehicle held on an estimate that takes the
+    error moves by -error at DC): gain and phase lag (deg), each signal least-squares fitted with
+    a sine, a cosine and a straight line over the samples after SINE_SETTLE_CYCLES; the
+    estimate's move the same way."""
     out = []
     for f in sorted({r[1] for r in rows if r[1] > 0.0}):
         seg = [r for r in rows if r[1] == f]
@@ -263,7 +289,7 @@ def sine_response(rows: list[tuple[float, float, float, float, float]]) -> list[
         if len(seg) < 20:
             raise ValueError(f"{f} Hz: {len(seg)} samples after the transient, need 20")
         t = np.array([r[0] for r in seg])
-        u = -_phasor(t, f, np.array([r[2] for r in seg]))
+        u = input_sign * _phasor(t, f, np.array([r[2] for r in seg]))
         y = _phasor(t, f, np.array([r[3] for r in seg]))
         e = _phasor(t, f, np.array([r[4] for r in seg]))
         out.append(
@@ -299,6 +325,7 @@ def main() -> None:
     ap.add_argument("--sine-hz", type=str, default="", help="comma-separated frequencies: the sine probe")
     ap.add_argument("--amplitude-m", type=float, default=0.1, help="the sine probe's GPS error amplitude")
     ap.add_argument("--profile", default="", help="fly the sine probe on this firmware profile instead")
+    ap.add_argument("--wind-mean-m-s", type=float, default=0.0, help="the sine probe drives the wind, about this mean")
     ap.add_argument("--hover-noise-s", type=float, default=0.0, help="the sensor-noise hover probe, seconds a phase")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
@@ -309,9 +336,9 @@ def main() -> None:
     if a.sine_hz:
         freqs = [float(x) for x in a.sine_hz.split(",")]
         if a.profile:
-            res = profile_sine_response(a.profile, freqs, a.amplitude_m)
+            res = profile_sine_response(a.profile, freqs, a.amplitude_m, wind_mean_m_s=a.wind_mean_m_s)
         else:
-            res = asyncio.run(sine_probe(a.out, freqs, a.amplitude_m))
+            res = asyncio.run(sine_probe(a.out, freqs, a.amplitude_m, wind_mean_m_s=a.wind_mean_m_s))
         for r in res:
             print("  ".join(f"{k} {v:.3f}" for k, v in r.items()))
         return

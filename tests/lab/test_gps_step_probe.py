@@ -24,6 +24,10 @@ def test_sine_response_recovers_a_known_gain_and_lag_under_a_drift():
     assert r["gain"] == pytest.approx(0.7, abs=1e-6)
     assert r["phase_lag_deg"] == pytest.approx(100.0, abs=1e-4)
     assert r["estimate_gain"] == pytest.approx(0.3, abs=1e-6)
+    # the same rows as a wind probe's (the truth against the input itself): half a turn apart
+    (w,) = sine_response(rows, input_sign=1.0)
+    assert w["gain"] == pytest.approx(0.7, abs=1e-6)
+    assert w["phase_lag_deg"] == pytest.approx(100.0 - 180.0, abs=1e-4)
     with pytest.raises(ValueError, match=r"0\.2 Hz: 0 samples after the transient"):
         sine_response([x for x in rows if x[0] < 3.0 + SINE_SETTLE_CYCLES / f])
 
