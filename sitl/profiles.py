@@ -87,6 +87,10 @@ class AutopilotProfile:
     # velocity loop's own lag); 0: the error moves only the estimate
     gps_error_moves_vehicle_tau_s: float = 0.0
     gps_error_estimate_tau_s: float = 1.0
+    # > 0: the estimate takes the error through a second-order response instead, natural
+    # frequency 1 / gps_error_estimate_tau_s and this damping ratio (an estimator that carries a
+    # velocity state overshoots a step: ArduCopter's EKF3)
+    gps_error_estimate_damping: float = 0.0
     has_wind: bool = True
     # wind x sqrt(height / H) below H (ArduPilot SITL's default SIM_WIND_T = 0, SIM_WIND_T_ALT =
     # 60 m: no wind on the ground); 0 = the same wind at every height
@@ -172,10 +176,11 @@ PROFILES: dict[str, AutopilotProfile] = {
         # within a few cm (the probe), where a loop flying on this error would wander
         velocity_loop_on_estimate=False,
         land_detect_s=1.38,
-        # fitted to a 1 m SIM_GPS1_GLTCH_X step in GUIDED (gps_step_probe; firmware-ardupilot.md):
-        # truth 63 % moved in 2.3 s, 10 % overshoot; the fit 5.7 cm RMS over 8 s
-        gps_error_estimate_tau_s=0.8,
-        gps_error_moves_vehicle_tau_s=1.1,
+        # fitted to the truth's response to a 0.1 m SIM_GPS1_GLTCH_X sine at 0.05-0.5 Hz in GUIDED
+        # (gps_step_probe --sine-hz; firmware-ardupilot.md): a resonance of 1.2 at 0.07-0.1 Hz
+        gps_error_estimate_tau_s=1.04,
+        gps_error_estimate_damping=0.57,
+        gps_error_moves_vehicle_tau_s=0.39,
         wind_ramp_height_m=60.0,  # SIM_WIND_T = 0 (WIND_TYPE_SQRT), SIM_WIND_T_ALT = 60 m (SITL.cpp defaults)
         sim={
             "gps_walk_m": 0.02,

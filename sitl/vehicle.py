@@ -191,6 +191,7 @@ class SimVehicle:
         # (profiles.gps_error_moves_vehicle_tau_s; N, E, m) and that motion's rate (m/s)
         self._gps_moved = [-self._walk[0].x, -self._walk[1].x]
         self._gps_in_est = [self._walk[0].x, self._walk[1].x]  # the part of the error the estimate has taken
+        self._gps_in_est_rate = [0.0, 0.0]  # its rate (m/s; the second-order response's state)
         self._gps_moved_rate = (0.0, 0.0)
         # the GPS fix's white noise (gps_noise_m) at the receiver's 5 Hz, which that target follows
         # too; its own generator, so the other draws stay as they were
@@ -372,9 +373,14 @@ class SimVehicle:
             self._step(self._dt)
 
     def _estimate(self) -> tuple[float, float, float]:
-        """The autopilot's own local position estimate (truth + GPS wander; the height off by the
+        """The autopilot's own local position estimate (truth + GPS wander, or the part of it the
+        estimate has taken where the profile moves the vehicle with it; the height off by the
         profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
+        if self.profile.gps_error_moves_vehicle_tau_s > 0.0:
+            # the horizontal error is the part the estimate has taken (gps_error_estimate_*)
+            gn, ge = self._gps_in_est
+            return (self.pn + gn, self.pe + ge, self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x)
         if self.estimator_state is not None:
             pb = self._pos_bias
             return (
@@ -425,11 +431,21 @@ class SimVehicle:
                 self._fix_next_s = t + GPS_FIX_PERIOD_S
                 r = self._rng_fix.standard_normal(2).tolist()
                 self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
-            # the estimate takes the error first (first order, gps_error_estimate_tau_s), then the
-            # position target held on the estimate moves the vehicle (first order, tau_g)
+            # the estimate takes the error first (first or second order, gps_error_estimate_*),
+            # then the position target held on the estimate moves the vehicle (first order, tau_g)
             ae, a = self._gps_lag_a
-            self._gps_in_est[0] += ae * (self._walk[0].x + self._fix_noise[0] - self._gps_in_est[0])
-            self._gps_in_est[1] += ae * (self._walk[1].x + self._fix_noise[1] - self._gps_in_est[1])
+            zeta = self.profile.gps_error_estimate_damping
+            for i in range(2):
+                err = self._walk[i].x + self._fix_noise[i]
+                if zeta > 0.0:
+                    # x'' = w^2 (err - x) - 2 zeta w x', semi-implicit Euler (w dt <= 0.03 here)
+                    w = 1.0 / self.profile.gps_error_estimate_tau_s
+                    r = self._gps_in_est_rate[i]
+                    r += dt * (w * w * (err - self._gps_in_est[i]) - 2.0 * zeta * w * r)
+                    self._gps_in_est_rate[i] = r
+                    self._gps_in_est[i] += dt * r
+                else:
+                    self._gps_in_est[i] += ae * (err - self._gps_in_est[i])
             dn = a * (-self._gps_in_est[0] - self._gps_moved[0])
             de = a * (-self._gps_in_est[1] - self._gps_moved[1])
             self._gps_moved[0] += dn

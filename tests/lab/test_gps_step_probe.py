@@ -1,4 +1,5 @@
-"""The GPS-error probe's figures (lab/gps_step_probe.py) on synthetic rows."""
+"""The GPS-error probe's frequency response (lab/gps_step_probe.py): the fit on synthetic rows, and
+the arducopter-sitl profile against what the real SITL answered."""
 
 from __future__ import annotations
 
@@ -6,7 +7,17 @@ import math
 
 import pytest
 
-from companion_lab.gps_step_probe import SINE_SETTLE_CYCLES, hover_figures, sine_response
+from companion_lab.gps_step_probe import SINE_SETTLE_CYCLES, hover_figures, profile_sine_response, sine_response
+
+# ArduCopter 4.7 SITL hovering in GUIDED, a 0.1 m SIM_GPS1_GLTCH_X sine north (gps_step_probe
+# --sine-hz, 2026-11-28): the truth's move against the GPS error's opposite, gain and phase lag
+FIRMWARE_RESPONSE = {  # Hz: (gain, lag deg)
+    0.05: (1.051, 28.3),
+    0.1: (1.176, 79.5),
+    0.16: (0.884, 139.1),
+    0.2: (0.556, 171.3),
+    0.3: (0.250, 235.5),
+}
 
 
 def test_sine_response_recovers_a_known_gain_and_lag_under_a_drift():
@@ -30,6 +41,17 @@ def test_sine_response_recovers_a_known_gain_and_lag_under_a_drift():
     assert w["phase_lag_deg"] == pytest.approx(100.0 - 180.0, abs=1e-4)
     with pytest.raises(ValueError, match=r"0\.2 Hz: 0 samples after the transient"):
         sine_response([x for x in rows if x[0] < 3.0 + SINE_SETTLE_CYCLES / f])
+
+
+def test_the_arducopter_profile_answers_a_gps_sine_as_the_firmware_did():
+    """The profile's vehicle carries the GPS error's slow part as ArduCopter's GUIDED does,
+    resonance at 0.1 Hz included; the ideal vehicle does not move."""
+    freqs = sorted(FIRMWARE_RESPONSE)
+    for r in profile_sine_response("arducopter-sitl", freqs):
+        gain, lag = FIRMWARE_RESPONSE[r["freq_hz"]]
+        assert r["gain"] == pytest.approx(gain, rel=0.2, abs=0.03), r
+        assert (r["phase_lag_deg"] - lag + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=10.0), r
+    assert max(r["gain"] for r in profile_sine_response("ideal", [0.1, 0.2])) < 0.02
 
 
 def test_hover_figures_on_synthetic_rows():

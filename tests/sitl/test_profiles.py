@@ -277,8 +277,9 @@ def test_a_gps_error_moves_an_arducopter_vehicle_and_not_its_estimate():
     """ArduCopter's GUIDED holds its position target on its estimate: hovering on a zero
     velocity, a 1 m step of the GPS error north moved the real SITL 0.98 m south on truth, 63 % of
     it in 2.3 s, while its estimate came back (gps_step_probe, firmware-ardupilot.md). The
-    arducopter-sitl profile does the same; PX4 SIH's velocity loop flies on its estimate, whose
-    wander is PX4's own, and the ideal vehicle ignores the error."""
+    arducopter-sitl profile (fitted to the small-signal sine, tests/lab/test_gps_step_probe.py)
+    does the same on the step; PX4 SIH's velocity loop flies on its estimate, whose wander is
+    PX4's own, and the ideal vehicle ignores the error."""
     moved = {}
     for name in ("arducopter-sitl", "ideal"):
         v = SimVehicle(SimConfig(profile=name, seed=1))
@@ -305,6 +306,37 @@ def test_a_gps_error_moves_an_arducopter_vehicle_and_not_its_estimate():
             assert trace[-1][1] == pytest.approx(-1.0, abs=0.05)
             assert v._local()[0] - est0 == pytest.approx(0.0, abs=0.05)  # the estimate came back
     assert max(abs(dn) for _, dn in moved["ideal"]) < 0.02
+
+
+def test_the_arducopter_estimate_takes_a_gps_step_as_a_second_order_response():
+    """x'' = w^2 (err - x) - 2 zeta w x' (profiles.gps_error_estimate_damping): a unit step peaks
+    at 1 + exp(-pi zeta / sqrt(1 - zeta^2)) at t = pi / (w sqrt(1 - zeta^2)), and the estimate
+    the autopilot reports carries that part of the error, not the whole of it at once."""
+    pr = PROFILES["arducopter-sitl"]
+    zeta, w = pr.gps_error_estimate_damping, 1.0 / pr.gps_error_estimate_tau_s
+    assert 0.0 < zeta < 1.0
+    v = SimVehicle(SimConfig(profile="arducopter-sitl", seed=1, gps_noise_m=0.0))
+    t = _switched_to_offboard(v, _airborne(v, 6.0))
+    for wk in v._walk:  # the error held where it is put
+        wk.sigma, wk.tau = 0.0, 1e9
+    for _ in range(200):
+        t += 0.05
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        v.step_to(t)
+    x0 = v._gps_in_est[0]
+    v._walk[0].x += 1.0
+    t0, peak = t, (0.0, -1.0)
+    while t < t0 + 12.0:
+        t += 0.01
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        v.step_to(t)
+        x = v._gps_in_est[0] - x0
+        if x > peak[1]:
+            peak = (t - t0, x)
+        assert v._local()[0] - v.pn == pytest.approx(v._gps_in_est[0] - v._home_offset[0], abs=1e-9)
+    d = math.sqrt(1.0 - zeta * zeta)
+    assert peak[1] == pytest.approx(1.0 + math.exp(-math.pi * zeta / d), abs=0.003)
+    assert peak[0] == pytest.approx(math.pi / (w * d), abs=0.03)
 
 
 def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_in_hold():
