@@ -26,14 +26,18 @@ import asyncio
 import csv
 import math
 import time
+from collections.abc import AsyncIterator, Sequence
+from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig, SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.real_vehicle import real_vehicle
+from companion_firmware.truth_feed import MavlinkTruth
 from companion_lab.firmware_probe import hover_in_offboard
 from companion_lab.real_weather import WIND_TC_S, FirmwareWeather, glitch_deg, static_params
 from companion_sitl.vehicle import GaussMarkov, SimVehicle
@@ -44,43 +48,54 @@ WIND_SINE_COLUMNS = ("t_s", "freq_hz", "wind_n_m_s", "truth_n_m", "est_n_m")
 SINE_SETTLE_CYCLES = 1.5  # the transient left out of each frequency's fit
 
 
-async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[str, Any]:
-    rows: list[tuple[float, str, float, float]] = []
+@asynccontextmanager
+async def _hovering(out_dir: Path, alt_m: float) -> AsyncIterator[tuple[Autopilot, MavlinkTruth]]:
+    """ArduCopter SITL started in ``out_dir``, healthy (within 120 s) and hovering at ``alt_m``
+    in GUIDED on a zero velocity: the backend and the truth link; the backend closed after."""
     async with real_vehicle("ardupilot", out_dir) as rv:
         ap = rv.backend(CompanionConfig(autopilot="ardupilot"))
         await ap.connect(timeout_s=20.0)
-        truth = rv.truth
         try:
             t_end = time.monotonic() + 120.0
             while not ((st := ap.telemetry.status) is not None and st.healthy):
                 if time.monotonic() > t_end:
                     raise TimeoutError("ArduCopter SITL not healthy within 120 s")
                 await asyncio.sleep(0.2)
-            await hover_in_offboard(ap, truth, alt_m)
-            t0 = time.monotonic()
-
-            async def hold(seconds: float, phase: str) -> None:
-                t_stop = time.monotonic() + seconds
-                while time.monotonic() < t_stop:
-                    ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-                    p = ap.telemetry.position_ned
-                    if p is not None:
-                        rows.append((time.monotonic() - t0, phase, truth.pn, p.north_m))
-                    await asyncio.sleep(0.05)
-
-            origin = truth.origin
-            assert origin is not None
-            await hold(8.0, "hover")
-            await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", glitch_deg(step_m, 0.0, origin.lat_deg)[0])
-            await hold(15.0, "glitch")
-            await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", 0.0)
-            await hold(12.0, "cleared")
+            await hover_in_offboard(ap, rv.truth, alt_m)
+            yield ap, rv.truth
         finally:
             await ap.close()
-    with open(out_dir / "gps_step.csv", "w", newline="") as f:
+
+
+def _write_csv(path: Path, columns: tuple[str, ...], rows: Sequence[Sequence[object]]) -> None:
+    with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(COLUMNS)
+        w.writerow(columns)
         w.writerows(rows)
+
+
+async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[str, Any]:
+    rows: list[tuple[float, str, float, float]] = []
+    async with _hovering(out_dir, alt_m) as (ap, truth):
+        t0 = time.monotonic()
+
+        async def hold(seconds: float, phase: str) -> None:
+            t_stop = time.monotonic() + seconds
+            while time.monotonic() < t_stop:
+                ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+                p = ap.telemetry.position_ned
+                if p is not None:
+                    rows.append((time.monotonic() - t0, phase, truth.pn, p.north_m))
+                await asyncio.sleep(0.05)
+
+        origin = truth.origin
+        assert origin is not None
+        await hold(8.0, "hover")
+        await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", glitch_deg(step_m, 0.0, origin.lat_deg)[0])
+        await hold(15.0, "glitch")
+        await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", 0.0)
+        await hold(12.0, "cleared")
+    _write_csv(out_dir / "gps_step.csv", COLUMNS, rows)
     return figures(rows, step_m)
 
 
@@ -92,48 +107,35 @@ async def sine_probe(
     12 s), sent every 50 ms; returns :func:`sine_response`. ``wind_mean_m_s`` > 0: the wind from
     the north instead, that mean plus the sine (m/s)."""
     rows: list[tuple[float, float, float, float, float]] = []
-    async with real_vehicle("ardupilot", out_dir) as rv:
-        ap = rv.backend(CompanionConfig(autopilot="ardupilot"))
-        await ap.connect(timeout_s=20.0)
-        truth = rv.truth
-        try:
-            t_end = time.monotonic() + 120.0
-            while not ((st := ap.telemetry.status) is not None and st.healthy):
-                if time.monotonic() > t_end:
-                    raise TimeoutError("ArduCopter SITL not healthy within 120 s")
-                await asyncio.sleep(0.2)
-            await hover_in_offboard(ap, truth, alt_m)
-            origin = truth.origin
-            assert origin is not None
-            if wind_mean_m_s > 0.0:  # from the north, the SITL's low-pass short as the campaign sets it
-                for name, value in (("SIM_WIND_DIR", 0.0), ("SIM_WIND_TURB", 0.0), ("SIM_WIND_TC", WIND_TC_S)):
-                    await asyncio.to_thread(truth.set_param, name, value)
-                await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD", wind_mean_m_s)
-            t0 = time.monotonic()
-            for f in [0.0, *freqs_hz]:  # 0: 5 s of hover first
-                seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
-                tf = time.monotonic()
-                while (now := time.monotonic()) < tf + seconds:
-                    x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
-                    if wind_mean_m_s > 0.0:
-                        truth.send_param("SIM_WIND_SPD", wind_mean_m_s + x)
-                        x = -(wind_mean_m_s + x)  # the air's velocity north
-                    else:
-                        truth.send_param("SIM_GPS1_GLTCH_X", glitch_deg(x, 0.0, origin.lat_deg)[0])
-                    ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-                    p = ap.telemetry.position_ned
-                    if p is not None:
-                        rows.append((now - t0, f, x, truth.pn, p.north_m))
-                    await asyncio.sleep(0.05)
-            await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
-        finally:
-            await ap.close()
-    wind = wind_mean_m_s > 0.0
-    with open(out_dir / ("wind_sine.csv" if wind else "gps_sine.csv"), "w", newline="") as f_out:
-        w = csv.writer(f_out)
-        w.writerow(WIND_SINE_COLUMNS if wind else SINE_COLUMNS)
-        w.writerows(rows)
-    return sine_response(rows, input_sign=1.0 if wind else -1.0)
+    async with _hovering(out_dir, alt_m) as (ap, truth):
+        origin = truth.origin
+        assert origin is not None
+        if wind_mean_m_s > 0.0:  # from the north, the SITL's low-pass short as the campaign sets it
+            for name, value in (("SIM_WIND_DIR", 0.0), ("SIM_WIND_TURB", 0.0), ("SIM_WIND_TC", WIND_TC_S)):
+                await asyncio.to_thread(truth.set_param, name, value)
+            await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD", wind_mean_m_s)
+        t0 = time.monotonic()
+        for f in [0.0, *freqs_hz]:  # 0: 5 s of hover first
+            seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
+            tf = time.monotonic()
+            while (now := time.monotonic()) < tf + seconds:
+                x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
+                if wind_mean_m_s > 0.0:
+                    truth.send_param("SIM_WIND_SPD", wind_mean_m_s + x)
+                    x = -(wind_mean_m_s + x)  # the air's velocity north
+                else:
+                    truth.send_param("SIM_GPS1_GLTCH_X", glitch_deg(x, 0.0, origin.lat_deg)[0])
+                ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+                p = ap.telemetry.position_ned
+                if p is not None:
+                    rows.append((now - t0, f, x, truth.pn, p.north_m))
+                await asyncio.sleep(0.05)
+        await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
+    if wind_mean_m_s > 0.0:
+        _write_csv(out_dir / "wind_sine.csv", WIND_SINE_COLUMNS, rows)
+        return sine_response(rows, input_sign=1.0)
+    _write_csv(out_dir / "gps_sine.csv", SINE_COLUMNS, rows)
+    return sine_response(rows)
 
 
 HOVER_COLUMNS = ("t_s", "phase", "truth_n_m", "truth_e_m", "est_n_m", "est_e_m")
@@ -145,36 +147,21 @@ async def hover_noise_probe(out_dir: Path, seconds: float, alt_m: float = 6.0) -
     :func:`hover_figures`."""
     rows: list[tuple[float, str, float, float, float, float]] = []
     w = FirmwareWeather.of(SimConfig())
-    async with real_vehicle("ardupilot", out_dir) as rv:
-        ap = rv.backend(CompanionConfig(autopilot="ardupilot"))
-        await ap.connect(timeout_s=20.0)
-        truth = rv.truth
-        try:
-            t_end = time.monotonic() + 120.0
-            while not ((st := ap.telemetry.status) is not None and st.healthy):
-                if time.monotonic() > t_end:
-                    raise TimeoutError("ArduCopter SITL not healthy within 120 s")
-                await asyncio.sleep(0.2)
-            hover = await asyncio.to_thread(truth.get_param, "MOT_THST_HOVER")
-            noisy = static_params(w, hover)
-            await hover_in_offboard(ap, truth, alt_m)
-            t0 = time.monotonic()
-            for phase, params in (("noise", noisy), ("quiet", [(name, 0.0) for name, _ in noisy[:3]])):
-                for name, value in params:
-                    await asyncio.to_thread(truth.set_param, name, value)
-                t_stop = time.monotonic() + seconds
-                while time.monotonic() < t_stop:
-                    ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
-                    p = ap.telemetry.position_ned
-                    if p is not None:
-                        rows.append((time.monotonic() - t0, phase, truth.pn, truth.pe, p.north_m, p.east_m))
-                    await asyncio.sleep(0.05)
-        finally:
-            await ap.close()
-    with open(out_dir / "hover_noise.csv", "w", newline="") as f_out:
-        wr = csv.writer(f_out)
-        wr.writerow(HOVER_COLUMNS)
-        wr.writerows(rows)
+    async with _hovering(out_dir, alt_m) as (ap, truth):
+        hover = await asyncio.to_thread(truth.get_param, "MOT_THST_HOVER")
+        noisy = static_params(w, hover)
+        t0 = time.monotonic()
+        for phase, params in (("noise", noisy), ("quiet", [(name, 0.0) for name, _ in noisy[:3]])):
+            for name, value in params:
+                await asyncio.to_thread(truth.set_param, name, value)
+            t_stop = time.monotonic() + seconds
+            while time.monotonic() < t_stop:
+                ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+                p = ap.telemetry.position_ned
+                if p is not None:
+                    rows.append((time.monotonic() - t0, phase, truth.pn, truth.pe, p.north_m, p.east_m))
+                await asyncio.sleep(0.05)
+    _write_csv(out_dir / "hover_noise.csv", HOVER_COLUMNS, rows)
     return hover_figures(rows)
 
 
