@@ -23,7 +23,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -247,12 +247,17 @@ def analyse(rows: list[list[Any]]) -> dict[str, Any]:
     return out
 
 
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[object]]) -> None:
+    """A probe's rows under a header row."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        w.writerows(rows)
+
+
 def write_probe(rows: list[list[Any]], out_dir: Path) -> dict[str, Any]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "probe.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(COLUMNS)
-        w.writerows(rows)
+    write_csv(out_dir / "probe.csv", COLUMNS, rows)
     figures = analyse(rows)
     (out_dir / "probe.json").write_text(json.dumps(figures, indent=2, sort_keys=True) + "\n")
     return figures

@@ -23,10 +23,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import csv
 import math
 import time
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,7 @@ from companion.config import CompanionConfig, SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.real_vehicle import real_vehicle
 from companion_firmware.truth_feed import MavlinkTruth
-from companion_lab.firmware_probe import hover_in_offboard
+from companion_lab.firmware_probe import hover_in_offboard, write_csv
 from companion_lab.real_weather import WIND_TC_S, FirmwareWeather, glitch_deg, static_params
 from companion_sitl.vehicle import GaussMarkov, SimVehicle
 
@@ -67,11 +66,10 @@ async def _hovering(out_dir: Path, alt_m: float) -> AsyncIterator[tuple[Autopilo
             await ap.close()
 
 
-def _write_csv(path: Path, columns: tuple[str, ...], rows: Sequence[Sequence[object]]) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(columns)
-        w.writerows(rows)
+def _sine_seconds(f: float) -> float:
+    """How long a frequency is driven: SINE_SETTLE_CYCLES, then at least 6 cycles and 12 s (0: a
+    5 s hover)."""
+    return 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
 
 
 async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[str, Any]:
@@ -95,7 +93,7 @@ async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[
         await hold(15.0, "glitch")
         await asyncio.to_thread(truth.set_param, "SIM_GPS1_GLTCH_X", 0.0)
         await hold(12.0, "cleared")
-    _write_csv(out_dir / "gps_step.csv", COLUMNS, rows)
+    write_csv(out_dir / "gps_step.csv", COLUMNS, rows)
     return figures(rows, step_m)
 
 
@@ -116,7 +114,7 @@ async def sine_probe(
             await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD", wind_mean_m_s)
         t0 = time.monotonic()
         for f in [0.0, *freqs_hz]:  # 0: 5 s of hover first
-            seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
+            seconds = _sine_seconds(f)
             tf = time.monotonic()
             while (now := time.monotonic()) < tf + seconds:
                 x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
@@ -132,9 +130,9 @@ async def sine_probe(
                 await asyncio.sleep(0.05)
         await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
     if wind_mean_m_s > 0.0:
-        _write_csv(out_dir / "wind_sine.csv", WIND_SINE_COLUMNS, rows)
+        write_csv(out_dir / "wind_sine.csv", WIND_SINE_COLUMNS, rows)
         return sine_response(rows, input_sign=1.0)
-    _write_csv(out_dir / "gps_sine.csv", SINE_COLUMNS, rows)
+    write_csv(out_dir / "gps_sine.csv", SINE_COLUMNS, rows)
     return sine_response(rows)
 
 
@@ -161,7 +159,7 @@ async def hover_noise_probe(out_dir: Path, seconds: float, alt_m: float = 6.0) -
                 if p is not None:
                     rows.append((time.monotonic() - t0, phase, truth.pn, truth.pe, p.north_m, p.east_m))
                 await asyncio.sleep(0.05)
-    _write_csv(out_dir / "hover_noise.csv", HOVER_COLUMNS, rows)
+    write_csv(out_dir / "hover_noise.csv", HOVER_COLUMNS, rows)
     return hover_figures(rows)
 
 
@@ -241,7 +239,7 @@ def profile_sine_response(
     v.start_offboard()
     rows: list[tuple[float, float, float, float, float]] = []
     for f in [0.0, *freqs_hz]:
-        seconds = 5.0 if f == 0.0 else (SINE_SETTLE_CYCLES + max(6.0, 12.0 * f)) / f
+        seconds = _sine_seconds(f)
         t_stop = v.time_s + seconds
         if wind_mean_m_s > 0.0:
             t0 = v.time_s

@@ -208,6 +208,9 @@ class SimVehicle:
             if pr.gps_error_moves_vehicle_tau_s > 0.0
             else (0.0, 0.0)
         )
+        # the second-order estimate's x'' = w^2 (err - x) - 2 zeta w x': (w^2, 2 zeta w); 0: first order
+        w_e = 1.0 / pr.gps_error_estimate_tau_s
+        self._gps_est_2nd = (w_e * w_e, 2.0 * pr.gps_error_estimate_damping * w_e)
         self._bias = tuple(c.gps_bias_m)
         self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
         self._ltp = LocalTangentPlane(self._home_true)
@@ -377,18 +380,14 @@ class SimVehicle:
         estimate has taken where the profile moves the vehicle with it; the height off by the
         profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
+        d = self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x
         if self.profile.gps_error_moves_vehicle_tau_s > 0.0:
             # the horizontal error is the part the estimate has taken (gps_error_estimate_*)
-            gn, ge = self._gps_in_est
-            return (self.pn + gn, self.pe + ge, self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x)
+            return (self.pn + self._gps_in_est[0], self.pe + self._gps_in_est[1], d)
         if self.estimator_state is not None:
             pb = self._pos_bias
-            return (
-                self.pn + w[0].x + pb[0],
-                self.pe + w[1].x + pb[1],
-                self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x,
-            )
-        return (self.pn + w[0].x, self.pe + w[1].x, self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x)
+            return (self.pn + w[0].x + pb[0], self.pe + w[1].x + pb[1], d)
+        return (self.pn + w[0].x, self.pe + w[1].x, d)
 
     def _velocity_bias(self) -> tuple[float, float]:
         """The estimator state's horizontal velocity bias (N, E) at the true height above ground:
@@ -434,16 +433,14 @@ class SimVehicle:
             # the estimate takes the error first (first or second order, gps_error_estimate_*),
             # then the position target held on the estimate moves the vehicle (first order, tau_g)
             ae, a = self._gps_lag_a
-            zeta = self.profile.gps_error_estimate_damping
+            w2, c2 = self._gps_est_2nd
             for i in range(2):
                 err = self._walk[i].x + self._fix_noise[i]
-                if zeta > 0.0:
-                    # x'' = w^2 (err - x) - 2 zeta w x', semi-implicit Euler (w dt <= 0.03 here)
-                    w = 1.0 / self.profile.gps_error_estimate_tau_s
-                    r = self._gps_in_est_rate[i]
-                    r += dt * (w * w * (err - self._gps_in_est[i]) - 2.0 * zeta * w * r)
-                    self._gps_in_est_rate[i] = r
-                    self._gps_in_est[i] += dt * r
+                if c2 > 0.0:  # second order, semi-implicit Euler (w dt <= 0.03 here)
+                    rate = self._gps_in_est_rate[i]
+                    rate += dt * (w2 * (err - self._gps_in_est[i]) - c2 * rate)
+                    self._gps_in_est_rate[i] = rate
+                    self._gps_in_est[i] += dt * rate
                 else:
                     self._gps_in_est[i] += ae * (err - self._gps_in_est[i])
             dn = a * (-self._gps_in_est[0] - self._gps_moved[0])
