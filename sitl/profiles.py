@@ -13,8 +13,9 @@ attitude offset, a horizontal velocity bias over height that the vehicle flies o
 states are ``data/px4_sih_traced.toml`` and one is drawn per flight. PX4 steers its attitude
 estimate, so the vehicle's true attitude is the setpoint minus that offset.
 
-ArduCopter's GUIDED velocity is jerk-shaped and closes on its position estimate; its velocity
-gains are the firmware's own (PSC_VELXY_P / _I).
+ArduCopter's GUIDED velocity is flown as AC_PosControl flies it: the setpoint shaped with the
+firmware's jerk and acceleration limits into a position target held on the estimate; its gains
+are the firmware's own (PSC_POSXY_P, PSC_VELXY_P / _I, PSC_JERK_XY, WPNAV_ACCEL).
 
 ``ideal`` is the embedded simulator without any firmware's errors.
 """
@@ -80,17 +81,28 @@ class AutopilotProfile:
     # the estimator's states, one drawn per flight by probability (none: no per-flight bias)
     estimator_states: tuple[EstimatorState, ...] = ()
     land_detect_s: float = 0.6
-    # ArduCopter's GUIDED holds its position target on its estimate, so a change of the GPS error
-    # (the profile's wander and its 5 Hz fix noise) moves the vehicle the other way while the
-    # estimate returns: the estimate takes the error with gps_error_estimate_tau_s, the target
-    # held on it moves the vehicle with gps_error_moves_vehicle_tau_s (both first order, then the
-    # velocity loop's own lag); 0: the error moves only the estimate
-    gps_error_moves_vehicle_tau_s: float = 0.0
-    gps_error_estimate_tau_s: float = 1.0
-    # > 0: the estimate takes the error through a second-order response instead, natural
-    # frequency 1 / gps_error_estimate_tau_s and this damping ratio (an estimator that carries a
-    # velocity state overshoots a step: ArduCopter's EKF3)
+    # > 0: the autopilot's estimate takes the GPS error (the profile's wander and its 5 Hz fix
+    # noise) with this time constant instead of at once, and its velocity estimate carries the
+    # rate at which it does (ArduCopter's EKF3); 0: the estimate is truth + the error
+    gps_error_estimate_tau_s: float = 0.0
+    # > 0: the estimate takes it through a second-order response instead, natural frequency
+    # 1 / gps_error_estimate_tau_s and this damping ratio (an estimator that carries a velocity
+    # state overshoots a step)
     gps_error_estimate_damping: float = 0.0
+    # the share of the rate at which the estimate takes the error that the velocity estimate the
+    # velocity loop closes on carries (1: an estimate whose velocity is its position's rate)
+    gps_error_velocity_share: float = 1.0
+    # > 0: an offboard velocity setpoint is flown as ArduCopter's GUIDED flies it
+    # (AC_PosControl::input_vel_accel_xy, then update_xy_controller): shaped into a desired
+    # velocity and acceleration (the velocity error closed with jerk / accel, square root above
+    # the linear range, acceleration and jerk limited), the desired velocity integrated into a
+    # position target, and the velocity loop asked for the desired velocity + position P x
+    # (target - estimate) with the desired acceleration fed forward. A wind change or a GPS error
+    # then moves the vehicle only until the target pulls it back. 0: the velocity loop takes the
+    # setpoint as it comes (PX4's offboard velocity)
+    guided_jerk_max_m_s3: float = 0.0  # PSC_JERK_XY
+    guided_accel_max_m_s2: float = 2.5  # WPNAV_ACCEL
+    guided_position_p_1_s: float = 1.0  # PSC_POSXY_P
     has_wind: bool = True
     # wind x sqrt(height / H) below H (ArduPilot SITL's default SIM_WIND_T = 0, SIM_WIND_T_ALT =
     # 60 m: no wind on the ground); 0 = the same wind at every height
@@ -166,9 +178,10 @@ PROFILES: dict[str, AutopilotProfile] = {
     ),
     "arducopter-sitl": AutopilotProfile(
         "arducopter-sitl",
-        "ArduCopter 4.7 SITL: near-perfect estimate (2 cm, 2 cm/s), jerk-shaped GUIDED velocity "
-        "(63 % in 0.9 s), 1.4 s land detector, armable after 41 s, SIM_WIND_* wind without turbulence "
-        "and fading to nothing on the ground",
+        "ArduCopter 4.7 SITL: near-perfect estimate (2 cm, 2 cm/s), GUIDED velocity shaped into a "
+        "position target held on the estimate (63 % of a 2 m/s step in 0.9 s; a GPS error or a gust moves "
+        "the vehicle until the target pulls it back), 1.4 s land detector, armable after 41 s, SIM_WIND_* "
+        "wind without turbulence and fading to nothing on the ground",
         velocity_error_m_s=0.017,
         velocity_error_down_m_s=0.006,
         velocity_error_tau_s=2.3,
@@ -176,11 +189,15 @@ PROFILES: dict[str, AutopilotProfile] = {
         # within a few cm (the probe), where a loop flying on this error would wander
         velocity_loop_on_estimate=False,
         land_detect_s=1.38,
-        # fitted to the truth's response to a 0.1 m SIM_GPS1_GLTCH_X sine at 0.05-0.5 Hz in GUIDED
-        # (gps_step_probe --sine-hz; firmware-ardupilot.md): a resonance of 1.2 at 0.07-0.1 Hz
-        gps_error_estimate_tau_s=1.04,
-        gps_error_estimate_damping=0.57,
-        gps_error_moves_vehicle_tau_s=0.39,
+        # the estimate's response and the drag fitted (with GUIDED's own gains below) to the truth's
+        # response to a 0.1 m SIM_GPS1_GLTCH_X sine and to a 1 m/s wind sine at 0.05-0.5 Hz in
+        # GUIDED (gps_step_probe --sine-hz; firmware-ardupilot.md)
+        gps_error_estimate_tau_s=1.0,
+        gps_error_estimate_damping=0.54,
+        gps_error_velocity_share=0.26,
+        guided_jerk_max_m_s3=5.0,  # PSC_JERK_XY
+        guided_accel_max_m_s2=2.5,  # WPNAV_ACCEL 250 cm/s^2
+        guided_position_p_1_s=1.0,  # PSC_POSXY_P
         wind_ramp_height_m=60.0,  # SIM_WIND_T = 0 (WIND_TYPE_SQRT), SIM_WIND_T_ALT = 60 m (SITL.cpp defaults)
         sim={
             "gps_walk_m": 0.02,
@@ -192,8 +209,11 @@ PROFILES: dict[str, AutopilotProfile] = {
         vehicle={
             "velocity_p_gain": 2.0,  # PSC_VELXY_P (AC_PosControl.h POSCONTROL_VEL_XY_P)
             "velocity_i_gain": 1.0,  # PSC_VELXY_I (POSCONTROL_VEL_XY_I)
-            "drag_coefficient_1_s": 0.1,
-            "max_horizontal_accel_m_s2": 2.0,
+            "drag_coefficient_1_s": 0.30,  # fitted with the wind sine (above)
+            # the tilt limits the acceleration (GUIDED's shaping keeps it to WPNAV_ACCEL): the 2 m/s
+            # step's 63 % in 0.88 s, as measured
+            "max_tilt_deg": 30.0,  # ANGLE_MAX 3000 cdeg
+            "max_horizontal_accel_m_s2": 10.0,
             "land_speed_m_s": 0.5,  # LAND_SPEED 50 cm/s
             "offboard_loss_timeout_s": 3.0,  # GUID_TIMEOUT
         },

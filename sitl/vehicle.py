@@ -53,6 +53,19 @@ GPS_FIX_PERIOD_S = 0.2  # a GPS receiver's 5 Hz fixes (ArduPilot SITL's default 
 PARCEL_STEP_HZ = 1000.0  # the parcel pendulum's least integration rate (sitl/winch.py)
 
 
+def _sqrt_controller_2d(en: float, ee: float, p: float, second_ord_lim: float, dt: float) -> tuple[float, float]:
+    """ArduPilot's sqrt_controller on a 2-D error: p x error up to the distance where the
+    correction's rate would reach ``second_ord_lim``, a square root beyond it, never more than
+    the error closed in one ``dt``."""
+    e = math.hypot(en, ee)
+    if e == 0.0:
+        return 0.0, 0.0
+    linear = second_ord_lim / (p * p)
+    c = math.sqrt(2.0 * second_ord_lim * (e - 0.5 * linear)) if e > linear else p * e
+    c = min(c, e / dt)
+    return en * c / e, ee * c / e
+
+
 class SimCommandError(RuntimeError):
     """The simulated autopilot refused a command (as PX4 would, with its reason)."""
 
@@ -187,30 +200,27 @@ class SimVehicle:
         ]
         for w in self._walk:  # start from the stationary distribution
             w.x = w.sigma * float(self._rng_gps.standard_normal())
-        # where the wander has moved a vehicle that holds its position target on its estimate
-        # (profiles.gps_error_moves_vehicle_tau_s; N, E, m) and that motion's rate (m/s)
-        self._gps_moved = [-self._walk[0].x, -self._walk[1].x]
-        self._gps_in_est = [self._walk[0].x, self._walk[1].x]  # the part of the error the estimate has taken
-        self._gps_in_est_rate = [0.0, 0.0]  # its rate (m/s; the second-order response's state)
-        self._gps_moved_rate = (0.0, 0.0)
-        # the GPS fix's white noise (gps_noise_m) at the receiver's 5 Hz, which that target follows
+        # the part of the horizontal GPS error the estimate has taken (profiles.gps_error_estimate_*;
+        # N, E, m) and its rate (m/s: the velocity estimate's error, and the second-order state)
+        self._gps_in_est = [self._walk[0].x, self._walk[1].x]
+        self._gps_in_est_rate = [0.0, 0.0]
+        # the GPS fix's white noise (gps_noise_m) at the receiver's 5 Hz, which the estimate takes
         # too; its own generator, so the other draws stay as they were
         self._rng_fix = np.random.default_rng([c.seed, 0x6F1C])
         self._fix_noise = (0.0, 0.0)
         self._fix_next_s = 0.0
-        # the two lags' coefficients per physics step (computed once: _step runs at one dt)
+        # the estimate's response per physics step (computed once: _step runs at one dt): the
+        # first-order step coefficient, and the second-order x'' = w^2 (err - x) - 2 zeta w x' as
+        # (w^2, 2 zeta w), (0, 0) for first order
         pr = self.profile
-        self._gps_lag_a = (
-            (
-                1.0 - math.exp(-self._dt / pr.gps_error_estimate_tau_s),
-                1.0 - math.exp(-self._dt / pr.gps_error_moves_vehicle_tau_s),
-            )
-            if pr.gps_error_moves_vehicle_tau_s > 0.0
-            else (0.0, 0.0)
-        )
-        # the second-order estimate's x'' = w^2 (err - x) - 2 zeta w x': (w^2, 2 zeta w); 0: first order
-        w_e = 1.0 / pr.gps_error_estimate_tau_s
+        tau_e = pr.gps_error_estimate_tau_s
+        self._gps_lag_a = 1.0 - math.exp(-self._dt / tau_e) if tau_e > 0.0 else 1.0
+        w_e = 1.0 / tau_e if tau_e > 0.0 else 0.0
         self._gps_est_2nd = (w_e * w_e, 2.0 * pr.gps_error_estimate_damping * w_e)
+        # GUIDED's shaped setpoint (profiles.guided_*): the position target, desired velocity and
+        # acceleration (N, E); None outside OFFBOARD (set from the estimate on entering it)
+        self._guided: tuple[list[float], list[float], list[float]] | None = None
+        self._accel_ff = (0.0, 0.0)
         self._bias = tuple(c.gps_bias_m)
         self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
         self._ltp = LocalTangentPlane(self._home_true)
@@ -381,7 +391,7 @@ class SimVehicle:
         profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
         d = self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x
-        if self.profile.gps_error_moves_vehicle_tau_s > 0.0:
+        if self.profile.gps_error_estimate_tau_s > 0.0:
             # the horizontal error is the part the estimate has taken (gps_error_estimate_*)
             return (self.pn + self._gps_in_est[0], self.pe + self._gps_in_est[1], d)
         if self.estimator_state is not None:
@@ -424,15 +434,14 @@ class SimVehicle:
         rg = self._rng_gps.standard_normal(3).tolist()
         for i in range(3):
             self._walk[i].step(dt, rg[i])
-        tau_g = self.profile.gps_error_moves_vehicle_tau_s
-        if tau_g > 0.0:  # exact step of do/dt = (-GPS error - o) / tau_g for the error held over dt
+        if self.profile.gps_error_estimate_tau_s > 0.0:
             if t >= self._fix_next_s:
                 self._fix_next_s = t + GPS_FIX_PERIOD_S
                 r = self._rng_fix.standard_normal(2).tolist()
                 self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
-            # the estimate takes the error first (first or second order, gps_error_estimate_*),
-            # then the position target held on the estimate moves the vehicle (first order, tau_g)
-            ae, a = self._gps_lag_a
+            # the estimate takes the error (first or second order, gps_error_estimate_*); a vehicle
+            # held on the estimate then moves against it (GUIDED's position target, below)
+            a = self._gps_lag_a
             w2, c2 = self._gps_est_2nd
             for i in range(2):
                 err = self._walk[i].x + self._fix_noise[i]
@@ -441,13 +450,10 @@ class SimVehicle:
                     rate += dt * (w2 * (err - self._gps_in_est[i]) - c2 * rate)
                     self._gps_in_est_rate[i] = rate
                     self._gps_in_est[i] += dt * rate
-                else:
-                    self._gps_in_est[i] += ae * (err - self._gps_in_est[i])
-            dn = a * (-self._gps_in_est[0] - self._gps_moved[0])
-            de = a * (-self._gps_in_est[1] - self._gps_moved[1])
-            self._gps_moved[0] += dn
-            self._gps_moved[1] += de
-            self._gps_moved_rate = (dn / dt, de / dt)
+                else:  # first order, exact for the error held over dt
+                    d = a * (err - self._gps_in_est[i])
+                    self._gps_in_est[i] += d
+                    self._gps_in_est_rate[i] = d / dt
         if self._verr:
             rv = self._rng_verr.standard_normal(3).tolist()
             for i in range(3):
@@ -469,6 +475,7 @@ class SimVehicle:
         est = self._estimate()
         sp_n = sp_e = sp_d = 0.0
         thrust_on = self.armed
+        self._accel_ff = (0.0, 0.0)
         if self.armed:
             if self.mode is FlightMode.OFFBOARD:
                 if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
@@ -485,11 +492,8 @@ class SimVehicle:
                         k_h = vc.offboard_max_horizontal_m_s / h
                         sp_n, sp_e = sp_n * k_h, sp_e * k_h
                     sp_d = min(max(sp_d, -vc.offboard_max_up_m_s), vc.offboard_max_down_m_s)
-                    # the position target held on the estimate carries the vehicle against a
-                    # changing GPS error (0 unless the profile says so)
-                    if self.profile.gps_error_moves_vehicle_tau_s > 0.0:
-                        sp_n += self._gps_moved_rate[0]
-                        sp_e += self._gps_moved_rate[1]
+                    if self.profile.guided_jerk_max_m_s3 > 0.0:
+                        sp_n, sp_e = self._guided_velocity(sp_n, sp_e, est, dt)
             if self.mode is FlightMode.TAKEOFF:
                 assert self._hold_target is not None
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
@@ -520,12 +524,13 @@ class SimVehicle:
                     ):
                         sp_d = 0.0  # horizontal approach first, as PX4's precision landing does
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
+        if not self.armed or self.mode is not FlightMode.OFFBOARD:
+            self._guided = None
 
         # ---- velocity loop (P + I) -> acceleration setpoint, limits; it runs on the autopilot's
         # velocity estimate (truth + the profile's error: PX4 SIH drifts on it; ArduCopter holds a
         # position target, so its error does not drive the vehicle: profiles.py)
-        ve_n = self.vn
-        ve_e = self.ve
+        ve_n, ve_e = self._velocity_estimate_h()
         ve_d = self.vd
         if self._verr and self.profile.velocity_loop_on_estimate:
             ve_n += self._verr[0].x
@@ -539,8 +544,8 @@ class SimVehicle:
         kp_z = kp if vc.vertical_velocity_p_gain is None else vc.vertical_velocity_p_gain
         ki_z = ki if vc.vertical_velocity_i_gain is None else vc.vertical_velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
-        an = kp * en + ki * self._int[0]
-        ae = kp * ee + ki * self._int[1]
+        an = kp * en + ki * self._int[0] + self._accel_ff[0]
+        ae = kp * ee + ki * self._int[1] + self._accel_ff[1]
         ad = kp_z * ed + ki_z * self._int[2]
         a_h_max = min(vc.max_horizontal_accel_m_s2, G * math.tan(math.radians(vc.max_tilt_deg)))
         ah = math.hypot(an, ae)
@@ -641,6 +646,54 @@ class SimVehicle:
         self.pn += self.vn * dt
         self.pe += self.ve * dt
         self.pd += self.vd * dt
+
+    def _velocity_estimate_h(self) -> tuple[float, float]:
+        """The horizontal velocity the autopilot's velocity loop closes on: truth + the rate at
+        which its estimate takes the GPS error (gps_error_estimate_*), with a PX4 profile's
+        velocity error where it flies on it (velocity_loop_on_estimate)."""
+        vn, ve = self.vn, self.ve
+        if self.profile.gps_error_estimate_tau_s > 0.0:
+            k = self.profile.gps_error_velocity_share
+            vn += k * self._gps_in_est_rate[0]
+            ve += k * self._gps_in_est_rate[1]
+        if self._verr and self.profile.velocity_loop_on_estimate:
+            vn += self._verr[0].x
+            ve += self._verr[1].x
+        return vn, ve
+
+    def _guided_velocity(
+        self, sp_n: float, sp_e: float, est: tuple[float, float, float], dt: float
+    ) -> tuple[float, float]:
+        """ArduCopter GUIDED's answer to a velocity setpoint (profiles.guided_*): the velocity the
+        velocity loop is asked for; the desired acceleration it feeds forward goes to _accel_ff.
+
+        AC_PosControl::input_vel_accel_xy advances the desired state (position target += v dt +
+        a dt^2 / 2, v += a dt), then shapes the acceleration towards the setpoint
+        (shape_vel_accel_xy: sqrt_controller on the velocity error with k = jerk / accel, the
+        correction limited to accel, the change of acceleration to jerk dt);
+        update_xy_controller asks for v + PSC_POSXY_P x (target - estimate)."""
+        pr = self.profile
+        if self._guided is None:  # init_xy_controller: the target from the estimate, at rest
+            vn0, ve0 = self._velocity_estimate_h()
+            self._guided = ([est[0], est[1]], [vn0, ve0], [0.0, 0.0])
+        pos, vel, acc = self._guided
+        for i in range(2):
+            pos[i] += vel[i] * dt + 0.5 * acc[i] * dt * dt
+            vel[i] += acc[i] * dt
+        j_max, a_max = pr.guided_jerk_max_m_s3, pr.guided_accel_max_m_s2
+        cn, ce = _sqrt_controller_2d(sp_n - vel[0], sp_e - vel[1], j_max / a_max, j_max, dt)
+        c = math.hypot(cn, ce)
+        if c > a_max:
+            cn, ce = cn * a_max / c, ce * a_max / c
+        dn, de = cn - acc[0], ce - acc[1]  # shape_accel_xy: the jerk limit
+        d = math.hypot(dn, de)
+        if d > j_max * dt:
+            dn, de = dn * j_max * dt / d, de * j_max * dt / d
+        acc[0] += dn
+        acc[1] += de
+        self._accel_ff = (acc[0], acc[1])
+        kp = pr.guided_position_p_1_s
+        return vel[0] + kp * (pos[0] - est[0]), vel[1] + kp * (pos[1] - est[1])
 
     def _pos_ctrl(
         self, est: tuple[float, float, float], target: tuple[float, float, float]

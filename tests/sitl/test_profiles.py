@@ -20,7 +20,7 @@ from companion_sitl.profiles import (
     apply_profile,
     get_profile,
 )
-from companion_sitl.vehicle import SimVehicle
+from companion_sitl.vehicle import SimVehicle, _sqrt_controller_2d
 
 
 def test_ideal_is_the_configuration_itself_and_names_are_checked():
@@ -337,6 +337,76 @@ def test_the_arducopter_estimate_takes_a_gps_step_as_a_second_order_response():
     d = math.sqrt(1.0 - zeta * zeta)
     assert peak[1] == pytest.approx(1.0 + math.exp(-math.pi * zeta / d), abs=0.003)
     assert peak[0] == pytest.approx(math.pi / (w * d), abs=0.03)
+
+
+def test_sqrt_controller_is_linear_then_a_square_root_and_never_overshoots_in_a_step():
+    """ArduPilot's sqrt_controller (AP_Math/control.cpp) with p 2 and a limit of 5: p x error up
+    to 5 / 2^2 = 1.25, sqrt(2 x 5 x (e - 1.25 / 2)) beyond, at most e / dt, along the error."""
+    assert _sqrt_controller_2d(0.3, -0.4, 2.0, 5.0, 0.005) == pytest.approx((0.6, -0.8))
+    n, e = _sqrt_controller_2d(0.0, 3.0, 2.0, 5.0, 0.005)
+    assert n == 0.0 and e == pytest.approx(math.sqrt(23.75))  # 4.873
+    assert _sqrt_controller_2d(0.0, 0.0, 2.0, 5.0, 0.005) == (0.0, 0.0)
+    # a gain so high that p x e would pass the error in one step: e / dt
+    assert _sqrt_controller_2d(0.001, 0.0, 1000.0, 1e9, 0.005) == pytest.approx((0.2, 0.0))
+
+
+def _hover_in_offboard(name: str) -> tuple[SimVehicle, float]:
+    """A calm vehicle of the profile hovering at 6 m in OFFBOARD on a zero setpoint for 10 s, its
+    GPS error held still; the time."""
+    v = SimVehicle(SimConfig(profile=name, seed=1, gps_noise_m=0.0))
+    t = _switched_to_offboard(v, _airborne(v, 6.0))
+    for w in v._walk:
+        w.sigma, w.tau = 0.0, 1e9
+    for _ in range(200):
+        t += 0.05
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+        v.step_to(t)
+    return v, t
+
+
+def test_guided_shapes_a_small_velocity_step_with_jerk_over_accel():
+    """A 0.1 m/s step north in GUIDED: the desired velocity closes its error at k = PSC_JERK_XY /
+    WPNAV_ACCEL = 2 1/s (the acceleration 0.2 m/s^2 is inside both limits), so it reads
+    0.1 (1 - exp(-2 t)), a few ms late for the jerk limit; the vehicle follows it and ends on the
+    setpoint."""
+    pr = PROFILES["arducopter-sitl"]
+    assert pr.guided_jerk_max_m_s3 / pr.guided_accel_max_m_s2 == pytest.approx(2.0)
+    v, t = _hover_in_offboard("arducopter-sitl")
+    assert v._guided is not None
+    v0 = v._guided[1][0]
+    t0 = t
+    for k in range(1, 61):  # 3 s at 20 Hz
+        t = t0 + 0.05 * k
+        v.set_velocity(VelocitySetpoint(0.1, 0.0, 0.0, 0.0))
+        v.step_to(t)
+        if k in (10, 20):
+            want = 0.1 * (1.0 - math.exp(-2.0 * (v.time_s - t0)))
+            assert v._guided[1][0] - v0 == pytest.approx(want, abs=0.004), (k, want)
+    assert v.vn == pytest.approx(0.1, abs=0.01)
+
+
+def test_guided_position_target_takes_back_what_a_wind_change_pushed():
+    """Hovering in GUIDED on a zero velocity, a wind from the north that rises by 3 m/s (at 6 m
+    the SITL's wind is sqrt(6 / 60) of it) pushes the vehicle south; its position target pulls it
+    back within ~10 s (firmware-ardupilot.md: the firmware answers a gust as a band-pass). The
+    ideal vehicle's velocity loop stops the drift but keeps the offset."""
+    out = {}
+    for name in ("arducopter-sitl", "ideal"):
+        v, t = _hover_in_offboard(name)
+        n0 = v.pn
+        v.set_wind(3.0, 0.0)
+        trace = []
+        for _ in range(300):  # 15 s
+            t += 0.05
+            v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+            v.step_to(t)
+            trace.append(v.pn - n0)
+        out[name] = (min(trace), trace[-1])
+    pushed, end = out["arducopter-sitl"]
+    assert pushed < -0.05  # drag 0.3 1/s x 0.95 m/s: pushed ~0.1 m south
+    assert abs(end) < 0.1 * abs(pushed)
+    pushed_i, end_i = out["ideal"]
+    assert pushed_i < -0.05 and end_i < 0.5 * pushed_i  # kept
 
 
 def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_in_hold():
