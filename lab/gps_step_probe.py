@@ -17,6 +17,9 @@ GPS error's opposite, gain and phase lag per frequency (:func:`sine_response`). 
 ``--wind-mean-m-s M`` it drives the wind from the north instead, M plus a sine of
 ``--amplitude-m`` in m/s (SIM_WIND_SPD; OUT/wind_sine.csv), and the gain is the truth's move north
 in m per m/s of wind blowing north (the SITL's wind at 60 m: it fades towards the ground).
+With ``--velocity`` it drives the velocity setpoint north instead, a sine of ``--amplitude-m`` in
+m/s (OUT/velocity_sine.csv), and the gain is the truth's velocity against the setpoint.
+``--alt-m`` sets the hover height (6 m).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from companion_sitl.vehicle import GaussMarkov, SimVehicle
 COLUMNS = ("t_s", "phase", "truth_n_m", "est_n_m")
 SINE_COLUMNS = ("t_s", "freq_hz", "gps_error_n_m", "truth_n_m", "est_n_m")
 WIND_SINE_COLUMNS = ("t_s", "freq_hz", "wind_n_m_s", "truth_n_m", "est_n_m")
+VELOCITY_SINE_COLUMNS = ("t_s", "freq_hz", "sp_n_m_s", "truth_vn_m_s", "est_vn_m_s")
 SINE_SETTLE_CYCLES = 1.5  # the transient left out of each frequency's fit
 
 
@@ -98,12 +102,18 @@ async def probe(out_dir: Path, step_m: float = 1.0, alt_m: float = 6.0) -> dict[
 
 
 async def sine_probe(
-    out_dir: Path, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0, wind_mean_m_s: float = 0.0
+    out_dir: Path,
+    freqs_hz: list[float],
+    amplitude_m: float = 0.1,
+    alt_m: float = 6.0,
+    wind_mean_m_s: float = 0.0,
+    velocity: bool = False,
 ) -> list[dict[str, float]]:
     """Hover in GUIDED on a zero velocity and drive the GPS glitch north as a sine of
     ``amplitude_m`` at each frequency in turn (SINE_SETTLE_CYCLES, then at least 6 cycles and
     12 s), sent every 50 ms; returns :func:`sine_response`. ``wind_mean_m_s`` > 0: the wind from
-    the north instead, that mean plus the sine (m/s)."""
+    the north instead, that mean plus the sine (m/s); ``velocity``: the velocity setpoint north
+    (m/s), the truth's and the estimate's velocity against it."""
     rows: list[tuple[float, float, float, float, float]] = []
     async with _hovering(out_dir, alt_m) as (ap, truth):
         origin = truth.origin
@@ -118,6 +128,13 @@ async def sine_probe(
             tf = time.monotonic()
             while (now := time.monotonic()) < tf + seconds:
                 x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
+                if velocity:
+                    ap.set_velocity_ned(VelocitySetpoint(x, 0.0, 0.0, 0.0))
+                    p = ap.telemetry.position_ned
+                    if p is not None:
+                        rows.append((now - t0, f, x, truth.vn, p.north_m_s))
+                    await asyncio.sleep(0.05)
+                    continue
                 if wind_mean_m_s > 0.0:
                     truth.send_param("SIM_WIND_SPD", wind_mean_m_s + x)
                     x = -(wind_mean_m_s + x)  # the air's velocity north
@@ -128,7 +145,11 @@ async def sine_probe(
                 if p is not None:
                     rows.append((now - t0, f, x, truth.pn, p.north_m))
                 await asyncio.sleep(0.05)
-        await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
+        if not velocity:
+            await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)
+    if velocity:
+        write_csv(out_dir / "velocity_sine.csv", VELOCITY_SINE_COLUMNS, rows)
+        return sine_response(rows, input_sign=1.0)
     if wind_mean_m_s > 0.0:
         write_csv(out_dir / "wind_sine.csv", WIND_SINE_COLUMNS, rows)
         return sine_response(rows, input_sign=1.0)
@@ -218,7 +239,12 @@ class _SineError(GaussMarkov):
 
 
 def profile_sine_response(
-    profile: str, freqs_hz: list[float], amplitude_m: float = 0.1, alt_m: float = 6.0, wind_mean_m_s: float = 0.0
+    profile: str,
+    freqs_hz: list[float],
+    amplitude_m: float = 0.1,
+    alt_m: float = 6.0,
+    wind_mean_m_s: float = 0.0,
+    velocity: bool = False,
 ) -> list[dict[str, float]]:
     """The same probe flown by the embedded vehicle with a firmware profile (sitl/profiles.py),
     calm air and no GPS wander but the sine: what the profile says the firmware does."""
@@ -241,6 +267,14 @@ def profile_sine_response(
     for f in [0.0, *freqs_hz]:
         seconds = _sine_seconds(f)
         t_stop = v.time_s + seconds
+        if velocity:  # recorded as the real probe does: the state when the setpoint is sent
+            t0 = v.time_s
+            while v.time_s < t_stop:
+                x = amplitude_m * math.sin(2.0 * math.pi * f * (v.time_s - t0))
+                rows.append((v.time_s, f, x, v.vn, v.position_ned().north_m_s))
+                v.set_velocity(VelocitySetpoint(x, 0.0, 0.0, 0.0))
+                v.step_to(v.time_s + 0.05)
+            continue
         if wind_mean_m_s > 0.0:
             t0 = v.time_s
             while v.time_s < t_stop:
@@ -255,7 +289,7 @@ def profile_sine_response(
             v.set_velocity(zero)
             v.step_to(v.time_s + 0.05)
             rows.append((v.time_s, f, sine.x, v.pn, v.position_ned().north_m))
-    return sine_response(rows, input_sign=1.0 if wind_mean_m_s > 0.0 else -1.0)
+    return sine_response(rows, input_sign=1.0 if wind_mean_m_s > 0.0 or velocity else -1.0)
 
 
 def sine_response(
@@ -311,23 +345,25 @@ def main() -> None:
     ap.add_argument("--amplitude-m", type=float, default=0.1, help="the sine probe's GPS error amplitude")
     ap.add_argument("--profile", default="", help="fly the sine probe on this firmware profile instead")
     ap.add_argument("--wind-mean-m-s", type=float, default=0.0, help="the sine probe drives the wind, about this mean")
+    ap.add_argument("--velocity", action="store_true", help="the sine probe drives the velocity setpoint (m/s)")
+    ap.add_argument("--alt-m", type=float, default=6.0, help="the hover height")
     ap.add_argument("--hover-noise-s", type=float, default=0.0, help="the sensor-noise hover probe, seconds a phase")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     if a.hover_noise_s:
-        for phase, figs in asyncio.run(hover_noise_probe(a.out, a.hover_noise_s)).items():
+        for phase, figs in asyncio.run(hover_noise_probe(a.out, a.hover_noise_s, a.alt_m)).items():
             print(phase, "  ".join(f"{k} {v:.4f}" for k, v in figs.items()))
         return
     if a.sine_hz:
         freqs = [float(x) for x in a.sine_hz.split(",")]
         if a.profile:
-            res = profile_sine_response(a.profile, freqs, a.amplitude_m, wind_mean_m_s=a.wind_mean_m_s)
+            res = profile_sine_response(a.profile, freqs, a.amplitude_m, a.alt_m, a.wind_mean_m_s, a.velocity)
         else:
-            res = asyncio.run(sine_probe(a.out, freqs, a.amplitude_m, wind_mean_m_s=a.wind_mean_m_s))
+            res = asyncio.run(sine_probe(a.out, freqs, a.amplitude_m, a.alt_m, a.wind_mean_m_s, a.velocity))
         for r in res:
             print("  ".join(f"{k} {v:.3f}" for k, v in r.items()))
         return
-    for k, v in asyncio.run(probe(a.out, a.step_m)).items():
+    for k, v in asyncio.run(probe(a.out, a.step_m, a.alt_m)).items():
         print(f"{k:18s} {v}")
 
 

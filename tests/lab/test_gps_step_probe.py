@@ -28,6 +28,16 @@ FIRMWARE_WIND_RESPONSE = {
     0.35: (0.0223, 106.6),
     0.5: (0.0101, 118.2),
 }
+# a 0.05 m/s sine of the velocity setpoint north at 3 m (--velocity --alt-m 3): the truth's
+# velocity against it (gain, lag deg; the lag includes the probe's link, up to ~0.1 s)
+FIRMWARE_VELOCITY_RESPONSE = {
+    0.1: (1.11, 18.4),
+    0.2: (0.90, 46.0),
+    0.35: (0.76, 62.1),
+    0.5: (0.66, 83.9),
+    0.8: (0.41, 119.8),
+    1.2: (0.24, 152.9),
+}
 
 
 def test_sine_response_recovers_a_known_gain_and_lag_under_a_drift():
@@ -75,6 +85,17 @@ def test_the_arducopter_profile_answers_a_gust_as_the_firmware_did():
         assert (r["phase_lag_deg"] - lag + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=15.0), r
     (slow,) = profile_sine_response("ideal", [0.05], 1.0, wind_mean_m_s=3.0)
     assert slow["phase_lag_deg"] > 0.0  # lags the wind: nothing takes the push back
+
+
+def test_the_arducopter_profile_follows_a_small_velocity_sine_as_the_firmware_did():
+    """GUIDED's shaping (jerk / accel = 2 1/s) and velocity loop: the truth's velocity against a
+    small setpoint sine, gain within 0.16 and lag within 25 deg (the real figures carry the probe's
+    link delay, which the profile's lock-step flight does not have)."""
+    freqs = sorted(FIRMWARE_VELOCITY_RESPONSE)
+    for r in profile_sine_response("arducopter-sitl", freqs, 0.05, alt_m=3.0, velocity=True):
+        gain, lag = FIRMWARE_VELOCITY_RESPONSE[r["freq_hz"]]
+        assert r["gain"] == pytest.approx(gain, abs=0.16), r
+        assert r["phase_lag_deg"] == pytest.approx(lag, abs=25.0), r
 
 
 def test_hover_figures_on_synthetic_rows():
