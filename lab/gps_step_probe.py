@@ -128,22 +128,16 @@ async def sine_probe(
             tf = time.monotonic()
             while (now := time.monotonic()) < tf + seconds:
                 x = amplitude_m * math.sin(2.0 * math.pi * f * (now - tf))
-                if velocity:
-                    ap.set_velocity_ned(VelocitySetpoint(x, 0.0, 0.0, 0.0))
-                    p = ap.telemetry.position_ned
-                    if p is not None:
-                        rows.append((now - t0, f, x, truth.vn, p.north_m_s))
-                    await asyncio.sleep(0.05)
-                    continue
-                if wind_mean_m_s > 0.0:
+                if not velocity and wind_mean_m_s > 0.0:
                     truth.send_param("SIM_WIND_SPD", wind_mean_m_s + x)
                     x = -(wind_mean_m_s + x)  # the air's velocity north
-                else:
+                elif not velocity:
                     truth.send_param("SIM_GPS1_GLTCH_X", glitch_deg(x, 0.0, origin.lat_deg)[0])
-                ap.set_velocity_ned(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
+                ap.set_velocity_ned(VelocitySetpoint(x if velocity else 0.0, 0.0, 0.0, 0.0))
                 p = ap.telemetry.position_ned
-                if p is not None:
-                    rows.append((now - t0, f, x, truth.pn, p.north_m))
+                if p is not None:  # positions, or velocities against a velocity setpoint
+                    y = (truth.vn, p.north_m_s) if velocity else (truth.pn, p.north_m)
+                    rows.append((now - t0, f, x, *y))
                 await asyncio.sleep(0.05)
         if not velocity:
             await asyncio.to_thread(truth.set_param, "SIM_WIND_SPD" if wind_mean_m_s > 0.0 else "SIM_GPS1_GLTCH_X", 0.0)

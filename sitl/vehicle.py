@@ -220,7 +220,6 @@ class SimVehicle:
         # GUIDED's shaped setpoint (profiles.guided_*): the position target, desired velocity and
         # acceleration (N, E); None outside OFFBOARD (set from the estimate on entering it)
         self._guided: tuple[list[float], list[float], list[float]] | None = None
-        self._accel_ff = (0.0, 0.0)
         self._bias = tuple(c.gps_bias_m)
         self._home_true = GeoPoint(c.home.lat_deg, c.home.lon_deg, c.home.alt_amsl_m)
         self._ltp = LocalTangentPlane(self._home_true)
@@ -475,7 +474,6 @@ class SimVehicle:
         est = self._estimate()
         sp_n = sp_e = sp_d = 0.0
         thrust_on = self.armed
-        self._accel_ff = (0.0, 0.0)
         if self.armed:
             if self.mode is FlightMode.OFFBOARD:
                 if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
@@ -544,8 +542,10 @@ class SimVehicle:
         kp_z = kp if vc.vertical_velocity_p_gain is None else vc.vertical_velocity_p_gain
         ki_z = ki if vc.vertical_velocity_i_gain is None else vc.vertical_velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
-        an = kp * en + ki * self._int[0] + self._accel_ff[0]
-        ae = kp * ee + ki * self._int[1] + self._accel_ff[1]
+        # GUIDED's desired acceleration, fed forward (updated this tick; None outside OFFBOARD)
+        ff = self._guided[2] if self._guided is not None else (0.0, 0.0)
+        an = kp * en + ki * self._int[0] + ff[0]
+        ae = kp * ee + ki * self._int[1] + ff[1]
         ad = kp_z * ed + ki_z * self._int[2]
         a_h_max = min(vc.max_horizontal_accel_m_s2, G * math.tan(math.radians(vc.max_tilt_deg)))
         ah = math.hypot(an, ae)
@@ -665,7 +665,7 @@ class SimVehicle:
         self, sp_n: float, sp_e: float, est: tuple[float, float, float], dt: float
     ) -> tuple[float, float]:
         """ArduCopter GUIDED's answer to a velocity setpoint (profiles.guided_*): the velocity the
-        velocity loop is asked for; the desired acceleration it feeds forward goes to _accel_ff.
+        velocity loop is asked for (the desired acceleration it feeds forward stays in _guided).
 
         AC_PosControl::input_vel_accel_xy advances the desired state (position target += v dt +
         a dt^2 / 2, v += a dt), then shapes the acceleration towards the setpoint
@@ -691,7 +691,6 @@ class SimVehicle:
             dn, de = dn * j_max * dt / d, de * j_max * dt / d
         acc[0] += dn
         acc[1] += de
-        self._accel_ff = (acc[0], acc[1])
         kp = pr.guided_position_p_1_s
         return vel[0] + kp * (pos[0] - est[0]), vel[1] + kp * (pos[1] - est[1])
 
