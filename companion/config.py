@@ -199,6 +199,15 @@ class MissionConfig(_Section):
         le=600.0,
     )
     estimate_timeout_s: float = _f(1.5, "s", "abort if the state estimate is older than this", gt=0.0, le=10.0)
+    estimate_predict_max_s: float = _f(
+        0.25,
+        "s",
+        "guidance carries the state estimate forward to its tick at the estimate's velocity when it "
+        "is at most this old (the autopilot's position stream at 5-10 Hz leaves it 0.1-0.2 s behind); "
+        "0: off. Must be < estimate_timeout_s",
+        ge=0.0,
+        le=1.0,
+    )
     return_home: bool = _f(True, "-", "take off again after the release and fly home")
     return_from_landing_point: bool = _f(
         True,
@@ -1094,6 +1103,12 @@ class CompanionConfig(_Section):
             raise ValueError(
                 f"runtime.link_timeout_s ({self.runtime.link_timeout_s}) must be < mission.estimate_timeout_s "
                 f"({self.mission.estimate_timeout_s}): a lost link must be noticed before the estimate goes stale"
+            )
+        if self.mission.estimate_predict_max_s >= self.mission.estimate_timeout_s:
+            raise ValueError(
+                f"mission.estimate_predict_max_s ({self.mission.estimate_predict_max_s}) must be < "
+                f"mission.estimate_timeout_s ({self.mission.estimate_timeout_s}): an estimate carried "
+                "forward would otherwise never be seen to go stale"
             )
         if self.signing.enabled and self.autopilot == "px4":
             raise ValueError(

@@ -361,6 +361,8 @@ class _ReplayShell:
             steers = (not mission.summary.delivered or mission.phase is Phase.WINCH) and not mission.returning
             if fused is not None and steers:
                 estimate = fused
+        if estimate is not None:
+            estimate = estimate.predicted(now, mission.cfg.estimate_predict_max_s)
         heading_est = self.fusion.heading if self.fusion is not None else None
         heading = landing_heading_rad(self.config.mission, mission.pad_index, heading_est)
         inp = MissionInputs(

@@ -522,6 +522,8 @@ class DeliveryShell:
                 fused = self.fusion.estimate() if self.fusion is not None else None
                 if fused is not None and self.fused_estimate_steers():
                     self.estimate = fused
+            if self.estimate is not None:
+                self.estimate = self.estimate.predicted(now, mission.cfg.estimate_predict_max_s)
             heading = self.fusion.heading if self.fusion is not None else None
             inp = MissionInputs(
                 now,

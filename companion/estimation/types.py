@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,3 +35,24 @@ class StateEstimate:
     @property
     def velocity_ned(self) -> tuple[float, float, float]:
         return (self.north_m_s, self.east_m_s, self.down_m_s)
+
+    def predicted(self, time_s: float, max_s: float) -> StateEstimate:
+        """The estimate carried forward to ``time_s`` at its own velocity (constant-velocity
+        prediction, as an autopilot's output predictor does between its fusion steps): guidance
+        ticks between the autopilot's samples, and at 5-10 Hz streams a 0.1-0.2 s old position
+        flown as the present one puts the landing loop that far behind the vehicle.
+
+        Unchanged when ``time_s`` is not after ``time_s`` of the estimate or more than ``max_s``
+        after it: an estimate that old keeps its own time, so its staleness stays visible to
+        whoever checks it (the mission's ``estimate_timeout_s``). ``max_s = 0`` turns it off.
+        """
+        dt = time_s - self.time_s
+        if not 0.0 < dt <= max_s:
+            return self
+        return replace(
+            self,
+            time_s=time_s,
+            north_m=self.north_m + self.north_m_s * dt,
+            east_m=self.east_m + self.east_m_s * dt,
+            down_m=self.down_m + self.down_m_s * dt,
+        )
