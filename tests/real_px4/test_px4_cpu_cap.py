@@ -5,10 +5,10 @@ and camera and UWB rendering that stand in for the sensors) runs inside it. The 
 the largest setpoint gap in offboard against COM_OF_LOSS_T, the landing on truth) are printed; the
 test asserts the mission's goal, which an offboard failsafe would have ended.
 
-At one Pi 4 core's worth the goal is not met today (2026-11-27, docs/performance.md): MAVSDK's
-server and the companion starved together, the companion's own watchdogs stopped the stream
-(setpoints 0.5-2.4 s old) and declared the link lost, no marker was fused, and the take-off for the
-way home did not reach 2.5 m in time, so the mission aborted after delivering."""
+At one Pi 4 core's worth the goal is not met with the shipped rates: MAVSDK's core and the
+companion starve together. With the slow board's settings (streams at 10 / 5 Hz, fewer frames and
+log rows) it is met, but with too little margin under COM_OF_LOSS_T and the pad's edge to assert
+here (docs/performance.md, "A Pi-sized CPU budget")."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ pytestmark = pytest.mark.firmware
 
 
 async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp_path):
-    pi4_cores = 2  # at one the goal is not met (the module's docstring): nothing to assert there yet
+    pi4_cores = 2  # at one the margin is too thin to assert (the module's docstring)
     why = cap_unavailable()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
