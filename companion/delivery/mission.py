@@ -287,6 +287,22 @@ class DeliveryMission:
         """Flying (or landing) back home: guidance targets the GPS-surveyed home."""
         return self.phase in (Phase.TAKEOFF_RETURN, Phase.INBOUND, Phase.LANDING_HOME)
 
+    @property
+    def fused_estimate_steers(self) -> bool:
+        """Guidance flies on the fused estimate (the way out and the landing on the pad); the way
+        back flies on the GPS-frame estimate (home is a GPS point). A winch delivery keeps the
+        fused one over the pad until the line is in."""
+        return (not self.summary.delivered or self.phase is Phase.WINCH) and not self.returning
+
+    def guidance_estimate(
+        self, gps_frame: StateEstimate | None, fused: StateEstimate | None, time_s: float
+    ) -> StateEstimate | None:
+        """The estimate this tick flies: the fused one while it steers (and exists), else the
+        autopilot's GPS-frame one, carried forward to ``time_s`` (StateEstimate.predicted,
+        estimate_predict_max_s). The shell and its replay both take it from here."""
+        est = fused if fused is not None and self.fused_estimate_steers else gps_frame
+        return est.predicted(time_s, self.cfg.estimate_predict_max_s) if est is not None else None
+
     def command(self, time_s: float, kind: str, sender: str = "ground") -> str:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract
         (clamps, pilot priority) is untouched because every setpoint still goes through the shell.

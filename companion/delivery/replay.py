@@ -346,23 +346,17 @@ class _ReplayShell:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
         from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad
-        from companion.events import Phase
         from companion.guidance.limits import clamp_velocity
 
         mission, tc = self.mission, self.telemetry
-        estimate = self.estimator.update(tc.position_ned, tc.attitude)
+        gps_frame = self.estimator.update(tc.position_ned, tc.attitude)
         if self.landing:
             if self.fusion is None and mission.frame is not None:
                 self._start_fusion(now)
             elif self.fusion is not None and mission.pad_index != self._fusion_pad_index:
                 self._start_fusion(now)  # diverted: again on the alternate pad
-            fused = self.fusion.estimate() if self.fusion is not None else None
-            # as DeliveryShell.fused_estimate_steers (a winch delivery keeps it until the line is in)
-            steers = (not mission.summary.delivered or mission.phase is Phase.WINCH) and not mission.returning
-            if fused is not None and steers:
-                estimate = fused
-        if estimate is not None:
-            estimate = estimate.predicted(now, mission.cfg.estimate_predict_max_s)
+        fused = self.fusion.estimate() if self.fusion is not None else None
+        estimate = mission.guidance_estimate(gps_frame, fused, now)
         heading_est = self.fusion.heading if self.fusion is not None else None
         heading = landing_heading_rad(self.config.mission, mission.pad_index, heading_est)
         inp = MissionInputs(

@@ -511,19 +511,16 @@ class DeliveryShell:
                     self.recorder.on_abort(now, self._abort_reason)
                 mission.abort(now, self._abort_reason)
                 self._abort_reason = None
-            self.estimate = self.estimator.update(tc.position_ned, tc.attitude)
+            gps_frame = self.estimator.update(tc.position_ned, tc.attitude)
             if self.landing is not None:
                 if self.fusion is None and mission.frame is not None:
                     self._start_fusion(now)
                 elif self.fusion is not None and mission.pad_index != self._fusion_pad_index:
                     self._start_fusion(now)  # diverted: the fusion starts again on the alternate pad
-                # The fused frame puts the configured pad where the camera/UWB see it; home is a
-                # GPS point, so the way back (after the delivery) flies on the GPS-frame estimate.
-                fused = self.fusion.estimate() if self.fusion is not None else None
-                if fused is not None and self.fused_estimate_steers():
-                    self.estimate = fused
-            if self.estimate is not None:
-                self.estimate = self.estimate.predicted(now, mission.cfg.estimate_predict_max_s)
+            # The fused frame puts the configured pad where the camera/UWB see it; home is a GPS
+            # point, so the way back (after the delivery) flies on the GPS-frame estimate.
+            fused = self.fusion.estimate() if self.fusion is not None else None
+            self.estimate = mission.guidance_estimate(gps_frame, fused, now)
             heading = self.fusion.heading if self.fusion is not None else None
             inp = MissionInputs(
                 now,
@@ -795,11 +792,8 @@ class DeliveryShell:
                 self.fusion.on_uwb(res)
 
     def fused_estimate_steers(self) -> bool:
-        """Guidance flies on the fused estimate (the way out and the landing on the pad); the way
-        back flies on the GPS-frame estimate (home is a GPS point)."""
-        m = self.mission
-        # (a winch delivery keeps the fused estimate over the pad until the line is in)
-        return (not m.summary.delivered or m.phase is Phase.WINCH) and not m.returning
+        """Guidance flies on the fused estimate (DeliveryMission.fused_estimate_steers)."""
+        return self.mission.fused_estimate_steers
 
     def _down_in_camera(self) -> Any:
         """World down in the camera frame from the autopilot's latest attitude (None without one)."""
