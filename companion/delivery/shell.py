@@ -39,6 +39,10 @@ from companion.autopilot.interface import Autopilot, AutopilotError, CommandReje
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.config import CompanionConfig
 from companion.delivery.detection_pacer import DetectionPacer
+
+# the landing fusion's modules load with the shell, not when the fusion starts at take-off: their
+# import (scipy.spatial among them) is tens of ms of CPU that a slow board took from guidance
+from companion.delivery.fusion import FusionSetup, LandingFusion
 from companion.delivery.mission import (
     DeliveryMission,
     MissionInputs,
@@ -48,14 +52,15 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
-from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad
+from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad, pad_yaw_and_tolerance_rad
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
-from companion.estimation.ekf import UpdateOutcome
+from companion.estimation.ekf import EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.streams import ENUM_VALUE
+from companion.geometry.mounts import pad_pose_ned
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
@@ -69,6 +74,7 @@ from companion.scheduling import (
     set_thread_realtime,
     vision_thread_priority,
 )
+from companion.uwb.multilateration import UwbFix
 
 log = logging.getLogger(__name__)
 
@@ -266,6 +272,12 @@ class DeliveryShell:
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
         self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
+        # the pad's size for LANDING_TARGET, known before take-off (the layout's module loads OpenCV)
+        self._landing_target_size_m: float | None = None
+        if config.landing.landing_target_output != "off" and landing is not None:
+            from companion.vision.pad import PadLayout
+
+            self._landing_target_size_m = getattr(landing.detector, "layout", PadLayout()).outer_size_m
         self.landing_targets_sent = 0
         self.gcs: Any = None  # delivery.gcs.GcsComponent while speaking to the operator's GCS
         self.made_ready: list[str] = []  # what make_ready did, before the mission and after it
@@ -598,11 +610,6 @@ class DeliveryShell:
             self.gcs.send_text(f"not ready to arm: {why}", SEVERITY_WARNING)
 
     def _start_fusion(self, now: float) -> None:
-        from companion.delivery.fusion import FusionSetup, LandingFusion
-        from companion.delivery.pad_heading import pad_yaw_and_tolerance_rad
-        from companion.estimation.ekf import EkfConfig
-        from companion.geometry.mounts import pad_pose_ned
-
         kit = self.landing
         assert kit is not None and self.mission.frame is not None
         pad = self.mission.frame.pad_ned
@@ -629,14 +636,12 @@ class DeliveryShell:
             level_pad=self.config.landing.ekf_level_pad,
         )
         self.fusion = LandingFusion(setup, now)
-        if self.config.landing.landing_target_output != "off":
-            from companion.vision.pad import PadLayout
-
+        if self._landing_target_size_m is not None:
             self._landing_target = LandingTargetBuilder(
                 self.config.landing.landing_target_output,
                 kit.T_body_camera,
                 setup.T_world_pad,
-                getattr(kit.detector, "layout", PadLayout()).outer_size_m,
+                self._landing_target_size_m,
             )
         self.autopilot.telemetry.add_listener(self.fusion.on_sample)
         if restart:
@@ -779,8 +784,6 @@ class DeliveryShell:
 
     def _uwb_step(self) -> None:
         """The UWB readings since the last call, multilaterated, to the recorder and the fusion."""
-        from companion.uwb.multilateration import UwbFix
-
         kit = self.landing
         assert kit is not None and kit.uwb is not None and kit.multilaterator is not None and self.fusion is not None
         for m in kit.uwb.read():
