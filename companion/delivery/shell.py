@@ -759,10 +759,14 @@ class DeliveryShell:
         frame = kit.camera.read()
         if frame is None:
             return
-        down_cam = self._down_in_camera() if kit.vision_attitude else None
+        # the attitude moves the ROI with the vehicle's tilt always, and resolves the IPPE pair when
+        # vision_attitude is set
+        down_cam = self._down_in_camera()
         detect = functools.partial(
             _cpu_timed,
-            functools.partial(kit.detector.detect, down_cam=down_cam),
+            functools.partial(
+                kit.detector.detect, down_cam=down_cam if kit.vision_attitude else None, roi_down_cam=down_cam
+            ),
             nice=self.config.runtime.vision_thread_nice if kit.vision_in_thread else 0,
             realtime=self.config.runtime.realtime_priority if kit.vision_in_thread else 0,
         )

@@ -43,6 +43,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from companion.geometry import Transform
 from companion.vision.camera import CameraModel
@@ -120,6 +121,9 @@ class DetectorConfig:
     roi_margin_frac: float = 0.35  # margin around the last corners' box, fraction of its size
     roi_min_margin_px: int = 24
     full_search_every: int = 30  # a full-frame search at least every N frames
+    # the ROI follows the pad's image motion (centre and scale rates from the last two frames that
+    # found it) over gaps up to this long; 0: the ROI stays where the pad was last seen
+    roi_predict_max_gap_s: float = 0.5
     roi_target_marker_px: float = 90.0  # search large markers at reduced resolution
     min_marker_px: float = 12.0  # smallest marker side searched for in a full frame
     edge_refinement: bool = True  # corners from fitted border lines (refine_corners_by_edges)
@@ -152,6 +156,9 @@ class DetectorConfig:
                 raise ValueError(f"DetectorConfig.{name} = {v!r}: must be finite and > 0")
         if self.full_search_every < 1 or self.roi_min_margin_px < 0:
             raise ValueError("DetectorConfig: full_search_every >= 1 and roi_min_margin_px >= 0")
+        if not (math.isfinite(self.roi_predict_max_gap_s) and self.roi_predict_max_gap_s >= 0):
+            gap = self.roi_predict_max_gap_s
+            raise ValueError(f"DetectorConfig.roi_predict_max_gap_s = {gap!r}: must be finite and >= 0")
 
 
 @dataclass(frozen=True)
@@ -570,6 +577,11 @@ class PadDetector:
         """Forget tracking state and the pose prior (counters are kept)."""
         self._roi_corners: FloatArray | None = None
         self._min_side_px = 0.0
+        # the last frame that found the pad: its time, derotated centre (_to_level), centre (px)
+        # and scale (px per metre); the motion between it and the one before (derotated centre
+        # per second, d ln(scale)/dt in 1/s)
+        self._track: tuple[float, FloatArray, FloatArray, float] | None = None
+        self._motion: tuple[FloatArray, float] | None = None
         self._frames_since_full = 0
         self._prior: tuple[float, FloatArray] | None = None
         if not hasattr(self, "_counts"):
@@ -606,25 +618,91 @@ class PadDetector:
                 found[which] = pts
         return found
 
-    def _search_roi(self, gray: NDArray[np.uint8]) -> dict[str, FloatArray]:
+    def _level_rotation(self, ref_cam: Any) -> FloatArray:
+        """The smallest rotation taking ``ref_cam`` (a world-fixed direction near the optical axis,
+        in the camera frame) onto the camera's z axis: image points rotated by it no longer move
+        when the camera tilts (the gyro-derotation of optical flow). Identity without one."""
+        if ref_cam is None:
+            return np.eye(3)
+        ref = np.asarray(ref_cam, dtype=float).reshape(1, 3)
+        rot, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), ref)
+        return np.asarray(rot.as_matrix())
+
+    def _to_level(self, pixel: FloatArray, R_level_cam: FloatArray) -> FloatArray | None:
+        """A pixel's ray in the derotated camera, on its z = 1 plane (None beyond 90 deg of z)."""
+        b = R_level_cam @ self.camera.unproject(pixel)[0]
+        return b[:2] / b[2] if b[2] > 1e-6 else None
+
+    def _roi_prediction(self, time_s: float | None, R_level_cam: FloatArray) -> tuple[FloatArray, float]:
+        """How far (px) the pad's image has moved, and by what factor it has grown, since the last
+        frame that found it: its centre derotated by the attitude then, moved at the derotated
+        image velocity and scale rate of the last two frames that found it, and rotated back by
+        the attitude now. Frames skipped by a CPU budget (runtime.vision_cpu_budget) put 0.1-0.3 s
+        between detections, in which a rocking or turning vehicle moves the pad's image by more
+        than the ROI's margin, and a missed ROI costs a full-frame search on top. No track, or a
+        gap over ``roi_predict_max_gap_s``: no prediction."""
+        none = (np.zeros(2), 1.0)
+        if time_s is None or self._track is None:
+            return none
+        t0, level0, centre0, _ = self._track
+        dt = time_s - t0
+        if not 0.0 < dt <= self.config.roi_predict_max_gap_s:
+            return none
+        level, growth = level0, 1.0
+        if self._motion is not None:
+            velocity, log_scale_rate = self._motion
+            level = level0 + velocity * dt
+            # bounded to [1/2, 2]: a wrong rate must not make the ROI vanish or swallow the frame
+            growth = float(np.clip(math.exp(log_scale_rate * dt), 0.5, 2.0))
+        centre = self.camera.project(R_level_cam.T @ np.array([level[0], level[1], 1.0]))[0]
+        if not np.all(np.isfinite(centre)):
+            return none
+        return centre - centre0, growth
+
+    def _update_track(
+        self, found: dict[str, FloatArray], px_per_m: float, time_s: float | None, R_level_cam: FloatArray
+    ) -> None:
+        """Keep the pad's derotated image motion from this frame and the last one that found it."""
+        # the pad's markers are concentric (see detect_markers): the centre does not jump when one
+        # of them comes into or out of view
+        centre = np.vstack(list(found.values())).mean(axis=0)
+        level = self._to_level(centre, R_level_cam)
+        prev, self._track, self._motion = self._track, None, None
+        if time_s is None or level is None:
+            return
+        if prev is not None:
+            dt = time_s - prev[0]
+            if 0.0 < dt <= self.config.roi_predict_max_gap_s:
+                self._motion = ((level - prev[1]) / dt, math.log(px_per_m / prev[3]) / dt)
+        self._track = (time_s, level, centre, px_per_m)
+
+    def _search_roi(
+        self, gray: NDArray[np.uint8], time_s: float | None, R_level_cam: FloatArray
+    ) -> dict[str, FloatArray]:
         assert self._roi_corners is not None
         cfg = self.config
         h, w = gray.shape
         lo = self._roi_corners.min(axis=0)
         hi = self._roi_corners.max(axis=0)
+        shift, growth = self._roi_prediction(time_s, R_level_cam)
+        centre, half = (lo + hi) / 2.0 + shift, growth * (hi - lo) / 2.0
+        lo, hi = centre - half, centre + half
         size = float(max(hi - lo))
         m = max(cfg.roi_min_margin_px, cfg.roi_margin_frac * size)
         x0, y0 = max(0, int(lo[0] - m)), max(0, int(lo[1] - m))
         x1, y1 = min(w, math.ceil(hi[0] + m) + 1), min(h, math.ceil(hi[1] + m) + 1)
+        if x1 - x0 < 2 * cfg.min_marker_px or y1 - y0 < 2 * cfg.min_marker_px:
+            return {}  # predicted out of the frame: nothing to decode there
         crop = gray[y0:y1, x0:x1]
         p = self._roi_det.getDetectorParameters()
         longest = max(crop.shape)
         # only markers at least ~half as large as the smallest pad marker expected at the scale
         # seen last frame (a marker not yet seen, e.g. the inner one while descending, counts as
         # soon as it would be large enough to decode)
-        min_side = max(self.config.min_marker_px * 0.75, 0.5 * self._min_side_px)
+        min_side_px = growth * self._min_side_px
+        min_side = max(self.config.min_marker_px * 0.75, 0.5 * min_side_px)
         p.minMarkerPerimeterRate = min(0.9, 4.0 * min_side / longest)
-        ratio = cfg.roi_target_marker_px / max(self._min_side_px, 1.0)
+        ratio = cfg.roi_target_marker_px / max(min_side_px, 1.0)
         if ratio < 0.5:  # large markers: find candidates at reduced resolution (ArUco3)
             p.useAruco3Detection = True
             p.minMarkerLengthRatioOriginalImg = float(min(0.9, 0.5 * min_side / longest))
@@ -634,15 +712,22 @@ class PadDetector:
         self._roi_det.setDetectorParameters(p)
         return self._run(self._roi_det, crop, x0, y0)
 
-    def detect_markers(self, gray: NDArray[np.uint8]) -> tuple[dict[str, FloatArray], str]:
-        """Marker corners (distorted pixels, ArUco order) by name, and the search used."""
+    def detect_markers(
+        self, gray: NDArray[np.uint8], time_s: float | None = None, ref_cam: Any = None
+    ) -> tuple[dict[str, FloatArray], str]:
+        """Marker corners (distorted pixels, ArUco order) by name, and the search used.
+        ``time_s``: the frame's exposure time, and ``ref_cam`` a world-fixed unit direction near
+        the optical axis in the camera frame (world down for a level pad), for the ROI to follow
+        the pad's image (:meth:`_roi_prediction`); without a time the ROI is searched where the
+        pad was last seen, without a direction the camera's tilt is not taken out."""
         cfg = self.config
         use_roi = cfg.roi_enabled and self._roi_corners is not None and self._frames_since_full < cfg.full_search_every
+        R_level_cam = self._level_rotation(ref_cam)
         found: dict[str, FloatArray] = {}
         how = "full"
         if use_roi:
             self._counts["roi_searches"] += 1
-            found = self._search_roi(gray)
+            found = self._search_roi(gray, time_s, R_level_cam)
             how = "roi"
             if not found:
                 self._counts["roi_fallbacks"] += 1
@@ -667,12 +752,14 @@ class PadDetector:
             expected = [px_per_m * self.layout.marker_size_m(m) for m in MARKERS]
             decodable = [s for s in expected if s >= self.config.min_marker_px]
             self._min_side_px = min(decodable) if decodable else max(expected)
+            self._update_track(found, px_per_m, time_s, R_level_cam)
         else:
             self._roi_corners = None
+            self._track = self._motion = None
         return found, how
 
     def detect(
-        self, image: Any, time_s: float, *, down_cam: Any = None, normal_cam: Any = None
+        self, image: Any, time_s: float, *, down_cam: Any = None, normal_cam: Any = None, roi_down_cam: Any = None
     ) -> MarkerObservation | None:
         """Detect the pad in ``image`` exposed at ``time_s``; None when it is not seen.
 
@@ -683,6 +770,10 @@ class PadDetector:
         ``normal_cam``: instead of ``down_cam`` for a marker that does not lie level (the Dart's
         wall marker), its normal (pointing out of the printed face) in the camera frame from the
         attitude (:func:`marker_normal_in_camera`); same use.
+        ``roi_down_cam``: world "down" in the camera frame for the ROI to follow the pad's image
+        through the vehicle's tilt (:meth:`detect_markers`) and for nothing else, for a caller
+        that does not resolve the pair by the attitude; ``down_cam`` or ``normal_cam`` serve the
+        ROI too when given.
         Raises :class:`ImageError` (ValueError) for an unusable frame, ValueError for a
         non-finite time or prior.
         """
@@ -694,18 +785,27 @@ class PadDetector:
             up = np.array([0.0, 0.0, -1.0])
             if down_cam is not None and normal_cam is not None:
                 raise ValueError("detect: give down_cam (a level pad) or normal_cam (any marker), not both")
-            for name, vec, sign in (("down_cam", down_cam, -1.0), ("normal_cam", normal_cam, 1.0)):
+            # a world-fixed direction near the optical axis for the ROI: down for a level pad, into
+            # a wall marker
+            ref_cam = None
+            for name, vec, sign in (
+                ("roi_down_cam", roi_down_cam, -1.0),
+                ("down_cam", down_cam, -1.0),
+                ("normal_cam", normal_cam, 1.0),
+            ):
                 if vec is None:
                     continue
                 d = np.asarray(vec, dtype=float).reshape(-1)
                 n = float(np.linalg.norm(d)) if d.shape == (3,) else float("nan")
                 if not (math.isfinite(n) and n > 0.5):
                     raise ValueError(f"{name} = {vec!r}: must be a finite unit 3-vector")
-                up = sign * d / n
+                ref_cam = -sign * d / n
+                if name != "roi_down_cam":
+                    up = sign * d / n
         except ValueError:
             self._counts["bad_frames"] += 1
             raise
-        found, _ = self.detect_markers(gray)
+        found, _ = self.detect_markers(gray, float(time_s), ref_cam)
         if not found:
             return None
         attitude = (down_cam is not None or normal_cam is not None) and self.config.attitude_resolution

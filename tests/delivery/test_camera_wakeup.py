@@ -91,7 +91,7 @@ class Detector:
         self.gate = gate
         self.calls: list[tuple[int, float, str]] = []
 
-    def detect(self, image: Any, time_s: float, down_cam: Any = None) -> Any:
+    def detect(self, image: Any, time_s: float, down_cam: Any = None, roi_down_cam: Any = None) -> Any:
         if self.gate is not None:
             assert self.gate.wait(5.0)
         self.calls.append((int(time_s), time.monotonic(), threading.current_thread().name))
@@ -150,7 +150,8 @@ def _shell(camera: Any, detector: Detector, uwb: Any = None, poll_rate_hz: float
         vision_in_thread=True,
         poll_rate_hz=poll_rate_hz,
     )
-    shell = Shell(config, autopilot=SimpleNamespace(), landing=kit)  # type: ignore[arg-type]
+    autopilot = SimpleNamespace(telemetry=SimpleNamespace(attitude=None))  # no attitude yet
+    shell = Shell(config, autopilot=autopilot, landing=kit)  # type: ignore[arg-type]
     shell.fusion = Fusion()
     return shell
 
