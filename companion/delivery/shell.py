@@ -41,7 +41,7 @@ from companion.config import CompanionConfig
 from companion.delivery.detection_pacer import DetectionPacer
 
 # the landing fusion's modules load with the shell, not when the fusion starts at take-off: their
-# import (scipy.spatial among them) is tens of ms of CPU that a slow board took from guidance
+# import (scipy.spatial among them) would take the loop's CPU from guidance in flight
 from companion.delivery.fusion import FusionSetup, LandingFusion
 from companion.delivery.mission import (
     DeliveryMission,

@@ -637,10 +637,10 @@ class PadDetector:
         """How far (px) the pad's image has moved, and by what factor it has grown, since the last
         frame that found it: its centre derotated by the attitude then, moved at the derotated
         image velocity and scale rate of the last two frames that found it, and rotated back by
-        the attitude now. Frames skipped by a CPU budget (runtime.vision_cpu_budget) put 0.1-0.3 s
-        between detections, in which a rocking or turning vehicle moves the pad's image by more
-        than the ROI's margin, and a missed ROI costs a full-frame search on top. No track, or a
-        gap over ``roi_predict_max_gap_s``: no prediction."""
+        the attitude now. With frames far apart (a CPU budget, runtime.vision_cpu_budget) a
+        rocking or turning vehicle moves the pad's image by more than the ROI's margin, and a
+        missed ROI costs a full-frame search on top. No track, or a gap over
+        ``roi_predict_max_gap_s``: no prediction."""
         none = (np.zeros(2), 1.0)
         if time_s is None or self._track is None:
             return none
