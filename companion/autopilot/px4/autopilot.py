@@ -11,10 +11,13 @@ synchronous ``set_velocity_ned`` and ``start()`` instead (see :mod:`.telemetry` 
 Commands. Arming is refused (TEMPORARILY_REJECTED) in POSCTL without RC and in AUTO.LAND /
 AUTO.TAKEOFF, and (DENIED) in OFFBOARD once our setpoints stopped, which is the mode a
 companion-flown landing leaves the vehicle in; :meth:`Px4Autopilot.arm` therefore switches to
-HOLD (AUTO.LOITER, where PX4 arms) first. The parcel is released with MAV_CMD_DO_GRIPPER or
-MAV_CMD_DO_SET_ACTUATOR (an output whose function is "Peripheral via Actuator Set N"); PX4
-answers MAV_CMD_DO_SET_SERVO with UNSUPPORTED. Both go out as COMMAND_LONG through MavlinkDirect:
-MAVSDK's Gripper plugin can leave a native call blocked.
+HOLD (AUTO.LOITER, where PX4 arms) first. An arm DENIED because a health or pre-flight check
+fails for now ("Arming denied: Resolve system health failures first" after e.g. "Preflight Fail:
+No valid data from Baro 0", or while PX4's health says not armable) is asked again every second
+until ``arm_timeout_s``, as ArduPilot's backend does while its EKF settles. The parcel is
+released with MAV_CMD_DO_GRIPPER or MAV_CMD_DO_SET_ACTUATOR (an output whose function is
+"Peripheral via Actuator Set N"); PX4 answers MAV_CMD_DO_SET_SERVO with UNSUPPORTED. Both go out
+as COMMAND_LONG through MavlinkDirect: MAVSDK's Gripper plugin can leave a native call blocked.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from companion.autopilot.interface import (
     AttitudeTarget,
     Autopilot,
     AutopilotError,
+    CommandRejected,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -65,6 +69,9 @@ PX4_MAIN_AUTO = 4
 PX4_AUTO_LOITER = 3
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
+ARM_RETRY_S = 1.0  # between arms PX4 denied for a failing check
+# PX4's arming-check texts (commander's health and arming checks); lower case
+ARM_CHECK_TEXTS = ("resolve system health failures", "preflight fail")
 
 
 class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
@@ -82,6 +89,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         release_actuator: int = 1,
         release_actuator_value: float = 1.0,
         command_timeout_s: float = 5.0,
+        arm_timeout_s: float = 10.0,
         destroy_timeout_s: float = 3.0,
         tlog: OpenPacketSink | None = None,
         component_id: int = 191,
@@ -104,6 +112,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self.release_actuator = release_actuator
         self.release_actuator_value = release_actuator_value
         self.command_timeout_s = command_timeout_s
+        self.arm_timeout_s = arm_timeout_s
         self.destroy_timeout_s = destroy_timeout_s
         self.streams_restarted = 0  # telemetry streams that ended or raised and were subscribed again
         self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
@@ -145,6 +154,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self._gps_fix = 0
         self._gps_sats = 0
         self._last_text = ""
+        self._texts_seen = 0
         self._health: Any = None  # MAVSDK's last Telemetry.Health
 
     @classmethod
@@ -169,6 +179,25 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         return ap
 
     async def arm(self) -> None:
+        deadline = time.monotonic() + self.arm_timeout_s
+        while True:
+            try:
+                await self._arm_once()
+                return
+            except CommandRejected as err:
+                if not self._check_refusal(err) or time.monotonic() + ARM_RETRY_S > deadline:
+                    raise
+                log.info("PX4 denied the arm for a failing check, asking again in %.0f s: %s", ARM_RETRY_S, err)
+                await asyncio.sleep(ARM_RETRY_S)
+
+    def _check_refusal(self, err: CommandRejected) -> bool:
+        """A refusal a waiting pilot would see clear: PX4's health or pre-flight checks failing
+        (said in its text, or in its health report at the time), not a mode or a switch."""
+        if err.result not in ("DENIED", "TEMPORARILY_REJECTED"):
+            return False
+        return any(t in err.reason.lower() for t in ARM_CHECK_TEXTS) or not self._healthy
+
+    async def _arm_once(self) -> None:
         if not self._armed and self._mode is not FlightMode.HOLD:
             # PX4 refuses to arm in the mode a landing leaves (OFFBOARD without setpoints,
             # AUTO.LAND) and in POSCTL without RC: arm in HOLD, then take off from there

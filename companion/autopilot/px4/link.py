@@ -102,6 +102,7 @@ class Px4Link(abc.ABC):
     _gps_fix: int
     _gps_sats: int
     _last_text: str
+    _texts_seen: int  # a repeated text is a new one too
     _health: Any
 
     async def connect(self, timeout_s: float = 10.0) -> None:

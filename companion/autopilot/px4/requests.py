@@ -123,7 +123,7 @@ class Px4Requests(Px4Telemetry):
             raise CommandRejected(name, LINK_DOWN, "not connected")
         if not self.link_ok:
             raise CommandRejected(name, LINK_DOWN, "link is down")
-        text_before = self._last_text
+        texts_before = self._texts_seen
         try:
             return await asyncio.wait_for(fn(), self.command_timeout_s)
         except TimeoutError:
@@ -132,7 +132,7 @@ class Px4Requests(Px4Telemetry):
             raise CommandRejected(name, NO_ANSWER, f"no answer within {self.command_timeout_s:.1f} s") from None
         except Exception as err:  # MAVSDK's ActionError, OffboardError, ... (all MavsdkError)
             await asyncio.sleep(0.05)  # the STATUSTEXT with PX4's reason follows the ack
-            reason = self._last_text if self._last_text != text_before else ""
+            reason = self._last_text if self._texts_seen != texts_before else ""
             code = str(err).split(";", 1)[0].strip()
             result = _MAVSDK_RESULTS.get(code, code or type(err).__name__)
             raise CommandRejected(name, result, reason or str(err)) from None
@@ -150,10 +150,10 @@ class Px4Requests(Px4Telemetry):
         }
         fields.update({f"param{i + 1}": v for i, v in enumerate(p)})
         msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
-        text_before = self._last_text
+        texts_before = self._texts_seen
         ack = await self._call(name, lambda: self._direct.send_command(msg))
         result = json.loads(ack.fields_json).get("result", -1) if ack.fields_json else -1
         if result != 0:
             await asyncio.sleep(0.05)  # PX4's STATUSTEXT with the reason follows the ack
-            reason = self._last_text if self._last_text != text_before else ""
+            reason = self._last_text if self._texts_seen != texts_before else ""
             raise CommandRejected(name, MAV_RESULT_NAMES.get(result, str(result)), reason)

@@ -191,6 +191,7 @@ class Px4Telemetry(Px4Link):
         def on_text(st: Any) -> None:
             text = str(st.text)
             self._last_text = text
+            self._texts_seen += 1
             log.info("autopilot: %s", text)
             self._push(StatusText(now(), _SEVERITY.get(getattr(st.type, "name", ""), 6), text))
 

@@ -1,0 +1,71 @@
+"""Px4Autopilot's arm asks again while PX4 denies it for a failing health or pre-flight check (a
+sensor that timed out for a moment), until its arm_timeout_s; any other denial is passed on at once."""
+
+import pytest
+from mavsdk.plugins.action import ActionError, ActionResult
+
+from companion.autopilot.interface import CommandRejected
+from companion.autopilot.px4 import Px4Autopilot
+from companion.autopilot.px4 import autopilot as px4_autopilot
+from companion.autopilot.types import FlightMode
+
+HEALTH_DENIAL = "Arming denied: Resolve system health failures first"
+
+
+class Action:
+    """MAVSDK's Action plugin as far as arm() goes; each denial comes with PX4's STATUSTEXT."""
+
+    def __init__(self, ap: Px4Autopilot, denials: list[str]) -> None:
+        self.ap, self.denials, self.calls = ap, denials, 0
+
+    async def arm(self) -> None:
+        self.calls += 1
+        if self.denials:
+            self.ap._last_text = self.denials.pop(0)  # on_text: the reason follows the ack
+            self.ap._texts_seen += 1
+            raise ActionError(ActionResult.COMMAND_DENIED, "arm()")
+        self.ap._armed = True
+
+
+def _autopilot(denials: list[str], healthy: bool = True, arm_timeout_s: float = 10.0) -> tuple[Px4Autopilot, Action]:
+    ap = Px4Autopilot("udpin://127.0.0.1:14599", arm_timeout_s=arm_timeout_s)
+    ap._system = object()
+    ap._connected, ap._last_rx = True, float("inf")  # link_ok without a link
+    ap._mode = FlightMode.HOLD  # no mode switch first
+    ap._healthy = healthy
+    action = ap._action = Action(ap, denials)
+    return ap, action
+
+
+@pytest.fixture(autouse=True)
+def fast_retries(monkeypatch):
+    monkeypatch.setattr(px4_autopilot, "ARM_RETRY_S", 0.001)
+
+
+async def test_a_health_denial_is_asked_again_until_the_vehicle_arms(monkeypatch):
+    ap, action = _autopilot(["Preflight Fail: No valid data from Baro 0", HEALTH_DENIAL])
+    assert ap.link_ok
+    await ap.arm()
+    assert ap._armed and action.calls == 3
+
+
+async def test_a_denial_while_px4_reports_itself_not_armable_is_asked_again():
+    ap, action = _autopilot(["Arming denied: some check"], healthy=False)
+    await ap.arm()
+    assert ap._armed and action.calls == 2
+
+
+async def test_a_mode_denial_on_a_healthy_vehicle_is_passed_on_at_once():
+    ap, action = _autopilot(["Arming denied: switch to a manual mode"])
+    with pytest.raises(CommandRejected) as err:
+        await ap.arm()
+    assert err.value.result == "DENIED" and err.value.permanent and "manual mode" in err.value.reason
+    assert action.calls == 1
+
+
+async def test_a_health_denial_that_lasts_ends_at_arm_timeout_with_px4s_answer(monkeypatch):
+    ap, action = _autopilot([HEALTH_DENIAL] * 10**6, arm_timeout_s=0.3)  # each try waits 0.05 s for the text
+    with pytest.raises(CommandRejected) as err:
+        await ap.arm()
+    assert err.value.result == "DENIED" and err.value.reason == HEALTH_DENIAL
+    assert 3 < action.calls < 10**6
