@@ -64,6 +64,7 @@ async def test_px4_asks_for_each_configured_rate_and_a_refusal_is_a_warning(capl
 
     ap._tel = SimpleNamespace(
         set_rate_attitude_euler=setter("attitude"),
+        set_rate_attitude_quaternion=setter("quaternion"),
         set_rate_imu=setter("imu", fail=True),
         set_rate_position_velocity_ned=setter("pv"),
         set_rate_position=setter("pos"),
@@ -71,7 +72,9 @@ async def test_px4_asks_for_each_configured_rate_and_a_refusal_is_a_warning(capl
     ap.attitude_rate_hz, ap.position_rate_hz = 20.0, None
     caplog.set_level(logging.INFO, logger="companion.autopilot.px4")
     await ap._set_stream_rates()
-    assert asked == [("attitude", 20.0), ("imu", 20.0)]  # the position streams stay at PX4's rate
+    # ATTITUDE_QUATERNION too: MAVSDK's angular velocity stream follows it (onboard mode: 50 Hz);
+    # the position streams stay at PX4's rate
+    assert asked == [("attitude", 20.0), ("quaternion", 20.0), ("imu", 20.0)]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert warnings == ["PX4 did not take IMU at 20 Hz (UNSUPPORTED): it streams at its own rate"]
 

@@ -111,6 +111,8 @@ class Px4Telemetry(Px4Link):
         tel = self._tel
         asks = [
             ("attitude", tel.set_rate_attitude_euler, self.attitude_rate_hz),
+            # ATTITUDE_QUATERNION (onboard mode: 50 Hz) feeds MAVSDK's angular velocity stream too
+            ("attitude quaternion", tel.set_rate_attitude_quaternion, self.attitude_rate_hz),
             ("IMU", tel.set_rate_imu, self.attitude_rate_hz),
             ("local position", tel.set_rate_position_velocity_ned, self.position_rate_hz),
             ("global position", tel.set_rate_position, self.position_rate_hz),
