@@ -26,6 +26,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -358,14 +359,84 @@ def cap_unavailable() -> str:
     return ""
 
 
+# threads that stand in for the world, not the companion: the MAVLink sim vehicle, the camera's
+# rendering, the real firmware's truth reader, and the keeper itself
+WORLD_THREAD_PREFIXES = ("mavlink-sim", "dart-link-camera", "sim-camera-render", "truth-feed", "cpu-cap-keeper")
+
+
+class CapKeeper:
+    """Keeps the companion, and only it, in ``cgroup``: the threads that stand in for the world
+    (:data:`WORLD_THREAD_PREFIXES`) moved back out (cgroup v1 moves single threads; under v2 a
+    process's threads share one cgroup and :attr:`world_inside` says so), this process's logging
+    process moved into ``logging_cgroup`` (its own core's worth: it exists to run on another core,
+    and a Pi has four), or into ``cgroup`` when there is none. Threads come and go: :meth:`sweep`
+    again every ``period_s`` (:meth:`run` on the loop, or :meth:`start` on a thread of its own)."""
+
+    def __init__(self, cgroup: CpuCgroup, period_s: float = 0.2, logging_cgroup: CpuCgroup | None = None) -> None:
+        self.cgroup = cgroup
+        self.logging_cgroup = logging_cgroup if logging_cgroup is not None else cgroup
+        self.period_s = period_s
+        self.world_inside = cgroup.controller.version != 1
+        self.released: set[int] = set()
+        self._logging_pid: int | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def sweep(self) -> None:
+        from companion.flightlog import logproc
+
+        if not self.world_inside:
+            for t in threading.enumerate():
+                tid = t.native_id
+                if tid is None or tid in self.released or not t.name.startswith(WORLD_THREAD_PREFIXES):
+                    continue
+                with contextlib.suppress(CpuCapError):
+                    self.cgroup.release_tid(tid)
+                    self.released.add(tid)
+        cur = logproc.LogProcess._current
+        if cur is not None and not cur.dead and cur.pid == os.getpid() and cur.child.pid != self._logging_pid:
+            self.logging_cgroup.add_pid(cur.child.pid)
+            self._logging_pid = cur.child.pid
+
+    async def run(self) -> None:
+        import asyncio
+
+        while True:
+            self.sweep()
+            await asyncio.sleep(self.period_s)
+
+    def start(self) -> None:
+        """Sweep on a daemon thread of its own (itself a world thread, so outside the cap)."""
+
+        def loop() -> None:
+            while not self._stop.wait(self.period_s):
+                self.sweep()
+
+        self.sweep()
+        self._thread = threading.Thread(target=loop, name="cpu-cap-keeper", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+
 @contextlib.contextmanager
-def capped_process(fraction: float) -> Iterator[CpuCgroup]:
-    """This whole process (and what it starts from now on) capped for the ``with`` block."""
-    cg = open_cgroup(fraction)
+def capped_process(fraction: float, period_us: int | None = None, world_outside: bool = False) -> Iterator[CpuCgroup]:
+    """This whole process (and what it starts from now on) capped for the ``with`` block; with
+    ``world_outside``, a :class:`CapKeeper` keeps the world's stand-ins out of it."""
+    cg = open_cgroup(fraction, period_us=period_us)
+    keeper = CapKeeper(cg) if world_outside else None
     try:
         cg.add_pid(os.getpid())
+        if keeper is not None:
+            keeper.start()
         yield cg
     finally:
+        if keeper is not None:
+            keeper.stop()
         cg.remove()
 
 

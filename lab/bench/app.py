@@ -40,7 +40,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -49,6 +49,7 @@ from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipp
 from companion.estimation.ekf import UpdateOutcome
 from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog
+from companion_lab.cpu_cap import WORLD_THREAD_PREFIXES, CapKeeper, open_cgroup
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +132,7 @@ class CpuAccount:
 def classify_thread(comm: str, py_name: str | None) -> str:
     """The task a whole thread belongs to (for its CPU not covered by a wrapper)."""
     name = py_name or comm
-    if name.startswith(("mavlink-sim", "dart-link-camera", "sim-camera-render")):
+    if name.startswith(WORLD_THREAD_PREFIXES):
         return "sim"
     if name.startswith("csvlog-writer") or name.startswith("tlog-"):
         return "logging"
@@ -269,41 +270,6 @@ def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
         for r in rows("ap_status.csv")
     ]
     return setpoint_stream_gaps(times, None, modes)
-
-
-class _CapKeeper:
-    """Keeps the companion, and only it, in the capped cgroups: this process moved in whole, the
-    simulator's threads (MAVLink sim vehicle, camera rendering) moved back out (cgroup v1), the
-    logging process moved into ``logging_cgroup`` (its own core's worth: the logging process exists
-    to run on another core, and a Pi has four), or into ``cgroup`` when there is none. Re-checked
-    every ``period_s`` since threads come and go."""
-
-    def __init__(self, cgroup: Any, period_s: float = 0.2, logging_cgroup: Any = None) -> None:
-        self.cgroup = cgroup
-        self.logging_cgroup = logging_cgroup if logging_cgroup is not None else cgroup
-        self.period_s = period_s
-        self.sim_inside = cgroup.controller.version != 1  # v2: a process's threads share one cgroup
-        self._released: set[int] = set()
-        self._logging_pid: int | None = None
-
-    def sweep(self) -> None:
-        if not self.sim_inside:
-            for t in threading.enumerate():
-                tid = t.native_id
-                if tid is None or tid in self._released or classify_thread(t.name, t.name) != "sim":
-                    continue
-                with contextlib.suppress(Exception):
-                    self.cgroup.release_tid(tid)
-                    self._released.add(tid)
-        cur = _logging_process()
-        if cur is not None and cur.child.pid != self._logging_pid:
-            self.logging_cgroup.add_pid(cur.child.pid)
-            self._logging_pid = cur.child.pid
-
-    async def run(self) -> None:
-        while True:
-            self.sweep()
-            await asyncio.sleep(self.period_s)
 
 
 # ---------------------------------------------------------------------------- rate loops
@@ -588,15 +554,13 @@ async def _run_delivery(
     cgroup: Any = None
     log_cgroup: Any = None
     keeper_task: asyncio.Task[None] | None = None
-    keeper: _CapKeeper | None = None
+    keeper: CapKeeper | None = None
     if cpu_cap is not None:
-        from companion_lab.cpu_cap import open_cgroup
-
         cgroup = open_cgroup(cpu_cap, period_us=cap_period_us)
         cgroup.add_pid(os.getpid())
         if logging_core:
             log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}", cap_period_us)
-        keeper = _CapKeeper(cgroup, logging_cgroup=log_cgroup)
+        keeper = CapKeeper(cgroup, logging_cgroup=log_cgroup)
         keeper.sweep()
         keeper_task = loop.create_task(keeper.run(), name="bench-cpu-cap")
     offboard: list[tuple[float, bool]] = []
@@ -672,7 +636,7 @@ async def _run_delivery(
         r["cpu_cap"] = {
             "fraction_of_one_core": cpu_cap,
             "cgroup": cgroup.describe(),
-            "simulator_inside_the_cap": keeper.sim_inside,
+            "simulator_inside_the_cap": keeper.world_inside,
             "periods": throttle1.get("nr_periods", 0) - throttle0.get("nr_periods", 0),
             "throttled_periods": throttle1.get("nr_throttled", 0) - throttle0.get("nr_throttled", 0),
             "throttled_ms": round((throttle1.get("throttled_time", 0) - throttle0.get("throttled_time", 0)) / 1e6, 1),
@@ -879,7 +843,7 @@ def _report(
 def bench_app(
     duration_s: float,
     backend: str = "ardupilot",
-    params: Path | None = None,
+    params: Path | Sequence[Path] | None = None,
     cpu_cap: float | None = None,
     logging_core: bool = True,
     vision_cpu_budget: float | None = None,
@@ -890,13 +854,14 @@ def bench_app(
     """Run the delivery application for ``duration_s`` of real time and measure it."""
     from companion.telemetry.loopback import free_tcp_port
 
-    cfg_path = params or shipped_params_path(DEFAULT_PARAMS)
+    paths = [params] if isinstance(params, Path) else list(params or [shipped_params_path(DEFAULT_PARAMS)])
+    cfg_path = " + ".join(map(str, paths))
     gport = free_tcp_port()
     with tempfile.TemporaryDirectory(prefix="bench-app-") as tmp:
         folder = Path(tmp)
         zfile = _write_zenoh_file(folder, gport)
         config = load_config(
-            cfg_path,
+            *paths,
             overrides={
                 "telemetry": {"enabled": True, "zenoh_config": str(zfile)},
                 "landing": {"fusion": True},
@@ -948,7 +913,8 @@ def capped_flight_report(autopilot: str, cap: float, result: Any, run_dir: Path,
     ss = run_setpoint_stream(run_dir)
     return (
         f"{name}, companion at {cap:.2f} of one core: pad error on truth {result.pad_landing_error_m * 100:.1f} cm; "
-        f"markers {result.markers_used}, uwb {result.uwb_used}; overruns guidance {result.guidance_overruns}, "
+        f"markers {result.markers_used}, uwb {result.uwb_used}; overruns guidance {result.guidance_overruns} "
+        f"of {result.guidance_ticks} ticks ({100.0 * result.guidance_overruns / max(result.guidance_ticks, 1):.2f} %), "
         f"setpoints {result.setpoint_overruns} of {ss['setpoints']} setpoints; largest gap in {mode} "
         f"{ss['max_gap_ms']} ms, {ss['gaps_over_100_ms']} over 100 ms ({failsafe}: {ss['would_trip'][key]}); "
         f"throttled in {throttled.get('nr_throttled')} of {throttled.get('nr_periods')} periods"

@@ -179,3 +179,61 @@ def test_caps_left_behind_are_swept_and_one_in_use_is_kept(tmp_path):
 
 def test_cli_refuses_a_bad_cap():
     assert cpu_cap.main(["run", "--cap", "abc", "--", "true"]) == 2
+
+
+class _RecordingCgroup(CpuCgroup):
+    """A v1 cgroup on the fake tree that records the threads it moves back out."""
+
+    def __init__(self, controller: CpuController) -> None:
+        super().__init__(controller, 0.13, "cap-keeper")
+        self.released: list[int] = []
+
+    def release_tid(self, tid: int) -> None:
+        self.released.append(tid)
+
+
+def test_the_keeper_moves_the_worlds_threads_out_and_leaves_the_companions(tmp_path):
+    import threading
+
+    cg = _RecordingCgroup(CpuController(1, _v1_tree(tmp_path)))
+    stop = threading.Event()
+    threads = [
+        threading.Thread(target=stop.wait, name=n, daemon=True)
+        for n in ("truth-feed", "sim-camera-render_0", "landing-vision", "ThreadPoolExecutor-0_0")
+    ]
+    for t in threads:
+        t.start()
+    try:
+        keeper = cpu_cap.CapKeeper(cg)
+        keeper.sweep()
+        keeper.sweep()  # a thread already out is not moved again
+        assert sorted(cg.released) == sorted(t.native_id for t in threads[:2])
+        assert not keeper.world_inside
+    finally:
+        stop.set()
+
+
+def test_the_keeper_on_cgroup_v2_says_the_world_stays_inside(tmp_path):
+    d = tmp_path / "sys/fs/cgroup/user.slice"
+    d.mkdir(parents=True)
+    cg = _RecordingCgroup(CpuController(2, d))
+    keeper = cpu_cap.CapKeeper(cg)
+    keeper.sweep()
+    assert keeper.world_inside and cg.released == []
+
+
+def test_the_keepers_own_thread_is_a_world_thread(tmp_path):
+    cg = _RecordingCgroup(CpuController(1, _v1_tree(tmp_path)))
+    keeper = cpu_cap.CapKeeper(cg, period_s=0.01)
+    keeper.start()
+    try:
+        assert keeper._thread is not None
+        tid = keeper._thread.native_id
+        for _ in range(200):
+            if tid in cg.released:
+                break
+            keeper._stop.wait(0.01)
+        assert tid in cg.released
+    finally:
+        keeper.stop()
+    assert keeper._thread is None
