@@ -84,6 +84,7 @@ class HarnessResult:
     believed_offset_m: float = math.nan
     estimate_error_m: float = math.nan
     guidance_overruns: int = 0
+    guidance_ticks: int = 0
     setpoint_overruns: int = 0
     # per tick of the descent onto the pad, until the first ON_GROUND: LANDING_TRACE_FIELDS
     landing_trace: tuple[tuple[float, ...], ...] = ()
@@ -227,6 +228,7 @@ async def fly_on_truth(
         believed_offset_m=math.hypot(*b),
         estimate_error_m=est_err,
         guidance_overruns=shell.stats.guidance_overruns,
+        guidance_ticks=shell.stats.guidance_ticks,
         setpoint_overruns=shell.stats.setpoint_overruns,
         landing_trace=tuple(landing_trace),
         home_with_parcel=summary.home_with_parcel,

@@ -40,6 +40,7 @@ KIND_OF = {
     "landing_campaign_short.toml": "vehicle",
     "px4_sih_quad.toml": "vehicle",
     "sitl_short.toml": "vehicle",
+    "slow_board.toml": "vehicle",  # an overlay: validates on the defaults alone
     "dart_hover.toml": "dart",
     "camera_rpi_v2.toml": "camera",
     "pad_delivery.toml": "pad",

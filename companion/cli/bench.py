@@ -465,7 +465,7 @@ def cmd_bench_app(args: argparse.Namespace) -> int:
             r = bench_app(
                 args.duration_s,
                 args.backend,
-                Path(args.params) if args.params else None,
+                [Path(p) for p in args.params] if args.params else None,
                 cap,
                 logging_core=not args.cap_logging_with_app,
                 vision_cpu_budget=args.vision_cpu_budget,
@@ -493,7 +493,12 @@ def register_bench_app(bench_subparsers: Any) -> None:
     )
     p.add_argument("--duration-s", type=float, default=60.0, help="seconds of real time")
     p.add_argument("--backend", choices=("ardupilot", "px4"), default="ardupilot", help="MAVLink backend")
-    p.add_argument("--params", help="parameter file (default: the shipped delivery_paper.toml)")
+    p.add_argument(
+        "--params",
+        action="append",
+        help="parameter file; again for an overlay, later files override earlier ones, e.g. params/slow_board.toml "
+        "(default: the shipped delivery_paper.toml)",
+    )
     p.add_argument(
         "--dart",
         action="store_true",

@@ -156,6 +156,7 @@ class LandingKit:
 
 @dataclass
 class ShellStats:
+    guidance_ticks: int = 0
     guidance_overruns: int = 0
     setpoint_overruns: int = 0
     setpoints_sent: int = 0
@@ -517,7 +518,7 @@ class DeliveryShell:
         mission = self.mission
         while not mission.phase.terminal:
             now, _ = await rate.tick_or(self._marker_fused)
-            self.stats.guidance_overruns = rate.overruns
+            self.stats.guidance_overruns, self.stats.guidance_ticks = rate.overruns, rate.ticks
             if self._abort_reason is not None:
                 if self.recorder is not None:
                     self.recorder.on_abort(now, self._abort_reason)

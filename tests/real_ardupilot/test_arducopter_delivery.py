@@ -25,7 +25,7 @@ pytestmark = pytest.mark.firmware
 PAD_OFFSET = (1.2, -0.9)  # 1.5 m: GPS alone would land 1.5 m off the true pad
 
 
-def _config(connection: str, return_home: bool = True, **landing):
+def _config(connection: str, return_home: bool = True, overlays: tuple[str, ...] = (), **landing):
     tuning = firmware_tuning("ardupilot")  # params/ardupilot_quad.toml: landing and GUIDED's accel limits
     overrides = {
         "autopilot": "ardupilot",
@@ -34,7 +34,8 @@ def _config(connection: str, return_home: bool = True, **landing):
         "mission": {**tuning["mission"], "ready_timeout_s": 120.0, "return_home": return_home},
         "landing": {**tuning["landing"], **landing},
     }
-    return load_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
+    files = [shipped_params_path(f) for f in ("sitl_short.toml", *overlays)]
+    return load_config(*files, overrides=overrides)
 
 
 async def _fly(ardupilot_root, tmp_path, params, return_home: bool = True, **landing):

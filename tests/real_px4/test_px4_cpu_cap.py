@@ -1,14 +1,16 @@
-"""The sitl_short delivery against the real PX4 SIH with the companion's process capped to two
-Raspberry Pi 4 cores' share of this machine's core (docs/cpu-budget.md): PX4 is started first and
-stays outside the cap; this process (the companion, MAVSDK's server it starts, and the truth reader
-and camera and UWB rendering that stand in for the sensors) runs inside it. The figures (overruns,
-the largest setpoint gap in offboard against COM_OF_LOSS_T, the landing on truth) are printed; the
-test asserts the mission's goal, which an offboard failsafe would have ended.
+"""The sitl_short delivery against the real PX4 SIH with the companion capped to two Raspberry Pi 4
+cores' share of this machine's core (docs/cpu-budget.md), with the slow board's settings
+(params/slow_board.toml) and the kernel's 100 ms CFS period, as `companion bench app` measures it.
+PX4 is started first and stays outside the cap; in this process the companion's threads (MAVSDK's
+core among them) run inside it, and the threads that stand in for the world (the truth reader, the
+camera's rendering) are kept out. The figures (overruns, the largest setpoint gap in offboard
+against COM_OF_LOSS_T, the landing on truth) are printed; the test asserts the mission's goal,
+which an offboard failsafe would have ended, and the landing on the pad.
 
-At one Pi 4 core's worth the goal is not met with the shipped rates: MAVSDK's core and the
-companion starve together. With the slow board's settings (streams at 10 / 5 Hz, fewer frames and
-log rows) it is met, but with too little margin under COM_OF_LOSS_T and the pad's edge to assert
-here (docs/performance.md, "A Pi-sized CPU budget")."""
+At one Pi 4 core's worth the companion with MAVSDK needs about what the cap gives (its CPU
+uncapped is ~12-13 % of this core against the cap's 13 %): it delivers, with 10-16 % of the
+guidance ticks missed and the landing 12-62 cm off, too thin a margin to assert here
+(docs/performance.md, "A Pi-sized CPU budget")."""
 
 from __future__ import annotations
 
@@ -30,6 +32,8 @@ from .test_px4_sitl import PAD_OFFSET_M
 
 pytestmark = pytest.mark.firmware
 
+PERIOD_US = 100_000  # the kernel's default CFS period (docs/cpu-budget.md: both periods' figures)
+
 
 async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp_path):
     pi4_cores = 2  # at one the margin is too thin to assert (the module's docstring)
@@ -39,11 +43,12 @@ async def test_delivery_on_px4_with_the_companion_at_two_pi4_cores(px4_root, tmp
     tuning = firmware_tuning("px4")
     config = load_config(
         shipped_params_path("sitl_short.toml"),
+        shipped_params_path("slow_board.toml"),
         overrides={"mission": tuning["mission"], "landing": tuning["landing"]},
     )
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), MavlinkTruth("udpin:127.0.0.1:14550") as truth:
         await asyncio.to_thread(truth.wait, 30.0)
-        with capped_process(pi4_cores * PI4_FACTOR) as cg:
+        with capped_process(pi4_cores * PI4_FACTOR, period_us=PERIOD_US, world_outside=True) as cg:
             ap = Px4Autopilot.from_config(config.model_copy(update={"connection": "udpin://127.0.0.1:14540"}))
             rec = FlightRecorder(tmp_path / "run", config)
             try:

@@ -303,12 +303,17 @@ def test_setpoint_stream_of_a_run_folder(tmp_path):
     from companion_lab.bench.app import capped_flight_report
 
     res = SimpleNamespace(
-        pad_landing_error_m=0.031, markers_used=9, uwb_used=4, guidance_overruns=2, setpoint_overruns=1
+        pad_landing_error_m=0.031,
+        markers_used=9,
+        uwb_used=4,
+        guidance_overruns=2,
+        guidance_ticks=400,
+        setpoint_overruns=1,
     )
     line = capped_flight_report("px4", 0.26, res, tmp_path, {"nr_throttled": 3, "nr_periods": 40})
     assert "PX4 SIH, companion at 0.26 of one core: pad error on truth 3.1 cm" in line
     assert "largest gap in offboard 1600.0 ms" in line and "COM_OF_LOSS_T 1 s: True" in line
-    assert "throttled in 3 of 40 periods" in line
+    assert "throttled in 3 of 40 periods" in line and "overruns guidance 2 of 400 ticks (0.50 %)" in line
     assert "GUID_TIMEOUT 3 s: False" in capped_flight_report("ardupilot", 0.13, res, tmp_path, {})
     (tmp_path / "setpoints.csv").unlink()
     with pytest.raises(BenchInputError, match=r"setpoints\.csv"):
