@@ -576,9 +576,9 @@ class RuntimeConfig(_Section):
         None,
         "Hz",
         "rate the companion asks the autopilot to stream its attitude and IMU at (ArduPilot: ATTITUDE, "
-        "HIGHRES_IMU / RAW_IMU; PX4 through MAVSDK: ATTITUDE, ATTITUDE_QUATERNION, IMU); every message costs the link's decoding and "
-        "fusion's prediction, so a slow board lowers it (docs/cpu-budget.md). Unset: ArduPilot 50 Hz, PX4 the "
-        "rates of its MAVLink instance's mode",
+        "HIGHRES_IMU / RAW_IMU; PX4 through MAVSDK: ATTITUDE, ATTITUDE_QUATERNION, IMU); every message costs "
+        "the link's decoding and fusion's prediction, so a slow board lowers it (docs/cpu-budget.md). Unset: "
+        "ArduPilot 50 Hz, PX4 the rates of its MAVLink instance's mode",
         ge=5.0,
         le=200.0,
     )
