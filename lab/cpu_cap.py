@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import logging
 import math
 import os
@@ -184,6 +185,14 @@ def calibrate(steps: int = NBODY_STEPS) -> Calibration:
     _, _, cpu_s = nbody(steps)
     here_5m = cpu_s * NBODY_STEPS / steps
     return Calibration(here_5m, PI4_NBODY_5M_S, here_5m / PI4_NBODY_5M_S)
+
+
+@functools.cache
+def pi4_factor_here(steps: int = 500_000) -> float:
+    """One Pi 4 core's share of this machine's core, measured now (a tenth of :func:`calibrate`'s
+    run, ~3 s): the built-in :data:`PI4_FACTOR` is one machine's; a host whose cores run slower
+    (or a virtual machine's, shared) gets its own, so a cap means a Pi 4 core wherever it runs."""
+    return calibrate(steps).factor
 
 
 # ---------------------------------------------------------------------------- the cgroup

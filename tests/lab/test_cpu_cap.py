@@ -237,3 +237,20 @@ def test_the_keepers_own_thread_is_a_world_thread(tmp_path):
     finally:
         keeper.stop()
     assert keeper._thread is None
+
+
+def test_the_factor_measured_here_is_calibrates_ratio_and_is_measured_once(monkeypatch):
+    calls: list[int] = []
+
+    def fake_calibrate(steps: int) -> cpu_cap.Calibration:
+        calls.append(steps)
+        return cpu_cap.Calibration(31.65, cpu_cap.PI4_NBODY_5M_S, 31.65 / cpu_cap.PI4_NBODY_5M_S)
+
+    monkeypatch.setattr(cpu_cap, "calibrate", fake_calibrate)
+    cpu_cap.pi4_factor_here.cache_clear()
+    try:
+        assert cpu_cap.pi4_factor_here() == pytest.approx(0.2, abs=1e-3)
+        assert cpu_cap.pi4_factor_here() == pytest.approx(0.2, abs=1e-3)
+        assert calls == [500_000]  # a tenth of calibrate's run, once per process
+    finally:
+        cpu_cap.pi4_factor_here.cache_clear()

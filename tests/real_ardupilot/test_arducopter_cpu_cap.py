@@ -15,7 +15,7 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.bench.app import capped_flight_report
-from companion_lab.cpu_cap import PI4_FACTOR, cap_unavailable, capped_process
+from companion_lab.cpu_cap import cap_unavailable, capped_process, pi4_factor_here
 
 from .conftest import GRIPPER_SERVO9, arducopter
 from .test_arducopter_delivery import PAD_OFFSET, _config
@@ -29,12 +29,13 @@ async def test_delivery_on_arducopter_with_the_companion_at_the_pi4_cpu_cap(ardu
     why = cap_unavailable()
     if why:
         pytest.skip(f"no CPU cap here: {why}")
+    pi4 = pi4_factor_here()  # this host's, measured: the built-in factor is one machine's
     with arducopter(ardupilot_root, tmp_path, extra_params=GRIPPER_SERVO9) as (sitl, truth):
         config = _config(sitl.connection, overlays=("slow_board.toml",))
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
         rec = FlightRecorder(tmp_path / "run", config)
         try:
-            with capped_process(PI4_FACTOR, period_us=PERIOD_US, world_outside=True) as cg:
+            with capped_process(pi4, period_us=PERIOD_US, world_outside=True) as cg:
                 r = await fly_on_truth(config, ap, truth, truth.origin, PAD_OFFSET, timeout_s=400.0, recorder=rec)
                 throttled = cg.throttled()
         finally:
@@ -42,6 +43,6 @@ async def test_delivery_on_arducopter_with_the_companion_at_the_pi4_cpu_cap(ardu
             await ap.close()
     if not (r.delivered and r.returned):
         print(flight_story(tmp_path / "run", tmp_path / "arducopter.log"))
-    print("\n" + capped_flight_report("ardupilot", PI4_FACTOR, r, tmp_path / "run", throttled))
+    print("\n" + capped_flight_report("ardupilot", pi4, r, tmp_path / "run", throttled))
     assert r.delivered and r.returned, r.failure
     assert r.pad_landing_error_m < 0.5, r  # on the pad
