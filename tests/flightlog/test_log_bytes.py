@@ -64,10 +64,12 @@ DIGESTS = {
 
 
 # The fused flight's bytes as a host without AVX-512 writes them (an AMD EPYC Zen 3 under KVM,
-# 2026-11-28; DIGESTS' fused set is a Zen 4's): with PINNED_CPU_ENV the GPS-only flight is the same
-# on both, the fused one is not, at the same code. Something on the camera's path (the rendering or
-# the detection) still depends on the CPU in a way the pinned environment does not reach; until it
-# is found, either measured set passes, and nothing else does.
+# 2026-11-28; DIGESTS' fused set is a Zen 4's, taken before OPENCV_IPP was pinned): the GPS-only
+# flight is the same on both, the fused one is not, at the same code. The likeliest cause is the
+# Intel IPP inside OpenCV, which OPENCV_CPU_DISABLE does not reach: it picks its kernels per CPU
+# (AVX2 "l9" here, AVX-512 "k0" on a Zen 4), and it is on the camera's path (without it the fused
+# bytes change; its SSE4.2 and AVX2 kernels give the same bytes here). Until a host with AVX-512
+# has run the pinned environment, either measured set passes, and nothing else does.
 FUSED_DIGESTS_NO_AVX512 = {
     "ap_attitude.csv": "46452462475c0861a81792eceb528a8402e7f671b8afa893427d1fbf89d7fcf6",
     "ap_global.csv": "ee87fb957f4dbdbd487788a1549d75e29673e46e9ea35bfa2e4910017d564023",
@@ -99,6 +101,7 @@ PINNED_CPU_ENV = {
     "OPENBLAS_NUM_THREADS": "1",
     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
     "OPENCV_CPU_DISABLE": "AVX512_SKX,AVX2,FP16,AVX,SSE4_2,SSE4_1,POPCNT,SSSE3",
+    "OPENCV_IPP": "sse42",  # OpenCV's bundled IPP dispatches on its own (above)
 }
 
 _CHILD = """
