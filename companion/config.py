@@ -830,6 +830,16 @@ class PadLockPolicyConfig(_Section):
         ge=0.0,
         le=20.0,
     )
+    reopen_grace_s: float = _f(
+        1.0,
+        "s",
+        "in the final descent, while the camera or UWB keeps observing the pad (an observation within the "
+        "last 0.5 s) but the EKF's 1-sigma is over max_horizontal_sigma_m (the EKF re-opened its "
+        "covariance after ekf_gate_reset_after_rejections rejections, and the next accepted observation "
+        "closes it again), the try fails only once this has lasted this long; 0: at once",
+        ge=0.0,
+        le=10.0,
+    )
     approach_tolerance_m: float = _f(
         0.5,
         "m",

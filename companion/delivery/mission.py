@@ -218,6 +218,7 @@ class DeliveryMission:
         self._search: list[tuple[float, float]] = []  # PAD_SEARCH: corners left (NED north, east)
         self._corner_t0: float | None = None  # PAD_SEARCH: when the current corner was reached
         self._touchdown_lock: tuple[bool, str] = (True, "")
+        self._lock_reopened_at: float | None = None  # since when the descent's lock is lost to sigma alone
         self.fence_cfg = fence if fence is not None and fence.enabled else None
         self.limits = limits
         self._yaw_sp: tuple[float, float] | None = None  # (time, yaw) of the last setpoint (pad heading)
@@ -708,10 +709,27 @@ class DeliveryMission:
         if s == 1 and self.pad_policy is not None:
             h = self._height_above_ground(est)
             ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
-            if not ok and h > self.pad_policy.commit_height_m:
+            if not ok and h > self.pad_policy.commit_height_m and not self._lock_reopening(inp.pad_lock, inp.time_s):
                 return self._pad_try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"), None, math.nan
+            if ok:
+                self._lock_reopened_at = None
         in_sight = s == 1 and pad_in_sight(inp.pad_lock)
         return self._precision_descent(est, s, inp.time_s, in_sight), None, math.nan
+
+    def _lock_reopening(self, lock: PadLock | None, time_s: float) -> bool:
+        """The lock is lost only to the EKF's 1-sigma while the pad is still observed (the EKF
+        re-opened its covariance after a run of gate rejections, and the next accepted observation
+        closes it), for less than the policy's reopen_grace_s: a descent try is not failed on the
+        tick of a re-opening (docs/delivery-policy.md)."""
+        pol = self.pad_policy
+        assert pol is not None
+        observed = lock is not None and lock.sensors and lock.observation_age_s <= PAD_DATA_FRESH_S
+        if lock is None or not observed or not lock.observation_age_s < pol.max_observation_age_s:
+            self._lock_reopened_at = None
+            return False
+        if self._lock_reopened_at is None:
+            self._lock_reopened_at = time_s
+        return time_s - self._lock_reopened_at < pol.reopen_grace_s
 
     def _precision_descent(self, est: StateEstimate, s: int, time_s: float, in_sight: bool) -> VelocitySetpoint:
         """Final descent onto the target (the pad for s = +1, home for s = -1), in F_I.
@@ -1295,6 +1313,7 @@ class DeliveryMission:
         self._touchdown_land_requested = False
         self._disarm_not_before = -math.inf
         self._landing_int = (0.0, 0.0)  # the final descent's integral term starts again
+        self._lock_reopened_at = None
         self._landing_int_t = None
         self._release_requested = False
         self._retry = None  # a retry belongs to the phase that asked

@@ -144,6 +144,39 @@ def test_a_lock_lost_in_the_descent_stops_it_and_the_last_try_goes_home():
     assert "pad lock lost in the descent at 2.0 m" in m.summary.events[-3].detail
 
 
+REOPENED = PadLock(0.0, 0.1, 10.0)  # observed 0.1 s ago, the EKF's covariance just re-opened
+
+
+def test_a_reopened_covariance_with_the_pad_in_sight_gets_the_grace_and_no_more():
+    m, t = _at_approach(PadLockPolicyConfig(descent_tries=1, reopen_grace_s=1.0))
+    _fly(m, t + 0.05, LOCKED, *PAD, -2.5)
+    t += 0.1
+    t0 = t
+    while t < t0 + 0.95:  # sigma over the limit, observations fresh: the descent goes on
+        out = _fly(m, t, REOPENED, *PAD, -2.4)
+        assert m.phase is Phase.LANDING_PAD and out.setpoint is not None
+        t += 0.05
+    _fly(m, t, LOCKED, *PAD, -2.3)  # the next accepted observation closed it: the clock starts again
+    t += 0.05
+    t1 = t
+    while m.phase is Phase.LANDING_PAD:
+        _fly(m, t, REOPENED, *PAD, -2.2)
+        t += 0.05
+    assert t - 0.05 - t1 == pytest.approx(1.0, abs=0.051)  # failed once it lasted reopen_grace_s
+    assert m.phase is Phase.INBOUND and "1-sigma 10.00 m" in m.summary.events[-3].detail
+
+
+def test_without_fresh_observations_or_without_a_grace_the_try_fails_at_once():
+    for policy, lock in (
+        (PadLockPolicyConfig(descent_tries=1), PadLock(0.0, 0.6, 10.0)),  # last observation 0.6 s old
+        (PadLockPolicyConfig(descent_tries=1, reopen_grace_s=0.0), REOPENED),
+    ):
+        m, t = _at_approach(policy)
+        _fly(m, t + 0.05, LOCKED, *PAD, -2.5)
+        _fly(m, t + 0.1, lock, *PAD, -2.0)
+        assert m.phase is Phase.INBOUND, (policy, lock)
+
+
 def test_the_opt_out_releases_where_it_lands():
     m, t = _at_approach(PadLockPolicyConfig(require_pad_lock=False))
     _fly(m, t + 0.05, NO_SENSORS, *PAD, -2.5)
