@@ -219,6 +219,7 @@ class DeliveryMission:
         self._corner_t0: float | None = None  # PAD_SEARCH: when the current corner was reached
         self._touchdown_lock: tuple[bool, str] = (True, "")
         self._lock_reopened_at: float | None = None  # since when the descent's lock is lost to sigma alone
+        self._takeoff_ground_down_m: float | None = None  # the estimate's down when a take-off phase began
         self.fence_cfg = fence if fence is not None and fence.enabled else None
         self.limits = limits
         self._yaw_sp: tuple[float, float] | None = None  # (time, yaw) of the last setpoint (pad heading)
@@ -526,6 +527,8 @@ class DeliveryMission:
         if inp.time_s - self._phase_t0 > self.cfg.takeoff_timeout_s:
             self.abort(inp.time_s, f"takeoff did not reach {self.cfg.takeoff_alt_m} m in time")
             return None, None, math.nan
+        if self._takeoff_ground_down_m is None:
+            self._takeoff_ground_down_m = est.position_ned[2]  # where it stands, before the climb
         if not self._takeoff_requested:
             if self._idle():
                 self._takeoff_requested = True
@@ -592,11 +595,16 @@ class DeliveryMission:
         if h >= 0.9 * self.cfg.takeoff_alt_m:
             return True
         st = inp.status
+        # the climb since the phase began counts too: an autopilot's height can read a metre off on
+        # the ground after a landing (PX4 SIH: 1.27 m below home on the pad), and it takes off by
+        # the takeoff height from where it stands
+        ground = self._takeoff_ground_down_m
+        climbed = ground - est.position_ned[2] if ground is not None else -math.inf
         return (
             st is not None
             and st.mode is FlightMode.HOLD
             and st.landed is LandedState.IN_AIR
-            and h >= 0.5 * self.cfg.takeoff_alt_m
+            and max(h, climbed) >= 0.5 * self.cfg.takeoff_alt_m
         )
 
     def _enter_offboard(self, inp: MissionInputs) -> Request | None:
@@ -1306,6 +1314,7 @@ class DeliveryMission:
         self._offboard_requested = False
         self._abort_hold_requested = False
         self._takeoff_requested = False
+        self._takeoff_ground_down_m = None
         self._touched_down = False
         self._reenter = False
         self._release_t0 = None if phase is not Phase.RELEASE else self._release_t0

@@ -89,6 +89,40 @@ def test_takeoff_then_offboard_only_after_streaming():
     assert out.setpoint.down_m_s < -1.9  # climbing along S1 at v1 = 2 m/s
 
 
+def _climb_in_hold(ground_d, top_d, timeout_s=10.0):
+    """The path planned with the ground at d = 0, then the estimate on the ground reading
+    ``ground_d`` (as after a landing, where the return's ground is the pad's configured level):
+    arm, take off, climb to ``top_d`` and hold there in the air. The requests the mission makes,
+    and the mission."""
+    m = DeliveryMission(cfg(takeoff_alt_m=2.5, takeoff_timeout_s=timeout_s))
+    t = 0.0
+    m.on_result(RequestResult(m.step(MissionInputs(t, est(t), status(t), HOME)).request.id, True))
+    out = m.step(MissionInputs(t, est(t, d=ground_d), status(t, armed=True), HOME))
+    m.on_result(RequestResult(out.request.id, True))
+    kinds = []
+    d = ground_d
+    while t < timeout_s + 1.0 and m.phase is Phase.TAKEOFF:
+        t += 0.05
+        d = max(top_d, d - 0.075)
+        mode = FlightMode.TAKEOFF if d > top_d else FlightMode.HOLD
+        out = m.step(MissionInputs(t, est(t, d=d), status(t, armed=True, mode=mode, landed=LandedState.IN_AIR), HOME))
+        if out.request is not None:
+            kinds.append(out.request.kind)
+            m.on_result(RequestResult(out.request.id, True))
+    return kinds, m
+
+
+def test_a_takeoff_is_judged_by_the_climb_too_when_the_height_reads_low_on_the_ground():
+    """Real PX4 SIH after a landing: its height read 1.27 m below home on the ground, it climbed
+    2.34 m and held; by height above home (1.07 m) the take-off never ended and timed out."""
+    kinds, _ = _climb_in_hold(ground_d=1.27, top_d=-1.07)
+    assert RequestKind.START_OFFBOARD in kinds  # done: the field's stream started
+    # the climb alone is not enough while the autopilot is still taking off, nor a short one in HOLD
+    kinds, m = _climb_in_hold(ground_d=1.27, top_d=0.2, timeout_s=3.0)
+    assert RequestKind.START_OFFBOARD not in kinds and m.phase is Phase.ABORT_HOLD
+    assert any("takeoff did not reach 2.5 m" in e.detail for e in m.summary.events)
+
+
 def test_field_lookahead_evaluates_the_field_one_lag_ahead_and_reports_v_where_the_vehicle_is():
     import numpy as np
 
