@@ -717,10 +717,10 @@ class DeliveryMission:
         if s == 1 and self.pad_policy is not None:
             h = self._height_above_ground(est)
             ok, why = judge_pad_lock(inp.pad_lock, self.pad_policy)
-            if not ok and h > self.pad_policy.commit_height_m and not self._lock_reopening(inp.pad_lock, inp.time_s):
-                return self._pad_try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"), None, math.nan
             if ok:
                 self._lock_reopened_at = None
+            elif h > self.pad_policy.commit_height_m and not self._lock_reopening(inp.pad_lock, inp.time_s):
+                return self._pad_try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"), None, math.nan
         in_sight = s == 1 and pad_in_sight(inp.pad_lock)
         return self._precision_descent(est, s, inp.time_s, in_sight), None, math.nan
 
@@ -731,8 +731,8 @@ class DeliveryMission:
         tick of a re-opening (docs/delivery-policy.md)."""
         pol = self.pad_policy
         assert pol is not None
-        observed = lock is not None and lock.sensors and lock.observation_age_s <= PAD_DATA_FRESH_S
-        if lock is None or not observed or not lock.observation_age_s < pol.max_observation_age_s:
+        # the pad in sight and young enough for the lock: what is missing is the 1-sigma
+        if lock is None or not pad_in_sight(lock) or lock.observation_age_s >= pol.max_observation_age_s:
             self._lock_reopened_at = None
             return False
         if self._lock_reopened_at is None:
