@@ -187,6 +187,15 @@ class MissionConfig(_Section):
     landing_xy_integral_max_m_s: float = _f(
         0.5, "m/s", "final descent: largest horizontal speed the integral term may add", ge=0.0, le=3.0
     )
+    landing_xy_accel_feedforward: float = _f(
+        0.0,
+        "-",
+        "final descent: share of the horizontal command's rate of change (its proportional and integral "
+        "terms on the estimated velocity and error) sent with it as an acceleration, so the autopilot "
+        "answers without its velocity loop's lag (not in the papers; 0 = velocity only)",
+        ge=0.0,
+        le=1.0,
+    )
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
@@ -364,6 +373,13 @@ class LimitsConfig(_Section):
     max_climb_m_s: float = _f(3.0, "m/s", "climb rate limit", gt=0.0, le=10.0)
     max_descent_m_s: float = _f(2.0, "m/s", "descent rate limit", gt=0.0, le=10.0)
     max_yaw_rate_deg_s: float = _f(60.0, "deg/s", "yaw rate limit", gt=0.0, le=360.0)
+    max_horizontal_accel_m_s2: float = _f(
+        2.0,
+        "m/s^2",
+        "largest horizontal acceleration fed forward with a velocity setpoint (mission.landing_xy_accel_feedforward)",
+        gt=0.0,
+        le=10.0,
+    )
     geofence_radius_m: float = _f(500.0, "m", "max horizontal distance from home", gt=10.0, le=20000.0)
     geofence_max_alt_m: float = _f(120.0, "m", "max height above home", gt=5.0, le=1000.0)
 

@@ -73,6 +73,7 @@ FIRMWARE_TUNING_KEYS = {
         "landing_touchdown_height_m",
         "landing_xy_integral_gain_1_s2",
         "landing_xy_integral_max_m_s",
+        "landing_xy_accel_feedforward",
         "landing_xy_tolerance_m",
         "landing_hold_min_height_m",
         "velocity_bias_tau_s",

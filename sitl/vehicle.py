@@ -285,7 +285,7 @@ class SimVehicle:
         self._yaw_sp = self.estimated_yaw()
 
     def set_velocity(self, sp: VelocitySetpoint) -> None:
-        vals = (sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad)
+        vals = (sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad, *(sp.accel_ne_m_s2 or ()))
         if not all(math.isfinite(v) for v in vals):
             self._text(f"offboard setpoint rejected: not finite {vals}")
             return
@@ -542,8 +542,11 @@ class SimVehicle:
         kp_z = kp if vc.vertical_velocity_p_gain is None else vc.vertical_velocity_p_gain
         ki_z = ki if vc.vertical_velocity_i_gain is None else vc.vertical_velocity_i_gain
         en, ee, ed = sp_n - ve_n, sp_e - ve_e, sp_d - ve_d
-        # GUIDED's desired acceleration, fed forward (updated this tick; None outside OFFBOARD)
+        # GUIDED's desired acceleration, fed forward (updated this tick; None outside OFFBOARD), and
+        # the setpoint's own (PX4 adds it to its velocity loop's output; ArduCopter's GUIDED takes it)
         ff = self._guided[2] if self._guided is not None else (0.0, 0.0)
+        if self.mode is FlightMode.OFFBOARD and self._sp is not None and self._sp.accel_ne_m_s2 is not None:
+            ff = (ff[0] + self._sp.accel_ne_m_s2[0], ff[1] + self._sp.accel_ne_m_s2[1])
         an = kp * en + ki * self._int[0] + ff[0]
         ae = kp * ee + ki * self._int[1] + ff[1]
         ad = kp_z * ed + ki_z * self._int[2]

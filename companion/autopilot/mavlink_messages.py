@@ -25,6 +25,8 @@ from companion.guidance.setpoint import VelocitySetpoint
 # the accelerations (64, 128, 256) and the yaw rate (2048); use vx, vy, vz and yaw (1024 clear):
 # the vehicle flies the path's heading (delivery 4.3, psi_r = 0 in F_I), as the embedded simulator does.
 VELOCITY_YAW_MASK = 0b0000_1001_1100_0111  # 2503
+# the same with the accelerations used (VelocitySetpoint.accel_ne_m_s2; afz sent as 0)
+VELOCITY_ACCEL_YAW_MASK = 0b0000_1000_0000_0111  # 2055
 
 
 def velocity_setpoint_message(
@@ -40,20 +42,21 @@ def velocity_setpoint_fields(
     time_boot_ms: int, target_system: int, target_component: int, sp: VelocitySetpoint
 ) -> tuple[Any, ...]:
     """:func:`velocity_setpoint_message`'s field values, in its constructor's order."""
+    acc = sp.accel_ne_m_s2
     return (
         time_boot_ms & 0xFFFFFFFF,
         target_system,
         target_component,
         mavlink2.MAV_FRAME_LOCAL_NED,
-        VELOCITY_YAW_MASK,
+        VELOCITY_YAW_MASK if acc is None else VELOCITY_ACCEL_YAW_MASK,
         0.0,
         0.0,
         0.0,
         sp.north_m_s,
         sp.east_m_s,
         sp.down_m_s,
-        0.0,
-        0.0,
+        0.0 if acc is None else acc[0],
+        0.0 if acc is None else acc[1],
         0.0,
         sp.yaw_rad,
         0.0,

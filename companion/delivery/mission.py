@@ -18,7 +18,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -746,7 +746,10 @@ class DeliveryMission:
         few cm/s; here the horizontal error is closed proportionally (landing_xy_gain_1_s: firm,
         3 1/s by default, so the part of a gust the autopilot's velocity loop lets through is
         taken back within a fraction of a second), plus an integral term when
-        landing_xy_integral_gain_1_s2 > 0 (:meth:`_landing_integral`). The descent slows while the
+        landing_xy_integral_gain_1_s2 > 0 (:meth:`_landing_integral`), and with
+        landing_xy_accel_feedforward > 0 a share of that command's rate sent as an acceleration, so
+        an autopilot whose velocity loop answers slowly (PX4 SIH: ~1 s) does not make the loop
+        circle the pad (docs/flying.md). The descent slows while the
         vehicle is off-centre and holds height at twice the tolerance (like PX4's precision
         landing) down to landing_hold_min_height_m, while the target is in sight (a camera or UWB
         observation of the pad within padlock.PAD_DATA_FRESH_S). Blind (GPS only, at home, or the
@@ -768,7 +771,8 @@ class DeliveryMission:
             vx -= ix
             vy -= iy
         vh = math.hypot(vx, vy)
-        if vh > c.landing_max_xy_speed_m_s:
+        saturated = vh > c.landing_max_xy_speed_m_s
+        if saturated:
             vx, vy = vx * c.landing_max_xy_speed_m_s / vh, vy * c.landing_max_xy_speed_m_s / vh
         tol = c.landing_xy_tolerance_m
         if zeroed:
@@ -784,7 +788,16 @@ class DeliveryMission:
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
         vz = -c.land_speed_m_s * slow
         v_ned = self.frame.vector_to_ned((vx, vy, vz))
-        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0))
+        acc = None
+        if c.landing_xy_accel_feedforward > 0.0 and not zeroed and not saturated:
+            # the command's rate: d/dt(-k_p e - k_i int e) = -k_p v - k_i e, v the estimated velocity
+            v_i = self.frame.vector_from_ned((est.north_m_s, est.east_m_s, est.down_m_s))
+            k = c.landing_xy_accel_feedforward
+            ax = -k * (c.landing_xy_gain_1_s * float(v_i[0]) + c.landing_xy_integral_gain_1_s2 * ex)
+            ay = -k * (c.landing_xy_gain_1_s * float(v_i[1]) + c.landing_xy_integral_gain_1_s2 * ey)
+            a_ned = self.frame.vector_to_ned((ax, ay, 0.0))
+            acc = (float(a_ned[0]), float(a_ned[1]))
+        return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0), acc)
 
     def _landing_integral(
         self, ex: float, ey: float, time_s: float, frozen: bool, p_cmd: tuple[float, float]
@@ -1429,7 +1442,7 @@ class DeliveryMission:
             and self._height_above_ground(est) < self.cfg.landing_hold_min_height_m
         ):
             self._yaw_sp = (inp.time_s, target)  # still turned: the test above holds on the next tick
-            return VelocitySetpoint(sp.north_m_s, sp.east_m_s, sp.down_m_s, wrap_angle(ap_yaw))
+            return replace(sp, yaw_rad=wrap_angle(ap_yaw))
         if prev is None:
             est = inp.estimate
             start = est.yaw_rad if est is not None else sp.yaw_rad
@@ -1439,7 +1452,7 @@ class DeliveryMission:
             step = rate * min(max(inp.time_s - prev[0], 0.0), 1.0)
         yaw = yaw_toward(start, target, step)
         self._yaw_sp = (inp.time_s, yaw)
-        return VelocitySetpoint(sp.north_m_s, sp.east_m_s, sp.down_m_s, yaw)
+        return replace(sp, yaw_rad=yaw)
 
     def _check_link(self, inp: MissionInputs) -> bool:
         st = inp.status

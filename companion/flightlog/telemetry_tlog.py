@@ -120,7 +120,9 @@ class TelemetryTlog(HandedOverLog):
 
     def setpoint(self, sp: VelocitySetpoint) -> None:
         """Queue the companion's velocity setpoint (SET_POSITION_TARGET_LOCAL_NED)."""
-        self._q.append((self._clock(), VelocitySetpoint, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad))
+        self._q.append(
+            (self._clock(), VelocitySetpoint, sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad, sp.accel_ne_m_s2)
+        )
 
     def command(self, command: int, params: Sequence[float] = ()) -> None:
         """Queue a COMMAND_LONG from the companion."""

@@ -63,5 +63,16 @@ def clamp_velocity(
     if vd > limits.max_descent_m_s:
         vd = limits.max_descent_m_s
         reasons.append("descent rate")
-    out = VelocitySetpoint(vn, ve, vd, wrap_angle(sp.yaw_rad))
+    acc = sp.accel_ne_m_s2
+    if acc is not None and any(r.startswith("geofence") for r in reasons):
+        acc = None  # no push on at the fence
+    elif acc is not None:
+        if not all(math.isfinite(a) for a in acc):
+            acc = None  # velocity alone
+            reasons.append(f"non-finite acceleration {sp.accel_ne_m_s2}")
+        elif math.hypot(*acc) > limits.max_horizontal_accel_m_s2:
+            k = limits.max_horizontal_accel_m_s2 / math.hypot(*acc)
+            acc = (acc[0] * k, acc[1] * k)
+            reasons.append("horizontal acceleration")
+    out = VelocitySetpoint(vn, ve, vd, wrap_angle(sp.yaw_rad), acc)
     return ClampResult(out, bool(reasons), ", ".join(reasons))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Protocol
 
 from companion.guidance.setpoint import VelocitySetpoint
@@ -105,7 +106,7 @@ class VelocityBiasEstimator:
     def correct(self, sp: VelocitySetpoint) -> VelocitySetpoint:
         """The setpoint to send so that the vehicle (not the autopilot's estimate) flies ``sp``."""
         bn, be, bd = self.applied_bias()
-        return VelocitySetpoint(sp.north_m_s - bn, sp.east_m_s - be, sp.down_m_s - bd, sp.yaw_rad)
+        return replace(sp, north_m_s=sp.north_m_s - bn, east_m_s=sp.east_m_s - be, down_m_s=sp.down_m_s - bd)
 
 
 class _Sample:

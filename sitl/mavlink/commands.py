@@ -169,9 +169,16 @@ class CommandHandler(MessageStreams):
         if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED or (mask & MASK_VEL) == MASK_VEL:
             self.stats.setpoints_rejected += 1
             return
-        if (mask & MASK_POS) != MASK_POS:
+        # a part is used when its bits are clear and, as PX4's receiver takes it, not all NaN
+        # (MAVSDK's position-velocity-acceleration setpoint leaves the position NaN)
+        if (mask & MASK_POS) != MASK_POS and not all(math.isnan(x) for x in (m.x, m.y, m.z)):
             self.stats.setpoints_rejected += 1  # position control is not simulated
             return
         yaw = v.estimated_yaw() if mask & MASK_YAW else m.yaw  # YAW_IGNORE: hold the heading
-        self._velocity_setpoint(VelocitySetpoint(m.vx, m.vy, m.vz, yaw))
+        # the horizontal acceleration, fed forward as the firmware does (PX4: added to its velocity
+        # loop's output); the vertical one is not simulated
+        acc = None
+        if (mask & MASK_ACC) != MASK_ACC and not all(math.isnan(x) for x in (m.afx, m.afy, m.afz)):
+            acc = (float(m.afx), float(m.afy))
+        self._velocity_setpoint(VelocitySetpoint(m.vx, m.vy, m.vz, yaw, acc))
         self.stats.setpoints += 1

@@ -230,3 +230,39 @@ async def test_ardupilot_gripper_refused_is_reported_once_and_the_vehicle_flies_
     failed = [e for e in summary.events if e.kind is EventKind.REQUEST_FAILED]
     assert len(failed) == 1 and "not retried" in failed[0].detail
     assert len(sim.vehicle.touchdowns) == 2 and all(not t.payload_released for t in sim.vehicle.touchdowns)
+
+
+@pytest.mark.parametrize("dialect", ["px4", "ardupilot"])
+async def test_the_final_descent_sends_its_acceleration_on_both_dialects(mav, udp_port, dialect):
+    """With landing_xy_accel_feedforward the final descent's setpoints carry an acceleration: through
+    MAVSDK (PX4) as a position-velocity-acceleration setpoint whose position is NaN, which PX4's
+    receiver leaves uncontrolled; through pymavlink (ArduPilot) with the position bits set. The sim
+    vehicle flies both as velocity + acceleration and the delivery lands on the pad."""
+    config = mav.short_config(landing_xy_accel_feedforward=1.0, return_home=False)
+    received = []
+    with mav.sim_vehicle(config, dialect, udp_port) as sim:
+        sim.on_message = received.append
+        flown = []  # the accelerations of the setpoints the vehicle took
+        take = sim.vehicle.set_velocity
+
+        def spy(sp):
+            flown.append(sp.accel_ne_m_s2)
+            take(sp)
+
+        sim.vehicle.set_velocity = spy
+        ap = (
+            Px4Autopilot(f"udpin://127.0.0.1:{udp_port}")
+            if dialect == "px4"
+            else ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        )
+        _shell, summary = await mav.fly(config, ap)
+    assert summary.delivered, summary.failure
+    assert _pad_error(sim, config) < 0.5
+    sps = [m for m in received if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    accel_bits = 0b111000000
+    with_acc = [m for m in sps if not m.type_mask & accel_bits]
+    assert len(with_acc) > 20 and any(abs(m.afx) + abs(m.afy) > 0.01 for m in with_acc)
+    assert sum(a is not None for a in flown) >= len(with_acc) - 5  # all but a few sent after the landing
+    for m in with_acc:
+        assert all(math.isnan(x) for x in (m.x, m.y, m.z)) or (m.type_mask & 0b111) == 0b111
+    assert any(m.type_mask & accel_bits == accel_bits for m in sps)  # velocity only before the descent

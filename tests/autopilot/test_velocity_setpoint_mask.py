@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK, velocity_setpoint_message
+from companion.autopilot.mavlink_messages import VELOCITY_ACCEL_YAW_MASK, VELOCITY_YAW_MASK, velocity_setpoint_message
 from companion.guidance.setpoint import VelocitySetpoint
 
 
@@ -40,3 +40,16 @@ def test_the_message_carries_the_yaw_in_local_ned():
     assert m.coordinate_frame == mav2.MAV_FRAME_LOCAL_NED
     assert not m.type_mask & mav2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
     assert (m.vx, m.vy, m.vz, m.yaw) == (1.0, -2.0, 0.5, 0.6435)
+
+
+def test_an_acceleration_fed_forward_clears_the_acceleration_bits_only():
+    m = velocity_setpoint_message(1234, 1, 1, VelocitySetpoint(1.0, -2.0, 0.5, 0.6435, (0.25, -0.5)))
+    accel = (
+        mav2.POSITION_TARGET_TYPEMASK_AX_IGNORE
+        | mav2.POSITION_TARGET_TYPEMASK_AY_IGNORE
+        | mav2.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+    )
+    assert m.type_mask == VELOCITY_ACCEL_YAW_MASK == VELOCITY_YAW_MASK & ~accel
+    assert (m.vx, m.vy, m.vz, m.afx, m.afy, m.afz, m.yaw) == (1.0, -2.0, 0.5, 0.25, -0.5, 0.0, 0.6435)
+    plain = velocity_setpoint_message(1234, 1, 1, VelocitySetpoint(1.0, -2.0, 0.5, 0.6435))
+    assert plain.type_mask == VELOCITY_YAW_MASK and (plain.afx, plain.afy) == (0.0, 0.0)

@@ -392,6 +392,31 @@ def test_final_descent_holds_no_longer_than_the_touchdown_timeout_leaves_time_fo
     assert down_m_s(last_hold_s + 0.1) == pytest.approx(0.5)  # no time left to hold: goes on down
 
 
+def test_the_final_descent_feeds_its_command_rate_forward_as_an_acceleration():
+    """landing_xy_accel_feedforward = c sends a = -c (k_p v + k_i e) with the velocity command, by
+    hand in NED (the law is the same in every horizontal frame): 0.04 m east, moving 0.2 m/s north,
+    k_p = 5, k_i = 2.5, c = 0.5: a = -0.5 (5 (0.2, 0) + 2.5 (0, 0.04)) = (-0.5, -0.05) m/s^2. None
+    without the share, at the speed limit (the command's rate is not what it flies) and below the
+    touchdown height (only the descent is commanded)."""
+    kw = dict(landing_xy_gain_1_s=5.0, landing_xy_integral_gain_1_s2=2.5, landing_touchdown_height_m=0.15)
+    m = DeliveryMission(cfg(landing_xy_accel_feedforward=0.5, **kw))
+    off = DeliveryMission(cfg(**kw))
+    for mk in (m, off):
+        mk.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+        mk._goto(Phase.LANDING_PAD)
+    pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+
+    def at(mk, t, dn, de, vn, d=-2.0):
+        return mk._precision_descent(StateEstimate(t, pn + dn, pe + de, d, vn, 0.0, 0.0, 0, 0, 0), 1, t, True)
+
+    sp = at(m, 0.0, 0.0, 0.04, 0.2)
+    assert sp.accel_ne_m_s2 == pytest.approx((-0.5, -0.05), abs=1e-9)
+    assert (sp.north_m_s, sp.east_m_s) == pytest.approx((at(off, 0.0, 0.0, 0.04, 0.2).north_m_s, -0.2), abs=1e-9)
+    assert at(off, 0.05, 0.0, 0.04, 0.2).accel_ne_m_s2 is None
+    assert at(m, 0.05, 0.0, 0.8, 0.2).accel_ne_m_s2 is None  # 4 m/s asked, 1 m/s sent
+    assert at(m, 0.1, 0.0, 0.04, 0.2, d=-0.1).accel_ne_m_s2 is None
+
+
 def _descent_from_far_off(m, start_north_m, lag_s=0.4, dt=0.05, ticks=160):
     """The final descent flown blind from ``start_north_m`` north of the pad by a vehicle whose
     velocity follows the setpoint with a first-order lag (exact step): its north offsets per tick."""

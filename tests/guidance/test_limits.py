@@ -35,3 +35,25 @@ def test_geofence_removes_outward_motion_only():
     assert not back.clamped
     up = clamp_velocity(VelocitySetpoint(0, 0, -1, 0), LIM, position_ned=(0.0, 0.0, -50.0))
     assert up.setpoint.down_m_s == 0 and "altitude" in up.reason
+
+
+def test_an_acceleration_fed_forward_is_kept_and_held_to_its_limit():
+    lim = LimitsConfig(max_horizontal_accel_m_s2=2.0)
+    kept = clamp_velocity(VelocitySetpoint(0.1, 0.2, 0.5, 0.0, (0.3, -0.4)), lim)
+    assert not kept.clamped and kept.setpoint.accel_ne_m_s2 == (0.3, -0.4)
+    held = clamp_velocity(VelocitySetpoint(0.1, 0.2, 0.5, 0.0, (3.0, 4.0)), lim)
+    assert held.clamped and "acceleration" in held.reason
+    assert held.setpoint.accel_ne_m_s2 is not None
+    assert math.isclose(math.hypot(*held.setpoint.accel_ne_m_s2), 2.0)
+    assert math.isclose(held.setpoint.accel_ne_m_s2[0] / held.setpoint.accel_ne_m_s2[1], 0.75)  # direction kept
+
+
+def test_a_non_finite_acceleration_leaves_the_velocity_alone():
+    r = clamp_velocity(VelocitySetpoint(1.0, 0.0, 0.5, 0.0, (float("nan"), 0.0)), LIM)
+    assert r.clamped and "non-finite acceleration" in r.reason
+    assert r.setpoint == VelocitySetpoint(1.0, 0.0, 0.5, 0.0)
+
+
+def test_no_acceleration_is_fed_forward_at_the_fence():
+    out = clamp_velocity(VelocitySetpoint(3, 1, 0, 0, (1.0, 0.0)), LIM, position_ned=(100.0, 0.0, -10.0))
+    assert out.setpoint.accel_ne_m_s2 is None and "geofence" in out.reason

@@ -491,3 +491,23 @@ def test_px4_sih_soft_ground_catches_the_vehicle_only_while_the_net_force_points
         v.step_to(t + 0.02 + 0.02 * (k + 1))
     assert v.pd == caught
     assert v.landed is LandedState.ON_GROUND  # the land detector fires where it rests
+
+
+def test_an_acceleration_fed_forward_is_added_to_the_velocity_loop():
+    """PX4 adds a setpoint's acceleration to its velocity loop's output: a velocity ramp of 1 m/s^2
+    sent with its rate is followed closely, the ramp alone lags by what the loop needs to build
+    the same push (a P + I loop on the error), on both profiles."""
+    for name in ("ideal", "px4-sih"):
+        lags = []
+        for ff in (None, (1.0, 0.0)):
+            v = SimVehicle(SimConfig(profile=name, seed=3))
+            t = _switched_to_offboard(v, _airborne(v, 3.0))
+            start = v.vn
+            for k in range(1, 21):  # 1 s of the ramp at 20 Hz
+                v.set_velocity(VelocitySetpoint(0.05 * k, 0.0, 0.0, 0.0, ff))
+                t += 0.05
+                v.step_to(t)
+            lags.append(1.0 - (v.vn - start))
+        without, with_ff = lags
+        assert without > 0.25, (name, lags)
+        assert with_ff < 0.5 * without, (name, lags)

@@ -40,7 +40,7 @@ from companion.autopilot.interface import (
     PacketSink,
     TelemetryCache,
 )
-from companion.autopilot.mavlink_messages import VELOCITY_YAW_MASK
+from companion.autopilot.mavlink_messages import VELOCITY_ACCEL_YAW_MASK, VELOCITY_YAW_MASK
 from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
@@ -224,22 +224,34 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
             return
         sp = setpoint
         try:
+            acc = sp.accel_ne_m_s2
             if self.setpoint_transport == "offboard":
-                from mavsdk.plugins.offboard import VelocityNedYaw
+                from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
 
-                self._offboard_sync.set_velocity_ned(
-                    VelocityNedYaw(sp.north_m_s, sp.east_m_s, sp.down_m_s, math.degrees(sp.yaw_rad))
-                )
+                vel = VelocityNedYaw(sp.north_m_s, sp.east_m_s, sp.down_m_s, math.degrees(sp.yaw_rad))
+                if acc is None:
+                    self._offboard_sync.set_velocity_ned(vel)
+                else:
+                    # NaN position: PX4's receiver leaves the position uncontrolled (offboard_control_mode
+                    # from the setpoint's non-NaN parts) and adds the acceleration to its velocity loop
+                    nan = math.nan
+                    self._offboard_sync.set_position_velocity_acceleration_ned(
+                        PositionNedYaw(nan, nan, nan, math.degrees(sp.yaw_rad)),
+                        vel,
+                        AccelerationNed(acc[0], acc[1], 0.0),
+                    )
                 self._plugin_streaming = True
             else:
                 from mavsdk.plugins.mavlink_direct import MavlinkMessage
 
                 t_ms = int((time.monotonic() - self._t_boot) * 1000) & 0xFFFFFFFF
+                mask = VELOCITY_YAW_MASK if acc is None else VELOCITY_ACCEL_YAW_MASK
+                afx, afy = (0.0, 0.0) if acc is None else acc
                 fields = (
                     f'{{"time_boot_ms":{t_ms},"target_system":{self.system_id},"target_component":1,'
-                    f'"coordinate_frame":{MAV_FRAME_LOCAL_NED},"type_mask":{VELOCITY_YAW_MASK},'
+                    f'"coordinate_frame":{MAV_FRAME_LOCAL_NED},"type_mask":{mask},'
                     f'"x":0,"y":0,"z":0,"vx":{sp.north_m_s!r},"vy":{sp.east_m_s!r},"vz":{sp.down_m_s!r},'
-                    f'"afx":0,"afy":0,"afz":0,"yaw":{sp.yaw_rad!r},"yaw_rate":0}}'
+                    f'"afx":{afx!r},"afy":{afy!r},"afz":0,"yaw":{sp.yaw_rad!r},"yaw_rate":0}}'
                 )
                 self._direct_sync.send_message(
                     MavlinkMessage("SET_POSITION_TARGET_LOCAL_NED", 0, 0, self.system_id, 1, fields)
