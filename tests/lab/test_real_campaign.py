@@ -50,6 +50,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
             "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
             "landing_xy_integral_gain_1_s2": 2.5,
             "landing_xy_integral_max_m_s": 0.5,
+            "landing_xy_accel_feedforward": 0.4,  # the command's rate fed forward: no circling
             "landing_xy_tolerance_m": 0.04,  # aligned within 4-8 cm before it goes on down
             "landing_hold_min_height_m": 0.3,  # down to where the camera still sees the pad
             "velocity_bias_tau_s": 1.0,
