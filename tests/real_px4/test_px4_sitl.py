@@ -122,10 +122,14 @@ async def test_offboard_loss_failsafe_acts_when_the_companion_stalls(px4_root, t
         await ap.connect(timeout_s=15.0)
         try:
             await wait_for(lambda: ap.telemetry.status is not None and ap.telemetry.status.healthy, 30.0, "healthy")
+            pos = ap.telemetry
+            await wait_for(lambda: pos.position_ned is not None, 10.0, "position")
+            ground = pos.position_ned.down_m
             await ap.arm()
             await ap.takeoff(2.5)
-            pos = ap.telemetry
-            await wait_for(lambda: pos.position_ned is not None and pos.position_ned.down_m < -2.0, 20.0, "takeoff")
+            # PX4's TAKEOFF ends NAV_MC_ALT_RAD (0.8 m) short and holds there: 1.95-2.0 m of the 2.5
+            # (docs/firmware-px4.md), so 2 m was a coin toss; judged by the climb from the ground
+            await wait_for(lambda: pos.position_ned.down_m < ground - 1.5, 20.0, "takeoff")
             hover = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
             for _ in range(20):  # PX4 wants a stream before OFFBOARD
                 ap.set_velocity_ned(hover)
