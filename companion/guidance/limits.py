@@ -39,6 +39,7 @@ def clamp_velocity(
         return ClampResult(VelocitySetpoint(0.0, 0.0, 0.0, yaw), True, f"non-finite setpoint {vals}")
     vn, ve, vd = sp.north_m_s, sp.east_m_s, sp.down_m_s
     reasons = []
+    fenced = False  # a geofence rule took something out: no acceleration pushes on
     if position_ned is not None:
         dn, de = position_ned[0] - home_ned[0], position_ned[1] - home_ned[1]
         dist = math.hypot(dn, de)
@@ -48,14 +49,14 @@ def clamp_velocity(
                 vn -= outward * dn / dist
                 ve -= outward * de / dist
                 reasons.append("geofence radius")
+                fenced = True
         height = home_ned[2] - position_ned[2]
         if height >= limits.geofence_max_alt_m and vd < 0.0:
             vd = 0.0
             reasons.append("geofence altitude")
-    h = math.hypot(vn, ve)
-    if h > limits.max_horizontal_speed_m_s:
-        k = limits.max_horizontal_speed_m_s / h
-        vn, ve = vn * k, ve * k
+            fenced = True
+    (vn, ve), held = _held_to((vn, ve), limits.max_horizontal_speed_m_s)
+    if held:
         reasons.append("horizontal speed")
     if -vd > limits.max_climb_m_s:
         vd = -limits.max_climb_m_s
@@ -64,15 +65,23 @@ def clamp_velocity(
         vd = limits.max_descent_m_s
         reasons.append("descent rate")
     acc = sp.accel_ne_m_s2
-    if acc is not None and any(r.startswith("geofence") for r in reasons):
-        acc = None  # no push on at the fence
+    if acc is not None and fenced:
+        acc = None
+    elif acc is not None and not all(math.isfinite(a) for a in acc):
+        acc = None  # the velocity alone
+        reasons.append(f"non-finite acceleration {sp.accel_ne_m_s2}")
     elif acc is not None:
-        if not all(math.isfinite(a) for a in acc):
-            acc = None  # velocity alone
-            reasons.append(f"non-finite acceleration {sp.accel_ne_m_s2}")
-        elif math.hypot(*acc) > limits.max_horizontal_accel_m_s2:
-            k = limits.max_horizontal_accel_m_s2 / math.hypot(*acc)
-            acc = (acc[0] * k, acc[1] * k)
+        acc, held = _held_to(acc, limits.max_horizontal_accel_m_s2)
+        if held:
             reasons.append("horizontal acceleration")
     out = VelocitySetpoint(vn, ve, vd, wrap_angle(sp.yaw_rad), acc)
     return ClampResult(out, bool(reasons), ", ".join(reasons))
+
+
+def _held_to(xy: tuple[float, float], limit: float) -> tuple[tuple[float, float], bool]:
+    """A horizontal vector scaled down to ``limit`` if longer (its direction kept); whether it was."""
+    n = math.hypot(*xy)
+    if n <= limit:
+        return xy, False
+    k = limit / n
+    return (xy[0] * k, xy[1] * k), True
