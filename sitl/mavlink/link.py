@@ -276,7 +276,6 @@ class MavlinkLink(abc.ABC):
             self.stats.signed_in += m.get_signed()
             if self.route_peers:
                 self._route(m)
-            self.stats.by_type_in[m.get_type()] += 1
             if self.on_message is not None:
                 self.on_message(m)
             try:
@@ -286,6 +285,8 @@ class MavlinkLink(abc.ABC):
             except Exception:
                 self.stats.handle_errors += 1
                 log.exception("error handling %s", m.get_type())
+            # counted once handled: a reader that sees the count sees the message's effect
+            self.stats.by_type_in[m.get_type()] += 1
 
     def _route(self, m: Any) -> None:
         """Forward ``m`` to the peers other than its sender, unless it is addressed to the vehicle
