@@ -663,13 +663,12 @@ async def fly_dart_link(
         for task in side:  # a failing pilot script fails the flight
             if not task.cancelled() and task.exception() is not None:
                 raise task.exception()  # type: ignore[misc]
-        if dialect == "ardupilot":
-            # the release went out on the shell's exit; the sim's receive thread may not have
-            # read it yet: wait (bounded) until it has counted every override the shell sent
-            sent = shell.stats.overrides_sent + shell.stats.releases_sent
-            deadline = time.monotonic() + 2.0
-            while sim.link.stats.by_type_in["RC_CHANNELS_OVERRIDE"] < sent and time.monotonic() < deadline:
-                await asyncio.sleep(0.01)
+        # the release went out on the shell's exit; the sim's receive thread may not have read it
+        # yet: wait (bounded) until it has counted every override the shell sent (PX4: none)
+        sent = shell.stats.overrides_sent + shell.stats.releases_sent
+        deadline = time.monotonic() + 2.0
+        while sim.link.stats.by_type_in["RC_CHANNELS_OVERRIDE"] < sent and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
         overrides = sim.link.rc_overrides
     return DartLinkResult(summary, truth, sim.link.stats, modes, overrides, shell, ap, sim)
 
