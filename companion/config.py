@@ -167,6 +167,16 @@ class MissionConfig(_Section):
     landing_hold_min_height_m: float = _f(
         0.5, "m", "final descent: below this height the descent no longer pauses when off-centre", ge=0.0, le=5.0
     )
+    landing_settle_s: float = _f(
+        0.0,
+        "s",
+        "final descent, while the pad is in sight: the descent goes below landing_hold_min_height_m only "
+        "once the horizontal error has stayed within landing_xy_tolerance_m this long, so the last part "
+        "(below the camera's view) starts settled, not mid-swing; it waits at that height until then "
+        "(0 = off)",
+        ge=0.0,
+        le=10.0,
+    )
     landing_touchdown_height_m: float = _f(
         0.15,
         "m",

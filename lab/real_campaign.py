@@ -76,6 +76,7 @@ FIRMWARE_TUNING_KEYS = {
         "landing_xy_accel_feedforward",
         "landing_xy_tolerance_m",
         "landing_hold_min_height_m",
+        "landing_settle_s",
         "velocity_bias_tau_s",
         "velocity_bias_source",
         "autopilot_accel_xy_m_s2",

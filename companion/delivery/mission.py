@@ -71,6 +71,10 @@ PAD_POSITION_GAIN_1_S = 1.0  # hold and search: speed per metre off the target (
 # an autopilot's land detector after contact (PX4 SIH: ON_GROUND 3-7 s after it; ArduCopter ~2 s):
 # what the final descent's hold leaves before the touchdown timeout, besides the descent itself
 TOUCHDOWN_REPORT_MARGIN_S = 5.0
+# landing_settle_s: the descent ramps to zero over the height it covers in this long at land speed
+# above the floor, about what an autopilot's vertical velocity loop needs to stop (PX4, ArduCopter:
+# 0.3-0.5 s)
+SETTLE_BAND_S = 0.4
 PAD_CORNER_TOLERANCE_M = 0.5  # a search corner is reached this close
 PAD_HEIGHT_TOLERANCE_M = 0.3  # the approach height is reached this close
 PAD_HOVER_SPEED_M_S = 0.3  # winch: the payout starts only below this horizontal speed
@@ -752,7 +756,8 @@ class DeliveryMission:
         circle the pad (docs/flying.md). The descent slows while the
         vehicle is off-centre and holds height at twice the tolerance (like PX4's precision
         landing) down to landing_hold_min_height_m, while the target is in sight (a camera or UWB
-        observation of the pad within padlock.PAD_DATA_FRESH_S). Blind (GPS only, at home, or the
+        observation of the pad within padlock.PAD_DATA_FRESH_S); with landing_settle_s it waits
+        at that height until settled (:meth:`_settle_slow`). Blind (GPS only, at home, or the
         pad lost) it does not hold: holding cannot improve the estimate, and on an autopilot's
         estimate drifting near the ground it can sit on the ground until the touchdown timeout
         (docs/firmware-px4.md).
@@ -786,6 +791,8 @@ class DeliveryMission:
         in_time = time_left_s > max(height, 0.0) / c.land_speed_m_s + TOUCHDOWN_REPORT_MARGIN_S
         gated = in_sight and height > c.landing_hold_min_height_m and in_time
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
+        if c.landing_settle_s > 0.0 and not self._settle_released:
+            slow = min(slow, self._settle_slow(e, height, time_s, in_sight and in_time))
         vz = -c.land_speed_m_s * slow
         v_ned = self.frame.vector_to_ned((vx, vy, vz))
         acc = None
@@ -798,6 +805,32 @@ class DeliveryMission:
             a_ned = self.frame.vector_to_ned((ax, ay, 0.0))
             acc = (float(a_ned[0]), float(a_ned[1]))
         return VelocitySetpoint(float(v_ned[0]), float(v_ned[1]), float(v_ned[2]), self.frame.yaw_to_ned(0.0), acc)
+
+    def _settle_slow(self, e: float, height: float, time_s: float, may_wait: bool) -> float:
+        """The descent's speed factor from landing_settle_s: 1 while the error has stayed within
+        the tolerance for landing_settle_s (and from then on, once the vehicle is down to the
+        floor's band), else proportional to the height above landing_hold_min_height_m over
+        SETTLE_BAND_S x land speed (negative below it: climbs back), so the vehicle waits at the
+        floor. No wait without the pad in sight or time left before the touchdown timeout (as the
+        hold)."""
+        c = self.cfg
+        if not may_wait:
+            self._settle_since = None
+            return 1.0
+        if e > c.landing_xy_tolerance_m:
+            self._settle_since = None
+        elif self._settle_since is None:
+            self._settle_since = time_s
+        settled = self._settle_since is not None and time_s - self._settle_since >= c.landing_settle_s
+        above_m = height - c.landing_hold_min_height_m
+        band_m = SETTLE_BAND_S * c.land_speed_m_s
+        if settled:
+            if above_m <= band_m:
+                self._settle_released = True  # on down; the last part is not waited in again
+            return 1.0
+        # held at the floor on the fused height: the autopilot's own drifts near the ground (under
+        # a zero vertical command the px4-sih profile's vehicle sank from 0.3 m to the ground)
+        return min(1.0, max(-1.0, above_m / band_m))
 
     def _landing_integral(
         self, ex: float, ey: float, time_s: float, frozen: bool, p_cmd: tuple[float, float]
@@ -1228,6 +1261,8 @@ class DeliveryMission:
     _touchdown_land_requested = False
     _landing_int: tuple[float, float] = (0.0, 0.0)
     _landing_int_t: float | None = None
+    _settle_since: float | None = None  # the error within the tolerance since (landing_settle_s)
+    _settle_released = False
     _disarm_not_before = -math.inf
     _left_pad = False
     _release_requested = False
@@ -1337,6 +1372,8 @@ class DeliveryMission:
         self._landing_int = (0.0, 0.0)  # the final descent's integral term starts again
         self._lock_reopened_at = None
         self._landing_int_t = None
+        self._settle_since = None
+        self._settle_released = False
         self._release_requested = False
         self._retry = None  # a retry belongs to the phase that asked
         if phase in (Phase.OUTBOUND, Phase.INBOUND):

@@ -392,6 +392,47 @@ def test_final_descent_holds_no_longer_than_the_touchdown_timeout_leaves_time_fo
     assert down_m_s(last_hold_s + 0.1) == pytest.approx(0.5)  # no time left to hold: goes on down
 
 
+def test_final_descent_settles_at_the_floor_before_the_last_part():
+    """landing_settle_s = 1: the descent goes below landing_hold_min_height_m (0.5 m) only once the
+    error has stayed within the tolerance (0.1 m) for 1 s with the pad in sight; until then the
+    speed is proportional to the height above the floor over SETTLE_BAND_S x land speed (0.4 s x
+    0.5 m/s = 0.2 m: 0.25 m/s at 0.1 m above it, climbing at 0.25 m/s 0.1 m below). Once settled
+    near the floor it goes on at land speed and is not held again; blind it does not wait."""
+    from companion.delivery.mission import SETTLE_BAND_S
+    from companion.delivery.padlock import PAD_DATA_FRESH_S, PadLock
+
+    assert SETTLE_BAND_S == 0.4
+    c = cfg(landing_xy_tolerance_m=0.1, landing_hold_min_height_m=0.5, land_speed_m_s=0.5, landing_settle_s=1.0)
+    flying = dict(armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+    m = DeliveryMission(c)
+    m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    m._goto(Phase.LANDING_PAD)
+    pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+
+    def down_m_s(t, offset_east_m, height_m, lock_age_s=PAD_DATA_FRESH_S):
+        lock = PadLock(t, lock_age_s, 0.02)
+        out = m.step(
+            MissionInputs(t, est(t, pn, pe + offset_east_m, -height_m), status(t, **flying), HOME, pad_lock=lock)
+        )
+        assert m.phase is Phase.LANDING_PAD and out.setpoint is not None
+        return out.setpoint.down_m_s
+
+    assert down_m_s(0.05, 0.05, 2.0) == pytest.approx(0.5)  # far above the floor: not slowed
+    assert down_m_s(0.10, 0.05, 0.6) == pytest.approx(0.25)  # within 0.05 s only: slowed to the floor
+    assert down_m_s(0.15, 0.05, 0.5) == pytest.approx(0.0)  # at the floor: waits
+    assert down_m_s(0.20, 0.05, 0.4) == pytest.approx(-0.25)  # below it: climbs back
+    assert down_m_s(0.60, 0.15, 0.5) == pytest.approx(0.0)  # off: the second starts again
+    assert down_m_s(0.65, 0.05, 0.5) == pytest.approx(0.0)
+    assert down_m_s(1.60, 0.05, 0.5) == pytest.approx(0.0)  # 0.95 s within
+    assert down_m_s(1.70, 0.05, 0.5) == pytest.approx(0.5)  # 1.05 s: settled, on down
+    assert down_m_s(1.75, 0.15, 0.45) == pytest.approx(0.5)  # off again below the floor: not held again
+    m2 = DeliveryMission(c)
+    m2.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    m2._goto(Phase.LANDING_PAD)
+    m = m2
+    assert down_m_s(0.05, 0.05, 0.5, lock_age_s=PAD_DATA_FRESH_S + 0.01) == pytest.approx(0.5)  # blind
+
+
 def test_the_final_descent_feeds_its_command_rate_forward_as_an_acceleration():
     """landing_xy_accel_feedforward = c sends a = -c (k_p v + k_i e) with the velocity command, by
     hand in NED (the law is the same in every horizontal frame): 0.04 m east, moving 0.2 m/s north,

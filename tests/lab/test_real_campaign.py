@@ -53,6 +53,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
             "landing_xy_accel_feedforward": 0.4,  # the command's rate fed forward: no circling
             "landing_xy_tolerance_m": 0.04,  # aligned within 4-8 cm before it goes on down
             "landing_hold_min_height_m": 0.3,  # down to where the camera still sees the pad
+            "landing_settle_s": 0.0,  # no wait at that height (held out, it did not help)
             "velocity_bias_tau_s": 1.0,
             "velocity_bias_source": "fusion",  # against the pad, not PX4's drifting position
             "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
