@@ -69,6 +69,7 @@ FIRMWARE_TUNING_KEYS = {
         "ekf_level_pad",
     ),
     "mission": (
+        "land_speed_m_s",
         "landing_xy_gain_1_s",
         "landing_touchdown_height_m",
         "landing_xy_integral_gain_1_s2",

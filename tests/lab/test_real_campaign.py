@@ -46,6 +46,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
             "ekf_level_pad": True,  # PX4's roll / pitch error, seen on the level pad, taken out
         },
         "mission": {
+            "land_speed_m_s": 0.7,  # PX4's MPC_LAND_SPEED: less time for its estimate to wander
             "landing_xy_gain_1_s": 5.0,
             "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
             "landing_xy_integral_gain_1_s2": 2.5,
@@ -61,6 +62,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
         },
     }
     assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
+    assert firmware_tuning("ardupilot")["mission"]["land_speed_m_s"] == 0.5  # LAND_SPEED, as the campaign's
     assert firmware_tuning("ardupilot")["mission"]["autopilot_accel_z_m_s2"] == 0.5  # GUIDED's limits
     assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
     assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
