@@ -9,8 +9,9 @@ PX4 SIH's velocity estimate is not consistent with its position estimate, so the
 the two errors independently: the velocity loop (and the reported velocity) sees truth + a
 Gauss-Markov error; the reported position (and the position loops) truth + a separate
 Gauss-Markov wander. Its estimator also settles at start-up into one of a few states (a constant
-attitude offset, a horizontal velocity bias over height that the vehicle flies on); the traced
-states are ``data/px4_sih_traced.toml`` and one is drawn per flight. PX4 steers its attitude
+attitude offset, a horizontal velocity bias that the vehicle flies on, traced over a steady descent
+from 3 m and replayed by the time since the descent passed 3 m); the traced states are
+``data/px4_sih_traced.toml`` and one is drawn per flight. PX4 steers its attitude
 estimate, so the vehicle's true attitude is the setpoint minus that offset.
 
 ArduCopter's GUIDED velocity is flown as AC_PosControl flies it: the setpoint shaped with the
@@ -46,7 +47,8 @@ class EstimatorState:
     # reported - true attitude, roll / pitch / yaw, degrees
     attitude_bias_deg: tuple[float, float, float]
     # reported - true horizontal velocity (N, E), m/s, at the heights in VELOCITY_BIAS_HEIGHTS_M
-    # (the midpoints of the bands it was measured on), linear between them and constant outside
+    # (the midpoints of the bands it was measured on), linear between them and constant outside;
+    # in a descent from above VELOCITY_BIAS_DESCENT_START_M, read by the time since passing it
     velocity_bias_m_s: tuple[tuple[float, float], ...]
     # the position estimate follows that bias for a while before GPS pulls it back: its error
     # e obeys de/dt = bias - e / tau (fitted to the traced flights)
@@ -61,6 +63,13 @@ _PX4_SIH_TRACED = tomllib.loads(
 # the midpoints of the height bands the velocity bias was measured on (the final descent; above
 # the top band its value holds)
 VELOCITY_BIAS_HEIGHTS_M: tuple[float, ...] = tuple(_PX4_SIH_TRACED["velocity_bias_heights_m"])
+# the traced descent (from this height at this speed): below that height on the way down, the bias
+# is read at the height the traced descent had reached after the same time (a wander in time)
+VELOCITY_BIAS_DESCENT_START_M: float = float(_PX4_SIH_TRACED["descent_start_height_m"])
+VELOCITY_BIAS_DESCENT_SPEED_M_S: float = float(_PX4_SIH_TRACED["descent_speed_m_s"])
+# past the traced descent's lowest band the bias drifts on at a rate drawn per flight and axis
+VELOCITY_BIAS_DRIFT_RATE_M_S2: float = float(_PX4_SIH_TRACED["velocity_bias_drift_rate_m_s2"])
+VELOCITY_BIAS_DRIFT_MAX_M_S: float = float(_PX4_SIH_TRACED["velocity_bias_drift_max_m_s"])
 
 
 @dataclass(frozen=True)
@@ -133,8 +142,8 @@ PROFILES: dict[str, AutopilotProfile] = {
     "px4-sih": AutopilotProfile(
         "px4-sih",
         "PX4 v1.16 SIH: one of ten traced flights' estimator errors per landing (attitude reported up to "
-        "2 deg off in tilt and 13 in heading and steered on, velocity estimate biased up to 0.6 m/s by height "
-        "and flown on), "
+        "2 deg off in tilt and 13 in heading and steered on, velocity estimate biased up to 0.6 m/s over the "
+        "time since the descent passed 3 m, drifting on past the traced 5.7 s, and flown on), "
         "position wander 0.12 m (2.5 s), take-off done 0.8 m short (NAV_MC_ALT_RAD), a soft ground (a steady "
         "descent sinks below the take-off level), 2.3 s land detector, no wind",
         # around the estimator state's bias: SD 0.01-0.14 m/s per band and flight in the traced landings

@@ -34,7 +34,16 @@ from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
 from companion.guidance.setpoint import VelocitySetpoint
-from companion_sitl.profiles import VELOCITY_BIAS_HEIGHTS_M, EstimatorState, apply_profile, get_profile
+from companion_sitl.profiles import (
+    VELOCITY_BIAS_DESCENT_SPEED_M_S,
+    VELOCITY_BIAS_DESCENT_START_M,
+    VELOCITY_BIAS_DRIFT_MAX_M_S,
+    VELOCITY_BIAS_DRIFT_RATE_M_S2,
+    VELOCITY_BIAS_HEIGHTS_M,
+    EstimatorState,
+    apply_profile,
+    get_profile,
+)
 from companion_sitl.winch import ParcelOnLine, SimWinch
 
 log = logging.getLogger(__name__)
@@ -165,6 +174,10 @@ class SimVehicle:
         self.estimator_state: EstimatorState | None = None
         self._att_bias = (0.0, 0.0, 0.0)  # reported - true roll, pitch, yaw (rad)
         self._pos_bias = [0.0, 0.0]  # the position estimate's share of the velocity bias (N, E; m)
+        # when the descent passed VELOCITY_BIAS_DESCENT_START_M (None: not in such a descent)
+        self._above_bias_start = False
+        self._bias_descent_t0: float | None = None
+        self._bias_drift_m_s2: tuple[float, ...] = (0.0, 0.0)  # N, E: the drift past the traced window
         if self.profile.estimator_states:
             u = float(self._rng_verr.uniform()) if self._verr else float(self._rng_misc.uniform())
             acc = 0.0
@@ -180,6 +193,9 @@ class SimVehicle:
             tau_p = self.estimator_state.position_follows_bias_tau_s
             b0 = self._velocity_bias()
             self._pos_bias = [b0[0] * tau_p, b0[1] * tau_p]
+            # the drift's rates from a stream of their own: every other draw stays as it was
+            rng = np.random.default_rng(ss.spawn(1)[0])
+            self._bias_drift_m_s2 = tuple(VELOCITY_BIAS_DRIFT_RATE_M_S2 * x for x in rng.standard_normal(2).tolist())
         self._land_detect_s = self.profile.land_detect_s
         # the mode the autopilot's offboard-loss failsafe switches to (PX4: COM_OBL_RC_ACT; the
         # PX4-dialect MAVLink vehicle sets POSITION, measured on PX4 v1.16 SIH)
@@ -399,13 +415,24 @@ class SimVehicle:
         return (self.pn + w[0].x, self.pe + w[1].x, d)
 
     def _velocity_bias(self) -> tuple[float, float]:
-        """The estimator state's horizontal velocity bias (N, E) at the true height above ground:
-        linear between the heights it was measured at, constant outside them."""
+        """The estimator state's horizontal velocity bias (N, E): linear between the heights it
+        was measured at, constant outside them. In a descent from above the traced descent's start,
+        at the height that descent had reached after the time since passing it (the estimate
+        wanders with time in calm flight, so a slower descent or a hover lands on more of it);
+        elsewhere at the true height above ground."""
         es = self.estimator_state
         if es is None:
             return (0.0, 0.0)
-        h = -self.pd
         hs, vs = VELOCITY_BIAS_HEIGHTS_M, es.velocity_bias_m_s
+        if self._bias_descent_t0 is not None:
+            h = VELOCITY_BIAS_DESCENT_START_M - VELOCITY_BIAS_DESCENT_SPEED_M_S * (self.time_s - self._bias_descent_t0)
+            if h < hs[0]:  # past the traced window: drifting on
+                late_s = (hs[0] - h) / VELOCITY_BIAS_DESCENT_SPEED_M_S
+                cap = VELOCITY_BIAS_DRIFT_MAX_M_S
+                dn, de = (max(-cap, min(cap, r * late_s)) for r in self._bias_drift_m_s2)
+                return (vs[0][0] + dn, vs[0][1] + de)
+        else:
+            h = -self.pd
         if h <= hs[0]:
             return vs[0]
         for i in range(1, len(hs)):
@@ -458,6 +485,10 @@ class SimVehicle:
             for i in range(3):
                 self._verr[i].step(dt, rv[i])
         if self.estimator_state is not None:
+            if -self.pd > VELOCITY_BIAS_DESCENT_START_M:
+                self._above_bias_start, self._bias_descent_t0 = True, None
+            elif self._above_bias_start:  # passing the traced descent's start on the way down
+                self._above_bias_start, self._bias_descent_t0 = False, t
             # the position estimate drifts with the velocity bias, GPS pulls it back (EstimatorState)
             # (exact step of de/dt = b - e / tau for b constant over dt)
             bn, be = self._velocity_bias()

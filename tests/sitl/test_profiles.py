@@ -16,6 +16,10 @@ from companion_sitl.profiles import (
     PROFILE_NAMES,
     PROFILES,
     PX4_SIH_STATES,
+    VELOCITY_BIAS_DESCENT_SPEED_M_S,
+    VELOCITY_BIAS_DESCENT_START_M,
+    VELOCITY_BIAS_DRIFT_MAX_M_S,
+    VELOCITY_BIAS_DRIFT_RATE_M_S2,
     VELOCITY_BIAS_HEIGHTS_M,
     apply_profile,
     get_profile,
@@ -179,6 +183,59 @@ def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_veloci
         assert w.estimator_state is None
         w.yaw = 0.5
         assert w.attitude().yaw_rad == 0.5
+
+
+def _bias_curve_at(es, h: float) -> tuple[float, float]:
+    """The state's traced bias at height h, interpolated by hand (numpy, not the vehicle's code)."""
+    hs = VELOCITY_BIAS_HEIGHTS_M
+    return tuple(float(np.interp(h, hs, [b[i] for b in es.velocity_bias_m_s])) for i in (0, 1))
+
+
+def test_px4_sih_velocity_bias_follows_the_time_since_the_descent_passed_3_m():
+    """The traced bias is a wander in time (traced on a steady 0.5 m/s descent from 3 m): in a
+    descent from above 3 m it is read at 3 - 0.5 t (t since passing 3 m), so a 1 m/s descent two
+    seconds after passing 3 m (at 0.3-1.5 m) carries the curve's value at 2 m; past the curve's
+    lowest band it drifts on at the flight's drawn rate (N(0, 0.06^2) per axis), at most 0.74 m/s;
+    back above 3 m the clock is off and the true height counts again."""
+    assert (VELOCITY_BIAS_DESCENT_START_M, VELOCITY_BIAS_DESCENT_SPEED_M_S) == (3.0, 0.5)
+    v = SimVehicle(SimConfig(profile="px4-sih", seed=3))
+    es = v.estimator_state
+    assert es is not None
+    t = _switched_to_offboard(v, _airborne(v, 5.0))
+    assert v._bias_descent_t0 is None and -v.pd > 3.0
+    passed = None
+    while v.time_s < t + 20.0:
+        v.set_velocity(VelocitySetpoint(0.0, 0.0, 1.0, 0.0))
+        t += 0.05
+        v.step_to(t)
+        if passed is None and -v.pd < 3.0:
+            passed = v.time_s
+            assert v._bias_descent_t0 == pytest.approx(passed, abs=0.01)
+        if passed is not None and v.time_s >= passed + 2.0:
+            break
+    assert passed is not None and 0.3 < -v.pd < 1.5  # well below the 2 m whose bias it carries
+    h_eq = 3.0 - 0.5 * (v.time_s - v._bias_descent_t0)
+    assert h_eq == pytest.approx(2.0, abs=0.03)
+    assert v._velocity_bias() == pytest.approx(_bias_curve_at(es, h_eq), abs=1e-9)
+    assert v._velocity_bias() != pytest.approx(_bias_curve_at(es, -v.pd), abs=1e-3)
+    # two seconds past the lowest band (0.15 m): its value plus two seconds of the drift
+    rn, re = v._bias_drift_m_s2
+    v._bias_descent_t0 = v.time_s - (3.0 - VELOCITY_BIAS_HEIGHTS_M[0]) / 0.5 - 2.0
+    b0 = es.velocity_bias_m_s[0]
+    assert v._velocity_bias() == pytest.approx((b0[0] + 2.0 * rn, b0[1] + 2.0 * re), abs=1e-9)
+    v._bias_descent_t0 = v.time_s - 1000.0  # a long hover: the drift at its bound
+    cap = VELOCITY_BIAS_DRIFT_MAX_M_S
+    assert v._velocity_bias() == pytest.approx((b0[0] + math.copysign(cap, rn), b0[1] + math.copysign(cap, re)))
+    # climbing back above 3 m: the true height again
+    v.pd = -3.5
+    v.step_to(v.time_s + 0.01)
+    assert v._bias_descent_t0 is None
+    assert v._velocity_bias() == pytest.approx(es.velocity_bias_m_s[-1])
+    # the rates drawn over flights: mean 0, SD 0.06 m/s^2
+    rates = np.array([SimVehicle(SimConfig(profile="px4-sih", seed=s))._bias_drift_m_s2 for s in range(300)])
+    assert abs(rates.mean()) < 0.01
+    assert rates.std() == pytest.approx(VELOCITY_BIAS_DRIFT_RATE_M_S2, rel=0.12)
+    assert SimVehicle(SimConfig(profile="ideal", seed=3))._bias_drift_m_s2 == (0.0, 0.0)
 
 
 def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
