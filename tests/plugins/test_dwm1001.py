@@ -7,6 +7,7 @@ import os
 import select
 import threading
 import time
+import tty
 from typing import ClassVar
 
 import numpy as np
@@ -183,6 +184,10 @@ class FakeDwm1001:
 
     def __init__(self, answer: bool = True, streaming_at_start: bool = False) -> None:
         self.master, self.slave = os.openpty()
+        # raw from the start: a new pty echoes what the device writes back to it until the driver
+        # opens the port (pyserial sets raw then), so a stream running at start would be read back
+        # as commands under load; a UART echoes nothing
+        tty.setraw(self.slave)
         self.path = os.ttyname(self.slave)
         self.answer = answer
         self.commands: list[bytes] = []
