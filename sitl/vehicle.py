@@ -61,6 +61,16 @@ GPS_FIX_PERIOD_S = 0.2  # a GPS receiver's 5 Hz fixes (ArduPilot SITL's default 
 
 PARCEL_STEP_HZ = 1000.0  # the parcel pendulum's least integration rate (sitl/winch.py)
 
+# the modes that hold a position target (no setpoint of their own in the sim)
+_POSITION_HOLD_MODES = (
+    FlightMode.HOLD,
+    FlightMode.POSITION,
+    FlightMode.MANUAL,
+    FlightMode.RTL,
+    FlightMode.MISSION,
+    FlightMode.UNKNOWN,
+)
+
 
 def _sqrt_controller_2d(en: float, ee: float, p: float, second_ord_lim: float, dt: float) -> tuple[float, float]:
     """ArduPilot's sqrt_controller on a 2-D error: p x error up to the distance where the
@@ -443,12 +453,42 @@ class SimVehicle:
         return vs[-1]
 
     def _step(self, dt: float) -> None:
-        c = self.cfg
-        vc = c.vehicle
+        """One physics tick: the disturbances, the autopilot (mode logic, velocity loop, attitude)
+        on its estimate, then the true vehicle's motion, land detector, battery, winch, truth log."""
         self.time_s += dt
         t = self.time_s
         if self._home_reported is None and self.healthy:
             self._set_home()  # EKF origin and home at the first good GPS fix
+        self._step_wind(dt)
+        self._step_gps_error(t, dt)
+        if self._verr:
+            rv = self._rng_verr.standard_normal(3).tolist()
+            for i in range(3):
+                self._verr[i].step(dt, rv[i])
+        if self.estimator_state is not None:
+            self._step_estimator_bias(t, dt)
+        if self._release_at is not None and t >= self._release_at:
+            self.payload_released = True
+            self._release_at = None
+            self._text("payload released")
+        vc = self.cfg.vehicle
+        thrust_on = self.armed
+        sp = self._mode_setpoint(t, dt)
+        on_ground = self._grounded if vc.soft_ground else self.pd >= -1e-6
+        a_sp = self._velocity_loop(sp, thrust_on and not on_ground, dt)
+        thrust = self._attitude_step(a_sp, dt)
+        self._move(thrust, thrust_on, on_ground, dt)
+        self._land_detector(t)
+        if self.armed and not on_ground:
+            self.battery_pct = max(0.0, self.battery_pct - 100.0 * dt / vc.battery_endurance_s)
+        if self.winch is not None:
+            self._step_winch(t, dt)
+        if t >= self._truth_next:
+            self._truth_next = t + 0.1
+            self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))
+
+    def _step_wind(self, dt: float) -> None:
+        """The wind: mean + gusts, faded towards the ground by the profile's ramp."""
         rn = self._rng_wind.standard_normal(3).tolist()  # Python floats: the same values, no numpy scalars
         for i in range(3):
             self._wind[i] = self._wind_mean[i] + self._gust[i].step(dt, rn[i])
@@ -457,108 +497,120 @@ class SimVehicle:
             k = math.sqrt(max(0.0, -self.pd) / ramp)
             for i in range(3):
                 self._wind[i] *= k
+
+    def _step_gps_error(self, t: float, dt: float) -> None:
+        """The GPS error's random walk, and the part of it the autopilot's estimate has taken
+        where the profile has one (gps_error_estimate_*)."""
+        c = self.cfg
         rg = self._rng_gps.standard_normal(3).tolist()
         for i in range(3):
             self._walk[i].step(dt, rg[i])
-        if self.profile.gps_error_estimate_tau_s > 0.0:
-            if t >= self._fix_next_s:
-                self._fix_next_s = t + GPS_FIX_PERIOD_S
-                r = self._rng_fix.standard_normal(2).tolist()
-                self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
-            # the estimate takes the error (first or second order, gps_error_estimate_*); a vehicle
-            # held on the estimate then moves against it (GUIDED's position target, below)
-            a = self._gps_lag_a
-            w2, c2 = self._gps_est_2nd
-            for i in range(2):
-                err = self._walk[i].x + self._fix_noise[i]
-                if c2 > 0.0:  # second order, semi-implicit Euler (w dt <= 0.03 here)
-                    rate = self._gps_in_est_rate[i]
-                    rate += dt * (w2 * (err - self._gps_in_est[i]) - c2 * rate)
-                    self._gps_in_est_rate[i] = rate
-                    self._gps_in_est[i] += dt * rate
-                else:  # first order, exact for the error held over dt
-                    d = a * (err - self._gps_in_est[i])
-                    self._gps_in_est[i] += d
-                    self._gps_in_est_rate[i] = d / dt
-        if self._verr:
-            rv = self._rng_verr.standard_normal(3).tolist()
-            for i in range(3):
-                self._verr[i].step(dt, rv[i])
-        if self.estimator_state is not None:
-            if -self.pd > VELOCITY_BIAS_DESCENT_START_M:
-                self._above_bias_start, self._bias_descent_t0 = True, None
-            elif self._above_bias_start:  # passing the traced descent's start on the way down
-                self._above_bias_start, self._bias_descent_t0 = False, t
-            # the position estimate drifts with the velocity bias, GPS pulls it back (EstimatorState)
-            # (exact step of de/dt = b - e / tau for b constant over dt)
-            bn, be = self._velocity_bias()
-            tau_p = self.estimator_state.position_follows_bias_tau_s
-            a = math.exp(-dt / tau_p)
-            self._pos_bias[0] = a * self._pos_bias[0] + (1.0 - a) * tau_p * bn
-            self._pos_bias[1] = a * self._pos_bias[1] + (1.0 - a) * tau_p * be
-        if self._release_at is not None and t >= self._release_at:
-            self.payload_released = True
-            self._release_at = None
-            self._text("payload released")
+        if self.profile.gps_error_estimate_tau_s <= 0.0:
+            return
+        if t >= self._fix_next_s:
+            self._fix_next_s = t + GPS_FIX_PERIOD_S
+            r = self._rng_fix.standard_normal(2).tolist()
+            self._fix_noise = (c.gps_noise_m * r[0], c.gps_noise_m * r[1])
+        # the estimate takes the error (first or second order, gps_error_estimate_*); a vehicle
+        # held on the estimate then moves against it (GUIDED's position target, _mode_setpoint)
+        a = self._gps_lag_a
+        w2, c2 = self._gps_est_2nd
+        for i in range(2):
+            err = self._walk[i].x + self._fix_noise[i]
+            if c2 > 0.0:  # second order, semi-implicit Euler (w dt <= 0.03 here)
+                rate = self._gps_in_est_rate[i]
+                rate += dt * (w2 * (err - self._gps_in_est[i]) - c2 * rate)
+                self._gps_in_est_rate[i] = rate
+                self._gps_in_est[i] += dt * rate
+            else:  # first order, exact for the error held over dt
+                d = a * (err - self._gps_in_est[i])
+                self._gps_in_est[i] += d
+                self._gps_in_est_rate[i] = d / dt
 
-        # ---- mode logic -> velocity setpoint (autopilot side, on its estimate)
+    def _step_estimator_bias(self, t: float, dt: float) -> None:
+        """The estimator state's position bias: it drifts with the velocity bias, GPS pulls it
+        back (EstimatorState); and the time the traced descent's start was passed on the way down."""
+        es = self.estimator_state
+        assert es is not None
+        if -self.pd > VELOCITY_BIAS_DESCENT_START_M:
+            self._above_bias_start, self._bias_descent_t0 = True, None
+        elif self._above_bias_start:  # passing the traced descent's start on the way down
+            self._above_bias_start, self._bias_descent_t0 = False, t
+        # exact step of de/dt = b - e / tau for b constant over dt
+        bn, be = self._velocity_bias()
+        tau_p = es.position_follows_bias_tau_s
+        a = math.exp(-dt / tau_p)
+        self._pos_bias[0] = a * self._pos_bias[0] + (1.0 - a) * tau_p * bn
+        self._pos_bias[1] = a * self._pos_bias[1] + (1.0 - a) * tau_p * be
+
+    def _mode_setpoint(self, t: float, dt: float) -> tuple[float, float, float]:
+        """The mode logic (autopilot side, on its estimate): the velocity setpoint (N, E, D).
+        A mode that hands over (OFFBOARD's failsafe, TAKEOFF done) lets the next one set it in
+        the same tick."""
         est = self._estimate()
-        sp_n = sp_e = sp_d = 0.0
-        thrust_on = self.armed
+        sp = (0.0, 0.0, 0.0)
         if self.armed:
             if self.mode is FlightMode.OFFBOARD:
-                if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
-                    self._text(f"offboard lost: failsafe {self.offboard_loss_mode.value}")
-                    self.hold()
-                    self.mode = self.offboard_loss_mode  # holds position in either
-                else:
-                    sp_n, sp_e, sp_d = self._sp.north_m_s, self._sp.east_m_s, self._sp.down_m_s
-                    self._yaw_sp = self._sp.yaw_rad
-                    # the autopilot cuts each axis on its own (PX4's position control: horizontal
-                    # norm to MPC_XY_VEL_MAX, down / up to MPC_Z_VEL_MAX_DN / _UP)
-                    h = math.hypot(sp_n, sp_e)
-                    if h > vc.offboard_max_horizontal_m_s:
-                        k_h = vc.offboard_max_horizontal_m_s / h
-                        sp_n, sp_e = sp_n * k_h, sp_e * k_h
-                    sp_d = min(max(sp_d, -vc.offboard_max_up_m_s), vc.offboard_max_down_m_s)
-                    if self.profile.guided_jerk_max_m_s3 > 0.0:
-                        sp_n, sp_e = self._guided_velocity(sp_n, sp_e, est, dt)
+                sp = self._offboard_setpoint(t, dt, est)
             if self.mode is FlightMode.TAKEOFF:
                 assert self._hold_target is not None
                 sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
-                sp_d = -vc.takeoff_speed_m_s
+                sp = (sp_n, sp_e, -self.cfg.vehicle.takeoff_speed_m_s)
                 # done within the altitude acceptance radius: HOLD then climbs on to the height
-                if est[2] <= self._takeoff_target_d + vc.takeoff_altitude_acceptance_m:
+                if est[2] <= self._takeoff_target_d + self.cfg.vehicle.takeoff_altitude_acceptance_m:
                     self.mode = FlightMode.HOLD
-            if self.mode in (
-                FlightMode.HOLD,
-                FlightMode.POSITION,
-                FlightMode.MANUAL,
-                FlightMode.RTL,
-                FlightMode.MISSION,
-                FlightMode.UNKNOWN,
-            ):
+            if self.mode in _POSITION_HOLD_MODES:
                 if self._hold_target is None:
                     self._hold_target = est
-                sp_n, sp_e, sp_d = self._pos_ctrl(est, self._hold_target)
+                sp = self._pos_ctrl(est, self._hold_target)
             if self.mode is FlightMode.LAND:
-                assert self._hold_target is not None
-                sp_d = vc.land_speed_m_s
-                pl = self._pl_target if self._precland and t - self._pl_seen_s <= PLD_BTOUT_S else None
-                if pl is not None:
-                    self._hold_target = (pl[0], pl[1], self._hold_target[2])
-                    if (
-                        math.hypot(pl[0] - est[0], pl[1] - est[1]) > PLD_HACC_RAD_M
-                        and self.landed is not LandedState.ON_GROUND
-                    ):
-                        sp_d = 0.0  # horizontal approach first, as PX4's precision landing does
-                sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
+                sp = self._land_setpoint(t, est)
         if not self.armed or self.mode is not FlightMode.OFFBOARD:
             self._guided = None
+        return sp
 
-        # ---- velocity loop (P + I) -> acceleration setpoint, limits; it runs on the autopilot's
-        # velocity estimate (truth + the profile's error: PX4 SIH drifts on it; ArduCopter holds a
-        # position target, so its error does not drive the vehicle: profiles.py)
+    def _offboard_setpoint(self, t: float, dt: float, est: tuple[float, float, float]) -> tuple[float, float, float]:
+        """OFFBOARD: the companion's setpoint, cut to the autopilot's limits; a setpoint stream
+        that stopped is the failsafe (its mode then holds position)."""
+        vc = self.cfg.vehicle
+        if self._sp is None or t - self._sp_times[-1] > vc.offboard_loss_timeout_s:
+            self._text(f"offboard lost: failsafe {self.offboard_loss_mode.value}")
+            self.hold()
+            self.mode = self.offboard_loss_mode  # holds position in either
+            return (0.0, 0.0, 0.0)
+        sp_n, sp_e, sp_d = self._sp.north_m_s, self._sp.east_m_s, self._sp.down_m_s
+        self._yaw_sp = self._sp.yaw_rad
+        # the autopilot cuts each axis on its own (PX4's position control: horizontal
+        # norm to MPC_XY_VEL_MAX, down / up to MPC_Z_VEL_MAX_DN / _UP)
+        h = math.hypot(sp_n, sp_e)
+        if h > vc.offboard_max_horizontal_m_s:
+            k_h = vc.offboard_max_horizontal_m_s / h
+            sp_n, sp_e = sp_n * k_h, sp_e * k_h
+        sp_d = min(max(sp_d, -vc.offboard_max_up_m_s), vc.offboard_max_down_m_s)
+        if self.profile.guided_jerk_max_m_s3 > 0.0:
+            sp_n, sp_e = self._guided_velocity(sp_n, sp_e, est, dt)
+        return (sp_n, sp_e, sp_d)
+
+    def _land_setpoint(self, t: float, est: tuple[float, float, float]) -> tuple[float, float, float]:
+        """LAND: descend at the land speed, on the precision-landing target while it is seen
+        (horizontal approach first, as PX4's precision landing does)."""
+        assert self._hold_target is not None
+        sp_d = self.cfg.vehicle.land_speed_m_s
+        pl = self._pl_target if self._precland and t - self._pl_seen_s <= PLD_BTOUT_S else None
+        if pl is not None:
+            self._hold_target = (pl[0], pl[1], self._hold_target[2])
+            if math.hypot(pl[0] - est[0], pl[1] - est[1]) > PLD_HACC_RAD_M and self.landed is not LandedState.ON_GROUND:
+                sp_d = 0.0
+        sp_n, sp_e, _ = self._pos_ctrl(est, self._hold_target)
+        return (sp_n, sp_e, sp_d)
+
+    def _velocity_loop(self, sp: tuple[float, float, float], integrate: bool, dt: float) -> tuple[float, float, float]:
+        """The velocity loop (P + I, conditional integration while ``integrate``) -> the
+        acceleration setpoint (N, E, D), within the limits. It runs on the autopilot's velocity
+        estimate (truth + the profile's error: PX4 SIH drifts on it; ArduCopter holds a position
+        target, so its error does not drive the vehicle: profiles.py)."""
+        vc = self.cfg.vehicle
+        sp_n, sp_e, sp_d = sp
         ve_n, ve_e = self._velocity_estimate_h()
         ve_d = self.vd
         if self._verr and self.profile.velocity_loop_on_estimate:
@@ -588,21 +640,23 @@ class SimVehicle:
             an, ae = an * a_h_max / ah, ae * a_h_max / ah
         sat_v = not (-vc.max_up_accel_m_s2 <= ad <= vc.max_down_accel_m_s2)
         ad = min(max(ad, -vc.max_up_accel_m_s2), vc.max_down_accel_m_s2)
-        soft = vc.soft_ground
-        on_ground = self._grounded if soft else self.pd >= -1e-6
-        if thrust_on and not on_ground:
+        if integrate:
             if not sat_h:  # conditional integration (anti-windup)
                 self._int[0] += en * dt
                 self._int[1] += ee * dt
             if not sat_v:
                 self._int[2] += ed * dt
+        return (an, ae, ad)
 
-        # ---- attitude: tilt the thrust towards f_sp = a_sp - g with first-order lag. The autopilot
-        # makes its attitude setpoint with its own yaw and drives its attitude *estimate* to it
-        # (PX4: the thrust vector and yaw setpoint become q_sp in the estimator's frame), so with an
-        # estimator state's offset the true tilt is the setpoint - the offset and the true thrust is
-        # f_sp turned by -yaw offset: the velocity loop's own response turns with the yaw error
-        fn, fe, fd = an, ae, ad - G
+    def _attitude_step(self, a_sp: tuple[float, float, float], dt: float) -> float:
+        """Tilt the thrust towards f_sp = a_sp - g with first-order lag, turn the yaw towards its
+        setpoint; returns the thrust's magnitude. The autopilot makes its attitude setpoint with its
+        own yaw and drives its attitude *estimate* to it (PX4: the thrust vector and yaw setpoint
+        become q_sp in the estimator's frame), so with an estimator state's offset the true tilt is
+        the setpoint - the offset and the true thrust is f_sp turned by -yaw offset: the velocity
+        loop's own response turns with the yaw error."""
+        vc = self.cfg.vehicle
+        fn, fe, fd = a_sp[0], a_sp[1], a_sp[2] - G
         T = math.sqrt(fn * fn + fe * fe + fd * fd)
         yaw_ctrl = self.estimated_yaw()
         cy, sy = math.cos(yaw_ctrl), math.sin(yaw_ctrl)
@@ -621,8 +675,12 @@ class SimVehicle:
         dyaw = max(-YAW_RATE_MAX * dt, min(YAW_RATE_MAX * dt, dyaw))
         self.yaw = wrap_angle(self.yaw + dyaw)
         self._rates = (d_roll / dt, d_pitch / dt, dyaw / dt)
+        return T
 
-        # ---- translational dynamics: a = f(actual attitude) + g - drag(v - wind)
+    def _move(self, T: float, thrust_on: bool, on_ground: bool, dt: float) -> None:
+        """Translational dynamics: a = f(actual attitude) + g - drag(v - wind), on the ground the
+        ground's reaction (hard ground, or PX4 SIH's soft one)."""
+        vc = self.cfg.vehicle
         if thrust_on:
             cr, sr = math.cos(self.roll), math.sin(self.roll)
             cp, sp_ = math.cos(self.pitch), math.sin(self.pitch)
@@ -636,7 +694,7 @@ class SimVehicle:
         a_n = f_n - kd * (self.vn - self._wind[0])
         a_e = f_e - kd * (self.ve - self._wind[1])
         a_d = f_d + G - kd * (self.vd - self._wind[2])
-        if soft:
+        if vc.soft_ground:
             # PX4 SIH's fake ground (sih.cpp, Sih::equations_of_motion): below the take-off level
             # it cancels the forces and stops the vehicle only while their sum points down. A
             # steady descent (thrust = weight - drag) is not caught: it sinks on until the thrust
@@ -659,14 +717,6 @@ class SimVehicle:
                 self.pd = 0.0
                 self.vd = 0.0
         self._accel = (a_n, a_e, a_d)
-        self._land_detector(t)
-        if self.armed and not on_ground:
-            self.battery_pct = max(0.0, self.battery_pct - 100.0 * dt / vc.battery_endurance_s)
-        if self.winch is not None:
-            self._step_winch(t, dt)
-        if t >= self._truth_next:
-            self._truth_next = t + 0.1
-            self.truth_log.append(TruthSample(t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd))
 
     def _rest(self, thrust_on: bool) -> None:
         """On the ground: it carries the weight, friction stops sliding."""
