@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 from companion.autopilot.ardupilot.dialect import mavlink
@@ -67,117 +68,180 @@ class ArduPilotTelemetry(ArduPilotRequests):
         self._push(self._status())
 
     def _on_message(self, m: Any) -> None:
+        """One received message: link errors and the messages of any source first, then the
+        vehicle's own (the target system's), each to its handler in ``_VEHICLE_HANDLERS``."""
         t = m.get_type()
         if t == "BAD_DATA":
-            if getattr(m, "reason", "") == "Invalid signature":
-                self.counters.signature_rejects += 1
-                if self.counters.signature_rejects in (1, 100) or self.counters.signature_rejects % 1000 == 0:
-                    log.warning(
-                        "MAVLink signing: %d packets dropped (unsigned, or signed with another key)",
-                        self.counters.signature_rejects,
-                    )
-                return
-            self.counters.bad_data += 1
-            self.counters.garbage_bytes += len(getattr(m, "data", b""))
+            self._on_bad_data(m)
             return
-        src = m.get_srcSystem()
         now = time.monotonic()
         if t == "COMMAND_LONG":  # from the operator's GCS (any system), for the companion's component
             self._on_component_command(m)
             return
         if t == "HEARTBEAT":
-            if m.autopilot == mavlink.MAV_AUTOPILOT_INVALID or m.type == mavlink.MAV_TYPE_GCS:
-                return  # a GCS or another companion
-            if self.target_system is None:
-                self.target_system = src
-            if src != self.target_system or m.get_srcComponent() != self.target_component:
-                return
-            self.counters.heartbeats += 1
-            buf = m.get_msgbuf()
-            self._vehicle_signs = len(buf) > 2 and buf[0] == 0xFD and bool(buf[2] & 0x01)  # MAVLINK_IFLAG_SIGNED
-            if m.get_signed():
-                self.counters.signed_heartbeats += 1
-                self.counters.signed_from_vehicle += 1
-            self._last_hb = now
-            self._last_rx = now
-            self.copter_mode = m.custom_mode
-            self._armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            if self._first_hb is not None and not self._first_hb.done():
-                self._post(self._resolve_first_hb)
-            self._push_status()
-            if now - self._last_attitude > 3.0:
-                self._check_streams(now)
+            self._on_heartbeat(m, now)
             return
-        if self.target_system is None or src != self.target_system:
+        if self.target_system is None or m.get_srcSystem() != self.target_system:
             return
         self.counters.messages += 1
         self.counters.signed_from_vehicle += m.get_signed()
         self._last_rx = now
-        if t == "ATTITUDE":
-            self._last_attitude = now
-            self._push(Attitude(now, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))
-        elif t == "HIGHRES_IMU":
-            self._have_highres = True
-            self._push(Imu(now, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro))
-        elif t == "RAW_IMU" and not self._have_highres:
-            a = G / 1000.0
-            self._push(Imu(now, m.xacc * a, m.yacc * a, m.zacc * a, m.xgyro / 1e3, m.ygyro / 1e3, m.zgyro / 1e3))
-        elif t == "LOCAL_POSITION_NED":
-            self._push(PositionNed(now, m.x, m.y, m.z, m.vx, m.vy, m.vz))
-        elif t == "GLOBAL_POSITION_INT":
-            self._push(GlobalPosition(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.relative_alt / 1000.0))
-        elif t == "GPS_RAW_INT":
-            self._gps_fix = m.fix_type
-            eph = m.eph / 100.0 if m.eph != 65535 else 99.99
-            self._push(GpsRaw(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.fix_type, m.satellites_visible, eph))
-        elif t == "SYS_STATUS":
-            prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
-            if m.onboard_control_sensors_present & prearm:
-                self._prearm_ok = bool(m.onboard_control_sensors_health & prearm)
-            if m.battery_remaining >= 0:
-                self._battery_pct = float(m.battery_remaining)
-            self._push_status()
-        elif t == "BATTERY_STATUS":
-            if m.battery_remaining >= 0:
-                self._battery_pct = float(m.battery_remaining)
-        elif t == "EXTENDED_SYS_STATE":
-            self._landed = LANDED_STATES.get(m.landed_state, LandedState.UNKNOWN)
-            self._push_status()
-        elif t == "HOME_POSITION":
-            self._push(HomePosition(now, m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1000.0, m.x, m.y, m.z))
-        elif t == "STATUSTEXT":
-            text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
-            text = text.rstrip("\x00")
-            self._last_text = text
-            self._texts_seen += 1
-            log.info("autopilot: %s", text)
-            self._push(StatusText(now, m.severity, text))
-        elif t == "COMMAND_ACK":
-            if m.target_system in (0, self.source_system):
-                self._post(self._resolve_ack, m.command, m.result)
-        elif t == "WIND":  # direction: where the wind comes from (deg); the air moves the other way
-            d = math.radians(m.direction)
-            self._post(self.telemetry.push_wind, Wind(now, -m.speed * math.cos(d), -m.speed * math.sin(d)))
-        elif t == "WINCH_STATUS":
-            self._post(self.telemetry.push_winch, WinchStatus(now, float(m.line_length), float(m.speed), int(m.status)))
-        elif t in MISSION_MESSAGES:  # the fence transfer (ardupilot.fence), when one is running
-            handler = getattr(self, "_on_mission_message", None)
-            if handler is not None and m.target_system in (0, self.source_system):
-                self._post(handler, m)
-        elif t == "SERVO_OUTPUT_RAW":
-            if m.port == 0:
-                outs = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
-                self.servo_outputs = tuple(outs)
-                self._servo_outputs_time = now
-        elif t == "PARAM_VALUE":
-            pid = m.param_id if isinstance(m.param_id, str) else bytes(m.param_id).decode(errors="replace")
-            pid = pid.rstrip("\x00")
-            if math.isfinite(m.param_value):
-                self.params[pid] = float(m.param_value)
-                self._post(self._resolve_param, pid, float(m.param_value))
-        elif t == "SYSTEM_TIME":
-            self._system_time = (int(m.time_unix_usec), time.time())
-            self._post(self._resolve_system_time, self._system_time)
-        elif t == "RC_CHANNELS":
-            self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
-            self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))
+        handler = _VEHICLE_HANDLERS.get(t)
+        if handler is not None:
+            handler(self, m, now)
+
+    def _on_bad_data(self, m: Any) -> None:
+        """Bytes that did not parse, or a packet whose signature did not check (counted, said
+        at the first, the 100th and every 1000th)."""
+        if getattr(m, "reason", "") == "Invalid signature":
+            self.counters.signature_rejects += 1
+            if self.counters.signature_rejects in (1, 100) or self.counters.signature_rejects % 1000 == 0:
+                log.warning(
+                    "MAVLink signing: %d packets dropped (unsigned, or signed with another key)",
+                    self.counters.signature_rejects,
+                )
+            return
+        self.counters.bad_data += 1
+        self.counters.garbage_bytes += len(getattr(m, "data", b""))
+
+    def _on_heartbeat(self, m: Any, now: float) -> None:
+        """A HEARTBEAT: the first autopilot's picks the target system; the target's gives the
+        mode, arming and whether the vehicle signs."""
+        if m.autopilot == mavlink.MAV_AUTOPILOT_INVALID or m.type == mavlink.MAV_TYPE_GCS:
+            return  # a GCS or another companion
+        src = m.get_srcSystem()
+        if self.target_system is None:
+            self.target_system = src
+        if src != self.target_system or m.get_srcComponent() != self.target_component:
+            return
+        self.counters.heartbeats += 1
+        buf = m.get_msgbuf()
+        self._vehicle_signs = len(buf) > 2 and buf[0] == 0xFD and bool(buf[2] & 0x01)  # MAVLINK_IFLAG_SIGNED
+        if m.get_signed():
+            self.counters.signed_heartbeats += 1
+            self.counters.signed_from_vehicle += 1
+        self._last_hb = now
+        self._last_rx = now
+        self.copter_mode = m.custom_mode
+        self._armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        if self._first_hb is not None and not self._first_hb.done():
+            self._post(self._resolve_first_hb)
+        self._push_status()
+        if now - self._last_attitude > 3.0:
+            self._check_streams(now)
+
+    # ------------------------------------------------------------------ the vehicle's messages
+    def _on_attitude(self, m: Any, now: float) -> None:
+        self._last_attitude = now
+        self._push(Attitude(now, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))
+
+    def _on_highres_imu(self, m: Any, now: float) -> None:
+        self._have_highres = True
+        self._push(Imu(now, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro))
+
+    def _on_raw_imu(self, m: Any, now: float) -> None:
+        if self._have_highres:
+            return  # HIGHRES_IMU is streamed: RAW_IMU's milli-g and mrad/s would repeat it coarser
+        a = G / 1000.0
+        self._push(Imu(now, m.xacc * a, m.yacc * a, m.zacc * a, m.xgyro / 1e3, m.ygyro / 1e3, m.zgyro / 1e3))
+
+    def _on_local_position(self, m: Any, now: float) -> None:
+        self._push(PositionNed(now, m.x, m.y, m.z, m.vx, m.vy, m.vz))
+
+    def _on_global_position(self, m: Any, now: float) -> None:
+        self._push(GlobalPosition(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.relative_alt / 1000.0))
+
+    def _on_gps_raw(self, m: Any, now: float) -> None:
+        self._gps_fix = m.fix_type
+        eph = m.eph / 100.0 if m.eph != 65535 else 99.99
+        self._push(GpsRaw(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.fix_type, m.satellites_visible, eph))
+
+    def _on_sys_status(self, m: Any, now: float) -> None:
+        prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if m.onboard_control_sensors_present & prearm:
+            self._prearm_ok = bool(m.onboard_control_sensors_health & prearm)
+        if m.battery_remaining >= 0:
+            self._battery_pct = float(m.battery_remaining)
+        self._push_status()
+
+    def _on_battery_status(self, m: Any, now: float) -> None:
+        if m.battery_remaining >= 0:
+            self._battery_pct = float(m.battery_remaining)
+
+    def _on_extended_sys_state(self, m: Any, now: float) -> None:
+        self._landed = LANDED_STATES.get(m.landed_state, LandedState.UNKNOWN)
+        self._push_status()
+
+    def _on_home_position(self, m: Any, now: float) -> None:
+        self._push(HomePosition(now, m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1000.0, m.x, m.y, m.z))
+
+    def _on_statustext(self, m: Any, now: float) -> None:
+        text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
+        text = text.rstrip("\x00")
+        self._last_text = text
+        self._texts_seen += 1
+        log.info("autopilot: %s", text)
+        self._push(StatusText(now, m.severity, text))
+
+    def _on_command_ack(self, m: Any, now: float) -> None:
+        if m.target_system in (0, self.source_system):
+            self._post(self._resolve_ack, m.command, m.result)
+
+    def _on_wind(self, m: Any, now: float) -> None:
+        # direction: where the wind comes from (deg); the air moves the other way
+        d = math.radians(m.direction)
+        self._post(self.telemetry.push_wind, Wind(now, -m.speed * math.cos(d), -m.speed * math.sin(d)))
+
+    def _on_winch_status(self, m: Any, now: float) -> None:
+        self._post(self.telemetry.push_winch, WinchStatus(now, float(m.line_length), float(m.speed), int(m.status)))
+
+    def _on_mission(self, m: Any, now: float) -> None:
+        """The fence transfer's messages (ardupilot.fence), when one is running."""
+        handler = getattr(self, "_on_mission_message", None)
+        if handler is not None and m.target_system in (0, self.source_system):
+            self._post(handler, m)
+
+    def _on_servo_output_raw(self, m: Any, now: float) -> None:
+        if m.port == 0:
+            outs = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
+            self.servo_outputs = tuple(outs)
+            self._servo_outputs_time = now
+
+    def _on_param_value(self, m: Any, now: float) -> None:
+        pid = m.param_id if isinstance(m.param_id, str) else bytes(m.param_id).decode(errors="replace")
+        pid = pid.rstrip("\x00")
+        if math.isfinite(m.param_value):
+            self.params[pid] = float(m.param_value)
+            self._post(self._resolve_param, pid, float(m.param_value))
+
+    def _on_system_time(self, m: Any, now: float) -> None:
+        self._system_time = (int(m.time_unix_usec), time.time())
+        self._post(self._resolve_system_time, self._system_time)
+
+    def _on_rc_channels(self, m: Any, now: float) -> None:
+        self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
+        self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))
+
+
+# the target system's messages, each to its handler (the fence transfer's to the one for all of them)
+_VEHICLE_HANDLERS: dict[str, Callable[[ArduPilotTelemetry, Any, float], None]] = {
+    "ATTITUDE": ArduPilotTelemetry._on_attitude,
+    "HIGHRES_IMU": ArduPilotTelemetry._on_highres_imu,
+    "RAW_IMU": ArduPilotTelemetry._on_raw_imu,
+    "LOCAL_POSITION_NED": ArduPilotTelemetry._on_local_position,
+    "GLOBAL_POSITION_INT": ArduPilotTelemetry._on_global_position,
+    "GPS_RAW_INT": ArduPilotTelemetry._on_gps_raw,
+    "SYS_STATUS": ArduPilotTelemetry._on_sys_status,
+    "BATTERY_STATUS": ArduPilotTelemetry._on_battery_status,
+    "EXTENDED_SYS_STATE": ArduPilotTelemetry._on_extended_sys_state,
+    "HOME_POSITION": ArduPilotTelemetry._on_home_position,
+    "STATUSTEXT": ArduPilotTelemetry._on_statustext,
+    "COMMAND_ACK": ArduPilotTelemetry._on_command_ack,
+    "WIND": ArduPilotTelemetry._on_wind,
+    "WINCH_STATUS": ArduPilotTelemetry._on_winch_status,
+    **dict.fromkeys(MISSION_MESSAGES, ArduPilotTelemetry._on_mission),
+    "SERVO_OUTPUT_RAW": ArduPilotTelemetry._on_servo_output_raw,
+    "PARAM_VALUE": ArduPilotTelemetry._on_param_value,
+    "SYSTEM_TIME": ArduPilotTelemetry._on_system_time,
+    "RC_CHANNELS": ArduPilotTelemetry._on_rc_channels,
+}
