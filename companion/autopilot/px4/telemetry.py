@@ -97,6 +97,10 @@ def flight_mode_from_mavsdk(mode: Any) -> FlightMode:
     return _FLIGHT_MODES.get(getattr(mode, "name", str(mode)), FlightMode.UNKNOWN)
 
 
+# a MAVSDK stream: its subscribe call and the handler of its items
+_Stream = tuple[Callable[[], AsyncIterator[Any]], Callable[[Any], None]]
+
+
 class Px4Telemetry(Px4Link):
     """The telemetry streams, the connection watch and the stale-setpoint guard."""
 
@@ -128,10 +132,38 @@ class Px4Telemetry(Px4Link):
                 log.info("PX4 streams %s at %g Hz", what, hz)
 
     def _start_streams(self) -> None:
-        tel, loop = self._tel, asyncio.get_running_loop()
+        """One task per MAVSDK stream and per MavlinkDirect message, the connection watch, the
+        stream rates asked for and (offboard transport) the stale-setpoint guard."""
+        loop = asyncio.get_running_loop()
 
         def now() -> float:
             return loop.time()
+
+        streams = self._motion_streams(now) + self._state_streams(now)
+        if self.want_wind:
+            tel = self._tel
+
+            def on_wind(w: Any) -> None:  # MAVSDK's Wind: PX4's WIND_COV, where the air moves, NED
+                self.telemetry.push_wind(Wind(now(), w.wind_x_ned_m_s, w.wind_y_ned_m_s))
+
+            streams.append((tel.subscribe_wind, on_wind))
+        for sub, fn in streams:
+            self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
+        for message, fn in self._direct_streams(now):
+            self._tasks.append(loop.create_task(self._consume(self._direct_subscription(message), fn)))
+        self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
+        if self.attitude_rate_hz is not None or self.position_rate_hz is not None:
+            self._tasks.append(loop.create_task(self._set_stream_rates(), name="px4-stream-rates"))
+        if self.setpoint_transport == "offboard":
+            self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
+
+    def _direct_subscription(self, message: str) -> Callable[[], AsyncIterator[Any]]:
+        """MavlinkDirect's stream of one message by name, subscribed anew at each call."""
+        return lambda: self._direct.subscribe_message(message)
+
+    def _motion_streams(self, now: Callable[[], float]) -> list[_Stream]:
+        """The streams of where the vehicle is and how it moves: position, attitude, IMU, GPS."""
+        tel = self._tel
 
         def on_pv(pv: Any) -> None:
             p, v = pv.position, pv.velocity
@@ -168,6 +200,21 @@ class Px4Telemetry(Px4Link):
                 )
             )
 
+        return [
+            (tel.subscribe_position_velocity_ned, on_pv),
+            (tel.subscribe_position, on_pos),
+            (tel.subscribe_attitude_euler, on_att),
+            (tel.subscribe_attitude_angular_velocity_body, on_rates),
+            (tel.subscribe_imu, on_imu),
+            (tel.subscribe_gps_info, on_gps_info),
+            (tel.subscribe_raw_gps, on_raw_gps),
+        ]
+
+    def _state_streams(self, now: Callable[[], float]) -> list[_Stream]:
+        """The streams of the vehicle's state: mode, arming, landed state, battery, health,
+        status texts, home."""
+        tel = self._tel
+
         def on_mode(m: Any) -> None:
             self._mode = flight_mode_from_mavsdk(m)
             self._push_status()
@@ -200,6 +247,32 @@ class Px4Telemetry(Px4Link):
         def on_home(h: Any) -> None:
             pass  # MAVSDK's home stream keeps HOME_POSITION coming; on_home_position reads it whole
 
+        return [
+            (tel.subscribe_flight_mode, on_mode),
+            (tel.subscribe_armed, on_armed),
+            (tel.subscribe_landed_state, on_landed),
+            (tel.subscribe_battery, on_battery),
+            (tel.subscribe_health, on_health),
+            (tel.subscribe_status_text, on_text),
+            (tel.subscribe_home, on_home),
+        ]
+
+    def _direct_streams(self, now: Callable[[], float]) -> list[tuple[str, Callable[[Any], None]]]:
+        """The messages MavlinkDirect brings whole (message name, handler): HEARTBEAT,
+        HOME_POSITION and RC_CHANNELS, the vehicle's only."""
+
+        def on_heartbeat(m: Any) -> None:
+            if m.system_id != self.system_id or m.component_id != 1:
+                return
+            try:
+                hb = json.loads(m.fields_json)
+            except ValueError:
+                return
+            self._last_hb = time.monotonic()
+            self._armed = bool(int(hb.get("base_mode", 0)) & MAV_MODE_FLAG_SAFETY_ARMED)
+            self._mode = px4_flight_mode(int(hb.get("custom_mode", 0)))
+            self._push_status()
+
         def on_home_position(m: Any) -> None:  # with x/y/z: home in PX4's local frame
             if m.system_id != self.system_id:
                 return
@@ -219,49 +292,6 @@ class Px4Telemetry(Px4Link):
                 return
             self._push(home)
 
-        def on_heartbeat(m: Any) -> None:
-            if m.system_id != self.system_id or m.component_id != 1:
-                return
-            try:
-                hb = json.loads(m.fields_json)
-            except ValueError:
-                return
-            self._last_hb = time.monotonic()
-            self._armed = bool(int(hb.get("base_mode", 0)) & MAV_MODE_FLAG_SAFETY_ARMED)
-            self._mode = px4_flight_mode(int(hb.get("custom_mode", 0)))
-            self._push_status()
-
-        streams: list[tuple[Callable[[], AsyncIterator[Any]], Callable[[Any], None]]] = [
-            (tel.subscribe_position_velocity_ned, on_pv),
-            (tel.subscribe_position, on_pos),
-            (tel.subscribe_attitude_euler, on_att),
-            (tel.subscribe_attitude_angular_velocity_body, on_rates),
-            (tel.subscribe_imu, on_imu),
-            (tel.subscribe_gps_info, on_gps_info),
-            (tel.subscribe_raw_gps, on_raw_gps),
-            (tel.subscribe_flight_mode, on_mode),
-            (tel.subscribe_armed, on_armed),
-            (tel.subscribe_landed_state, on_landed),
-            (tel.subscribe_battery, on_battery),
-            (tel.subscribe_health, on_health),
-            (tel.subscribe_status_text, on_text),
-            (tel.subscribe_home, on_home),
-        ]
-        if self.want_wind:
-
-            def on_wind(w: Any) -> None:  # MAVSDK's Wind: PX4's WIND_COV, where the air moves, NED
-                self.telemetry.push_wind(Wind(now(), w.wind_x_ned_m_s, w.wind_y_ned_m_s))
-
-            streams.append((tel.subscribe_wind, on_wind))
-        for sub, fn in streams:
-            self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
-        self._tasks.append(
-            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HEARTBEAT"), on_heartbeat))
-        )
-        self._tasks.append(
-            loop.create_task(self._consume(lambda: self._direct.subscribe_message("HOME_POSITION"), on_home_position))
-        )
-
         def on_rc_channels(m: Any) -> None:  # the receiver's raw channels (Dart: pilot sticks, switch)
             if m.system_id != self.system_id:
                 return
@@ -273,14 +303,7 @@ class Px4Telemetry(Px4Link):
                 return
             self.telemetry.push_rc(RcInput(now(), chans))
 
-        self._tasks.append(
-            loop.create_task(self._consume(lambda: self._direct.subscribe_message("RC_CHANNELS"), on_rc_channels))
-        )
-        self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
-        if self.attitude_rate_hz is not None or self.position_rate_hz is not None:
-            self._tasks.append(loop.create_task(self._set_stream_rates(), name="px4-stream-rates"))
-        if self.setpoint_transport == "offboard":
-            self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
+        return [("HEARTBEAT", on_heartbeat), ("HOME_POSITION", on_home_position), ("RC_CHANNELS", on_rc_channels)]
 
     async def _consume(self, subscribe: Callable[[], AsyncIterator[Any]], fn: Callable[[Any], None]) -> None:
         """One MAVSDK stream into ``fn``, for as long as the task runs. A stream that ends or
