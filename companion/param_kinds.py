@@ -161,6 +161,12 @@ class ZenohTable(_Section):
     password: str | None = _s(None, "-", "password presented to the router (with user)")
     auth_dictionary_file: str | None = _s(None, "-", "accepting side: file of user:password lines")
     overrides: dict[str, str] = _f({}, "-", "extra Zenoh json5 keys and values, applied last")
+    max_message_bytes: int = _s(
+        262144, "B", "largest message Zenoh reassembles; larger ones are dropped before Python", ge=65536, le=1 << 30
+    )
+    shared_memory: bool = _s(False, "-", "Zenoh's shared-memory transport (a buffer of any size, unfragmented)")
+    max_sessions: int | None = _s(None, "-", "peers a session keeps (absent: Zenoh's 1000)", ge=1, le=10_000)
+    accept_pending: int | None = _s(None, "-", "half-open connections (absent: Zenoh's 100)", ge=1, le=10_000)
 
     @model_validator(mode="after")
     def _endpoints(self) -> ZenohTable:

@@ -15,6 +15,13 @@ three. Sessions presenting wrong or no credentials are refused at the transport,
 key expression is exchanged. Use TLS (``tls/`` endpoints, configured through ``overrides``)
 on untrusted networks: usrpwd alone does not encrypt.
 
+Transport limits, applied before a byte reaches Python: Zenoh reassembles a message from its
+fragments and drops it once it passes ``transport/link/rx/max_message_size`` (``max_message_bytes``,
+256 KiB here against Zenoh's 1 GiB), so a hostile 900 MB query costs the vehicle at most that much
+memory and never a copy into Python. Shared memory is off (a local peer could otherwise hand over a
+buffer of any size without fragments), and ``max_sessions`` / ``accept_pending`` bound the peers
+and half-open connections a session keeps (Zenoh's defaults: 1000 and 100).
+
 See ``params/zenoh_*.toml`` for example files (a ``[zenoh]`` table) and :func:`load_settings`.
 """
 
@@ -32,6 +39,12 @@ import zenoh
 
 Mode = Literal["peer", "client", "router"]
 _MODES = ("peer", "client", "router")
+#: (setting, lowest, highest): a message limit below Zenoh's 64 KiB batch would cut every batch
+_LIMITS = (
+    ("max_message_bytes", 64 * 1024, 1 << 30),
+    ("max_sessions", 1, 10_000),
+    ("accept_pending", 1, 10_000),
+)
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/\S+$")
 
 
@@ -62,6 +75,9 @@ class ZenohSettings:
     refuses our credentials) within ``connect_timeout_ms`` instead of retrying in background.
     ``overrides``: extra ``(json5 key path, json5 value)`` pairs applied last, for anything else
     Zenoh supports (TLS certificates, ``transport/link/tx/...``).
+    ``max_message_bytes``: the largest message Zenoh reassembles (larger ones are dropped by
+    Zenoh, counted in nothing of ours); ``shared_memory``: Zenoh's shared-memory transport;
+    ``max_sessions`` / ``accept_pending``: ``None`` keeps Zenoh's default.
     """
 
     mode: Mode = "peer"
@@ -77,6 +93,10 @@ class ZenohSettings:
     password: str | None = field(default=None, repr=False)
     auth_dictionary_file: str | None = None
     overrides: tuple[tuple[str, str], ...] = ()
+    max_message_bytes: int = 256 * 1024
+    shared_memory: bool = False
+    max_sessions: int | None = None
+    accept_pending: int | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in _MODES:
@@ -103,6 +123,12 @@ class ZenohSettings:
             value = getattr(self, key)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
                 raise SettingsError(f"zenoh.{key}: expected an integer >= 0, got {value!r}")
+        for key, low, high in _LIMITS:
+            value = getattr(self, key)
+            if value is None and key != "max_message_bytes":
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise SettingsError(f"zenoh.{key}: expected an integer in [{low}, {high}], got {value!r}")
         for pair in self.overrides:
             if not (isinstance(pair, tuple) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
                 raise SettingsError(f"zenoh.overrides: expected (key, json5 value) pairs, got {pair!r}")
@@ -143,6 +169,12 @@ class ZenohSettings:
             items.append(("transport/auth/usrpwd/password", json.dumps(self.password)))
         if self.auth_dictionary_file is not None:
             items.append(("transport/auth/usrpwd/dictionary_file", json.dumps(str(self.auth_dictionary_file))))
+        items.append(("transport/link/rx/max_message_size", json.dumps(self.max_message_bytes)))
+        items.append(("transport/shared_memory/enabled", json.dumps(self.shared_memory)))
+        if self.max_sessions is not None:
+            items.append(("transport/unicast/max_sessions", json.dumps(self.max_sessions)))
+        if self.accept_pending is not None:
+            items.append(("transport/unicast/accept_pending", json.dumps(self.accept_pending)))
         items.extend(self.overrides)
         return items
 
@@ -177,7 +209,7 @@ class ZenohSettings:
                 if not isinstance(value, Mapping):
                     raise SettingsError(f"{source}.overrides: expected a table of key = json5 string")
                 value = tuple((str(k), str(v)) for k, v in value.items())
-            elif key in ("multicast_scouting", "gossip_scouting", "connect_exit_on_failure"):
+            elif key in ("multicast_scouting", "gossip_scouting", "connect_exit_on_failure", "shared_memory"):
                 if not isinstance(value, bool):
                     raise SettingsError(f"{source}.{key}: expected true/false")
             elif key in ("user", "password", "auth_dictionary_file", "router_endpoint", "mode") and not isinstance(
