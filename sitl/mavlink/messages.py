@@ -10,6 +10,7 @@ import abc
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -148,174 +149,227 @@ class MessageStreams(RcInput):
         return mavlink.MAV_LANDED_STATE_IN_AIR
 
     def _build(self, mid: int) -> Any:
+        """The message ``mid`` as the vehicle is now, or None when it has none to send (no
+        builder, no fix, no home, no winch)."""
+        build = _BUILDERS.get(mid)
+        return build(self) if build is not None else None
+
+    def _t_ms(self) -> int:
+        """time_boot_ms: the vehicle's clock in ms, wrapped to 32 bits."""
+        return int(self.vehicle.time_s * 1000) & 0xFFFFFFFF
+
+    def _t_us(self) -> int:
+        """time_usec: the vehicle's clock in microseconds."""
+        return int(self.vehicle.time_s * 1e6)
+
+    def _msg_attitude(self) -> Any:
         v, e = self.vehicle, self._enc
-        t_ms = int(v.time_s * 1000) & 0xFFFFFFFF
-        t_us = int(v.time_s * 1e6)
-        if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-            a = v.attitude()
-            return e.attitude_encode(
-                t_ms, a.roll_rad, a.pitch_rad, a.yaw_rad, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
-            a = v.attitude()
-            q = euler_to_quaternion(a.roll_rad, a.pitch_rad, a.yaw_rad)
-            return e.attitude_quaternion_encode(t_ms, *q, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s)
-        if mid == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
-            i = v.imu()
-            alt = -v.pd + self.cfg.home.alt_amsl_m
-            p_hpa = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
-            return e.highres_imu_encode(
-                t_us,
-                i.accel_x_m_s2,
-                i.accel_y_m_s2,
-                i.accel_z_m_s2,
-                i.gyro_x_rad_s,
-                i.gyro_y_rad_s,
-                i.gyro_z_rad_s,
-                0.2,
-                0.0,
-                0.4,
-                p_hpa,
-                0.0,
-                alt,
-                25.0,
-                0x1FFF,
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_RAW_IMU:
-            i = v.imu()
-            mg = 1000.0 / G
-            return e.raw_imu_encode(
-                t_us,
-                *(round(x * mg) for x in (i.accel_x_m_s2, i.accel_y_m_s2, i.accel_z_m_s2)),
-                *(round(x * 1000.0) for x in (i.gyro_x_rad_s, i.gyro_y_rad_s, i.gyro_z_rad_s)),
-                200,
-                0,
-                400,
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            if not v.healthy:
-                return None
-            g = v.global_position()
-            hdg = round(math.degrees(v.estimated_yaw()) * 100) % 36000  # the estimate, as ATTITUDE
-            return e.global_position_int_encode(
-                t_ms,
-                round(g.lat_deg * 1e7),
-                round(g.lon_deg * 1e7),
-                round(g.alt_amsl_m * 1000),
-                round(g.alt_rel_m * 1000),
-                round(v.vn * 100),
-                round(v.ve * 100),
-                round(v.vd * 100),
-                hdg,
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-            if not v.healthy:
-                return None
-            return e.local_position_ned_encode(t_ms, *self._local())
-        if mid == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
-            gr = v.gps_raw()
-            speed = math.hypot(v.vn, v.ve)
-            cog = round(math.degrees(math.atan2(v.ve, v.vn)) * 100) % 36000 if speed > 0.2 else 0xFFFF
-            return e.gps_raw_int_encode(
-                t_us,
-                gr.fix_type,
-                round(gr.lat_deg * 1e7),
-                round(gr.lon_deg * 1e7),
-                round(gr.alt_amsl_m * 1000),
-                int(gr.eph_m * 100),
-                120,
-                int(speed * 100),
-                cog,
-                gr.satellites,
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-            present = SENSORS_BASE | SENSORS_GPS | SENSORS_PREARM
-            health = SENSORS_BASE | (SENSORS_GPS if v.healthy else 0) | (SENSORS_PREARM if self._prearm_ok() else 0)
-            volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
-            return e.sys_status_encode(
-                present, present, health, 250, volts, 1000 if v.armed else 50, int(v.battery_pct), 0, 0, 0, 0, 0, 0
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-            return e.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
-        if mid == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
-            volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
-            cells = [volts // 3] * 3 + [65535] * 7
-            return e.battery_status_encode(
-                0,
-                mavlink.MAV_BATTERY_FUNCTION_ALL,
-                mavlink.MAV_BATTERY_TYPE_LIPO,
-                32767,
-                cells,
-                1000 if v.armed else 50,
-                -1,
-                -1,
-                int(v.battery_pct),
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_SYSTEM_TIME:  # the host's UTC, as a SITL reports it
-            return e.system_time_encode(int((time.time() + self.clock_offset_s) * 1e6), t_ms)
-        if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-            h = v.home()
-            if h is None:
-                return None
-            return e.home_position_encode(
-                round(h.lat_deg * 1e7),
-                round(h.lon_deg * 1e7),
-                round(h.alt_amsl_m * 1000),
-                0.0,
-                0.0,
-                0.0,
-                (1.0, 0.0, 0.0, 0.0),
-                0.0,
-                0.0,
-                0.0,
-                t_us,
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
-            g = self._ltp.to_geo(v.pn, v.pe, v.pd)
-            a = v.attitude()
-            mg = 1000.0 / G
-            acc = v.imu()
-            return e.hil_state_quaternion_encode(
-                t_us,
-                euler_to_quaternion(v.roll, v.pitch, v.yaw),
-                a.rollspeed_rad_s,
-                a.pitchspeed_rad_s,
-                a.yawspeed_rad_s,
-                # degE7 truncated toward zero, as PX4 and ArduPilot do (C's int32 conversion)
-                int(g.lat_deg * 1e7),
-                int(g.lon_deg * 1e7),
-                round(g.alt_amsl_m * 1000),
-                int(v.vn * 100),
-                int(v.ve * 100),
-                int(v.vd * 100),
-                0,
-                0,
-                *(round(x * mg) for x in (acc.accel_x_m_s2, acc.accel_y_m_s2, acc.accel_z_m_s2)),
-            )
-        if mid == mavlink.MAVLINK_MSG_ID_RC_CHANNELS:
-            n = max(8, max((i + 1 for i, us in enumerate(self._rc) if us), default=8))
-            return e.rc_channels_encode(t_ms, n, *self._rc, 255)
-        if mid == mavlink.MAVLINK_MSG_ID_WINCH_STATUS:
-            # AP_Winch_PWM::send_status: its own line estimate and rate, no tension, voltage, current
-            w = getattr(v, "winch", None)
-            if w is None or self.dialect != "ardupilot":
-                return None  # nothing sent without a winch backend
-            nan = math.nan
-            return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, nan, nan, nan, 32767, w.flags())
-        if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            caps = (
-                mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-            )
-            if self.PARAM_BYTEWISE:
-                caps |= mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-            sw = self.SOFTWARE_VERSION
-            uid = 0x5349_4D00 + self.system_id
-            return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
-        return None
+        t_ms = self._t_ms()
+        a = v.attitude()
+        return e.attitude_encode(
+            t_ms, a.roll_rad, a.pitch_rad, a.yaw_rad, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s
+        )
+
+    def _msg_attitude_quaternion(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_ms = self._t_ms()
+        a = v.attitude()
+        q = euler_to_quaternion(a.roll_rad, a.pitch_rad, a.yaw_rad)
+        return e.attitude_quaternion_encode(t_ms, *q, a.rollspeed_rad_s, a.pitchspeed_rad_s, a.yawspeed_rad_s)
+
+    def _msg_highres_imu(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        i = v.imu()
+        alt = -v.pd + self.cfg.home.alt_amsl_m
+        p_hpa = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
+        return e.highres_imu_encode(
+            t_us,
+            i.accel_x_m_s2,
+            i.accel_y_m_s2,
+            i.accel_z_m_s2,
+            i.gyro_x_rad_s,
+            i.gyro_y_rad_s,
+            i.gyro_z_rad_s,
+            0.2,
+            0.0,
+            0.4,
+            p_hpa,
+            0.0,
+            alt,
+            25.0,
+            0x1FFF,
+        )
+
+    def _msg_raw_imu(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        i = v.imu()
+        mg = 1000.0 / G
+        return e.raw_imu_encode(
+            t_us,
+            *(round(x * mg) for x in (i.accel_x_m_s2, i.accel_y_m_s2, i.accel_z_m_s2)),
+            *(round(x * 1000.0) for x in (i.gyro_x_rad_s, i.gyro_y_rad_s, i.gyro_z_rad_s)),
+            200,
+            0,
+            400,
+        )
+
+    def _msg_global_position_int(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_ms = self._t_ms()
+        if not v.healthy:
+            return None
+        g = v.global_position()
+        hdg = round(math.degrees(v.estimated_yaw()) * 100) % 36000  # the estimate, as ATTITUDE
+        return e.global_position_int_encode(
+            t_ms,
+            round(g.lat_deg * 1e7),
+            round(g.lon_deg * 1e7),
+            round(g.alt_amsl_m * 1000),
+            round(g.alt_rel_m * 1000),
+            round(v.vn * 100),
+            round(v.ve * 100),
+            round(v.vd * 100),
+            hdg,
+        )
+
+    def _msg_local_position_ned(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_ms = self._t_ms()
+        if not v.healthy:
+            return None
+        return e.local_position_ned_encode(t_ms, *self._local())
+
+    def _msg_gps_raw_int(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        gr = v.gps_raw()
+        speed = math.hypot(v.vn, v.ve)
+        cog = round(math.degrees(math.atan2(v.ve, v.vn)) * 100) % 36000 if speed > 0.2 else 0xFFFF
+        return e.gps_raw_int_encode(
+            t_us,
+            gr.fix_type,
+            round(gr.lat_deg * 1e7),
+            round(gr.lon_deg * 1e7),
+            round(gr.alt_amsl_m * 1000),
+            int(gr.eph_m * 100),
+            120,
+            int(speed * 100),
+            cog,
+            gr.satellites,
+        )
+
+    def _msg_sys_status(self) -> Any:
+        v, e = self.vehicle, self._enc
+        present = SENSORS_BASE | SENSORS_GPS | SENSORS_PREARM
+        health = SENSORS_BASE | (SENSORS_GPS if v.healthy else 0) | (SENSORS_PREARM if self._prearm_ok() else 0)
+        volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
+        return e.sys_status_encode(
+            present, present, health, 250, volts, 1000 if v.armed else 50, int(v.battery_pct), 0, 0, 0, 0, 0, 0
+        )
+
+    def _msg_extended_sys_state(self) -> Any:
+        e = self._enc
+        return e.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
+
+    def _msg_battery_status(self) -> Any:
+        v, e = self.vehicle, self._enc
+        volts = int(12600 - 2000 * (1.0 - v.battery_pct / 100.0))
+        cells = [volts // 3] * 3 + [65535] * 7
+        return e.battery_status_encode(
+            0,
+            mavlink.MAV_BATTERY_FUNCTION_ALL,
+            mavlink.MAV_BATTERY_TYPE_LIPO,
+            32767,
+            cells,
+            1000 if v.armed else 50,
+            -1,
+            -1,
+            int(v.battery_pct),
+        )
+
+    def _msg_system_time(self) -> Any:
+        """SYSTEM_TIME (the host's UTC, as a SITL reports it)."""
+        e = self._enc
+        t_ms = self._t_ms()
+        return e.system_time_encode(int((time.time() + self.clock_offset_s) * 1e6), t_ms)
+
+    def _msg_home_position(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        h = v.home()
+        if h is None:
+            return None
+        return e.home_position_encode(
+            round(h.lat_deg * 1e7),
+            round(h.lon_deg * 1e7),
+            round(h.alt_amsl_m * 1000),
+            0.0,
+            0.0,
+            0.0,
+            (1.0, 0.0, 0.0, 0.0),
+            0.0,
+            0.0,
+            0.0,
+            t_us,
+        )
+
+    def _msg_hil_state_quaternion(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        g = self._ltp.to_geo(v.pn, v.pe, v.pd)
+        a = v.attitude()
+        mg = 1000.0 / G
+        acc = v.imu()
+        return e.hil_state_quaternion_encode(
+            t_us,
+            euler_to_quaternion(v.roll, v.pitch, v.yaw),
+            a.rollspeed_rad_s,
+            a.pitchspeed_rad_s,
+            a.yawspeed_rad_s,
+            # degE7 truncated toward zero, as PX4 and ArduPilot do (C's int32 conversion)
+            int(g.lat_deg * 1e7),
+            int(g.lon_deg * 1e7),
+            round(g.alt_amsl_m * 1000),
+            int(v.vn * 100),
+            int(v.ve * 100),
+            int(v.vd * 100),
+            0,
+            0,
+            *(round(x * mg) for x in (acc.accel_x_m_s2, acc.accel_y_m_s2, acc.accel_z_m_s2)),
+        )
+
+    def _msg_rc_channels(self) -> Any:
+        e = self._enc
+        t_ms = self._t_ms()
+        n = max(8, max((i + 1 for i, us in enumerate(self._rc) if us), default=8))
+        return e.rc_channels_encode(t_ms, n, *self._rc, 255)
+
+    def _msg_winch_status(self) -> Any:
+        v, e = self.vehicle, self._enc
+        t_us = self._t_us()
+        # AP_Winch_PWM::send_status: its own line estimate and rate, no tension, voltage, current
+        w = getattr(v, "winch", None)
+        if w is None or self.dialect != "ardupilot":
+            return None  # nothing sent without a winch backend
+        nan = math.nan
+        return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, nan, nan, nan, 32767, w.flags())
+
+    def _msg_autopilot_version(self) -> Any:
+        e = self._enc
+        caps = (
+            mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+            | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+        )
+        if self.PARAM_BYTEWISE:
+            caps |= mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        sw = self.SOFTWARE_VERSION
+        uid = 0x5349_4D00 + self.system_id
+        return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
 
     def _set_interval(self, mid: int, interval_us: float) -> int:
         if mavlink.mavlink_map.get(mid) is None:
@@ -354,3 +408,24 @@ class MessageStreams(RcInput):
                     self._streams[mid] = [1.0 / rate_hz, self.now]
                 else:
                     self._streams.pop(mid, None)
+
+
+# message id -> its builder (MessageStreams._build)
+_BUILDERS: dict[int, Callable[[MessageStreams], Any]] = {
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: MessageStreams._msg_attitude,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: MessageStreams._msg_attitude_quaternion,
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: MessageStreams._msg_highres_imu,
+    mavlink.MAVLINK_MSG_ID_RAW_IMU: MessageStreams._msg_raw_imu,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: MessageStreams._msg_global_position_int,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: MessageStreams._msg_local_position_ned,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: MessageStreams._msg_gps_raw_int,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: MessageStreams._msg_sys_status,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: MessageStreams._msg_extended_sys_state,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: MessageStreams._msg_battery_status,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: MessageStreams._msg_system_time,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: MessageStreams._msg_home_position,
+    mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: MessageStreams._msg_hil_state_quaternion,
+    mavlink.MAVLINK_MSG_ID_RC_CHANNELS: MessageStreams._msg_rc_channels,
+    mavlink.MAVLINK_MSG_ID_WINCH_STATUS: MessageStreams._msg_winch_status,
+    mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: MessageStreams._msg_autopilot_version,
+}
