@@ -37,7 +37,7 @@ class PathScorer:
         return self._true
 
     def _true_pad_path(self, m: DeliveryMission) -> tuple[MissionFrame, DeliveryPath] | None:
-        start = m._start_ned
+        start = m.start_ned
         if self._true is None and self.true_pad_local_ne is not None and start is not None and m.frame is not None:
             pad = np.array([*self.true_pad_local_ne, m.frame.pad_ned[2]])
             d = math.hypot(pad[0] - start[0], pad[1] - start[1])

@@ -692,7 +692,7 @@ class DeliveryShell:
     def _vision_wanted(self) -> bool:
         m = self.mission
         return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH) or (
-            m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m._sector >= 5
+            m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m.sector >= 5
         )
 
     async def _sensor_loop(self) -> None:

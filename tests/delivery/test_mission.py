@@ -6,7 +6,8 @@ import pytest
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import MissionConfig, PadConfig
-from companion.delivery.mission import DeliveryMission, MissionInputs, RequestKind, RequestResult
+from companion.delivery.mission import DeliveryMission, Leg, MissionInputs, RequestKind, RequestResult
+from companion.delivery.mission.phases import precision_descent
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, Phase
 
@@ -130,7 +131,7 @@ def test_field_lookahead_evaluates_the_field_one_lag_ahead_and_reports_v_where_t
     m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))  # plans the path from home
     assert m.frame is not None and m.path is not None and m.field is not None
     e = StateEstimate(1.0, 1.0, 2.0, -10.0, 4.0, -2.0, -1.0, 0, 0, 0)
-    sp, lyap = m._field_setpoint(e, 1)
+    sp, lyap = m.field_setpoint(e, Leg.OUT)
     ahead = np.array([1.0 + 0.5 * 4.0, 2.0 + 0.5 * -2.0, -10.0 + 0.5 * -1.0])
     f = m.field(m.frame.point_from_ned(ahead), 1)
     v = m.frame.vector_to_ned(f.velocity)
@@ -139,7 +140,7 @@ def test_field_lookahead_evaluates_the_field_one_lag_ahead_and_reports_v_where_t
     # without lookahead: the paper's field at the current position
     m0 = DeliveryMission(cfg())
     m0.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    sp0, _ = m0._field_setpoint(e, 1)
+    sp0, _ = m0.field_setpoint(e, Leg.OUT)
     f0 = m0.field(m0.frame.point_from_ned(np.array([1.0, 2.0, -10.0])), 1)
     assert (sp0.north_m_s, sp0.east_m_s, sp0.down_m_s) == tuple(float(x) for x in m0.frame.vector_to_ned(f0.velocity))
 
@@ -211,7 +212,7 @@ def _descent_setpoints(m, offsets_ned, t0=0.0, dt=0.05, d=-2.0):
     out = []
     for k, (dn, de) in enumerate(offsets_ned):
         t = t0 + k * dt
-        sp = m._precision_descent(est(t, pn + dn, pe + de, d), 1, t, True)
+        sp = precision_descent(m, est(t, pn + dn, pe + de, d), Leg.OUT, t, True)
         out.append((sp.north_m_s, sp.east_m_s))
     return out
 
@@ -225,7 +226,7 @@ def test_final_descent_integral_term_accumulates_clamps_freezes_and_restarts_per
     m_pi = DeliveryMission(cfg(landing_xy_integral_gain_1_s2=2.5, **kw))
     for m in (m_p, m_pi):
         m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-        m._goto(Phase.LANDING_PAD)
+        m.enter(Phase.LANDING_PAD)
     offs = [(0.0, 0.04)] * 10
     p = _descent_setpoints(m_p, offs)
     pi = _descent_setpoints(m_pi, offs)
@@ -242,9 +243,9 @@ def test_final_descent_integral_term_accumulates_clamps_freezes_and_restarts_per
     back = _descent_setpoints(m_pi, [(0.0, 0.0)], t0=11.3)
     assert back[0][1] == pytest.approx(-0.3, abs=1e-9)  # the sum kept, nothing added on the ground
     # a new landing phase starts from nothing
-    m_pi._now = 20.0
-    m_pi._goto(Phase.LANDING_HOME)
-    m_pi._goto(Phase.LANDING_PAD)
+    m_pi.now = 20.0
+    m_pi.enter(Phase.LANDING_HOME)
+    m_pi.enter(Phase.LANDING_PAD)
     again = _descent_setpoints(m_pi, [(0.0, 0.04)] * 2, t0=20.0)
     assert again[0] == pytest.approx(p[0])
     assert again[1][1] - p[0][1] == pytest.approx(-2.5 * 0.04 * 0.05, abs=1e-9)
@@ -253,12 +254,12 @@ def test_final_descent_integral_term_accumulates_clamps_freezes_and_restarts_per
 def test_a_negative_touchdown_height_keeps_closing_the_error_down_to_the_ground():
     m = DeliveryMission(cfg(landing_xy_gain_1_s=5.0, landing_touchdown_height_m=-1.0))
     m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    m._goto(Phase.LANDING_PAD)
+    m.enter(Phase.LANDING_PAD)
     (sp,) = _descent_setpoints(m, [(0.0, 0.04)], d=0.05)  # the estimate already below the ground
     assert sp[1] == pytest.approx(-0.2, abs=1e-9)
     m0 = DeliveryMission(cfg(landing_xy_gain_1_s=5.0))
     m0.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    m0._goto(Phase.LANDING_PAD)
+    m0.enter(Phase.LANDING_PAD)
     assert _descent_setpoints(m0, [(0.0, 0.04)], d=0.05) == [(0.0, 0.0)]
 
 
@@ -339,7 +340,7 @@ def test_final_descent_holds_to_align_only_while_the_pad_is_in_sight():
     def down_m_s(offset_east_m, lock, height_m=2.0):
         m = DeliveryMission(c)
         m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-        m._goto(Phase.LANDING_PAD)
+        m.enter(Phase.LANDING_PAD)
         pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
         out = m.step(
             MissionInputs(
@@ -375,8 +376,8 @@ def test_final_descent_holds_no_longer_than_the_touchdown_timeout_leaves_time_fo
     def down_m_s(after_s):
         m = DeliveryMission(c)
         m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-        m._goto(Phase.LANDING_PAD)
-        m._phase_t0 = 0.0
+        m.enter(Phase.LANDING_PAD)
+        m.state.t0 = 0.0
         pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
         lock = PadLock(after_s, PAD_DATA_FRESH_S, 0.02)
         out = m.step(
@@ -398,7 +399,7 @@ def test_final_descent_settles_at_the_floor_before_the_last_part():
     speed is proportional to the height above the floor over SETTLE_BAND_S x land speed (0.4 s x
     0.5 m/s = 0.2 m: 0.25 m/s at 0.1 m above it, climbing at 0.25 m/s 0.1 m below). Once settled
     near the floor it goes on at land speed and is not held again; blind it does not wait."""
-    from companion.delivery.mission import SETTLE_BAND_S
+    from companion.guidance.descent import SETTLE_BAND_S
     from companion.delivery.padlock import PAD_DATA_FRESH_S, PadLock
 
     assert SETTLE_BAND_S == 0.4
@@ -406,7 +407,7 @@ def test_final_descent_settles_at_the_floor_before_the_last_part():
     flying = dict(armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
     m = DeliveryMission(c)
     m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    m._goto(Phase.LANDING_PAD)
+    m.enter(Phase.LANDING_PAD)
     pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
 
     def down_m_s(t, offset_east_m, height_m, lock_age_s=PAD_DATA_FRESH_S):
@@ -428,7 +429,7 @@ def test_final_descent_settles_at_the_floor_before_the_last_part():
     assert down_m_s(1.75, 0.15, 0.45) == pytest.approx(0.5)  # off again below the floor: not held again
     m2 = DeliveryMission(c)
     m2.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    m2._goto(Phase.LANDING_PAD)
+    m2.enter(Phase.LANDING_PAD)
     m = m2
     assert down_m_s(0.05, 0.05, 0.5, lock_age_s=PAD_DATA_FRESH_S + 0.01) == pytest.approx(0.5)  # blind
 
@@ -444,11 +445,11 @@ def test_the_final_descent_feeds_its_command_rate_forward_as_an_acceleration():
     off = DeliveryMission(cfg(**kw))
     for mk in (m, off):
         mk.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-        mk._goto(Phase.LANDING_PAD)
+        mk.enter(Phase.LANDING_PAD)
     pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
 
     def at(mk, t, dn, de, vn, d=-2.0):
-        return mk._precision_descent(StateEstimate(t, pn + dn, pe + de, d, vn, 0.0, 0.0, 0, 0, 0), 1, t, True)
+        return precision_descent(mk, StateEstimate(t, pn + dn, pe + de, d, vn, 0.0, 0.0, 0, 0, 0), Leg.OUT, t, True)
 
     sp = at(m, 0.0, 0.0, 0.04, 0.2)
     assert sp.accel_ne_m_s2 == pytest.approx((-0.5, -0.05), abs=1e-9)
@@ -466,7 +467,7 @@ def _descent_from_far_off(m, start_north_m, lag_s=0.4, dt=0.05, ticks=160):
     track = []
     for k in range(ticks):
         t = k * dt
-        sp = m._precision_descent(est(t, pn + n, pe, -3.0), 1, t, False)
+        sp = precision_descent(m, est(t, pn + n, pe, -3.0), Leg.OUT, t, False)
         v += a * (sp.north_m_s - v)
         n += v * dt
         track.append(n)
@@ -486,20 +487,20 @@ def test_the_integral_does_not_wind_up_while_the_command_is_at_its_speed_limit()
     )
     m = DeliveryMission(cfg(**kw))
     m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-    m._goto(Phase.LANDING_PAD)
+    m.enter(Phase.LANDING_PAD)
     pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
     for k in range(10):  # held 0.8 m off: P alone is 4 m/s, beyond the limit
-        m._precision_descent(est(k * 0.05, pn + 0.8, pe, -3.0), 1, k * 0.05, False)
-    assert m._landing_int == (0.0, 0.0)
-    m._precision_descent(est(0.5, pn + 0.1, pe, -3.0), 1, 0.5, False)  # within reach: 0.5 m/s
-    assert math.hypot(*m._landing_int) == pytest.approx(2.5 * 0.1 * 0.05, abs=1e-9)  # (in F_I)
+        precision_descent(m, est(k * 0.05, pn + 0.8, pe, -3.0), Leg.OUT, k * 0.05, False)
+    assert m.state.descent.integral_m_s == (0.0, 0.0)
+    precision_descent(m, est(0.5, pn + 0.1, pe, -3.0), Leg.OUT, 0.5, False)  # within reach: 0.5 m/s
+    assert math.hypot(*m.state.descent.integral_m_s) == pytest.approx(2.5 * 0.1 * 0.05, abs=1e-9)  # (in F_I)
     # flown from 0.8 m off by a vehicle with a 0.3 s velocity lag: the sum adds no overshoot to the
     # proportional law's own (9.6 cm here; with the sum built on the way: 19.0 cm)
     tracks = []
     for ki in (0.0, 2.5):
         mk = DeliveryMission(cfg(**{**kw, "landing_xy_integral_gain_1_s2": ki}))
         mk.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
-        mk._goto(Phase.LANDING_PAD)
+        mk.enter(Phase.LANDING_PAD)
         tracks.append(_descent_from_far_off(mk, 0.8, lag_s=0.3))
     p_only, pi = tracks
     assert -min(pi) < -min(p_only) + 0.01

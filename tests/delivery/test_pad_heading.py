@@ -133,7 +133,7 @@ def _mission_in(phase: Phase, max_yaw_rate_deg_s: float = 30.0) -> DeliveryMissi
         MissionConfig(pad=PadConfig(north_m=60.0, east_m=80.0)),
         limits=LimitsConfig(max_yaw_rate_deg_s=max_yaw_rate_deg_s),
     )
-    m._goto(phase)
+    m.enter(phase)
     return m
 
 
@@ -144,16 +144,20 @@ def _inp(t: float, heading_deg: float | None, yaw_deg: float = 0.0) -> MissionIn
     return MissionInputs(t, est, st, HOME, pad_heading_rad=h)
 
 
+def _aligned(m: DeliveryMission, inp: MissionInputs, sp: VelocitySetpoint | None) -> VelocitySetpoint | None:
+    return m.yaw.apply(m.phase, inp, sp, lambda: m.height_above_ground(inp.estimate))
+
+
 def test_the_yaw_setpoint_turns_to_the_pad_heading_at_the_rate_limit_the_short_way() -> None:
     m = _mission_in(Phase.LANDING_PAD)
     sp = VelocitySetpoint(0.1, 0.0, 0.5, math.radians(170.0))  # the path's heading
     # before the final descent the path's heading is flown and remembered
     m.phase = Phase.OUTBOUND
-    assert m._align_with_pad(_inp(0.0, -150.0, 170.0), sp) == sp
+    assert _aligned(m, _inp(0.0, -150.0, 170.0), sp) == sp
     m.phase = Phase.LANDING_PAD
     yaws = []
     for k in range(1, 60):
-        out = m._align_with_pad(_inp(0.1 * k, -150.0, 170.0), sp)
+        out = _aligned(m, _inp(0.1 * k, -150.0, 170.0), sp)
         assert out is not None and (out.north_m_s, out.east_m_s, out.down_m_s) == (0.1, 0.0, 0.5)
         yaws.append(math.degrees(out.yaw_rad))
     # 40 deg the short way (through 180) at 30 deg/s: 3 deg a tick, there after 14 ticks
@@ -167,11 +171,11 @@ def test_the_yaw_setpoint_turns_to_the_pad_heading_at_the_rate_limit_the_short_w
 def test_without_a_pad_heading_or_outside_the_landing_the_setpoint_is_untouched() -> None:
     sp = VelocitySetpoint(0.0, 0.0, 0.5, 0.3)
     m = _mission_in(Phase.LANDING_PAD)
-    assert m._align_with_pad(_inp(0.0, None), sp) is sp
+    assert _aligned(m, _inp(0.0, None), sp) is sp
     for phase in (Phase.OUTBOUND, Phase.INBOUND, Phase.LANDING_HOME):
         m = _mission_in(phase)
-        assert m._align_with_pad(_inp(0.0, 90.0), sp) is sp
-    assert m._align_with_pad(_inp(0.0, 90.0), None) is None
+        assert _aligned(m, _inp(0.0, 90.0), sp) is sp
+    assert _aligned(m, _inp(0.0, 90.0), None) is None
 
 
 def test_turned_and_blind_near_the_ground_the_yaw_setpoint_follows_the_vehicles_yaw() -> None:
@@ -187,9 +191,9 @@ def test_turned_and_blind_near_the_ground_the_yaw_setpoint_follows_the_vehicles_
     def yaw_sp_deg(height_m: float, age_s: float, turned: bool, ap_yaw_deg: float | None = 37.0) -> float:
         m = DeliveryMission(c, limits=LimitsConfig(max_yaw_rate_deg_s=60.0))
         m.step(MissionInputs(0.0, StateEstimate(0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0, 0.0), None, HOME))
-        m._goto(Phase.LANDING_PAD)
+        m.enter(Phase.LANDING_PAD)
         pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
-        m._yaw_sp = (0.0, math.radians(40.0 if turned else 20.0))
+        m.yaw.last = (0.0, math.radians(40.0 if turned else 20.0))
         e = StateEstimate(0.05, pn, pe, -height_m, 0, 0, 0, 0, 0, math.radians(38.0))  # the fusion's yaw
         inp = MissionInputs(0.05, e, flying, HOME, pad_heading_rad=math.radians(40.0), pad_heading_age_s=age_s)
         out = m.step(replace(inp, autopilot_yaw_rad=None if ap_yaw_deg is None else math.radians(ap_yaw_deg)))

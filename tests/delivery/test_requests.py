@@ -12,14 +12,15 @@ import math
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import MissionConfig, PadConfig
 from companion.delivery.mission import (
-    DISARM_REPEAT_S,
     MAX_REQUEST_TRIES,
     REQUEST_RETRY_DELAY_S,
     DeliveryMission,
+    Leg,
     MissionInputs,
     RequestKind,
     RequestResult,
 )
+from companion.delivery.mission.phases import DISARM_REPEAT_S, after_touchdown
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, Phase
 
@@ -41,7 +42,7 @@ def on_the_pad(**kw) -> tuple[DeliveryMission, float]:
     req = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
     assert req is not None and req.kind is RequestKind.ARM
     m.on_result(RequestResult(req.id, True))
-    m._after_touchdown(1)  # the flight itself is covered by the whole-mission tests
+    after_touchdown(m, Leg.OUT)  # the flight itself is covered by the whole-mission tests
     assert m.phase is Phase.RELEASE
     return m, 0.0
 
@@ -128,7 +129,7 @@ def test_a_permanent_arm_refusal_fails_at_once_with_the_autopilots_answer():
 
 def test_disarm_after_touchdown_is_asked_once_and_again_only_if_the_vehicle_stays_armed():
     m, t = on_the_pad()
-    m._goto(Phase.LANDING_HOME)  # touched down at home, still armed
+    m.enter(Phase.LANDING_HOME)  # touched down at home, still armed
 
     def landed_armed(t):
         return status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.ON_GROUND)
@@ -142,7 +143,7 @@ def test_disarm_after_touchdown_is_asked_once_and_again_only_if_the_vehicle_stay
 
 def test_the_touchdown_timeout_hands_over_to_land_once():
     m, t = on_the_pad()
-    m._goto(Phase.LANDING_HOME)
+    m.enter(Phase.LANDING_HOME)
 
     def hovering(t):
         return status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
@@ -167,8 +168,8 @@ def test_the_pad_is_placed_from_home_in_the_autopilots_local_frame():
 def test_takeoff_counts_as_done_once_the_autopilot_holds_in_the_air_short_of_our_90_percent():
     """PX4 climbs to the takeoff height by its own altitude; ours can read 0.2-0.3 m lower."""
     m, t = on_the_pad()
-    m._goto(Phase.TAKEOFF_RETURN)
-    m._takeoff_requested = True
+    m.enter(Phase.TAKEOFF_RETURN)
+    m.state.requested = True
     climbing = status(t, armed=True, mode=FlightMode.TAKEOFF, landed=LandedState.IN_AIR)
     alt = 0.85 * m.cfg.takeoff_alt_m
     out = m.step(MissionInputs(t + DT, est(t + DT, 60.0, 80.0, -alt), climbing, HOME))
@@ -183,8 +184,8 @@ def test_the_field_stream_goes_on_when_the_mode_leaves_hold_for_offboard_short_o
     over in HOLD and asks for OFFBOARD, and the stream must not stop when HOLD ends, or PX4's
     offboard-loss failsafe lands the vehicle and the return is aborted."""
     m, t = on_the_pad()
-    m._goto(Phase.TAKEOFF_RETURN)
-    m._takeoff_requested = True
+    m.enter(Phase.TAKEOFF_RETURN)
+    m.state.requested = True
     alt = 0.55 * m.cfg.takeoff_alt_m  # above the HOLD test's half, short of 90 %
     holding = status(t, armed=True, mode=FlightMode.HOLD, landed=LandedState.IN_AIR)
     offboard = status(t, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
@@ -225,7 +226,7 @@ def test_the_way_home_is_planned_from_where_the_vehicle_landed():
     assert m.frame.pad_ned[0] == landed[0] and m.frame.pad_ned[1] == landed[1]
     assert m.frame.pad_ned[2] == planned_pad[2]  # the ground at the pad's level
     # home sits at x = -d, y = 0 of the new frame: same home, new length
-    home = m.frame.point_from_ned(m._start_ned)
+    home = m.frame.point_from_ned(m.start_ned)
     assert abs(home[0] + m.path.d) < 1e-9 and abs(home[1]) < 1e-9
     assert abs(m.path.d - math.hypot(landed[0], landed[1] - 0.0)) < 1e-9  # the start was (0, 0)
     assert m.path.d != home_d

@@ -55,7 +55,7 @@ async def _fly(config, on_tick=None) -> DeliveryShell:
     try:
         await shell.run(timeout_s=300.0)
         # back where this flight took off (the autopilot's HOME_POSITION moves when it re-arms on the pad)
-        pos, start = ap.telemetry.position_ned, shell.mission._start_ned
+        pos, start = ap.telemetry.position_ned, shell.mission.start_ned
         shell.home_error_m = (  # type: ignore[attr-defined]
             math.hypot(pos.north_m - start[0], pos.east_m - start[1])
             if pos is not None and start is not None
@@ -100,7 +100,7 @@ async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardu
         state: dict = {"sent": None}
 
         def tick(sh: DeliveryShell, out) -> None:
-            if out.phase is Phase.OUTBOUND and sh.mission._sector >= 2 and state["sent"] is None:
+            if out.phase is Phase.OUTBOUND and sh.mission.sector >= 2 and state["sent"] is None:
                 state["sent"] = asyncio.get_running_loop().run_in_executor(
                     None, gcs.command, 1, 191, MAV_CMD_NAV_RETURN_TO_LAUNCH
                 )

@@ -54,7 +54,7 @@ async def test_link_loss_resumes_and_the_pilots_mode_switch_ends_autonomy(ardupi
         mode = getattr(shell.autopilot, "copter_mode", -1)
         if not modes or modes[-1][1] != mode:
             modes.append((now, mode))
-        if out.phase is Phase.OUTBOUND and state["cut_at"] is None and shell.mission._sector >= 2:
+        if out.phase is Phase.OUTBOUND and state["cut_at"] is None and shell.mission.sector >= 2:
             state["cut_at"] = now
             relay.cut(3.0)
         restored = state["cut_at"] is not None and any(

@@ -47,7 +47,7 @@ async def test_link_loss_resumes_and_a_pilot_mode_switch_ends_autonomy(px4_root,
         now = time.monotonic()
         if st is not None and (not modes or modes[-1][1] is not st.mode):
             modes.append((now, st.mode))
-        if out.phase is Phase.OUTBOUND and state["cut_at"] is None and shell.mission._sector >= 2:
+        if out.phase is Phase.OUTBOUND and state["cut_at"] is None and shell.mission.sector >= 2:
             state["cut_at"] = now
             relay.cut(3.0)
         kinds = [e.kind for e in shell.events]

@@ -21,7 +21,7 @@ H, R, D = 5.0, 2.0, 10.0
 def _mission(true_pad_ne=None):
     start = np.array([0.0, 0.0, 0.0])
     pad = np.array([10.0, 0.0, 0.0])  # F_I: origin at the pad, x north, z up
-    m = SimpleNamespace(frame=MissionFrame.from_start_and_pad(start, pad), path=DeliveryPath(H, R, D), _start_ned=start)
+    m = SimpleNamespace(frame=MissionFrame.from_start_and_pad(start, pad), path=DeliveryPath(H, R, D), start_ned=start)
     return m, PathScorer(true_pad_ne)
 
 
