@@ -24,7 +24,7 @@ from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDev
 from companion.cli import exits
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
-from companion.delivery.mission import MissionSummary
+from companion.delivery.mission import FailureKind, MissionSummary
 from companion.delivery.shell import DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
@@ -121,7 +121,9 @@ async def run_delivery(
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, shell.abort, f"{OPERATOR_ABORT} ({signal.Signals(sig).name})")
+            loop.add_signal_handler(
+                sig, shell.abort, f"{OPERATOR_ABORT} ({signal.Signals(sig).name})", FailureKind.OPERATOR_ABORT
+            )
     try:
         return await shell.run(timeout_s=timeout_s)
     finally:
@@ -271,7 +273,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
         )
     else:
         display.print_summary(summary, run_dir)
-    if OPERATOR_ABORT in summary.failure:  # Ctrl-C / SIGTERM in flight: held, landed, then ended
+    if summary.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C / SIGTERM in flight: held, landed, ended
         return exits.INTERRUPTED
     return exits.OK if summary.delivered and not summary.failure else exits.FAILED
 

@@ -25,6 +25,7 @@ from typing import Any
 
 from companion.cli import exits
 from companion.config import CompanionConfig
+from companion.delivery.mission import FailureKind
 from companion.events import MissionEvent
 from companion.telemetry.session import SettingsError, ZenohSettings
 
@@ -167,6 +168,7 @@ class FlownOrder:
     delivered: bool
     returned: bool
     failure: str
+    failure_kind: FailureKind = FailureKind.NONE
 
 
 @dataclass
@@ -245,7 +247,7 @@ async def serve_orders(
         if connecting is not None and not connecting.done():
             connecting.cancel()  # nothing commanded yet: stop waiting for the autopilot
         if shell is not None:
-            shell.abort(f"{abort_reason} ({name})")
+            shell.abort(f"{abort_reason} ({name})", FailureKind.OPERATOR_ABORT)
 
     async def _fly_one(cfg: CompanionConfig, flight_dir: Path) -> Any:
         """One accepted order's delivery: its summary, or why it could not start."""
@@ -319,7 +321,9 @@ async def serve_orders(
             finally:
                 shell = None
             if isinstance(summary_or_why, str):
-                out.flights.append(FlownOrder(order_id, flight_dir, False, False, summary_or_why))
+                # not started: interrupted when the operator's signal came meanwhile
+                kind = FailureKind.OPERATOR_ABORT if stop.is_set() else FailureKind.NONE
+                out.flights.append(FlownOrder(order_id, flight_dir, False, False, summary_or_why, kind))
                 desk.finished(order_id, f"not flown: {summary_or_why}")
                 continue
             s = summary_or_why
@@ -328,7 +332,7 @@ async def serve_orders(
                 + (", returned home" if s.returned else "")
                 + (f" ({s.failure})" if s.failure else "")
             )
-            out.flights.append(FlownOrder(order_id, flight_dir, s.delivered, s.returned, s.failure))
+            out.flights.append(FlownOrder(order_id, flight_dir, s.delivered, s.returned, s.failure, s.failure_kind))
             desk.finished(order_id, outcome)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -433,6 +437,6 @@ def cmd_fly_orders(
         for f in session.flights:
             what = ("DELIVERED" if f.delivered else "NOT DELIVERED") + (", returned home" if f.returned else "")
             print(f"  {f.order_id}: {what}{' - ' + f.failure if f.failure else ''} ({f.run_dir})")
-    if any(abort_reason in f.failure for f in session.flights):  # Ctrl-C in flight: held, landed, ended
+    if any(f.failure_kind is FailureKind.OPERATOR_ABORT for f in session.flights):  # Ctrl-C in flight: ended
         return exits.INTERRUPTED
     return exits.OK if all(f.delivered and not f.failure for f in session.flights) else exits.FAILED

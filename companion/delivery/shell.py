@@ -45,6 +45,7 @@ from companion.delivery.detection_pacer import DetectionPacer
 from companion.delivery.fusion import FusionSetup, LandingFusion
 from companion.delivery.mission import (
     DeliveryMission,
+    FailureKind,
     MissionInputs,
     MissionOutput,
     MissionSummary,
@@ -264,6 +265,7 @@ class DeliveryShell:
         self._request_task: asyncio.Task[None] | None = None
         self._streaming = False
         self._abort_reason: str | None = None
+        self._abort_kind = FailureKind.ABORTED
         self._connecting: asyncio.Task[None] | None = None
         self._want_telemetry = telemetry
         self.landing = landing
@@ -299,10 +301,12 @@ class DeliveryShell:
         log.warning("ground command %s from %s: %s", kind, sender, reply)
         return reply
 
-    def abort(self, reason: str) -> None:
+    def abort(self, reason: str, kind: FailureKind = FailureKind.ABORTED) -> None:
         """Ask the mission to abort (hold, then land) at its next tick; while the shell is still
-        waiting for the autopilot, stop waiting (nothing has been commanded)."""
+        waiting for the autopilot, stop waiting (nothing has been commanded). ``kind``: what the
+        summary's failure is (OPERATOR_ABORT for the operator's signal)."""
         self._abort_reason = reason
+        self._abort_kind = kind
         if self._connecting is not None and not self._connecting.done():
             self._connecting.cancel()
 
@@ -367,11 +371,12 @@ class DeliveryShell:
                 try:
                     await asyncio.wait_for(self._guidance_loop(), timeout_s)
                 except TimeoutError:
-                    self.mission.summary.failure = (
-                        f"mission did not finish within {timeout_s} s ({self.where_it_stands(self._clock.now())})"
+                    self.mission.summary.fail(
+                        FailureKind.TIMED_OUT,
+                        f"mission did not finish within {timeout_s} s ({self.where_it_stands(self._clock.now())})",
                     )
                     log.error(self.mission.summary.failure)
-            if self.mission.summary.failure.startswith("vehicle not ready"):
+            if self.mission.summary.failure_kind is FailureKind.NOT_READY:
                 why = self.autopilot.not_ready_reason()
                 if why:
                     self.mission.summary.failure += f" ({why})"
@@ -522,7 +527,7 @@ class DeliveryShell:
             if self._abort_reason is not None:
                 if self.recorder is not None:
                     self.recorder.on_abort(now, self._abort_reason)
-                mission.abort(now, self._abort_reason)
+                mission.abort(now, self._abort_reason, self._abort_kind)
                 self._abort_reason = None
             gps_frame = self.estimator.update(tc.position_ned, tc.attitude)
             if self.landing is not None:

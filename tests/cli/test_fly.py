@@ -54,13 +54,14 @@ def test_fly_writes_the_mavlink_log_into_the_run_folder(tmp_path, monkeypatch, c
 
 
 def test_a_flight_ended_by_ctrl_c_exits_130(tmp_path, monkeypatch):
-    """SIGINT in flight aborts (hold, land); the mission's failure then carries the signal's abort
-    reason, and fly exits 130 as for Ctrl-C before the flight, not 1."""
+    """SIGINT in flight aborts (hold, land); the mission's failure is then of the kind
+    OPERATOR_ABORT, and fly exits 130 as for Ctrl-C before the flight, not 1; the text alone
+    decides nothing."""
     from companion.cli import exits
     from companion.cli import fly as commands
     from companion.cli.main import build_parser
     from companion.config import shipped_params_path
-    from companion.delivery.mission import MissionSummary
+    from companion.delivery.mission import FailureKind, MissionSummary
 
     outcome = {}
 
@@ -72,8 +73,14 @@ def test_a_flight_ended_by_ctrl_c_exits_130(tmp_path, monkeypatch):
     parser, _ = build_parser()
     params = str(shipped_params_path("ardupilot_quad.toml"))
     args = parser.parse_args(["fly", "--params", params, "--out", str(tmp_path / "run"), "--no-preflight", "--json"])
-    # the reason the shell's signal handler gives, in the mission's failure text
-    outcome["summary"] = MissionSummary(failure=f"aborted: {commands.OPERATOR_ABORT} (SIGINT)")
+    # the kind the shell's signal handler gives the abort
+    outcome["summary"] = MissionSummary(
+        failure=f"aborted: {commands.OPERATOR_ABORT} (SIGINT)", failure_kind=FailureKind.OPERATOR_ABORT
+    )
     assert args.func(args) == exits.INTERRUPTED == 130
-    outcome["summary"] = MissionSummary(failure="aborted: ground command from ground: land")
+    outcome["summary"] = MissionSummary(
+        failure="aborted: ground command from ground: land", failure_kind=FailureKind.ABORTED
+    )
+    assert args.func(args) == exits.FAILED
+    outcome["summary"] = MissionSummary(failure=f"aborted: {commands.OPERATOR_ABORT}", failure_kind=FailureKind.ABORTED)
     assert args.func(args) == exits.FAILED

@@ -6,7 +6,7 @@ import pytest
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
 from companion.config import MissionConfig, PadConfig
-from companion.delivery.mission import DeliveryMission, Leg, MissionInputs, RequestKind, RequestResult
+from companion.delivery.mission import DeliveryMission, FailureKind, Leg, MissionInputs, RequestKind, RequestResult
 from companion.delivery.mission.phases import precision_descent
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, Phase
@@ -301,6 +301,7 @@ def test_an_abort_landing_asks_to_disarm_on_the_ground_and_ends_once_disarmed():
     assert m.phase is Phase.ABORT_LAND
     m.step(MissionInputs(t + 0.05, est(t), status(t, armed=False, mode=FlightMode.LAND), HOME))
     assert m.phase is Phase.FAILED and m.summary.failure == "aborted: operator abort"
+    assert m.summary.failure_kind is FailureKind.ABORTED
 
 
 def test_an_abort_landing_whose_disarm_is_refused_ends_saying_it_is_still_armed():
@@ -317,6 +318,25 @@ def test_an_abort_landing_whose_disarm_is_refused_ends_saying_it_is_still_armed(
     assert tries == 3  # never asked again for ever
     assert m.phase is Phase.FAILED
     assert m.summary.failure == "aborted: operator abort; landed but still armed (disarm failed 3 times: disarm denied)"
+    assert m.summary.failure_kind is FailureKind.LANDED_ARMED
+
+
+def test_the_failure_kind_is_the_one_the_abort_was_asked_with_not_read_from_the_text():
+    """An abort of kind OPERATOR_ABORT ends with that kind whatever its reason says; a ground
+    command's land is ABORTED, a refusal before take-off REFUSED, a pilot's mode switch
+    PILOT_TAKEOVER; a mission that ends well has none."""
+    m = DeliveryMission(cfg())
+    m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
+    m.abort(0.1, "stop", FailureKind.OPERATOR_ABORT)
+    assert m.phase is Phase.FAILED and m.summary.failure == "aborted on the ground: stop"
+    assert m.summary.failure_kind is FailureKind.OPERATOR_ABORT
+    m = DeliveryMission(cfg())
+    m.refuse(0.0, "too windy")
+    assert m.summary.failure_kind is FailureKind.REFUSED
+    m = DeliveryMission(cfg())
+    m.command(0.0, "land", "ground")
+    assert m.summary.failure_kind is FailureKind.ABORTED
+    assert DeliveryMission(cfg()).summary.failure_kind is FailureKind.NONE
 
 
 def test_the_mission_says_which_request_it_waits_on():
@@ -399,8 +419,8 @@ def test_final_descent_settles_at_the_floor_before_the_last_part():
     speed is proportional to the height above the floor over SETTLE_BAND_S x land speed (0.4 s x
     0.5 m/s = 0.2 m: 0.25 m/s at 0.1 m above it, climbing at 0.25 m/s 0.1 m below). Once settled
     near the floor it goes on at land speed and is not held again; blind it does not wait."""
-    from companion.guidance.descent import SETTLE_BAND_S
     from companion.delivery.padlock import PAD_DATA_FRESH_S, PadLock
+    from companion.guidance.descent import SETTLE_BAND_S
 
     assert SETTLE_BAND_S == 0.4
     c = cfg(landing_xy_tolerance_m=0.1, landing_hold_min_height_m=0.5, land_speed_m_s=0.5, landing_settle_s=1.0)
