@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 from companion.autopilot.component import ComponentCommand
 from companion.autopilot.fence import AutopilotFence
+from companion.autopilot.liveness import INERT_LIVENESS, LoopLiveness
 from companion.autopilot.mission_plan import PlanItem
 from companion.autopilot.types import (
     Attitude,
@@ -277,6 +278,10 @@ class Autopilot(abc.ABC):
     """
 
     telemetry: TelemetryCache
+    #: the control loop's liveness (:mod:`companion.autopilot.liveness`): the shell renews it each
+    #: guidance tick; a backend sends heartbeats and setpoints only while it is alive. Backends that
+    #: send from threads of their own have a gate of their own; the default is inert (always open).
+    liveness: LoopLiveness = INERT_LIVENESS
 
     @abc.abstractmethod
     async def connect(self, timeout_s: float = 10.0) -> None:

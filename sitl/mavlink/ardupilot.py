@@ -3,7 +3,8 @@
 HEARTBEAT as MAV_AUTOPILOT_ARDUPILOTMEGA with Copter mode numbers, nothing streamed but the
 heartbeat until asked, GUIDED velocity with a timeout, arming refused until the EKF/GPS delay has
 passed or in a non-armable mode, the flight-mode switch on RC channel 5 (FLTMODE1..6), the
-pilot's sticks handed to a stick vehicle, LANDING_TARGET in its angle form (AC_PrecLand_Companion).
+pilot's sticks handed to a stick vehicle, LANDING_TARGET in its angle form (AC_PrecLand_Companion),
+the GCS failsafe on the GCS's heartbeat (:mod:`companion_sitl.mavlink.gcs_failsafe`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from companion.autopilot.types import FlightMode
 from companion.autopilot.winch import WinchAction, WinchCommand
 from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.mavlink.gcs_failsafe import GcsFailsafe
 from companion_sitl.mavlink.mission import StoredMissionItem
 from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
 
@@ -87,7 +89,7 @@ def fltmode_slot(pwm: int) -> int:
     return 5
 
 
-class ArduPilotSimVehicle(MavlinkSimVehicle):
+class ArduPilotSimVehicle(GcsFailsafe, MavlinkSimVehicle):
     """The sim vehicle speaking ArduCopter (see :class:`~companion_sitl.mavlink.vehicle.MavlinkSimVehicle`)."""
 
     FENCE_VERTEX_COUNT_PER_ITEM = False  # write_fence checks the polygons once the upload is complete

@@ -118,6 +118,10 @@ class MavlinkLink(abc.ABC):
     def _send_due(self, now: float) -> None:
         """Send what is due at ``now`` (heartbeat, streams, texts), every tick."""
 
+    def _failsafes(self, now: float) -> None:
+        """The autopilot's own failsafes that watch its peers (ArduCopter's GCS failsafe), every tick."""
+        return None  # optional hook: this dialect has none beyond the vehicle's offboard loss
+
     # ------------------------------------------------------------------ signing
     @property
     def signing_key(self) -> bytes | None:
@@ -225,6 +229,7 @@ class MavlinkLink(abc.ABC):
             with self.lock:
                 v.step_to(now)
                 self._rc_switch(now)
+                self._failsafes(now)
                 self._send_due(now)
             next_tick = max(next_tick + dt, now - dt)
 

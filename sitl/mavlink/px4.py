@@ -49,6 +49,18 @@ PX4_MODES: dict[FlightMode, tuple[int, int]] = {
 }
 
 
+# COM_OBL_RC_ACT -> the mode offboard loss goes to (0 Position, 1 Altitude, 2 Manual, 3 Return,
+# 4 Land, 5 Hold; Terminate and Disarm are not modelled: Position)
+OFFBOARD_LOSS_ACTIONS = {
+    0: FlightMode.POSITION,
+    1: FlightMode.MANUAL,
+    2: FlightMode.MANUAL,
+    3: FlightMode.RTL,
+    4: FlightMode.LAND,
+    5: FlightMode.HOLD,
+}
+
+
 def px4_custom_mode(mode: FlightMode) -> int:
     main, sub = PX4_MODES[mode]
     return (main << 16) | (sub << 24)
@@ -127,6 +139,12 @@ class Px4SimVehicle(MavlinkSimVehicle):
     # (tests/real_px4/test_px4_link_and_pilot.py)
     OFFBOARD_LOSS_MODE: ClassVar[FlightMode] = FlightMode.POSITION
     release_actuator: int = 1
+
+    def _failsafes(self, now: float) -> None:
+        # where the offboard-loss failsafe goes: COM_OBL_RC_ACT (PX4 v1.16 values), read each tick
+        # so that a PARAM_SET takes effect at once; without RC, Position and Altitude hold
+        act = int(self._params.get("COM_OBL_RC_ACT", 0.0))
+        self.vehicle.offboard_loss_mode = OFFBOARD_LOSS_ACTIONS.get(act, self.OFFBOARD_LOSS_MODE)
 
     def _prearm_ok(self) -> bool:
         """PX4 reports itself not armable while disarmed in OFFBOARD without a setpoint stream (the

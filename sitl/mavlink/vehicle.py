@@ -138,6 +138,10 @@ class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
     @abc.abstractmethod
     def _pilot_mode(self, mode: FlightMode) -> None: ...
 
+    def _heartbeat_in(self, m: Any) -> None:
+        """A peer's HEARTBEAT (a GCS, a companion): what the dialect's failsafes watch."""
+        return None  # optional hook: this dialect watches no peer's heartbeat
+
     # ------------------------------------------------------------------ pilot hooks
     def pilot_set_mode(self, mode: FlightMode) -> None:
         """The pilot flips the mode switch on the vehicle side (thread-safe)."""
@@ -149,6 +153,7 @@ class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
     def _handle(self, m: Any) -> None:
         t = m.get_type()
         if t == "HEARTBEAT":
+            self._heartbeat_in(m)
             return
         if (
             t.startswith("MISSION_")

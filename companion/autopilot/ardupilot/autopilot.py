@@ -38,6 +38,7 @@ from companion.autopilot.interface import (
     PacketSink,
     TelemetryCache,
 )
+from companion.autopilot.liveness import LoopLiveness
 from companion.autopilot.mavlink_messages import velocity_setpoint_message
 from companion.autopilot.signing import (
     SigningSetup,
@@ -145,6 +146,7 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
         self._component: Any = None  # (system id, component id, on_command) once open_component
         self.component_commands = 0  # COMMAND_LONGs addressed to the companion's component
+        self.liveness = LoopLiveness()  # heartbeats and setpoints leave only while the loop ticks
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> ArduPilotAutopilot:
@@ -192,7 +194,7 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
-        if not self.link_ok or self.target_system is None:
+        if not self.link_ok or self.target_system is None or not self.liveness.may_send():
             self.counters.setpoints_dropped += 1
             return
         ts, tc = self.target_system, self.target_component

@@ -41,6 +41,7 @@ from companion.autopilot.interface import (
     TelemetryCache,
     check_port,
 )
+from companion.autopilot.liveness import LoopLiveness
 from companion.autopilot.signing import (
     SigningError,
     SigningSetup,
@@ -72,6 +73,7 @@ class LinkCounters:
     signature_rejects: int = 0  # packets dropped by our signing check (unsigned or another key)
     signed_heartbeats: int = 0  # heartbeats of the vehicle whose signature our key verified
     signed_from_vehicle: int = 0  # any packet of the vehicle whose signature our key verified
+    heartbeats_withheld: int = 0  # our heartbeat slots skipped while the control loop was stalled
 
 
 def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
@@ -165,6 +167,7 @@ class ArduPilotLink(abc.ABC):
     _system_time: tuple[int, float] | None
     _system_time_waiters: list[asyncio.Future[tuple[int, float]]]
     _vehicle_signs: bool
+    liveness: LoopLiveness
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._conn is not None:
@@ -323,6 +326,7 @@ class ArduPilotLink(abc.ABC):
 
     def _read_loop(self) -> None:
         next_hb = 0.0
+        next_hb_alive = math.inf  # withheld: the next heartbeat as soon as the loop is alive again
         next_save = time.monotonic() + TIMESTAMP_SAVE_PERIOD_S
         while self._running:
             conn = self._conn
@@ -332,8 +336,16 @@ class ArduPilotLink(abc.ABC):
             if now >= next_save:
                 next_save = now + TIMESTAMP_SAVE_PERIOD_S
                 self._save_signing_timestamp()
-            if now >= next_hb:
+            # heartbeats only while the control loop is alive (autopilot.liveness): a hung loop
+            # must look dead to ArduCopter's GCS failsafe; they resume at once when it is back
+            alive = self.liveness.alive
+            if now >= next_hb and not alive:
                 next_hb = now + 1.0
+                self.counters.heartbeats_withheld += 1
+                next_hb_alive = now
+            elif alive and (now >= next_hb or next_hb_alive <= now):
+                next_hb = now + 1.0
+                next_hb_alive = math.inf
                 self._send(
                     lambda mav: mav.heartbeat_send(
                         mavlink.MAV_TYPE_ONBOARD_CONTROLLER,

@@ -40,6 +40,7 @@ from companion.autopilot.interface import (
     PacketSink,
     TelemetryCache,
 )
+from companion.autopilot.liveness import LoopLiveness
 from companion.autopilot.mavlink_messages import VELOCITY_ACCEL_YAW_MASK, VELOCITY_YAW_MASK
 from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
@@ -156,6 +157,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self._last_text = ""
         self._texts_seen = 0
         self._health: Any = None  # MAVSDK's last Telemetry.Health
+        self.liveness = LoopLiveness()  # heartbeats and setpoints leave only while the loop ticks
 
     @classmethod
     def from_config(cls, config: Any, **kwargs: Any) -> Px4Autopilot:
@@ -219,7 +221,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         await self._call("takeoff", self._action.takeoff)
 
     def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:
-        if self._system is None or not self.link_ok:
+        if self._system is None or not self.link_ok or not self.liveness.may_send():
             self.setpoints_dropped += 1
             return
         sp = setpoint
@@ -270,6 +272,9 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         a = target
         vals = (a.roll_rad, a.pitch_rad, a.yaw_rad, a.yaw_rate_rad_s, a.thrust)
         if self._system is None or not self.link_ok or not all(math.isfinite(v) for v in vals):
+            self.setpoints_dropped += 1
+            return
+        if not self.liveness.may_send():
             self.setpoints_dropped += 1
             return
         from mavsdk.plugins.mavlink_direct import MavlinkMessage

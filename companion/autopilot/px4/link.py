@@ -37,6 +37,7 @@ from companion.autopilot.interface import (
     PacketSink,
     TelemetryCache,
 )
+from companion.autopilot.liveness import LoopLiveness
 from companion.autopilot.px4.mavsdk_core import (
     InterceptCounters,
     check_connection_url,
@@ -51,6 +52,9 @@ from companion.autopilot.types import (
 )
 
 log = logging.getLogger(__name__)
+
+# what MAVSDK may send only while the control loop is alive (companion.autopilot.liveness)
+LOOP_GATED_MESSAGES = frozenset({b"HEARTBEAT", b"SET_POSITION_TARGET_LOCAL_NED", b"SET_ATTITUDE_TARGET"})
 
 
 class Px4Link(abc.ABC):
@@ -104,6 +108,7 @@ class Px4Link(abc.ABC):
     _last_text: str
     _texts_seen: int  # a repeated text is a new one too
     _health: Any
+    liveness: LoopLiveness
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._system is not None:
@@ -120,6 +125,7 @@ class Px4Link(abc.ABC):
         mavsdk_config.system_id = self.component_system_id
         mavsdk_config.component_id = self.component_id
         self._mavsdk = Mavsdk(mavsdk_config)
+        self._gate_outgoing()
         if self.open_tlog is not None:
             try:
                 self._open_tlog(self.open_tlog)
@@ -152,6 +158,20 @@ class Px4Link(abc.ABC):
         self._last_rx = time.monotonic()
         self._start_streams()
         log.info("PX4 system %d on %s", self.system_id, url)
+
+    def _gate_outgoing(self) -> None:
+        """MAVSDK sends the component's heartbeat and (offboard plugin) re-sends the setpoint from
+        its own threads: both leave only while the control loop is alive (:attr:`liveness`)."""
+        gate = self.liveness
+
+        def keep(msg: Any) -> bool:  # MAVSDK's thread, or the sender's
+            return msg.message_name not in LOOP_GATED_MESSAGES or gate.may_send()
+
+        unhook = intercept_messages_json(self._mavsdk, "outgoing", keep, self.intercept_counters)
+        if unhook is None:
+            log.warning("this MAVSDK build cannot hold back its heartbeat: a hung control loop still looks alive")
+        else:
+            self._tlog_unhook.append(unhook)
 
     def _open_tlog(self, open_sink: OpenPacketSink) -> None:
         tlog = self.tlog = open_sink(self._tlog_opened)

@@ -30,12 +30,13 @@ class InterceptCounters:
     errors: int = 0
 
 
-def deliver_intercepted(fn: Callable[[Any], None], msg: Any, counters: InterceptCounters) -> int:
+def deliver_intercepted(fn: Callable[[Any], bool | None], msg: Any, counters: InterceptCounters) -> int:
     """Hand one intercepted message to ``fn`` on MAVSDK's thread, where nothing may raise: a
-    handler that raises drops the message, counted in ``counters.errors`` and logged (the first
-    and every 1000th). Always 1: MAVSDK drops a message whose interceptor returns 0."""
+    handler that raises drops the message from ``fn``, counted in ``counters.errors`` and logged
+    (the first and every 1000th). Returns 1 (MAVSDK passes the message on) unless ``fn`` returned
+    False: 0, and MAVSDK drops the message (an outgoing one is not sent)."""
     try:
-        fn(msg)
+        keep = fn(msg)
     except Exception as err:
         counters.errors += 1
         if counters.errors == 1 or counters.errors % 1000 == 0:
@@ -43,7 +44,7 @@ def deliver_intercepted(fn: Callable[[Any], None], msg: Any, counters: Intercept
             log.warning("%d intercepted MAVLink message(s) dropped, the last: %s", counters.errors, why)
         return 1
     counters.delivered += 1
-    return 1
+    return 0 if keep is False else 1
 
 
 def message_logger(tlog: PacketSink) -> Callable[[Any], None]:
@@ -60,17 +61,17 @@ def message_logger(tlog: PacketSink) -> Callable[[Any], None]:
 
 
 def intercept_messages_json(
-    mavsdk: Any, direction: str, fn: Callable[[Any], None], counters: InterceptCounters | None = None
+    mavsdk: Any, direction: str, fn: Callable[[Any], bool | None], counters: InterceptCounters | None = None
 ) -> Any:
     """Call ``fn`` with every MAVLink message MAVSDK receives (``direction="incoming"``) or sends
     (``"outgoing"``), decoded: a ``mavsdk.types.MavsdkMessage`` with ``message_name``,
     ``system_id``, ``component_id`` and ``fields_json``. Runs on MAVSDK's thread (or the sender's).
 
     The C library exports ``mavsdk_subscribe_{incoming,outgoing}_messages_json`` but the mavsdk 4
-    Python binding does not wrap them, so they are called through ctypes. The callback always
-    returns 1 (MAVSDK drops a message whose interceptor returns 0); a message ``fn`` raises on is
-    counted in ``counters`` (:func:`deliver_intercepted`). Returns an unsubscribe function, or
-    None if this MAVSDK build lacks the interface.
+    Python binding does not wrap them, so they are called through ctypes. The message is passed on
+    unless ``fn`` returns False (MAVSDK drops a message whose interceptor returns 0); one ``fn``
+    raises on is counted in ``counters`` (:func:`deliver_intercepted`). Returns an unsubscribe
+    function, or None if this MAVSDK build lacks the interface.
     """
     counts = counters if counters is not None else InterceptCounters()
     try:
