@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from companion.geometry.earth import GeoPoint, geo_to_ned
 from companion.geometry.polygon import point_in_polygon, polygon_problem
 
 
@@ -31,14 +32,23 @@ def _f(default: Any, unit: str, description: str, **limits: Any) -> Any:
     return Field(default, description=description, json_schema_extra={"unit": unit}, **limits)
 
 
+#: the pad's north and east offsets from home are each within this (m): a delivery radius a
+#: multicopter flies on one battery, and what the path, the recorder and the simulator are sized for
+PAD_OFFSET_MAX_M = 3000.0
+#: an altitude above mean sea level is within these (m): the Dead Sea shore to above the highest peaks
+ALT_AMSL_MIN_M, ALT_AMSL_MAX_M = -500.0, 9000.0
+
+
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    # allow_inf_nan=False: every float of every section (tuples of floats included) is finite at
+    # load; a NaN or infinity is refused as "not finite", never compared with a limit
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False)
 
 
 class GeoConfig(_Section):
     lat_deg: float = _f(..., "deg", "latitude (WGS-84)", ge=-90.0, le=90.0)
     lon_deg: float = _f(..., "deg", "longitude (WGS-84)", ge=-180.0, le=180.0)
-    alt_amsl_m: float = _f(0.0, "m", "altitude above mean sea level", ge=-500.0, le=9000.0)
+    alt_amsl_m: float = _f(0.0, "m", "altitude above mean sea level", ge=ALT_AMSL_MIN_M, le=ALT_AMSL_MAX_M)
 
 
 class PadConfig(_Section):
@@ -46,9 +56,23 @@ class PadConfig(_Section):
 
     lat_deg: float | None = _f(None, "deg", "pad latitude (give lat/lon, or north/east)", ge=-90, le=90)
     lon_deg: float | None = _f(None, "deg", "pad longitude", ge=-180, le=180)
-    alt_amsl_m: float | None = _f(None, "m", "pad ground altitude AMSL (default: home altitude)")
-    north_m: float | None = _f(None, "m", "pad north of home (local alternative to lat/lon)")
-    east_m: float | None = _f(None, "m", "pad east of home (local alternative to lat/lon)")
+    alt_amsl_m: float | None = _f(
+        None, "m", "pad ground altitude AMSL (default: home altitude)", ge=ALT_AMSL_MIN_M, le=ALT_AMSL_MAX_M
+    )
+    north_m: float | None = _f(
+        None,
+        "m",
+        "pad north of home (local alternative to lat/lon); a pad given as lat/lon must lie as near",
+        ge=-PAD_OFFSET_MAX_M,
+        le=PAD_OFFSET_MAX_M,
+    )
+    east_m: float | None = _f(
+        None,
+        "m",
+        "pad east of home (local alternative to lat/lon); a pad given as lat/lon must lie as near",
+        ge=-PAD_OFFSET_MAX_M,
+        le=PAD_OFFSET_MAX_M,
+    )
     up_m: float = _f(0.0, "m", "pad height above home ground (with north/east)", ge=-100, le=100)
     size_m: float = _f(1.0, "m", "side of the square landing pad", gt=0.1, le=10.0)
     heading_deg: float | None = _f(
@@ -1134,6 +1158,26 @@ class CompanionConfig(_Section):
         return self
 
     @model_validator(mode="after")
+    def _geodetic_pads_near_sim_home(self) -> CompanionConfig:
+        """A pad given in lat/lon lies within PAD_OFFSET_MAX_M (north and east) of the simulated
+        home, as a pad given in north/east must (a real home is only known in flight: the
+        planner checks it there)."""
+        if self.autopilot != "sim":
+            return self
+        h = self.sim.home
+        home = GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
+        for key, pad in (("mission.pad", self.mission.pad), ("mission.alternate_pad", self.mission.alternate_pad)):
+            if pad is None or pad.lat_deg is None or pad.lon_deg is None:
+                continue
+            north_m, east_m, _ = geo_to_ned(home, GeoPoint(pad.lat_deg, pad.lon_deg, h.alt_amsl_m))
+            if max(abs(north_m), abs(east_m)) > PAD_OFFSET_MAX_M:
+                raise ValueError(
+                    f"{key} ({pad.lat_deg}, {pad.lon_deg}) lies {north_m:.0f} m north, {east_m:.0f} m east of "
+                    f"sim.home: each must be within +-{PAD_OFFSET_MAX_M:g} m"
+                )
+        return self
+
+    @model_validator(mode="after")
     def _timeouts(self) -> CompanionConfig:
         if self.runtime.link_timeout_s >= self.mission.estimate_timeout_s:
             raise ValueError(
@@ -1211,6 +1255,9 @@ def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
             )
             continue
         msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "finite_number":  # NaN or +-inf: the model config refuses them before any limit
+            problems.append(f"{loc} = {e['input']!r}: not finite; expected a finite number")
+            continue
         if e["type"] == "missing" and e["loc"] and isinstance(e["loc"][-1], int):  # a list one item short
             parent = _describe_loc(e["loc"][:-1])
             problems.append(f"{parent} = {_value_at(data, e['loc'][:-1])!r}: item [{e['loc'][-1]}] is missing")

@@ -93,3 +93,112 @@ def test_a_rule_between_keys_names_the_keys_not_the_whole_table(table, value, li
         config_from_dict({table: value}, "test.toml")
     assert any(p.startswith(line) for p in ei.value.problems), ei.value.problems
     assert not any("{" in p for p in ei.value.problems), ei.value.problems
+
+
+def _float_keys(schema, prefix=""):  # type: ignore[no-untyped-def]
+    """Every dotted key of a float (or optional float) field, through the sub-tables."""
+    from pydantic import BaseModel
+
+    for name, f in schema.model_fields.items():
+        ann = f.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            yield from _float_keys(ann, f"{prefix}{name}.")
+        elif ann in (float, float | None):
+            yield f"{prefix}{name}"
+
+
+def _nested(key: str, value: object) -> dict:
+    out: dict = {}
+    node = out
+    *tables, leaf = key.split(".")
+    for t in tables:
+        node = node.setdefault(t, {})
+    node[leaf] = value
+    return out
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_every_float_of_the_vehicle_file_refuses_nan_and_infinity_as_not_finite(value):
+    from companion.config import CompanionConfig
+
+    keys = list(_float_keys(CompanionConfig))
+    assert len(keys) > 140  # the walk reaches every table
+    for key in keys:
+        data = _nested(key, value)
+        if key.startswith("mission.pad."):  # the pad's own table: the other keys keep it whole
+            data["mission"]["pad"] |= {"north_m": 10.0, "east_m": 10.0} | {key.rsplit(".", 1)[1]: value}
+        with pytest.raises(ConfigError) as err:
+            config_from_dict(data, "f.toml")
+        assert f"{key} = {value!r}: not finite; expected a finite number" in err.value.problems, err.value.problems
+        assert "should be" not in str(err.value)  # a NaN is never compared with a limit
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [
+        ("[sim]\ngps_bias_m = [1.0, nan, 0.0]\n", "sim.gps_bias_m[1] = nan: not finite"),
+        ("[mission]\nsector_speed_m_s = [2.0, 3.0, inf, 2.0, 1.5]\n", "mission.sector_speed_m_s[2] = inf: not finite"),
+        ("[landing]\ncamera_offset_body_m = [0.0, 0.0, -inf]\n", "landing.camera_offset_body_m[2] = -inf: not finite"),
+        ("[mission]\nheight_m = nan\n", "mission.height_m = nan: not finite"),
+    ],
+)
+def test_a_non_finite_number_in_an_array_or_a_limited_key_is_named(tmp_path, text, line):
+    with pytest.raises(ConfigError) as err:
+        load_config(write(tmp_path, text))
+    assert line in str(err.value) and str(tmp_path / "p.toml") in str(err.value)
+    assert "should be" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("pad", "key", "ok"),
+    [
+        ({"north_m": 3000.0, "east_m": -3000.0}, "", True),
+        ({"north_m": 3000.5, "east_m": 0.0}, "mission.pad.north_m = 3000.5: Input should be less than or equal", False),
+        ({"north_m": 1.0, "east_m": -1e7}, "mission.pad.east_m = -10000000.0: Input should be greater than or", False),
+        ({"north_m": 1.0, "east_m": 1.0, "alt_amsl_m": 9001.0}, "mission.pad.alt_amsl_m = 9001.0:", False),
+        ({"north_m": 1.0, "east_m": 1.0, "alt_amsl_m": -501.0}, "mission.pad.alt_amsl_m = -501.0:", False),
+        ({"lat_deg": -19.869 + 0.0269, "lon_deg": -43.9638}, "", True),  # ~2990 m north of sim.home
+        ({"lat_deg": -19.0, "lon_deg": -43.9638}, "mission.pad (-19.0, -43.9638) lies 96214 m north, 0 m east", False),
+        ({"lat_deg": -19.869, "lon_deg": 0.0}, "m east of sim.home: each must be within +-3000 m", False),
+    ],
+)
+def test_the_pad_lies_within_the_stated_box_around_home(pad, key, ok):
+    home = {"lat_deg": -19.869, "lon_deg": -43.9638, "alt_amsl_m": 850.0}
+    for table in ("pad", "alternate_pad"):
+        data = {"mission": {table: pad}, "sim": {"home": home}}
+        if ok:
+            config_from_dict(data)
+            continue
+        with pytest.raises(ConfigError) as err:
+            config_from_dict(data)
+        assert key.replace("mission.pad", f"mission.{table}") in str(err.value), err.value.problems
+    if "lat_deg" in pad:  # on a real autopilot home is known in flight: the planner checks it there
+        assert config_from_dict({"autopilot": "px4", "mission": {"pad": pad}}).mission.pad.lat_deg == pad["lat_deg"]
+
+
+def test_a_geodetic_pad_far_from_the_reported_home_fails_the_planning():
+    import numpy as np
+
+    from companion.delivery.planning import plan_delivery
+    from companion.geometry.earth import GeoPoint
+    from companion.guidance.path import PathGeometryError
+
+    cfg = config_from_dict({"autopilot": "px4", "mission": {"pad": {"lat_deg": -19.0, "lon_deg": -43.9638}}})
+    with pytest.raises(PathGeometryError, match=r"the pad lies 96214 m north, 0 m east of home: each must be within"):
+        plan_delivery(cfg.mission, GeoPoint(-19.869, -43.9638, 850.0), np.zeros(3))
+    near = cfg.mission.model_copy(update={"pad": cfg.mission.pad.model_copy(update={"lat_deg": -19.85})})
+    _, path, _ = plan_delivery(near, GeoPoint(-19.869, -43.9638, 850.0), np.zeros(3))
+    assert 2000.0 < path.d < 2200.0
+
+
+@pytest.mark.parametrize("command", ["demo", "fly"])
+def test_a_bad_value_ends_demo_and_fly_with_one_line_and_exit_2(tmp_path, capsys, command):
+    from companion.cli import exits
+    from companion.cli.main import main
+
+    p = write(tmp_path, 'autopilot = "px4"\n[mission.pad]\nnorth_m = nan\neast_m = 5.0\n')
+    assert main([command, "--params", str(p), "--out", str(tmp_path / "run")]) == exits.BAD_INPUT
+    err = capsys.readouterr().err
+    problem = "mission.pad.north_m = nan: not finite; expected a finite number"
+    assert err == f"companion {command}: bad configuration: {p}: {problem}\n"
+    assert not (tmp_path / "run").exists()

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from companion.config import MissionConfig, PadConfig
+from companion.config import PAD_OFFSET_MAX_M, MissionConfig, PadConfig
 from companion.geometry.earth import GeoPoint, geo_to_ned
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath, PathGeometryError
@@ -36,7 +36,13 @@ def plan_delivery(
 ) -> tuple[MissionFrame, DeliveryPath, float]:
     """Mission frame F_I, the path, and the start's height z_s in F_I. ``home_ned``: home in the
     autopilot's local NED frame (HOME_POSITION x/y/z), which is where the pad's offsets start."""
-    pad_ned = np.asarray(home_ned, dtype=float) + pad_position_ned(cfg, home)
+    pad_from_home = pad_position_ned(cfg, home)
+    if max(abs(pad_from_home[0]), abs(pad_from_home[1])) > PAD_OFFSET_MAX_M:  # a lat/lon pad far from this home
+        raise PathGeometryError(
+            f"the pad lies {pad_from_home[0]:.0f} m north, {pad_from_home[1]:.0f} m east of home: each must be "
+            f"within +-{PAD_OFFSET_MAX_M:g} m (mission.pad)"
+        )
+    pad_ned = np.asarray(home_ned, dtype=float) + pad_from_home
     start = np.asarray(start_ned, dtype=float)
     d = math.hypot(pad_ned[0] - start[0], pad_ned[1] - start[1])
     if d < 1e-3:
