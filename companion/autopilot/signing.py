@@ -17,7 +17,8 @@ The 32-byte secret comes from a key file (:func:`read_key_file`) in one of three
 
 ``auto`` takes 64 hex digits as ``hex`` and any other 32-byte file as ``raw``; a passphrase file
 must be named as such (``signing.key_format = "passphrase"``): a 32-character passphrase would
-otherwise read as a raw key.
+otherwise read as a raw key. A key file its group or others can read or write is refused
+(:mod:`companion.secret_files`): ``chmod 600`` it.
 
 What ArduPilot does (libraries/GCS_MAVLink/GCS_Signing.cpp, 4.x): SETUP_SIGNING (id 256,
 target system/component, secret_key, initial_timestamp) stores the key and timestamp and turns
@@ -36,13 +37,13 @@ import hashlib
 import logging
 import os
 import secrets
-import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 from companion.autopilot.interface import AutopilotError
+from companion.secret_files import SecretFileExposed, read_private
 
 log = logging.getLogger(__name__)
 
@@ -186,11 +187,14 @@ def parse_key_bytes(data: bytes, fmt: KeyFormat, path: str) -> SigningKey:
 
 
 def read_key_file(path: str | Path, fmt: KeyFormat = "auto") -> SigningKey:
-    """Read a signing key file; :class:`SigningError` names the file and what is expected.
-    A key file others can read is used, with a warning."""
+    """Read a signing key file; :class:`SigningKeyError` names the file and what is expected.
+    A key file group or others can read or write is refused (its message names the mode and the
+    ``chmod 600``; the :class:`~companion.secret_files.SecretFileExposed` is its cause)."""
     p = Path(path)
     try:
-        data = p.read_bytes()
+        data = read_private(p, "signing key file")
+    except SecretFileExposed as err:
+        raise SigningKeyError(str(err)) from err
     except FileNotFoundError:
         raise SigningKeyError(
             f"signing key file {p}: not found (make one with `companion signing keygen {p}`)"
@@ -201,11 +205,7 @@ def read_key_file(path: str | Path, fmt: KeyFormat = "auto") -> SigningKey:
         raise SigningKeyError(f"signing key file {p}: cannot read: {err.strerror}") from None
     if not data:
         raise SigningKeyError(f"signing key file {p}: empty; expected {2 * KEY_LEN} hex digits or {KEY_LEN} bytes")
-    key = parse_key_bytes(data, fmt, str(p))
-    mode = p.stat().st_mode
-    if mode & (stat.S_IRWXG | stat.S_IRWXO):
-        log.warning("signing key file %s can be read by others (mode %o): chmod 600 it", p, stat.S_IMODE(mode))
-    return key
+    return parse_key_bytes(data, fmt, str(p))
 
 
 def generate_key() -> SigningKey:

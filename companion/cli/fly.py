@@ -29,6 +29,7 @@ from companion.delivery.shell import DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
+from companion.secret_files import configured_secret_files, exposed_secret
 
 log = logging.getLogger(__name__)
 
@@ -211,6 +212,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
         raise StartupError(f"{err}; change connection {where}", exits.BAD_INPUT) from None
     except LinkDeviceMissing as err:
         raise StartupError(f"{err}; plug the autopilot in or change connection {where}", exits.DEVICE_MISSING) from None
+    for key, what, path in configured_secret_files(config):  # before any device or link is opened
+        exposed = exposed_secret(path, what)
+        if exposed is not None:
+            raise StartupError(f"{exposed} ({key} in {args.params})", exits.BAD_INPUT)
 
     if getattr(args, "orders", False):
         from companion.cli.orders import cmd_fly_orders

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from companion.secret_files import read_private
 from companion.telemetry.schema import SchemaError, check_vehicle_id, parse_json
 
 log = logging.getLogger(__name__)
@@ -103,8 +104,11 @@ class CommandSettings:
 
     @staticmethod
     def read_secret(path: str | Path) -> bytes:
-        """A secret from a file (surrounding whitespace stripped), so it stays out of params."""
-        secret = Path(path).read_bytes().strip()
+        """A secret from a file (surrounding whitespace stripped), so it stays out of params. A
+        file its group or others can read or write is refused with
+        :class:`~companion.secret_files.SecretFileExposed` (a ``ValueError``) naming it, its mode
+        and the ``chmod 600``."""
+        secret = read_private(path, "ground-command secret file").strip()
         if len(secret) < MIN_SECRET_BYTES:
             raise ValueError(f"{path}: secret shorter than {MIN_SECRET_BYTES} bytes")
         return secret

@@ -25,6 +25,7 @@ from companion.autopilot.signing import (
     write_timestamp_file,
 )
 from companion.config import ConfigError, config_from_dict
+from companion.secret_files import SecretFileExposed
 
 RNG = random.Random(32)
 SECRET = bytes(RNG.randrange(256) for _ in range(KEY_LEN))
@@ -89,11 +90,22 @@ def test_missing_directory_and_unreadable_key_files(tmp_path):
             read_key_file(p)
 
 
-def test_a_key_file_others_can_read_is_used_with_a_warning(tmp_path, caplog):
+@pytest.mark.parametrize("mode", [0o640, 0o620, 0o604, 0o602, 0o644, 0o666, 0o777])
+def test_a_key_file_group_or_others_can_read_or_write_is_refused(tmp_path, mode):
     p = _file(tmp_path, SECRET.hex().encode())
-    p.chmod(0o644)
+    p.chmod(mode)
+    with pytest.raises(SigningKeyError) as err:
+        read_key_file(p)
+    assert str(err.value).startswith(f"signing key file {p}: mode {mode:04o}: ")
+    assert str(err.value).endswith(f"run `chmod 600 {p}`")
+    assert isinstance(err.value.__cause__, SecretFileExposed) and err.value.__cause__.mode == mode
+
+
+@pytest.mark.parametrize("mode", [0o600, 0o400, 0o700, 0o611])
+def test_a_key_file_only_its_owner_can_read_or_write_is_read(tmp_path, mode):
+    p = _file(tmp_path, SECRET.hex().encode())
+    p.chmod(mode)  # execute bits expose nothing
     assert read_key_file(p).secret == SECRET
-    assert "can be read by others (mode 644): chmod 600 it" in caplog.text
 
 
 def test_keygen_writes_a_private_hex_file_and_never_replaces_one(tmp_path):

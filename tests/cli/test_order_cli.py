@@ -25,6 +25,7 @@ SECRET = b"cli-test-secret-0123456789"
 def secret_file(tmp_path):  # type: ignore[no-untyped-def]
     f = tmp_path / "secret"
     f.write_bytes(SECRET + b"\n")
+    f.chmod(0o600)  # a secret others can read is refused
     return f
 
 
@@ -73,6 +74,7 @@ def test_a_missing_or_short_secret_is_bad_input(tmp_path, capsys) -> None:  # ty
     assert "--secret-file" in capsys.readouterr().err
     short = tmp_path / "short"
     short.write_bytes(b"tooshort")
+    short.chmod(0o600)
     assert main(_argv(short)) == exits.BAD_INPUT
     assert "secret shorter than 16 bytes" in capsys.readouterr().err
 
@@ -120,6 +122,7 @@ def test_fly_orders_needs_the_commands_secret(tmp_path, capsys) -> None:  # type
 def test_fly_orders_refuses_a_destination_from_the_autopilot_mission(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
     secret = tmp_path / "secret"
     secret.write_bytes(b"orders-cli-secret-0123456789")
+    secret.chmod(0o600)  # a secret others can read is refused
     text = shipped_params_path("sitl_short.toml").read_text().replace('autopilot = "sim"', 'autopilot = "px4"')
     params = tmp_path / "v.toml"
     text = text.replace("[mission]\n", '[mission]\ndestination = "autopilot_mission"\n', 1)
@@ -129,3 +132,23 @@ def test_fly_orders_refuses_a_destination_from_the_autopilot_mission(tmp_path, c
     assert code == exits.BAD_INPUT, err
     assert "mission.destination = 'autopilot_mission'" in err and "each order names the pad" in err
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o602])
+def test_a_secret_group_or_others_can_read_or_write_is_refused_at_start_up(tmp_path, capsys, mode: int) -> None:  # type: ignore[no-untyped-def]
+    secret = tmp_path / "secret"
+    secret.write_bytes(SECRET)
+    secret.chmod(mode)
+    assert main(_argv(secret)) == exits.BAD_INPUT  # the ground side
+    err = capsys.readouterr().err
+    assert f"ground-command secret file {secret}: mode {mode:04o}: " in err and f"chmod 600 {secret}" in err
+    text = shipped_params_path("sitl_short.toml").read_text().replace('autopilot = "sim"', 'autopilot = "px4"')
+    params = tmp_path / "v.toml"
+    params.write_text(text + f'\n[telemetry.commands]\nenabled = true\nsecret_file = "{secret}"\n')
+    for orders in ([], ["--orders"]):  # the vehicle: before the camera, the link or the run folder
+        code = main(["fly", "--params", str(params), *orders, "--out", str(tmp_path / "s")])
+        err = capsys.readouterr().err
+        assert code == exits.BAD_INPUT, err
+        assert err.count("\n") == 1 and err.startswith(f"companion fly: ground-command secret file {secret}: ")
+        assert f"chmod 600 {secret}` (telemetry.commands.secret_file in {params})" in err
+        assert not (tmp_path / "s").exists()

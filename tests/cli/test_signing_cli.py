@@ -43,9 +43,16 @@ def test_keygen_passphrase_prints_the_mavproxy_command_for_the_same_secret(tmp_p
 def test_show_names_the_file_and_what_is_expected(tmp_path, capsys):
     bad = tmp_path / "short.key"
     bad.write_bytes(b"\x01" * 31)
+    bad.chmod(0o600)
     assert main(["signing", "show", str(bad)]) == exits.BAD_INPUT
     err = capsys.readouterr().err
     assert f"companion signing: {bad}: 31 bytes is not a signing key: expected 64 hexadecimal digits" in err
+    bad.chmod(0o644)  # a key file others can read is refused before its contents are looked at
+    assert main(["signing", "show", str(bad)]) == exits.BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert f"signing key file {bad}: mode 0644: group can read it, others can read it;" in err
+    assert err.endswith(f"run `chmod 600 {bad}`\n")
 
 
 def _free_udp_port() -> int:
@@ -154,3 +161,22 @@ def test_fly_against_a_vehicle_that_does_not_sign_stops_naming_signing(tmp_path)
     assert proc.returncode == exits.AUTOPILOT_UNREACHABLE, proc.stderr
     assert "MAVLink signing refused" in proc.stderr and "companion signing push" in proc.stderr
     assert "Traceback" not in proc.stderr and not sim.vehicle.armed
+
+
+def test_fly_with_a_key_file_others_can_read_stops_before_the_link_opens(tmp_path, capsys):
+    key_file = tmp_path / "link.key"
+    assert main(["signing", "keygen", str(key_file)]) == exits.OK
+    key_file.chmod(0o640)
+    params = tmp_path / "vehicle.toml"
+    params.write_text(
+        f'autopilot = "ardupilot"\nconnection = "udpin:127.0.0.1:1"\n[signing]\nenabled = true\n'
+        f'key_file = "{key_file}"\n'
+    )
+    capsys.readouterr()
+    assert main(["fly", "--params", str(params), "--out", str(tmp_path / "run")]) == exits.BAD_INPUT
+    err = capsys.readouterr().err
+    assert err == (
+        f"companion fly: signing key file {key_file}: mode 0640: group can read it; a secret must be its owner's "
+        f"only: run `chmod 600 {key_file}` (signing.key_file in {params})\n"
+    )
+    assert not (tmp_path / "run").exists()

@@ -23,6 +23,7 @@ def _config(tmp_path, port, commands):
     )
     secret = tmp_path / "secret"
     secret.write_bytes(SECRET)
+    secret.chmod(0o600)  # a secret others can read is refused
     tele = {"zenoh_config": str(z), "commands": {"enabled": commands, "secret_file": str(secret) if commands else None}}
     return load_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": {"seed": 1}, "telemetry": tele})
 

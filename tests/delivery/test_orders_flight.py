@@ -39,6 +39,7 @@ VEHICLE = "sitl1"
 def _params(tmp_path, udp_port: int):  # type: ignore[no-untyped-def]
     secret = tmp_path / "secret"
     secret.write_bytes(SECRET)
+    secret.chmod(0o600)  # a secret others can read is refused
     text = shipped_params_path("sitl_short.toml").read_text()
     text = text.replace('autopilot = "sim"', 'autopilot = "px4"')
     text = text.replace('connection = "udpin://0.0.0.0:14540"', f'connection = "udpin://127.0.0.1:{udp_port}"')

@@ -23,6 +23,7 @@ SECRET = b"apm-orders-secret-0123456789"
 async def test_arducopter_order_after_order_over_zenoh(ardupilot_root, tmp_path, mav) -> None:  # type: ignore[no-untyped-def]
     secret = tmp_path / "secret"
     secret.write_bytes(SECRET)
+    secret.chmod(0o600)  # a secret others can read is refused
     sitl = ArduCopterSitl(ardupilot_root, extra_params=dict(GRIPPER_SERVO9), log_path=tmp_path / "arducopter.log")
     with sitl:
         tuning = firmware_tuning("ardupilot")

@@ -22,6 +22,7 @@ SECRET = b"px4-orders-secret-0123456789"
 async def test_px4_order_after_order_over_zenoh(px4_root, tmp_path, mav) -> None:  # type: ignore[no-untyped-def]
     secret = tmp_path / "secret"
     secret.write_bytes(SECRET)
+    secret.chmod(0o600)  # a secret others can read is refused
     tuning = firmware_tuning("px4")
     config = load_config(
         shipped_params_path("sitl_short.toml"),
