@@ -9,6 +9,9 @@ from companion.uwb.anchors import (
     load_anchor_layout,
 )
 from companion.uwb.multilateration import (
+    TDOA,
+    TWR,
+    MeasurementModel,
     MultilaterationConfig,
     MultilaterationCounters,
     Multilaterator,
@@ -24,8 +27,11 @@ from companion.uwb.multilateration import (
 
 __all__ = [
     "DWM1001_MAX_RANGE_M",
+    "TDOA",
+    "TWR",
     "AnchorLayout",
     "AnchorLayoutError",
+    "MeasurementModel",
     "MultilaterationConfig",
     "MultilaterationCounters",
     "Multilaterator",

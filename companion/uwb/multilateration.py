@@ -66,6 +66,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -240,27 +241,144 @@ def _lstsq(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
     return x[:n], int(rank)
 
 
-def model_residuals(theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdoa: bool) -> np.ndarray:
+class MeasurementModel(Protocol):
+    """What TWR and TDoA do differently; chosen once per measurement (:data:`TWR`, :data:`TDOA`)."""
+
+    name: str
+    #: the solution's unknowns: x, y, z (TDoA: and the pseudo-range offset c)
+    n_unknowns: int
+    #: coplanar anchors: the fix's geometry and leverages taken in (e1, e2, h^2), gated in their plane
+    plane_gated: bool
+    #: coplanar anchors: a refined fix this far past their plane (m) is taken as at the plane
+    in_plane_m: float
+
+    def residuals_of(self, theta: np.ndarray, dist: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """The residuals from the ranges ||x - a_i|| to the anchors (:func:`model_residuals`)."""
+        ...
+
+    def jacobian_of(self, diff: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """:func:`model_jacobian` from x - a_i and ||x - a_i|| (the residuals' intermediates)."""
+        ...
+
+    def seeds(
+        self, anchors: np.ndarray, obs: np.ndarray, prior: np.ndarray | None, side_normal: np.ndarray | None
+    ) -> list[np.ndarray]:
+        """Starting points: the linearised closed form(s), and the prior (anchor frame) if any."""
+        ...
+
+    def min_anchors(self, coplanar: bool) -> int:
+        """The fewest anchors a fix needs."""
+        ...
+
+    def inconsistent_detail(self, n_anchors: int) -> str:
+        """Why an inconsistent fix with fewer than two redundant anchors cannot be repaired."""
+        ...
+
+    def subset_hypothesis(self, theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, idx: list[int]) -> np.ndarray:
+        """A subset's closed-form theta made comparable with the other subsets' on all anchors."""
+        ...
+
+
+def _unit_rows(diff: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """d||x - a_i|| / dx: the unit vectors from the anchors to x."""
+    return diff / np.maximum(dist, 1e-9)[:, None]
+
+
+class TwrModel:
+    """Two-way ranging: ranges d_i, residual ||x - a_i|| - d_i, unknowns x."""
+
+    name = "TWR"
+    n_unknowns = 3
+    plane_gated = True
+    in_plane_m = _IN_PLANE_M
+
+    def residuals_of(self, theta: np.ndarray, dist: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        return dist - obs
+
+    def jacobian_of(self, diff: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        return _unit_rows(diff, dist)
+
+    def seeds(
+        self, anchors: np.ndarray, obs: np.ndarray, prior: np.ndarray | None, side_normal: np.ndarray | None
+    ) -> list[np.ndarray]:
+        seeds: list[np.ndarray] = []
+        s = linear_twr_seed(anchors, obs, side_normal)
+        if s is not None:
+            seeds.append(s)
+        if prior is not None:
+            seeds.append(prior.copy())
+        return seeds
+
+    def min_anchors(self, coplanar: bool) -> int:
+        """4, or 3 on coplanar anchors with the tag's side known."""
+        return MIN_COPLANAR_ANCHORS if coplanar else MIN_ANCHORS
+
+    def inconsistent_detail(self, n_anchors: int) -> str:
+        if n_anchors <= self.n_unknowns:  # 3 anchors at one height
+            return ": no position fits them (exactly determined: no redundant anchor)"
+        return " and too few anchors to tell which one is wrong"
+
+    def subset_hypothesis(self, theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, idx: list[int]) -> np.ndarray:
+        return theta
+
+
+class TdoaModel:
+    """TDoA in pseudo-range form (delivery eqs 2-4): rho_i = d_i1, residual ||x - a_i|| - c - rho_i,
+    unknowns x and the offset c."""
+
+    name = "TDoA"
+    n_unknowns = 4
+    # its pseudo-range offset absorbs a change of height wherever the anchors are about
+    # equidistant (near the layout's centre), at any height, not only at their plane
+    plane_gated = False
+    in_plane_m = 0.0
+
+    def residuals_of(self, theta: np.ndarray, dist: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        r = dist - obs
+        return r - theta[3]
+
+    def jacobian_of(self, diff: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        return np.hstack([_unit_rows(diff, dist), -np.ones((len(diff), 1))])
+
+    def seeds(
+        self, anchors: np.ndarray, obs: np.ndarray, prior: np.ndarray | None, side_normal: np.ndarray | None
+    ) -> list[np.ndarray]:
+        seeds = linear_tdoa_seeds(anchors, obs, ref=0, coplanar=side_normal is not None)
+        if prior is not None:
+            c = float(np.mean(np.sqrt(np.sum((prior - anchors) ** 2, axis=1)) - obs))
+            seeds.append(np.array([prior[0], prior[1], prior[2], c]))
+        return seeds
+
+    def min_anchors(self, coplanar: bool) -> int:
+        """4 (x, y, z and the offset), coplanar anchors too."""
+        return MIN_ANCHORS
+
+    def inconsistent_detail(self, n_anchors: int) -> str:
+        return " and too few anchors to tell which one is wrong"
+
+    def subset_hypothesis(self, theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, idx: list[int]) -> np.ndarray:
+        """The offset re-centred on the whole set's median, so that subsets compete fairly."""
+        dist = np.sqrt(np.sum((theta[:3] - anchors) ** 2, axis=1))
+        theta = theta.copy()
+        r_sub = dist[idx] - obs[idx] - theta[3]
+        theta[3] += float(np.median(r_sub))
+        return theta
+
+
+TWR: MeasurementModel = TwrModel()
+TDOA: MeasurementModel = TdoaModel()
+
+
+def model_residuals(theta: np.ndarray, anchors: np.ndarray, obs: np.ndarray, model: MeasurementModel) -> np.ndarray:
     """TWR: ||x - a_i|| - d_i.  TDoA (pseudo-range form of eqs 2-4): ||x - a_i|| - c - rho_i."""
     diff = theta[:3] - anchors
     dist = np.sqrt(_sum_rows(diff * diff))
-    r = dist - obs
-    if tdoa:
-        r = r - theta[3]
-    return r
+    return model.residuals_of(theta, dist, obs)
 
 
-def model_jacobian(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> np.ndarray:
+def model_jacobian(theta: np.ndarray, anchors: np.ndarray, model: MeasurementModel) -> np.ndarray:
     diff = theta[:3] - anchors
-    return _jacobian_of(diff, np.sqrt(_sum_rows(diff * diff)), tdoa)
-
-
-def _jacobian_of(diff: np.ndarray, dist: np.ndarray, tdoa: bool) -> np.ndarray:
-    """:func:`model_jacobian` from x - a_i and ||x - a_i|| (the residuals' intermediates)."""
-    u = diff / np.maximum(dist, 1e-9)[:, None]
-    if not tdoa:
-        return u
-    return np.hstack([u, -np.ones((len(diff), 1))])
+    return model.jacobian_of(diff, np.sqrt(_sum_rows(diff * diff)))
 
 
 def linear_twr_seed(
@@ -356,7 +474,7 @@ def levenberg_marquardt(
     theta0: np.ndarray,
     anchors: np.ndarray,
     obs: np.ndarray,
-    tdoa: bool,
+    model: MeasurementModel,
     max_iterations: int = 30,
     step_tolerance: float = 1e-10,
 ) -> tuple[np.ndarray, float]:
@@ -365,12 +483,17 @@ def levenberg_marquardt(
     Stops on a step below ``step_tolerance``, a relative cost decrease below 1e-12, or when
     no damped step lowers the cost any more (converged to rounding).
     """
-    theta, cost, _ = _levenberg_marquardt(theta0, anchors, obs, tdoa, max_iterations, step_tolerance)
+    theta, cost, _ = _levenberg_marquardt(theta0, anchors, obs, model, max_iterations, step_tolerance)
     return theta, cost
 
 
 def _levenberg_marquardt(
-    theta0: np.ndarray, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, max_iterations: int, step_tolerance: float
+    theta0: np.ndarray,
+    anchors: np.ndarray,
+    obs: np.ndarray,
+    model: MeasurementModel,
+    max_iterations: int,
+    step_tolerance: float,
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """:func:`levenberg_marquardt`, also returning the residuals at the solution. The Jacobian at
     an accepted point is built from the x - a_i and ||x - a_i|| its residuals were computed from
@@ -379,10 +502,7 @@ def _levenberg_marquardt(
     def residuals(th: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # model_residuals
         diff = th[:3] - anchors
         dist = np.sqrt(_sum_rows(diff * diff))
-        res = dist - obs
-        if tdoa:
-            res = res - th[3]
-        return res, diff, dist
+        return model.residuals_of(th, dist, obs), diff, dist
 
     theta = theta0.astype(float)  # a copy
     r, diff, dist = residuals(theta)
@@ -390,7 +510,7 @@ def _levenberg_marquardt(
     lam = 1e-6
     n = theta.size
     for _ in range(max_iterations):
-        J = _jacobian_of(diff, dist, tdoa)
+        J = model.jacobian_of(diff, dist)
         A = J.T.dot(J)  # J^T J (Gauss-Newton normal matrix)
         g = J.T.dot(r)
         accepted = False
@@ -421,13 +541,13 @@ def _levenberg_marquardt(
     return theta, cost, r
 
 
-def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> float:
+def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, model: MeasurementModel) -> float:
     """PDOP = sqrt(trace of the position block of (J^T J)^-1), J the range Jacobian at the fix.
 
     For TDoA the pseudo-range offset is the fourth unknown (as the clock in GNSS), so this is
     the PDOP of independent per-anchor timing errors, in units of that range error.
     """
-    J = model_jacobian(theta, anchors, tdoa)
+    J = model_jacobian(theta, anchors, model)
     cov = _inv(J.T.dot(J))
     if cov is None:  # singular
         return math.inf
@@ -435,10 +555,12 @@ def dilution_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) ->
     return math.sqrt(tr) if tr > 0 and math.isfinite(tr) else math.inf
 
 
-def dilutions_of_precision(theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> tuple[float, float, float]:
+def dilutions_of_precision(
+    theta: np.ndarray, anchors: np.ndarray, model: MeasurementModel
+) -> tuple[float, float, float]:
     """(PDOP, HDOP, VDOP) from the position block of (J^T J)^-1 (see :func:`dilution_of_precision`):
     HDOP = sqrt(var_x + var_y), VDOP = sqrt(var_z) in the anchor frame (z up), per unit range error."""
-    J = model_jacobian(theta, anchors, tdoa)
+    J = model_jacobian(theta, anchors, model)
     return _dilutions_of_cov(_inv(J.T.dot(J)))
 
 
@@ -502,8 +624,8 @@ class Multilaterator:
             self._plane_basis = np.column_stack([e1, np.cross(n, e1), n])  # in-plane e1, e2; normal
         self._logged_unchecked: set[int] = set()
         # the last (J, (J^T J)^-1) at a fix: the consistency check and the dilutions of one fix
-        # need the same pair (keyed by the fix, the anchors and the kind)
-        self._jc_key: tuple[bytes, bytes, bool] | None = None
+        # need the same pair (keyed by the fix, the anchors and the model)
+        self._jc_key: tuple[bytes, bytes, str] | None = None
         self._jc: tuple[np.ndarray, np.ndarray | None] = (np.zeros((0, 3)), None)
         self._index = {a: i for i, a in enumerate(layout.anchor_ids)}  # layout.index_of, as a dict
         if self._coplanar:
@@ -534,7 +656,7 @@ class Multilaterator:
                 continue
             ids.append(aid)
             ranges.append(float(d))
-        return self._solve(m.time_s, ids, np.array(ranges), tdoa=False, prior=prior_m)
+        return self._solve(m.time_s, ids, np.array(ranges), TWR, prior=prior_m)
 
     def solve_tdoa(self, m: TdoaMeasurement, prior_m: ArrayLike | None = None) -> UwbFix | UwbRejection:
         """A fix from range differences to the base anchor (delivery eqs 2-4)."""
@@ -558,16 +680,18 @@ class Multilaterator:
                 continue
             ids.append(aid)
             rho.append(float(d))
-        return self._solve(m.time_s, ids, np.array(rho), tdoa=True, prior=prior_m)
+        return self._solve(m.time_s, ids, np.array(rho), TDOA, prior=prior_m)
 
     # internals ----------------------------------------------------------------------------
 
-    def _jacobian_cov(self, theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    def _jacobian_cov(
+        self, theta: np.ndarray, anchors: np.ndarray, model: MeasurementModel
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """J = :func:`model_jacobian` at ``theta`` and (J^T J)^-1 (None if singular), computed once
         per fix (the same floats each time, so reusing them changes nothing)."""
-        key = (theta.tobytes(), anchors.tobytes(), tdoa)
+        key = (theta.tobytes(), anchors.tobytes(), model.name)
         if key != self._jc_key:
-            J = model_jacobian(theta, anchors, tdoa)
+            J = model_jacobian(theta, anchors, model)
             self._jc = (J, _inv(J.T.dot(J)))
             self._jc_key = key
         return self._jc
@@ -578,10 +702,10 @@ class Multilaterator:
         return UwbRejection(time_s, reason, detail, usable)
 
     def _solve(
-        self, time_s: float, ids: list[str], obs: np.ndarray, tdoa: bool, prior: ArrayLike | None
+        self, time_s: float, ids: list[str], obs: np.ndarray, model: MeasurementModel, prior: ArrayLike | None
     ) -> UwbFix | UwbRejection:
         cfg = self.config
-        min_anchors = self._min_anchors(tdoa)
+        min_anchors = model.min_anchors(self._coplanar)
         if len(ids) < min_anchors:
             return self._reject(
                 time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(ids)} usable anchors, need {min_anchors}", len(ids)
@@ -591,22 +715,18 @@ class Multilaterator:
             p = np.asarray(prior, dtype=float).reshape(3)
             prior_arr = p if np.all(np.isfinite(p)) else None
         anchors = self._positions[[self._index[a] for a in ids]]
-        n_unknowns = 4 if tdoa else 3
+        n_unknowns = model.n_unknowns
         thr = cfg.residual_threshold_m
 
-        sol = self._fit(anchors, obs, tdoa, prior_arr)
+        sol = self._fit(anchors, obs, model, prior_arr)
         if sol is None:
             return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate anchor geometry", len(ids))
         keep = np.arange(len(ids))
-        if not self._consistent(anchors, obs, tdoa, sol)[0]:
+        if not self._consistent(anchors, obs, model, sol)[0]:
             if len(ids) - n_unknowns < 2:
-                why = (
-                    ": no position fits them (exactly determined: no redundant anchor)"
-                    if len(ids) <= n_unknowns and not tdoa  # 3 TWR anchors at one height
-                    else " and too few anchors to tell which one is wrong"  # the text as it always was
-                )
+                why = model.inconsistent_detail(len(ids))
                 return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m{why}", len(ids))
-            robust = self._consensus(anchors, obs, tdoa, prior_arr)
+            robust = self._consensus(anchors, obs, model, prior_arr)
             if robust is None:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
             keep, sol = robust
@@ -623,12 +743,12 @@ class Multilaterator:
                 return self._reject(
                     time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
                 )
-            sol = self._fit(kept, obs[keep], tdoa, sol.theta[:3])
+            sol = self._fit(kept, obs[keep], model, sol.theta[:3])
             if sol is None:
                 return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
-            if not self._consistent(kept, obs[keep], tdoa, sol)[0]:
+            if not self._consistent(kept, obs[keep], model, sol)[0]:
                 return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
-        geo = self._geometry(sol.theta, kept, tdoa)
+        geo = self._geometry(sol.theta, kept, model)
         if not geo.gate_dop <= cfg.max_pdop:
             return self._reject(
                 time_s, RejectReason.BAD_GEOMETRY, f"{geo.gate_name} {geo.gate_dop:.1f} > {cfg.max_pdop}", len(keep)
@@ -639,7 +759,7 @@ class Multilaterator:
         checked = redundancy >= 2
         if not checked and redundancy not in self._logged_unchecked:
             self._logged_unchecked.add(redundancy)
-            kind = "TDoA" if tdoa else "TWR"
+            kind = model.name
             if redundancy <= 0:
                 log.info(
                     "uwb: %d %s anchors determine the fix exactly: no redundant measurement, fixes are accepted "
@@ -673,10 +793,6 @@ class Multilaterator:
             redundancy,
         )
 
-    def _min_anchors(self, tdoa: bool) -> int:
-        """4 (x, y, z; TDoA: and the offset), or 3 for TWR on coplanar anchors with a known side."""
-        return MIN_COPLANAR_ANCHORS if self._coplanar and not tdoa else MIN_ANCHORS
-
     def _plane_jacobian(self, theta: np.ndarray, anchors: np.ndarray) -> np.ndarray:
         """Coplanar anchors, TWR: the Jacobian in (e1, e2, u), e1/e2 spanning the anchors' plane and
         u = h^2 the squared distance from it, with the anchors projected onto the plane.
@@ -694,7 +810,7 @@ class Multilaterator:
         d = np.maximum(np.sqrt(np.sum(q**2, axis=1) + h * h), 1e-9)
         return np.column_stack([(q @ B[:, 0]) / d, (q @ B[:, 1]) / d, 0.5 / d])
 
-    def _geometry(self, theta: np.ndarray, anchors: np.ndarray, tdoa: bool) -> _Geometry:
+    def _geometry(self, theta: np.ndarray, anchors: np.ndarray, model: MeasurementModel) -> _Geometry:
         """The fix's dilutions. Anchors at different heights: PDOP/HDOP/VDOP of the linearised
         problem, gated on PDOP (unchanged; TDoA too). Coplanar anchors, TWR: gated on the dilution
         in their plane (HDOP for anchors at one height); the vertical is weak by design and
@@ -708,12 +824,9 @@ class Multilaterator:
         sqrt(sigma_u)/sigma_r = sqrt(sqrt(var_u)/sigma_r) (sigma_r: ``range_sigma_m``). Away from
         the plane the linearised figure is the smaller one and is kept bit for bit.
         """
-        J, cov = self._jacobian_cov(theta, anchors, tdoa)
-        pdop, hdop, vdop = _dilutions_of_cov(cov)  # dilutions_of_precision(theta, anchors, tdoa)
-        if not self._coplanar or tdoa:
-            # TDoA on coplanar anchors keeps the PDOP gate: its pseudo-range offset absorbs a
-            # change of height wherever the anchors are about equidistant (near the layout's
-            # centre), at any height, not only at the plane
+        J, cov = self._jacobian_cov(theta, anchors, model)
+        pdop, hdop, vdop = _dilutions_of_cov(cov)  # dilutions_of_precision(theta, anchors, model)
+        if not (self._coplanar and model.plane_gated):  # (TDoA on coplanar anchors: MeasurementModel)
             return _Geometry(pdop, hdop, vdop, pdop, "PDOP", J)
         assert self._plane_basis is not None
         Ju = self._plane_jacobian(theta, anchors)
@@ -747,8 +860,10 @@ class Multilaterator:
             Ju,
         )
 
-    def _fit(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None) -> _Solution | None:
-        sols = self._fit_all(anchors, obs, tdoa, prior)
+    def _fit(
+        self, anchors: np.ndarray, obs: np.ndarray, model: MeasurementModel, prior: np.ndarray | None
+    ) -> _Solution | None:
+        sols = self._fit_all(anchors, obs, model, prior)
         if not sols:
             return None
         best_cost = min(s.cost for s in sols)
@@ -761,21 +876,15 @@ class Multilaterator:
         return min(sols, key=lambda s: s.cost)
 
     def _fit_all(
-        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None, refine: bool = True
+        self,
+        anchors: np.ndarray,
+        obs: np.ndarray,
+        model: MeasurementModel,
+        prior: np.ndarray | None,
+        refine: bool = True,
     ) -> list[_Solution]:
         cfg = self.config
-        seeds: list[np.ndarray] = []
-        if tdoa:
-            seeds.extend(linear_tdoa_seeds(anchors, obs, ref=0, coplanar=self._coplanar))
-            if prior is not None:
-                c = float(np.mean(np.sqrt(np.sum((prior - anchors) ** 2, axis=1)) - obs))
-                seeds.append(np.array([prior[0], prior[1], prior[2], c]))
-        else:
-            s = linear_twr_seed(anchors, obs, self._side_normal)
-            if s is not None:
-                seeds.append(s)
-            if prior is not None:
-                seeds.append(prior.copy())
+        seeds = model.seeds(anchors, obs, prior, self._side_normal)
         out: list[_Solution] = []
         for seed in seeds:
             if not all(map(math.isfinite, seed.tolist())):
@@ -783,29 +892,29 @@ class Multilaterator:
             seed = self._on_tag_side(seed)
             if refine:
                 theta, cost, r0 = _levenberg_marquardt(
-                    seed, anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m
+                    seed, anchors, obs, model, cfg.max_iterations, cfg.step_tolerance_m
                 )
                 if self._side_normal is not None and float((theta[:3] - self._plane_point) @ self._side_normal) < 0:
                     # converged to the mirror image: reflect it to the tag's side and refine there
                     theta, cost, r0 = _levenberg_marquardt(
-                        self._on_tag_side(theta), anchors, obs, tdoa, cfg.max_iterations, cfg.step_tolerance_m
+                        self._on_tag_side(theta), anchors, obs, model, cfg.max_iterations, cfg.step_tolerance_m
                     )
             else:  # an exactly determined closed-form solution (minimal TDoA subset)
                 theta = seed
-                r0 = model_residuals(seed, anchors, obs, tdoa)
+                r0 = model_residuals(seed, anchors, obs, model)
                 cost = float(r0 @ r0)
             if not (all(map(math.isfinite, theta.tolist())) and math.isfinite(cost)):
                 continue
             if self._side_normal is not None:
                 h = float((theta[:3] - self._plane_point) @ self._side_normal)
-                if h < (-_IN_PLANE_M if not tdoa else 0.0):
+                if h < -model.in_plane_m:
                     continue  # still on the wrong side: not a solution for this layout
                 if h < 0.0:
                     # at the plane the refinement steps across it and back (the height is not
                     # observed there): take its mirror image on the tag's side, which fits the
                     # same for anchors exactly at one height (within a few mm for near-coplanar)
                     theta = self._on_tag_side(theta)
-                    r0 = model_residuals(theta, anchors, obs, tdoa)
+                    r0 = model_residuals(theta, anchors, obs, model)
                     cost = float(r0 @ r0)
             out.append(_Solution(theta, cost, r0))  # r0: model_residuals at theta
         return out
@@ -822,7 +931,9 @@ class Multilaterator:
         out[:3] = out[:3] - 2.0 * h * self._side_normal
         return out
 
-    def _consistent(self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, sol: _Solution) -> tuple[bool, np.ndarray]:
+    def _consistent(
+        self, anchors: np.ndarray, obs: np.ndarray, model: MeasurementModel, sol: _Solution
+    ) -> tuple[bool, np.ndarray]:
         """Are all anchors consistent with the fix? Returns (ok, per-anchor score in metres).
 
         An outlier pulls a least-squares fit towards itself and hides in small residuals, so
@@ -834,11 +945,11 @@ class Multilaterator:
         score = np.abs(sol.residuals)
         # coplanar anchors with the tag at their plane: the (e1, e2, h^2) Jacobian, whose leverages
         # equal the usual ones away from the plane and stay defined at it
-        if self._coplanar and not tdoa:
-            J = self._geometry(sol.theta, anchors, tdoa).jacobian
+        if self._coplanar and model.plane_gated:
+            J = self._geometry(sol.theta, anchors, model).jacobian
             inv = _inv(J.T.dot(J))
         else:
-            J, inv = self._jacobian_cov(sol.theta, anchors, tdoa)
+            J, inv = self._jacobian_cov(sol.theta, anchors, model)
         if inv is None:  # singular (np.linalg.inv raised)
             return False, score
         h = np.einsum("ij,jk,ik->i", J, inv, J)
@@ -860,25 +971,25 @@ class Multilaterator:
         return sorted(picked)
 
     def _consensus(
-        self, anchors: np.ndarray, obs: np.ndarray, tdoa: bool, prior: np.ndarray | None
+        self, anchors: np.ndarray, obs: np.ndarray, model: MeasurementModel, prior: np.ndarray | None
     ) -> tuple[np.ndarray, _Solution] | None:
         """RANSAC-like: every 4-anchor subset proposes fixes; keep the one most anchors agree
         with (MSAC score), re-fit its inliers, then drop the worst anchor while needed."""
         thr = self.config.residual_threshold_m
         n = len(anchors)
-        n_unknowns = 4 if tdoa else 3
+        n_unknowns = model.n_unknowns
         cfg = self.config
         best: tuple[int, float, np.ndarray] | None = None
         hypotheses: list[np.ndarray] = []
-        full = self._fit(anchors, obs, tdoa, prior)
+        full = self._fit(anchors, obs, model, prior)
         if full is not None:
             hypotheses.append(full.theta)
             for i in range(n):  # leave-one-out fits, started at the full fit
                 mask = np.arange(n) != i
-                theta, _ = levenberg_marquardt(full.theta, anchors[mask], obs[mask], tdoa, 3, cfg.step_tolerance_m)
+                theta, _ = levenberg_marquardt(full.theta, anchors[mask], obs[mask], model, 3, cfg.step_tolerance_m)
                 hypotheses.append(theta)
         for theta in hypotheses:
-            r_all = model_residuals(theta, anchors, obs, tdoa)
+            r_all = model_residuals(theta, anchors, obs, model)
             cnt = int(np.sum(np.abs(r_all) <= thr))
             score = float(np.sum(np.minimum(r_all**2, thr * thr)))
             if best is None or cnt > best[0] or (cnt == best[0] and score < best[1]):
@@ -887,15 +998,9 @@ class Multilaterator:
             idx = list(subset)
             # hypotheses straight from the closed forms (exact for minimal TDoA subsets); only
             # the winner is refined, which keeps the search ~10x cheaper than refining each
-            for s in self._fit_all(anchors[idx], obs[idx], tdoa, prior, refine=False):
-                theta = s.theta
-                if tdoa:
-                    # re-centre the offset on the whole set's median so subsets compete fairly
-                    dist = np.sqrt(np.sum((theta[:3] - anchors) ** 2, axis=1))
-                    theta = theta.copy()
-                    r_sub = dist[idx] - obs[idx] - theta[3]
-                    theta[3] += float(np.median(r_sub))
-                r_all = model_residuals(theta, anchors, obs, tdoa)
+            for s in self._fit_all(anchors[idx], obs[idx], model, prior, refine=False):
+                theta = model.subset_hypothesis(s.theta, anchors, obs, idx)
+                r_all = model_residuals(theta, anchors, obs, model)
                 inl = np.abs(r_all) <= thr
                 score = float(np.sum(np.minimum(r_all**2, thr * thr)))
                 cnt = int(np.sum(inl))
@@ -904,25 +1009,25 @@ class Multilaterator:
         if best is None or best[0] < MIN_ANCHORS:
             return None
         theta = best[2]
-        keep = np.flatnonzero(np.abs(model_residuals(theta, anchors, obs, tdoa)) <= thr)
-        sol = self._fit(anchors[keep], obs[keep], tdoa, theta[:3])
+        keep = np.flatnonzero(np.abs(model_residuals(theta, anchors, obs, model)) <= thr)
+        sol = self._fit(anchors[keep], obs[keep], model, theta[:3])
         if sol is None:
             return None
         # RANSAC's last step: take back every anchor that agrees with the refined fix
-        back = np.flatnonzero(np.abs(model_residuals(sol.theta, anchors, obs, tdoa)) <= thr)
+        back = np.flatnonzero(np.abs(model_residuals(sol.theta, anchors, obs, model)) <= thr)
         if len(back) > len(keep):
-            again = self._fit(anchors[back], obs[back], tdoa, sol.theta[:3])
+            again = self._fit(anchors[back], obs[back], model, sol.theta[:3])
             if again is not None:
                 keep, sol = back, again
         # drop the worst anchor and re-solve while the set is not consistent
         while True:
-            ok, scores = self._consistent(anchors[keep], obs[keep], tdoa, sol)
+            ok, scores = self._consistent(anchors[keep], obs[keep], model, sol)
             if ok:
                 break
             if len(keep) - 1 - n_unknowns < 1:
                 return None
             keep = np.delete(keep, int(np.argmax(scores)))
-            nxt = self._fit(anchors[keep], obs[keep], tdoa, sol.theta[:3])
+            nxt = self._fit(anchors[keep], obs[keep], model, sol.theta[:3])
             if nxt is None:
                 return None
             sol = nxt

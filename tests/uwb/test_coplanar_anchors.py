@@ -20,6 +20,7 @@ from companion.uwb.anchors import (
     load_anchor_layout,
 )
 from companion.uwb.multilateration import (
+    TWR,
     Multilaterator,
     TdoaMeasurement,
     TwrMeasurement,
@@ -168,7 +169,7 @@ def test_tag_in_the_anchor_plane_gets_the_horizontal_and_a_weak_bounded_vertical
     layout = layout_from_positions(SQUARE)
     p = np.array([0.0, 0.0, 1.2 + h])
     d = np.linalg.norm(SQUARE - p, axis=1)
-    assert dilutions_of_precision(p, SQUARE, False)[0] > 20.0 or h == 0.0  # a PDOP gate would refuse it
+    assert dilutions_of_precision(p, SQUARE, TWR)[0] > 20.0 or h == 0.0  # a PDOP gate would refuse it
     f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
     np.testing.assert_allclose(f.position_m[:2], p[:2], atol=1e-6)
     assert 1.2 <= f.z_m <= 1.2 + 0.05  # on the tag's side, at the plane: the height is not observed
@@ -321,8 +322,8 @@ def test_shipped_layout_figures_are_unchanged() -> None:
     d = np.linalg.norm(A - p, axis=1)
     f = _fix(Multilaterator(layout).solve_twr(TwrMeasurement(0.0, layout.anchor_ids, tuple(d))))
     assert not f.vertical_weak and f.outliers_checked
-    assert f.pdop == pytest.approx(dilution_of_precision(f.position_m, A, False), rel=1e-12)
-    assert dilutions_of_precision(f.position_m, A, False)[0] == pytest.approx(f.pdop, rel=1e-12)
+    assert f.pdop == pytest.approx(dilution_of_precision(f.position_m, A, TWR), rel=1e-12)
+    assert dilutions_of_precision(f.position_m, A, TWR)[0] == pytest.approx(f.pdop, rel=1e-12)
 
 
 def _ekf_at(p_world: np.ndarray) -> DeliveryEkf:

@@ -10,6 +10,8 @@ import pytest
 from companion.uwb.anchors import layout_from_positions, load_anchor_layout
 from companion.uwb.multilateration import (
     SPEED_OF_LIGHT_M_S,
+    TDOA,
+    TWR,
     MultilaterationConfig,
     Multilaterator,
     RejectReason,
@@ -270,7 +272,7 @@ def test_pdop_matches_the_jacobian() -> None:
             J[:, k] = (np.linalg.norm(A - (p + e), axis=1) - np.linalg.norm(A - (p - e), axis=1)) / 2e-6
         assert f.pdop == pytest.approx(math.sqrt(np.trace(np.linalg.inv(J.T @ J))), rel=1e-6)
     theta = np.array([*high, 1.0])
-    assert dilution_of_precision(theta, A, tdoa=True) > dilution_of_precision(high, A, tdoa=False)
+    assert dilution_of_precision(theta, A, TDOA) > dilution_of_precision(high, A, TWR)
     tight = Multilaterator(LAYOUT, MultilaterationConfig(max_pdop=f_high.pdop * 1.01))
     assert isinstance(tight.solve_twr(_twr(high)), UwbFix)
     r = tight.solve_twr(_twr(low))
@@ -297,5 +299,5 @@ def test_subset_sampling_is_deterministic_for_many_anchors() -> None:
 def test_model_residuals_zero_at_truth() -> None:
     p = np.array([0.1, 0.2, 1.5])
     d = np.linalg.norm(A - p, axis=1)
-    np.testing.assert_allclose(model_residuals(p, A, d, tdoa=False), 0, atol=1e-12)
-    np.testing.assert_allclose(model_residuals(np.array([*p, d[0]]), A, d - d[0], tdoa=True), 0, atol=1e-12)
+    np.testing.assert_allclose(model_residuals(p, A, d, TWR), 0, atol=1e-12)
+    np.testing.assert_allclose(model_residuals(np.array([*p, d[0]]), A, d - d[0], TDOA), 0, atol=1e-12)

@@ -39,8 +39,8 @@ def test_lstsq_equals_numpy_bit_for_bit(rows: int) -> None:
     assert ml._lstsq(A, np.ones(rows))[1] == np.linalg.lstsq(A, np.ones(rows), rcond=None)[2]
 
 
-@pytest.mark.parametrize("tdoa", [False, True])
-def test_levenberg_marquardt_residuals_and_jacobian_equal_the_model_functions(tdoa: bool) -> None:
+@pytest.mark.parametrize("model", [ml.TWR, ml.TDOA], ids=lambda m: m.name)
+def test_levenberg_marquardt_residuals_and_jacobian_equal_the_model_functions(model: ml.MeasurementModel) -> None:
     """The LM's residuals at its solution are model_residuals there, and its Jacobian (from the
     residuals' intermediates) is model_jacobian, bit for bit."""
     rng = np.random.default_rng(11)
@@ -48,13 +48,13 @@ def test_levenberg_marquardt_residuals_and_jacobian_equal_the_model_functions(td
         anchors = rng.uniform(-5, 5, (6, 3))
         x = rng.uniform(-3, 3, 3)
         obs = np.sqrt(np.sum((x - anchors) ** 2, axis=1)) + rng.normal(0, 0.05, 6)
-        theta0 = np.r_[x + rng.normal(0, 0.5, 3), [0.3] if tdoa else []]
-        theta, cost, r = ml._levenberg_marquardt(theta0, anchors, obs, tdoa, 30, 1e-7)
-        np.testing.assert_array_equal(r, ml.model_residuals(theta, anchors, obs, tdoa))
+        theta0 = np.r_[x + rng.normal(0, 0.5, 3), [0.3] * (model.n_unknowns - 3)]
+        theta, cost, r = ml._levenberg_marquardt(theta0, anchors, obs, model, 30, 1e-7)
+        np.testing.assert_array_equal(r, ml.model_residuals(theta, anchors, obs, model))
         assert cost == float(r @ r)
-        t2, c2 = ml.levenberg_marquardt(theta0, anchors, obs, tdoa, 30, 1e-7)
+        t2, c2 = ml.levenberg_marquardt(theta0, anchors, obs, model, 30, 1e-7)
         np.testing.assert_array_equal(t2, theta)
         assert c2 == cost
         diff = theta[:3] - anchors
-        J = ml._jacobian_of(diff, np.sqrt(np.sum(diff**2, axis=1)), tdoa)
-        np.testing.assert_array_equal(J, ml.model_jacobian(theta, anchors, tdoa))
+        J = model.jacobian_of(diff, np.sqrt(np.sum(diff**2, axis=1)))
+        np.testing.assert_array_equal(J, ml.model_jacobian(theta, anchors, model))
