@@ -715,65 +715,24 @@ class Multilaterator:
             p = np.asarray(prior, dtype=float).reshape(3)
             prior_arr = p if np.all(np.isfinite(p)) else None
         anchors = self._positions[[self._index[a] for a in ids]]
-        n_unknowns = model.n_unknowns
-        thr = cfg.residual_threshold_m
-
-        sol = self._fit(anchors, obs, model, prior_arr)
-        if sol is None:
-            return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate anchor geometry", len(ids))
-        keep = np.arange(len(ids))
-        if not self._consistent(anchors, obs, model, sol)[0]:
-            if len(ids) - n_unknowns < 2:
-                why = model.inconsistent_detail(len(ids))
-                return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m{why}", len(ids))
-            robust = self._consensus(anchors, obs, model, prior_arr)
-            if robust is None:
-                return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", len(ids))
-            keep, sol = robust
-        # the range limit (delivery 4.2.2): anchors too far from the fix are not trusted
-        kept = anchors if len(keep) == len(anchors) else anchors[keep]  # (all kept: the same values)
-        diff = sol.theta[:3] - kept
-        dist = np.sqrt(_sum_rows(diff * diff))
-        far = dist > self.max_range_m
-        if far.any():
-            self.counters.out_of_range += int(np.sum(far))
-            keep = keep[~far]
-            kept = anchors[keep]
-            if len(keep) < min_anchors:
-                return self._reject(
-                    time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
-                )
-            sol = self._fit(kept, obs[keep], model, sol.theta[:3])
-            if sol is None:
-                return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
-            if not self._consistent(kept, obs[keep], model, sol)[0]:
-                return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
+        fitted = self._consistent_fit(time_s, anchors, obs, model, prior_arr)
+        if isinstance(fitted, UwbRejection):
+            return fitted
+        in_range = self._within_range(time_s, anchors, obs, model, *fitted)
+        if isinstance(in_range, UwbRejection):
+            return in_range
+        keep, kept, sol = in_range
         geo = self._geometry(sol.theta, kept, model)
         if not geo.gate_dop <= cfg.max_pdop:
             return self._reject(
                 time_s, RejectReason.BAD_GEOMETRY, f"{geo.gate_name} {geo.gate_dop:.1f} > {cfg.max_pdop}", len(keep)
             )
-        pdop, hdop, vdop = geo.pdop, geo.hdop, geo.vdop
         self.counters.fixes += 1
-        redundancy = len(keep) - n_unknowns
+        redundancy = len(keep) - model.n_unknowns
         checked = redundancy >= 2
         if not checked and redundancy not in self._logged_unchecked:
             self._logged_unchecked.add(redundancy)
-            kind = model.name
-            if redundancy <= 0:
-                log.info(
-                    "uwb: %d %s anchors determine the fix exactly: no redundant measurement, fixes are accepted "
-                    "without any consistency or outlier check",
-                    len(keep),
-                    kind,
-                )
-            else:
-                log.info(
-                    "uwb: %d %s anchors leave one redundant measurement: fixes are accepted without outlier "
-                    "rejection (an inconsistent sample is refused, not repaired), as in delivery 4.2.2",
-                    len(keep),
-                    kind,
-                )
+            self._log_unchecked(len(keep), redundancy, model)
         res = sol.residuals
         rms = math.sqrt(float(np.add.reduce(res * res)) / len(res))  # as np.sqrt(np.mean(r**2))
         x = sol.theta
@@ -782,16 +741,85 @@ class Multilaterator:
             float(x[0]),
             float(x[1]),
             float(x[2]),
-            pdop,
+            geo.pdop,
             rms,
             tuple(ids[i] for i in keep),
             self.layout.frame,
-            hdop,
-            vdop,
+            geo.hdop,
+            geo.vdop,
             checked,
             self._coplanar,
             redundancy,
         )
+
+    def _consistent_fit(
+        self, time_s: float, anchors: np.ndarray, obs: np.ndarray, model: MeasurementModel, prior: np.ndarray | None
+    ) -> tuple[np.ndarray, _Solution] | UwbRejection:
+        """The fit on every anchor, or where it is inconsistent the consensus's (kept anchor
+        indices, solution); refused when no fit, or no consistent subset, or too few redundant
+        anchors to tell which one is wrong."""
+        n = len(anchors)
+        sol = self._fit(anchors, obs, model, prior)
+        if sol is None:
+            return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate anchor geometry", n)
+        if self._consistent(anchors, obs, model, sol)[0]:
+            return np.arange(n), sol
+        if n - model.n_unknowns < 2:
+            thr = self.config.residual_threshold_m
+            why = model.inconsistent_detail(n)
+            return self._reject(time_s, RejectReason.INCONSISTENT, f"residuals exceed {thr} m{why}", n)
+        robust = self._consensus(anchors, obs, model, prior)
+        if robust is None:
+            return self._reject(time_s, RejectReason.INCONSISTENT, "no consistent anchor subset", n)
+        return robust
+
+    def _within_range(
+        self,
+        time_s: float,
+        anchors: np.ndarray,
+        obs: np.ndarray,
+        model: MeasurementModel,
+        keep: np.ndarray,
+        sol: _Solution,
+    ) -> tuple[np.ndarray, np.ndarray, _Solution] | UwbRejection:
+        """The range limit (delivery 4.2.2): anchors too far from the fix are not trusted; the
+        fix re-solved without them. Returns (kept indices, their positions, solution)."""
+        kept = anchors if len(keep) == len(anchors) else anchors[keep]  # (all kept: the same values)
+        diff = sol.theta[:3] - kept
+        dist = np.sqrt(_sum_rows(diff * diff))
+        far = dist > self.max_range_m
+        if not far.any():
+            return keep, kept, sol
+        self.counters.out_of_range += int(np.sum(far))
+        keep = keep[~far]
+        kept = anchors[keep]
+        if len(keep) < model.min_anchors(self._coplanar):
+            return self._reject(
+                time_s, RejectReason.TOO_FEW_ANCHORS, f"{len(keep)} anchors within {self.max_range_m} m", len(keep)
+            )
+        refit = self._fit(kept, obs[keep], model, sol.theta[:3])
+        if refit is None:
+            return self._reject(time_s, RejectReason.BAD_GEOMETRY, "degenerate geometry in range", len(keep))
+        if not self._consistent(kept, obs[keep], model, refit)[0]:
+            return self._reject(time_s, RejectReason.INCONSISTENT, "inconsistent after range limit", len(keep))
+        return keep, kept, refit
+
+    def _log_unchecked(self, n_anchors: int, redundancy: int, model: MeasurementModel) -> None:
+        """Said once per redundancy: fixes with fewer than two redundant anchors go unchecked."""
+        if redundancy <= 0:
+            log.info(
+                "uwb: %d %s anchors determine the fix exactly: no redundant measurement, fixes are accepted "
+                "without any consistency or outlier check",
+                n_anchors,
+                model.name,
+            )
+        else:
+            log.info(
+                "uwb: %d %s anchors leave one redundant measurement: fixes are accepted without outlier "
+                "rejection (an inconsistent sample is refused, not repaired), as in delivery 4.2.2",
+                n_anchors,
+                model.name,
+            )
 
     def _plane_jacobian(self, theta: np.ndarray, anchors: np.ndarray) -> np.ndarray:
         """Coplanar anchors, TWR: the Jacobian in (e1, e2, u), e1/e2 spanning the anchors' plane and
