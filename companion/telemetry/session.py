@@ -12,7 +12,9 @@ Zenoh's own transport authentication (user/password, ``transport.auth.usrpwd``):
 *accepts* connections gives ``auth_dictionary_file`` (lines ``user:password``); the side that
 *opens* them gives ``user`` and ``password``. A peer that both listens and connects gives all
 three. Sessions presenting wrong or no credentials are refused at the transport, before any
-key expression is exchanged. Use TLS (``tls/`` endpoints, configured through ``overrides``)
+key expression is exchanged. The dictionary file, and a session file that holds ``password``,
+are refused when their group or others can read or write them (:mod:`companion.secret_files`).
+Use TLS (``tls/`` endpoints, configured through ``overrides``)
 on untrusted networks: usrpwd alone does not encrypt.
 
 Transport limits, applied before a byte reaches Python: Zenoh reassembles a message from its
@@ -36,6 +38,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import zenoh
+
+from companion.secret_files import exposed_secret
 
 Mode = Literal["peer", "client", "router"]
 _MODES = ("peer", "client", "router")
@@ -119,6 +123,10 @@ class ZenohSettings:
             raise SettingsError("zenoh.user and zenoh.password go together")
         if self.auth_dictionary_file is not None and not Path(self.auth_dictionary_file).is_file():
             raise SettingsError(f"zenoh.auth_dictionary_file: {self.auth_dictionary_file!r} is not a file")
+        if self.auth_dictionary_file is not None:  # Zenoh reads it: its passwords must be the owner's only
+            exposed = exposed_secret(self.auth_dictionary_file, "zenoh.auth_dictionary_file")
+            if exposed is not None:
+                raise SettingsError(str(exposed))
         for key in ("scouting_delay_ms", "connect_timeout_ms"):
             value = getattr(self, key)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
@@ -245,6 +253,10 @@ def load_settings(path: str | Path, table: str = "zenoh") -> ZenohSettings:
     if not isinstance(data, dict):
         raise SettingsError(f"{path}: no [{table}] table")
     data = dict(data)
+    if data.get("password") is not None:  # the session file holds a secret: the owner's only
+        exposed = exposed_secret(path, "Zenoh session file (it holds zenoh.password)")
+        if exposed is not None:
+            raise SettingsError(str(exposed))
     dict_file = data.get("auth_dictionary_file")
     if isinstance(dict_file, str) and not Path(dict_file).is_absolute():
         data["auth_dictionary_file"] = str(path.parent / dict_file)

@@ -74,6 +74,26 @@ def test_settings_validation(kwargs: dict, match: str) -> None:
         ZenohSettings(**kwargs)
 
 
+def test_zenoh_passwords_others_can_read_are_refused(tmp_path: Path) -> None:
+    users = tmp_path / "users.txt"
+    users.write_text("ground:ground-pass\n")
+    users.chmod(0o644)
+    with pytest.raises(SettingsError, match=rf"^zenoh.auth_dictionary_file {users}: mode 0644: .*chmod 600 {users}`$"):
+        ZenohSettings(auth_dictionary_file=str(users))
+    users.chmod(0o600)
+    assert ZenohSettings(auth_dictionary_file=str(users)).auth_dictionary_file == str(users)
+    session = tmp_path / "z.toml"
+    session.write_text('[zenoh]\nuser = "v1"\npassword = "v1-pass"\n')
+    session.chmod(0o640)
+    with pytest.raises(SettingsError, match=r"Zenoh session file \(it holds zenoh.password\) .*: mode 0640: group"):
+        load_settings(session)
+    session.chmod(0o600)
+    assert load_settings(session).user == "v1"
+    session.write_text('[zenoh]\nmode = "peer"\n')
+    session.chmod(0o644)  # no password in it: an ordinary parameter file
+    assert load_settings(session).mode == "peer"
+
+
 def test_bad_override_fails_at_config_time() -> None:
     with pytest.raises(SettingsError, match="no/such/key"):
         ZenohSettings(overrides=(("no/such/key", "1"),)).to_config()

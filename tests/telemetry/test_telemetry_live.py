@@ -144,6 +144,7 @@ def test_enabled_commands_need_a_callback() -> None:
 def test_zenoh_usrpwd_refuses_wrong_credentials(tmp_path: Path) -> None:
     users = tmp_path / "users.txt"
     users.write_text("ground:ground-pass\nv1:v1-pass\n")
+    users.chmod(0o600)  # a dictionary of passwords others can read is refused
     port = free_tcp_port()
     base = loopback_settings(listen_port=port)
     vehicle_settings = ZenohSettings(**{**base.__dict__, "auth_dictionary_file": str(users)})
