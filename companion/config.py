@@ -610,6 +610,18 @@ class RuntimeConfig(_Section):
     setpoint_stale_s: float = _f(
         0.5, "s", "stop streaming if the control task has not refreshed the setpoint for this long", gt=0.05, le=5.0
     )
+    loop_stall_s: float = _f(
+        0.5,
+        "s",
+        "the control loop's liveness (docs/companion-death.md): a watchdog thread, off the event loop, stops every "
+        "heartbeat and setpoint the companion sends (the backend's GCS heartbeat, its component's, MAVSDK's re-sent "
+        "setpoint) when no guidance tick came for this long, so the autopilot fails safe within its own timeout "
+        "(ArduCopter FS_GCS_TIMEOUT, PX4 COM_OF_LOSS_T) as if the companion had died; they resume when the loop ticks "
+        "again. 0.5 s: ten guidance periods, above the slowest tick seen on a capped board (~0.1 s), and small beside "
+        "the autopilots' 1-5 s timeouts, which it adds to",
+        ge=0.2,
+        le=2.0,
+    )
     link_timeout_s: float = _f(
         1.0,
         "s",
@@ -822,6 +834,8 @@ class TelemetryCommandsConfig(_Section):
     secret_file: str | None = _f(None, "-", "file holding the shared HMAC secret (>= 16 bytes)")
     window_s: float = _f(5.0, "s", "allowed clock difference for a command's timestamp", ge=0.1, le=300.0)
     max_nonces: int = _f(4096, "-", "replay-protection cache size", ge=16, le=1_000_000)
+    rate_per_s: float = _f(2.0, "1/s", "signed requests a second each sender may send", ge=0.01, le=1000.0)
+    burst: int = _f(10, "-", "signed requests a sender may send at once (its token bucket)", ge=1, le=10_000)
 
     @model_validator(mode="after")
     def _secret(self) -> TelemetryCommandsConfig:
@@ -1144,20 +1158,6 @@ class CompanionConfig(_Section):
         return self
 
     @model_validator(mode="after")
-    def _alternate_pad_given(self) -> CompanionConfig:
-        """A divert, or a simulated pad at the alternate, needs the alternate pad."""
-        if self.mission.alternate_pad is not None:
-            return self
-        if self.landing.policy.fallback == "alternate":
-            raise ValueError(
-                "landing.policy.fallback = 'alternate' needs mission.alternate_pad (the pad to divert to); "
-                "set [mission.alternate_pad] or fallback = 'home'"
-            )
-        if self.sim.pad_at_alternate:
-            raise ValueError("sim.pad_at_alternate = true needs mission.alternate_pad (where the simulated pad lies)")
-        return self
-
-    @model_validator(mode="after")
     def _geodetic_pads_near_sim_home(self) -> CompanionConfig:
         """A pad given in lat/lon lies within PAD_OFFSET_MAX_M (north and east) of the simulated
         home, as a pad given in north/east must (a real home is only known in flight: the
@@ -1175,6 +1175,20 @@ class CompanionConfig(_Section):
                     f"{key} ({pad.lat_deg}, {pad.lon_deg}) lies {north_m:.0f} m north, {east_m:.0f} m east of "
                     f"sim.home: each must be within +-{PAD_OFFSET_MAX_M:g} m"
                 )
+        return self
+
+    @model_validator(mode="after")
+    def _alternate_pad_given(self) -> CompanionConfig:
+        """A divert, or a simulated pad at the alternate, needs the alternate pad."""
+        if self.mission.alternate_pad is not None:
+            return self
+        if self.landing.policy.fallback == "alternate":
+            raise ValueError(
+                "landing.policy.fallback = 'alternate' needs mission.alternate_pad (the pad to divert to); "
+                "set [mission.alternate_pad] or fallback = 'home'"
+            )
+        if self.sim.pad_at_alternate:
+            raise ValueError("sim.pad_at_alternate = true needs mission.alternate_pad (where the simulated pad lies)")
         return self
 
     @model_validator(mode="after")

@@ -22,7 +22,7 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.udp_relay import UdpRelay
@@ -87,6 +87,45 @@ def write_fly_params(shipped: Path, out: Path, overrides: dict[str, Any]) -> Pat
     return out
 
 
+def _watch_landing(
+    truth: MavlinkTruth,
+    t_kill: float,
+    kill_n: float,
+    kill_e: float,
+    land_timeout_s: float,
+    proc: subprocess.Popen[bytes],
+    how: str,
+    stop_s: float,
+) -> tuple[float | None, float | None, float, float]:
+    """Truth until the autopilot disarms: (touchdown, disarmed) in s after the stop, the farthest
+    drift from the stop point and the fastest sink below 1 m; a frozen companion thawed on time."""
+    touchdown: float | None = None
+    disarmed: float | None = None
+    drift = 0.0
+    sink = 0.0
+    frozen = how == "freeze"
+    t_end = t_kill + land_timeout_s
+    while time.monotonic() < t_end:
+        now = time.monotonic()
+        if frozen and now - t_kill >= stop_s:
+            os.killpg(proc.pid, signal.SIGCONT)
+            frozen = False
+        drift = max(drift, math.hypot(truth.pn - kill_n, truth.pe - kill_e))
+        if -truth.pd < 1.0:
+            sink = max(sink, truth.vd)
+        if touchdown is None and -truth.pd < 0.5 and abs(truth.vd) < 0.2:
+            touchdown = now - t_kill
+        hb = truth.watched_messages("HEARTBEAT", since=t_kill)
+        if disarmed is None and hb and not hb[-1][1].base_mode & MAV_MODE_FLAG_SAFETY_ARMED:
+            disarmed = hb[-1][0] - t_kill
+        if disarmed is not None and not frozen:
+            break
+        time.sleep(0.05)
+    if frozen:
+        os.killpg(proc.pid, signal.SIGCONT)
+    return touchdown, disarmed, drift, sink
+
+
 @dataclass(frozen=True)
 class KillOutcome:
     """What the autopilot did by itself after the companion was killed (times in s after the kill)."""
@@ -104,15 +143,18 @@ class KillOutcome:
     release_commands: tuple[str, ...]  # release commands the relay forwarded to the autopilot, whole flight
     commands_after_kill: int  # any command forwarded after the kill (none: the companion is dead)
     fly_returncode: int | None
+    how: str = "kill"  # kill, freeze or hang (fly_and_kill)
+    stopped_at_unix_s: float = 0.0  # the wall clock at the stop (the companion's log lines are stamped on it)
 
     def story(self) -> str:
         modes = ", ".join(f"{t:+.1f} s {m}" for t, m in self.modes)
         fmt = lambda x: "-" if x is None else f"{x:.1f} s"  # noqa: E731
+        what = {"kill": "killed", "freeze": "frozen", "hang": "loop hung"}[self.how]
         return (
-            f"killed at {self.kill_height_m:.2f} m, {self.kill_from_pad_m:.2f} m from the pad; modes: {modes}; "
+            f"{what} at {self.kill_height_m:.2f} m, {self.kill_from_pad_m:.2f} m from the pad; modes: {modes}; "
             f"failsafe {fmt(self.failsafe_after_s)}, touchdown {fmt(self.touchdown_after_s)} (at most "
             f"{self.touchdown_speed_m_s:.2f} m/s down below 1 m), disarmed "
-            f"{fmt(self.disarmed_after_s)} after the kill; landed {self.landed_from_pad_m:.2f} m from the pad "
+            f"{fmt(self.disarmed_after_s)} after the stop; landed {self.landed_from_pad_m:.2f} m from the pad "
             f"(N {self.landed_north_east_m[0]:.2f} E {self.landed_north_east_m[1]:.2f} m from home), drift "
             f"{self.max_drift_m:.2f} m; release commands sent: {list(self.release_commands) or 'none'}"
         )
@@ -129,14 +171,23 @@ def fly_and_kill(
     pad_radius_m: float = 3.0,
     reach_timeout_s: float = 240.0,
     land_timeout_s: float = 90.0,
+    how: Literal["kill", "freeze", "hang"] = "kill",
+    stop_s: float = 15.0,
 ) -> KillOutcome:
-    """Start `companion fly`, SIGKILL it over the pad at ``kill_height_m`` on the way down, then
+    """Start `companion fly`, stop it over the pad at ``kill_height_m`` on the way down, then
     watch the autopilot (HEARTBEAT on ``truth``, which must watch HEARTBEAT) until it disarms or
-    ``land_timeout_s`` passes. ``mode_name`` turns a HEARTBEAT custom_mode into a name."""
+    ``land_timeout_s`` passes. ``mode_name`` turns a HEARTBEAT custom_mode into a name.
+
+    ``how``: ``"kill"``, SIGKILL of its process group (the computer dies); ``"freeze"``, SIGSTOP of
+    the group for ``stop_s``, then SIGCONT; ``"hang"``, its event loop blocked ``stop_s`` (SIGUSR1 to
+    :mod:`companion_firmware.hang_on_signal`), every other thread running. After a freeze or a hang
+    the companion goes on: it is watched until it exits (its mission over) or ``land_timeout_s``
+    after it is back, then killed; the commands it sent meanwhile are in the outcome."""
     with open(params, "rb") as f:
         pad = tomllib.load(f)["mission"]["pad"]
     pad_n, pad_e = float(pad["north_m"]), float(pad["east_m"])
-    cmd = [sys.executable, "-m", "companion", "fly", "--params", str(params), "--connection", connection]
+    launcher = ["companion"] if how != "hang" else ["companion_firmware.hang_on_signal", str(stop_s)]
+    cmd = [sys.executable, "-m", *launcher, "fly", "--params", str(params), "--connection", connection]
     cmd += ["--json", "--out", str(run_dir), "--timeout", str(reach_timeout_s + 60.0)]
     out = open(run_dir.parent / f"{run_dir.name}.out", "wb")  # noqa: SIM115
     proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
@@ -153,35 +204,29 @@ def fly_and_kill(
             if d < pad_radius_m and h < kill_height_m and truth.vd > 0.2:
                 break
             time.sleep(0.02)
-        os.killpg(proc.pid, signal.SIGKILL)  # the companion computer dies: every process it ran
-        t_kill = time.monotonic()
+        if how == "kill":
+            os.killpg(proc.pid, signal.SIGKILL)  # the companion computer dies: every process it ran
+        elif how == "freeze":
+            os.killpg(proc.pid, signal.SIGSTOP)  # every process it ran, every thread, stopped
+        else:
+            os.kill(proc.pid, signal.SIGUSR1)  # its event loop blocks; its other threads run on
+        t_kill, t_kill_unix = time.monotonic(), time.time()
         kill_n, kill_e, kill_h, kill_d = truth.pn, truth.pe, -truth.pd, d
-        proc.wait(5.0)
+        if how == "kill":
+            proc.wait(5.0)
+        touchdown, disarmed, drift, sink = _watch_landing(
+            truth, t_kill, kill_n, kill_e, land_timeout_s, proc, how, stop_s
+        )
+        land_n, land_e = truth.pn, truth.pe
+        if how != "kill":
+            with contextlib.suppress(subprocess.TimeoutExpired):  # its mission ends by itself, or is ended
+                proc.wait(max(0.0, t_kill + stop_s + land_timeout_s - time.monotonic()))
     finally:
         if proc.poll() is None:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(5.0)
         out.close()
-
-    touchdown: float | None = None
-    disarmed: float | None = None
-    drift = 0.0
-    sink = 0.0
-    t_end = t_kill + land_timeout_s
-    while time.monotonic() < t_end:
-        now = time.monotonic()
-        drift = max(drift, math.hypot(truth.pn - kill_n, truth.pe - kill_e))
-        if -truth.pd < 1.0:
-            sink = max(sink, truth.vd)
-        if touchdown is None and -truth.pd < 0.5 and abs(truth.vd) < 0.2:
-            touchdown = now - t_kill
-        hb = truth.watched_messages("HEARTBEAT", since=t_kill)
-        if hb and not hb[-1][1].base_mode & MAV_MODE_FLAG_SAFETY_ARMED:
-            disarmed = hb[-1][0] - t_kill
-            break
-        time.sleep(0.05)
-    land_n, land_e = truth.pn, truth.pe
 
     modes: list[tuple[float, str]] = []
     for t, m in truth.watched_messages("HEARTBEAT", since=t_kill - 1.0):
@@ -203,4 +248,20 @@ def fly_and_kill(
         release_commands=tuple(RELEASE_COMMANDS[c] for _, c in relay.commands_to_autopilot if c in RELEASE_COMMANDS),
         commands_after_kill=sum(1 for t, _ in relay.commands_to_autopilot if t > t_kill),
         fly_returncode=proc.returncode,
+        how=how,
+        stopped_at_unix_s=t_kill_unix,
     )
+
+
+def log_line_after_s(out: Path, text: str, since_unix_s: float) -> float | None:
+    """Seconds after ``since_unix_s`` of the first line of `companion`'s output (``out``, its
+    ``%(asctime)s`` log format, local time, ms) that contains ``text``; None when none does."""
+    for line in out.read_text(errors="replace").splitlines():
+        if text not in line:
+            continue
+        try:
+            stamp = time.mktime(time.strptime(line[:19], "%Y-%m-%d %H:%M:%S")) + int(line[20:23]) / 1000.0
+        except ValueError:
+            continue
+        return stamp - since_unix_s
+    return None

@@ -518,11 +518,19 @@ class DeliveryShell:
 
     # ------------------------------------------------------------------ tasks
     async def _guidance_loop(self) -> None:
+        # each tick renews the loop's liveness: a watchdog thread stops the backend's heartbeats
+        # and setpoints when it stalls, so the autopilot fails safe (autopilot.liveness)
+        with self.autopilot.liveness.watching(self.config.runtime.loop_stall_s):
+            await self._guidance_ticks()
+
+    async def _guidance_ticks(self) -> None:
         rate = RateLoop(self._clock, self.config.runtime.guidance_rate_hz)
         tc = self.autopilot.telemetry
         mission = self.mission
+        live = self.autopilot.liveness
         while not mission.phase.terminal:
             now, _ = await rate.tick_or(self._marker_fused)
+            live.renew()
             self.stats.guidance_overruns, self.stats.guidance_ticks = rate.overruns, rate.ticks
             if self._abort_reason is not None:
                 if self.recorder is not None:
