@@ -143,6 +143,14 @@ BROKEN = [
         "multicast_scouting = 'no'",
         ["zenoh.multicast_scouting = 'no'", "valid boolean"],
     ),
+    # a NaN or an infinity is refused as not finite in every kind, never compared with a limit
+    ("sitl_short.toml", "height_m = 8.0", "height_m = nan", ["mission.height_m = nan: not finite"]),
+    ("sitl_short.toml", "north_m = 14.0", "north_m = -inf", ["mission.pad.north_m = -inf: not finite"]),
+    ("sitl_short.toml", "north_m = 14.0", "north_m = 1e7", ["mission.pad.north_m = 10000000.0", "3000"]),
+    ("camera_rpi_v2.toml", "fx = 530.0", "fx = nan", ["camera.fx = nan: not finite"]),
+    ("pad_delivery.toml", "outer_size_m = 0.8", "outer_size_m = inf", ["pad.outer_size_m = inf: not finite"]),
+    ("dart_hover.toml", "hover_s = 25.0", "hover_s = nan", ["mission.hover_s = nan: not finite"]),
+    ("uwb_anchors_pad.toml", "max_range_m = 10.0", "max_range_m = inf", ["max_range_m = inf: not finite"]),
 ]
 
 
