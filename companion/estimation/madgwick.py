@@ -223,40 +223,7 @@ class MadgwickFilter:
         d2 = h * (q0 * gy - q1 * gz + q3 * gx)
         d3 = h * (q0 * gz + q1 * gy - q2 * gx)
 
-        ax, ay, az = accel_m_s2
-        an2 = ax * ax + ay * ay + az * az
-        amin = self.config.accel_min_m_s2
-        amax = self.config.accel_max_m_s2
-        if not (amin * amin <= an2 <= amax * amax):  # also False for NaN
-            self.accel_rejected += 1
-            n0, n1, n2, n3 = q0 + d0, q1 + d1, q2 + d2, q3 + d3  # gyro only (gamma = 0)
-        else:
-            # measured gravity direction in the body frame: -a/|a| (specific force is -g)
-            inv = -1.0 / math.sqrt(an2)
-            mx, my, mz = ax * inv, ay * inv, az * inv
-            # dart eq 11: f = (NED z axis in body, the 3rd row of R_world_body) - measured
-            f1 = 2.0 * (q1 * q3 - q0 * q2) - mx
-            f2 = 2.0 * (q0 * q1 + q2 * q3) - my
-            f3 = 1.0 - 2.0 * (q1 * q1 + q2 * q2) - mz
-            # grad f = J^T f (Madgwick [59] eq 20 with the NED gravity reference, dart eq 10)
-            s0 = -2.0 * q2 * f1 + 2.0 * q1 * f2
-            s1 = 2.0 * q3 * f1 + 2.0 * q0 * f2 - 4.0 * q1 * f3
-            s2 = -2.0 * q0 * f1 + 2.0 * q3 * f2 - 4.0 * q2 * f3
-            s3 = 2.0 * q1 * f1 + 2.0 * q2 * f2
-            sn = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2 + s3 * s3)
-            g = self._gamma
-            og = 1.0 - g
-            if sn > 1e-12:
-                # dart eq 12: q_a = q - mu[kT] grad f / |grad f|, mu[kT] = mu T / T_nom
-                k = self._mu * (dt / self._dt_nom) / sn
-                # dart eq 13: q = gamma q_a + (1 - gamma) q_g
-                gk = g * k
-                n0 = q0 + og * d0 - gk * s0
-                n1 = q1 + og * d1 - gk * s1
-                n2 = q2 + og * d2 - gk * s2
-                n3 = q3 + og * d3 - gk * s3
-            else:  # already at the minimum: q_a = q_prev
-                n0, n1, n2, n3 = q0 + og * d0, q1 + og * d1, q2 + og * d2, q3 + og * d3
+        n0, n1, n2, n3 = self._fuse_accel((q0, q1, q2, q3), (d0, d1, d2, d3), accel_m_s2, dt)
         n = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
         if not n > 1e-9 or n == math.inf:
             # cannot happen with finite, range-checked inputs; keep the previous attitude
@@ -267,3 +234,45 @@ class MadgwickFilter:
         inv_n = 1.0 / n
         self._q0, self._q1, self._q2, self._q3 = n0 * inv_n, n1 * inv_n, n2 * inv_n, n3 * inv_n
         return True
+
+    def _fuse_accel(
+        self,
+        q: tuple[float, float, float, float],
+        d: tuple[float, float, float, float],
+        accel_m_s2: Sequence[float],
+        dt: float,
+    ) -> tuple[float, float, float, float]:
+        """The un-normalised new quaternion from the attitude q, the gyro's increment d = T q_dot
+        and the accelerometer (dart eqs 10-13); gyro only when the specific force is out of range."""
+        q0, q1, q2, q3 = q
+        d0, d1, d2, d3 = d
+        ax, ay, az = accel_m_s2
+        an2 = ax * ax + ay * ay + az * az
+        amin = self.config.accel_min_m_s2
+        amax = self.config.accel_max_m_s2
+        if not (amin * amin <= an2 <= amax * amax):  # also False for NaN
+            self.accel_rejected += 1
+            return q0 + d0, q1 + d1, q2 + d2, q3 + d3  # gyro only (gamma = 0)
+        # measured gravity direction in the body frame: -a/|a| (specific force is -g)
+        inv = -1.0 / math.sqrt(an2)
+        mx, my, mz = ax * inv, ay * inv, az * inv
+        # dart eq 11: f = (NED z axis in body, the 3rd row of R_world_body) - measured
+        f1 = 2.0 * (q1 * q3 - q0 * q2) - mx
+        f2 = 2.0 * (q0 * q1 + q2 * q3) - my
+        f3 = 1.0 - 2.0 * (q1 * q1 + q2 * q2) - mz
+        # grad f = J^T f (Madgwick [59] eq 20 with the NED gravity reference, dart eq 10)
+        s0 = -2.0 * q2 * f1 + 2.0 * q1 * f2
+        s1 = 2.0 * q3 * f1 + 2.0 * q0 * f2 - 4.0 * q1 * f3
+        s2 = -2.0 * q0 * f1 + 2.0 * q3 * f2 - 4.0 * q2 * f3
+        s3 = 2.0 * q1 * f1 + 2.0 * q2 * f2
+        sn = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2 + s3 * s3)
+        g = self._gamma
+        og = 1.0 - g
+        if sn > 1e-12:
+            # dart eq 12: q_a = q - mu[kT] grad f / |grad f|, mu[kT] = mu T / T_nom
+            k = self._mu * (dt / self._dt_nom) / sn
+            # dart eq 13: q = gamma q_a + (1 - gamma) q_g
+            gk = g * k
+            return (q0 + og * d0 - gk * s0, q1 + og * d1 - gk * s1, q2 + og * d2 - gk * s2, q3 + og * d3 - gk * s3)
+        # already at the minimum: q_a = q_prev
+        return q0 + og * d0, q1 + og * d1, q2 + og * d2, q3 + og * d3
