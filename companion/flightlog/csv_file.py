@@ -13,7 +13,9 @@ import csv
 import logging
 import os
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TextIO
+
+from companion.flightlog.losses import cause_of, note_fault
 
 log = logging.getLogger(__name__)
 
@@ -30,16 +32,25 @@ class BatchSink(Protocol):
 class CsvFile:
     """One CSV file being written, a batch at a time: in this process (the in-process path of
     :class:`~companion.flightlog.csvlog.CsvLog`) or in the logging process. ``append``: the header is already there (the
-    file is continued). An ``OSError`` is logged once with the path; later batches are counted
-    in ``dropped``. Not thread-safe (its owner serialises)."""
+    file is continued). An ``OSError`` (a full disk, an I/O error) stops the file: said once with
+    the path and its cause (:mod:`companion.flightlog.losses`); that batch and every later one are
+    counted in ``dropped``. ``fh``: the open text file to write instead of opening ``path`` (a
+    test's file that fails). Not thread-safe (its owner serialises)."""
 
-    def __init__(self, path: Path, columns: tuple[str, ...], sink: BatchSink | None = None, append: bool = False):
+    def __init__(
+        self,
+        path: Path,
+        columns: tuple[str, ...],
+        sink: BatchSink | None = None,
+        append: bool = False,
+        fh: TextIO | None = None,
+    ):
         self.path = path
         self.written = 0
         self.dropped = 0
         self.failed: OSError | None = None
         self._sink = sink
-        self._fh = path.open("a" if append else "w", newline="", encoding="utf-8")
+        self._fh = fh if fh is not None else path.open("a" if append else "w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._fh)
         if not append:
             self._writer.writerow(columns)
@@ -72,7 +83,7 @@ class CsvFile:
         except OSError as err:
             self.failed = err
             self.dropped += n
-            log.error("%s: cannot write the log any more: %s", self.path, err)
+            stopped(self.path, err)
             return
         self.written += n
         if self._sink is not None:
@@ -82,7 +93,16 @@ class CsvFile:
         try:
             self._fh.close()
         except OSError as err:
-            log.error("%s: closing the log failed: %s", self.path, err)
+            if self.failed is None:  # else the failed batch's text, already counted and said
+                self.failed = err
+                stopped(self.path, err)
+
+
+def stopped(path: Path, err: OSError) -> None:
+    """The one line for a log file that cannot be written any more, with its cause."""
+    cause = cause_of(err, path)
+    note_fault(path, cause)
+    log.error("%s: %s: cannot write the log any more (%s); the flight goes on", path, cause.value, err)
 
 
 def cut_torn_line(path: Path) -> None:
@@ -126,7 +146,7 @@ def open_csv_file(path: Path, columns: tuple[str, ...], sink: BatchSink | None, 
     try:
         return CsvFile(path, columns, sink, append=append)
     except OSError as err:
-        log.error("%s: cannot write the log any more: %s", path, err)
+        stopped(path, err)
         return _FailedFile(path, err)
 
 

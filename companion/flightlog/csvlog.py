@@ -27,6 +27,7 @@ from typing import Protocol
 from companion.flightlog.csv_file import BatchSink, CsvFile, cut_torn_line, open_csv_file
 from companion.flightlog.handover import FLUSH_PERIOD_S, HandedOverLog, SharedWriter, close_files
 from companion.flightlog.logproc import LogProcess, client
+from companion.flightlog.losses import LossCause, cause_of, fault_of, note_lost
 from companion.flightlog.registry import CloseOrder, forget, register
 
 log = logging.getLogger(__name__)
@@ -166,6 +167,16 @@ class CsvLog(HandedOverLog):
     def closed(self) -> bool:
         return self._closed
 
+    def _say_lost(self) -> None:
+        """Once closed: what was lost, by cause (:mod:`companion.flightlog.losses`): rows a full
+        queue refused, and rows the file could not take (a full disk, an I/O error)."""
+        note_lost(self.path, LossCause.QUEUE_FULL, self._queue_dropped)
+        in_file = self.dropped - self._queue_dropped
+        if in_file:
+            failed = self._file.failed if self._file is not None else None
+            cause = fault_of(self.path) or (cause_of(failed, self.path) if failed else LossCause.IO_ERROR)
+            note_lost(self.path, cause, in_file)
+
     def close(self) -> None:
         close_logs([self])
 
@@ -181,5 +192,4 @@ def close_logs(logs: Iterable[CsvLog]) -> None:
         close_files(todo)
     finally:
         for lg in todo:
-            if lg.dropped:
-                log.warning("%s: %d rows dropped (writer could not keep up)", lg.path, lg.dropped)
+            lg._say_lost()

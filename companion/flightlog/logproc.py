@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from companion.flightlog.logproc_wire import HEADER, Op, recv
+from companion.flightlog.losses import LossCause, note_fault
 
 log = logging.getLogger(__name__)
 
@@ -266,6 +267,8 @@ class LogProcess:
         elif msg[0] == "log":
             _, level, name, text = msg
             logging.getLogger(name).log(level, "%s", text)
+        elif msg[0] == "fault":  # a file the child stopped writing (a full disk): said by its log
+            note_fault(Path(msg[1]), LossCause[msg[2]])
 
     def _die(self, reason: str, unsent: list[Op]) -> None:
         """Give up on the child: every log continues in process (see the module doc)."""

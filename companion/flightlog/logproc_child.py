@@ -7,7 +7,8 @@ process (:class:`~companion.flightlog.csv_file.CsvFile`,
 :class:`~companion.flightlog.tlog_replay.TlogReplayer`), so the bytes are the same, and flushes
 every MCAP after each message. numpy and foxglove are imported at the first MCAP, pymavlink at
 the first ``.tlog``. Its own log records (a write error, named by path) are sent back and logged
-by the parent under the same logger names. It ignores SIGINT/SIGTERM and exits when its socket
+by the parent under the same logger names, and a file that stops (its cause) is told to the
+parent as a ``fault`` message (:mod:`companion.flightlog.losses`). It ignores SIGINT/SIGTERM and exits when its socket
 closes, after writing everything it was sent and closing its files (the MCAP with its summary).
 """
 
@@ -24,8 +25,11 @@ from typing import Any
 
 from companion.flightlog.csv_file import open_csv_file
 from companion.flightlog.logproc_wire import Op, recv, send
+from companion.flightlog.losses import set_forward
 
 log = logging.getLogger(__name__)
+
+FOXGLOVE_SINK_LOGGER = "foxglove.log_sink_set"  # the SDK's warnings about messages it could not write
 
 
 class _Forward(logging.Handler):
@@ -38,6 +42,19 @@ class _Forward(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         with contextlib.suppress(Exception):  # the parent is gone: nobody to tell
             send(self._sock, ("log", record.levelno, record.name, self.format(record)))
+
+
+class _First(logging.Filter):
+    """Lets the first ``n`` records through: the MCAP SDK warns once per message it cannot log
+    (a full disk: thousands); the file's own error line says the rest."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.left = n
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        self.left -= 1
+        return self.left >= 0
 
 
 # the answer to a request the child failed to carry out: (written, dropped), (errors, messages)
@@ -152,7 +169,11 @@ def main(argv: list[str] | None = None) -> None:
     root = logging.getLogger()
     root.addHandler(_Forward(sock))
     root.setLevel(logging.WARNING)
-    _Child(sock).run()
+    logging.getLogger(FOXGLOVE_SINK_LOGGER).addFilter(_First(3))
+    child = _Child(sock)
+    # a file that stops (a full disk) is the parent's to know at once: the flight reads it there
+    set_forward(lambda path, cause: child.tell(("fault", str(path), cause.name)))
+    child.run()
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.flightlog.losses import cause_of, note_fault
 from companion.flightlog.mcap_encoding import (
     PROFILE,
     batch_encoder,
@@ -139,7 +140,9 @@ class McapFile:
     def _fail(self, err: BaseException) -> None:
         self.errors += 1
         if not self._failed:
-            log.error("%s: cannot write the MCAP any more (the CSVs go on): %s", self.path, err)
+            cause = cause_of(err, self.path)  # the SDK's error carries no errno: the disk's state says
+            note_fault(self.path, cause)
+            log.error("%s: %s: cannot write the MCAP any more (the CSVs go on): %s", self.path, cause.value, err)
         self._failed = True
 
     def stream_sink(self, name: str) -> McapStreamSink:

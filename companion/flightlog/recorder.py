@@ -49,14 +49,16 @@ import json
 import logging
 import math
 import operator
-import os
 import typing
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
 
 from companion.autopilot.types import TelemetrySample
+from companion.flightlog.atomic import Room, write_text_atomic
 from companion.flightlog.csvlog import CsvLog, close_logs
+from companion.flightlog.losses import forget as forget_losses
+from companion.flightlog.losses import losses
 from companion.flightlog.mcap_encoding import MCAP_FILE
 from companion.flightlog.mcaplog import McapFlightLog
 from companion.flightlog.streams import (
@@ -184,6 +186,8 @@ class FlightRecorder:
     def __init__(self, run_dir: str | Path, config: Any, max_queue: int = 200_000, mcap: bool | None = None):
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._room = Room(self.run_dir)  # for run.json's last version on a disk the logs filled
+        forget_losses(self.run_dir)  # what an earlier run in this folder lost is not this one's
         self._seq = itertools.count()
         self._closed = False
         self._telemetry: Any = None
@@ -226,6 +230,7 @@ class FlightRecorder:
                 lg.close()
             if self.mcap is not None:
                 self.mcap.close()
+            self._room.release()
             raise
 
     # ---- attachment ---------------------------------------------------------------------
@@ -433,11 +438,11 @@ class FlightRecorder:
         self._write_meta()
 
     # ---- closing --------------------------------------------------------------------------
-    def _write_meta(self) -> None:
-        tmp = self.run_dir / (META_FILE + ".tmp")
+    def _write_meta(self, sync: bool = False) -> None:
+        """``run.json`` replaced whole (never torn); ``sync``: fsynced (at the close, not on the
+        control path)."""
         text = json.dumps(_json_safe(self.meta), indent=1)
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, self.run_dir / META_FILE)
+        write_text_atomic(self.run_dir / META_FILE, text, sync=sync)
         if self.mcap is not None:
             self.mcap.add_meta(text)
 
@@ -459,8 +464,12 @@ class FlightRecorder:
         if self.mcap is not None:
             self.meta["mcap_errors"] = self.mcap.errors
             self.meta["mcap_dropped_images"] = self.mcap.dropped_images
+        faults = {x.path.name: x.cause.name for x in losses(self.run_dir) if x.path.parent == self.run_dir}
+        if faults:  # only then: a normal flight's run.json keeps its bytes
+            self.meta["storage_faults"] = faults
+        self._room.release()
         try:
-            self._write_meta()
+            self._write_meta(sync=True)
         except OSError as err:
             errors.append(f"{self.run_dir / META_FILE}: {err}")
         if self.mcap is not None:

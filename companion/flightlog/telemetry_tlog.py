@@ -16,6 +16,7 @@ from typing import Any
 from companion.autopilot.types import FlightMode, TelemetrySample
 from companion.flightlog.handover import FLUSH_PERIOD_S, HandedOverLog, SharedWriter
 from companion.flightlog.logproc import client
+from companion.flightlog.losses import LossCause, cause_of, fault_of, note_lost
 from companion.flightlog.registry import CloseOrder, forget, register
 from companion.flightlog.tlog import cut_torn_record
 from companion.flightlog.tlog_replay import (
@@ -182,7 +183,9 @@ class TelemetryTlog(HandedOverLog):
         self._closed = True
         forget(self, CloseOrder.TLOG)
         self._close_file()
-        if self.dropped:
-            log.warning("%s: %d MAVLink records dropped (the file could not be written)", self.path, self.dropped)
+        if self.dropped:  # only a file that could not be written drops records (the queue is unbounded)
+            failed = self._local.failed if self._local is not None else None
+            cause = fault_of(self.path) or (cause_of(failed, self.path) if failed else LossCause.IO_ERROR)
+            note_lost(self.path, cause, self.dropped, "MAVLink records")
         if self.encode_errors:
             log.warning("%s: %d MAVLink records could not be encoded", self.path, self.encode_errors)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.autopilot.types import FlightMode
+from companion.flightlog.losses import cause_of, note_fault
 from companion.flightlog.tlog import TIMESTAMP, tlog_timestamp_us, write_all
 from companion.flightlog.tlog_encoder import TelemetryEncoder
 from companion.guidance.setpoint import VelocitySetpoint
@@ -60,10 +61,12 @@ class TlogReplayer:
     :class:`TelemetryEncoder` and appends them to the file, a batch at a time (in the logging
     process, or on the writer thread when logging in process): each record is replayed at its own
     clock time, so the packets and their timestamps are those a :class:`TelemetryEncoder` writing
-    at once would give. An ``OSError`` is logged once with the path; later records are counted in
-    ``dropped``. Not thread-safe."""
+    at once would give. An ``OSError`` (a full disk) stops the file: said once with the path and
+    its cause (:mod:`companion.flightlog.losses`); that batch's records and later ones are counted
+    in ``dropped``. ``fh``: the open unbuffered binary file to write instead of opening ``path``
+    (a test's file that fails). Not thread-safe."""
 
-    def __init__(self, path: Path, params: dict[str, Any], append: bool) -> None:
+    def __init__(self, path: Path, params: dict[str, Any], append: bool, fh: typing.BinaryIO | None = None) -> None:
         self.path = Path(path)
         self.written = 0
         self.dropped = 0
@@ -73,7 +76,7 @@ class TlogReplayer:
         self._t = 0.0
         self._buf = bytearray()
         self._n = 0
-        self._fh = open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115 (closed by close())
+        self._fh = fh if fh is not None else open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115
         modes: dict[FlightMode, int] = params["custom_modes"]
         self.encoder = TelemetryEncoder(
             self,
@@ -125,7 +128,11 @@ class TlogReplayer:
         except OSError as err:
             self.failed = err
             self.dropped += n
-            log.error("%s: cannot write the MAVLink log any more: %s", self.path, err)
+            cause = cause_of(err, self.path)
+            note_fault(self.path, cause)
+            log.error(
+                "%s: %s: cannot write the MAVLink log any more (%s); the flight goes on", self.path, cause.value, err
+            )
             return
         self.written += n
 
@@ -138,7 +145,8 @@ class TlogReplayer:
         try:
             self._fh.close()
         except OSError as err:
-            log.error("%s: closing the MAVLink log failed: %s", self.path, err)
+            if self.failed is None:  # else said when it stopped
+                log.error("%s: closing the MAVLink log failed: %s", self.path, err)
 
 
 class _FailedReplayer(TlogReplayer):
@@ -165,5 +173,7 @@ def open_replayer(path: Path, params: dict[str, Any]) -> TlogReplayer:
     try:
         return TlogReplayer(path, params, append=True)
     except OSError as err:
-        log.error("%s: cannot write the MAVLink log any more: %s", path, err)
+        cause = cause_of(err, path)
+        note_fault(path, cause)
+        log.error("%s: %s: cannot write the MAVLink log any more (%s); the flight goes on", path, cause.value, err)
         return _FailedReplayer(path, err)

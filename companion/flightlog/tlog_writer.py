@@ -21,9 +21,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
+from typing import BinaryIO
 
 from companion.autopilot.interface import PacketSource
 from companion.autopilot.mavlink_messages import UnknownMessage
+from companion.flightlog.losses import LossCause, cause_of, fault_of, note_fault, note_lost
 from companion.flightlog.tlog import TIMESTAMP, tlog_timestamp_us, write_all
 
 log = logging.getLogger(__name__)
@@ -57,7 +59,9 @@ class TlogWriter:
 
     ``clock`` gives the UNIX time of a packet written without an explicit time (default
     ``time.time``; the simulator maps its loop clock onto a fixed epoch). The file is opened
-    (and truncated, unless ``append``) here, so a bad path fails at once with a clear error.
+    (and truncated, unless ``append``) here, so a bad path fails at once with a clear error. A
+    write error (a full disk) stops the writer: said once with its cause
+    (:mod:`companion.flightlog.losses`), the packets refused from then on counted in ``dropped``.
     """
 
     def __init__(
@@ -68,6 +72,7 @@ class TlogWriter:
         drop_when_full: bool = True,
         append: bool = False,
         clock: Callable[[], float] = time.time,
+        fh: BinaryIO | None = None,
     ):
         if max_queue < 1:
             raise ValueError(f"max_queue = {max_queue}: must be >= 1")
@@ -76,12 +81,14 @@ class TlogWriter:
         self.drop_when_full = drop_when_full
         self.written = 0  # records on disk
         self.dropped = 0  # packets refused: queue full, or the writer has failed or closed
+        self.queue_dropped = 0  # of which: the queue was full
         self.encode_errors = 0  # deferred packets whose build function raised
         self.unknown_messages: dict[str, int] = {}  # messages the dialect does not define, by name or id
         self.error: str | None = None  # why the writer thread stopped early, if it did
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fh = open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115 (closed by the writer thread)
+            # closed by the writer thread; ``fh``: an open unbuffered file instead (a test's that fails)
+            self._fh = fh if fh is not None else open(self.path, "ab" if append else "wb", buffering=0)  # noqa: SIM115
         except OSError as err:
             raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
         self._q: queue.Queue[object] = queue.Queue(max_queue)
@@ -112,6 +119,7 @@ class TlogWriter:
                 self._q.put_nowait(item)
             except queue.Full:
                 self.dropped += records
+                self.queue_dropped += records
                 return False
             return True
         while True:
@@ -176,10 +184,9 @@ class TlogWriter:
             except queue.Full:
                 continue
         self._thread.join()
-        if self.dropped:
-            log.warning(
-                "%s: %d MAVLink packets dropped (queue full, or the writer had stopped)", self.path, self.dropped
-            )
+        note_lost(self.path, LossCause.QUEUE_FULL, self.queue_dropped, "MAVLink packets")
+        stopped = self.dropped - self.queue_dropped  # refused once the writer had stopped (a full disk)
+        note_lost(self.path, fault_of(self.path) or LossCause.IO_ERROR, stopped, "MAVLink packets")
         if self.encode_errors:
             log.warning("%s: %d MAVLink packets could not be encoded", self.path, self.encode_errors)
         if self.unknown_messages:
@@ -203,7 +210,14 @@ class TlogWriter:
         except Exception as err:  # disk full, I/O error: keep what is written, refuse the rest
             self.error = f"{type(err).__name__}: {err}"
             self._dead = True
-            log.error("%s: MAVLink log writer stopped: %s (everything before is kept)", self.path, self.error)
+            cause = cause_of(err, self.path)
+            note_fault(self.path, cause)
+            log.error(
+                "%s: %s: MAVLink log writer stopped: %s (everything before is kept; the flight goes on)",
+                self.path,
+                cause.value,
+                self.error,
+            )
         finally:
             self._dead = True
             self._release_waiters()

@@ -24,6 +24,7 @@ from companion.flightlog import logproc
 from companion.flightlog.csv_file import read_csv
 from companion.flightlog.csvlog import CsvLog, close_logs
 from companion.flightlog.logproc import LogProcess
+from companion.flightlog.losses import Loss, LossCause, losses
 from companion.flightlog.mcap_encoding import stream_topic
 from companion.flightlog.mcaplog import McapFlightLog
 
@@ -215,10 +216,13 @@ def test_a_write_error_in_the_logging_process_is_logged_once_by_path(tmp_path, c
             logproc.flush_current()
         lg.close()
     errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
-    # once, by path (the close's own flush fails too, and says so, as in process)
+    # once, by path and cause, when it stopped; then once what it lost, at its close
     assert sum("cannot write the log any more" in e for e in errors) == 1, errors
-    assert all(e.startswith(f"{p}: ") for e in errors), errors
+    assert [e for e in errors if not e.startswith(f"{p}: disk full: ")] == [
+        f"disk full: 30 rows of full.csv lost ({p.parent})"
+    ], errors
     assert (lg.written, lg.dropped) == (0, 30)
+    assert losses(tmp_path) == [Loss(p, LossCause.DISK_FULL, 30, "rows")]
 
 
 def test_the_in_process_switch(tmp_path, monkeypatch):
