@@ -26,6 +26,7 @@ from companion.delivery.mission import MissionOutput
 from companion.delivery.planning import pad_config_ned, pad_position_ned
 from companion.delivery.shell import FLIGHT_LOG_COLUMNS, DeliveryShell
 from companion.events import Phase
+from companion.flightlog.atomic import write_text_atomic
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
@@ -348,7 +349,10 @@ async def fly(
         summary_json["speedup"] = result.speedup
         summary_json["true_pad_ned_m"] = [pad_n, pad_e]
         summary_json.update(path_summary(config, scorer))
-        (run_dir / "summary.json").write_text(json.dumps(summary_json, indent=2, default=_json_default))
+        try:  # whole or not at all; a full disk keeps the flight's result (the caller prints it)
+            write_text_atomic(run_dir / "summary.json", json.dumps(summary_json, indent=2, default=_json_default))
+        except OSError as err:
+            log.error("%s: cannot write the summary: %s (the result is printed, not saved)", run_dir, err)
     return result
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 from pathlib import Path
 
 
@@ -17,9 +19,51 @@ def positive_int(text: str) -> int:
     return n
 
 
-def output_folder(out: str | None, default_name: str) -> Path:
-    """The folder a command writes into (``--out``, else ``runs/<default_name>``), created now, so
-    that a path that cannot be a folder is refused before anything runs (exit 2)."""
+# the least free space a flight's run folder is started with: the 160 s fused demo writes 42 MB
+# (flight.mcap 32 MB of it, the camera's frames), the short demo 5 MB; a longer flight needs more,
+# and a disk that fills in flight stops the logs, not the flight (docs/logs.md)
+FLIGHT_LOGS_MIN_BYTES = 64 * 1024 * 1024
+# a campaign's result files and figures (a landing campaign's JSON and PNGs: under 1 MB)
+RESULTS_MIN_BYTES = 4 * 1024 * 1024
+_PROBE = b"companion: this folder takes writes\n"
+
+
+def check_writable(folder: Path, need_bytes: int, option: str = "--out") -> None:
+    """Refuse (exit 2, one line) a folder that cannot take a run: write and fsync a small probe
+    file there (a read-only or failing file system says so now, not in flight) and check the
+    free space against ``need_bytes``. ``option``: how the command line names the folder."""
+    from companion.cli import exits
+    from companion.cli.exits import StartupError
+
+    probe = folder / f".companion-probe-{os.getpid()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.write(fd, _PROBE)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        probe.unlink()
+        st = os.statvfs(folder)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+        raise StartupError(
+            f"{option} {folder}: cannot write there: {err.strerror}; pass another {option}", exits.BAD_INPUT
+        ) from None
+    free = st.f_bavail * st.f_frsize
+    if free < need_bytes:
+        raise StartupError(
+            f"{option} {folder}: {free / 1e6:.1f} MB free, a run needs at least {need_bytes / 1e6:.0f} MB; "
+            f"free some space or pass another {option}",
+            exits.BAD_INPUT,
+        )
+
+
+def output_folder(out: str | None, default_name: str, need_bytes: int = FLIGHT_LOGS_MIN_BYTES) -> Path:
+    """The folder a command writes into (``--out``, else ``runs/<default_name>``), created now and
+    probed (:func:`check_writable`, ``need_bytes`` free), so that a path that cannot be a folder,
+    a read-only or a full one is refused before anything runs (exit 2)."""
     from companion.cli import exits
     from companion.cli.exits import StartupError
 
@@ -34,4 +78,5 @@ def output_folder(out: str | None, default_name: str) -> Path:
         raise StartupError(
             f"--out {folder}: cannot create the folder: {err.strerror}; pass another --out", exits.BAD_INPUT
         ) from None
+    check_writable(folder, need_bytes)
     return folder

@@ -7,11 +7,10 @@ import json
 import logging
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
-from companion.cli.args import output_folder, positive_int
+from companion.cli.args import RESULTS_MIN_BYTES, output_folder, positive_int
 from companion.units import format_cm
 
 log = logging.getLogger(__name__)
@@ -59,7 +58,7 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         def on_progress(variant: str, done: int, total: int) -> None:
             progress.update(task, description=variant, completed=done)
 
-        out = output_folder(args.out, time.strftime("landing-%Y%m%d-%H%M%S"))
+        out = output_folder(args.out, time.strftime("landing-%Y%m%d-%H%M%S"), RESULTS_MIN_BYTES)
         if args.autopilot:
             from companion_lab.real_campaign import run_real_landing_campaign
 
@@ -149,10 +148,11 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
     from companion_lab.real_campaign import run_parity
 
     variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
-    out = Path(args.out) if args.out else None
     if args.weather and args.autopilot != "ardupilot":
         print("companion campaign parity: --weather needs --autopilot ardupilot (PX4 SIH has no wind)", file=sys.stderr)
         return exits.BAD_INPUT
+    # a named folder is probed now (read-only, full: exit 2); the default one is made by run_parity
+    out = output_folder(args.out, "", RESULTS_MIN_BYTES) if args.out else None
     result = run_parity(args.autopilot, args.n, args.seed, args.params, out, variants, weather=args.weather)
     console = make_console()
     for v, c in result["comparison"].items():
@@ -179,7 +179,7 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
 def cmd_campaign_probe(args: argparse.Namespace) -> int:
     from companion_lab.firmware_probe import run_probe
 
-    out = output_folder(args.out, time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S"))
+    out = output_folder(args.out, time.strftime(f"probe-{args.autopilot}-%Y%m%d-%H%M%S"), RESULTS_MIN_BYTES)
     fig = run_probe(args.autopilot, out)
     for k, v in sorted(fig.items()):
         print(f"{k:48s} {json.dumps(v)}")

@@ -24,7 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from companion.cli.args import positive_int
+from companion.cli.args import RESULTS_MIN_BYTES, check_writable, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,7 @@ def _cmd_campaign_dart(args: argparse.Namespace) -> int:
         except OSError as exc:
             print(f"error: --json {args.json}: {exc}")
             return 2
+        check_writable(Path(args.json).parent, RESULTS_MIN_BYTES, "--json")  # read-only, full: exit 2
     console = make_console()
     try:
         with Progress(console=console, transient=True, disable=args.quiet) as bar:

@@ -114,10 +114,12 @@ def _camera_playback(args: argparse.Namespace, cfg: CompanionConfig) -> Any:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from rich.markup import escape
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from companion.cli.console import make_console
     from companion.delivery.landing_setup import LandingSetupError
+    from companion.flightlog.losses import describe as describe_losses
     from companion.flightlog.plots import plot_run
     from companion_lab.demo import run_demo
 
@@ -176,7 +178,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
             )
         except LandingSetupError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
-    plots = plot_run(run_dir) if result.phase != "preflight" and (run_dir / "summary.json").exists() else []
+    plots: list[Path] = []
+    if result.phase != "preflight" and (run_dir / "summary.json").exists():
+        try:
+            plots = plot_run(run_dir)
+        except OSError as err:  # a full disk: the result is printed all the same
+            log.error("%s: cannot write the figures: %s", run_dir, err)
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
     console.print(
@@ -208,14 +215,20 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ),
         (
             "run folder",
-            f"{run_dir}  (flight.csv, truth.csv, events.csv, summary.json"
+            f"{run_dir}  (flight.csv, truth.csv, events.csv"
+            f"{', summary.json' if (run_dir / 'summary.json').exists() else ''}"
             f"{', ' + ', '.join(p.name for p in plots) if plots else ''})",
         ),
     ]
     for k, v in rows:
         console.print(f"  {k:<62} {v}")
     console.print(f"  scored reference: {result.path_reference}")
-    return 0 if ok else 1
+    lost = describe_losses(run_dir)
+    if lost:
+        console.print(f"[bold red]{escape(lost)}[/]: {escape(str(run_dir))} holds the flight up to where they stopped")
+    if not ok:
+        return exits.FAILED
+    return exits.LOGS_INCOMPLETE if lost else exits.OK
 
 
 def register_demo(sub: Any) -> None:

@@ -33,6 +33,9 @@ PREFLIGHT_FAILED = 6
 #: the Dask cluster of ``campaign landing --cluster`` could not be used: no scheduler answered, it
 #: has no worker, or a worker runs another environment (code, Python, numeric libraries)
 CLUSTER_UNAVAILABLE = 7
+#: the flight ended (``fly`` delivered, ``demo`` done) but its logs are incomplete: a full disk or
+#: an I/O error stopped a log file, or rows were dropped (``companion.flightlog.losses``)
+LOGS_INCOMPLETE = 8
 #: Ctrl-C before the command finished
 INTERRUPTED = 130
 

@@ -14,6 +14,7 @@ import logging
 import signal
 import socket
 import statistics
+import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -22,10 +23,12 @@ from typing import Any
 from companion.autopilot import factory
 from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDeviceMissing
 from companion.cli import exits
+from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
 from companion.delivery.shell import DeliveryShell
+from companion.flightlog.losses import describe as describe_losses
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
@@ -153,6 +156,9 @@ def preflight_hook(
         req = sensor_requirements(config, requirements_from_config(config), kit)
         cam, uwb = await asyncio.to_thread(probe_sensors, config, kit, True)  # the sensors run already
         report = await preflight(autopilot, req, camera=cam, uwb=uwb, realtime=probe_realtime(config))
+        from companion.timebase import vehicle_clock
+
+        vehicle_clock().judge(report.clock, report.clock_offset_s)  # decides on signed ground requests
         for c in report.checks:
             log.info("pre-flight %s: %s (%s) %s", c.name, c.status.value, c.value, c.detail)
         if not report.passed:
@@ -241,6 +247,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
             raise StartupError(
                 f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
             ) from None
+        check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
         new_folder = not any(run_dir.iterdir())
         try:
             with exits.flight_startup_errors(where, args.params, config):
@@ -278,8 +285,13 @@ def cmd_fly(args: argparse.Namespace) -> int:
         )
     else:
         display.print_summary(summary, run_dir)
+    lost = describe_losses(run_dir)  # a full disk, an I/O error: the flight went on, its logs stopped
+    if lost:
+        print(f"companion fly: {lost}: {run_dir} holds the flight up to where they stopped", file=sys.stderr)
     if summary.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C / SIGTERM in flight: held, landed, ended
         return exits.INTERRUPTED
+    if lost and summary.delivered and not summary.failure:  # delivered, but the logs were cut
+        return exits.LOGS_INCOMPLETE
     return exits.OK if summary.delivered and not summary.failure else exits.FAILED
 
 

@@ -18,12 +18,14 @@ import math
 import signal
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
+from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
 from companion.config import CompanionConfig
 from companion.delivery.mission import FailureKind
 from companion.events import MissionEvent
@@ -176,7 +178,7 @@ class OrderSession:
     """What ``fly --orders`` did: the flights, and every order event (accepted, refused, flown)."""
 
     flights: list[FlownOrder] = field(default_factory=list)
-    events: list[MissionEvent] = field(default_factory=list)
+    events: deque[MissionEvent] = field(default_factory=lambda: deque(maxlen=1000))  # the latest
     accepted: int = 0
     refused: int = 0
 
@@ -194,7 +196,14 @@ def order_settings(config: CompanionConfig) -> Any:
         )
     try:
         secret = CommandSettings.read_secret(c.secret_file)
-        return CommandSettings(enabled=True, secret=secret, window_s=c.window_s, max_nonces=c.max_nonces)
+        return CommandSettings(
+            enabled=True,
+            secret=secret,
+            window_s=c.window_s,
+            max_nonces=c.max_nonces,
+            rate_per_s=c.rate_per_s,
+            burst=c.burst,
+        )
     except (OSError, ValueError) as err:
         raise ConfigError("telemetry.commands.secret_file", [str(err)]) from None
 
@@ -273,6 +282,8 @@ async def serve_orders(
 
         def follow(sh: Any, o: Any) -> None:
             desk.phase = sh.mission.phase
+            if sh.telemetry is not None:  # the health topic counts refused orders too
+                sh.telemetry.publisher.count_refusals("orders", lambda: desk.refused)
             if on_tick is not None:
                 on_tick(sh, o)
 
@@ -380,6 +391,7 @@ def cmd_fly_orders(
         raise StartupError(
             f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
         ) from None
+    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
     quiet = getattr(args, "json", False)
 
     def say(ev: MissionEvent) -> None:

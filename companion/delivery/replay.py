@@ -35,6 +35,7 @@ import numpy as np
 
 from companion.flightlog.csv_file import format_cell
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.losses import LossCause
 from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
 from companion.flightlog.streams import (
     EKF_COLUMNS,
@@ -488,8 +489,18 @@ def replay_run(
     shell = _ReplayShell(meta, run)
     if meta.get("errors"):
         shell.notes.append(f"the recorder reported {meta['errors']} logging failure(s): the log is incomplete")
+    faults = meta.get("storage_faults") or {}
+    if faults:  # a full disk, an I/O error (companion.flightlog.losses): named by their cause
+        causes = sorted({LossCause[c].value for c in faults.values() if c in LossCause.__members__})
+        shell.notes.append(
+            f"run.json: {len(faults)} log file(s) stopped in flight ({', '.join(causes) or 'storage fault'}): "
+            "the replay covers the flight up to there"
+        )
     if not meta.get("closed"):
-        shell.notes.append("run.json says the recorder was never closed (the process died): the log may end early")
+        shell.notes.append(
+            "run.json says the recorder was never closed (the process died, or the disk was full when it closed): "
+            "the log may end early"
+        )
     seqs = [i.seq for i in inputs]
     missing = (seqs[-1] + 1 - len(seqs)) if seqs else 0
     rec_ekf = {int(tables["ekf.csv"].text(k, "seq")): tables["ekf.csv"].rows[k] for k in range(len(tables["ekf.csv"]))}

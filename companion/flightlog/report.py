@@ -334,6 +334,20 @@ def _fig_path_from_logs(run: Path, meta: dict[str, Any], out: Path) -> list[Path
     return [f1, f2]
 
 
+def summary_missing(run: Path) -> str:
+    """Why a run folder has no ``summary.json`` to read ("" when it has one): missing, or empty
+    (written by a version that did not write it whole, on a disk that filled)."""
+    f = run / "summary.json"
+    try:
+        if not f.read_text(encoding="utf-8").strip():
+            return "empty (the flight's end could not write it)"
+    except FileNotFoundError:
+        return "missing"
+    except OSError as err:
+        return f"unreadable: {err.strerror}"
+    return ""
+
+
 def _check_plot_run_inputs(run: Path) -> None:
     """plot_run's inputs, read with errors that name the file and column."""
     try:
@@ -386,11 +400,14 @@ def make_report(
             results.extend(FigureResult(n, t, None, str(why)) for n, t in zip(names, titles, strict=True))
 
     def fig8_9() -> list[Path]:
-        if (run / "summary.json").exists() and (run / "truth.csv").exists() and (run / "flight.csv").exists():
+        no_summary = summary_missing(run)
+        if not no_summary and (run / "truth.csv").exists() and (run / "flight.csv").exists():
             _check_plot_run_inputs(run)
             return plot_run(run, out)
         if meta is None:
             raise FigureSkipped(f"neither summary.json + truth.csv + flight.csv (simulator) nor {META_FILE}")
+        if no_summary and (run / "truth.csv").exists():  # a demo's folder whose summary was not written
+            log.warning("%s: %s; the path figures are drawn from the logs instead", run / "summary.json", no_summary)
         return _fig_path_from_logs(run, meta, out)
 
     def need_meta() -> dict[str, Any]:

@@ -299,3 +299,10 @@ def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp
     r2 = replay_run(run, tmp_path / "r2")
     # the px4-sih profile's attitude error is 1-2 deg: the EKF's attitude follows it without the level pad
     assert r2.streams["ekf.csv"].max_abs_diff.get("roll_rad", 0.0) > 0.005, "\n".join(r2.lines())
+
+
+def test_a_folder_with_an_empty_summary_replays(run_copy, capsys):
+    # replay does not need summary.json: an empty one (a disk full at the flight's end) changes nothing
+    (run_copy / "summary.json").write_text("")
+    assert main(["replay", str(run_copy)]) == 0
+    assert "IDENTICAL" in capsys.readouterr().out

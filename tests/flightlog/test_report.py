@@ -134,3 +134,22 @@ def test_cli_report(run_copy, capsys):
     out = capsys.readouterr().out
     assert "5 figure(s) written, 2 skipped" in out and "skipped: no landing_campaign.json" in out
     assert sorted(p.name for p in (run_copy / "figs").iterdir()) == sorted(FLIGHT_FIGURES)
+
+
+@pytest.mark.parametrize("state", ["empty", "missing"])
+def test_a_demo_folder_without_its_summary_still_gets_its_figures(run_copy, capsys, caplog, state):
+    # a full disk at the flight's end (an older version left summary.json empty): said, not refused
+    if state == "empty":
+        (run_copy / "summary.json").write_text("")
+    else:
+        (run_copy / "summary.json").unlink()
+    assert main(["report", str(run_copy), "--out", str(run_copy / "figs")]) == 0
+    assert "5 figure(s) written" in capsys.readouterr().out
+    for name in FLIGHT_FIGURES:
+        _assert_real_image(run_copy / "figs" / name)
+    said = [r.getMessage() for r in caplog.records if "summary.json" in r.getMessage()]
+    assert said == [
+        f"{run_copy / 'summary.json'}: {state}"
+        + (" (the flight's end could not write it)" if state == "empty" else "")
+        + "; the path figures are drawn from the logs instead"
+    ]
