@@ -500,6 +500,24 @@ def aruco_model(x: np.ndarray, T_body_camera: Transform, T_world_marker: Transfo
             math.atan2(m10, m00),
         ]
     )
+    C = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
+    M = (m00, m01, m02, m10, m11, m12, m20, m21, m22)
+    return hx, _aruco_jacobian_block(C, M, (q0, q1, q2), m20c, (cp, sp, cy, sy))
+
+
+def _aruco_jacobian_block(
+    C: tuple[float, ...],
+    M: tuple[float, ...],
+    q: tuple[float, float, float],
+    m20c: float,
+    pitch_yaw: tuple[float, float, float, float],
+) -> np.ndarray:
+    """:func:`aruco_model`'s 6x6 d h / d(p, r) from C = R_cb R_wb^T, M = C R_wm and q = C d (each
+    row by row), M[2, 0] clipped to [-1, 1] and (cos, sin) of pitch and yaw."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = C
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = M
+    q0, q1, q2 = q
+    cp, sp, cy, sy = pitch_yaw
     # b_k = C a_k, a_k the columns of [[cy cp, -sy, 0], [sy cp, cy, 0], [-sp, 0, 1]] (zero terms left out)
     a00, a10 = cy * cp, sy * cp
     B0 = (c00 * a00 + c01 * a10 + c02 * -sp, c00 * -sy + c01 * cy, c02)  # first components of b_0, b_1, b_2
@@ -526,7 +544,7 @@ def aruco_model(x: np.ndarray, T_body_camera: Transform, T_world_marker: Transfo
             -dM20 / den_pitch,  # d pitch(M) / d angle_k
             (m00 * dM10 - m10 * dM00) / den_yaw,  # d yaw(M) / d angle_k
         )
-    return hx, np.array(Ht).reshape(6, 6).T
+    return np.array(Ht).reshape(6, 6).T
 
 
 # ----------------------------------------------------------------------------------------------
