@@ -186,6 +186,50 @@ def _overridden(obj: Autopilot, name: str) -> bool:
     return getattr(type(obj), name) is not getattr(Autopilot, name)
 
 
+def _choose_output(autopilot: Autopilot, output: Output | None, rt: DartRuntimeConfig) -> Output:
+    """The output asked for, or the one the backend takes (RC overrides first, then attitude
+    setpoints); refused when RC overrides would read the pilot's sticks with the overrides on."""
+    if output is None:
+        if _overridden(autopilot, "send_rc_override"):
+            output = "rc_override"
+        elif _overridden(autopilot, "set_attitude_target"):
+            output = "attitude"
+        else:
+            raise AutopilotError(
+                f"{type(autopilot).__name__} takes neither RC overrides nor attitude setpoints: "
+                "the Dart cyber-pilot cannot fly it"
+            )
+    if output not in ("rc_override", "attitude"):
+        raise ValueError(f"output = {output!r}: must be 'rc_override' or 'attitude'")
+    if output == "rc_override" and not rt.pilot_mirrored:
+        raise ValueError(
+            f"[runtime] pilot_channels = {rt.pilot_channels}: equal to stick_channels, but ArduPilot reports "
+            "RC_CHANNELS with the overrides applied, so the pilot's sticks must be mirrored on other channels "
+            "by the transmitter (e.g. 9-12)"
+        )
+    return output
+
+
+def _mixer_config(rt: DartRuntimeConfig) -> RcMixerConfig:
+    """The RC mixer's channels, reversals, switch and authority from ``[runtime]``."""
+    r, pi, t, y = rt.stick_channels
+    rr, pr, tr, yr = rt.stick_reversed
+    return RcMixerConfig(
+        roll_channel=r,
+        pitch_channel=pi,
+        throttle_channel=t,
+        yaw_channel=y,
+        roll_reversed=rr,
+        pitch_reversed=pr,
+        throttle_reversed=tr,
+        yaw_reversed=yr,
+        switch_channel=rt.switch_channel,
+        engage_above_us=rt.engage_above_us,
+        max_contribution_us=rt.max_contribution_us,
+        release_when_disengaged=True,
+    )
+
+
 class DartShell:
     """Runs the Dart cyber-pilot against ``autopilot`` with frames from ``camera`` (a
     ``companion.cameras`` plugin instance, frames stamped on this loop's clock)."""
@@ -207,25 +251,7 @@ class DartShell:
         rt = self.rt = p.runtime
         self.autopilot = autopilot
         self.camera = camera
-        if output is None:
-            if _overridden(autopilot, "send_rc_override"):
-                output = "rc_override"
-            elif _overridden(autopilot, "set_attitude_target"):
-                output = "attitude"
-            else:
-                raise AutopilotError(
-                    f"{type(autopilot).__name__} takes neither RC overrides nor attitude setpoints: "
-                    "the Dart cyber-pilot cannot fly it"
-                )
-        if output not in ("rc_override", "attitude"):
-            raise ValueError(f"output = {output!r}: must be 'rc_override' or 'attitude'")
-        if output == "rc_override" and not rt.pilot_mirrored:
-            raise ValueError(
-                f"[runtime] pilot_channels = {rt.pilot_channels}: equal to stick_channels, but ArduPilot reports "
-                "RC_CHANNELS with the overrides applied, so the pilot's sticks must be mirrored on other channels "
-                "by the transmitter (e.g. 9-12)"
-            )
-        self.output: Output = output
+        self.output: Output = _choose_output(autopilot, output, rt)
         self.clock: Clock = clock or LoopClock()
         self.rates = rt.rates
         self.estimator: DartEstimator = make_estimator(rt.estimator_name, estimator_config(rt))
@@ -236,22 +262,7 @@ class DartShell:
         self.detector = PadDetector(self.camera_model, self.layout)
         self.mission = DartMission(p.mission)
         self.controller = DartController(p.control.controller_config(rt.control_hz))
-        r, pi, t, y = rt.stick_channels
-        rr, pr, tr, yr = rt.stick_reversed
-        self.mixer_config = RcMixerConfig(
-            roll_channel=r,
-            pitch_channel=pi,
-            throttle_channel=t,
-            yaw_channel=y,
-            roll_reversed=rr,
-            pitch_reversed=pr,
-            throttle_reversed=tr,
-            yaw_reversed=yr,
-            switch_channel=rt.switch_channel,
-            engage_above_us=rt.engage_above_us,
-            max_contribution_us=rt.max_contribution_us,
-            release_when_disengaged=True,
-        )
+        self.mixer_config = _mixer_config(rt)
         self.mixer = RcMixer(self.mixer_config, on_disengage=self._on_disengage)
         self.attitude_map = AttitudeMapConfig(
             max_tilt_rad=math.radians(rt.max_tilt_deg), max_yaw_rate_rad_s=math.radians(rt.max_yaw_rate_deg_s)
