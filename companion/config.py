@@ -989,6 +989,22 @@ class GcsConfig(_Section):
         "-",
         "act on hold, return and land COMMAND_LONGs addressed to our component (false: answered DENIED)",
     )
+    command_system_ids: tuple[int, ...] = _f(
+        (255,),
+        "-",
+        "the MAVLink system ids whose COMMAND_LONGs our component acts on (255: QGroundControl's, Mission "
+        "Planner's and MAVProxy's default); any other sender's are dropped unanswered, counted and logged, as "
+        "are unsigned ones on a signed ArduPilot link (docs/gcs.md, Who may command it)",
+        min_length=1,
+    )
+
+    @field_validator("command_system_ids")
+    @classmethod
+    def _command_ids(cls, v: tuple[int, ...]) -> tuple[int, ...]:
+        bad = [i for i in v if not 1 <= i <= 255]
+        if bad:
+            raise ValueError(f"{bad}: expected MAVLink system ids 1..255")
+        return v
 
 
 class LandingConfig(_Section):

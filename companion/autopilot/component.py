@@ -30,7 +30,8 @@ STATUSTEXT_LEN = 50  # characters of one STATUSTEXT; longer texts go in chunks (
 @dataclass(frozen=True, slots=True)
 class ComponentCommand:
     """A COMMAND_LONG addressed to the companion's component; ``time_s`` its receipt on the
-    shell's monotonic clock, ``params`` param1..param7."""
+    shell's monotonic clock, ``params`` param1..param7. ``signed``: on a link that signs, whether
+    this packet carried a signature our key verified; None where the link does not sign."""
 
     time_s: float
     source_system: int
@@ -38,6 +39,7 @@ class ComponentCommand:
     command: int
     confirmation: int
     params: tuple[float, float, float, float, float, float, float]
+    signed: bool | None = None
 
     def validate(self) -> ComponentCommand:
         if len(self.params) != 7:

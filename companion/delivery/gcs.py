@@ -124,6 +124,8 @@ class GcsComponent:
         self.ids: tuple[int, int] | None = None  # (system, component) once open
         self.texts_sent = 0
         self.commands: list[tuple[int, int, str]] = []  # (MAV_CMD, MAV_RESULT, reply)
+        self.refused = 0  # commands dropped: from a system not allowed, or unsigned on a signed link
+        self.refused_by_system: dict[int, int] = {}
         self._text_id = 0
         self._status_task: asyncio.Task[None] | None = None
         self._host = HostStatusReader()
@@ -169,8 +171,33 @@ class GcsComponent:
             if self.autopilot.send_from_component("STATUSTEXT", fields):
                 self.texts_sent += 1
 
+    def _refuse(self, cmd: ComponentCommand) -> bool:
+        """A command from a system not in ``command_system_ids``, or unsigned on a signed link: dropped
+        unanswered (an answer would only help whoever forged it), counted, logged sampled."""
+        why = ""
+        if cmd.source_system not in self.cfg.command_system_ids:
+            why = f"system {cmd.source_system} is not in gcs.command_system_ids {list(self.cfg.command_system_ids)}"
+        elif cmd.signed is False:
+            why = f"system {cmd.source_system} sent it unsigned on a signed link"
+        if not why:
+            return False
+        self.refused += 1
+        n = self.refused_by_system[cmd.source_system] = self.refused_by_system.get(cmd.source_system, 0) + 1
+        if n in (1, 10, 100) or n % 1000 == 0:
+            log.warning(
+                "COMMAND_LONG %d from %d/%d refused (%d from it so far): %s",
+                cmd.command,
+                cmd.source_system,
+                cmd.source_component,
+                n,
+                why,
+            )
+        return True
+
     def _on_command(self, cmd: ComponentCommand) -> None:
         """A COMMAND_LONG addressed to us (on the loop): to the mission, then the COMMAND_ACK."""
+        if self._refuse(cmd):
+            return
         kind = mission_kind(cmd)
         if kind is None:
             result, reply = MAV_RESULT_UNSUPPORTED, f"command {cmd.command} not supported (hold, return, land)"

@@ -209,3 +209,141 @@ async def test_gcs_sees_and_commands_the_companion(mav, udp_port, dialect):
     # the vehicle itself acted on none of it (addressed to the companion)
     assert sim.stats.commands[20] == 0 and sim.stats.commands[17] == 0
     assert status.time_usec > 1.6e15  # the Unix clock, microseconds
+
+
+class _Forger(_Gcs):
+    """Someone else on the link: speaks as whatever (system, component) it likes."""
+
+    def as_(self, sysid: int, compid: int) -> _Forger:
+        self.enc = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        return self
+
+
+# what a forger claims: the vehicle in companion control, armed (each dialect's custom mode)
+_FORGED_HEARTBEAT = {
+    "px4": (mavlink.MAV_AUTOPILOT_PX4, 6 << 16),  # OFFBOARD
+    "ardupilot": (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 4),  # GUIDED
+}
+
+
+@pytest.mark.parametrize("dialect", ["px4", "ardupilot"])
+async def test_commands_and_heartbeats_from_anyone_else_change_nothing(mav, udp_port, dialect, caplog):
+    """On the sim vehicle's routed link: a COMMAND_LONG RTL to 1/191 from system 200 reaches the
+    companion but not the mission (refused, counted, logged, not answered), while the same from the
+    GCS (255) does; HEARTBEATs claiming an armed vehicle in companion control from (1, 190) and
+    from (2, 1) never change the vehicle's mode or armed state as the backend reports them."""
+    config = mav.short_config()
+    asked: list[tuple[str, str]] = []
+
+    def command(kind: str, sender: str) -> str:
+        asked.append((kind, sender))
+        return "returning home along the path"
+
+    with mav.sim_vehicle(config, dialect, udp_port, route_peers=True) as sim:
+        if dialect == "px4":
+            ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}", component_id=191)
+        else:
+            ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        gcs, forger = _Gcs(sim.address), _Forger(sim.address)
+        await ap.connect(timeout_s=5.0)
+        comp = GcsComponent(GcsConfig(), ap, command)
+        autopilot_type, custom_mode = _FORGED_HEARTBEAT[dialect]
+        seen: list[tuple[str, bool]] = []
+        forged = 0
+        try:
+            assert comp.open()
+            await mav.wait_for(
+                lambda: ap.telemetry.status is not None and ap.telemetry.status.mode.value != "unknown",
+                5.0,
+                "the vehicle's mode",
+            )
+            real_mode = ap.telemetry.status.mode
+            assert real_mode.value not in ("offboard", "unknown") and not ap.telemetry.status.armed
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 3.0:  # 3 of the vehicle's heartbeats, 30 forged of each
+                gcs.heartbeat()
+                forger.heartbeat()  # a GCS heartbeat from 200 (as a forger would look)
+                for ids in ((1, 190), (2, 1)):
+                    hb = forger.as_(*ids).enc.heartbeat_encode(
+                        mavlink.MAV_TYPE_QUADROTOR,
+                        autopilot_type,
+                        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
+                        custom_mode,
+                        mavlink.MAV_STATE_ACTIVE,
+                    )
+                    forger.send(hb)
+                forger.as_(200, 190).send(forger.enc.command_long_encode(1, 191, 20, 0, 0, 0, 0, 0, 0, 0, 0))
+                forged += 1
+                gcs.drain()
+                forger.drain()
+                st = ap.telemetry.status
+                seen.append((st.mode.value, st.armed))
+                await asyncio.sleep(0.1)
+            await mav.wait_for(lambda: comp.refused == forged, 2.0, "every forged command refused")
+            gcs.send(gcs.enc.command_long_encode(1, 191, 20, 0, 0, 0, 0, 0, 0, 0, 0))
+            await mav.wait_for(lambda: asked, 3.0, "the GCS's RTL to reach the mission")
+            for _ in range(10):
+                gcs.drain()
+                forger.drain()
+                await asyncio.sleep(0.05)
+        finally:
+            await comp.close()
+            await ap.close()
+    assert set(seen) == {(real_mode.value, False)}, set(seen)
+    assert asked == [("return", "gcs")]  # the GCS's, not system 200's
+    assert forged >= 20 and comp.refused == forged and comp.refused_by_system == {200: forged}
+    assert [(m.command, m.result) for m in gcs.from_(1, 191, "COMMAND_ACK")] == [(20, MAV_RESULT_ACCEPTED)]
+    assert not [m for m in forger.got if m.get_type() == "COMMAND_ACK" and m.target_system == 200]
+    said = [r.getMessage() for r in caplog.records if "refused" in r.getMessage() and "system 200" in r.getMessage()]
+    assert len(said) == 2, said  # sampled: the first and the 10th
+    # counted: (1, 190)'s, and (2, 1)'s where the backend hears another system (the GCS's and 200's
+    # are GCS heartbeats, not counted)
+    print(f"\n{dialect}: {forged} forged of each, {ap.foreign_heartbeats} foreign autopilot heartbeats counted")
+    assert ap.foreign_heartbeats >= forged - 2
+
+
+class _Link:
+    """The component side of a backend, recording what the component sends; ``deliver`` hands a
+    command over as the backend's reader would."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, dict]] = []
+        self.on_command = None
+
+    def open_component(self, component_id: int, system_id: int, on_command) -> tuple[int, int]:
+        self.on_command = on_command
+        return 1, component_id
+
+    def send_from_component(self, name: str, fields: dict) -> bool:
+        self.sent.append((name, fields))
+        return True
+
+    def close_component(self) -> None:
+        self.on_command = None
+
+
+@pytest.mark.parametrize(
+    ("source_system", "signed", "acted"),
+    [
+        (255, None, True),
+        (255, True, True),
+        (255, False, False),
+        (200, None, False),
+        (200, True, False),
+        (42, None, True),
+    ],
+)
+async def test_only_configured_systems_and_signed_commands_on_a_signed_link_reach_the_mission(
+    source_system, signed, acted
+):
+    asked: list[str] = []
+    link = _Link()
+    comp = GcsComponent(GcsConfig(command_system_ids=(255, 42)), link, lambda kind, sender: asked.append(kind) or "ok")
+    assert comp.open()
+    try:
+        link.on_command(ComponentCommand(0.0, source_system, 190, 20, 0, (0.0,) * 7, signed))
+    finally:
+        await comp.close()
+    acks = [f for name, f in link.sent if name == "COMMAND_ACK"]
+    assert (asked == ["return"]) is acted and (len(acks) == 1) is acted
+    assert comp.refused == (0 if acted else 1)

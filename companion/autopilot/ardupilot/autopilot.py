@@ -146,6 +146,7 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         self._vehicle_signs = False  # the vehicle's heartbeats carry a signature block
         self._component: Any = None  # (system id, component id, on_command) once open_component
         self.component_commands = 0  # COMMAND_LONGs addressed to the companion's component
+        self.foreign_heartbeats = 0  # autopilot HEARTBEATs from another system or component (ignored)
         self.liveness = LoopLiveness()  # heartbeats and setpoints leave only while the loop ticks
 
     @classmethod

@@ -18,6 +18,7 @@ from typing import Any
 from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.component import ComponentCommand
 from companion.autopilot.interface import AutopilotError
+from companion.autopilot.signing import SigningSetup
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +29,7 @@ class ArduPilotComponent:
     _conn: Any
     target_system: int | None
     _component: tuple[int, int, Callable[[ComponentCommand], None]] | None
+    signing: SigningSetup | None
     component_commands: int
 
     # from ArduPilotLink (later in the MRO): declared for the type checker only
@@ -98,6 +100,8 @@ class ArduPilotComponent:
             int(m.command),
             int(m.confirmation),
             (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7),
+            # True only when its signature verified with our key (pymavlink's sig_ok)
+            bool(m.get_signed()) if self.signing is not None else None,
         )
         self.component_commands += 1
         self._post(comp[2], cmd)

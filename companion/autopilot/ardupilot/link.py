@@ -168,6 +168,7 @@ class ArduPilotLink(abc.ABC):
     _system_time_waiters: list[asyncio.Future[tuple[int, float]]]
     _vehicle_signs: bool
     liveness: LoopLiveness
+    foreign_heartbeats: int
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._conn is not None:

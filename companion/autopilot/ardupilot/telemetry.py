@@ -90,6 +90,21 @@ class ArduPilotTelemetry(ArduPilotRequests):
         if handler is not None:
             handler(self, m, now)
 
+    def _foreign_heartbeat(self, sysid: int, compid: int) -> None:
+        """An autopilot's HEARTBEAT from another system or component than the vehicle's: counted,
+        logged sampled (the first, the 10th, 100th, every 1000th)."""
+        self.foreign_heartbeats += 1
+        n = self.foreign_heartbeats
+        if n in (1, 10, 100) or n % 1000 == 0:
+            log.warning(
+                "autopilot HEARTBEAT from %d/%d ignored (%d so far): the vehicle is %s/%d on this link",
+                sysid,
+                compid,
+                n,
+                self.target_system,
+                self.target_component,
+            )
+
     def _on_bad_data(self, m: Any) -> None:
         """Bytes that did not parse, or a packet whose signature did not check (counted, said
         at the first, the 100th and every 1000th)."""
@@ -113,6 +128,7 @@ class ArduPilotTelemetry(ArduPilotRequests):
         if self.target_system is None:
             self.target_system = src
         if src != self.target_system or m.get_srcComponent() != self.target_component:
+            self._foreign_heartbeat(src, m.get_srcComponent())  # never the vehicle's mode or armed state
             return
         self.counters.heartbeats += 1
         buf = m.get_msgbuf()

@@ -102,6 +102,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self.component_id = component_id
         self.component_system_id = component_system_id
         self.component_commands = 0
+        self.foreign_heartbeats = 0  # autopilot HEARTBEATs from another system or component (ignored)
         self._component_unhook: Callable[[], None] | None = None
         self.link_timeout_s = link_timeout_s
         self.setpoint_transport = setpoint_transport

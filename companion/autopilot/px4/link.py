@@ -109,6 +109,7 @@ class Px4Link(abc.ABC):
     _texts_seen: int  # a repeated text is a new one too
     _health: Any
     liveness: LoopLiveness
+    foreign_heartbeats: int
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._system is not None:

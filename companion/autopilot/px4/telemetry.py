@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 
 STREAM_RESUBSCRIBE_S = 1.0  # a MAVSDK stream that ended or raised is subscribed again after this
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_AUTOPILOT_INVALID = 8
+MAV_TYPE_GCS = 6
 
 _FLIGHT_MODES = {
     "UNKNOWN": FlightMode.UNKNOWN,
@@ -262,11 +264,14 @@ class Px4Telemetry(Px4Link):
         HOME_POSITION and RC_CHANNELS, the vehicle's only."""
 
         def on_heartbeat(m: Any) -> None:
-            if m.system_id != self.system_id or m.component_id != 1:
-                return
             try:
                 hb = json.loads(m.fields_json)
             except ValueError:
+                return
+            if m.system_id != self.system_id or m.component_id != 1:
+                # a GCS's or a companion's is not an autopilot's; any other never sets mode or armed
+                if int(hb.get("autopilot", 0)) != MAV_AUTOPILOT_INVALID and int(hb.get("type", 0)) != MAV_TYPE_GCS:
+                    self._foreign_heartbeat(int(m.system_id), int(m.component_id))
                 return
             self._last_hb = time.monotonic()
             self._armed = bool(int(hb.get("base_mode", 0)) & MAV_MODE_FLAG_SAFETY_ARMED)
@@ -351,6 +356,20 @@ class Px4Telemetry(Px4Link):
                     log.error("setpoints stale: stopping MAVSDK's offboard re-send (PX4 switches to HOLD)")
                     with contextlib.suppress(Exception):
                         await self._offboard.stop()
+
+    def _foreign_heartbeat(self, sysid: int, compid: int) -> None:
+        """An autopilot's HEARTBEAT from another system or component than the vehicle's: counted,
+        logged sampled (the first, the 10th, 100th, every 1000th)."""
+        self.foreign_heartbeats += 1
+        n = self.foreign_heartbeats
+        if n in (1, 10, 100) or n % 1000 == 0:
+            log.warning(
+                "autopilot HEARTBEAT from %d/%d ignored (%d so far): the vehicle is %d/1 on this link",
+                sysid,
+                compid,
+                n,
+                self.system_id,
+            )
 
     def _push(self, sample: Any) -> None:
         self.telemetry.push(sample)
