@@ -465,6 +465,33 @@ def refine_corners_by_edges(
     half = min(6.0, EDGE_PROFILE_CELLS * side_len / cells)
     if half < 1.0:
         return None
+    S = samples_per_side
+    edge, good = _border_edge_points(gray, c, p1s, half, S)
+    for i in range(4):
+        if good[i * S : (i + 1) * S].sum() < 4:
+            return None
+    # the edge points and the detected corners undistorted in one call (point by point)
+    ideal_good_and_ref = camera.undistort_pixels(np.concatenate([edge[good], c]))
+    ideal_all = np.full((4 * S, 2), np.nan)
+    ideal_all[good] = ideal_good_and_ref[:-4]
+    ref = ideal_good_and_ref[-4:]
+    lines = _side_lines(ideal_all, good, S)
+    if lines is None:
+        return None
+    out = _corner_intersections(lines)
+    if out is None:
+        return None
+    if _row_norms(out - ref).max() > max(1.5, 0.05 * side_len):
+        return None  # refinement disagrees with the detector: do not trust it
+    return out
+
+
+def _border_edge_points(
+    gray: NDArray[np.uint8], c: FloatArray, p1s: FloatArray, half: float, samples_per_side: int
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """:func:`refine_corners_by_edges`'s edge points, ``samples_per_side`` per side (4 S, 2), in
+    the image's pixels, and which of them were measured: a profile from -half to +half px across
+    each side c[i] -> p1s[i], its 50 % crossing between the dark border and the light surround."""
     offs = np.linspace(-half, half, max(9, int(4 * half) | 1))
     frac = _edge_fractions(samples_per_side)
     centroid = _mean(c, 0)
@@ -495,14 +522,12 @@ def refine_corners_by_edges(
     with np.errstate(divide="ignore", invalid="ignore"):
         s_off = offs[a] + (level - v0) / (v1 - v0) * (offs[1] - offs[0])
     edge = base.reshape(4 * S, 2) + s_off[:, None] * np.repeat(n, S, axis=0)
-    for i in range(4):
-        if good[i * S : (i + 1) * S].sum() < 4:
-            return None
-    # the edge points and the detected corners undistorted in one call (point by point)
-    ideal_good_and_ref = camera.undistort_pixels(np.concatenate([edge[good], c]))
-    ideal_all = np.full((4 * S, 2), np.nan)
-    ideal_all[good] = ideal_good_and_ref[:-4]
-    ref = ideal_good_and_ref[-4:]
+    return edge, good
+
+
+def _side_lines(ideal_all: FloatArray, good: NDArray[np.bool_], S: int) -> list[tuple[FloatArray, float]] | None:
+    """Each side's line (normal, c: normal . x = c) fitted to its measured ideal edge points by
+    total least squares; None when a point did not undistort."""
     means, covs = [], np.empty((4, 2, 2))
     for i in range(4):
         ideal = ideal_all[i * S : (i + 1) * S][good[i * S : (i + 1) * S]]
@@ -513,7 +538,11 @@ def refine_corners_by_edges(
         covs[i] = _cov_rows((ideal - m).T)
     # the four sides' eigen-decompositions in one call (LAPACK's per matrix, as four calls)
     normals = np.linalg.eigh(covs)[1][:, :, 0]  # smallest eigenvalue: the line's normal (total least squares)
-    lines = [(normals[i], float(normals[i] @ means[i])) for i in range(4)]  # normal . x = c
+    return [(normals[i], float(normals[i] @ means[i])) for i in range(4)]  # normal . x = c
+
+
+def _corner_intersections(lines: list[tuple[FloatArray, float]]) -> FloatArray | None:
+    """Corner i where sides i-1 and i meet (4, 2); None when two adjacent sides are parallel."""
     A = np.empty((4, 2, 2))
     b = np.empty((4, 2, 1))
     for i in range(4):
@@ -522,10 +551,7 @@ def refine_corners_by_edges(
         b[i, :, 0] = (c0, c1)
     if (np.abs(np.linalg.det(A)) < 1e-9).any():
         return None
-    out = np.asarray(np.linalg.solve(A, b)[:, :, 0], dtype=np.float64)
-    if _row_norms(out - ref).max() > max(1.5, 0.05 * side_len):
-        return None  # refinement disagrees with the detector: do not trust it
-    return out
+    return np.asarray(np.linalg.solve(A, b)[:, :, 0], dtype=np.float64)
 
 
 # ---------------------------------------------------------------------------- the detector
