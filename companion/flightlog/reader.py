@@ -183,19 +183,7 @@ def _read_mcap(p: Path, _mtime_ns: int, _size: int) -> McapRun:
                     continue
                 channels[rec.id] = rec
                 if rec.topic.startswith(STREAM_TOPIC_PREFIX):
-                    name = rec.metadata.get("csv", "")
-                    try:
-                        header = json.loads(rec.metadata["columns"])
-                    except (KeyError, json.JSONDecodeError) as err:
-                        raise LogFormatError(
-                            f"{p}: channel {rec.topic!r}: metadata 'columns' missing or not a JSON list ({err})"
-                        ) from None
-                    if not name.endswith(".csv") or not isinstance(header, list):
-                        raise LogFormatError(
-                            f"{p}: channel {rec.topic!r}: metadata csv={name!r}, columns={header!r}: "
-                            "expected a CSV file name and a list of column names"
-                        )
-                    streams[rec.id] = (name, [str(c) for c in header], [])
+                    streams[rec.id] = _stream_channel(p, rec.topic, rec.metadata)
             elif isinstance(rec, Message):
                 ch = channels.get(rec.channel_id)
                 if ch is None:
@@ -204,24 +192,8 @@ def _read_mcap(p: Path, _mtime_ns: int, _size: int) -> McapRun:
                 stream = streams.get(rec.channel_id)
                 if stream is None:
                     continue
-                name, header, rows = stream
-                try:
-                    obj = json.loads(rec.data)
-                except (json.JSONDecodeError, UnicodeDecodeError) as err:
-                    raise LogFormatError(
-                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: not JSON ({err})"
-                    ) from None
-                if not isinstance(obj, dict):
-                    raise LogFormatError(
-                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: expected a JSON object, "
-                        f"got {type(obj).__name__}"
-                    )
-                try:
-                    rows.append([cell_text(obj[c]) for c in header])
-                except KeyError as err:
-                    raise LogFormatError(
-                        f"{p}: channel {ch.topic!r}, message {counts[ch.topic]}: key {err.args[0]!r} missing"
-                    ) from None
+                _name, header, rows = stream
+                rows.append(_stream_row(p, ch.topic, counts[ch.topic], rec.data, header))
             elif isinstance(rec, Metadata) and rec.name == META_FILE:
                 meta_text = rec.metadata.get("json")
     if profile is None:
@@ -239,6 +211,35 @@ def _read_mcap(p: Path, _mtime_ns: int, _size: int) -> McapRun:
         message_counts=counts,
         torn=torn,
     )
+
+
+def _stream_channel(p: Path, topic: str, metadata: dict[str, str]) -> tuple[str, list[str], list[list[str]]]:
+    """A stream channel's (CSV name, columns, no rows yet) from its metadata."""
+    name = metadata.get("csv", "")
+    try:
+        header = json.loads(metadata["columns"])
+    except (KeyError, json.JSONDecodeError) as err:
+        raise LogFormatError(f"{p}: channel {topic!r}: metadata 'columns' missing or not a JSON list ({err})") from None
+    if not name.endswith(".csv") or not isinstance(header, list):
+        raise LogFormatError(
+            f"{p}: channel {topic!r}: metadata csv={name!r}, columns={header!r}: "
+            "expected a CSV file name and a list of column names"
+        )
+    return (name, [str(c) for c in header], [])
+
+
+def _stream_row(p: Path, topic: str, n: int, data: bytes, header: list[str]) -> list[str]:
+    """Message ``n`` of a stream channel (a JSON object) as the CSV row's cells, in ``header``'s order."""
+    try:
+        obj = json.loads(data)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise LogFormatError(f"{p}: channel {topic!r}, message {n}: not JSON ({err})") from None
+    if not isinstance(obj, dict):
+        raise LogFormatError(f"{p}: channel {topic!r}, message {n}: expected a JSON object, got {type(obj).__name__}")
+    try:
+        return [cell_text(obj[c]) for c in header]
+    except KeyError as err:
+        raise LogFormatError(f"{p}: channel {topic!r}, message {n}: key {err.args[0]!r} missing") from None
 
 
 def open_table(run_dir: str | Path, name: str, required: Sequence[str] = ()) -> Table:
