@@ -118,11 +118,22 @@ class TelemetryEncoder:
         """Encode one reported sample (at the clock's current time)."""
         t = self.clock()
         ms, us = self._ms(t), self._us(t)
-        m: list[tuple[Any, tuple[Any, ...]]]
+        m = self._attitude_messages(s, ms, us)
+        if m is None:
+            m = self._position_messages(s, ms, us)
+        if m is None:
+            m = self._state_messages(s, us)
+        if m is None:
+            return
+        for cls, args in m:
+            self._emit(self.vehicle_id, cls, args)
+
+    def _attitude_messages(self, s: TelemetrySample, ms: int, us: int) -> list[tuple[Any, tuple[Any, ...]]] | None:
+        """ATTITUDE, HIGHRES_IMU (None: not an attitude or IMU sample)."""
         match s:
             case Attitude():
                 self._yaw = s.yaw_rad
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_attitude_message,
                         (
@@ -137,7 +148,7 @@ class TelemetryEncoder:
                     )
                 ]
             case Imu():
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_highres_imu_message,
                         (
@@ -160,9 +171,14 @@ class TelemetryEncoder:
                         ),
                     )
                 ]
+        return None
+
+    def _position_messages(self, s: TelemetrySample, ms: int, us: int) -> list[tuple[Any, tuple[Any, ...]]] | None:
+        """LOCAL_POSITION_NED, GLOBAL_POSITION_INT, GPS_RAW_INT (None: not a position sample)."""
+        match s:
             case PositionNed():
                 self._velocity = (s.north_m_s, s.east_m_s, s.down_m_s)
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_local_position_ned_message,
                         (ms, s.north_m, s.east_m, s.down_m, s.north_m_s, s.east_m_s, s.down_m_s),
@@ -171,7 +187,7 @@ class TelemetryEncoder:
             case GlobalPosition():
                 vn, ve, vd = self._velocity
                 hdg = round(math.degrees(self._yaw) % 360.0 * 100.0) % 36000
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_global_position_int_message,
                         (
@@ -189,7 +205,7 @@ class TelemetryEncoder:
                 ]
             case GpsRaw():
                 eph = _U16_MAX if not math.isfinite(s.eph_m) else min(_U16_MAX - 1, round(float(s.eph_m) * 100.0))
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_gps_raw_int_message,
                         (
@@ -206,10 +222,15 @@ class TelemetryEncoder:
                         ),
                     )
                 ]
+        return None
+
+    def _state_messages(self, s: TelemetrySample, us: int) -> list[tuple[Any, tuple[Any, ...]]] | None:
+        """The status's messages, HOME_POSITION, STATUSTEXT (None: a sample with no message)."""
+        match s:
             case VehicleStatus():
-                m = self._status(s)
+                return self._status(s)
             case HomePosition():
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_home_position_message,
                         (
@@ -228,16 +249,13 @@ class TelemetryEncoder:
                     )
                 ]
             case StatusText():
-                m = [
+                return [
                     (
                         mavlink2.MAVLink_statustext_message,
                         (s.severity, s.text.encode("utf-8", errors="replace")[:50], 0, 0),
                     )
                 ]
-            case _:
-                return
-        for cls, args in m:
-            self._emit(self.vehicle_id, cls, args)
+        return None
 
     def _status(self, s: VehicleStatus) -> list[tuple[Any, tuple[Any, ...]]]:
         base = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
