@@ -113,6 +113,20 @@ def _camera_playback(args: argparse.Namespace, cfg: CompanionConfig) -> Any:
     return CameraPlayback(video, times, offset, args.camera_calibration)
 
 
+def _figures(run_dir: Path) -> list[Path]:
+    """The run's path.png and lyapunov.png (none without summary.json); a full disk is logged:
+    the result is printed all the same."""
+    from companion.flightlog.plots import plot_run
+
+    if not (run_dir / "summary.json").exists():
+        return []
+    try:
+        return plot_run(run_dir)
+    except OSError as err:
+        log.error("%s: cannot write the figures: %s", run_dir, err)
+        return []
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from rich.markup import escape
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -120,7 +134,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from companion.cli.console import make_console
     from companion.delivery.landing_setup import LandingSetupError
     from companion.flightlog.losses import describe as describe_losses
-    from companion.flightlog.plots import plot_run
     from companion_lab.demo import run_demo
 
     cfg = _load_demo_config(args)
@@ -178,12 +191,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             )
         except LandingSetupError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
-    plots: list[Path] = []
-    if result.phase != "preflight" and (run_dir / "summary.json").exists():
-        try:
-            plots = plot_run(run_dir)
-        except OSError as err:  # a full disk: the result is printed all the same
-            log.error("%s: cannot write the figures: %s", run_dir, err)
+    plots = _figures(run_dir) if result.phase != "preflight" else []
     ok = result.delivered and (result.returned or not m.return_home)
     console.print()
     console.print(
@@ -226,9 +234,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     lost = describe_losses(run_dir)
     if lost:
         console.print(f"[bold red]{escape(lost)}[/]: {escape(str(run_dir))} holds the flight up to where they stopped")
-    if not ok:
-        return exits.FAILED
-    return exits.LOGS_INCOMPLETE if lost else exits.OK
+    return exits.FAILED if not ok else exits.LOGS_INCOMPLETE if lost else exits.OK
 
 
 def register_demo(sub: Any) -> None:

@@ -8,7 +8,9 @@ the setting to change``, and one of these codes; nothing is left running.
 from __future__ import annotations
 
 import contextlib
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -38,6 +40,18 @@ CLUSTER_UNAVAILABLE = 7
 LOGS_INCOMPLETE = 8
 #: Ctrl-C before the command finished
 INTERRUPTED = 130
+
+
+def say_logs_incomplete(command: str, run_dir: Path) -> bool:
+    """Print on stderr the one line naming what ``run_dir``'s logs lost in flight (a full disk,
+    an I/O error: ``companion.flightlog.losses``); True when they lost anything (exit
+    :data:`LOGS_INCOMPLETE` if the flight otherwise succeeded)."""
+    from companion.flightlog.losses import describe
+
+    lost = describe(run_dir)
+    if lost:
+        print(f"companion {command}: {lost}: {run_dir} holds the flight up to where they stopped", file=sys.stderr)
+    return bool(lost)
 
 
 class StartupError(Exception):

@@ -14,7 +14,6 @@ import logging
 import signal
 import socket
 import statistics
-import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -28,7 +27,6 @@ from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, SimConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
 from companion.delivery.shell import DeliveryShell
-from companion.flightlog.losses import describe as describe_losses
 from companion.flightlog.recorder import FlightRecorder
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
@@ -285,9 +283,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
         )
     else:
         display.print_summary(summary, run_dir)
-    lost = describe_losses(run_dir)  # a full disk, an I/O error: the flight went on, its logs stopped
-    if lost:
-        print(f"companion fly: {lost}: {run_dir} holds the flight up to where they stopped", file=sys.stderr)
+    lost = exits.say_logs_incomplete("fly", run_dir)  # a full disk: the flight went on, its logs stopped
     if summary.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C / SIGTERM in flight: held, landed, ended
         return exits.INTERRUPTED
     if lost and summary.delivered and not summary.failure:  # delivered, but the logs were cut

@@ -28,6 +28,7 @@ from companion.cli import exits
 from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
 from companion.config import CompanionConfig
 from companion.delivery.mission import FailureKind
+from companion.delivery.observers import TickCallback
 from companion.events import MissionEvent
 from companion.telemetry.session import SettingsError, ZenohSettings
 
@@ -203,6 +204,7 @@ def order_settings(config: CompanionConfig) -> Any:
             max_nonces=c.max_nonces,
             rate_per_s=c.rate_per_s,
             burst=c.burst,
+            max_requests_per_s=c.max_requests_per_s,
         )
     except (OSError, ValueError) as err:
         raise ConfigError("telemetry.commands.secret_file", [str(err)]) from None
@@ -287,7 +289,7 @@ async def serve_orders(
             if on_tick is not None:
                 on_tick(sh, o)
 
-        shell.on_tick = follow
+        shell.add_observer(TickCallback(follow))
         try:
             return await shell.run(timeout_s=flight_timeout_s)
         except StartupError as err:  # the pre-flight check refused: nothing was armed
@@ -449,6 +451,9 @@ def cmd_fly_orders(
         for f in session.flights:
             what = ("DELIVERED" if f.delivered else "NOT DELIVERED") + (", returned home" if f.returned else "")
             print(f"  {f.order_id}: {what}{' - ' + f.failure if f.failure else ''} ({f.run_dir})")
+    lost = exits.say_logs_incomplete("fly", run_dir)  # a full disk in a flight: its logs stopped, not it
     if any(f.failure_kind is FailureKind.OPERATOR_ABORT for f in session.flights):  # Ctrl-C in flight: ended
         return exits.INTERRUPTED
-    return exits.OK if all(f.delivered and not f.failure for f in session.flights) else exits.FAILED
+    if not all(f.delivered and not f.failure for f in session.flights):
+        return exits.FAILED
+    return exits.LOGS_INCOMPLETE if lost else exits.OK

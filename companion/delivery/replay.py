@@ -472,6 +472,25 @@ class ReplayResult:
         return out
 
 
+def _storage_notes(meta: dict[str, Any]) -> list[str]:
+    """What run.json says of log files stopped in flight (a full disk: named by their cause) and
+    of a recorder never closed."""
+    notes = []
+    faults = meta.get("storage_faults") or {}
+    if faults:
+        causes = sorted({LossCause[c].value for c in faults.values() if c in LossCause.__members__})
+        notes.append(
+            f"run.json: {len(faults)} log file(s) stopped in flight ({', '.join(causes) or 'storage fault'}): "
+            "the replay covers the flight up to there"
+        )
+    if not meta.get("closed"):
+        notes.append(
+            "run.json says the recorder was never closed (the process died, or the disk was full when it closed): "
+            "the log may end early"
+        )
+    return notes
+
+
 def replay_run(
     run_dir: str | Path, out_dir: str | Path | None = None, progress: Callable[[int, int], None] | None = None
 ) -> ReplayResult:
@@ -489,18 +508,7 @@ def replay_run(
     shell = _ReplayShell(meta, run)
     if meta.get("errors"):
         shell.notes.append(f"the recorder reported {meta['errors']} logging failure(s): the log is incomplete")
-    faults = meta.get("storage_faults") or {}
-    if faults:  # a full disk, an I/O error (companion.flightlog.losses): named by their cause
-        causes = sorted({LossCause[c].value for c in faults.values() if c in LossCause.__members__})
-        shell.notes.append(
-            f"run.json: {len(faults)} log file(s) stopped in flight ({', '.join(causes) or 'storage fault'}): "
-            "the replay covers the flight up to there"
-        )
-    if not meta.get("closed"):
-        shell.notes.append(
-            "run.json says the recorder was never closed (the process died, or the disk was full when it closed): "
-            "the log may end early"
-        )
+    shell.notes.extend(_storage_notes(meta))
     seqs = [i.seq for i in inputs]
     missing = (seqs[-1] + 1 - len(seqs)) if seqs else 0
     rec_ekf = {int(tables["ekf.csv"].text(k, "seq")): tables["ekf.csv"].rows[k] for k in range(len(tables["ekf.csv"]))}

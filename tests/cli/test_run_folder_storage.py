@@ -125,3 +125,33 @@ def test_a_disk_that_fills_in_flight_costs_the_flight_nothing(tmp_path: Path, ca
         assert "figure(s) written" in capsys.readouterr().out
         assert main(["replay", str(run), "--out", str(tmp_path / "replay")]) in (0, 1)
         assert "stopped in flight (disk full)" in capsys.readouterr().out
+
+
+def test_fly_that_delivered_with_its_logs_cut_exits_8(tmp_path: Path, monkeypatch, capsys):
+    """The flight is the backend's (here a stand-in that writes a real log on a disk it fills);
+    what fly decides from the logs is its own: delivered, logs cut -> exit 8 and one line."""
+    from companion.cli import fly as commands
+    from companion.delivery.mission import MissionSummary
+    from companion.flightlog.csvlog import CsvLog
+
+    async def run_delivery(config, autopilot, timeout_s, run_dir, landing=None, before_flight=None, on_tick=None):
+        lg = CsvLog(run_dir / "flight.csv", ("time_s", "x_m"))
+        fill(run_dir.parent)
+        for i in range(20000):  # well past the file's last page
+            lg.write((float(i), 1.0 / 3.0))
+        lg.close()
+        return MissionSummary(delivered=True, returned=True)
+
+    monkeypatch.setattr(commands, "make_autopilot", lambda config, **kw: object())
+    monkeypatch.setattr(commands, "run_delivery", run_delivery)
+    params = str(shipped_params_path("ardupilot_quad.toml"))
+    with mounted_tmpfs(tmp_path / "disk", f"{FLIGHT_LOGS_MIN_BYTES // 2**20 + 16}m") as d:
+        run = d / "run"
+        code = main(["fly", "--params", params, "--out", str(run), "--no-preflight", "--json"])
+        captured = capsys.readouterr()
+        assert code == exits.LOGS_INCOMPLETE, captured.err
+        assert '"delivered": true' in captured.out
+        line = next(x for x in captured.err.splitlines() if x.startswith("companion fly: "))
+        assert line.startswith("companion fly: logs incomplete: disk full (flight.csv ") and line.endswith(
+            f"{run} holds the flight up to where they stopped"
+        )
