@@ -46,7 +46,9 @@ class _Section(BaseModel):
 
 
 class GeoConfig(_Section):
-    lat_deg: float = _f(..., "deg", "latitude (WGS-84)", ge=-90.0, le=90.0)
+    # within 89 deg of the equator: the pad's box around home and the simulated GPS errors (a few
+    # km) stay off the poles, where the flat-earth model (delivery 4.1) would put a point past 90
+    lat_deg: float = _f(..., "deg", "latitude (WGS-84), within 89 deg of the equator", ge=-89.0, le=89.0)
     lon_deg: float = _f(..., "deg", "longitude (WGS-84)", ge=-180.0, le=180.0)
     alt_amsl_m: float = _f(0.0, "m", "altitude above mean sea level", ge=ALT_AMSL_MIN_M, le=ALT_AMSL_MAX_M)
 
@@ -836,6 +838,9 @@ class TelemetryCommandsConfig(_Section):
     max_nonces: int = _f(4096, "-", "replay-protection cache size", ge=16, le=1_000_000)
     rate_per_s: float = _f(2.0, "1/s", "signed requests a second each sender may send", ge=0.01, le=1000.0)
     burst: int = _f(10, "-", "signed requests a sender may send at once (its token bucket)", ge=1, le=10_000)
+    max_requests_per_s: float = _f(
+        50.0, "1/s", "requests of any sender read a second; beyond it refused unread", ge=1.0, le=100_000.0
+    )
 
     @model_validator(mode="after")
     def _secret(self) -> TelemetryCommandsConfig:

@@ -36,6 +36,7 @@ BASE = {
     "plugin_api",
     "units",
     "foxglove_schemas",
+    "timebase",
 }
 CORE = BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
 
@@ -60,12 +61,13 @@ ALLOWED: dict[str, set[str]] = {
     "plugin_api": set(),
     "units": set(),
     "foxglove_schemas": set(),  # Foxglove schemas and conventions, shared by flightlog and telemetry
+    "timebase": set(),  # the vehicle clock signed requests are judged on, and the pre-flight verdict on it
     "vision": {"geometry"},
     "uwb": {"geometry"},
     "estimation": {"geometry"},
     "guidance": {"geometry", "config"},
-    "autopilot": {"geometry", "config", "estimation", "guidance"},
-    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation", "foxglove_schemas"},
+    "autopilot": {"geometry", "config", "estimation", "guidance", "timebase"},
+    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation", "foxglove_schemas", "timebase"},
     "flightlog": {"geometry", "units", "autopilot", "guidance", "foxglove_schemas"},
     "delivery": BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog"},
     "dart": BASE | {"vision", "estimation", "autopilot", "flightlog"},

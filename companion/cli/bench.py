@@ -317,8 +317,34 @@ def register_bench(bsub: Any) -> None:
     be.set_defaults(func=cmd_bench_estimation)
 
 
+def cmd_bench_orders(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion_lab.bench.orders import report, run_orders_bench
+
+    r = asyncio.run(run_orders_bench(tuple(args.large_mb), args.flood_hz, args.command_hz, args.flood_s))
+    print(json.dumps(r, indent=2) if args.json else report(r))
+    return 0 if r["delivered"] else 1
+
+
+def register_bench_orders(bsub: Any) -> None:
+    """Add ``companion bench orders`` (docs/orders.md#under-attack)."""
+    bo = bsub.add_parser(
+        "orders", help="a delivery flown while its order and command queryables are flooded and sent huge queries"
+    )
+    bo.add_argument(
+        "--large-mb", type=int, nargs="*", default=[200, 200, 200, 200, 900], help="sizes of the large queries, MiB"
+    )
+    bo.add_argument("--flood-hz", type=float, default=500.0, help="hostile orders a second (default: %(default)s)")
+    bo.add_argument("--command-hz", type=float, default=100.0, help="forged commands a second (default: %(default)s)")
+    bo.add_argument("--flood-s", type=float, default=20.0, help="how long the flood lasts (default: %(default)s)")
+    bo.add_argument("--json", action="store_true", help="print the figures as JSON")
+    bo.set_defaults(func=cmd_bench_orders)
+
+
 def register_bench_micro(bsub: Any) -> None:
-    """Add ``companion bench ekf``, ``bench uwb`` and ``bench vision``."""
+    """Add ``companion bench ekf``, ``bench uwb``, ``bench vision`` and ``bench orders``."""
+    register_bench_orders(bsub)
     bk = bsub.add_parser("ekf", help="microseconds per EKF predict and per update of each sensor")
     bk.add_argument("--n", type=positive_int, default=2000, help="calls timed per step")
     bk.set_defaults(func=cmd_bench_ekf)

@@ -19,8 +19,12 @@ The checks, in order (the first that fails is the reason sent back):
 6. go / no-go (docs/go-no-go.md), with the mission's own checks: the wind the autopilot estimates and
    the charge for the round trip ("no-go: ...").
 
-A refused order changes nothing on the vehicle. Every order received is a mission event
-(``EventKind.ORDER``), logged, written to ``orders.csv`` and handed to ``on_event``.
+A refused order changes nothing on the vehicle. Check 1 runs on the Zenoh thread that received the
+order, never on the flight loop; only a signed, fresh order within its sender's rate goes on to the
+loop for checks 2-6, at most :data:`MAX_PENDING` at a time. Every decision of checks 2-6 is a mission
+event (``EventKind.ORDER``), logged, written to ``orders.csv`` and handed to ``on_event``; refusals of
+check 1 are counted by kind (:attr:`OrderDesk.refusals`) and sampled: one a second becomes the event,
+the log line and the ``orders.csv`` row, saying how many were refused since the last.
 """
 
 from __future__ import annotations
@@ -30,7 +34,9 @@ import concurrent.futures
 import csv
 import logging
 import math
+import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,13 +55,16 @@ from companion.events import EventKind, MissionEvent, Phase
 from companion.geometry.earth import GeoPoint
 from companion.guidance.geofence import fence_in_ned, legs_problem
 from companion.guidance.path import PathGeometryError
-from companion.telemetry.auth import CommandRefused, CommandSettings
+from companion.telemetry.auth import CommandRefused, CommandSettings, RefusalKind, RefusalLog
 from companion.telemetry.orders import DeliveryOrder, OrderPad, OrderRefused, OrderVerifier, order_reply
 from companion.telemetry.schema import order_key
 
 log = logging.getLogger(__name__)
 
 DECIDE_TIMEOUT_S = 3.0  # a Zenoh query waits this long for the loop's decision
+MAX_PENDING = 4  # signed orders waiting for the loop's decision at once; more are refused
+MAX_EVENTS = 1000  # the desk's recent order events kept in memory (all are in the log and orders.csv)
+REFUSAL_SAMPLE_S = 1.0  # refusals before the decision: one event, log line and row per this
 
 ORDERS_CSV_COLUMNS = (
     "time_s",
@@ -180,17 +189,21 @@ class OrderDesk:
         csv_path: Path | None = None,
         on_event: Callable[[MissionEvent], None] | None = None,
         wall_clock: Callable[[], float] = time.time,
+        monotonic: Callable[[], float] = time.monotonic,
     ):
         self.config = config
         self.telemetry = telemetry
         self.vehicle_id = config.vehicle_id
-        self.verifier = OrderVerifier(config.vehicle_id, settings, clock=wall_clock)
+        self.verifier = OrderVerifier(config.vehicle_id, settings, clock=wall_clock, monotonic=monotonic)
         self.on_event = on_event
-        self.events: list[MissionEvent] = []
+        self.events: deque[MissionEvent] = deque(maxlen=MAX_EVENTS)
         self.busy_with: str | None = None
         self.phase = Phase.PREFLIGHT  # the flying mission's phase, for the events
         self.accepted = 0
-        self.refused = 0
+        self.refused_by_vehicle = 0  # checks 2-6
+        self.refusals = RefusalLog("order", REFUSAL_SAMPLE_S, monotonic)  # check 1, and overload
+        self._pending = threading.BoundedSemaphore(MAX_PENDING)
+        self._csv_lock = threading.Lock()
         self._wall = wall_clock
         self._queue: asyncio.Queue[AcceptedOrder] = asyncio.Queue()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -233,19 +246,44 @@ class OrderDesk:
         self.phase = Phase.PREFLIGHT
         self._event(f"order {order_id} flown: {outcome}")
 
-    # ---- deciding (on the loop) --------------------------------------------------------------
+    @property
+    def refused(self) -> int:
+        """Orders refused, whichever check refused them."""
+        return self.refused_by_vehicle + self.refusals.total
+
+    # ---- deciding ------------------------------------------------------------------------------
 
     def decide(self, payload: bytes | None) -> tuple[bool, str | None, str]:
-        """Check one order payload: (accepted, order id if readable, reason). On the loop thread."""
-        order: DeliveryOrder | None = None
+        """Check one order payload: (accepted, order id if readable, reason). On the loop thread
+        (the queryable runs check 1 on its own thread and hands the loop :meth:`decide_order`)."""
         try:
             order = self.verifier.verify(payload)
+        except CommandRefused as err:
+            self._refused_early(err, on_loop=True)
+            return False, None, err.reason
+        return self.decide_order(order)
+
+    def _refused_early(self, err: CommandRefused, on_loop: bool) -> None:
+        """Count a refusal of check 1 (or an overload); the sampled one is recorded on the loop."""
+        skipped = self.refusals.note(err.kind, err.reason)
+        if skipped is None:
+            return
+        reason = err.reason + (f" (+{skipped} orders refused since the last row)" if skipped else "")
+        loop = self._loop
+        if on_loop or loop is None:
+            self._record(None, False, reason)
+        elif not loop.is_closed():
+            loop.call_soon_threadsafe(self._record, None, False, reason)
+
+    def decide_order(self, order: DeliveryOrder) -> tuple[bool, str | None, str]:
+        """Checks 2-6 on a verified order: (accepted, order id, reason). On the loop thread."""
+        try:
             snap = VehicleSnapshot.of(self.telemetry, asyncio.get_running_loop().time())
             cfg = check_order(self.config, order, snap, self.busy_with)
         except CommandRefused as err:
-            self.refused += 1
+            self.refused_by_vehicle += 1
             self._record(order, False, err.reason)
-            return False, order.order_id if order is not None else None, err.reason
+            return False, order.order_id, err.reason
         self.busy_with = order.order_id
         self.accepted += 1
         reason = "accepted: flying it now"
@@ -266,14 +304,27 @@ class OrderDesk:
                 return [p.lat_deg, p.lon_deg, "" if p.alt_amsl_m is None else p.alt_amsl_m]
 
             now = self._loop.time() if self._loop is not None else math.nan
+            with self._csv_lock:
+                self._write_row(now, order, accepted, reason, cols(pad), cols(alt))
+
+    def _write_row(
+        self,
+        now: float,
+        order: DeliveryOrder | None,
+        accepted: bool,
+        reason: str,
+        pad: list[object],
+        alt: list[object],
+    ) -> None:
+        if self._csv is not None and self._csv_file is not None:
             self._csv.writerow(
                 [
                     now,
                     self._wall(),
                     order.order_id if order is not None else "",
                     order.sender if order is not None else "",
-                    *cols(pad),
-                    *cols(alt),
+                    *pad,
+                    *alt,
                     int(accepted),
                     reason,
                     order.nonce if order is not None else "",
@@ -295,31 +346,54 @@ class OrderDesk:
     # ---- the queryable (a Zenoh thread) ------------------------------------------------------
 
     def _on_query(self, query: Any) -> None:
+        """Check 1 here, on the Zenoh thread; a verified order waits for the loop's checks 2-6."""
         payload = query.payload
-        raw = payload.to_bytes() if payload is not None else None
-        loop = self._loop
+        raw = payload.to_bytes() if payload is not None else None  # bounded by the session's limit
         order_id: str | None = None
+        try:
+            order = self.verifier.verify(raw)
+        except CommandRefused as err:
+            self._refused_early(err, on_loop=False)
+            self._reply(query, None, False, err.reason)
+            return
+        if not self._pending.acquire(blocking=False):
+            reason = f"overloaded: {MAX_PENDING} orders already wait for a decision; try later"
+            self._refused_early(CommandRefused(reason, RefusalKind.OVERLOAD), on_loop=False)
+            self._reply(query, order.order_id, False, reason)
+            return
+        try:
+            accepted, order_id, reason = self._decide_on_loop(order)
+        finally:
+            self._pending.release()
+        self._reply(query, order_id, accepted, reason)
+
+    def _decide_on_loop(self, order: DeliveryOrder) -> tuple[bool, str | None, str]:
+        loop = self._loop
+        fut: concurrent.futures.Future[tuple[bool, str | None, str]] = concurrent.futures.Future()
+
+        def run() -> None:
+            if not fut.set_running_or_notify_cancel():
+                return  # the ground has been told "no decision": the order is not taken
+            try:
+                fut.set_result(self.decide_order(order))
+            except BaseException as err:  # reported to the ground below
+                fut.set_exception(err)
+
         try:
             if loop is None or loop.is_closed():
                 raise RuntimeError("the vehicle is shutting down")
-            fut: concurrent.futures.Future[tuple[bool, str | None, str]] = concurrent.futures.Future()
-
-            def run() -> None:
-                if not fut.set_running_or_notify_cancel():
-                    return  # the ground has been told "no decision": the order is not taken
-                try:
-                    fut.set_result(self.decide(raw))
-                except BaseException as err:  # reported to the ground below
-                    fut.set_exception(err)
-
             loop.call_soon_threadsafe(run)
-            accepted, order_id, reason = fut.result(timeout=DECIDE_TIMEOUT_S)
+            return fut.result(timeout=DECIDE_TIMEOUT_S)
         except concurrent.futures.TimeoutError:
             fut.cancel()
-            accepted, reason = False, f"no decision within {DECIDE_TIMEOUT_S:g} s (the vehicle is overloaded)"
+            reason = f"no decision within {DECIDE_TIMEOUT_S:g} s (the vehicle is overloaded)"
+            self.refusals.note(RefusalKind.OVERLOAD, reason)
+            return False, order.order_id, reason
         except Exception as err:
             log.exception("order decision failed")
-            accepted, reason = False, f"order not handled: {type(err).__name__}: {err}"
+            return False, order.order_id, f"order not handled: {type(err).__name__}: {err}"
+
+    def _reply(self, query: Any, order_id: str | None, accepted: bool, reason: str) -> None:
         body = order_reply(self.vehicle_id, order_id, accepted, reason)
         try:
             if accepted:

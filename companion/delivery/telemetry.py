@@ -59,7 +59,15 @@ def make_publisher(
     c = t.commands
     try:
         secret = CommandSettings.read_secret(c.secret_file) if c.enabled and c.secret_file else None
-        commands = CommandSettings(enabled=c.enabled, secret=secret, window_s=c.window_s, max_nonces=c.max_nonces)
+        commands = CommandSettings(
+            enabled=c.enabled,
+            secret=secret,
+            window_s=c.window_s,
+            max_nonces=c.max_nonces,
+            rate_per_s=c.rate_per_s,
+            burst=c.burst,
+            max_requests_per_s=c.max_requests_per_s,
+        )
     except (OSError, ValueError) as err:
         raise ConfigError("telemetry.commands.secret_file", [str(err)]) from None
     settings = TelemetrySettings(
@@ -168,7 +176,8 @@ class ShellTelemetry:
                         TaskHealth("guidance", rt.guidance_rate_hz, st.guidance_overruns),
                         TaskHealth("setpoint_stream", rt.setpoint_rate_hz, st.setpoint_overruns),
                     ),
-                    rejected=tuple(RejectionCount(k, n) for k, n in sorted(tc.rejected.items())),
+                    rejected=tuple(RejectionCount(k, n) for k, n in sorted(tc.rejected.items()))
+                    + tuple(RejectionCount(k, n) for k, n in sorted(pub.refusal_counts().items()) if n),
                     telemetry_dropped=pub.counters().dropped,
                 )
             )

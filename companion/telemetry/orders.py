@@ -31,7 +31,6 @@ as a Zenoh reply when accepted and as an error reply when refused.
 from __future__ import annotations
 
 import json
-import math
 import re
 import secrets
 import time
@@ -42,16 +41,21 @@ from typing import Any
 from companion.telemetry.auth import (
     CommandRefused,
     CommandSettings,
+    RefusalKind,
     SignedRequestGuard,
     compute_mac,
     parse_payload,
     parse_signed_fields,
 )
+from companion.timebase import VehicleClock
 
 ORDER_SCHEMA = "companion.order/1"
 ORDER_REPLY_SCHEMA = "companion.order-reply/1"
 _ORDER_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 ORDER_ID_RULE = "1-64 letters, digits, '_', '.' or '-'"
+#: no coordinate or altitude needs more: an integer beyond it is refused before any float
+#: conversion (a 401-digit integer would raise OverflowError there)
+MAX_MAGNITUDE = 1e9
 
 
 def order_id_ok(order_id: str) -> bool:
@@ -59,7 +63,8 @@ def order_id_ok(order_id: str) -> bool:
 
 
 class OrderRefused(CommandRefused):
-    """An order was refused; ``reason`` is sent back to the ground."""
+    """An order was refused; ``reason`` is sent back to the ground (``kind``: the vehicle's own
+    checks unless said)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,19 +165,34 @@ def _number(doc: dict[str, Any], key: str, what: str, required: bool) -> float |
     value = doc.get(key)
     if value is None:
         if required:
-            raise OrderRefused(f"malformed order: {what}.{key} is missing")
+            raise OrderRefused(f"malformed order: {what}.{key} is missing", RefusalKind.MALFORMED)
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise OrderRefused(f"malformed order: {what}.{key} = {value!r}: expected a finite number")
+    # ints first, compared as ints: math.isfinite / float() of a huge int raises OverflowError
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
+        shown = (
+            repr(value)
+            if not isinstance(value, int) or abs(value) < 10**20
+            else f"an integer of {len(str(value))} digits"
+        )
+        raise OrderRefused(
+            f"malformed order: {what}.{key} = {shown[:40]}: expected a finite number within +-{MAX_MAGNITUDE:g}",
+            RefusalKind.MALFORMED,
+        )
     return float(value)
 
 
 def _pad(value: Any, what: str) -> OrderPad:
     if not isinstance(value, dict):
-        raise OrderRefused(f"malformed order: {what} must be an object with lat_deg, lon_deg and optional alt_amsl_m")
+        raise OrderRefused(
+            f"malformed order: {what} must be an object with lat_deg, lon_deg and optional alt_amsl_m",
+            RefusalKind.MALFORMED,
+        )
     unknown = sorted(set(value) - {"lat_deg", "lon_deg", "alt_amsl_m"})
     if unknown:
-        raise OrderRefused(f"malformed order: {what} has unknown keys {unknown} (lat_deg, lon_deg, alt_amsl_m)")
+        raise OrderRefused(
+            f"malformed order: {what} has unknown keys {unknown[:8]} (lat_deg, lon_deg, alt_amsl_m)",
+            RefusalKind.MALFORMED,
+        )
     lat = _number(value, "lat_deg", what, True)
     lon = _number(value, "lon_deg", what, True)
     assert lat is not None and lon is not None
@@ -182,21 +202,29 @@ def _pad(value: Any, what: str) -> OrderPad:
 
 class OrderVerifier:
     """Checks order payloads for one vehicle: form, MAC, time window, nonce replay (the same
-    guard as commands, with its own replay cache). Thread-safe."""
+    guard as commands, with its own replay cache). Thread-safe. ``clock``: as
+    :class:`~companion.telemetry.auth.SignedRequestGuard`'s."""
 
-    def __init__(self, vehicle_id: str, settings: CommandSettings, clock: Callable[[], float] = time.time):
-        self._guard = SignedRequestGuard(vehicle_id, settings, "order", clock)
+    def __init__(
+        self,
+        vehicle_id: str,
+        settings: CommandSettings,
+        clock: VehicleClock | Callable[[], float] | None = None,
+        monotonic: Callable[[], float] = time.monotonic,
+    ):
+        self._guard = SignedRequestGuard(vehicle_id, settings, "order", clock, monotonic)
         self.vehicle_id = self._guard.vehicle_id
 
     def verify(self, payload: bytes | bytearray | memoryview | None) -> DeliveryOrder:
         """The order in ``payload``, or :class:`CommandRefused` with the reason."""
         g = self._guard
         g.secret()
+        g.gate()
         doc = parse_payload(payload, "order")
         f = parse_signed_fields(doc, ORDER_SCHEMA, "order", ("order_id", "pad"))
         order_id = doc["order_id"]
         if not isinstance(order_id, str) or not _ORDER_ID.match(order_id):
-            raise OrderRefused(f"malformed order: order_id must be {ORDER_ID_RULE}")
+            raise OrderRefused(f"malformed order: order_id must be {ORDER_ID_RULE}", RefusalKind.MALFORMED)
         pad = _pad(doc["pad"], "pad")
         alt_doc = doc.get("alternate")
         alternate = None if alt_doc is None else _pad(alt_doc, "alternate")
@@ -205,7 +233,7 @@ class OrderVerifier:
             f.mac,
             f.vehicle_id,
         )
-        now = g.admit(f.issued_ms, f.nonce)
+        now = g.admit(f.issued_ms, f.nonce, f.sender)
         return DeliveryOrder(
             vehicle_id=f.vehicle_id,
             order_id=order_id,

@@ -33,6 +33,9 @@ while the publisher runs. A queryable ``companion/<id>/info`` answers identity, 
 and the params given at construction. A queryable ``companion/<id>/command`` refuses every
 command unless command access is enabled with a secret (see :mod:`.auth`); accepted commands
 go to ``on_command`` (called on a Zenoh thread: use :func:`call_in_loop` to hop to asyncio).
+Commands are verified on that Zenoh thread, never on the flight loop; refusals are counted by kind
+and logged as a sample (:class:`~.auth.RefusalLog`, one line a second), and the health topic
+carries the counts (:meth:`TelemetryPublisher.refusal_counts`).
 The mission decides what to do with a command; nothing here touches setpoints.
 """
 
@@ -52,7 +55,14 @@ from typing import Any
 
 import zenoh
 
-from companion.telemetry.auth import CommandRefused, CommandSettings, CommandVerifier, GroundCommand
+from companion.telemetry.auth import (
+    CommandRefused,
+    CommandSettings,
+    CommandVerifier,
+    GroundCommand,
+    RefusalKind,
+    RefusalLog,
+)
 from companion.telemetry.schema import (
     SCHEMA,
     Message,
@@ -177,6 +187,8 @@ class TelemetryPublisher:
             raise ValueError(f"info params must be JSON-serialisable: {e}") from e
         self._on_command = on_command
         self._verifier = CommandVerifier(self.vehicle_id, settings.commands, clock=wall_clock)
+        self.refusals = RefusalLog("ground command")
+        self._refusal_sources: dict[str, Callable[[], int]] = {"ground_commands": lambda: self.refusals.total}
         self._clock = clock
         self._wall = wall_clock
 
@@ -417,6 +429,14 @@ class TelemetryPublisher:
         except Exception:  # session closing
             return False
 
+    def count_refusals(self, name: str, count: Callable[[], int]) -> None:
+        """Add a count of refused ground requests (``name``: e.g. "orders") to :meth:`refusal_counts`."""
+        self._refusal_sources[name] = count
+
+    def refusal_counts(self) -> dict[str, int]:
+        """Ground requests refused so far, by source (for the health topic)."""
+        return {name: count() for name, count in self._refusal_sources.items()}
+
     def pending(self) -> int:
         """Messages queued or being sent, not yet published (or failed)."""
         with self._cond:
@@ -456,14 +476,14 @@ class TelemetryPublisher:
         try:
             cmd = self._verifier.verify(raw)
         except CommandRefused as e:
-            self._refuse(query, e.reason)
+            self._refuse(query, e.reason, e.kind)
             return
         try:
             assert self._on_command is not None  # enabled implies a callback (checked in init)
             self._on_command(cmd)
         except Exception as e:
             log.exception("ground command %s: mission callback failed", cmd.kind.value)
-            self._refuse(query, f"mission callback failed: {type(e).__name__}")
+            self._refuse(query, f"mission callback failed: {type(e).__name__}", RefusalKind.VEHICLE)
             return
         self._commands_accepted += 1
         log.warning(
@@ -483,9 +503,9 @@ class TelemetryPublisher:
             ok=True,
         )
 
-    def _refuse(self, query: zenoh.Query, reason: str) -> None:
+    def _refuse(self, query: zenoh.Query, reason: str, kind: RefusalKind) -> None:
         self._commands_refused += 1
-        log.warning("ground command REFUSED on %s: %s", self.vehicle_id, reason)
+        self.refusals.note(kind, f"{self.vehicle_id}: {reason}")  # logged one a second, all counted
         self._reply(query, {"accepted": False, "reason": reason}, ok=False)
 
     def _reply(self, query: zenoh.Query, body: dict[str, Any], ok: bool) -> None:

@@ -30,7 +30,8 @@ class Clock:
 
 
 def verifier(clock: Clock | None = None, **kw) -> OrderVerifier:  # type: ignore[no-untyped-def]
-    return OrderVerifier("drone1", CommandSettings(enabled=True, secret=SECRET, **kw), clock=clock or Clock())
+    clock = clock or Clock()  # one clock for wall and monotonic time: advancing it is time passing
+    return OrderVerifier("drone1", CommandSettings(enabled=True, secret=SECRET, **kw), clock=clock, monotonic=clock)
 
 
 def refused(v: OrderVerifier, payload: bytes | None) -> str:

@@ -29,7 +29,8 @@ class Clock:
 
 
 def verifier(clock: Clock | None = None, **kw) -> CommandVerifier:
-    return CommandVerifier("drone1", CommandSettings(enabled=True, secret=SECRET, **kw), clock=clock or Clock())
+    clock = clock or Clock()  # one clock for wall and monotonic time: advancing it is time passing
+    return CommandVerifier("drone1", CommandSettings(enabled=True, secret=SECRET, **kw), clock=clock, monotonic=clock)
 
 
 def refused(v: CommandVerifier, payload: bytes | None) -> str:
@@ -132,7 +133,7 @@ def test_garbage_refused(payload: bytes | None) -> None:
 
 
 def test_replay_cache_bounded() -> None:
-    v = verifier(max_nonces=16)
+    v = verifier(max_nonces=16, burst=100)  # the cache fills before the sender's bucket empties
     for _ in range(16):
         v.verify(sign_command("drone1", CommandKind.HOLD, SECRET, issued_unix_s=NOW))
     assert "too many" in refused(v, sign_command("drone1", CommandKind.HOLD, SECRET, issued_unix_s=NOW))

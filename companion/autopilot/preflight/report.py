@@ -9,6 +9,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from companion.timebase import ClockVerdict
+
 
 class Status(enum.Enum):
     OK = "ok"
@@ -119,8 +121,13 @@ class Requirements:
 
 @dataclass(frozen=True)
 class PreflightReport:
+    """The rows, and the clock check's verdict (it decides whether signed ground requests are
+    accepted: :class:`~companion.timebase.ClockVerdict`), with the offset it measured."""
+
     autopilot: str
     checks: tuple[CheckResult, ...] = field(default_factory=tuple)
+    clock: ClockVerdict = ClockVerdict.NOT_CHECKED
+    clock_offset_s: float | None = None
 
     @property
     def wrong(self) -> tuple[CheckResult, ...]:

@@ -28,6 +28,7 @@ from companion.autopilot.preflight.sensors import (
     check_realtime,
     check_streams,
     check_uwb,
+    clock_verdict,
 )
 
 
@@ -48,7 +49,8 @@ def run_checks(
     rows += check_uwb(req, uwb)
     rows.append(check_clock(req, clock))
     rows += check_realtime(realtime)
-    return PreflightReport(req.autopilot, tuple(rows))
+    offset = clock.offset_s if clock is not None else None
+    return PreflightReport(req.autopilot, tuple(rows), clock_verdict(req, clock), offset)
 
 
 async def preflight(

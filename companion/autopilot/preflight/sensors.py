@@ -18,6 +18,7 @@ from companion.autopilot.preflight.report import (
     UwbProbe,
 )
 from companion.autopilot.preflight.rules import fmt
+from companion.timebase import ClockVerdict
 
 #: share of ``landing.camera_rate_hz`` the measured camera rate must reach
 CAMERA_RATE_TOLERANCE = 0.8
@@ -113,10 +114,21 @@ def check_realtime(probe: RealtimeProbe | None) -> list[CheckResult]:
     return [CheckResult(name, Status.OK, value, "permitted: the companion's threads run real time in flight")]
 
 
+def clock_verdict(req: Requirements, probe: ClockProbe | None) -> ClockVerdict:
+    """The clock check as a verdict: AGREES within the tolerance, OFF beyond it, UNKNOWN when the
+    autopilot gave no UTC, NOT_CHECKED when it was not probed."""
+    if probe is None:
+        return ClockVerdict.NOT_CHECKED
+    if probe.error or probe.offset_s is None:
+        return ClockVerdict.UNKNOWN
+    return ClockVerdict.OFF if abs(probe.offset_s) > req.clock_tolerance_s else ClockVerdict.AGREES
+
+
 def check_clock(req: Requirements, probe: ClockProbe | None) -> CheckResult:
     """The autopilot's UTC against the companion's wall clock. The .tlog's and the companion's logs
-    line up by it; nothing in flight does (the ground commands' freshness is judged on the
-    companion's own clock), so an offset beyond the tolerance is a warning, not a failed check."""
+    line up by it, and signed ground commands and orders are judged fresh on it: beyond the
+    tolerance (:func:`clock_verdict` OFF) they are refused until a check agrees. Flying itself does
+    not depend on it, so the row is a warning, not a failed check."""
     if probe is None:
         return CheckResult("clock", Status.UNKNOWN, "-", "not probed")
     if probe.error or probe.offset_s is None:
@@ -128,8 +140,8 @@ def check_clock(req: Requirements, probe: ClockProbe | None) -> CheckResult:
             Status.WARN,
             f"{off:+.3f} s",
             f"the companion's clock is {abs(off):.1f} s {'behind' if off > 0 else 'ahead of'} the autopilot's UTC "
-            f"(tolerance {req.clock_tolerance_s:g} s): the flight logs will not line up with the .tlog; sync the "
-            "companion's clock (NTP/chrony, or from GPS)",
+            f"(tolerance {req.clock_tolerance_s:g} s): signed ground commands and orders are refused and the flight "
+            "logs will not line up with the .tlog; sync the companion's clock (NTP/chrony, or from GPS)",
         )
     return CheckResult(
         "clock", Status.OK, f"{off:+.3f} s", f"autopilot UTC - companion clock (within {req.clock_tolerance_s:g} s)"
