@@ -16,6 +16,7 @@ import math
 import operator
 import re
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -147,87 +148,132 @@ def batch_encoder(columns: Sequence[str]) -> Callable[[list[tuple[object, ...]]]
     ``"``, ``,`` or ``\\`` (nothing for either format to quote or escape), checked once per
     batch; any other batch goes row by row: a row of finite Python numbers formatted once, any
     other row through ``csv.writer`` and :func:`encode_row`."""
-    cols = tuple(columns)
-    n = len(cols)
-    text_idx = [i for i, c in enumerate(cols) if c in TEXT_COLUMNS]
-    number_idx = [i for i, c in enumerate(cols) if c not in TEXT_COLUMNS]
-    line_fmt = ",".join("%s" if c in TEXT_COLUMNS else "%r" for c in cols)
-    keys = [json.dumps(c).replace("%", "%%") + ":" for c in cols]
-    json_fmt = (
-        "{" + ",".join(k + ('"%s"' if c in TEXT_COLUMNS else "%s") for k, c in zip(keys, cols, strict=True)) + "}"
-    )
-    numbers_of = operator.itemgetter(*number_idx) if len(number_idx) > 1 else None
-    texts_of = operator.itemgetter(*text_idx) if len(text_idx) > 1 else None
-    values = ",".join(["%r"] * n)
-    template = "{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}"
-    search = _NOT_A_NUMBER.search
-    numeric = not text_idx
-
-    def numbers(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
-        try:
-            lines = [values % row for row in batch]
-        except TypeError:  # a row of another length
-            return None
-        if search(",".join(lines)) is not None:  # not only finite ints and floats
-            return None
-        payloads = [(template % tuple(t.split(","))).encode() for t in lines]
-        lines.append("")  # the last line's end
-        return "\r\n".join(lines), payloads
-
-    def whole(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
-        try:
-            lines = [line_fmt % row for row in batch]
-        except TypeError:  # a row of another length
-            return None
-        cells = [line.split(",") for line in lines]
-        if any(len(c) != n for c in cells):  # a comma in a cell
-            return None
-        if number_idx:
-            if numbers_of is not None:
-                nums = ",".join([",".join(numbers_of(c)) for c in cells])
-            else:
-                nums = ",".join([c[number_idx[0]] for c in cells])
-            if _NOT_A_CELL.search(nums) is not None:
-                return None
-        if text_idx:
-            if texts_of is not None:
-                texts = [t for row in batch for t in texts_of(row)]
-            else:
-                texts = [row[text_idx[0]] for row in batch]
-            if set(map(type, texts)) - {str} or _NOT_PLAIN_TEXT.search("".join(texts)) is not None:  # type: ignore[arg-type]
-                return None
-        messages = "\n".join([json_fmt % tuple(c) for c in cells])
-        if number_idx:
-            for v in _NON_FINITE:
-                if v in messages:
-                    for end in (",", "}"):
-                        # after a key's closing quote (a text value holds no quote): a number's cell
-                        messages = messages.replace(f'":{v}{end}', f'":"{v}"{end}')
-        lines.append("")  # the last line's end
-        return "\r\n".join(lines), messages.encode().split(b"\n")
+    f = _BatchFormats.of(columns)
+    numeric = not f.text_idx
 
     def encode(batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
         if batch:
-            done = numbers(batch) if numeric else None
+            done = _batch_of_numbers(f, batch) if numeric else None
             if done is None:
-                done = whole(batch)
+                done = _batch_whole(f, batch)
             if done is not None:
                 return done
-        out = _ListWriter()
-        slow = csv.writer(out)
-        payloads: list[bytes] = []
-        for row in batch:
-            if numeric and len(row) == n:
-                text = values % row
-                if search(text) is None:
-                    out.parts.append(text + "\r\n")
-                    payloads.append((template % tuple(text.split(","))).encode())
-                    continue
-            slow.writerow(row)
-            payloads.append(encode_row(cols, row))
-        return "".join(out.parts), payloads
+        return _batch_row_by_row(f, batch)
 
     return encode
+
+
+@dataclass(frozen=True)
+class _BatchFormats:
+    """One stream's formats for :func:`batch_encoder`: the CSV line's and the JSON message's
+    (text columns apart), and those of a row of numbers only."""
+
+    cols: tuple[str, ...]
+    text_idx: list[int]
+    number_idx: list[int]
+    line_fmt: str
+    json_fmt: str
+    numbers_of: Callable[[list[str]], tuple[str, ...]] | None
+    texts_of: Callable[[tuple[object, ...]], tuple[object, ...]] | None
+    values: str
+    template: str
+
+    @property
+    def n_cols(self) -> int:
+        return len(self.cols)
+
+    @staticmethod
+    def of(columns: Sequence[str]) -> _BatchFormats:
+        cols = tuple(columns)
+        text_idx = [i for i, c in enumerate(cols) if c in TEXT_COLUMNS]
+        number_idx = [i for i, c in enumerate(cols) if c not in TEXT_COLUMNS]
+        keys = [json.dumps(c).replace("%", "%%") + ":" for c in cols]
+        return _BatchFormats(
+            cols=cols,
+            text_idx=text_idx,
+            number_idx=number_idx,
+            line_fmt=",".join("%s" if c in TEXT_COLUMNS else "%r" for c in cols),
+            json_fmt="{"
+            + ",".join(k + ('"%s"' if c in TEXT_COLUMNS else "%s") for k, c in zip(keys, cols, strict=True))
+            + "}",
+            numbers_of=operator.itemgetter(*number_idx) if len(number_idx) > 1 else None,
+            texts_of=operator.itemgetter(*text_idx) if len(text_idx) > 1 else None,
+            values=",".join(["%r"] * len(cols)),
+            template="{" + ",".join(f"{json.dumps(c)}:%s" for c in cols) + "}",
+        )
+
+
+def _batch_of_numbers(f: _BatchFormats, batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
+    """A batch of finite Python ints and floats only (a stream without text columns); None
+    for any other batch."""
+    values, template = f.values, f.template
+    try:
+        lines = [values % row for row in batch]
+    except TypeError:  # a row of another length
+        return None
+    if _NOT_A_NUMBER.search(",".join(lines)) is not None:  # not only finite ints and floats
+        return None
+    payloads = [(template % tuple(t.split(","))).encode() for t in lines]
+    lines.append("")  # the last line's end
+    return "\r\n".join(lines), payloads
+
+
+def _batch_whole(f: _BatchFormats, batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]] | None:
+    """The whole batch formatted at once (see :func:`batch_encoder`); None when a cell would need
+    quoting or escaping."""
+    n, number_idx, text_idx, numbers_of, texts_of = f.n_cols, f.number_idx, f.text_idx, f.numbers_of, f.texts_of
+    line_fmt, json_fmt = f.line_fmt, f.json_fmt
+    try:
+        lines = [line_fmt % row for row in batch]
+    except TypeError:  # a row of another length
+        return None
+    cells = [line.split(",") for line in lines]
+    if any(len(c) != n for c in cells):  # a comma in a cell
+        return None
+    if number_idx:
+        if numbers_of is not None:
+            nums = ",".join([",".join(numbers_of(c)) for c in cells])
+        else:
+            nums = ",".join([c[number_idx[0]] for c in cells])
+        if _NOT_A_CELL.search(nums) is not None:
+            return None
+    if text_idx:
+        if texts_of is not None:
+            texts = [t for row in batch for t in texts_of(row)]
+        else:
+            texts = [row[text_idx[0]] for row in batch]
+        if set(map(type, texts)) - {str} or _NOT_PLAIN_TEXT.search("".join(texts)) is not None:  # type: ignore[arg-type]
+            return None
+    messages = "\n".join([json_fmt % tuple(c) for c in cells])
+    if number_idx:
+        for v in _NON_FINITE:
+            if v in messages:
+                for end in (",", "}"):
+                    # after a key's closing quote (a text value holds no quote): a number's cell
+                    messages = messages.replace(f'":{v}{end}', f'":"{v}"{end}')
+    lines.append("")  # the last line's end
+    return "\r\n".join(lines), messages.encode().split(b"\n")
+
+
+def _batch_row_by_row(f: _BatchFormats, batch: list[tuple[object, ...]]) -> tuple[str, list[bytes]]:
+    """Any batch, row by row: a row of finite Python numbers formatted once (a stream without
+    text columns), any other row through ``csv.writer`` and :func:`encode_row`."""
+    cols, n, values, template = f.cols, f.n_cols, f.values, f.template
+    numeric = not f.text_idx
+    search = _NOT_A_NUMBER.search
+    out = _ListWriter()
+    slow = csv.writer(out)
+    payloads: list[bytes] = []
+    for row in batch:
+        if numeric and len(row) == n:
+            text = values % row
+            if search(text) is None:
+                out.parts.append(text + "\r\n")
+                payloads.append((template % tuple(text.split(","))).encode())
+                continue
+        slow.writerow(row)
+        payloads.append(encode_row(cols, row))
+    return "".join(out.parts), payloads
 
 
 def cell_text(v: object) -> str:
