@@ -23,8 +23,9 @@ import numpy as np
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
 from companion.delivery.mission import MissionOutput
+from companion.delivery.observers import FLIGHT_LOG_COLUMNS
 from companion.delivery.planning import pad_config_ned, pad_position_ned
-from companion.delivery.shell import FLIGHT_LOG_COLUMNS, DeliveryShell
+from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion.flightlog.atomic import write_text_atomic
 from companion.flightlog.csvlog import CsvLog

@@ -53,14 +53,22 @@ from companion.delivery.mission import (
     RequestKind,
     RequestResult,
 )
+from companion.delivery.observers import (
+    FlightLogObserver,
+    GcsObserver,
+    RecorderObserver,
+    ShellObserver,
+    ShellTick,
+    TelemetryObserver,
+    TickCallback,
+)
 from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad, pad_yaw_and_tolerance_rad
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.estimation.ekf import EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
-from companion.events import MissionEvent, Phase
+from companion.events import EventKind, MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
-from companion.flightlog.streams import ENUM_VALUE
 from companion.geometry.mounts import pad_pose_ned
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
@@ -81,31 +89,8 @@ log = logging.getLogger(__name__)
 
 REQUEST_TIMEOUT_S = 10.0  # an autopilot call that takes longer has failed (and is retried)
 
-FLIGHT_LOG_COLUMNS = (
-    "time_s",
-    "phase",
-    "sector",
-    "lyapunov_m2",
-    "est_north_m",
-    "est_east_m",
-    "est_down_m",
-    "est_north_m_s",
-    "est_east_m_s",
-    "est_down_m_s",
-    "est_yaw_rad",
-    "sp_north_m_s",
-    "sp_east_m_s",
-    "sp_down_m_s",
-    "sp_yaw_rad",
-    "clamped",
-    "mission_x_m",
-    "mission_y_m",
-    "mission_z_m",
-    "mode",
-    "armed",
-)
 
-
+WARNING_EVENTS = (EventKind.ABORT, EventKind.PILOT_TAKEOVER, EventKind.LINK_LOST)  # logged as warnings
 NOT_READY_SAY_S = 5.0  # how often a pre-flight wait on an autopilot that is not ready says why
 
 _SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
@@ -227,7 +212,11 @@ class DeliveryShell:
         recorder: Any | None = None,
         before_flight: Callable[[], Awaitable[None]] | None = None,
         zenoh_session: Any = None,
+        observers: tuple[ShellObserver, ...] = (),
     ):
+        """``flight_log`` (flight.csv), ``recorder`` (the run folder's streams) and ``on_tick`` (a
+        function of the shell and each tick's output) are observers the shell adds itself, first;
+        ``observers``: more, called after them (:meth:`add_observer`)."""
         self.config = config
         # an open Zenoh session for the telemetry publisher (`fly --orders`: the order desk's, kept
         # across flights); None: the publisher opens its own from [telemetry]
@@ -246,16 +235,22 @@ class DeliveryShell:
             else None
         )
         self.flight_log = flight_log
-        self.on_tick = on_tick
+        # the shell's own observers (flight log, recorder, then telemetry and GCS as they start),
+        # called before those added from outside, each group in the order added
+        self._parts: list[ShellObserver] = []
+        self.observers: list[ShellObserver] = []
+        if flight_log is not None:
+            self._parts.append(FlightLogObserver(flight_log))
+        if recorder is not None:
+            self._parts.append(RecorderObserver(recorder))
+        if on_tick is not None:
+            self.observers.append(TickCallback(on_tick))
+        self.observers.extend(observers)
         self.stats = ShellStats()
         self.estimate: StateEstimate | None = None
         self.events: list[MissionEvent] = []
         self._clock = LoopClock()
         self._setpoint: tuple[float, VelocitySetpoint] | None = None
-        # flight_log's mission-frame position: the frame (replaced on a replan, never mutated),
-        # its R_ned_mission.T and pad, so each row does MissionFrame.point_from_ned's arithmetic
-        # on the same operands without rebuilding the matrix
-        self._record_frame: tuple[Any, Any, Any] | None = None
         self._last_sent_s = -math.inf  # when a setpoint last went to the autopilot
         # set when a camera observation is fused while the fused estimate steers: guidance ticks
         # at once instead of at its next deadline ([runtime] guidance_on_marker)
@@ -295,11 +290,24 @@ class DeliveryShell:
         sender "gcs"), on the loop thread: to the mission, recorded; returns the mission's reply."""
         now = self._clock.now()
         reply = self.mission.command(now, kind, sender)
-        if self.recorder is not None:
-            self.recorder.on_command(now, kind, sender, reply)
+        for ob in self._watching():
+            ob.on_command(now, kind, sender, reply)
         self.ground_commands.append((kind, reply))
         log.warning("ground command %s from %s: %s", kind, sender, reply)
         return reply
+
+    def add_observer(self, observer: ShellObserver) -> None:
+        """Watch the shell from now on (after those already added): :class:`ShellObserver`."""
+        self.observers.append(observer)
+
+    def _watching(self) -> list[ShellObserver]:
+        return self._parts + self.observers
+
+    def _closing_order(self) -> list[ShellObserver]:
+        """Telemetry first, the recorder next, the GCS last (it says how the mission ended), then
+        those added from outside."""
+        rank = {TelemetryObserver: 0, FlightLogObserver: 1, RecorderObserver: 1, GcsObserver: 2}
+        return sorted(self._parts, key=lambda ob: rank.get(type(ob), 1)) + self.observers
 
     def abort(self, reason: str, kind: FailureKind = FailureKind.ABORTED) -> None:
         """Ask the mission to abort (hold, then land) at its next tick; while the shell is still
@@ -324,14 +332,8 @@ class DeliveryShell:
             from companion.vision.opencv_threads import apply_opencv_threads
 
             apply_opencv_threads(self.config.runtime.opencv_threads)  # process-wide, before the camera starts
-        if self.recorder is not None:
-            # first listener: every sample gets a seq
-            kit = self.landing
-            self.recorder.attach(
-                self.autopilot.telemetry,
-                landing=kit is not None,
-                pad_sensors=kit is not None and (kit.camera is not None or kit.uwb is not None),
-            )
+        for ob in self._watching():
+            ob.on_start(self)  # the recorder: the first listener, so every sample gets a seq
         stream: asyncio.Task[None] | None = None
         try:  # everything started here is stopped in the finally, a failed start-up included
             if self._want_telemetry:
@@ -340,6 +342,7 @@ class DeliveryShell:
                 pub = make_publisher(self.config, command_handler(loop, self), session=self._zenoh_session)
                 pub.start()
                 self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
+                self._parts.append(TelemetryObserver(self.telemetry))
             self._connecting = loop.create_task(
                 self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s), name="connect"
             )
@@ -355,7 +358,9 @@ class DeliveryShell:
                 from companion.delivery.gcs import GcsComponent
 
                 self.gcs = GcsComponent(self.config.gcs, self.autopilot, self.command)
-                if not self.gcs.open():
+                if self.gcs.open():
+                    self._parts.append(GcsObserver(self.gcs))
+                else:
                     self.gcs = None
             if self.config.mission.destination == "autopilot_mission":
                 await self._take_autopilot_mission()
@@ -398,15 +403,8 @@ class DeliveryShell:
                 self._request_task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await self._request_task
-            if self.telemetry is not None:
-                self.telemetry.close()
-                await self.telemetry.publisher.astop()
-            if self.recorder is not None:
-                self.recorder.detach()  # its owner closes it
-            if self.gcs is not None:
-                if self.mission.phase.terminal:
-                    self.gcs.send_text(self._end_text(), self._end_severity())
-                await self.gcs.close()
+            for ob in self._closing_order():
+                await ob.close(self)
         return self.mission.summary
 
     def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> ThreadPolicy | None:
@@ -446,20 +444,21 @@ class DeliveryShell:
         """A go/no-go verdict reached outside a guidance tick, to the mission (``refuse``: the
         delivery is refused; ``go``: said, nothing changes) and to the recorder, for replay."""
         now = self._clock.now()
-        if self.recorder is not None:
-            self.recorder.on_go_no_go(now, verdict, detail)
+        for ob in self._watching():
+            ob.on_go_no_go(now, verdict, detail)
         if verdict == "refuse":
             self.mission.refuse(now, detail)
         else:
             self.mission.go_no_go(now, detail)
 
-    def _end_text(self) -> str:
+    def end_text(self) -> str:
+        """What the mission's end says to the operator."""
         s = self.mission.summary
         if s.failure:
             return f"mission ended: {s.failure}"
         return "mission done: " + ("delivered" if s.delivered else "not delivered") + (", home" if s.returned else "")
 
-    def _end_severity(self) -> int:
+    def end_severity(self) -> int:
         from companion.autopilot.component import SEVERITY_NOTICE, SEVERITY_WARNING
 
         return SEVERITY_WARNING if self.mission.summary.failure else SEVERITY_NOTICE
@@ -489,10 +488,10 @@ class DeliveryShell:
         if done:
             self.made_ready.append(f"{when}: {done}")
             log.info("%s: %s", when, done)
-            if self.gcs is not None:
-                from companion.autopilot.component import SEVERITY_NOTICE
+            from companion.autopilot.component import SEVERITY_NOTICE
 
-                self.gcs.send_text(done, SEVERITY_NOTICE)
+            for ob in self._watching():
+                ob.on_text(done, SEVERITY_NOTICE)
 
     def where_it_stands(self, now: float) -> str:
         """The mission's phase, the request it waits on, and what the autopilot last said (mode,
@@ -533,8 +532,8 @@ class DeliveryShell:
             live.renew()
             self.stats.guidance_overruns, self.stats.guidance_ticks = rate.overruns, rate.ticks
             if self._abort_reason is not None:
-                if self.recorder is not None:
-                    self.recorder.on_abort(now, self._abort_reason)
+                for ob in self._watching():
+                    ob.on_abort(now, self._abort_reason)
                 mission.abort(now, self._abort_reason, self._abort_kind)
                 self._abort_reason = None
             gps_frame = self.estimator.update(tc.position_ned, tc.attitude)
@@ -564,10 +563,10 @@ class DeliveryShell:
             out = mission.step(inp)
             for ev in out.events:
                 self.events.append(ev)
-                level = logging.WARNING if ev.kind.value in ("abort", "pilot_takeover", "link_lost") else logging.INFO
+                level = logging.WARNING if ev.kind in WARNING_EVENTS else logging.INFO
                 log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
-            if self.gcs is not None:
-                self.gcs.on_events(out.events)
+            for ob in self._watching():
+                ob.on_events(now, out.events)
             if out.phase is Phase.PREFLIGHT:
                 self._say_not_ready(now, tc.status)
             clamped = False
@@ -588,14 +587,9 @@ class DeliveryShell:
                 self._setpoint = None
             if out.request is not None:
                 self._request_task = asyncio.get_running_loop().create_task(self._execute(out.request))
-            self._record(now, out, clamped)
-            if self.recorder is not None:
-                sp = self._setpoint[1] if self._setpoint is not None else None
-                self.recorder.on_tick(inp, out, sp, clamped, mission, self.fusion)
-            if self.telemetry is not None:
-                self.telemetry.tick(now, self, out.phase, out.sector, out.lyapunov, out.events)
-            if self.on_tick is not None:
-                self.on_tick(self, out)
+            tick = ShellTick(now, inp, out, self._setpoint[1] if self._setpoint is not None else None, clamped, self)
+            for ob in self._watching():
+                ob.on_tick(tick)
 
     def _pad_lock(self, now: float) -> PadLock:
         """The pad's lock for the mission's no-release-off-the-pad policy: none without a camera or
@@ -618,10 +612,10 @@ class DeliveryShell:
         self._not_ready_said_s = now
         why = self.autopilot.not_ready_reason() or "no reason given"
         log.warning("waiting for the autopilot to be ready to arm: %s", why)
-        if self.gcs is not None:
-            from companion.autopilot.component import SEVERITY_WARNING
+        from companion.autopilot.component import SEVERITY_WARNING
 
-            self.gcs.send_text(f"not ready to arm: {why}", SEVERITY_WARNING)
+        for ob in self._watching():
+            ob.on_text(f"not ready to arm: {why}", SEVERITY_WARNING)
 
     def _start_fusion(self, now: float) -> None:
         kit = self.landing
@@ -792,9 +786,13 @@ class DeliveryShell:
             pacer.done(start_s, cpu_s)
         if obs is None:
             return
-        if self.recorder is not None:
-            self.recorder.on_marker(self._clock.now(), obs, frame.image)
-        accepted = self.fusion.on_marker(obs) is UpdateOutcome.ACCEPTED
+        watching = self._watching()
+        for ob in watching:
+            ob.on_marker(self._clock.now(), obs, frame.image)
+        outcome = self.fusion.on_marker(obs)
+        for ob in watching:
+            ob.on_marker_fused(self._clock.now(), obs, outcome)
+        accepted = outcome is UpdateOutcome.ACCEPTED
         if accepted and self.config.runtime.guidance_on_marker and self.fused_estimate_steers():
             self._marker_fused.set()
         if self._landing_target is not None:
@@ -808,8 +806,8 @@ class DeliveryShell:
             meas = m.to_twr_measurement() if hasattr(m, "to_twr_measurement") else m
             res = kit.multilaterator.solve_twr(meas)
             if isinstance(res, UwbFix):
-                if self.recorder is not None:
-                    self.recorder.on_uwb(self._clock.now(), res)
+                for ob in self._watching():
+                    ob.on_uwb(self._clock.now(), res)
                 self.fusion.on_uwb(res)
 
     def fused_estimate_steers(self) -> bool:
@@ -843,8 +841,8 @@ class DeliveryShell:
         self.autopilot.set_velocity_ned(sp)
         self.stats.setpoints_sent += 1
         self._last_sent_s = now
-        if self.recorder is not None:
-            self.recorder.on_setpoint(now, sp)
+        for ob in self._watching():
+            ob.on_setpoint(now, sp)
         self._streaming = True
 
     async def _setpoint_stream(self) -> None:
@@ -922,38 +920,6 @@ class DeliveryShell:
         self._result(req, RequestResult(req.id, False, msg, permanent))
 
     def _result(self, req: Request, result: RequestResult) -> None:
-        if self.recorder is not None:
-            self.recorder.on_result(self._clock.now(), req.kind.value, result)
+        for ob in self._watching():
+            ob.on_result(self._clock.now(), req.kind.value, result)
         self.mission.on_result(result)
-
-    def _record(self, now: float, out: MissionOutput, clamped: bool) -> None:
-        if self.flight_log is None:
-            return
-        e = self.estimate
-        sp = self._setpoint[1] if self._setpoint is not None else None
-        st = self.autopilot.telemetry.status
-        nan = math.nan
-        frame = self.mission.frame
-        if e is None:
-            est: tuple[float, ...] = (nan, nan, nan, nan, nan, nan, nan)
-            mx = my = mz = nan
-        else:
-            est = (e.north_m, e.east_m, e.down_m, e.north_m_s, e.east_m_s, e.down_m_s, e.yaw_rad)
-            if frame is None:
-                mx = my = mz = nan
-            else:
-                rf = self._record_frame
-                if rf is None or rf[0] is not frame:
-                    Rt, pad = frame.R_ned_mission.T, frame.pad_ned
-                    rf = self._record_frame = (frame, tuple(tuple(map(float, r)) for r in Rt), tuple(map(float, pad)))
-                # = frame.point_from_ned(position) in floats: numpy's 3x3 product sums each row in this order
-                (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rf[1]
-                pn, pe, pd = rf[2]
-                dn, de, dd = e.north_m - pn, e.east_m - pe, e.down_m - pd
-                mx, my, mz = a0 * dn + a1 * de + a2 * dd, b0 * dn + b1 * de + b2 * dd, c0 * dn + c1 * de + c2 * dd
-        self.flight_log.put(
-            (now, ENUM_VALUE[out.phase], out.sector, out.lyapunov)
-            + est
-            + ((sp.north_m_s, sp.east_m_s, sp.down_m_s, sp.yaw_rad) if sp else (nan, nan, nan, nan))
-            + (int(clamped), mx, my, mz, ENUM_VALUE[st.mode] if st else "", int(st.armed) if st else 0)
-        )

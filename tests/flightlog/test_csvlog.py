@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from companion.delivery.shell import FLIGHT_LOG_COLUMNS
+from companion.delivery.observers import FLIGHT_LOG_COLUMNS
 from companion.flightlog import CsvLog, read_csv
 
 
