@@ -442,7 +442,13 @@ class FlightRecorder:
         """``run.json`` replaced whole (never torn); ``sync``: fsynced (at the close, not on the
         control path)."""
         text = json.dumps(_json_safe(self.meta), indent=1)
-        write_text_atomic(self.run_dir / META_FILE, text, sync=sync)
+        try:
+            write_text_atomic(self.run_dir / META_FILE, text, sync=sync)
+        except OSError as err:
+            if sync:  # the close's: reported there
+                raise
+            # in flight (a full disk): the previous version stays, the close writes the whole one
+            log.error("%s: cannot rewrite it (%s); the previous version is kept", self.run_dir / META_FILE, err)
         if self.mcap is not None:
             self.mcap.add_meta(text)
 

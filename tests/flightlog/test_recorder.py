@@ -138,3 +138,25 @@ def test_a_sample_dropped_by_a_full_queue_is_counted_and_still_takes_its_seq(tmp
     assert Table(tmp_path / "ap_attitude.csv").floats("seq").tolist() == [9.0]
     meta = json.loads((tmp_path / "run.json").read_text())
     assert meta["dropped"] == {"ap_position.csv": 2, "ap_status.csv": 1}
+
+
+def test_run_json_on_a_disk_full_in_flight_keeps_its_last_version_and_closes_whole(tmp_path, caplog):
+    from ..tmpfs import fill, mounted_tmpfs
+
+    class Telemetry:
+        def add_listener(self, fn):
+            self.fn = fn
+
+        def remove_listener(self, fn):
+            pass
+
+    with mounted_tmpfs(tmp_path / "disk", "2m") as d:
+        rec = FlightRecorder(d / "run", CompanionConfig(), mcap=False)
+        fill(d)
+        rec.attach(Telemetry(), landing=True)  # rewrites run.json: the disk is full, the flight goes on
+        assert rec.errors == 0
+        assert json.loads((d / "run" / "run.json").read_text())["landing"] is None  # the last version, whole
+        assert f"{d / 'run' / 'run.json'}: cannot rewrite it" in caplog.text
+        rec.close()  # the room kept from the start holds the closing version
+        meta = json.loads((d / "run" / "run.json").read_text())
+        assert meta["closed"] and meta["landing"] is True
