@@ -58,7 +58,7 @@ from companion.autopilot.types import TelemetrySample
 from companion.flightlog.atomic import Room, write_text_atomic
 from companion.flightlog.csvlog import CsvLog, close_logs
 from companion.flightlog.losses import forget as forget_losses
-from companion.flightlog.losses import losses
+from companion.flightlog.losses import logs_incomplete, losses
 from companion.flightlog.mcap_encoding import MCAP_FILE
 from companion.flightlog.mcaplog import McapFlightLog
 from companion.flightlog.streams import (
@@ -482,6 +482,13 @@ class FlightRecorder:
             self.mcap.close()
         for e in errors:
             log.error("flight log: %s", e)
+
+    @property
+    def logs_incomplete(self) -> bool:
+        """Whether a log of this run folder lost rows so far (a full disk, an I/O error, a full
+        queue: :mod:`companion.flightlog.losses`, known within one hand-over); not for the
+        control path's every tick (it takes a lock and scans the losses)."""
+        return logs_incomplete(self.run_dir)
 
     def __enter__(self) -> FlightRecorder:
         return self
