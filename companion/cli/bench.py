@@ -320,9 +320,10 @@ def register_bench(bsub: Any) -> None:
 def cmd_bench_orders(args: argparse.Namespace) -> int:
     import asyncio
 
+    from companion.cli.orders import serve_orders
     from companion_lab.bench.orders import report, run_orders_bench
 
-    r = asyncio.run(run_orders_bench(tuple(args.large_mb), args.flood_hz, args.command_hz, args.flood_s))
+    r = asyncio.run(run_orders_bench(serve_orders, tuple(args.large_mb), args.flood_hz, args.command_hz, args.flood_s))
     print(json.dumps(r, indent=2) if args.json else report(r))
     return 0 if r["delivered"] else 1
 

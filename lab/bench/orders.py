@@ -226,15 +226,17 @@ async def _send_first_order(station: Any, config: Any) -> None:
 
 
 async def run_orders_bench(
+    serve_orders: Any,
     large_mb: tuple[int, ...] = (200, 200, 200, 200, 900),
     flood_hz: float = 500.0,
     command_hz: float = 100.0,
     flood_s: float = 20.0,
     out_dir: Path | None = None,
 ) -> dict[str, Any]:
-    """Fly one order under attack (the module docstring) and return the figures."""
+    """Fly one order under attack (the module docstring) and return the figures. ``serve_orders``:
+    the vehicle side of ``fly --orders`` (:func:`companion.cli.orders.serve_orders`; the command
+    line hands it over, the lab sits below it)."""
     from companion.autopilot.px4 import Px4Autopilot
-    from companion.cli.orders import serve_orders
     from companion.telemetry.ground import GroundStation
     from companion.telemetry.loopback import free_tcp_port, loopback_settings
     from companion_lab.bench.app import run_setpoint_stream

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import pytest
 
+from companion.cli.orders import serve_orders
 from companion_lab.bench.orders import run_orders_bench
 
 pytestmark = pytest.mark.flight
@@ -20,7 +21,9 @@ LARGE_MIB = (64, 256)
 
 
 async def test_a_delivery_under_attack_refuses_and_counts_everything_and_keeps_flying(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    r = await run_orders_bench(large_mb=LARGE_MIB, flood_hz=300.0, command_hz=50.0, flood_s=8.0, out_dir=tmp_path)
+    r = await run_orders_bench(
+        serve_orders, large_mb=LARGE_MIB, flood_hz=300.0, command_hz=50.0, flood_s=8.0, out_dir=tmp_path
+    )
     assert r["delivered"] and not r["failure"], r
     att = r["attack"]
     assert [x["answered"] for x in att["large"]] == [0, 0]  # dropped while Zenoh reassembled them
