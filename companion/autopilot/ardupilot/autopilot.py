@@ -100,10 +100,15 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         self.command_timeout_s = command_timeout_s
         self.command_retries = command_retries
         self.stream_rates_hz = dict(DEFAULT_STREAM_RATES_HZ if stream_rates_hz is None else stream_rates_hz)
+        self.open_tlog = tlog
+        self._init_link_state()
+        self._init_vehicle_state()
+
+    def _init_link_state(self) -> None:
+        """The link's own state: telemetry cache, counters, the reader thread and what waits on it."""
         self.telemetry = TelemetryCache()
         self.counters = LinkCounters()
         self.rc_channels: tuple[int, ...] = ()
-        self.open_tlog = tlog
         self.tlog: PacketSink | None = None
         self._tlog_opened = False  # a reconnect appends to the same file
         self._conn: Any = None
@@ -123,7 +128,9 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         self._last_stream_request = -math.inf
         self._highres_accepted = False
         self._t_boot = time.monotonic()
-        # vehicle state (reader thread writes, event loop reads)
+
+    def _init_vehicle_state(self) -> None:
+        """The vehicle's state as received (the reader thread writes, the event loop reads)."""
         self.copter_mode = -1
         self._armed = False
         self._landed = LandedState.UNKNOWN
