@@ -116,13 +116,18 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self.command_timeout_s = command_timeout_s
         self.arm_timeout_s = arm_timeout_s
         self.destroy_timeout_s = destroy_timeout_s
+        self.open_tlog = tlog
+        self._init_link_state()
+        self._init_vehicle_state()
+
+    def _init_link_state(self) -> None:
+        """The link's own state: counters, telemetry cache, MAVSDK's plugins and the stream tasks."""
         self.streams_restarted = 0  # telemetry streams that ended or raised and were subscribed again
         self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
         self.telemetry = TelemetryCache()
         self.setpoints_sent = 0
         self.setpoints_dropped = 0
         self.system_id = 1
-        self.open_tlog = tlog
         self.tlog: PacketSink | None = None
         self._tlog_opened = False  # a reconnect appends to the same file
         self._tlog_unhook: list[Callable[[], None]] = []
@@ -145,7 +150,9 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         self._last_sp_call = -math.inf
         self._plugin_streaming = False
         self._t_boot = time.monotonic()
-        # composed status
+
+    def _init_vehicle_state(self) -> None:
+        """The vehicle's status as composed from MAVSDK's streams."""
         self._armed = False
         self._mode = FlightMode.UNKNOWN
         self._landed = LandedState.UNKNOWN
