@@ -304,6 +304,7 @@ class SignedRequestGuard:
         self._newest: OrderedDict[str, int] = OrderedDict()  # sender -> newest accepted issued_unix_ms
         self._buckets: OrderedDict[str, TokenBucket] = OrderedDict()
         self._base: float | None = None  # vehicle time minus monotonic time at the last admit
+        self._step_logged = 0.0  # the wall clock's step from the vehicle clock, as last logged
         self._lock = threading.Lock()
         rate = settings.max_requests_per_s
         self._gate = TokenBucket(rate, max(1, round(rate)), self.clock.monotonic())
@@ -348,6 +349,7 @@ class SignedRequestGuard:
             )
         mono = self.clock.monotonic()
         now = self.clock.now()
+        self._log_step(s.window_s)
         issued = issued_ms / 1000.0
         if abs(now - issued) > s.window_s:
             raise CommandRefused(
@@ -357,6 +359,19 @@ class SignedRequestGuard:
         with self._lock:
             self._admit_locked(issued_ms, nonce, sender, now, mono)
         return now
+
+    def _log_step(self, window_s: float) -> None:
+        """Say once per change of more than the window that the wall clock has stepped."""
+        step = self.clock.step_s()
+        if abs(step - self._step_logged) <= window_s:
+            return
+        self._step_logged = step
+        log.warning(
+            "the wall clock is %+.1f s from the vehicle clock (stepped since it was anchored): signed %ss are "
+            "judged on the vehicle clock",
+            step,
+            self.what,
+        )
 
     def _admit_locked(self, issued_ms: int, nonce: str, sender: str, now: float, mono: float) -> None:
         s = self.settings

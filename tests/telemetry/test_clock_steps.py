@@ -5,6 +5,8 @@ bounds how many it may send. Each test injects the wall clock and the monotonic 
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
 from companion.autopilot.preflight.report import ClockProbe, Requirements
@@ -72,13 +74,18 @@ def test_a_clock_30_s_ahead_at_start_is_judged_off_and_fixed_by_a_check_that_agr
     )
 
 
-def test_a_clock_stepped_30_s_ahead_in_flight_still_takes_a_fresh_land() -> None:
+def test_a_clock_stepped_30_s_ahead_in_flight_still_takes_a_fresh_land(caplog: pytest.LogCaptureFixture) -> None:
     c = Clocks()
     v, vc = commands(c)
     c.elapsed, c.wall_offset_s = 60.0, 30.0
-    cmd = v.verify(sign_command("drone1", CommandKind.LAND, SECRET, issued_unix_s=c.true_now()))
+    with caplog.at_level(logging.WARNING, logger="companion.telemetry.auth"):
+        cmd = v.verify(sign_command("drone1", CommandKind.LAND, SECRET, issued_unix_s=c.true_now()))
+        v.verify(sign_command("drone1", CommandKind.HOLD, SECRET, issued_unix_s=c.true_now()))
     assert cmd.kind is CommandKind.LAND and cmd.received_unix_s == pytest.approx(c.true_now())
     assert vc.step_s() == pytest.approx(30.0)
+    steps = [r.getMessage() for r in caplog.records if "wall clock" in r.getMessage()]
+    assert steps == ["the wall clock is +30.0 s from the vehicle clock (stepped since it was anchored): "
+                     "signed commands are judged on the vehicle clock"]  # fmt: skip
 
 
 def test_a_clock_an_hour_behind_refuses_a_captured_abort_an_hour_old() -> None:
