@@ -192,3 +192,15 @@ def test_beyond_the_request_budget_a_request_is_refused_unread() -> None:
     c.elapsed = 0.5  # half a second: ten more read
     good = sign_command("drone1", CommandKind.HOLD, SECRET, issued_unix_s=c.true_now())
     assert v.verify(good).kind is CommandKind.HOLD
+
+
+def test_a_vehicle_clock_reanchored_backwards_keeps_the_nonces_it_left_behind() -> None:
+    c = Clocks(wall_offset_s=100.0)  # started 100 s ahead, and so was the sender
+    v, vc = commands(c)
+    early = sign_command("drone1", CommandKind.HOLD, SECRET, issued_unix_s=c.wall())
+    v.verify(early)
+    c.elapsed, c.wall_offset_s = 80.0, 0.0  # chrony steps the wall clock right; a check agrees
+    assert vc.judge(ClockVerdict.AGREES, 0.0) == pytest.approx(-100.0)
+    v.verify(sign_command("drone1", CommandKind.RETURN, SECRET, issued_unix_s=c.true_now(), sender="ops"))
+    c.elapsed = 98.0  # early's issued time is fresh again on the corrected clock: its nonce is kept
+    assert refusal(v, early).kind is RefusalKind.REPLAY
