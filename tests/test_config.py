@@ -202,3 +202,10 @@ def test_a_bad_value_ends_demo_and_fly_with_one_line_and_exit_2(tmp_path, capsys
     problem = "mission.pad.north_m = nan: not finite; expected a finite number"
     assert err == f"companion {command}: bad configuration: {p}: {problem}\n"
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("lat_deg", [90.0, -90.0, 89.5])
+def test_the_simulated_home_stays_off_the_poles(lat_deg):
+    with pytest.raises(ConfigError, match=rf"sim.home.lat_deg = {lat_deg}: Input should be"):
+        config_from_dict({"sim": {"home": {"lat_deg": lat_deg, "lon_deg": 0.0}}})
+    assert config_from_dict({"sim": {"home": {"lat_deg": 89.0, "lon_deg": 0.0}}}).sim.home.lat_deg == 89.0

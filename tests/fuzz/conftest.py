@@ -9,7 +9,7 @@ import pytest
 
 from companion.config import load_config, shipped_params_path
 
-from .harness import BUDGETS, COUNTS, RUN_FOLDER_BUDGETS
+from .harness import BUDGETS, COUNTS, RUN_FOLDER_BUDGETS, SIM_START_BUDGETS, SIM_START_S
 
 
 @pytest.fixture(scope="session")
@@ -28,6 +28,12 @@ def fuzz_tier(request: pytest.FixtureRequest) -> str:
 def run_folder_budget(fuzz_tier: str) -> int:
     """Generated run folders per test (each replay or report takes one to three seconds)."""
     return RUN_FOLDER_BUDGETS[fuzz_tier]
+
+
+@pytest.fixture(scope="session")
+def sim_start_budget(fuzz_tier: str) -> tuple[int, float]:
+    """(generated files, simulated seconds each accepted one flies) of the params-to-simulator property."""
+    return SIM_START_BUDGETS[fuzz_tier], SIM_START_S[fuzz_tier]
 
 
 @pytest.fixture(scope="session")

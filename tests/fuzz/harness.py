@@ -19,6 +19,10 @@ from hypothesis import strategies as st
 BUDGETS = {"fast": 25, "fuzz": 1000}
 #: mutated run folders per test (a replay or a report takes about a second each)
 RUN_FOLDER_BUDGETS = {"fast": 1, "fuzz": 60}
+#: generated parameter files per test that may start the embedded simulator, and the simulated
+#: seconds each accepted one flies (about 0.3 s of wall time per simulated second)
+SIM_START_BUDGETS = {"fast": 6, "fuzz": 300}
+SIM_START_S = {"fast": 4.0, "fuzz": 12.0}
 #: one input may take this long; longer is a hang (an escape)
 TIMEOUT_S = 30.0  # a report can take 10 s on a slow host under CI load; a hang takes for ever
 #: COMPANION_FUZZ_KEEP_GOING=1: count escapes and go on instead of failing at the first (a survey)
