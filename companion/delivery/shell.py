@@ -197,6 +197,7 @@ def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
         limits=config.limits,
         go_no_go=config.go_no_go,
         winch=config.winch,
+        stall_s=config.runtime.loop_stall_s,
     )
 
 

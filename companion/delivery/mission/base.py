@@ -148,6 +148,10 @@ class MissionBase:
         self.expect_mode_change = False  # a mode change we asked for is under way: not the pilot
         self.left_pad = False  # the next ARM is for the way home (or a divert)
         self._started = False
+        # since when the companion may not have been in control (a stall of its own, a link loss):
+        # what the vehicle did from then on was not on its commands, until a status from after it
+        # shows the vehicle in the air in OFFBOARD again; None: in control
+        self.control_lost_s: float | None = None
         self._abort_reason = ""
         self._abort_kind = FailureKind.ABORTED
         self._events: list[MissionEvent] = []

@@ -63,8 +63,14 @@ class DeliveryMission(MissionBase):
         limits: LimitsConfig | None = None,
         go_no_go: GoNoGoConfig | None = None,
         winch: WinchConfig | None = None,
+        stall_s: float = math.inf,
     ):
+        """The parts of the mission (MissionBase has the rest). ``stall_s``: a gap between two
+        steps longer than this is a stall of the companion (runtime.loop_stall_s: its watchdog
+        stopped the heartbeats and setpoints, so the autopilot's failsafe may have acted)."""
         super().__init__(cfg, landing_controller, pad_policy, fence, limits, go_no_go, winch)
+        self.stall_s = stall_s
+        self._last_step_s: float | None = None
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
 
@@ -136,9 +142,11 @@ class DeliveryMission(MissionBase):
         # what the field is evaluated with this tick (telemetry): absent outside the vector field
         self.speed_ref_m_s = None
         self.sense = 0
+        self._check_stall(inp.time_s)
 
         if not self._check_link(inp):
             return self._out(None, None, math.nan)
+        self._check_control(inp)
         if self.phase in FOLLOW_PHASES or self.phase in (Phase.TAKEOFF, Phase.TAKEOFF_RETURN):
             self._check_estimate(inp)
         if self.phase in FOLLOW_PHASES:
@@ -188,14 +196,42 @@ class DeliveryMission(MissionBase):
         events, self._events = tuple(self._events), []
         return MissionOutput(self.phase, sp, req, events, self.sector, lyap)
 
+    def _check_stall(self, time_s: float) -> None:
+        last, self._last_step_s = self._last_step_s, time_s
+        if last is not None and time_s - last > self.stall_s and not self.phase.terminal:
+            self._lose_control(last)
+            self.emit(
+                EventKind.WARNING,
+                f"the companion did not step for {time_s - last:.2f} s (limit {self.stall_s} s): "
+                "the autopilot's failsafe may have acted",
+            )
+
     def _check_link(self, inp: MissionInputs) -> bool:
         verdict = self.link.check(inp, self.phase in FOLLOW_PHASES, self.emit)
         if verdict is LinkCheck.LOST:
+            self._lose_control(inp.time_s)
             return False
         if verdict is LinkCheck.REENTER:
             self.state.offboard.restart()
             self.expect_mode_change = True
         return True
+
+    def _lose_control(self, since_s: float) -> None:
+        if self.control_lost_s is None:
+            self.control_lost_s = since_s
+
+    def _check_control(self, inp: MissionInputs) -> None:
+        """Back in control once a status sent after the loss shows the vehicle flying in OFFBOARD
+        (a touchdown meanwhile was not the companion's: it stays lost)."""
+        st = inp.status
+        if (
+            self.control_lost_s is not None
+            and st is not None
+            and st.time_s > self.control_lost_s
+            and st.mode is FlightMode.OFFBOARD
+            and st.landed is LandedState.IN_AIR
+        ):
+            self.control_lost_s = None
 
     def _check_pilot(self, inp: MissionInputs) -> None:
         st = inp.status

@@ -235,6 +235,9 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
     assert status is not None
     if not st.touched_down:
         st.touched_down = True
+        st.touchdown_ours = m.control_lost_s is None and (
+            status.mode is FlightMode.OFFBOARD or st.precland_requested or st.touchdown_land_requested
+        )
         if leg is Leg.OUT and m.pad_policy is not None:
             st.touchdown_lock = m.pads.judge(inp.pad_lock)
         if est is not None:
@@ -243,6 +246,18 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
             else:
                 m.summary.home_touchdown_ned = est.position_ned
         m.emit(EventKind.TOUCHDOWN, "pad" if leg is Leg.OUT else "home")
+    if leg is Leg.OUT and not st.touchdown_ours:
+        # the autopilot landed it (its failsafe while the companion stalled or lost the link, or a
+        # pilot's LAND): nothing is released and nothing commanded, armed or not
+        detail = (
+            f"the vehicle touched down (mode {status.mode.value}) while the companion was not in control "
+            "(the autopilot's failsafe, a pilot's LAND): the parcel stays aboard, autonomy ended"
+        )
+        m.emit(EventKind.PILOT_TAKEOVER, detail)
+        m.summary.fail(FailureKind.AUTOPILOT_LANDED, detail)
+        m.summary.end_time_s = inp.time_s
+        m.goto(Phase.FAILED)
+        return NOTHING
     if not status.armed:
         if leg is Leg.OUT and not st.touchdown_lock[0]:
             return Step(request=m.pads.home_with_parcel(f"no pad lock at touchdown: {st.touchdown_lock[1]}"))

@@ -43,6 +43,8 @@ class LandingState(PhaseState):
     descent: PrecisionDescent | None = None  # the final descent's controller (its integral, its wait)
     touched_down: bool = False
     touchdown_lock: tuple[bool, str] = (True, "")  # the pad lock judged at touchdown
+    # the touchdown was the companion's (its descent, or a LAND it asked for), judged when first seen
+    touchdown_ours: bool = True
     precland_requested: bool = False
     touchdown_land_requested: bool = False  # the last metres handed to the autopilot's LAND
     disarm_not_before: float = -math.inf

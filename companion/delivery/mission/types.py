@@ -51,6 +51,9 @@ class FailureKind(enum.Enum):
     NOT_DELIVERED = "not_delivered"  # the pad policy or the winch kept the parcel aboard
     NOT_RELEASED = "not_released"  # the release was refused or the parcel is still attached
     TIMED_OUT = "timed_out"  # the shell's time limit for the whole mission ran out
+    # the autopilot landed on the way out while the companion was not in control (its failsafe
+    # after a stall or a link loss, a pilot's LAND): the parcel stays aboard, autonomy ends
+    AUTOPILOT_LANDED = "autopilot_landed"
 
 
 @dataclass(frozen=True, slots=True)
