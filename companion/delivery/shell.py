@@ -11,14 +11,10 @@ watchdog: if the guidance task stops refreshing the setpoint, streaming stops, s
 autopilot's own offboard-loss failsafe fires (a stale setpoint must never be resent forever, cf.
 MAVSDK-Python issue 374).
 
-Landing sensors (once fusion starts), in flight and in every real-time run: the camera and the UWB
-have a task each, so a detection waiting on the executor never holds a UWB reading back. A camera
-that offers the frame-listener capability (:mod:`companion.plugin_api`, version 1) wakes its task
-through an :class:`asyncio.Event` set from its capture thread (``loop.call_soon_threadsafe``): the
-frame is read and handed to the detector as soon as it is readable, not at the next poll tick. A
-camera without it is polled at :attr:`LandingKit.poll_rate_hz`, as is the UWB. The lock-step
-simulation (vision inline under virtual time, ``vision_in_thread = False``) keeps one polled loop,
-camera then UWB at each tick, so a seeded flight stays bit for bit what it was.
+Landing sensors (once fusion starts): the lock-step and real-time strategies of
+:mod:`companion.delivery.sensor_tasks`; the shell's steps detect, fuse and record. Whoever watches
+the shell (flight log, recorder, telemetry, the operator's GCS, a display, a bench) is a
+:class:`~companion.delivery.observers.ShellObserver`.
 """
 
 from __future__ import annotations
@@ -65,6 +61,7 @@ from companion.delivery.observers import (
 from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad, pad_yaw_and_tolerance_rad
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
+from companion.delivery.sensor_tasks import SensorTasks
 from companion.estimation.ekf import EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
@@ -73,7 +70,6 @@ from companion.geometry.mounts import pad_pose_ned
 from companion.guidance.limits import clamp_velocity
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
-from companion.plugin_api import frame_listener_of
 from companion.scheduling import (
     LoopClock,
     RateLoop,
@@ -92,25 +88,6 @@ REQUEST_TIMEOUT_S = 10.0  # an autopilot call that takes longer has failed (and 
 
 WARNING_EVENTS = (EventKind.ABORT, EventKind.PILOT_TAKEOVER, EventKind.LINK_LOST)  # logged as warnings
 NOT_READY_SAY_S = 5.0  # how often a pre-flight wait on an autopilot that is not ready says why
-
-_SENSOR_TASK_MEASUREMENTS = {"landing-camera": "camera", "landing-uwb": "UWB"}
-
-
-def _report_sensor_task_end(task: asyncio.Task[None]) -> None:
-    """Say at once when a landing-sensor task dies (the flight goes on without its measurements:
-    the fusion coasts on the others and the autopilot's estimate), instead of only when the shell
-    ends."""
-    if task.cancelled():
-        return
-    err = task.exception()
-    if err is not None:
-        log.error(
-            "landing sensors stopped: %s: %s (task %s); no more %s measurements this flight",
-            type(err).__name__,
-            err,
-            task.get_name(),
-            _SENSOR_TASK_MEASUREMENTS.get(task.get_name(), "camera or UWB"),
-        )
 
 
 class AbortedBeforeFlight(Exception):
@@ -267,7 +244,8 @@ class DeliveryShell:
         self.landing = landing
         self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
         self._fusion_pad_index = 0  # mission.pad_index the fusion was started for
-        self._sensor_tasks: list[asyncio.Task[None]] = []
+        self.sensors = SensorTasks(landing, self._clock, self.stats, self._camera_step, self._uwb_step)
+        self.vision_always = False  # detect from the fusion's start, whatever the phase (see _vision_wanted)
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
         self._landing_target: Any = None  # autopilot.landing_target.LandingTargetBuilder when sending
@@ -392,7 +370,7 @@ class DeliveryShell:
                 stream.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await stream
-            await self._stop_sensor_tasks()
+            await self.sensors.stop()
             if self.landing is not None:
                 for dev in (self.landing.camera, self.landing.uwb):
                     if dev is not None:
@@ -659,100 +637,18 @@ class DeliveryShell:
         for dev in (kit.camera, kit.uwb):
             if dev is not None and not kit.sensors_started:
                 dev.start()
-        self._start_sensor_tasks()
+        self.sensors.start()
         log.info("landing fusion started; configured pad at NED %s", [round(float(v), 2) for v in pad])
 
-    def _start_sensor_tasks(self) -> None:
-        """Lock-step: one loop for camera and UWB; real time: a task each (see the module's docstring)."""
-        kit = self.landing
-        assert kit is not None and self.fusion is not None
-        loop = asyncio.get_running_loop()
-        if not kit.vision_in_thread:
-            tasks = [loop.create_task(self._sensor_loop(), name="landing-sensors")]
-        else:
-            tasks = []
-            if kit.camera is not None and kit.detector is not None:
-                tasks.append(loop.create_task(self._camera_loop(), name="landing-camera"))
-            if kit.uwb is not None and kit.multilaterator is not None:
-                tasks.append(loop.create_task(self._uwb_loop(), name="landing-uwb"))
-        for task in tasks:
-            task.add_done_callback(_report_sensor_task_end)
-        self._sensor_tasks = tasks
-
-    async def _stop_sensor_tasks(self) -> None:
-        """Cancel the sensor tasks and wait for them: each detaches what it attached (the camera's
-        frame listener) on its way out. The devices themselves are stopped by :meth:`run`. A task
-        that died (logged when it did) raises its error here, once every task has ended."""
-        tasks, self._sensor_tasks = self._sensor_tasks, []
-        for task in tasks:
-            task.cancel()
-        errors: list[BaseException] = []
-        for task in tasks:
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
-            except Exception as err:
-                errors.append(err)
-        if errors:
-            raise errors[0]
-
     def _vision_wanted(self) -> bool:
+        """Detection from the approach on (sector 5 of the way out, the pad phases), or always
+        with ``vision_always`` (benches and tests that measure the detector from the start)."""
         m = self.mission
-        return m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH) or (
-            m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m.sector >= 5
+        return (
+            self.vision_always
+            or m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH)
+            or (m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m.sector >= 5)
         )
-
-    async def _sensor_loop(self) -> None:
-        """Lock-step (vision inline under virtual time): at each tick of the kit's poll rate, the
-        camera's newest frame, then the UWB's readings; nothing in a tick yields to the loop."""
-        kit = self.landing
-        assert kit is not None and self.fusion is not None
-        rate = RateLoop(self._clock, kit.poll_rate_hz)
-        while True:
-            await rate.tick()
-            if kit.camera is not None and kit.detector is not None:
-                await self._camera_step()
-            if kit.uwb is not None and kit.multilaterator is not None:
-                self._uwb_step()
-
-    async def _camera_loop(self) -> None:
-        """The camera's task (real time): woken by the camera's frame listener when it offers one,
-        else polled at the kit's rate. The listener is detached when the task ends."""
-        kit = self.landing
-        assert kit is not None and self.fusion is not None
-        attach = frame_listener_of(kit.camera)
-        if attach is None:
-            self.stats.camera_read = "polled"
-            rate = RateLoop(self._clock, kit.poll_rate_hz)
-            while True:
-                await rate.tick()
-                await self._camera_step()
-        loop = asyncio.get_running_loop()
-        ready = asyncio.Event()
-
-        def on_frame() -> None:  # the camera's capture thread (or the loop's own, a simulated camera's)
-            loop.call_soon_threadsafe(ready.set)
-
-        self.stats.camera_read = "frame listener"
-        attach(on_frame)
-        try:
-            while True:
-                await ready.wait()
-                ready.clear()  # a frame notified from here on, during the detection too, wakes the next pass
-                self.stats.frames_notified += 1
-                await self._camera_step()
-        finally:
-            attach(None)
-
-    async def _uwb_loop(self) -> None:
-        """The UWB's task (real time): its readings at the kit's poll rate, whatever the camera does."""
-        kit = self.landing
-        assert kit is not None and self.fusion is not None
-        rate = RateLoop(self._clock, kit.poll_rate_hz)
-        while True:
-            await rate.tick()
-            self._uwb_step()
 
     async def _camera_step(self) -> None:
         """The camera's newest frame, when vision is wanted: detection (on the executor, or inline in

@@ -505,9 +505,6 @@ async def _run_delivery(
             finally:
                 snapshot_end()
 
-        def _vision_wanted(self) -> bool:
-            return True  # the camera and detector run at full rate from the start of fusion
-
         def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
             saved = super()._loop_thread_realtime(loop)
             if saved is not None:
@@ -538,6 +535,7 @@ async def _run_delivery(
             self.fusion.on_marker = fused
 
     shell = BenchShell(config, ap, telemetry=True, landing=kit, recorder=recorder)
+    shell.vision_always = True  # the camera and detector run at full rate from the start of fusion
     step = acct.wrap("guidance", shell.mission.step)
 
     def mission_step(inp: Any) -> Any:

@@ -133,12 +133,7 @@ class Multilaterator:
         return UwbFix(t, 1.0, 2.0, 3.0, 1.0, 0.01, ("a", "b", "c", "d"), "anchors")
 
 
-class Shell(DeliveryShell):
-    def _vision_wanted(self) -> bool:
-        return True
-
-
-def _shell(camera: Any, detector: Detector, uwb: Any = None, poll_rate_hz: float = POLL_HZ_SLOW) -> Shell:
+def _shell(camera: Any, detector: Detector, uwb: Any = None, poll_rate_hz: float = POLL_HZ_SLOW) -> DeliveryShell:
     config = load_config(shipped_params_path("sitl_short.toml"))
     kit = LandingKit(
         camera,
@@ -151,7 +146,8 @@ def _shell(camera: Any, detector: Detector, uwb: Any = None, poll_rate_hz: float
         poll_rate_hz=poll_rate_hz,
     )
     autopilot = SimpleNamespace(telemetry=SimpleNamespace(attitude=None))  # no attitude yet
-    shell = Shell(config, autopilot=autopilot, landing=kit)  # type: ignore[arg-type]
+    shell = DeliveryShell(config, autopilot=autopilot, landing=kit)  # type: ignore[arg-type]
+    shell.vision_always = True
     shell.fusion = Fusion()
     return shell
 
@@ -178,7 +174,7 @@ def test_the_capability_is_found_by_version() -> None:
 async def test_a_notified_frame_is_detected_at_once_not_at_the_next_poll_tick() -> None:
     cam, det = NotifyingCamera(), Detector()
     shell = _shell(cam, det)
-    shell._start_sensor_tasks()
+    shell.sensors.start()
     try:
         await _until(lambda: cam.listener.attached)
         cam.capture_in_thread(1)
@@ -194,13 +190,13 @@ async def test_a_notified_frame_is_detected_at_once_not_at_the_next_poll_tick() 
         assert shell.stats.camera_read == "frame listener" and shell.stats.frames_notified == 2
         assert cam.reads == 2  # read only when told
     finally:
-        await shell._stop_sensor_tasks()
+        await shell.sensors.stop()
 
 
 async def test_a_camera_without_the_capability_is_polled() -> None:
     cam, det = PolledCamera(), Detector()
     shell = _shell(cam, det, poll_rate_hz=100.0)
-    shell._start_sensor_tasks()
+    shell.sensors.start()
     try:
         cam.put(Frame(7.0, np.zeros((4, 4), np.uint8), 7))
         await _until(lambda: len(shell.fusion.markers) == 1)
@@ -208,7 +204,7 @@ async def test_a_camera_without_the_capability_is_polled() -> None:
         await _until(lambda: cam.reads >= 5)  # it keeps polling
         assert shell.stats.frames_notified == 0
     finally:
-        await shell._stop_sensor_tasks()
+        await shell.sensors.stop()
 
 
 @pytest.fixture
@@ -250,12 +246,12 @@ async def test_a_plugin_written_before_the_capability_loads_and_is_polled(old_ca
     assert not hasattr(cam, "set_frame_listener") and frame_listener_of(cam) is None
     det = Detector()
     shell = _shell(cam, det, poll_rate_hz=100.0)
-    shell._start_sensor_tasks()
+    shell.sensors.start()
     try:
         await _until(lambda: len(shell.fusion.markers) == 1)
         assert det.calls[0][0] == 3 and shell.stats.camera_read == "polled"
     finally:
-        await shell._stop_sensor_tasks()
+        await shell.sensors.stop()
     assert cam.reads >= 3
 
 
@@ -263,7 +259,7 @@ async def test_a_slow_detection_does_not_hold_the_uwb_back() -> None:
     gate = threading.Event()
     cam, det, uwb = NotifyingCamera(), Detector(gate), Uwb()
     shell = _shell(cam, det, uwb, poll_rate_hz=100.0)
-    shell._start_sensor_tasks()
+    shell.sensors.start()
     try:
         await _until(lambda: cam.listener.attached)
         cam.capture_in_thread(1)
@@ -275,18 +271,18 @@ async def test_a_slow_detection_does_not_hold_the_uwb_back() -> None:
         await _until(lambda: len(shell.fusion.markers) == 1)
     finally:
         gate.set()
-        await shell._stop_sensor_tasks()
+        await shell.sensors.stop()
 
 
 async def test_stopping_cancels_the_tasks_and_detaches_the_listener() -> None:
     cam, det, uwb = NotifyingCamera(), Detector(), Uwb()
     shell = _shell(cam, det, uwb)
-    shell._start_sensor_tasks()
-    tasks = list(shell._sensor_tasks)
+    shell.sensors.start()
+    tasks = list(shell.sensors.tasks)
     assert sorted(t.get_name() for t in tasks) == ["landing-camera", "landing-uwb"]
     await _until(lambda: cam.listener.attached)
-    await shell._stop_sensor_tasks()
-    assert all(t.cancelled() for t in tasks) and not shell._sensor_tasks
+    await shell.sensors.stop()
+    assert all(t.cancelled() for t in tasks) and not shell.sensors.tasks
     assert not cam.listener.attached
     cam.capture_in_thread(1)  # a frame after the stop wakes nothing
     await asyncio.sleep(0.05)
@@ -301,14 +297,14 @@ async def test_a_dead_sensor_task_is_raised_when_the_shell_stops_them(caplog) ->
     uwb = Uwb()
     shell = _shell(Broken(), Detector(), uwb, poll_rate_hz=100.0)
     with caplog.at_level(logging.ERROR, logger="companion.delivery.shell"):
-        shell._start_sensor_tasks()
-        await _until(lambda: any(t.done() for t in shell._sensor_tasks))
+        shell.sensors.start()
+        await _until(lambda: any(t.done() for t in shell.sensors.tasks))
         await asyncio.sleep(0)  # the done callback
     assert "(task landing-camera); no more camera measurements" in caplog.text
     uwb.pending.append(3.0)  # the UWB goes on without the camera
     await _until(lambda: len(shell.fusion.fixes) == 1)
     try:
-        await shell._stop_sensor_tasks()
+        await shell.sensors.stop()
     except OSError as err:
         assert "device gone" in str(err)
     else:
