@@ -7,6 +7,7 @@ patched. Used by firmware/companion_kill.py (``fly_and_stop(..., how="hang")``).
 
 from __future__ import annotations
 
+import runpy
 import signal
 import sys
 import time
@@ -22,9 +23,14 @@ def main(argv: list[str]) -> int:
         time.sleep(hang_s)
 
     signal.signal(signal.SIGUSR1, hang)
-    from companion.cli.main import main as companion_main
-
-    return companion_main(argv[1:])
+    # `python -m companion ARGS` itself, run in this process (the harness sits beside the command
+    # line, not on top of it: it imports none of it)
+    sys.argv = ["companion", *argv[1:]]
+    try:
+        runpy.run_module("companion", run_name="__main__", alter_sys=True)
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
+    return 0
 
 
 if __name__ == "__main__":

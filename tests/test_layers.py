@@ -37,6 +37,7 @@ BASE = {
     "units",
     "foxglove_schemas",
     "timebase",
+    "secret_files",
 }
 CORE = BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog", "delivery", "dart"}
 
@@ -49,7 +50,8 @@ CORE = BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetr
 #   4  telemetry  flightlog
 #   3  autopilot
 #   2  vision  uwb  estimation  guidance
-#   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units  foxglove_schemas
+#   1  geometry  config (param_kinds)  events  scheduling  plugin_api  units  foxglove_schemas  timebase
+#      secret_files
 #   companion_plugins (real drivers) sit beside the applications and import only the core.
 ALLOWED: dict[str, set[str]] = {
     "companion": set(),
@@ -62,12 +64,23 @@ ALLOWED: dict[str, set[str]] = {
     "units": set(),
     "foxglove_schemas": set(),  # Foxglove schemas and conventions, shared by flightlog and telemetry
     "timebase": set(),  # the vehicle clock signed requests are judged on, and the pre-flight verdict on it
+    "secret_files": {"config"},  # secret files read only when no one but their owner can read or write them
     "vision": {"geometry"},
     "uwb": {"geometry"},
     "estimation": {"geometry"},
     "guidance": {"geometry", "config"},
-    "autopilot": {"geometry", "config", "estimation", "guidance", "timebase"},
-    "telemetry": {"companion", "config", "events", "units", "autopilot", "estimation", "foxglove_schemas", "timebase"},
+    "autopilot": {"geometry", "config", "estimation", "guidance", "timebase", "secret_files"},
+    "telemetry": {
+        "companion",
+        "config",
+        "events",
+        "units",
+        "autopilot",
+        "estimation",
+        "foxglove_schemas",
+        "timebase",
+        "secret_files",
+    },
     "flightlog": {"geometry", "units", "autopilot", "guidance", "foxglove_schemas"},
     "delivery": BASE | {"vision", "uwb", "estimation", "guidance", "autopilot", "telemetry", "flightlog"},
     "dart": BASE | {"vision", "estimation", "autopilot", "flightlog"},
