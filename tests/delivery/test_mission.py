@@ -527,10 +527,10 @@ def test_the_integral_does_not_wind_up_while_the_command_is_at_its_speed_limit()
     assert abs(pi[-1]) < 0.001
 
 
-def _landing_after(stall_s: float, gap_s: float, mode: FlightMode, regained: bool):
+def _landing_after(stall_s: float, gap_s: float, mode: FlightMode, regained_ticks: int = 0):
     """A mission in its final descent over the pad (stall limit ``stall_s``), its steps then
-    ``gap_s`` apart once, optionally a status in the air in OFFBOARD after the gap, then the vehicle
-    reported on the pad, disarmed, in ``mode``: what it asks for next."""
+    ``gap_s`` apart once, then ``regained_ticks`` steps 0.05 s apart flying in OFFBOARD, then the
+    vehicle reported on the pad, disarmed, in ``mode``: what it asks for next."""
     m = DeliveryMission(cfg(), stall_s=stall_s)
     m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME))
     m.enter(Phase.LANDING_PAD)
@@ -539,7 +539,7 @@ def _landing_after(stall_s: float, gap_s: float, mode: FlightMode, regained: boo
     t = 0.05
     m.step(MissionInputs(t, est(t, pn, pe, -2.0), status(t, mode=FlightMode.OFFBOARD, **air), HOME))
     t += gap_s
-    if regained:
+    for _ in range(regained_ticks):
         m.step(MissionInputs(t, est(t, pn, pe, -0.5), status(t, mode=FlightMode.OFFBOARD, **air), HOME))
         t += 0.05
     out = m.step(MissionInputs(t, est(t, pn, pe, 0.0), status(t, armed=False, mode=mode), HOME))
@@ -552,21 +552,25 @@ def test_a_touchdown_after_a_stall_is_not_the_companions_and_releases_nothing():
     it. No release, no request, autonomy ended with the kind AUTOPILOT_LANDED; the same in OFFBOARD
     (it came down on its last setpoint while nobody steered)."""
     for mode in (FlightMode.LAND, FlightMode.OFFBOARD):
-        m, out = _landing_after(0.5, 15.0, mode, regained=False)
+        m, out = _landing_after(0.5, 15.0, mode)
         assert out.request is None and m.phase is Phase.FAILED, mode
         assert m.summary.failure_kind is FailureKind.AUTOPILOT_LANDED and not m.summary.delivered
         assert any("did not step for 15.00 s" in e.detail for e in m.summary.events)
 
 
 def test_a_short_stall_the_vehicle_rode_out_in_offboard_still_delivers():
-    """A 0.6 s stall, then a status from after it with the vehicle flying in OFFBOARD: the companion
-    is in control again, and its touchdown on the pad is its own (the release follows)."""
-    m, _ = _landing_after(0.5, 0.6, FlightMode.OFFBOARD, regained=True)
+    """A 0.6 s stall, then statuses from after it with the vehicle flying in OFFBOARD for
+    CONTROL_REGAINED_S (1 s): the companion is in control again, and its touchdown on the pad is its
+    own (the release follows). One status in OFFBOARD is not enough: after a freeze the link's
+    buffered backlog arrives stamped anew."""
+    m, _ = _landing_after(0.5, 0.6, FlightMode.OFFBOARD, regained_ticks=22)
     assert m.phase is Phase.RELEASE and m.summary.failure_kind is FailureKind.NONE
+    m, _ = _landing_after(0.5, 0.6, FlightMode.OFFBOARD, regained_ticks=1)
+    assert m.phase is Phase.FAILED and m.summary.failure_kind is FailureKind.AUTOPILOT_LANDED
 
 
 def test_a_landing_mode_the_mission_did_not_ask_for_is_not_its_touchdown():
     """No stall, no link loss, but the vehicle touched down in LAND that the mission never asked
     for (a pilot's switch it did not see armed): nothing released."""
-    m, out = _landing_after(math.inf, 0.05, FlightMode.LAND, regained=False)
+    m, _ = _landing_after(math.inf, 0.05, FlightMode.LAND)
     assert m.phase is Phase.FAILED and m.summary.failure_kind is FailureKind.AUTOPILOT_LANDED

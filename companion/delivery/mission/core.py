@@ -52,6 +52,10 @@ from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 
+# after a stall or a link loss: how long the vehicle must be seen flying in OFFBOARD before the
+# companion counts itself in control again (longer than the link's buffered backlog takes to drain)
+CONTROL_REGAINED_S = 1.0
+
 
 class DeliveryMission(MissionBase):
     def __init__(
@@ -71,6 +75,7 @@ class DeliveryMission(MissionBase):
         super().__init__(cfg, landing_controller, pad_policy, fence, limits, go_no_go, winch)
         self.stall_s = stall_s
         self._last_step_s: float | None = None
+        self._regaining_s: float | None = None  # flying in OFFBOARD since, after a loss of control
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
 
@@ -221,17 +226,19 @@ class DeliveryMission(MissionBase):
             self.control_lost_s = since_s
 
     def _check_control(self, inp: MissionInputs) -> None:
-        """Back in control once a status sent after the loss shows the vehicle flying in OFFBOARD
-        (a touchdown meanwhile was not the companion's: it stays lost)."""
+        """Back in control once the statuses sent after the loss have shown the vehicle flying in
+        OFFBOARD for CONTROL_REGAINED_S on end: after a freeze the link's buffered, older
+        messages arrive stamped anew, and one of them can still say OFFBOARD in the air. A
+        touchdown meanwhile was not the companion's: it stays lost."""
         st = inp.status
-        if (
-            self.control_lost_s is not None
-            and st is not None
-            and st.time_s > self.control_lost_s
-            and st.mode is FlightMode.OFFBOARD
-            and st.landed is LandedState.IN_AIR
-        ):
-            self.control_lost_s = None
+        if self.control_lost_s is None or st is None or st.time_s <= self.control_lost_s:
+            return
+        if st.mode is not FlightMode.OFFBOARD or st.landed is not LandedState.IN_AIR:
+            self._regaining_s = None
+        elif self._regaining_s is None:
+            self._regaining_s = inp.time_s
+        elif inp.time_s - self._regaining_s >= CONTROL_REGAINED_S:
+            self.control_lost_s = self._regaining_s = None
 
     def _check_pilot(self, inp: MissionInputs) -> None:
         st = inp.status
