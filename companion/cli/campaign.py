@@ -17,6 +17,10 @@ log = logging.getLogger(__name__)
 
 
 def cmd_campaign_landing(args: argparse.Namespace) -> int:
+    if args.faults:  # the fault campaign (docs/companion-death.md)
+        from companion.cli.campaign_faults import cmd_campaign_faults
+
+        return cmd_campaign_faults(args)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
@@ -237,6 +241,13 @@ def register_campaign(csub: Any) -> None:
         action="store_true",
         help="gusts, GPS error and sensor noise from the embedded campaign's distributions, driven on the real "
         "ArduCopter SITL (--autopilot ardupilot) or kept by the arducopter-sitl profile (docs/weather.md)",
+    )
+    cl.add_argument(
+        "--faults",
+        metavar="LIST",
+        help="a fault campaign instead: comma-separated faults (stall_1s, stall_3s, stall_15s, link_cut, "
+        "forged_command, or all), --n landings each on the MAVLink sim vehicle in real time, the dialect "
+        "and the moment drawn from --seed (docs/companion-death.md); default params sitl_short.toml",
     )
     cl.set_defaults(func=cmd_campaign_landing)
     cp = csub.add_parser(
