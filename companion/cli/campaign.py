@@ -16,96 +16,86 @@ from companion.units import format_cm
 log = logging.getLogger(__name__)
 
 
-def cmd_campaign_landing(args: argparse.Namespace) -> int:
-    if args.faults:  # the fault campaign (docs/companion-death.md)
-        from companion.cli.campaign_faults import cmd_campaign_faults
+def _landing_args_refused(args: argparse.Namespace) -> str | None:
+    """Why these landing-campaign options cannot go together, or None."""
+    if args.cluster and (args.autopilot or args.jobs is not None):
+        other = "--autopilot" if args.autopilot else "--jobs"
+        return f"--cluster and {other} exclude each other"
+    if args.weather and args.autopilot != "ardupilot" and args.profile != "arducopter-sitl":
+        return (
+            "--weather needs --autopilot ardupilot or --profile arducopter-sitl "
+            "(the embedded ideal profile flies the drawn weather anyway; PX4 SIH has no wind)"
+        )
+    return None
 
-        return cmd_campaign_faults(args)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-    from rich.table import Table
 
-    from companion.cli.console import make_console
+def _landing_variants(args: argparse.Namespace) -> list[str]:
+    from companion_lab.landing_campaign import FAILURE_VARIANTS
+
+    variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
+    if args.variants:
+        variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    return variants
+
+
+def _fly_landing_campaign(
+    args: argparse.Namespace, variants: list[str], out: Any, on_progress: Any, progress: Any
+) -> dict[str, Any] | int:
+    """The campaign's result, or the exit code of a campaign that could not run."""
     from companion_lab.campaign_cluster import (
         ClusterAddressError,
         ClusterError,
     )  # Dask itself is imported only with --cluster
     from companion_lab.campaign_landing import CampaignLandingError
-    from companion_lab.campaign_output import write_outputs
-    from companion_lab.landing_campaign import FAILURE_VARIANTS, run_landing_campaign, usable_cpus
+    from companion_lab.landing_campaign import run_landing_campaign, usable_cpus
 
-    if args.cluster and (args.autopilot or args.jobs is not None):
-        other = "--autopilot" if args.autopilot else "--jobs"
-        print(f"companion campaign landing: --cluster and {other} exclude each other", file=sys.stderr)
-        return exits.BAD_INPUT
-    if args.weather and args.autopilot != "ardupilot" and args.profile != "arducopter-sitl":
-        print(
-            "companion campaign landing: --weather needs --autopilot ardupilot or --profile arducopter-sitl "
-            "(the embedded ideal profile flies the drawn weather anyway; PX4 SIH has no wind)",
-            file=sys.stderr,
-        )
-        return exits.BAD_INPUT
     jobs = args.jobs if args.jobs is not None else usable_cpus()
-    variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
-    if args.variants:
-        variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-    console = make_console()
-    with Progress(
-        TextColumn("{task.description:<12}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-        disable=args.quiet,
-    ) as progress:
-        task = progress.add_task("landing", total=args.n * len(variants))
+    if args.autopilot:
+        from companion_lab.real_campaign import run_real_landing_campaign
 
-        def on_progress(variant: str, done: int, total: int) -> None:
-            progress.update(task, description=variant, completed=done)
+        return run_real_landing_campaign(
+            args.autopilot,
+            args.n,
+            args.seed,
+            tuple(variants),
+            args.params,
+            out / "sitl",
+            on_progress,
+            weather=args.weather,
+        )
+    from companion_lab.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
 
-        out = output_folder(args.out, time.strftime("landing-%Y%m%d-%H%M%S"), RESULTS_MIN_BYTES)
-        if args.autopilot:
-            from companion_lab.real_campaign import run_real_landing_campaign
+    # a firmware's profile flies with the landing tuning shipped for that firmware
+    fw = FIRMWARE_OF_PROFILE.get(args.profile)
+    tuning = firmware_tuning(fw) if fw else None
+    if args.weather and tuning is not None:
+        tuning["sim"] = {"profile_weather": True}
+    try:
+        return run_landing_campaign(
+            args.n,
+            args.seed,
+            tuple(variants),
+            args.params,
+            on_progress,
+            profile=args.profile,
+            tuning=tuning,
+            jobs=jobs,
+            cluster=args.cluster,
+        )
+    except CampaignLandingError as err:
+        progress.stop()
+        log.debug("the failed landing", exc_info=err)
+        print(f"companion campaign landing: {err}", file=sys.stderr)
+        return exits.FAILED
+    except ClusterError as err:
+        progress.stop()
+        print(f"companion campaign landing: {err}", file=sys.stderr)
+        return exits.BAD_INPUT if isinstance(err, ClusterAddressError) else exits.CLUSTER_UNAVAILABLE
 
-            result = run_real_landing_campaign(
-                args.autopilot,
-                args.n,
-                args.seed,
-                tuple(variants),
-                args.params,
-                out / "sitl",
-                on_progress,
-                weather=args.weather,
-            )
-        else:
-            from companion_lab.real_campaign import FIRMWARE_OF_PROFILE, firmware_tuning
 
-            # a firmware's profile flies with the landing tuning shipped for that firmware
-            fw = FIRMWARE_OF_PROFILE.get(args.profile)
-            tuning = firmware_tuning(fw) if fw else None
-            if args.weather and tuning is not None:
-                tuning["sim"] = {"profile_weather": True}
-            try:
-                result = run_landing_campaign(
-                    args.n,
-                    args.seed,
-                    tuple(variants),
-                    args.params,
-                    on_progress,
-                    profile=args.profile,
-                    tuning=tuning,
-                    jobs=jobs,
-                    cluster=args.cluster,
-                )
-            except CampaignLandingError as err:
-                progress.stop()
-                log.debug("the failed landing", exc_info=err)
-                print(f"companion campaign landing: {err}", file=sys.stderr)
-                return exits.FAILED
-            except ClusterError as err:
-                progress.stop()
-                print(f"companion campaign landing: {err}", file=sys.stderr)
-                return exits.BAD_INPUT if isinstance(err, ClusterAddressError) else exits.CLUSTER_UNAVAILABLE
-    files = write_outputs(result, out)
+def _print_landing_summary(console: Any, args: argparse.Namespace, result: dict[str, Any]) -> None:
+    from rich.table import Table
+
     where = f"real {args.autopilot} SITL" if args.autopilot else f"embedded simulator, {args.profile} profile"
     table = Table(title=f"{args.n} landings per variant, seed {args.seed}, {where} (true touchdown vs true pad centre)")
     columns = ("variant", "landed", "mean", "median", "p90", "p95", "max", "on the pad", "released", "home w/ parcel")
@@ -129,7 +119,9 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
                 f"{s['heading_p90_deg']:.2f} deg, max {s['heading_max_deg']:.2f} deg, within 3 deg "
                 f"{s['heading_within_3deg_pct']:.0f} %"
             )
-    console.print(f"written: {', '.join(str(f) for f in files)}")
+
+
+def _landing_exit(result: dict[str, Any], out: Any) -> int:
     for line in result.get("lost", []):
         print(f"companion campaign landing: {line}", file=sys.stderr)
     failed = {v: s["failed"] for v, s in result["summary"].items() if s["failed"]}
@@ -143,6 +135,45 @@ def cmd_campaign_landing(args: argparse.Namespace) -> int:
         )
         return exits.FAILED
     return 0
+
+
+def cmd_campaign_landing(args: argparse.Namespace) -> int:
+    if args.faults:  # the fault campaign (docs/companion-death.md)
+        from companion.cli.campaign_faults import cmd_campaign_faults
+
+        return cmd_campaign_faults(args)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from companion.cli.console import make_console
+    from companion_lab.campaign_output import write_outputs
+
+    refused = _landing_args_refused(args)
+    if refused:
+        print(f"companion campaign landing: {refused}", file=sys.stderr)
+        return exits.BAD_INPUT
+    variants = _landing_variants(args)
+    console = make_console()
+    with Progress(
+        TextColumn("{task.description:<12}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=args.quiet,
+    ) as progress:
+        task = progress.add_task("landing", total=args.n * len(variants))
+
+        def on_progress(variant: str, done: int, total: int) -> None:
+            progress.update(task, description=variant, completed=done)
+
+        out = output_folder(args.out, time.strftime("landing-%Y%m%d-%H%M%S"), RESULTS_MIN_BYTES)
+        result = _fly_landing_campaign(args, variants, out, on_progress, progress)
+        if isinstance(result, int):
+            return result
+    files = write_outputs(result, out)
+    _print_landing_summary(console, args, result)
+    console.print(f"written: {', '.join(str(f) for f in files)}")
+    return _landing_exit(result, out)
 
 
 def cmd_campaign_parity(args: argparse.Namespace) -> int:

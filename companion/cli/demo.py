@@ -127,39 +127,39 @@ def _figures(run_dir: Path) -> list[Path]:
         return []
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    from rich.markup import escape
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+# the mission's phases in flight order: the progress bar's steps
+_PHASES = [
+    "preflight",
+    "arming",
+    "takeoff",
+    "outbound",
+    "landing_pad",
+    "release",
+    "takeoff_return",
+    "inbound",
+    "landing_home",
+    "done",
+]
 
-    from companion.cli.console import make_console
-    from companion.delivery.landing_setup import LandingSetupError
-    from companion.flightlog.losses import describe as describe_losses
-    from companion_lab.demo import run_demo
 
-    cfg = _load_demo_config(args)
-    playback = _camera_playback(args, cfg)
-    console = make_console()
-    run_dir = output_folder(args.out, time.strftime("demo-%Y%m%d-%H%M%S"))
+def _print_demo_header(console: Any, cfg: CompanionConfig, realtime: bool) -> None:
     m = cfg.mission
     console.print(
         f"[bold]companion demo[/]: h = {m.height_m} m, r = {m.arc_radius_m} m, v = {list(m.sector_speed_m_s)} m/s, "
         f"k_f = {m.convergence_gain}; wind {cfg.sim.wind_speed_m_s} m/s, GPS bias {list(cfg.sim.gps_bias_m)} m, "
         f"pad offset {list(cfg.sim.pad_offset_m)} m, "
         f"{'EKF fusion (GPS + camera + UWB)' if cfg.landing.fusion else 'GPS-only'}; "
-        f"seed {cfg.sim.seed}{' (real time)' if args.realtime else ''}"
+        f"seed {cfg.sim.seed}{' (real time)' if realtime else ''}"
     )
-    phases = [
-        "preflight",
-        "arming",
-        "takeoff",
-        "outbound",
-        "landing_pad",
-        "release",
-        "takeoff_return",
-        "inbound",
-        "landing_home",
-        "done",
-    ]
+
+
+def _fly_demo(args: argparse.Namespace, cfg: CompanionConfig, run_dir: Path, playback: Any, console: Any) -> Any:
+    """The demo flown with a progress bar of its phases; its ``DemoResult``."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from companion.delivery.landing_setup import LandingSetupError
+    from companion_lab.demo import run_demo
+
     with Progress(
         TextColumn("{task.description:<16}"),
         BarColumn(),
@@ -169,17 +169,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
         console=console,
         disable=args.quiet,
     ) as progress:
-        task = progress.add_task("preflight", total=len(phases) - 1, t=0.0, where="")
+        task = progress.add_task("preflight", total=len(_PHASES) - 1, t=0.0, where="")
 
         def on_tick(shell: Any, out: Any) -> None:
             ph = out.phase.value
-            done = phases.index(ph) if ph in phases else progress.tasks[0].completed
+            done = _PHASES.index(ph) if ph in _PHASES else progress.tasks[0].completed
             e = shell.estimate
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
             progress.update(task, description=ph, completed=done, t=flight_time_s(shell), where=where)
 
         try:
-            result = run_demo(
+            return run_demo(
                 cfg,
                 run_dir,
                 realtime=args.realtime,
@@ -191,14 +191,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
             )
         except LandingSetupError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
-    plots = _figures(run_dir) if result.phase != "preflight" else []
-    ok = result.delivered and (result.returned or not m.return_home)
-    console.print()
-    console.print(
-        f"[bold]{'DELIVERED' if result.delivered else 'NOT DELIVERED'}[/]"
-        f"{', returned home' if result.returned else ''}" + (f"  [red]{result.failure}[/]" if result.failure else "")
-    )
-    rows = [
+
+
+def _result_rows(result: Any, run_dir: Path, plots: list[Path]) -> list[tuple[str, str]]:
+    """The summary's label / value rows."""
+    return [
         ("flight time", f"{result.flight_time_s:.1f} s"),
         (
             "path RMS / max distance (truth, to the scored reference)",
@@ -228,7 +225,28 @@ def cmd_demo(args: argparse.Namespace) -> int:
             f"{', ' + ', '.join(p.name for p in plots) if plots else ''})",
         ),
     ]
-    for k, v in rows:
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from rich.markup import escape
+
+    from companion.cli.console import make_console
+    from companion.flightlog.losses import describe as describe_losses
+
+    cfg = _load_demo_config(args)
+    playback = _camera_playback(args, cfg)
+    console = make_console()
+    run_dir = output_folder(args.out, time.strftime("demo-%Y%m%d-%H%M%S"))
+    _print_demo_header(console, cfg, args.realtime)
+    result = _fly_demo(args, cfg, run_dir, playback, console)
+    plots = _figures(run_dir) if result.phase != "preflight" else []
+    ok = result.delivered and (result.returned or not cfg.mission.return_home)
+    console.print()
+    console.print(
+        f"[bold]{'DELIVERED' if result.delivered else 'NOT DELIVERED'}[/]"
+        f"{', returned home' if result.returned else ''}" + (f"  [red]{result.failure}[/]" if result.failure else "")
+    )
+    for k, v in _result_rows(result, run_dir, plots):
         console.print(f"  {k:<62} {v}")
     console.print(f"  scored reference: {result.path_reference}")
     lost = describe_losses(run_dir)
