@@ -317,6 +317,20 @@ def register_bench(bsub: Any) -> None:
     be.set_defaults(func=cmd_bench_estimation)
 
 
+def cmd_bench_link(args: argparse.Namespace) -> int:
+    from companion_lab.bench.link import bench_link
+
+    print(json.dumps(bench_link(seconds=args.seconds), indent=2))
+    return 0
+
+
+def register_bench_link(bsub: Any) -> None:
+    """Add ``companion bench link``."""
+    bl = bsub.add_parser("link", help="setpoint jitter and command latency over MAVLink against the sim vehicle")
+    bl.add_argument("--seconds", type=float, default=3.0, help="stream duration per rate")
+    bl.set_defaults(func=cmd_bench_link)
+
+
 def cmd_bench_orders(args: argparse.Namespace) -> int:
     import asyncio
 

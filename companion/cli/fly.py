@@ -1,5 +1,4 @@
-"""CLI of the delivery on a vehicle: ``fly`` (a delivery on the configured real autopilot) and
-``bench link`` (setpoint-stream jitter and command latency against the MAVLink sim vehicle).
+"""CLI of the delivery on a vehicle: ``fly`` (a delivery on the configured real autopilot).
 :func:`make_autopilot` is where the backend named in the parameters is built, the embedded
 simulator for ``autopilot = "sim"`` included."""
 
@@ -8,12 +7,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import itertools
 import json
 import logging
 import signal
-import socket
-import statistics
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -24,12 +20,10 @@ from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDev
 from companion.cli import exits
 from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
 from companion.cli.exits import StartupError
-from companion.config import CompanionConfig, SimConfig, load_config
+from companion.config import CompanionConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
 from companion.delivery.shell import DeliveryShell
 from companion.flightlog.recorder import FlightRecorder
-from companion.guidance.setpoint import VelocitySetpoint
-from companion.scheduling import LoopClock, RateLoop
 from companion.secret_files import configured_secret_files, exposed_secret
 
 log = logging.getLogger(__name__)
@@ -54,7 +48,7 @@ def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwa
 
 
 def register(subparsers: Any) -> None:
-    """Add ``fly`` to the CLI's subparsers (``bench link``: :func:`register_bench`)."""
+    """Add ``fly`` to the CLI's subparsers."""
     p = subparsers.add_parser("fly", help="fly the delivery mission on the configured real autopilot")
     p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
     p.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
@@ -86,15 +80,6 @@ def register(subparsers: Any) -> None:
         "to the pad in the parameters)",
     )
     p.set_defaults(func=cmd_fly)
-
-
-def register_bench(bench_subparsers: Any) -> None:
-    """Add ``link`` to the ``bench`` subcommands."""
-    bl = bench_subparsers.add_parser(
-        "link", help="setpoint jitter and command latency over MAVLink against the sim vehicle"
-    )
-    bl.add_argument("--seconds", type=float, default=3.0, help="stream duration per rate")
-    bl.set_defaults(func=cmd_bench_link)
 
 
 async def run_delivery(
@@ -198,9 +183,9 @@ def _stop_sensors(kit: Any) -> None:
                 log.error("stopping %s failed: %s", type(dev).__name__, err)
 
 
-def cmd_fly(args: argparse.Namespace) -> int:
-    """Fly the delivery. A start-up failure raises :class:`StartupError` (one line, an exit code of
-    :mod:`companion.cli.exits`); whatever was started is closed first."""
+def _checked_config(args: argparse.Namespace) -> tuple[CompanionConfig, str]:
+    """The parameters, refused before anything is started: the embedded simulator, a wrong
+    connection, a missing device, a secret file others can read. Also where the connection came from."""
     overrides = {"connection": args.connection} if args.connection else None
     config = load_config(args.params, overrides=overrides)
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
@@ -220,32 +205,77 @@ def cmd_fly(args: argparse.Namespace) -> int:
         exposed = exposed_secret(path, what)
         if exposed is not None:
             raise StartupError(f"{exposed} ({key} in {args.params})", exits.BAD_INPUT)
+    return config, where
 
-    if getattr(args, "orders", False):
-        from companion.cli.orders import cmd_fly_orders
 
-        return cmd_fly_orders(args, config, make_autopilot, preflight_hook, OPERATOR_ABORT)
+def _started_landing_kit(args: argparse.Namespace, config: CompanionConfig) -> Any:
+    """The landing sensors set up and started on the ground: a missing one stops us here."""
     from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, record_camera, start_sensors
 
     kit = None
     try:
-        try:  # the landing sensors are set up and started on the ground: a missing one stops us here
-            kit = build_landing_kit(config)
-            if kit is not None and getattr(args, "record_camera", None):
-                kit = record_camera(kit, Path(args.record_camera), config.landing.camera_rate_hz)
-            if kit is not None:
-                start_sensors(kit)
-        except LandingSetupError as err:
-            code = exits.DEVICE_MISSING if err.device_missing else exits.BAD_INPUT
-            raise StartupError(f"{args.params}: {err}", code) from None
-        run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
-        try:
-            run_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise StartupError(
-                f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
-            ) from None
-        check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
+        kit = build_landing_kit(config)
+        if kit is not None and getattr(args, "record_camera", None):
+            kit = record_camera(kit, Path(args.record_camera), config.landing.camera_rate_hz)
+        if kit is not None:
+            start_sensors(kit)
+    except LandingSetupError as err:
+        _stop_sensors(kit)  # what was built or started before the one that failed
+        code = exits.DEVICE_MISSING if err.device_missing else exits.BAD_INPUT
+        raise StartupError(f"{args.params}: {err}", code) from None
+    except BaseException:
+        _stop_sensors(kit)
+        raise
+    return kit
+
+
+def _made_run_folder(args: argparse.Namespace) -> Path:
+    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StartupError(
+            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
+        ) from None
+    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
+    return run_dir
+
+
+def _fly_exit(args: argparse.Namespace, summary: MissionSummary, run_dir: Path, display: _FlyDisplay) -> int:
+    """The flight's result printed (JSON or the table) and its exit code."""
+    if getattr(args, "json", False):
+        print(
+            json.dumps(
+                {
+                    "delivered": summary.delivered,
+                    "returned": summary.returned,
+                    "failure": summary.failure,
+                    "run_dir": str(run_dir),
+                }
+            )
+        )
+    else:
+        display.print_summary(summary, run_dir)
+    lost = exits.say_logs_incomplete("fly", run_dir)  # a full disk: the flight went on, its logs stopped
+    if summary.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C / SIGTERM in flight: held, landed, ended
+        return exits.INTERRUPTED
+    if lost and summary.delivered and not summary.failure:  # delivered, but the logs were cut
+        return exits.LOGS_INCOMPLETE
+    return exits.OK if summary.delivered and not summary.failure else exits.FAILED
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    """Fly the delivery. A start-up failure raises :class:`StartupError` (one line, an exit code of
+    :mod:`companion.cli.exits`); whatever was started is closed first."""
+    config, where = _checked_config(args)
+    if getattr(args, "orders", False):
+        from companion.cli.orders import cmd_fly_orders
+
+        return cmd_fly_orders(args, config, make_autopilot, preflight_hook, OPERATOR_ABORT)
+    kit = None
+    try:
+        kit = _started_landing_kit(args, config)
+        run_dir = _made_run_folder(args)
         new_folder = not any(run_dir.iterdir())
         try:
             with exits.flight_startup_errors(where, args.params, config):
@@ -270,25 +300,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
             raise
     finally:
         _stop_sensors(kit)
-    if getattr(args, "json", False):
-        print(
-            json.dumps(
-                {
-                    "delivered": summary.delivered,
-                    "returned": summary.returned,
-                    "failure": summary.failure,
-                    "run_dir": str(run_dir),
-                }
-            )
-        )
-    else:
-        display.print_summary(summary, run_dir)
-    lost = exits.say_logs_incomplete("fly", run_dir)  # a full disk: the flight went on, its logs stopped
-    if summary.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C / SIGTERM in flight: held, landed, ended
-        return exits.INTERRUPTED
-    if lost and summary.delivered and not summary.failure:  # delivered, but the logs were cut
-        return exits.LOGS_INCOMPLETE
-    return exits.OK if summary.delivered and not summary.failure else exits.FAILED
+    return _fly_exit(args, summary, run_dir, display)
 
 
 class _FlyDisplay:
@@ -349,91 +361,3 @@ class _FlyDisplay:
         self.console.print(headline(summary))
         for k, v in summary_rows(summary, self.shell, run_dir):
             self.console.print(f"  {k:<46} {v}")
-
-
-def cmd_bench_link(args: argparse.Namespace) -> int:
-    print(json.dumps(bench_link(seconds=args.seconds), indent=2))
-    return 0
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _pct(xs: list[float], q: float) -> float:
-    if not xs:
-        return float("nan")
-    ys = sorted(xs)
-    return ys[min(len(ys) - 1, int(q * (len(ys) - 1) + 0.5))]
-
-
-async def _bench(backend: str, seconds: float) -> dict[str, Any]:
-    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
-
-    port = _free_udp_port()
-    dialect = "px4" if backend == "px4" else "ardupilot"
-    sim = mavlink_sim_vehicle(SimConfig(ready_delay_s=0.0), dialect, remote=("127.0.0.1", port)).start()
-    arrivals: list[float] = []
-
-    def on_msg(m: Any) -> None:
-        if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
-            arrivals.append(time.monotonic())
-
-    sim.on_message = on_msg
-    ap: Any
-    if backend == "px4":
-        from companion.autopilot.px4 import Px4Autopilot
-
-        ap = Px4Autopilot(f"udpin://127.0.0.1:{port}")
-    else:
-        from companion.autopilot.ardupilot import ArduPilotAutopilot
-
-        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{port}")
-    out: dict[str, Any] = {}
-    try:
-        await ap.connect(timeout_s=5.0)
-        await asyncio.sleep(0.5)
-        sp = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
-        for hz in (20.0, 50.0):
-            arrivals.clear()
-            rate = RateLoop(LoopClock(), hz)
-            call_us: list[float] = []
-            for _ in range(int(seconds * hz)):
-                await rate.tick()
-                t = time.perf_counter()
-                ap.set_velocity_ned(sp)
-                call_us.append((time.perf_counter() - t) * 1e6)
-            await asyncio.sleep(0.1)
-            jitter_ms = [abs((b - a) - 1.0 / hz) * 1e3 for a, b in itertools.pairwise(arrivals)]
-            out[f"{int(hz)}hz"] = {
-                "received": len(arrivals),
-                "sent": int(seconds * hz),
-                "jitter_p50_ms": round(_pct(jitter_ms, 0.5), 3),
-                "jitter_p99_ms": round(_pct(jitter_ms, 0.99), 3),
-                "send_call_p50_us": round(statistics.median(call_us), 1),
-            }
-        rtt: list[float] = []
-        for _ in range(30):
-            t = time.perf_counter()
-            if backend == "px4":
-                await ap._direct_command("request", 512, 148)  # MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION
-            else:
-                await ap._command(512, 148)
-            rtt.append((time.perf_counter() - t) * 1e3)
-        out["command_rtt_p50_ms"] = round(_pct(rtt, 0.5), 3)
-        out["command_rtt_p99_ms"] = round(_pct(rtt, 0.99), 3)
-    finally:
-        await ap.close()
-        sim.stop()
-    return out
-
-
-def bench_link(seconds: float = 3.0) -> dict[str, Any]:
-    """Setpoint-stream jitter (p50/p99 of |inter-arrival - period| at the vehicle) at 20 and 50 Hz
-    and COMMAND_LONG round-trip latency, for both backends against the MAVLink sim vehicle."""
-    return {
-        "ardupilot_pymavlink": asyncio.run(_bench("ardupilot", seconds)),
-        "px4_mavsdk": asyncio.run(_bench("px4", seconds)),
-    }

@@ -47,11 +47,12 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
         importlib.import_module("companion.cli.dart").register_campaign(csub)
     except ImportError as err:
         log.error("campaign dart unavailable: %s", err)
-    for mod in ("companion.cli.telemetry", "companion.cli.fly", "companion.cli.signing"):
+    for mod in ("companion.cli.telemetry", "companion.cli.signing"):
         try:
             importlib.import_module(mod).register_bench(bsub)
         except ImportError as err:
             log.error("bench from %s unavailable: %s", mod, err)
+    bench.register_bench_link(bsub)
     bench.register_bench_micro(bsub)
     bench.register_bench_app(bsub)
     params.register(sub)
