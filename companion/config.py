@@ -1012,6 +1012,177 @@ class GcsConfig(_Section):
         return v
 
 
+class EkfConfig(_Section):
+    """The delivery EKF's noise and gating (delivery eqs 5-15; 1-sigma values): ``[landing.ekf]``,
+    taken as it is by :class:`companion.estimation.ekf.DeliveryEkf`. A measurement's sigma grows
+    with the height h above the pad: sigma = sigma0 + gain * h; Q_f (eq 6) is built from
+    random-walk densities: Q_f = diag(sigma^2) * dt."""
+
+    input_velocity_sigma_m_s: float = _f(0.3, "m/s", "Q_u (eq 6): noise of the velocity input", gt=0.0, le=10.0)
+    input_rate_sigma_rad_s: float = _f(0.02, "rad/s", "Q_u (eq 6): noise of the body-rate input", gt=0.0, le=5.0)
+    position_process_sigma_m_per_sqrt_s: float = _f(
+        0.05,
+        "m/sqrt(s)",
+        "Q_f (eq 6) position random walk: how fast the autopilot's velocity error can carry the position "
+        "away between pad observations. 0.05 suits an autopilot whose velocity estimate is good (ArduCopter "
+        "SITL, the embedded simulator); PX4 v1.16 SIH needs ~0.3 (its velocity estimate was measured "
+        "0.5 m/s off for seconds near the ground)",
+        gt=0.0,
+        le=5.0,
+    )
+    angle_process_sigma_rad_per_sqrt_s: float = _f(
+        0.01, "rad/sqrt(s)", "Q_f (eq 6) attitude random walk", gt=0.0, le=5.0
+    )
+    gps_bias_process_sigma_m_per_sqrt_s: float = _f(
+        0.01, "m/sqrt(s)", "Q_f (eq 6) GPS-bias random walk", gt=0.0, le=5.0
+    )
+    gyro_bias_process_sigma_rad_s_per_sqrt_s: float = _f(
+        0.0005, "rad/s/sqrt(s)", "Q_f (eq 6) gyro-bias random walk", gt=0.0, le=1.0
+    )
+    initial_position_sigma_m: float = _f(10.0, "m", "initial position uncertainty", gt=0.0, le=1000.0)
+    initial_angle_sigma_rad: float = _f(0.5, "rad", "initial attitude uncertainty", gt=0.0, le=10.0)
+    initial_gps_bias_sigma_m: float = _f(5.0, "m", "initial GPS-bias uncertainty", gt=0.0, le=1000.0)
+    initial_gyro_bias_sigma_rad_s: float = _f(0.05, "rad/s", "initial gyro-bias uncertainty", gt=0.0, le=10.0)
+    sdk_position_sigma_m: float = _f(1.0, "m", "h_SDK (eq 12): the autopilot's (GPS) position", gt=0.0, le=100.0)
+    sdk_position_sigma_gain_m_per_m: float = _f(
+        0.0, "m/m", "h_SDK: growth of its position sigma with the height above the pad", ge=0.0, le=1.0
+    )
+    sdk_angle_sigma_rad: float = _f(0.03, "rad", "h_SDK (eq 12): the autopilot's attitude", gt=0.0, le=10.0)
+    aruco_position_sigma_m: float = _f(
+        0.02, "m", "h_ArUco (eqs 13-14): the marker's position in the camera", gt=0.0, le=10.0
+    )
+    aruco_position_sigma_gain_m_per_m: float = _f(
+        0.01, "m/m", "h_ArUco: growth of its position sigma with the height above the pad", ge=0.0, le=1.0
+    )
+    aruco_roll_pitch_sigma_rad: float = _f(
+        0.35, "rad", "h_ArUco: the marker's roll and pitch (a single marker's are noisy)", gt=0.0, le=10.0
+    )
+    aruco_yaw_sigma_rad: float = _f(0.05, "rad", "h_ArUco: the marker's yaw", gt=0.0, le=10.0)
+    aruco_angle_sigma_gain_rad_per_m: float = _f(
+        0.002, "rad/m", "h_ArUco: growth of its angle sigmas with the height above the pad", ge=0.0, le=1.0
+    )
+    aruco_max_height_m: float = _f(
+        30.0, "m", "markers seen from higher above the pad are not fused (delivery 5.1)", gt=0.0, le=1000.0
+    )
+    uwb_position_sigma_m: float = _f(0.10, "m", "h_UWB (eq 15): a UWB fix's position", gt=0.0, le=10.0)
+    uwb_position_sigma_gain_m_per_m: float = _f(
+        0.01, "m/m", "h_UWB: growth of its sigma with the height above the pad", ge=0.0, le=1.0
+    )
+    uwb_scale_with_pdop: bool = _f(
+        True,
+        "-",
+        "per-axis UWB sigma *= PDOP / sqrt(3) when the fix has one; a fix from coplanar anchors "
+        "(vertical_weak) gets sigma * HDOP / sqrt(2) horizontally and sigma * VDOP vertically",
+    )
+    gating_enabled: bool = _f(True, "-", "chi-square innovation gate on every measurement")
+    gate_probability: float = _f(0.9999, "-", "the gate's chi-square probability", gt=0.5, lt=1.0)
+    gate_reset_after_rejections: int = _f(
+        20,
+        "-",
+        "consecutive gate rejections of one sensor after which the EKF admits it is lost and re-opens "
+        "the covariance the sensor disagrees with (SDK: the GPS bias, or p before xi; ArUco/UWB: p and "
+        "the GPS bias) to the initial sigmas, counted as <sensor>.gate_resets (UWB at 10 Hz: 20 = 2 s); "
+        "0: never",
+        ge=0,
+        le=1000,
+    )
+    max_step_s: float = _f(0.05, "s", "longer predictions are split into sub-steps of at most this", gt=0.0, le=1.0)
+    min_variance: float = _f(1e-12, "-", "floor of every state variance (numerics)", gt=0.0, le=1e-3)
+
+
+class DetectorConfig(_Section):
+    """The pad detector's tuning (companion.vision.detector.PadDetector): ``[landing.detector]``."""
+
+    err_ratio_threshold: float = _f(
+        0.6, "-", "accept the best IPPE solution if err_best / err_second < this", gt=0.0, le=1.0
+    )
+    agree_angle_rad: float = _f(
+        math.radians(2.0), "rad", "candidates closer than this are the same pose", gt=0.0, le=math.pi
+    )
+    prior_margin_rad: float = _f(
+        math.radians(6.0), "rad", "a prior must prefer one candidate by this much", gt=0.0, le=math.pi
+    )
+    prior_max_age_s: float = _f(0.5, "s", "the previous accepted pose is a prior for this long", gt=0.0, le=60.0)
+    max_tilt_rad: float = _f(
+        math.radians(60.0), "rad", "tilt gate: the pad normal within this of the expected up", gt=0.0, le=math.pi
+    )
+    max_reprojection_error_px: float = _f(4.0, "px", "poses that reproject worse are rejected", gt=0.0, le=1000.0)
+    roi_enabled: bool = _f(True, "-", "search a region of interest around the last sighting")
+    roi_margin_frac: float = _f(
+        0.35, "-", "margin around the last corners' box, a fraction of its size", gt=0.0, le=10.0
+    )
+    roi_min_margin_px: int = _f(24, "px", "the ROI's smallest margin", ge=0, le=10000)
+    full_search_every: int = _f(30, "-", "a full-frame search at least every N frames", ge=1, le=100000)
+    roi_predict_max_gap_s: float = _f(
+        0.5,
+        "s",
+        "the ROI follows the pad's image motion (centre and scale rates from the last two frames that "
+        "found it) over gaps up to this long; 0: the ROI stays where the pad was last seen",
+        ge=0.0,
+        le=60.0,
+    )
+    roi_target_marker_px: float = _f(90.0, "px", "large markers are searched at reduced resolution", gt=0.0, le=10000.0)
+    min_marker_px: float = _f(12.0, "px", "smallest marker side searched for in a full frame", gt=0.0, le=10000.0)
+    edge_refinement: bool = _f(True, "-", "corners from fitted border lines (refine_corners_by_edges)")
+    min_pose_marker_px: float = _f(20.0, "px", "a lone marker smaller than this gives no pose", gt=0.0, le=10000.0)
+    attitude_agree_rad: float = _f(
+        math.radians(8.0),
+        "rad",
+        "with a measured attitude: a candidate's pad normal within this of the attitude's up agrees with it",
+        gt=0.0,
+        le=math.pi,
+    )
+    attitude_margin_rad: float = _f(
+        math.radians(3.0),
+        "rad",
+        "when both candidates agree with the attitude, the closer normal wins only by this much (else the "
+        "previous pose)",
+        gt=0.0,
+        le=math.pi,
+    )
+    attitude_resolution: bool = _f(True, "-", "use the attitude rule whenever the detector is given the attitude")
+
+
+class MultilaterationConfig(_Section):
+    """The UWB solver's settings (companion.uwb.multilateration.Multilaterator):
+    ``[landing.multilateration]``."""
+
+    max_range_m: float | None = _f(
+        None,
+        "m",
+        "ranges longer than this are refused; none: the anchor layout's (10 m for the DWM1001)",
+        gt=0.0,
+        le=1000.0,
+    )
+    residual_threshold_m: float = _f(0.30, "m", "a range whose residual exceeds this is an outlier", gt=0.0, le=100.0)
+    max_pdop: float = _f(
+        20.0,
+        "-",
+        "the largest PDOP accepted; for coplanar anchors (whose vertical is weak by design) the same limit "
+        "applies to the dilution in the anchors' plane (HDOP for anchors at one height)",
+        gt=0.0,
+        le=10000.0,
+    )
+    range_sigma_m: float = _f(
+        0.10,
+        "m",
+        "the ranging noise (DWM1001 TWR: +-10 cm), used only to bound the reported VDOP of a fix at or near "
+        "the anchors' plane, where the linearised VDOP diverges",
+        gt=0.0,
+        le=10.0,
+    )
+    max_iterations: int = _f(30, "-", "Gauss-Newton iterations per solve", ge=1, le=1000)
+    step_tolerance_m: float = _f(1e-7, "m", "converged: the step is shorter than this", gt=0.0, le=1.0)
+    max_subsets: int = _f(100, "-", "anchor subsets tried when outliers are sought", ge=1, le=100000)
+    prefer_high_solution: bool = _f(
+        True,
+        "-",
+        "two equally good solutions (exactly determined TDoA, mirror images): without a prior, take the one "
+        "with the larger z (the tag flies above the anchors)",
+    )
+    seed: int = _f(0, "-", "seed of the subset sampling (deterministic)", ge=0, le=2**63 - 1)
+
+
 class LandingConfig(_Section):
     """Precision landing (delivery 4.2): fuse the camera and UWB with the GPS pose in the EKF."""
 
@@ -1044,16 +1215,6 @@ class LandingConfig(_Section):
     uwb_anchors: str = _f(
         "uwb_anchors_pad.toml", "-", "UWB anchor layout TOML, pad frame (a path, or shipped in params/)", min_length=1
     )
-    ekf_position_process_sigma_m_per_sqrt_s: float = _f(
-        0.05,
-        "m/sqrt(s)",
-        "EKF position random walk (delivery eq 6 Q_f): how fast the autopilot's velocity error can carry "
-        "the position away between pad observations. 0.05 suits an autopilot whose velocity estimate is "
-        "good (ArduCopter SITL, the embedded simulator); PX4 v1.16 SIH needs ~0.3 (its velocity estimate "
-        "was measured 0.5 m/s off for seconds near the ground)",
-        gt=0.0,
-        le=5.0,
-    )
     ekf_level_pad: bool = _f(
         False,
         "-",
@@ -1072,14 +1233,6 @@ class LandingConfig(_Section):
         ge=0.0,
         le=60.0,
     )
-    ekf_gate_reset_after_rejections: int = _f(
-        20,
-        "-",
-        "consecutive chi-square rejections of one sensor after which the EKF admits it is lost and "
-        "re-opens its covariance (UWB at 10 Hz: 20 = 2 s)",
-        ge=1,
-        le=1000,
-    )
     controller: Literal["companion", "autopilot"] = _f(
         "companion",
         "-",
@@ -1093,6 +1246,39 @@ class LandingConfig(_Section):
         "body_angles (ArduPilot PLND_TYPE=1: angles + distance), off",
     )
     policy: PadLockPolicyConfig = Field(default_factory=PadLockPolicyConfig)
+    ekf: EkfConfig = Field(default_factory=EkfConfig)
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
+    multilateration: MultilaterationConfig = Field(default_factory=MultilaterationConfig)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_ekf_keys(cls, data: Any) -> Any:
+        """The EKF's keys that were ``[landing] ekf_*`` before ``[landing.ekf]`` held them all
+        (docs/parameters.md): still read, into ``[landing.ekf]``."""
+        if not isinstance(data, dict) or not any(k in data for k in LANDING_OLD_EKF_KEYS):
+            return data
+        ekf = data.get("ekf", {})
+        if not isinstance(ekf, dict):
+            return data  # the table's own error names it
+        data, ekf = dict(data), dict(ekf)
+        for old, new in LANDING_OLD_EKF_KEYS.items():
+            if old not in data:
+                continue
+            if new in ekf:
+                raise ValueError(
+                    f"landing.{old} and landing.ekf.{new} both set: {old} is the old name of landing.ekf.{new}; "
+                    "keep landing.ekf's"
+                )
+            ekf[new] = data.pop(old)
+        data["ekf"] = ekf
+        return data
+
+
+#: ``[landing]`` keys of older files -> their key in ``[landing.ekf]``
+LANDING_OLD_EKF_KEYS = {
+    "ekf_position_process_sigma_m_per_sqrt_s": "position_process_sigma_m_per_sqrt_s",
+    "ekf_gate_reset_after_rejections": "gate_reset_after_rejections",
+}
 
 
 class SigningConfig(_Section):

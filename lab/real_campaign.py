@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel
 
 from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
@@ -63,8 +64,7 @@ FIRMWARE_OF_PROFILE = {v: k for k, v in PROFILE_FOR.items()}
 FIRMWARE_PARAMS = {"px4": "px4_sih_quad.toml", "ardupilot": "ardupilot_quad.toml"}
 FIRMWARE_TUNING_KEYS = {
     "landing": (
-        "ekf_position_process_sigma_m_per_sqrt_s",
-        "ekf_gate_reset_after_rejections",
+        "ekf",  # the whole [landing.ekf] table
         "ekf_velocity_bias_tau_s",
         "ekf_level_pad",
     ),
@@ -92,7 +92,12 @@ def firmware_tuning(autopilot: str) -> dict[str, dict[str, Any]]:
     """The landing tuning (fusion and final descent) the shipped parameters of ``autopilot``
     carry (see FIRMWARE_PARAMS), as config overrides by table."""
     cfg = load_config(shipped_params_path(FIRMWARE_PARAMS[autopilot]))
-    return {table: {k: getattr(getattr(cfg, table), k) for k in keys} for table, keys in FIRMWARE_TUNING_KEYS.items()}
+
+    def value(table: str, key: str) -> Any:
+        v = getattr(getattr(cfg, table), key)
+        return v.model_dump() if isinstance(v, BaseModel) else v
+
+    return {table: {k: value(table, k) for k in keys} for table, keys in FIRMWARE_TUNING_KEYS.items()}
 
 
 def real_pad_displacement(d: Draw) -> tuple[float, float]:

@@ -322,7 +322,7 @@ def sim_landing_kit(
         except PluginError as err:
             raise LandingSetupError(f"camera file {camera_playback.video}: {err}") from err
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
-        detector = PadDetector(det_model, layout, markers=markers)
+        detector = PadDetector(det_model, layout, lc.detector, markers=markers)
     elif lc.use_camera:
         sim_cam = SimulatedCamera(cam_model, layout, T_body_camera=mount, T_world_pad=T_world_pad_true, seed=seed)
         camera = SimCameraSource(
@@ -342,7 +342,7 @@ def sim_landing_kit(
                 raise LandingSetupError(f"recording the camera: {err}") from None
             camera = RecordingCamera(camera, writer)
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
-        detector = PadDetector(cam_model, layout, markers=markers)
+        detector = PadDetector(cam_model, layout, lc.detector, markers=markers)
     anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
     if lc.use_uwb:
         uwb = SimUwbSource(
@@ -352,7 +352,7 @@ def sim_landing_kit(
             lc.uwb_rate_hz,
             fails_below_m=config.sim.uwb_fails_below_m,
         )
-        multi = Multilaterator(anchors)
+        multi = Multilaterator(anchors, lc.multilateration)
     from companion.geometry.se3 import Transform
 
     return LandingKit(

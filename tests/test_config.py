@@ -209,3 +209,57 @@ def test_the_simulated_home_stays_off_the_poles(lat_deg):
     with pytest.raises(ConfigError, match=rf"sim.home.lat_deg = {lat_deg}: Input should be"):
         config_from_dict({"sim": {"home": {"lat_deg": lat_deg, "lon_deg": 0.0}}})
     assert config_from_dict({"sim": {"home": {"lat_deg": 89.0, "lon_deg": 0.0}}}).sim.home.lat_deg == 89.0
+
+
+def test_the_estimators_and_solvers_tuning_is_a_table_of_the_landing(tmp_path):
+    """[landing.ekf], [landing.detector] and [landing.multilateration] are read into the schemas the
+    EKF, the pad detector and the UWB solver take as they are."""
+    from companion.estimation.ekf import DeliveryEkf
+    from companion.uwb.anchors import load_anchor_layout
+    from companion.uwb.multilateration import Multilaterator
+
+    f = tmp_path / "v.toml"
+    f.write_text(
+        "[landing.ekf]\ngate_probability = 0.999\naruco_max_height_m = 12.0\n"
+        "[landing.detector]\nfull_search_every = 7\n[landing.multilateration]\nmax_pdop = 8.0\n"
+    )
+    lc = load_config(f).landing
+    assert (lc.ekf.gate_probability, lc.ekf.aruco_max_height_m) == (0.999, 12.0)
+    assert lc.detector.full_search_every == 7 and lc.multilateration.max_pdop == 8.0
+    assert DeliveryEkf(lc.ekf).config.aruco_max_height_m == 12.0
+    layout = load_anchor_layout(shipped_params_path("uwb_anchors_pad.toml"))
+    assert Multilaterator(layout, lc.multilateration).config.max_pdop == 8.0
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [
+        ("[landing.ekf]\ngate_probability = 1.0\n", "landing.ekf.gate_probability = 1.0: Input should be less than 1"),
+        ("[landing.detector]\nfull_search_every = 0\n", "landing.detector.full_search_every = 0: Input should be"),
+        ("[landing.multilateration]\nmax_iterations = 0\n", "landing.multilateration.max_iterations = 0: Input"),
+        ("[landing.ekf]\nsigma = 1.0\n", "landing.ekf.sigma: unknown key (value 1.0)"),
+    ],
+)
+def test_a_bad_value_of_the_estimators_tuning_names_file_key_and_rule(tmp_path, text, line):
+    f = tmp_path / "v.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_config(f)
+    assert err.value.source == str(f) and any(p.startswith(line) for p in err.value.problems), err.value.problems
+
+
+def test_the_old_landing_ekf_keys_still_load_into_landing_ekf(tmp_path):
+    """Files from before [landing.ekf] (and the run folders they made) set two of its keys in
+    [landing]: they load as the new keys do; both forms at once is refused."""
+    old, new, both = (tmp_path / n for n in ("old.toml", "new.toml", "both.toml"))
+    old.write_text("[landing]\nekf_position_process_sigma_m_per_sqrt_s = 0.3\nekf_gate_reset_after_rejections = 5\n")
+    new.write_text("[landing.ekf]\nposition_process_sigma_m_per_sqrt_s = 0.3\ngate_reset_after_rejections = 5\n")
+    assert load_config(old) == load_config(new)
+    assert load_config(old).landing.ekf.gate_reset_after_rejections == 5
+    both.write_text("[landing]\nekf_gate_reset_after_rejections = 5\n[landing.ekf]\ngate_reset_after_rejections = 6\n")
+    with pytest.raises(ConfigError, match=r"ekf_gate_reset_after_rejections is the old name of landing\.ekf"):
+        load_config(both)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[landing]\nekf_position_process_sigma_m_per_sqrt_s = -1.0\n")
+    with pytest.raises(ConfigError, match=r"landing.ekf.position_process_sigma_m_per_sqrt_s = -1.0: Input should be"):
+        load_config(bad)

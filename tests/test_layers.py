@@ -65,9 +65,9 @@ ALLOWED: dict[str, set[str]] = {
     "foxglove_schemas": set(),  # Foxglove schemas and conventions, shared by flightlog and telemetry
     "timebase": set(),  # the vehicle clock signed requests are judged on, and the pre-flight verdict on it
     "secret_files": {"config"},  # secret files read only when no one but their owner can read or write them
-    "vision": {"geometry"},
-    "uwb": {"geometry"},
-    "estimation": {"geometry"},
+    "vision": {"geometry", "config"},  # its parameters' schema (config.py)
+    "uwb": {"geometry", "config"},
+    "estimation": {"geometry", "config"},
     "guidance": {"geometry", "config"},
     "autopilot": {"geometry", "config", "estimation", "guidance", "timebase", "secret_files"},
     "telemetry": {

@@ -68,7 +68,7 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
         except PadConfigError as err:
             raise LandingSetupError(f"landing.pad_file = {lc.pad_file!r}: {err}") from None
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
-        detector = PadDetector(model, layout, markers=markers)
+        detector = PadDetector(model, layout, lc.detector, markers=markers)
         source: str | int = int(lc.camera_source) if lc.camera_source.isdigit() else lc.camera_source
         try:
             camera = create(
@@ -90,7 +90,7 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
             anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
         except AnchorLayoutError as err:
             raise LandingSetupError(f"landing.uwb_anchors = {lc.uwb_anchors!r}: {err}") from None
-        multi = Multilaterator(anchors)
+        multi = Multilaterator(anchors, lc.multilateration)
         try:
             uwb = create("companion.uwb", lc.uwb_plugin, port=lc.uwb_port)
         except (PluginError, TypeError) as err:

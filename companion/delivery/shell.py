@@ -62,7 +62,7 @@ from companion.delivery.pad_heading import heading_observation_age_s, landing_he
 from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.delivery.sensor_tasks import SensorTasks
-from companion.estimation.ekf import EkfConfig, UpdateOutcome
+from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.events import EventKind, MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
@@ -612,11 +612,7 @@ class DeliveryShell:
             heading_tolerance_rad=heading_tol,
             T_body_camera=kit.T_body_camera,
             T_pad_anchors=kit.T_pad_anchors,
-            ekf=kit.ekf_config
-            or EkfConfig(
-                position_process_sigma_m_per_sqrt_s=self.config.landing.ekf_position_process_sigma_m_per_sqrt_s,
-                gate_reset_after_rejections=self.config.landing.ekf_gate_reset_after_rejections,
-            ),
+            ekf=kit.ekf_config or self.config.landing.ekf,
             velocity_bias_tau_s=self.config.landing.ekf_velocity_bias_tau_s,
             velocity_bias_max_m_s=self.config.mission.velocity_bias_max_m_s,
             velocity_bias_source=self.config.mission.velocity_bias_source,

@@ -65,7 +65,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
 from enum import Enum
 from typing import NamedTuple, Protocol
 
@@ -76,6 +75,7 @@ from scipy.linalg.lapack import dpotrf as _potrf
 from scipy.linalg.lapack import dpotrs as _potrs
 from scipy.special import gammaincinv
 
+from companion.config import EkfConfig  # the schema of [landing.ekf], declared once there
 from companion.estimation.types import StateEstimate
 from companion.geometry import Transform, euler_rates_matrix, euler_to_rotmat
 
@@ -121,72 +121,6 @@ class PositionFix(Protocol):
     def z_m(self) -> float: ...
     @property
     def pdop(self) -> float: ...
-
-
-@dataclass(frozen=True)
-class EkfConfig:
-    """Noise and gating parameters (1-sigma values, units in the names).
-
-    Measurement sigmas grow with the height h above the pad: sigma = sigma0 + gain * h.
-    Q_f (eq 6) is built from random-walk densities: Q_f = diag(sigma^2) * dt.
-    """
-
-    # Q_u (eq 6): input noise
-    input_velocity_sigma_m_s: float = 0.3
-    input_rate_sigma_rad_s: float = 0.02
-    # Q_f (eq 6): model noise densities
-    position_process_sigma_m_per_sqrt_s: float = 0.05
-    angle_process_sigma_rad_per_sqrt_s: float = 0.01
-    gps_bias_process_sigma_m_per_sqrt_s: float = 0.01
-    gyro_bias_process_sigma_rad_s_per_sqrt_s: float = 0.0005
-    # initial state uncertainty
-    initial_position_sigma_m: float = 10.0
-    initial_angle_sigma_rad: float = 0.5
-    initial_gps_bias_sigma_m: float = 5.0
-    initial_gyro_bias_sigma_rad_s: float = 0.05
-    # h_SDK (eq 12): autopilot / GPS pose
-    sdk_position_sigma_m: float = 1.0
-    sdk_position_sigma_gain_m_per_m: float = 0.0
-    sdk_angle_sigma_rad: float = 0.03
-    # h_ArUco (eqs 13-14): marker pose in the camera (position and yaw good, roll/pitch noisy)
-    aruco_position_sigma_m: float = 0.02
-    aruco_position_sigma_gain_m_per_m: float = 0.01
-    aruco_roll_pitch_sigma_rad: float = 0.35
-    aruco_yaw_sigma_rad: float = 0.05
-    aruco_angle_sigma_gain_rad_per_m: float = 0.002
-    aruco_max_height_m: float = 30.0  # delivery 5.1: markers seen higher are not fused
-    # h_UWB (eq 15)
-    uwb_position_sigma_m: float = 0.10
-    uwb_position_sigma_gain_m_per_m: float = 0.01
-    # per-axis sigma *= PDOP / sqrt(3) when the fix has one; a fix from coplanar anchors
-    # (``vertical_weak``) gets sigma * HDOP / sqrt(2) horizontally and sigma * VDOP vertically
-    uwb_scale_with_pdop: bool = True
-    # chi-square innovation gate
-    gating_enabled: bool = True
-    gate_probability: float = 0.9999
-    # lock-out recovery: after this many consecutive gate rejections of one sensor the filter
-    # admits it is lost: it inflates the covariance the sensor disagrees with (SDK: the GPS
-    # bias, or p before xi; ArUco/UWB: p and the GPS bias) to the initial sigmas, counted as
-    # "<sensor>.gate_resets". 0 disables.
-    gate_reset_after_rejections: int = 20
-    # numerics
-    max_step_s: float = 0.05  # longer predictions are split into sub-steps of at most this
-    min_variance: float = 1e-12
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool):
-                continue
-            if not (isinstance(v, int | float) and math.isfinite(v)):
-                raise ValueError(f"EkfConfig.{f.name} = {v!r}: must be a finite number")
-            if f.name.endswith(("_gain_m_per_m", "_gain_rad_per_m")) or f.name == "gate_reset_after_rejections":
-                if v < 0:
-                    raise ValueError(f"EkfConfig.{f.name} = {v!r}: must be >= 0")
-            elif v <= 0:
-                raise ValueError(f"EkfConfig.{f.name} = {v!r}: must be > 0")
-        if not 0.5 < self.gate_probability < 1.0:
-            raise ValueError(f"EkfConfig.gate_probability = {self.gate_probability!r}: must be in (0.5, 1)")
 
 
 # ----------------------------------------------------------------------------------------------

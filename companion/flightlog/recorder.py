@@ -41,7 +41,6 @@ they read back as the same doubles.
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import functools
 import itertools
@@ -421,7 +420,7 @@ class FlightRecorder:
             "T_world_pad": transform_json(s.T_world_pad),
             "T_body_camera": transform_json(s.T_body_camera),
             "T_pad_anchors": transform_json(s.T_pad_anchors),
-            "ekf": dataclasses.asdict(s.ekf),
+            "ekf": s.ekf.model_dump(),
             "history_s": float(s.history_s),
             # only when on, so the logs of every other flight keep their bytes
             **(

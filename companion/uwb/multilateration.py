@@ -74,6 +74,7 @@ from scipy.linalg.lapack import dgelsd as _gelsd
 from scipy.linalg.lapack import dgelsd_lwork as _gelsd_lwork
 from scipy.linalg.lapack import dgesv as _gesv
 
+from companion.config import MultilaterationConfig  # [landing.multilateration], declared there
 from companion.uwb.anchors import MIN_ANCHORS, MIN_COPLANAR_ANCHORS, AnchorLayout
 
 log = logging.getLogger(__name__)
@@ -156,27 +157,6 @@ class UwbRejection:
     reason: RejectReason
     detail: str
     anchors_usable: int
-
-
-@dataclass(frozen=True)
-class MultilaterationConfig:
-    """Solver settings. ``max_range_m`` None: use the layout's (10 m for the DWM1001)."""
-
-    max_range_m: float | None = None
-    residual_threshold_m: float = 0.30
-    #: the largest PDOP accepted; for coplanar anchors (whose vertical is weak by design) the
-    #: same limit applies to the dilution in the anchors' plane (HDOP for anchors at one height)
-    max_pdop: float = 20.0
-    #: the ranging noise (DWM1001 TWR: +-10 cm) used only to bound the reported VDOP of a fix at
-    #: or near the anchors' plane, where the linearised VDOP diverges (``Multilaterator._geometry``)
-    range_sigma_m: float = 0.10
-    max_iterations: int = 30
-    step_tolerance_m: float = 1e-7  # converged: the next step is ~(1e-7)^2, far below noise
-    max_subsets: int = 100
-    #: two equally good solutions (exactly determined TDoA, mirror images): without a prior,
-    #: take the one with the larger z (the tag flies above the anchors).
-    prefer_high_solution: bool = True
-    seed: int = 0
 
 
 @dataclass

@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from companion.config import DetectorConfig  # the schema of [landing.detector], declared once there
 from companion.geometry import Transform
 from companion.vision.camera import CameraModel
 from companion.vision.pad import PadLayout, aruco_dictionary
@@ -105,60 +106,6 @@ class MarkerObservation:
     @property
     def distance_m(self) -> float:
         return float(np.linalg.norm(self.T_camera_pad.t))
-
-
-@dataclass(frozen=True)
-class DetectorConfig:
-    """Tuning of :class:`PadDetector`."""
-
-    err_ratio_threshold: float = 0.6  # accept the best IPPE solution if err_best/err_second < this
-    agree_angle_rad: float = math.radians(2.0)  # candidates closer than this are the same pose
-    prior_margin_rad: float = math.radians(6.0)  # a prior must prefer one candidate by this much
-    prior_max_age_s: float = 0.5  # the previous accepted estimate is a prior for this long
-    max_tilt_rad: float = math.radians(60.0)  # pad normal vs expected "up" (tilt gate)
-    max_reprojection_error_px: float = 4.0  # worse poses are rejected
-    roi_enabled: bool = True
-    roi_margin_frac: float = 0.35  # margin around the last corners' box, fraction of its size
-    roi_min_margin_px: int = 24
-    full_search_every: int = 30  # a full-frame search at least every N frames
-    # the ROI follows the pad's image motion (centre and scale rates from the last two frames that
-    # found it) over gaps up to this long; 0: the ROI stays where the pad was last seen
-    roi_predict_max_gap_s: float = 0.5
-    roi_target_marker_px: float = 90.0  # search large markers at reduced resolution
-    min_marker_px: float = 12.0  # smallest marker side searched for in a full frame
-    edge_refinement: bool = True  # corners from fitted border lines (refine_corners_by_edges)
-    min_pose_marker_px: float = 20.0  # a lone marker smaller than this gives no pose
-    # With a measured attitude (detect(down_cam=...)): a candidate's pad normal within this of the
-    # attitude's "up" agrees with the attitude (resolve_ambiguity(attitude=True))
-    attitude_agree_rad: float = math.radians(8.0)
-    # ... and when both agree, the closer normal wins only by this much (else the previous pose)
-    attitude_margin_rad: float = math.radians(3.0)
-    attitude_resolution: bool = True  # use the attitude rule whenever detect() is given down_cam
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.err_ratio_threshold <= 1.0:
-            raise ValueError(f"err_ratio_threshold = {self.err_ratio_threshold}: must be in (0, 1]")
-        for name in (
-            "agree_angle_rad",
-            "prior_margin_rad",
-            "prior_max_age_s",
-            "max_tilt_rad",
-            "max_reprojection_error_px",
-            "roi_margin_frac",
-            "roi_target_marker_px",
-            "min_marker_px",
-            "min_pose_marker_px",
-            "attitude_agree_rad",
-            "attitude_margin_rad",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"DetectorConfig.{name} = {v!r}: must be finite and > 0")
-        if self.full_search_every < 1 or self.roi_min_margin_px < 0:
-            raise ValueError("DetectorConfig: full_search_every >= 1 and roi_min_margin_px >= 0")
-        if not (math.isfinite(self.roi_predict_max_gap_s) and self.roi_predict_max_gap_s >= 0):
-            gap = self.roi_predict_max_gap_s
-            raise ValueError(f"DetectorConfig.roi_predict_max_gap_s = {gap!r}: must be finite and >= 0")
 
 
 @dataclass(frozen=True)

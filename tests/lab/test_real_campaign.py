@@ -11,7 +11,7 @@ import matplotlib.image as mpimg
 import pytest
 
 from companion.cli.main import main
-from companion.config import load_config, shipped_params_path
+from companion.config import EkfConfig, load_config, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.geometry.earth import GeoPoint
 from companion_lab.campaign_landing import Draw, draw_scenarios, scenario_config
@@ -40,8 +40,11 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     # the firmware's own landing tuning comes from its shipped parameters (params/px4_sih_quad.toml)
     assert firmware_tuning("px4") == {
         "landing": {
-            "ekf_position_process_sigma_m_per_sqrt_s": 0.3,
-            "ekf_gate_reset_after_rejections": 5,
+            "ekf": {
+                **EkfConfig().model_dump(),
+                "position_process_sigma_m_per_sqrt_s": 0.3,
+                "gate_reset_after_rejections": 5,
+            },
             "ekf_velocity_bias_tau_s": 1.0,  # PX4's velocity, the EKF's input, corrected
             "ekf_level_pad": True,  # PX4's roll / pitch error, seen on the level pad, taken out
         },
@@ -64,7 +67,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
     assert firmware_tuning("ardupilot")["mission"]["land_speed_m_s"] == 0.5  # LAND_SPEED, as the campaign's
     assert firmware_tuning("ardupilot")["mission"]["autopilot_accel_z_m_s2"] == 0.5  # GUIDED's limits
-    assert cfg.landing.ekf_position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
+    assert cfg.landing.ekf.position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
     assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
     assert real_config(base, "px4", "gps_only").landing.fusion is False
     with pytest.raises(ValueError, match="unknown variant"):
