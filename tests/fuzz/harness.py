@@ -93,7 +93,7 @@ def check(surface: str, fn: Callable[[Any], str], value: Any, allowed: tuple[typ
     return outcome
 
 
-def run(strategy: st.SearchStrategy[Any], body: Callable[[Any], None], max_examples: int) -> None:
+def run(strategy: st.SearchStrategy[Any], body: Callable[[Any], object], max_examples: int) -> None:
     """``body`` on ``max_examples`` inputs from ``strategy``, derandomized (CI sees the same inputs
     every run), no example database, no deadline (hangs are :func:`check`'s job)."""
 
