@@ -109,6 +109,137 @@ def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[f
     return float(p[0]) + pad_offset_m[0], float(p[1]) + pad_offset_m[1]
 
 
+class _TruthScore:
+    """The shell's ``on_tick``: the true vehicle against the mission's path while it follows it,
+    the descent onto the pad, and the touchdown, all scored on ``truth``."""
+
+    def __init__(self, truth: MavlinkTruth, pad_ne: tuple[float, float]) -> None:
+        self.truth = truth
+        self.pad_ne = pad_ne
+        self.touchdown: list[tuple[float, float]] = []
+        self.touchdown_yaw: list[float] = []
+        self.believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
+        self.path_d: list[float] = []
+        self.path_out: list[float] = []
+        self.arcs_in_plane: list[float] = []
+        self.arcs_tracking: list[float] = []
+        self.trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
+        self.landing_trace: list[tuple[float, ...]] = []
+        self.t_start = time.monotonic()
+        self.scorer: PathScorer | None = None
+        # truth <-> the autopilot's local frame, fixed at the start (home, on the ground): the
+        # autopilot may move home later (PX4 sets it again when it re-arms on the pad)
+        self.ref: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
+        self.t_ground = truth.pd  # the take-off level (SIH's ground; the vehicle starts on it)
+
+    def __call__(self, shell: DeliveryShell, out: MissionOutput) -> None:
+        truth = self.truth
+        home = shell.autopilot.telemetry.home
+        if not self.ref and home is not None and truth.age_s < 1.0:
+            self.ref.append(((truth.pn, truth.pe, truth.pd), (home.north_m, home.east_m, home.down_m)))
+        m = shell.mission
+        following = out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None
+        if following and self.ref and truth.age_s < 1.0:
+            self._follow(shell, out)
+        self._landing(shell, out)
+
+    def _follow(self, shell: DeliveryShell, out: MissionOutput) -> None:
+        m = shell.mission
+        assert m.frame is not None and m.path is not None
+        t0, h0 = self.ref[0]
+        p = [getattr(self.truth, a) - s0 + hh for a, s0, hh in zip(("pn", "pe", "pd"), t0, h0, strict=True)]
+        if not all(math.isfinite(x) for x in p):
+            return
+        if self.scorer is None:
+            # the true pad in the autopilot's local frame, through the same fixed mapping
+            self.scorer = PathScorer((self.pad_ne[0] - t0[0] + h0[0], self.pad_ne[1] - t0[1] + h0[1]))
+        self.path_d.append(self.scorer.distance(m, out.phase, p))
+        p_i = m.frame.point_from_ned(np.array(p))
+        est = shell.estimate
+        e_i = m.frame.point_from_ned(est.position_ned) if est is not None else np.full(3, math.nan)
+        self.trace.append(
+            (
+                time.monotonic() - self.t_start,
+                out.phase.value,
+                int(m.path.sector(p_i)),
+                self.path_d[-1],
+                float(m.path.distance_to_path(e_i)),
+                tuple(float(x) for x in p_i),
+                tuple(float(x) for x in e_i),
+            )
+        )
+        if out.phase is Phase.OUTBOUND:
+            self.path_out.append(self.path_d[-1])
+        if self.trace[-1][2] in ARC_SECTORS:
+            self.arcs_in_plane.append(self.scorer.in_plane_distance(m, out.phase, p))
+            self.arcs_tracking.append(float(m.path.distance_in_plane(e_i)))
+
+    def _landing(self, shell: DeliveryShell, out: MissionOutput) -> None:
+        truth = self.truth
+        st = shell.autopilot.telemetry.status
+        if not self.touchdown and out.phase is Phase.LANDING_PAD and truth.age_s < 1.0:
+            row = _landing_row(time.monotonic() - self.t_start, shell, out, truth, self.pad_ne, self.t_ground)
+            self.landing_trace.append(row)
+        if (
+            not self.touchdown
+            and out.phase is Phase.LANDING_PAD
+            and st is not None
+            and st.landed is LandedState.ON_GROUND
+            and truth.age_s < 1.0
+        ):
+            self.touchdown.append((truth.pn, truth.pe))
+            self.touchdown_yaw.append(truth.yaw)
+            est, pad_cfg = shell.estimate, shell.mission.pad_ned
+            if est is not None and pad_cfg is not None:
+                self.believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
+
+
+def _harness_result(config: CompanionConfig, summary: Any, shell: DeliveryShell, sc: _TruthScore) -> HarnessResult:
+    pad_ne = sc.pad_ne
+    td = sc.touchdown[0] if sc.touchdown else (math.nan, math.nan)
+    err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])
+    # both offsets from the pad are frame-free (the truth and autopilot frames differ by a shift)
+    b = sc.believed[0] if sc.believed else (math.nan, math.nan)
+    est_err = math.hypot(b[0] - (td[0] - pad_ne[0]), b[1] - (td[1] - pad_ne[1]))
+    fusion: Any = shell.fusion
+    return HarnessResult(
+        delivered=summary.delivered,
+        returned=summary.returned,
+        failure=summary.failure,
+        true_pad_ne_m=pad_ne,
+        touchdown_truth_ne_m=td,
+        pad_landing_error_m=err,
+        markers_used=fusion.counters.markers_used if fusion is not None else 0,
+        uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
+        landing_targets_sent=shell.landing_targets_sent,
+        fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
+        path_rms_truth_m=rms(sc.path_d),
+        path_max_truth_m=max(sc.path_d) if sc.path_d else math.nan,
+        path_rms_outbound_m=rms(sc.path_out),
+        path_max_outbound_m=max(sc.path_out) if sc.path_out else math.nan,
+        path_max_arcs_m=max(sc.arcs_in_plane, default=math.nan),
+        tracking_rms_m=rms([row[4] for row in sc.trace]),
+        tracking_max_m=max((row[4] for row in sc.trace), default=math.nan),
+        tracking_max_arcs_m=max(sc.arcs_tracking, default=math.nan),
+        path_trace=tuple(sc.trace),
+        believed_offset_m=math.hypot(*b),
+        estimate_error_m=est_err,
+        guidance_overruns=shell.stats.guidance_overruns,
+        guidance_ticks=shell.stats.guidance_ticks,
+        setpoint_overruns=shell.stats.setpoint_overruns,
+        landing_trace=tuple(sc.landing_trace),
+        home_with_parcel=summary.home_with_parcel,
+        pad_tries=summary.pad_tries,
+        releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
+        pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
+        pad_heading_error_deg=(
+            heading_error_deg(sc.touchdown_yaw[0], true_pad_heading_rad(config))
+            if sc.touchdown_yaw and simulated_pad(config).heading_deg is not None
+            else math.nan
+        ),
+    )
+
+
 async def fly_on_truth(
     config: CompanionConfig,
     autopilot: Autopilot,
@@ -129,118 +260,10 @@ async def fly_on_truth(
     if config.landing.fusion:  # a GPS-only flight has no landing sensors: it fuses nothing
         kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
         kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
-    touchdown: list[tuple[float, float]] = []
-    touchdown_yaw: list[float] = []
-    believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
-    path_d: list[float] = []
-    path_out: list[float] = []
-    arcs_in_plane: list[float] = []
-    arcs_tracking: list[float] = []
-    trace: list[tuple[float, str, int, float, float, tuple[float, ...], tuple[float, ...]]] = []
-    landing_trace: list[tuple[float, ...]] = []
-    t_start = time.monotonic()
-    scorer: PathScorer | None = None
-    # truth <-> the autopilot's local frame, fixed at the start (home, on the ground): the
-    # autopilot may move home later (PX4 sets it again when it re-arms on the pad)
-    ref: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
-    t_ground = truth.pd  # the take-off level (SIH's ground; the vehicle starts on it)
-
-    def tick(shell: DeliveryShell, out: MissionOutput) -> None:
-        nonlocal scorer
-        tel = shell.autopilot.telemetry
-        home = tel.home
-        if not ref and home is not None and truth.age_s < 1.0:
-            ref.append(((truth.pn, truth.pe, truth.pd), (home.north_m, home.east_m, home.down_m)))
-        m = shell.mission
-        following = out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None
-        if following and ref and truth.age_s < 1.0:
-            assert m.frame is not None and m.path is not None
-            t0, h0 = ref[0]
-            p = [getattr(truth, a) - s0 + hh for a, s0, hh in zip(("pn", "pe", "pd"), t0, h0, strict=True)]
-            if all(math.isfinite(x) for x in p):
-                if scorer is None:
-                    # the true pad in the autopilot's local frame, through the same fixed mapping
-                    scorer = PathScorer((pad_ne[0] - t0[0] + h0[0], pad_ne[1] - t0[1] + h0[1]))
-                path_d.append(scorer.distance(m, out.phase, p))
-                p_i = m.frame.point_from_ned(np.array(p))
-                est = shell.estimate
-                e_i = m.frame.point_from_ned(est.position_ned) if est is not None else np.full(3, math.nan)
-                trace.append(
-                    (
-                        time.monotonic() - t_start,
-                        out.phase.value,
-                        int(m.path.sector(p_i)),
-                        path_d[-1],
-                        float(m.path.distance_to_path(e_i)),
-                        tuple(float(x) for x in p_i),
-                        tuple(float(x) for x in e_i),
-                    )
-                )
-                if out.phase is Phase.OUTBOUND:
-                    path_out.append(path_d[-1])
-                if trace[-1][2] in ARC_SECTORS:
-                    arcs_in_plane.append(scorer.in_plane_distance(m, out.phase, p))
-                    arcs_tracking.append(float(m.path.distance_in_plane(e_i)))
-        st = tel.status
-        if not touchdown and out.phase is Phase.LANDING_PAD and truth.age_s < 1.0:
-            landing_trace.append(_landing_row(time.monotonic() - t_start, shell, out, truth, pad_ne, t_ground))
-        if (
-            not touchdown
-            and out.phase is Phase.LANDING_PAD
-            and st is not None
-            and st.landed is LandedState.ON_GROUND
-            and truth.age_s < 1.0
-        ):
-            touchdown.append((truth.pn, truth.pe))
-            touchdown_yaw.append(truth.yaw)
-            est, pad_cfg = shell.estimate, shell.mission.pad_ned
-            if est is not None and pad_cfg is not None:
-                believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
-
-    shell = DeliveryShell(config, autopilot, on_tick=tick, landing=kit, recorder=recorder)
+    score = _TruthScore(truth, pad_ne)
+    shell = DeliveryShell(config, autopilot, on_tick=score, landing=kit, recorder=recorder)
     summary = await shell.run(timeout_s=timeout_s)
-    td = touchdown[0] if touchdown else (math.nan, math.nan)
-    err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])
-    # both offsets from the pad are frame-free (the truth and autopilot frames differ by a shift)
-    b = believed[0] if believed else (math.nan, math.nan)
-    est_err = math.hypot(b[0] - (td[0] - pad_ne[0]), b[1] - (td[1] - pad_ne[1]))
-    fusion: Any = shell.fusion
-    return HarnessResult(
-        delivered=summary.delivered,
-        returned=summary.returned,
-        failure=summary.failure,
-        true_pad_ne_m=pad_ne,
-        touchdown_truth_ne_m=td,
-        pad_landing_error_m=err,
-        markers_used=fusion.counters.markers_used if fusion is not None else 0,
-        uwb_used=fusion.counters.uwb_used if fusion is not None else 0,
-        landing_targets_sent=shell.landing_targets_sent,
-        fusion_outcomes=dict(fusion.counters.outcomes) if fusion is not None else {},
-        path_rms_truth_m=rms(path_d),
-        path_max_truth_m=max(path_d) if path_d else math.nan,
-        path_rms_outbound_m=rms(path_out),
-        path_max_outbound_m=max(path_out) if path_out else math.nan,
-        path_max_arcs_m=max(arcs_in_plane, default=math.nan),
-        tracking_rms_m=rms([row[4] for row in trace]),
-        tracking_max_m=max((row[4] for row in trace), default=math.nan),
-        tracking_max_arcs_m=max(arcs_tracking, default=math.nan),
-        path_trace=tuple(trace),
-        believed_offset_m=math.hypot(*b),
-        estimate_error_m=est_err,
-        guidance_overruns=shell.stats.guidance_overruns,
-        guidance_ticks=shell.stats.guidance_ticks,
-        setpoint_overruns=shell.stats.setpoint_overruns,
-        landing_trace=tuple(landing_trace),
-        home_with_parcel=summary.home_with_parcel,
-        pad_tries=summary.pad_tries,
-        releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
-        pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
-        pad_heading_error_deg=(
-            heading_error_deg(touchdown_yaw[0], true_pad_heading_rad(config))
-            if touchdown_yaw and simulated_pad(config).heading_deg is not None
-            else math.nan
-        ),
-    )
+    return _harness_result(config, summary, shell, score)
 
 
 def _landing_row(

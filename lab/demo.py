@@ -202,6 +202,131 @@ def loopback_autopilot(config: CompanionConfig, backend: str, port: int, tlog: A
     )
 
 
+def _gps_only_config(config: CompanionConfig, fusion: bool | None) -> CompanionConfig:
+    """``fusion`` = False: the parcel released where the vehicle lands (the pad-lock policy off)."""
+    if fusion is False and config.landing.policy.require_pad_lock:
+        policy = config.landing.policy.model_copy(update={"require_pad_lock": False})
+        config = config.model_copy(update={"landing": config.landing.model_copy(update={"policy": policy})})
+    return config
+
+
+def _vehicle_link(
+    config: CompanionConfig, vehicle: SimVehicle, tlog: Path | None, mavlink: str | None
+) -> tuple[Autopilot, SimAutopilot | None, Any]:
+    """The autopilot the shell flies: the in-process SimAutopilot (also returned as such), or the
+    backend over loopback MAVLink to the started sim vehicle (returned third)."""
+    if mavlink is None:
+        sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
+        return sim_ap, sim_ap, None
+    from companion.flightlog.tlog_writer import open_tlog
+    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+
+    port = free_udp_port()
+    # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
+    grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
+    if grip is not None and config.landing.controller == "autopilot":
+        grip |= {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}  # LAND by LANDING_TARGET, as on the real SITL
+    mav_sim = mavlink_sim_vehicle(
+        config.sim,
+        mavlink,  # type: ignore[arg-type]
+        remote=("127.0.0.1", port),
+        vehicle=vehicle,
+        params=grip,
+    ).start()
+    return loopback_autopilot(config, mavlink, port, open_tlog(tlog) if tlog is not None else None), None, mav_sim
+
+
+def _open_logs(
+    config: CompanionConfig, run_dir: Path | None, sim_ap: SimAutopilot | None
+) -> tuple[CsvLog | None, CsvLog | None, FlightRecorder | None]:
+    """flight.csv, truth.csv and the per-stream recorder in ``run_dir`` (none without it)."""
+    if run_dir is None:
+        return None, None, None
+    run_dir.mkdir(parents=True, exist_ok=True)
+    flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
+    truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
+    # per-stream logs (events.csv included, written as they happen) for replay and reports
+    recorder = FlightRecorder(run_dir, config)
+    if sim_ap is not None:
+        sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
+    return flight_log, truth_log, recorder
+
+
+def _demo_result(
+    config: CompanionConfig,
+    summary: Any,
+    shell: DeliveryShell,
+    vehicle: SimVehicle,
+    scorer: _Scorer,
+    wall: float,
+    run_dir: Path | None,
+) -> DemoResult:
+    """The flight scored on truth: touchdowns at the pad and at home, the path, the shell's figures."""
+    pad_n, pad_e = true_pad_ned(config)
+
+    # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
+    def near_pad(t: Any) -> bool:
+        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
+
+    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
+    home_td = [t for t in vehicle.touchdowns if not near_pad(t)]
+    pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
+    home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
+    flight_time = (
+        summary.end_time_s - summary.takeoff_time_s
+        if summary.end_time_s is not None and summary.takeoff_time_s is not None
+        else math.nan
+    )
+    return DemoResult(
+        delivered=summary.delivered,
+        returned=summary.returned,
+        phase=shell.mission.phase.value,
+        failure=summary.failure,
+        flight_time_s=flight_time,
+        sim_time_s=vehicle.time_s,
+        wall_time_s=wall,
+        path_rms_truth_m=rms(scorer.truth_d),
+        path_max_truth_m=max(scorer.truth_d) if scorer.truth_d else math.nan,
+        path_rms_estimate_m=rms(scorer.est_d),
+        pad_landing_error_m=math.hypot(*pad_err_ne),
+        pad_landing_error_ne_m=pad_err_ne,
+        home_landing_error_m=home_err,
+        setpoints_sent=shell.stats.setpoints_sent,
+        setpoints_clamped=shell.stats.setpoints_clamped,
+        guidance_overruns=shell.stats.guidance_overruns,
+        path_rms_planned_m=rms(scorer.planned_d),
+        path_max_planned_m=max(scorer.planned_d) if scorer.planned_d else math.nan,
+        run_dir=str(run_dir or ""),
+        events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
+        home_with_parcel=summary.home_with_parcel,
+        pad_tries=summary.pad_tries,
+        pad_heading_error_deg=(
+            heading_error_deg(pad_td[0].yaw_rad, true_pad_heading_rad(config))
+            if pad_td and simulated_pad(config).heading_deg is not None
+            else math.nan
+        ),
+        parcel_touchdown_ne_m=parcel_touchdown_ne(vehicle, (pad_n, pad_e)),
+    )
+
+
+def _write_summary(config: CompanionConfig, run_dir: Path, result: DemoResult, scorer: _Scorer) -> None:
+    """summary.json: the result without its events, plus the speed-up, the true pad and the path."""
+    summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
+    if math.isnan(result.pad_heading_error_deg):
+        del summary_json["pad_heading_error_deg"]  # a pad without a heading: as before
+    if math.isnan(result.parcel_touchdown_error_m):
+        del summary_json["parcel_touchdown_ne_m"]  # no winch delivery: as before
+    else:
+        summary_json["parcel_touchdown_error_m"] = result.parcel_touchdown_error_m
+    summary_json["speedup"] = result.speedup
+    summary_json["true_pad_ned_m"] = list(true_pad_ned(config))
+    summary_json.update(path_summary(config, scorer))
+    try:  # whole or not at all; a full disk keeps the flight's result (the caller prints it)
+        write_text_atomic(run_dir / "summary.json", json.dumps(summary_json, indent=2, default=_json_default))
+    except OSError as err:
+        log.error("%s: cannot write the summary: %s (the result is printed, not saved)", run_dir, err)
+
+
 async def fly(
     config: CompanionConfig,
     run_dir: Path | None = None,
@@ -226,45 +351,14 @@ async def fly(
     ``fusion`` = False flies the paper's GPS-only baseline: no landing sensors, and the parcel
     released where the vehicle lands (an explicit opt-out of the pad-lock policy).
     """
-    if fusion is False and config.landing.policy.require_pad_lock:
-        policy = config.landing.policy.model_copy(update={"require_pad_lock": False})
-        config = config.model_copy(update={"landing": config.landing.model_copy(update={"policy": policy})})
+    config = _gps_only_config(config, fusion)
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)
-    mav_sim = None
-    ap: Autopilot
     tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
-    sim_ap: SimAutopilot | None = None
-    if mavlink is None:
-        ap = sim_ap = SimAutopilot(config.sim, vehicle, tlog_path=tlog)
-    else:
-        from companion.flightlog.tlog_writer import open_tlog
-        from companion_sitl.mavlink.factory import mavlink_sim_vehicle
-
-        port = free_udp_port()
-        # the demo's vehicle carries a configured gripper (ArduCopter's default GRIP_ENABLE = 0 refuses it)
-        grip = {"GRIP_ENABLE": 1.0} if mavlink == "ardupilot" else None
-        if grip is not None and config.landing.controller == "autopilot":
-            grip |= {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}  # LAND by LANDING_TARGET, as on the real SITL
-        mav_sim = mavlink_sim_vehicle(
-            config.sim,
-            mavlink,  # type: ignore[arg-type]
-            remote=("127.0.0.1", port),
-            vehicle=vehicle,
-            params=grip,
-        ).start()
-        ap = loopback_autopilot(config, mavlink, port, open_tlog(tlog) if tlog is not None else None)
+    ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog, mavlink)
     use_fusion = config.landing.fusion if fusion is None else fusion
-    flight_log = truth_log = recorder = None
-    if run_dir is not None:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
-        truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
-        # per-stream logs (events.csv included, written as they happen) for replay and reports
-        recorder = FlightRecorder(run_dir, config)
-        if sim_ap is not None:
-            sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
+    flight_log, truth_log, recorder = _open_logs(config, run_dir, sim_ap)
     scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
@@ -295,65 +389,9 @@ async def fly(
                 if lg is not None:
                     lg.close()
     wall = time.perf_counter() - wall0
-
-    # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
-    def near_pad(t: Any) -> bool:
-        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
-
-    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
-    home_td = [t for t in vehicle.touchdowns if not near_pad(t)]
-    pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
-    home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
-    flight_time = (
-        summary.end_time_s - summary.takeoff_time_s
-        if summary.end_time_s is not None and summary.takeoff_time_s is not None
-        else math.nan
-    )
-    result = DemoResult(
-        delivered=summary.delivered,
-        returned=summary.returned,
-        phase=shell.mission.phase.value,
-        failure=summary.failure,
-        flight_time_s=flight_time,
-        sim_time_s=vehicle.time_s,
-        wall_time_s=wall,
-        path_rms_truth_m=rms(scorer.truth_d),
-        path_max_truth_m=max(scorer.truth_d) if scorer.truth_d else math.nan,
-        path_rms_estimate_m=rms(scorer.est_d),
-        pad_landing_error_m=math.hypot(*pad_err_ne),
-        pad_landing_error_ne_m=pad_err_ne,
-        home_landing_error_m=home_err,
-        setpoints_sent=shell.stats.setpoints_sent,
-        setpoints_clamped=shell.stats.setpoints_clamped,
-        guidance_overruns=shell.stats.guidance_overruns,
-        path_rms_planned_m=rms(scorer.planned_d),
-        path_max_planned_m=max(scorer.planned_d) if scorer.planned_d else math.nan,
-        run_dir=str(run_dir or ""),
-        events=[(e.time_s, e.kind.value, e.phase.value, e.detail) for e in shell.events],
-        home_with_parcel=summary.home_with_parcel,
-        pad_tries=summary.pad_tries,
-        pad_heading_error_deg=(
-            heading_error_deg(pad_td[0].yaw_rad, true_pad_heading_rad(config))
-            if pad_td and simulated_pad(config).heading_deg is not None
-            else math.nan
-        ),
-        parcel_touchdown_ne_m=parcel_touchdown_ne(vehicle, (pad_n, pad_e)),
-    )
+    result = _demo_result(config, summary, shell, vehicle, scorer, wall, run_dir)
     if run_dir is not None:
-        summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
-        if math.isnan(result.pad_heading_error_deg):
-            del summary_json["pad_heading_error_deg"]  # a pad without a heading: as before
-        if math.isnan(result.parcel_touchdown_error_m):
-            del summary_json["parcel_touchdown_ne_m"]  # no winch delivery: as before
-        else:
-            summary_json["parcel_touchdown_error_m"] = result.parcel_touchdown_error_m
-        summary_json["speedup"] = result.speedup
-        summary_json["true_pad_ned_m"] = [pad_n, pad_e]
-        summary_json.update(path_summary(config, scorer))
-        try:  # whole or not at all; a full disk keeps the flight's result (the caller prints it)
-            write_text_atomic(run_dir / "summary.json", json.dumps(summary_json, indent=2, default=_json_default))
-        except OSError as err:
-            log.error("%s: cannot write the summary: %s (the result is printed, not saved)", run_dir, err)
+        _write_summary(config, run_dir, result, scorer)
     return result
 
 

@@ -90,32 +90,22 @@ def _int(t: Table, k: int, c: str) -> int:
     return int(t.value(k, c, int))
 
 
-def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
-    """Every recorded input of the core in ``seq`` order, and the tables read."""
-    from companion.delivery.mission import RequestResult
-    from companion.uwb.multilateration import UwbFix
+def _sample_inputs(t: Table, name: str, cls: Any) -> list[_Input]:
+    fields_ = sample_fields(cls)
+    out = []
+    for k in range(len(t)):
+        sample = cls(
+            t.value(k, "time_s"),
+            *(t.value(k, n, typ) if n in t.index else OPTIONAL_COLUMNS[(name, n)] for n, typ in fields_),
+        )
+        out.append(_Input(_int(t, k, "seq"), "sample", sample, f"{name}:{k + 2}"))
+    return out
 
-    tables: dict[str, Table] = {}
-    inputs: list[_Input] = []
 
-    def table(name: str) -> Table:
-        # logs written before a column was added still replay (with its default)
-        required = [c for c in STREAM_FILES[name] if (name, c) not in OPTIONAL_COLUMNS]
-        tables[name] = open_table(run_dir, name, required)
-        return tables[name]
-
-    for cls, name in SAMPLE_FILES.items():
-        t = table(name)
-        fields_ = sample_fields(cls)
-        for k in range(len(t)):
-            sample = cls(
-                t.value(k, "time_s"),
-                *(t.value(k, n, typ) if n in t.index else OPTIONAL_COLUMNS[(name, n)] for n, typ in fields_),
-            )
-            inputs.append(_Input(_int(t, k, "seq"), "sample", sample, f"{name}:{k + 2}"))
-    t = table("camera.csv")
+def _marker_inputs(t: Table) -> list[_Input]:
     from companion.geometry.se3 import Transform
 
+    out = []
     for k in range(len(t)):
         R = np.array([t.value(k, f"r{i}{j}") for i in range(3) for j in range(3)], dtype=float).reshape(3, 3)
         tv = np.array([t.value(k, c) for c in ("t_x_m", "t_y_m", "t_z_m")], dtype=float)
@@ -126,8 +116,14 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
             tuple(t.text(k, "markers").split()),
             t.value(k, "reprojection_error_px"),
         )
-        inputs.append(_Input(_int(t, k, "seq"), "marker", obs, f"camera.csv:{k + 2}"))
-    t = table("uwb.csv")
+        out.append(_Input(_int(t, k, "seq"), "marker", obs, f"camera.csv:{k + 2}"))
+    return out
+
+
+def _uwb_inputs(t: Table) -> list[_Input]:
+    from companion.uwb.multilateration import UwbFix
+
+    out = []
     for k in range(len(t)):
         fix = UwbFix(
             t.value(k, "time_s"),
@@ -146,13 +142,23 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
                 else OPTIONAL_COLUMNS[("uwb.csv", "vertical_weak")]
             ),
         )
-        inputs.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
-    t = table("requests.csv")
+        out.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
+    return out
+
+
+def _result_inputs(t: Table) -> list[_Input]:
+    from companion.delivery.mission import RequestResult
+
+    out = []
     for k in range(len(t)):
         permanent = "permanent" in t.index and t.value(k, "permanent", bool)
         res = RequestResult(_int(t, k, "id"), t.value(k, "ok", bool), t.text(k, "error"), permanent)
-        inputs.append(_Input(_int(t, k, "seq"), "result", res, f"requests.csv:{k + 2}"))
-    t = table("commands.csv")
+        out.append(_Input(_int(t, k, "seq"), "result", res, f"requests.csv:{k + 2}"))
+    return out
+
+
+def _command_inputs(t: Table) -> list[_Input]:
+    out = []
     for k in range(len(t)):
         src = t.text(k, "source")
         if src not in _COMMAND_SOURCES:
@@ -163,11 +169,35 @@ def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
         cmd = (t.value(k, "time_s"), t.text(k, "kind"), t.text(k, "detail"), t.text(k, "reply"))
         if src == "go_no_go" and cmd[1] not in ("go", "refuse"):
             raise LogFormatError(f"{t.path}: line {k + 2}, column 'kind': {cmd[1]!r} is not one of 'go', 'refuse'")
-        inputs.append(_Input(_int(t, k, "seq"), _COMMAND_SOURCES[src], cmd, f"commands.csv:{k + 2}"))
-    t = table("guidance.csv")
-    for k in range(len(t)):
-        payload = (t.value(k, "time_s"), t.value(k, "link_ok", bool))
-        inputs.append(_Input(_int(t, k, "seq"), "tick", payload, f"guidance.csv:{k + 2}"))
+        out.append(_Input(_int(t, k, "seq"), _COMMAND_SOURCES[src], cmd, f"commands.csv:{k + 2}"))
+    return out
+
+
+def _tick_inputs(t: Table) -> list[_Input]:
+    return [
+        _Input(_int(t, k, "seq"), "tick", (t.value(k, "time_s"), t.value(k, "link_ok", bool)), f"guidance.csv:{k + 2}")
+        for k in range(len(t))
+    ]
+
+
+def read_inputs(run_dir: Path) -> tuple[list[_Input], dict[str, Table]]:
+    """Every recorded input of the core in ``seq`` order, and the tables read."""
+    tables: dict[str, Table] = {}
+
+    def table(name: str) -> Table:
+        # logs written before a column was added still replay (with its default)
+        required = [c for c in STREAM_FILES[name] if (name, c) not in OPTIONAL_COLUMNS]
+        tables[name] = open_table(run_dir, name, required)
+        return tables[name]
+
+    inputs: list[_Input] = []
+    for cls, name in SAMPLE_FILES.items():
+        inputs += _sample_inputs(table(name), name, cls)
+    inputs += _marker_inputs(table("camera.csv"))
+    inputs += _uwb_inputs(table("uwb.csv"))
+    inputs += _result_inputs(table("requests.csv"))
+    inputs += _command_inputs(table("commands.csv"))
+    inputs += _tick_inputs(table("guidance.csv"))
     for name in ("ekf.csv", "events.csv"):
         table(name)
     inputs.sort(key=lambda i: i.seq)

@@ -107,9 +107,39 @@ def _percentile(sorted_values: list[float], q: float) -> float:
     return sorted_values[idx]
 
 
-def bench_telemetry(vehicles: int, rate_hz: float, duration_s: float, *, via_router: bool = False) -> dict[str, Any]:
-    """Run the benchmark; returns counts, loss per vehicle, latency percentiles (ms) and CPU per
-    message. ``via_router``: vehicles and ground are clients of a router process."""
+class _Receiver:
+    """The ground's side of the bench: every state message's latency, and the sequence numbers
+    each vehicle's messages arrived with (loss and duplicates); called on Zenoh's thread."""
+
+    def __init__(self, vehicles: int) -> None:
+        self.lock = threading.Lock()
+        self.latencies: list[float] = []
+        self.delivered = 0
+        self.seqs: dict[str, set[int]] = {f"bench{i:03d}": set() for i in range(vehicles)}
+        self.duplicates = 0
+
+    def on_message(self, env: Envelope, _rx: float) -> None:
+        if isinstance(env.msg, StateMessage):
+            lat = time.monotonic() - env.msg.time_s
+            with self.lock:
+                self.delivered += 1
+                self.latencies.append(lat)
+                got = self.seqs.setdefault(env.vehicle_id, set())
+                if env.seq in got:
+                    self.duplicates += 1
+                got.add(env.seq)
+
+    def wait_for(self, submitted: int, timeout_s: float) -> None:
+        """Until every submitted message arrived, or ``timeout_s``."""
+        settle = time.monotonic() + timeout_s
+        while time.monotonic() < settle:
+            with self.lock:
+                if self.delivered >= submitted:
+                    break
+            time.sleep(0.01)
+
+
+def _check_bench_args(vehicles: int, rate_hz: float, duration_s: float) -> None:
     if not 1 <= vehicles <= 200:
         raise ValueError("vehicles must be in [1, 200]")
     if not 0.1 <= rate_hz <= 1000.0:
@@ -117,24 +147,72 @@ def bench_telemetry(vehicles: int, rate_hz: float, duration_s: float, *, via_rou
     if not 0.1 <= duration_s <= 3600.0:
         raise ValueError("duration_s must be in [0.1, 3600]")
 
-    lock = threading.Lock()
-    latencies: list[float] = []
-    delivered = 0
-    seqs: dict[str, set[int]] = {f"bench{i:03d}": set() for i in range(vehicles)}
-    duplicates = 0
 
-    def on_message(env: Envelope, _rx: float) -> None:
-        nonlocal delivered, duplicates
-        if isinstance(env.msg, StateMessage):
-            lat = time.monotonic() - env.msg.time_s
-            with lock:
-                delivered += 1
-                latencies.append(lat)
-                got = seqs.setdefault(env.vehicle_id, set())
-                if env.seq in got:
-                    duplicates += 1
-                got.add(env.seq)
+def _start_fleet(vehicles: int, rate_hz: float, vehicle_zenoh: Any, pubs: list[TelemetryPublisher]) -> None:
+    """Start the vehicles' publishers into ``pubs`` (the caller stops them, even half started)."""
+    for i in range(vehicles):
+        settings = TelemetrySettings(
+            vehicle_id=f"bench{i:03d}",
+            # Above the submission rate: the bench measures the path, not downsampling.
+            state_rate_hz=min(1000.0, 2.0 * rate_hz),
+        )
+        pubs.append(TelemetryPublisher(settings, vehicle_zenoh).start())
 
+
+def _wait_for_fleet(ground: GroundStation, pubs: list[TelemetryPublisher], vehicles: int) -> None:
+    """Until every vehicle is alive at the ground and the ground's subscription reached it (10 s)."""
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        rows = ground.snapshot()
+        if sum(1 for r in rows.values() if r.alive) >= vehicles:
+            break
+        time.sleep(0.02)
+    else:
+        raise RuntimeError("not every bench vehicle appeared at the ground within 10 s")
+    while time.monotonic() < deadline and not all(p.has_subscribers() for p in pubs):
+        time.sleep(0.01)  # let the ground's subscription reach every publisher
+
+
+def _publish_paced(pubs: list[TelemetryPublisher], ticks: int, period: float, wall0: float) -> int:
+    """Every vehicle's state, ``ticks`` times, spread evenly over each period; the submissions late
+    by more than a period."""
+    vehicles = len(pubs)
+    late = 0
+    for k in range(ticks):
+        for i, pub in enumerate(pubs):
+            due = wall0 + (k + i / vehicles) * period
+            now = time.monotonic()
+            if due > now:
+                time.sleep(due - now)
+            elif now - due > period:
+                late += 1
+            t = time.monotonic()
+            pub.publish(
+                StateMessage(
+                    time_s=t, north_m=float(k), east_m=float(i), down_m=-10.0,
+                    north_m_s=1.0, east_m_s=0.0, down_m_s=0.0,
+                    roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
+                    lat_deg=-19.87, lon_deg=-43.96, battery_pct=90.0,
+                )
+            )  # fmt: skip
+    return late
+
+
+def _lost_per_vehicle(rx: _Receiver, counters: list[Any]) -> dict[str, int]:
+    """Per vehicle: published minus the distinct sequence numbers the ground received (the caller holds the lock)."""
+    lost: dict[str, int] = {}
+    for i, c in enumerate(counters):
+        vid = f"bench{i:03d}"
+        sent = c.published["state"]
+        lost[vid] = sent - sum(1 for q in rx.seqs[vid] if q < sent)
+    return lost
+
+
+def bench_telemetry(vehicles: int, rate_hz: float, duration_s: float, *, via_router: bool = False) -> dict[str, Any]:
+    """Run the benchmark; returns counts, loss per vehicle, latency percentiles (ms) and CPU per
+    message. ``via_router``: vehicles and ground are clients of a router process."""
+    _check_bench_args(vehicles, rate_hz, duration_s)
+    rx = _Receiver(vehicles)
     port = free_tcp_port()
     router: RouterProcess | None = None
     if via_router:
@@ -147,55 +225,16 @@ def bench_telemetry(vehicles: int, rate_hz: float, duration_s: float, *, via_rou
     pubs: list[TelemetryPublisher] = []
     ground: GroundStation | None = None
     try:
-        ground = GroundStation(ground_zenoh, listener=on_message).start()
-        for i in range(vehicles):
-            settings = TelemetrySettings(
-                vehicle_id=f"bench{i:03d}",
-                # Above the submission rate: the bench measures the path, not downsampling.
-                state_rate_hz=min(1000.0, 2.0 * rate_hz),
-            )
-            pubs.append(TelemetryPublisher(settings, vehicle_zenoh).start())
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline:
-            rows = ground.snapshot()
-            if sum(1 for r in rows.values() if r.alive) >= vehicles:
-                break
-            time.sleep(0.02)
-        else:
-            raise RuntimeError("not every bench vehicle appeared at the ground within 10 s")
-        while time.monotonic() < deadline and not all(p.has_subscribers() for p in pubs):
-            time.sleep(0.01)  # let the ground's subscription reach every publisher
-
+        ground = GroundStation(ground_zenoh, listener=rx.on_message).start()
+        _start_fleet(vehicles, rate_hz, vehicle_zenoh, pubs)
+        _wait_for_fleet(ground, pubs, vehicles)
         ticks = max(1, round(duration_s * rate_hz))
-        period = 1.0 / rate_hz
         router_cpu0 = router.cpu_s() if router is not None else 0.0
         cpu0 = time.process_time()
         wall0 = time.monotonic()
-        late = 0
-        for k in range(ticks):
-            for i, pub in enumerate(pubs):
-                due = wall0 + (k + i / vehicles) * period
-                now = time.monotonic()
-                if due > now:
-                    time.sleep(due - now)
-                elif now - due > period:
-                    late += 1
-                t = time.monotonic()
-                pub.publish(
-                    StateMessage(
-                        time_s=t, north_m=float(k), east_m=float(i), down_m=-10.0,
-                        north_m_s=1.0, east_m_s=0.0, down_m_s=0.0,
-                        roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
-                        lat_deg=-19.87, lon_deg=-43.96, battery_pct=90.0,
-                    )
-                )  # fmt: skip
+        late = _publish_paced(pubs, ticks, 1.0 / rate_hz, wall0)
         submitted = sum(p.counters().submitted["state"] for p in pubs)
-        settle = time.monotonic() + 3.0
-        while time.monotonic() < settle:
-            with lock:
-                if delivered >= submitted:
-                    break
-            time.sleep(0.01)
+        rx.wait_for(submitted, 3.0)
         wall = time.monotonic() - wall0
         cpu = time.process_time() - cpu0
         router_cpu = router.cpu_s() - router_cpu0 if router is not None else 0.0
@@ -210,15 +249,11 @@ def bench_telemetry(vehicles: int, rate_hz: float, duration_s: float, *, via_rou
 
     published = sum(c.published["state"] for c in counters)
     superseded = sum(c.superseded["state"] for c in counters)
-    lost_per_vehicle: dict[str, int] = {}
-    with lock:
-        lat_ms = sorted(v * 1000.0 for v in latencies)
-        n = delivered
-        for i, c in enumerate(counters):
-            vid = f"bench{i:03d}"
-            sent = c.published["state"]
-            lost_per_vehicle[vid] = sent - sum(1 for q in seqs[vid] if q < sent)
-        dup = duplicates
+    with rx.lock:
+        lat_ms = sorted(v * 1000.0 for v in rx.latencies)
+        n = rx.delivered
+        lost_per_vehicle = _lost_per_vehicle(rx, counters)
+        dup = rx.duplicates
     total_cpu = cpu + router_cpu
     result = {
         "topology": "router" if via_router else "direct",
