@@ -34,17 +34,17 @@ def pack(mav: Any, msgs: list[Any]) -> bytes:
 
 
 def signed_packets(seeds: list[bytes]) -> list[bytes]:
-    """Every packet in ``seeds`` that carries a valid signature of :data:`KEY` (the only bytes a
-    message verified with our key may come from)."""
+    """Every packet in ``seeds`` whose signature is :data:`KEY`'s, whatever its timestamp (the
+    only bytes a message verified with our key may come from)."""
     out = []
     for data in seeds:
         mav = mavlink.MAVLink(None)
         mav.robust_parsing = True
-        mav.signing.secret_key = KEY.secret
-        mav.signing.allow_unsigned_callback = lambda _m, _i: True
         for m in mav.parse_buffer(data) or []:
-            if m.get_type() != "BAD_DATA" and m.get_signed():
-                out.append(bytes(m.get_msgbuf()))
+            buf = bytes(m.get_msgbuf()) if m.get_type() != "BAD_DATA" else b""
+            signed = len(buf) > 13 and buf[0] == 0xFD and buf[2] & 0x01
+            if signed and hashlib.sha256(KEY.secret + buf[:-6]).digest()[:6] == buf[-6:]:
+                out.append(buf)
     return out
 
 
