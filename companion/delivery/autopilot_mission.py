@@ -65,7 +65,13 @@ class MissionPlanError(DestinationError):
 
 
 def _is_release(item: PlanItem) -> bool:
-    return item.command == MAV_CMD_DO_GRIPPER and round(item.param2) == GRIPPER_ACTION_RELEASE
+    if item.command != MAV_CMD_DO_GRIPPER:
+        return False
+    if not math.isfinite(item.param2):  # neither release nor grab: the parcel's fate unknown
+        raise MissionPlanError(
+            f"autopilot mission {item.describe()}: gripper action {item.param2}: expected 0 (release) or 1 (grab)"
+        )
+    return round(item.param2) == GRIPPER_ACTION_RELEASE
 
 
 def delivery_items(items: Sequence[PlanItem]) -> list[PlanItem]:

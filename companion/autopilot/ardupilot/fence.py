@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from typing import Any
 
@@ -136,6 +137,11 @@ class ArduPilotFence:
                         break
                 if got is None:
                     raise AutopilotError(f"fence download: no item {seq} of {count_msg.count}")
+                if not (math.isfinite(got.param1) and math.isfinite(got.param2)):  # round() would raise
+                    raise AutopilotError(
+                        f"fence read back from the vehicle: item {seq}: vertex count {got.param1} and group "
+                        f"{got.param2}: expected whole numbers"
+                    )
                 items.append(FenceItem(seq, got.command, round(got.param1), round(got.param2), got.x, got.y))
             self._send(lambda mav: mav.mission_ack_send(ts, tc, mavlink.MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_FENCE))
         finally:
