@@ -110,6 +110,91 @@ class PadConfig(_Section):
         return self
 
 
+def read_moved_keys(data: Any, moved: dict[str, str], table: str, sub: str) -> Any:
+    """The keys of ``table`` (as read, before validation) with those that moved into its table
+    ``sub`` (``moved``: old key -> key in ``sub``) read there: older files, and the parameters
+    an older run folder keeps, still load (docs/parameters.md, Keys that moved). A file that
+    sets one key in both places is refused."""
+    if not isinstance(data, dict) or not any(k in data for k in moved):
+        return data
+    into = data.get(sub, {})
+    if not isinstance(into, dict):
+        return data  # the table's own error names it
+    data, into = dict(data), dict(into)
+    for old, new in moved.items():
+        if old not in data:
+            continue
+        if new in into:
+            raise ValueError(
+                f"{table}.{old} and {table}.{sub}.{new} both set: {old} is the old name of {table}.{sub}.{new}; "
+                f"keep {table}.{sub}'s"
+            )
+        into[new] = data.pop(old)
+    data[sub] = into
+    return data
+
+
+class DescentConfig(_Section):
+    """The final descent's controller (companion.guidance.descent.PrecisionDescent):
+    ``[mission.descent]``. The horizontal error from the target is closed proportionally, plus an
+    integral term and an acceleration fed forward when set; the descent slows and holds while off
+    the target (docs/flying.md)."""
+
+    xy_gain_1_s: float = _f(3.0, "1/s", "horizontal speed per metre off the target", gt=0.0, le=10.0)
+    xy_tolerance_m: float = _f(
+        0.1,
+        "m",
+        "while the pad is in sight (camera or UWB): slows when farther than this off the target, and holds at twice it",
+        gt=0.01,
+        le=5.0,
+    )
+    max_xy_speed_m_s: float = _f(1.0, "m/s", "horizontal speed limit", gt=0.05, le=5.0)
+    hold_min_height_m: float = _f(
+        0.5, "m", "below this height the descent no longer pauses when off-centre", ge=0.0, le=5.0
+    )
+    settle_s: float = _f(
+        0.0,
+        "s",
+        "while the pad is in sight: the descent goes below hold_min_height_m only "
+        "once the horizontal error has stayed within xy_tolerance_m this long, so the last part "
+        "(below the camera's view) starts settled, not mid-swing; it waits at that height until then "
+        "(0 = off)",
+        ge=0.0,
+        le=10.0,
+    )
+    touchdown_height_m: float = _f(
+        0.15,
+        "m",
+        "below this height only the vertical command remains (ArduCopter never reports "
+        "ON_GROUND while a horizontal velocity is commanded on the ground; measured on its SITL); "
+        "negative: the horizontal error is closed until the autopilot reports the touchdown",
+        ge=-1.0,
+        le=2.0,
+    )
+    xy_integral_gain_1_s2: float = _f(
+        0.0,
+        "1/s^2",
+        "horizontal speed per metre-second of accumulated error, which takes out what "
+        "the autopilot's velocity loop leaves (its velocity-estimate bias; not in the papers; 0 = off)",
+        ge=0.0,
+        le=20.0,
+    )
+    xy_integral_max_m_s: float = _f(0.5, "m/s", "largest horizontal speed the integral term may add", ge=0.0, le=3.0)
+    xy_accel_feedforward: float = _f(
+        0.0,
+        "-",
+        "share of the horizontal command's rate of change (its proportional and integral "
+        "terms on the estimated velocity and error) sent with it as an acceleration, so the autopilot "
+        "answers without its velocity loop's lag (not in the papers; 0 = velocity only)",
+        ge=0.0,
+        le=1.0,
+    )
+
+
+#: ``[mission]`` keys of older files -> their key in ``[mission.descent]``
+MISSION_OLD_DESCENT_KEYS = {f"landing_{k}": k for k in DescentConfig.model_fields}
+
+
 class MissionConfig(_Section):
     """Delivery path (delivery section 4.1) and vector field (delivery eqs 16-19)."""
 
@@ -178,60 +263,7 @@ class MissionConfig(_Section):
         3.0, "m", "height above ground where the descent slows to land speed", gt=0.2, le=20.0
     )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
-    landing_xy_gain_1_s: float = _f(
-        3.0, "1/s", "final descent: horizontal speed per metre off the target", gt=0.0, le=10.0
-    )
-    landing_xy_tolerance_m: float = _f(
-        0.1,
-        "m",
-        "final descent, while the pad is in sight (camera or UWB): slows when farther than this off "
-        "the target, and holds at twice it",
-        gt=0.01,
-        le=5.0,
-    )
-    landing_max_xy_speed_m_s: float = _f(1.0, "m/s", "final descent: horizontal speed limit", gt=0.05, le=5.0)
-    landing_hold_min_height_m: float = _f(
-        0.5, "m", "final descent: below this height the descent no longer pauses when off-centre", ge=0.0, le=5.0
-    )
-    landing_settle_s: float = _f(
-        0.0,
-        "s",
-        "final descent, while the pad is in sight: the descent goes below landing_hold_min_height_m only "
-        "once the horizontal error has stayed within landing_xy_tolerance_m this long, so the last part "
-        "(below the camera's view) starts settled, not mid-swing; it waits at that height until then "
-        "(0 = off)",
-        ge=0.0,
-        le=10.0,
-    )
-    landing_touchdown_height_m: float = _f(
-        0.15,
-        "m",
-        "final descent: below this height only the vertical command remains (ArduCopter never reports "
-        "ON_GROUND while a horizontal velocity is commanded on the ground; measured on its SITL); "
-        "negative: the horizontal error is closed until the autopilot reports the touchdown",
-        ge=-1.0,
-        le=2.0,
-    )
-    landing_xy_integral_gain_1_s2: float = _f(
-        0.0,
-        "1/s^2",
-        "final descent: horizontal speed per metre-second of accumulated error, which takes out what "
-        "the autopilot's velocity loop leaves (its velocity-estimate bias; not in the papers; 0 = off)",
-        ge=0.0,
-        le=20.0,
-    )
-    landing_xy_integral_max_m_s: float = _f(
-        0.5, "m/s", "final descent: largest horizontal speed the integral term may add", ge=0.0, le=3.0
-    )
-    landing_xy_accel_feedforward: float = _f(
-        0.0,
-        "-",
-        "final descent: share of the horizontal command's rate of change (its proportional and integral "
-        "terms on the estimated velocity and error) sent with it as an acceleration, so the autopilot "
-        "answers without its velocity loop's lag (not in the papers; 0 = velocity only)",
-        ge=0.0,
-        le=1.0,
-    )
+    descent: DescentConfig = Field(default_factory=DescentConfig)
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
@@ -286,6 +318,11 @@ class MissionConfig(_Section):
         "(the mission the operator uploaded to the autopilot from the GCS, downloaded after connecting, before "
         "arming: a NAV_PAYLOAD_PLACE, or a waypoint or landing followed by a gripper release; docs/gcs.md)",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_descent_keys(cls, data: Any) -> Any:
+        return read_moved_keys(data, MISSION_OLD_DESCENT_KEYS, "mission", "descent")
 
     @model_validator(mode="after")
     def _geometry(self) -> MissionConfig:
@@ -412,7 +449,7 @@ class LimitsConfig(_Section):
     max_horizontal_accel_m_s2: float = _f(
         2.0,
         "m/s^2",
-        "largest horizontal acceleration fed forward with a velocity setpoint (mission.landing_xy_accel_feedforward)",
+        "largest horizontal acceleration fed forward with a velocity setpoint (mission.descent.xy_accel_feedforward)",
         gt=0.0,
         le=10.0,
     )
@@ -1253,25 +1290,7 @@ class LandingConfig(_Section):
     @model_validator(mode="before")
     @classmethod
     def _old_ekf_keys(cls, data: Any) -> Any:
-        """The EKF's keys that were ``[landing] ekf_*`` before ``[landing.ekf]`` held them all
-        (docs/parameters.md): still read, into ``[landing.ekf]``."""
-        if not isinstance(data, dict) or not any(k in data for k in LANDING_OLD_EKF_KEYS):
-            return data
-        ekf = data.get("ekf", {})
-        if not isinstance(ekf, dict):
-            return data  # the table's own error names it
-        data, ekf = dict(data), dict(ekf)
-        for old, new in LANDING_OLD_EKF_KEYS.items():
-            if old not in data:
-                continue
-            if new in ekf:
-                raise ValueError(
-                    f"landing.{old} and landing.ekf.{new} both set: {old} is the old name of landing.ekf.{new}; "
-                    "keep landing.ekf's"
-                )
-            ekf[new] = data.pop(old)
-        data["ekf"] = ekf
-        return data
+        return read_moved_keys(data, LANDING_OLD_EKF_KEYS, "landing", "ekf")
 
 
 #: ``[landing]`` keys of older files -> their key in ``[landing.ekf]``

@@ -70,14 +70,7 @@ FIRMWARE_TUNING_KEYS = {
     ),
     "mission": (
         "land_speed_m_s",
-        "landing_xy_gain_1_s",
-        "landing_touchdown_height_m",
-        "landing_xy_integral_gain_1_s2",
-        "landing_xy_integral_max_m_s",
-        "landing_xy_accel_feedforward",
-        "landing_xy_tolerance_m",
-        "landing_hold_min_height_m",
-        "landing_settle_s",
+        "descent",  # the whole [mission.descent] table
         "velocity_bias_tau_s",
         "velocity_bias_source",
         "autopilot_accel_xy_m_s2",

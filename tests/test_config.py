@@ -263,3 +263,23 @@ def test_the_old_landing_ekf_keys_still_load_into_landing_ekf(tmp_path):
     bad.write_text("[landing]\nekf_position_process_sigma_m_per_sqrt_s = -1.0\n")
     with pytest.raises(ConfigError, match=r"landing.ekf.position_process_sigma_m_per_sqrt_s = -1.0: Input should be"):
         load_config(bad)
+
+
+def test_the_old_mission_landing_keys_still_load_into_mission_descent(tmp_path):
+    """The final descent's gains were ``[mission] landing_*`` before ``[mission.descent]``: files
+    and run folders from then load as the new keys do; both forms at once is refused."""
+    from companion.config import MISSION_OLD_DESCENT_KEYS, DescentConfig
+
+    assert set(MISSION_OLD_DESCENT_KEYS.values()) == set(DescentConfig.model_fields)
+    old, new, both = (tmp_path / n for n in ("old.toml", "new.toml", "both.toml"))
+    old.write_text("[mission]\nlanding_xy_gain_1_s = 5.0\nlanding_touchdown_height_m = -1.0\nland_speed_m_s = 0.7\n")
+    new.write_text("[mission]\nland_speed_m_s = 0.7\n[mission.descent]\nxy_gain_1_s = 5.0\ntouchdown_height_m = -1.0\n")
+    assert load_config(old) == load_config(new)
+    assert load_config(old).mission.descent.xy_gain_1_s == 5.0
+    both.write_text("[mission]\nlanding_settle_s = 1.0\n[mission.descent]\nsettle_s = 2.0\n")
+    with pytest.raises(ConfigError, match=r"landing_settle_s is the old name of mission\.descent\.settle_s"):
+        load_config(both)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[mission]\nlanding_xy_gain_1_s = 0.0\n")
+    with pytest.raises(ConfigError, match=r"mission\.descent\.xy_gain_1_s = 0\.0: Input should be greater than 0"):
+        load_config(bad)

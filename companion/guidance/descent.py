@@ -2,14 +2,14 @@
 of its own, apart from the mission's policy, which decides only whether it may hold and wait.
 
 The vector field's convergence term scales with v_r, so at land speed it corrects only a few
-cm/s; here the horizontal error is closed proportionally (``landing_xy_gain_1_s``: firm, so the
+cm/s; here the horizontal error is closed proportionally (``descent.xy_gain_1_s``: firm, so the
 part of a gust the autopilot's velocity loop lets through is taken back within a fraction of a
-second), plus an integral term when ``landing_xy_integral_gain_1_s2`` > 0, and with
-``landing_xy_accel_feedforward`` > 0 a share of that command's rate sent as an acceleration, so an
+second), plus an integral term when ``descent.xy_integral_gain_1_s2`` > 0, and with
+``descent.xy_accel_feedforward`` > 0 a share of that command's rate sent as an acceleration, so an
 autopilot whose velocity loop answers slowly (PX4 SIH: ~1 s) does not make the loop circle the pad
 (docs/flying.md). The descent slows while the vehicle is off-centre and holds height at twice the
-tolerance (like PX4's precision landing) down to ``landing_hold_min_height_m`` while the mission
-says it may hold; with ``landing_settle_s`` it waits at that height until settled.
+tolerance (like PX4's precision landing) down to ``descent.hold_min_height_m`` while the mission
+says it may hold; with ``descent.settle_s`` it waits at that height until settled.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from companion.config import MissionConfig
+from companion.config import DescentConfig
 
-# landing_settle_s: the descent ramps to zero over the height it covers in this long at land speed
+# descent.settle_s: the descent ramps to zero over the height it covers in this long at land speed
 # above the floor, about what an autopilot's vertical velocity loop needs to stop (PX4, ArduCopter:
 # 0.3-0.5 s)
 SETTLE_BAND_S = 0.4
@@ -40,11 +40,14 @@ class PrecisionDescent:
     """One descent's controller: made anew for each landing phase, so its integral and its wait
     start from nothing every time."""
 
-    def __init__(self, cfg: MissionConfig):
+    def __init__(self, cfg: DescentConfig, land_speed_m_s: float):
+        """``cfg``: the controller's section (``[mission.descent]``); ``land_speed_m_s``: the
+        mission's descent speed (mission.land_speed_m_s), which it slows from."""
         self.cfg = cfg
+        self.land_speed_m_s = land_speed_m_s
         self.integral_m_s: tuple[float, float] = (0.0, 0.0)  # k_i * integral of the error (F_I)
         self._integral_t: float | None = None
-        self._settle_since: float | None = None  # the error within the tolerance since (landing_settle_s)
+        self._settle_since: float | None = None  # the error within the tolerance since (descent.settle_s)
         self._settle_released = False
 
     def command(
@@ -58,57 +61,57 @@ class PrecisionDescent:
     ) -> DescentCommand:
         """``ex``, ``ey``: the error from the target in F_I (m); ``height_m`` above the ground;
         ``may_hold``: the target in sight and time left before the touchdown timeout (the policy's
-        gate for the hold above the floor and for landing_settle_s's wait); ``velocity_xy``: the
+        gate for the hold above the floor and for descent.settle_s's wait); ``velocity_xy``: the
         estimated velocity in F_I, asked only for the feedforward."""
         c = self.cfg
         e = math.hypot(ex, ey)
-        zeroed = height_m < c.landing_touchdown_height_m
-        vx, vy = -c.landing_xy_gain_1_s * ex, -c.landing_xy_gain_1_s * ey
-        if c.landing_xy_integral_gain_1_s2 > 0.0:
+        zeroed = height_m < c.touchdown_height_m
+        vx, vy = -c.xy_gain_1_s * ex, -c.xy_gain_1_s * ey
+        if c.xy_integral_gain_1_s2 > 0.0:
             ix, iy = self._integral(ex, ey, time_s, frozen=zeroed, p_cmd=(vx, vy))
             vx -= ix
             vy -= iy
         vh = math.hypot(vx, vy)
-        saturated = vh > c.landing_max_xy_speed_m_s
+        saturated = vh > c.max_xy_speed_m_s
         if saturated:
-            vx, vy = vx * c.landing_max_xy_speed_m_s / vh, vy * c.landing_max_xy_speed_m_s / vh
-        tol = c.landing_xy_tolerance_m
+            vx, vy = vx * c.max_xy_speed_m_s / vh, vy * c.max_xy_speed_m_s / vh
+        tol = c.xy_tolerance_m
         if zeroed:
             # touching down: a sideways command on the ground keeps the autopilot's land detector
             # from ever firing (ArduCopter), so only the descent remains
             vx = vy = 0.0
-        gated = may_hold and height_m > c.landing_hold_min_height_m
+        gated = may_hold and height_m > c.hold_min_height_m
         slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
-        if c.landing_settle_s > 0.0 and not self._settle_released:
+        if c.settle_s > 0.0 and not self._settle_released:
             slow = min(slow, self._settle_slow(e, height_m, time_s, may_hold))
-        vz = -c.land_speed_m_s * slow
+        vz = -self.land_speed_m_s * slow
         acc = None
-        if c.landing_xy_accel_feedforward > 0.0 and not zeroed and not saturated:
+        if c.xy_accel_feedforward > 0.0 and not zeroed and not saturated:
             # the command's rate: d/dt(-k_p e - k_i int e) = -k_p v - k_i e, v the estimated velocity
             v_x, v_y = velocity_xy()
-            k = c.landing_xy_accel_feedforward
-            ax = -k * (c.landing_xy_gain_1_s * v_x + c.landing_xy_integral_gain_1_s2 * ex)
-            ay = -k * (c.landing_xy_gain_1_s * v_y + c.landing_xy_integral_gain_1_s2 * ey)
+            k = c.xy_accel_feedforward
+            ax = -k * (c.xy_gain_1_s * v_x + c.xy_integral_gain_1_s2 * ex)
+            ay = -k * (c.xy_gain_1_s * v_y + c.xy_integral_gain_1_s2 * ey)
             acc = (ax, ay)
         return DescentCommand(vx, vy, vz, acc)
 
     def _settle_slow(self, e: float, height: float, time_s: float, may_wait: bool) -> float:
-        """The descent's speed factor from landing_settle_s: 1 while the error has stayed within
-        the tolerance for landing_settle_s (and from then on, once the vehicle is down to the
-        floor's band), else proportional to the height above landing_hold_min_height_m over
+        """The descent's speed factor from descent.settle_s: 1 while the error has stayed within
+        the tolerance for descent.settle_s (and from then on, once the vehicle is down to the
+        floor's band), else proportional to the height above descent.hold_min_height_m over
         SETTLE_BAND_S x land speed (negative below it: climbs back), so the vehicle waits at the
         floor. No wait where the mission says it may not (as the hold)."""
         c = self.cfg
         if not may_wait:
             self._settle_since = None
             return 1.0
-        if e > c.landing_xy_tolerance_m:
+        if e > c.xy_tolerance_m:
             self._settle_since = None
         elif self._settle_since is None:
             self._settle_since = time_s
-        settled = self._settle_since is not None and time_s - self._settle_since >= c.landing_settle_s
-        above_m = height - c.landing_hold_min_height_m
-        band_m = SETTLE_BAND_S * c.land_speed_m_s
+        settled = self._settle_since is not None and time_s - self._settle_since >= c.settle_s
+        above_m = height - c.hold_min_height_m
+        band_m = SETTLE_BAND_S * self.land_speed_m_s
         if settled:
             if above_m <= band_m:
                 self._settle_released = True  # on down; the last part is not waited in again
@@ -125,9 +128,9 @@ class PrecisionDescent:
         bias / k_p off the target (PX4 SIH: 0.2-0.4 m/s of bias near the ground, 4-8 cm at 5 1/s;
         docs/notes.md). Off by default and in params/ardupilot_quad.toml; params/px4_sih_quad.toml
         turns it on. Rectangle rule per guidance tick; the sum is held to
-        landing_xy_integral_max_m_s and frozen once only the descent is commanded. Anti-windup by
+        descent.xy_integral_max_m_s and frozen once only the descent is commanded. Anti-windup by
         conditional integration: no sum while the command (``p_cmd``, the proportional part, minus
-        the sum) is beyond landing_max_xy_speed_m_s and the step would take it further, so a
+        the sum) is beyond descent.max_xy_speed_m_s and the step would take it further, so a
         descent that starts far off (GPS only: 0.8 m) does not carry a full sum past the target."""
         c = self.cfg
         last = self._integral_t
@@ -137,14 +140,14 @@ class PrecisionDescent:
         dt = time_s - last
         ix0, iy0 = self.integral_m_s
         if not frozen and 0.0 < dt <= 1.0:  # a longer gap (link loss) adds nothing
-            ki = c.landing_xy_integral_gain_1_s2
+            ki = c.xy_integral_gain_1_s2
             ix, iy = ix0 + ki * ex * dt, iy0 + ki * ey * dt
             n = math.hypot(ix, iy)
-            lim = c.landing_xy_integral_max_m_s
+            lim = c.xy_integral_max_m_s
             if n > lim:
                 ix, iy = ix * lim / n, iy * lim / n
             was = math.hypot(p_cmd[0] - ix0, p_cmd[1] - iy0)
             now = math.hypot(p_cmd[0] - ix, p_cmd[1] - iy)
-            if not (now > c.landing_max_xy_speed_m_s and now > was):
+            if not (now > c.max_xy_speed_m_s and now > was):
                 self.integral_m_s = (ix, iy)
         return self.integral_m_s

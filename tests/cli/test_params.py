@@ -17,13 +17,15 @@ from companion.cli.main import main
         "landing.detector.max_reprojection_error_px = 4.0 [px] (> 0.0, <= 1000.0)  poses that reproject worse",
         "landing.multilateration.max_range_m = None [m] (> 0.0, <= 1000.0)  ranges longer than this are refused",
         "landing.multilateration.seed = 0 [-] (>= 0, <= 9223372036854775807)  seed of the subset sampling",
+        "mission.descent.xy_gain_1_s = 3.0 [1/s] (> 0.0, <= 10.0)  horizontal speed per metre off the target",
+        "mission.descent.touchdown_height_m = 0.15 [m] (>= -1.0, <= 2.0)  below this height only the vertical",
     ],
 )
-def test_params_show_lists_the_estimators_and_solvers_tuning(capsys, line):
+def test_params_show_lists_the_tuning_of_estimators_solvers_and_descent(capsys, line):
     assert main(["params", "show"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert any(x.startswith(line) for x in out), line
-    assert "[landing.ekf]" in out and "[landing.detector]" in out and "[landing.multilateration]" in out
+    assert {"[landing.ekf]", "[landing.detector]", "[landing.multilateration]", "[mission.descent]"} <= set(out)
 
 
 def test_params_check_refuses_a_bad_tuning_value_naming_the_key(tmp_path, capsys):

@@ -39,7 +39,7 @@ def test_a_variants_configuration_does_not_carry_over_into_the_next_landing():
     assert tuning == before
     assert headed.mission.pad.heading_deg is not None and winch.mission.delivery == "winch"
     assert plain.mission.pad.heading_deg is None and plain.mission.delivery == "land"
-    assert plain.mission.landing_xy_gain_1_s == tuning["mission"]["landing_xy_gain_1_s"]  # the tuning still applies
+    assert plain.mission.descent.xy_gain_1_s == tuning["mission"]["descent"]["xy_gain_1_s"]  # the tuning still applies
 
 
 def test_fusion_beats_gps_only_and_every_failure_variant_lands_on_the_pad():

@@ -50,14 +50,17 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
         },
         "mission": {
             "land_speed_m_s": 0.7,  # PX4's MPC_LAND_SPEED: less time for its estimate to wander
-            "landing_xy_gain_1_s": 5.0,
-            "landing_touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
-            "landing_xy_integral_gain_1_s2": 2.5,
-            "landing_xy_integral_max_m_s": 0.5,
-            "landing_xy_accel_feedforward": 0.4,  # the command's rate fed forward: no circling
-            "landing_xy_tolerance_m": 0.04,  # aligned within 4-8 cm before it goes on down
-            "landing_hold_min_height_m": 0.3,  # down to where the camera still sees the pad
-            "landing_settle_s": 0.0,  # no wait at that height (held out, it did not help)
+            "descent": {
+                "xy_gain_1_s": 5.0,
+                "xy_tolerance_m": 0.04,  # aligned within 4-8 cm before it goes on down
+                "max_xy_speed_m_s": 1.0,
+                "hold_min_height_m": 0.3,  # down to where the camera still sees the pad
+                "settle_s": 0.0,  # no wait at that height (held out, it did not help)
+                "touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
+                "xy_integral_gain_1_s2": 2.5,
+                "xy_integral_max_m_s": 0.5,
+                "xy_accel_feedforward": 0.4,  # the command's rate fed forward: no circling
+            },
             "velocity_bias_tau_s": 1.0,
             "velocity_bias_source": "fusion",  # against the pad, not PX4's drifting position
             "autopilot_accel_xy_m_s2": 1.0,  # the field's speed within what SIH's velocity loop delivers
@@ -67,8 +70,8 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     assert firmware_tuning("ardupilot")["mission"]["velocity_bias_tau_s"] == 0.0  # its estimate is consistent
     assert firmware_tuning("ardupilot")["mission"]["land_speed_m_s"] == 0.5  # LAND_SPEED, as the campaign's
     assert firmware_tuning("ardupilot")["mission"]["autopilot_accel_z_m_s2"] == 0.5  # GUIDED's limits
-    assert cfg.landing.ekf.position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.landing_xy_gain_1_s == 5.0
-    assert firmware_tuning("ardupilot")["mission"]["landing_touchdown_height_m"] == 0.15  # the default
+    assert cfg.landing.ekf.position_process_sigma_m_per_sqrt_s == 0.3 and cfg.mission.descent.xy_gain_1_s == 5.0
+    assert firmware_tuning("ardupilot")["mission"]["descent"]["touchdown_height_m"] == 0.15  # the default
     assert real_config(base, "px4", "gps_only").landing.fusion is False
     with pytest.raises(ValueError, match="unknown variant"):
         real_config(base, "px4", "no_such")
@@ -98,7 +101,7 @@ def test_profile_campaign_flies_the_same_draws_without_wind_on_px4_sih():
     tuned = scenario_config(
         shipped_params_path("landing_campaign.toml"), d, "gps_only", "px4-sih", firmware_tuning("px4")
     )
-    assert tuned.mission.landing_xy_gain_1_s == 5.0 and tuned.landing.fusion is False
+    assert tuned.mission.descent.xy_gain_1_s == 5.0 and tuned.landing.fusion is False
     r = run_landing_campaign(1, 4, ("fusion",), profile="px4-sih")
     assert r["profile"] == "px4-sih" and r["landings"]["fusion"][0]["wind_m_s"] == 0.0
     assert r["landings"]["fusion"][0]["delivered"]

@@ -144,7 +144,7 @@ class MissionBase:
         self.fence_cfg = fence if fence is not None and fence.enabled else None
         self.pad_policy = pad_policy if pad_policy is not None and pad_policy.require_pad_lock else None
         rate = math.radians(limits.max_yaw_rate_deg_s if limits is not None else 60.0)
-        self.yaw = PadYawAlignment(rate, cfg.landing_hold_min_height_m)
+        self.yaw = PadYawAlignment(rate, cfg.descent.hold_min_height_m)
         self.expect_mode_change = False  # a mode change we asked for is under way: not the pilot
         self.left_pad = False  # the next ARM is for the way home (or a divert)
         self._started = False

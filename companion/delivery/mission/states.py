@@ -80,7 +80,7 @@ def state_for(phase: Phase, t0: float, cfg: MissionConfig) -> PhaseState:
     if phase in (Phase.TAKEOFF, Phase.TAKEOFF_RETURN):
         return TakeoffState(t0)
     if phase in (Phase.LANDING_PAD, Phase.LANDING_HOME):
-        return LandingState(t0, descent=PrecisionDescent(cfg))
+        return LandingState(t0, descent=PrecisionDescent(cfg.descent, cfg.land_speed_m_s))
     if phase is Phase.PAD_SEARCH:
         return PadSearchState(t0)
     if phase is Phase.RELEASE:

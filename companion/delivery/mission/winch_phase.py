@@ -72,16 +72,16 @@ def _hover_setpoint(
     m: MissionBase, est: StateEstimate, wc: WinchConfig, north_m: float, east_m: float
 ) -> VelocitySetpoint:
     """Towards the hover point (NED north, east; hover_height_m over the pad): horizontally as the
-    final descent closes its error (landing_xy_gain_1_s, at most landing_max_xy_speed_m_s),
+    final descent closes its error (descent.xy_gain_1_s, at most descent.max_xy_speed_m_s),
     vertically at 1/s up to the S5 speed."""
     assert m.frame is not None
     c = m.cfg
     pad = m.frame.pad_ned
-    vn = c.landing_xy_gain_1_s * (north_m - est.north_m)
-    ve = c.landing_xy_gain_1_s * (east_m - est.east_m)
+    vn = c.descent.xy_gain_1_s * (north_m - est.north_m)
+    ve = c.descent.xy_gain_1_s * (east_m - est.east_m)
     vh = math.hypot(vn, ve)
-    if vh > c.landing_max_xy_speed_m_s:
-        vn, ve = vn * c.landing_max_xy_speed_m_s / vh, ve * c.landing_max_xy_speed_m_s / vh
+    if vh > c.descent.max_xy_speed_m_s:
+        vn, ve = vn * c.descent.max_xy_speed_m_s / vh, ve * c.descent.max_xy_speed_m_s / vh
     vz_max = c.sector_speed_m_s[4]
     vd = min(vz_max, max(-vz_max, PAD_POSITION_GAIN_1_S * (float(pad[2]) - wc.hover_height_m - est.down_m)))
     return VelocitySetpoint(vn, ve, vd, m.frame.yaw_to_ned(0.0))

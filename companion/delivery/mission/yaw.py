@@ -34,7 +34,7 @@ class PadYawAlignment:
         height_above_ground: Callable[[], float],
     ) -> VelocitySetpoint | None:
         """The setpoint with its yaw turned (or as it was). Once turned, below
-        landing_hold_min_height_m with the pad's heading out of sight (no camera observation
+        descent.hold_min_height_m with the pad's heading out of sight (no camera observation
         within PAD_DATA_FRESH_S: the camera too close), the setpoint is the autopilot's own yaw:
         its yaw estimate drifts against the truth, and a held setpoint (or the fusion's yaw, which
         converges on the autopilot's once blind) would turn the vehicle by that drift, in the last
