@@ -252,6 +252,9 @@ def load_settings(path: str | Path, table: str = "zenoh") -> ZenohSettings:
     data = doc.get(table)
     if not isinstance(data, dict):
         raise SettingsError(f"{path}: no [{table}] table")
+    outside = sorted(set(doc) - {table})
+    if outside:  # a setting written above the table would be silently ignored (a limit not applied)
+        raise SettingsError(f"{path}: unknown key(s) outside [{table}]: {', '.join(outside)}")
     data = dict(data)
     if data.get("password") is not None:  # the session file holds a secret: the owner's only
         exposed = exposed_secret(path, "Zenoh session file (it holds zenoh.password)")
