@@ -5,7 +5,7 @@ whatever paths are given (``pytest --tier firmware`` would otherwise read ``firm
 - ``flight``: whole missions flown on the embedded simulator or the MAVLink sim vehicle
   (marker ``flight``).
 - ``firmware``: the real PX4 SIH and ArduCopter SITL builds (marker ``firmware``; everything under
-  tests/real_px4 and tests/real_ardupilot), skipped with the reason when a build is absent.
+  tests/real_px4, tests/real_ardupilot and tests/real_firmware), skipped with the reason when a build is absent.
 - ``fuzz``: the property-based fuzz tests of every input surface (marker ``fuzz``, tests/fuzz) with
   a large budget; the fast tier runs them too, with a small one (tests/fuzz/conftest.py).
 
@@ -25,7 +25,7 @@ import pytest
 
 TIERS = ("fast", "flight", "firmware", "fuzz", "all")
 SITL_GROUP = "real-sitl"
-FIRMWARE_DIRS = tuple(Path(__file__).parent / "tests" / d for d in ("real_px4", "real_ardupilot"))
+FIRMWARE_DIRS = tuple(Path(__file__).parent / "tests" / d for d in ("real_px4", "real_ardupilot", "real_firmware"))
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -20,6 +20,36 @@ def short_config(**mission):
     return load_config(shipped_params_path("sitl_short.toml"), overrides={"mission": mission} if mission else None)
 
 
+def firmware_config(firmware: str, connection: str, ready_timeout_s: float, telemetry: dict | None = None):
+    """The short scenario (sitl_short.toml) flown on a real firmware ("px4", "ardupilot") at
+    ``connection``, with the landing tuning shipped for it (``firmware_tuning``); ``telemetry``: the
+    [telemetry] table (default: off)."""
+    from companion_lab.real_campaign import firmware_tuning
+
+    tuning = firmware_tuning(firmware)
+    return load_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "autopilot": firmware,
+            "connection": connection,
+            "mission": {**tuning["mission"], "ready_timeout_s": ready_timeout_s},
+            "landing": tuning["landing"],
+            "telemetry": telemetry if telemetry is not None else {"enabled": False},
+        },
+    )
+
+
+def connect_only_zenoh(folder, port: int):
+    """A Zenoh config file (``folder``/zenoh.toml) of a peer that only connects to the loopback
+    listener on ``port``, without scouting; its path."""
+    z = folder / "zenoh.toml"
+    z.write_text(
+        f'[zenoh]\nmode = "peer"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+        "multicast_scouting = false\ngossip_scouting = false\nscouting_delay_ms = 0\n"
+    )
+    return z
+
+
 # A delivery vehicle has its release configured: ArduCopter's gripper library is off by default
 # (GRIP_ENABLE = 0: DO_GRIPPER answers FAILED, as the sim vehicle does unless told otherwise).
 DELIVERY_PARAMS = {"ardupilot": {"GRIP_ENABLE": 1.0}, "px4": {}}
@@ -133,12 +163,45 @@ async def orders_scenario(
     return session, replies
 
 
+def _firmware_build(firmware: str):
+    """The real firmware's build (``"px4"``: PX4 SIH, ``"ardupilot"``: ArduCopter SITL); the test is
+    skipped with the reason when it is absent, or fails with COMPANION_REQUIRE_FIRMWARE=1 (CI with
+    the builds shipped)."""
+    import os
+
+    from companion_firmware.ardupilot_sitl import ArduPilotNotFound, find_ardupilot
+    from companion_firmware.px4_sitl import Px4NotFound, find_px4
+
+    try:
+        return find_px4() if firmware == "px4" else find_ardupilot()
+    except (Px4NotFound, ArduPilotNotFound) as err:
+        if os.environ.get("COMPANION_REQUIRE_FIRMWARE") == "1":
+            pytest.fail(f"COMPANION_REQUIRE_FIRMWARE=1 but {err}")
+        pytest.skip(str(err))
+
+
+@pytest.fixture(scope="module")
+def px4_root():
+    return _firmware_build("px4")
+
+
+@pytest.fixture(scope="module")
+def ardupilot_root():
+    return _firmware_build("ardupilot")
+
+
+@pytest.fixture(params=["px4", "ardupilot"])
+def firmware(request):
+    """A test of tests/real_firmware/ once per real firmware: its name and its build."""
+    return request.param, _firmware_build(request.param)
+
+
 @pytest.fixture
 def udp_port() -> int:
     return free_udp_port()
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def mav():
     """The helpers above, for test modules (conftest is not importable under importlib mode)."""
     from types import SimpleNamespace
@@ -151,4 +214,6 @@ def mav():
         wait_for=wait_for,
         fly=fly,
         orders_scenario=orders_scenario,
+        firmware_config=firmware_config,
+        connect_only_zenoh=connect_only_zenoh,
     )

@@ -1,33 +1,22 @@
-"""Helpers for the tests against a real ArduCopter SITL build (skipped with the reason when absent)."""
+"""Helpers for the tests against a real ArduCopter SITL build (the build: ``ardupilot_root`` in tests/conftest.py)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
-from companion_firmware.ardupilot_sitl import ArduCopterSitl, ArduPilotNotFound, find_ardupilot
+from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.real_vehicle import ARDUCOPTER_GRIPPER_SERVO9
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.mavlink.link import free_udp_port
 
 # ArduCopter's optional features used here, set from boot (they need a reboot): servo gripper on output 9
 GRIPPER_SERVO9 = ARDUCOPTER_GRIPPER_SERVO9
-
-
-@pytest.fixture(scope="module")
-def ardupilot_root() -> Path:
-    try:
-        return find_ardupilot()
-    except ArduPilotNotFound as err:
-        if os.environ.get("COMPANION_REQUIRE_FIRMWARE") == "1":  # CI with the builds shipped: absent is a failure
-            pytest.fail(f"COMPANION_REQUIRE_FIRMWARE=1 but {err}")
-        pytest.skip(str(err))
 
 
 @contextlib.contextmanager

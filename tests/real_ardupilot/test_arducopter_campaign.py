@@ -10,7 +10,7 @@ import warnings
 import pytest
 
 from companion.config import shipped_params_path
-from companion_lab.real_campaign import landing_diagnostics, run_parity, run_real_landing_campaign
+from companion_lab.real_campaign import landing_diagnostics, run_parity
 
 pytestmark = pytest.mark.firmware
 
@@ -39,17 +39,3 @@ def test_parity_on_three_seeds(ardupilot_root, tmp_path):
     # landings of a few millimetres each make a ratio of noise)
     ratio = c["ratio_predicted_to_real"]["mean_m"]
     assert 1 / 3 < ratio < 3 or abs(c["predicted"]["mean_m"] - c["real"]["mean_m"]) < 0.015, c
-
-
-def test_gps_only_fuses_nothing_and_lands_where_gps_leads(ardupilot_root, tmp_path):
-    # the draw moves the pad from its configured place; GPS-only lands on the configured place
-    r = run_real_landing_campaign(
-        "ardupilot", 1, 2, ("gps_only",), shipped_params_path("landing_campaign_short.toml"), tmp_path
-    )
-    (x,) = r["landings"]["gps_only"]
-    assert x["delivered"] and x["failure"] == "", x
-    assert x["markers_used"] == 0 and x["uwb_used"] == 0, x
-    displaced = math.hypot(*x["pad_displacement_m"])
-    assert displaced > 0.5, x  # a draw that moves the pad: landing on it would need the sensors
-    assert abs(x["error_m"] - displaced) < 0.5, (x["error_m"], displaced)  # fused, it would be ~0.05 m
-    assert r["summary"]["gps_only"]["landed"] == 1 and r["summary"]["gps_only"]["failed"] == 0
