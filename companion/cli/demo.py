@@ -71,7 +71,7 @@ def flight_time_s(shell: Any) -> float:
     """Time since take-off on the shell's clock (0 before it). In real time that clock is the
     machine's monotonic clock, whose absolute value is the machine's uptime, not the flight's."""
     t0 = shell.mission.summary.takeoff_time_s
-    return float(shell._clock.now() - t0) if t0 is not None else 0.0
+    return float(shell.now() - t0) if t0 is not None else 0.0
 
 
 def _camera_playback(args: argparse.Namespace, cfg: CompanionConfig) -> Any:

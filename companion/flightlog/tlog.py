@@ -39,7 +39,7 @@ def write_all(fh: Any, data: bytes, path: Path) -> None:
 
 def read_tlog(path: str | Path, types: Sequence[str] | None = None) -> Iterator[Any]:
     """The messages of a ``.tlog`` through pymavlink's own reader (``mavutil.mavlink_connection``),
-    in file order; each has ``_timestamp`` (UNIX seconds). ``types`` filters by message name."""
+    in file order; each with its record's time (:func:`record_time_s`). ``types`` filters by message name."""
     from pymavlink import mavutil
 
     conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
@@ -53,6 +53,12 @@ def read_tlog(path: str | Path, types: Sequence[str] | None = None) -> Iterator[
                 yield m
     finally:
         conn.close()
+
+
+def record_time_s(msg: Any) -> float:
+    """The time of a message :func:`read_tlog` gave, UNIX seconds: its record's timestamp (pymavlink
+    keeps it in ``_timestamp``)."""
+    return float(msg._timestamp)
 
 
 def cut_torn_record(path: Path) -> None:

@@ -144,9 +144,9 @@ async def test_pilot_takeover_px4_mode_switch_on_the_vehicle(mav, udp_port):
         await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 30.0, "outbound")
         sim.pilot_set_mode(FlightMode.POSITION)
         seen["n0"] = sim.stats.setpoints
-        seen["t"] = shell._clock.now()
+        seen["t"] = shell.now()
         await mav.wait_for(lambda: shell.mission.phase is Phase.PILOT, 3.0, "pilot phase")
-        seen["t_pilot"] = shell._clock.now()
+        seen["t_pilot"] = shell.now()
 
     with mav.sim_vehicle(config, "px4", udp_port) as sim:
         ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}")
@@ -167,7 +167,7 @@ async def test_pilot_takeover_ardupilot_rc_mode_switch(mav, udp_port):
     async def monitor(shell):
         await mav.wait_for(lambda: shell.mission.phase is Phase.OUTBOUND, 30.0, "outbound")
         ap.send_rc_override([1500, 1500, 1500, 1500, 1425, 0, 0, 0])  # FLTMODE3 = LOITER
-        seen["t"] = shell._clock.now()
+        seen["t"] = shell.now()
         await mav.wait_for(lambda: shell.mission.phase is Phase.PILOT, 3.0, "pilot phase")
 
     with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:

@@ -77,7 +77,7 @@ def test_demo_output_is_not_wrapped_and_names_its_path_reference(tmp_path, capsy
 def test_progress_shows_flight_time_not_the_clock():
     """In real time the shell's clock is the machine's monotonic clock (its uptime)."""
     summary = SimpleNamespace(takeoff_time_s=None)
-    shell = SimpleNamespace(_clock=SimpleNamespace(now=lambda: 86_412.5), mission=SimpleNamespace(summary=summary))
+    shell = SimpleNamespace(now=lambda: 86_412.5, mission=SimpleNamespace(summary=summary))
     assert flight_time_s(shell) == 0.0
     summary.takeoff_time_s = 86_400.0
     assert flight_time_s(shell) == pytest.approx(12.5)

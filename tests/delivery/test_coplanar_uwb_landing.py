@@ -26,7 +26,7 @@ def test_uwb_only_landing_with_anchors_at_one_height() -> None:
             seen["fusion"] = shell.fusion
             seen["multi"] = shell.landing.multilaterator
             st = shell.autopilot.telemetry.status
-            now = shell._clock.now()
+            now = shell.now()
             if (
                 out.phase in (Phase.OUTBOUND, Phase.LANDING_PAD)
                 and st is not None

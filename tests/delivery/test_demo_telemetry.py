@@ -15,16 +15,14 @@ from companion_lab.demo import run_demo
 SECRET = b"integration-secret-0123456789"
 
 
-def _config(tmp_path, port, commands):
-    z = tmp_path / "zenoh.toml"
-    z.write_text(
-        f'[zenoh]\nmode = "peer"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-        "multicast_scouting = false\ngossip_scouting = false\nscouting_delay_ms = 0\n"
-    )
+def _config(tmp_path, zenoh_config, commands):
     secret = tmp_path / "secret"
     secret.write_bytes(SECRET)
     secret.chmod(0o600)  # a secret others can read is refused
-    tele = {"zenoh_config": str(z), "commands": {"enabled": commands, "secret_file": str(secret) if commands else None}}
+    tele = {
+        "zenoh_config": str(zenoh_config),
+        "commands": {"enabled": commands, "secret_file": str(secret) if commands else None},
+    }
     return load_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": {"seed": 1}, "telemetry": tele})
 
 
@@ -36,10 +34,10 @@ def _wait(pred, timeout_s=3.0):
 
 
 @pytest.mark.flight
-def test_demo_publishes_every_mission_event_to_the_ground(tmp_path):
+def test_demo_publishes_every_mission_event_to_the_ground(tmp_path, mav):
     port = free_tcp_port()
     with GroundStation(loopback_settings(listen_port=port), out_dir=tmp_path / "rec") as ground:
-        r = run_demo(_config(tmp_path, port, commands=False), telemetry=True)
+        r = run_demo(_config(tmp_path, mav.connect_only_zenoh(tmp_path, port), commands=False), telemetry=True)
         assert r.delivered and r.returned
         assert _wait(lambda: "drone1" in ground.snapshot() and not ground.snapshot()["drone1"].alive)
         ground.flush()
@@ -54,18 +52,20 @@ def test_demo_publishes_every_mission_event_to_the_ground(tmp_path):
 
 
 @pytest.mark.flight
-def test_ground_return_command_turns_the_vehicle_home(tmp_path):
+def test_ground_return_command_turns_the_vehicle_home(tmp_path, mav):
     port = free_tcp_port()
     replies = []
     with GroundStation(loopback_settings(listen_port=port), out_dir=None) as ground:
 
         def on_tick(shell, out):
-            if not replies and out.phase.value == "outbound" and shell._clock.now() > 40.0:
+            if not replies and out.phase.value == "outbound" and shell.now() > 40.0:
                 replies.append(ground.send_command("drone1", CommandKind.RETURN, SECRET, sender="test"))
                 bad = ground.send_command("drone1", CommandKind.LAND, b"wrong-secret-0123456789", sender="x")
                 replies.append(bad)
 
-        r = run_demo(_config(tmp_path, port, commands=True), telemetry=True, on_tick=on_tick)
+        r = run_demo(
+            _config(tmp_path, mav.connect_only_zenoh(tmp_path, port), commands=True), telemetry=True, on_tick=on_tick
+        )
     assert replies[0].accepted and not replies[1].accepted and "HMAC" in replies[1].reason.upper()
     assert not r.delivered and r.returned and r.phase == "done"
     assert any(k == "warning" and "return home" in d for _, k, _, d in r.events)

@@ -24,18 +24,13 @@ from companion_lab.demo import run_demo
 pytestmark = pytest.mark.flight
 
 
-def _config(tmp_path: Path, port: int):
-    z = tmp_path / "zenoh.toml"
-    z.write_text(
-        f'[zenoh]\nmode = "peer"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-        "multicast_scouting = false\ngossip_scouting = false\nscouting_delay_ms = 0\n"
-    )
+def _config(zenoh_config: Path):
     return load_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "sim": {"seed": 4, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, 0.2]},
             "landing": {"fusion": True},
-            "telemetry": {"zenoh_config": str(z)},
+            "telemetry": {"zenoh_config": str(zenoh_config)},
         },
     )
 
@@ -50,12 +45,12 @@ def _f(col: list[str]) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def flight(tmp_path_factory):
+def flight(tmp_path_factory, mav):
     tmp = tmp_path_factory.mktemp("telemetry_truth")
     port = free_tcp_port()
     run = tmp / "run"
     with GroundStation(loopback_settings(listen_port=port), out_dir=tmp / "rec") as ground:
-        r = run_demo(_config(tmp, port), run_dir=run, telemetry=True)
+        r = run_demo(_config(mav.connect_only_zenoh(tmp, port)), run_dir=run, telemetry=True)
         end = time.monotonic() + 5.0
         while time.monotonic() < end and not ("sitl1" in ground.snapshot() and not ground.snapshot()["sitl1"].alive):
             time.sleep(0.01)

@@ -28,7 +28,7 @@ from companion.autopilot.types import (
 )
 from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
-from companion.flightlog.tlog import read_tlog, tlog_timestamp_us
+from companion.flightlog.tlog import read_tlog, record_time_s, tlog_timestamp_us
 from companion.flightlog.tlog_encoder import TelemetryEncoder
 from companion.flightlog.tlog_writer import PACKED_RECORDS_PER_CHUNK, TlogWriter
 from companion.guidance.setpoint import VelocitySetpoint
@@ -109,7 +109,7 @@ def test_packets_read_back_by_pymavlink_with_the_same_messages_in_order(tmp_path
         assert r.get_type() == m.get_type()
         assert (r.get_srcSystem(), r.get_srcComponent()) == (sysid, compid)
         assert fields(r) == fields(m)
-        assert r._timestamp == pytest.approx(tlog_timestamp_us(float(t)) * 1e-6, abs=1e-6)
+        assert record_time_s(r) == pytest.approx(tlog_timestamp_us(float(t)) * 1e-6, abs=1e-6)
         seqs.setdefault((sysid, compid), []).append(r.get_seq())
     for s in seqs.values():  # one sequence counter per source, no gaps
         assert s == [k % 256 for k in range(len(s))]
@@ -215,7 +215,7 @@ def test_packed_records_go_in_chunks_and_flush_and_close_hand_over_the_rest(tmp_
     w.close()
     msgs = list(read_tlog(path))
     assert [m.custom_mode for m in msgs] == list(range(n + 3))
-    assert msgs[5]._timestamp == pytest.approx(T0 + 0.05, abs=1e-5)
+    assert record_time_s(msgs[5]) == pytest.approx(T0 + 0.05, abs=1e-5)
     w.write_packed(hb(0))  # closed: refused and counted
     assert w.dropped == 1 and w.written == n + 3
 
@@ -368,7 +368,7 @@ def test_telemetry_encoder_maps_samples_and_companion_messages(tmp_path):
     assert sp.get_srcComponent() == mav2.MAV_COMP_ID_ONBOARD_COMPUTER and sp.time_boot_ms == 10500
     assert (m["COMMAND_LONG"].command, m["COMMAND_LONG"].param2) == (176, 6.0)
     assert m["COMMAND_ACK"].target_component == mav2.MAV_COMP_ID_ONBOARD_COMPUTER
-    assert m["SET_POSITION_TARGET_LOCAL_NED"]._timestamp == pytest.approx(T0 + 100.5, abs=1e-5)
+    assert record_time_s(m["SET_POSITION_TARGET_LOCAL_NED"]) == pytest.approx(T0 + 100.5, abs=1e-5)
 
 
 # ------------------------------------------------------------------ simulated flights (virtual time)
@@ -400,7 +400,7 @@ def test_demo_flight_writes_a_tlog_with_heartbeats_positions_and_our_setpoints(t
     hbs = list(read_tlog(path, ["HEARTBEAT"]))
     assert any(h.custom_mode == px4_custom_mode(FlightMode.OFFBOARD) and h.base_mode & 128 for h in hbs)
     assert not hbs[-1].base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED  # landed and disarmed at home
-    ts = [m._timestamp for m in read_tlog(path)]
+    ts = [record_time_s(m) for m in read_tlog(path)]
     assert ts == sorted(ts)  # the loop's clock, mapped onto the fixed epoch
     assert SIM_TLOG_EPOCH_S <= ts[0] < SIM_TLOG_EPOCH_S + 1.0
     assert ts[-1] - ts[0] == pytest.approx(r.sim_time_s, abs=0.5)
@@ -440,10 +440,10 @@ def test_an_exception_mid_flight_leaves_a_readable_tlog_with_everything_before(t
         run_virtual(flight(crashed, crash=True))
 
     before = SIM_TLOG_EPOCH_S + crash_at - 0.2
-    ref_msgs = [m for m in read_tlog(ref) if m._timestamp < before]
+    ref_msgs = [m for m in read_tlog(ref) if record_time_s(m) < before]
     got = list(read_tlog(crashed))
-    assert got[-1]._timestamp >= before  # logged up to the crash
-    got_before = [m for m in got if m._timestamp < before]
+    assert record_time_s(got[-1]) >= before  # logged up to the crash
+    got_before = [m for m in got if record_time_s(m) < before]
     assert len(got_before) == len(ref_msgs) > 1000  # nothing before the crash is missing...
     for a, b in zip(got_before, ref_msgs, strict=True):  # ...or different from the uncrashed flight
         assert a.get_msgbuf() == b.get_msgbuf()

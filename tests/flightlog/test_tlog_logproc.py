@@ -35,7 +35,7 @@ from companion.flightlog.logproc import LogProcess
 from companion.flightlog.recorder import FlightRecorder
 from companion.flightlog.streams import SAMPLE_ENCODERS, SAMPLE_FILES
 from companion.flightlog.telemetry_tlog import TelemetryTlog
-from companion.flightlog.tlog import cut_torn_record, read_tlog
+from companion.flightlog.tlog import cut_torn_record, read_tlog, record_time_s
 from companion.flightlog.tlog_encoder import TelemetryEncoder
 from companion.flightlog.tlog_replay import sample_from_row
 from companion.flightlog.tlog_writer import TlogWriter
@@ -239,7 +239,7 @@ def test_a_dead_logging_process_leaves_the_file_to_this_process(tmp_path, own_pr
     assert len(msgs) == len(ref) and all(m.get_type() != "BAD_DATA" for m in msgs)
     # the same messages at the same times (the new encoder numbers its packets from 0 again)
     for a, b in zip(msgs, ref, strict=True):
-        assert (a.get_type(), a._timestamp, a.get_payload()) == (b.get_type(), b._timestamp, b.get_payload())
+        assert (a.get_type(), record_time_s(a), a.get_payload()) == (b.get_type(), record_time_s(b), b.get_payload())
     died = [r.getMessage() for r in caplog.records if "logging process" in r.getMessage()]
     assert sum("written in this process" in m for m in died) == 1, died
 
@@ -304,8 +304,8 @@ def test_a_record_that_does_not_pickle_leaves_the_file_to_this_process(tmp_path,
     # every message, at its time (whatever the writer thread handed over before the odd record
     # was written by the logging process; the rest here, numbered from 0 again)
     got, ref = list(read_tlog(tmp_path / "a.tlog")), list(read_tlog(tmp_path / "ref.tlog"))
-    assert [(m.get_type(), m._timestamp, m.get_payload()) for m in got] == [
-        (m.get_type(), m._timestamp, m.get_payload()) for m in ref
+    assert [(m.get_type(), record_time_s(m), m.get_payload()) for m in got] == [
+        (m.get_type(), record_time_s(m), m.get_payload()) for m in ref
     ]
     died = [r.getMessage() for r in caplog.records if "logging process" in r.getMessage()]
     assert len(died) == 1 and "does not pickle" in died[0], died
