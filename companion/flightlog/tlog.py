@@ -13,12 +13,15 @@ the control path).
 
 from __future__ import annotations
 
+import logging
 import struct
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 TIMESTAMP = struct.Struct(">Q")  # a record's timestamp, before its packet
+MAX_RECORD_BYTES = 8 + 10 + 255 + 2 + 13  # timestamp, MAVLink 2 header, payload, CRC, signature
+log = logging.getLogger(__name__)
 _LINK_BITS = ~3  # pymavlink/MAVProxy: the two low timestamp bits carry the link number
 
 
@@ -73,7 +76,9 @@ def cut_torn_record(path: Path) -> None:
                 if end > len(data):
                     break
                 pos = end
-            if pos != len(data):
+            if 0 < len(data) - pos <= MAX_RECORD_BYTES:
                 fh.truncate(pos)
+            elif pos != len(data):  # more than a torn record: damage inside, whole records may follow
+                log.warning("%s: bytes %d to %d are not whole records: kept", path, pos, len(data))
     except OSError:
         pass  # the writer's own open reports the path's trouble
