@@ -123,6 +123,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
     def _init_link_state(self) -> None:
         """The link's own state: counters, telemetry cache, MAVSDK's plugins and the stream tasks."""
         self.streams_restarted = 0  # telemetry streams that ended or raised and were subscribed again
+        self.decode_errors = 0  # stream items a handler could not take in (malformed fields, dropped)
         self.calls_unanswered = 0  # native calls abandoned at command_timeout_s (still blocked in MAVSDK)
         self.telemetry = TelemetryCache()
         self.setpoints_sent = 0

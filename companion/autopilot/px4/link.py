@@ -69,6 +69,7 @@ class Px4Link(abc.ABC):
     command_timeout_s: float
     destroy_timeout_s: float
     streams_restarted: int
+    decode_errors: int
     calls_unanswered: int
     telemetry: TelemetryCache
     system_id: int

@@ -267,6 +267,7 @@ class Px4Telemetry(Px4Link):
             try:
                 hb = json.loads(m.fields_json)
             except ValueError:
+                self.decode_errors += 1
                 return
             if m.system_id != self.system_id or m.component_id != 1:
                 # a GCS's or a companion's is not an autopilot's; any other never sets mode or armed
@@ -292,7 +293,8 @@ class Px4Telemetry(Px4Link):
                     float(f.get("y", 0.0)),
                     float(f.get("z", 0.0)),
                 )
-            except (ValueError, TypeError, KeyError) as err:
+            except (ValueError, TypeError, KeyError, OverflowError) as err:
+                self.decode_errors += 1
                 log.warning("HOME_POSITION not understood (%s): %s", err, m.fields_json)
                 return
             self._push(home)
@@ -305,6 +307,7 @@ class Px4Telemetry(Px4Link):
                 n = max(0, min(18, int(f.get("chancount", 18))))
                 chans = tuple(int(f.get(f"chan{i}_raw", 0)) for i in range(1, n + 1))
             except (ValueError, TypeError):
+                self.decode_errors += 1
                 return
             self.telemetry.push_rc(RcInput(now(), chans))
 
@@ -325,7 +328,9 @@ class Px4Telemetry(Px4Link):
                     try:
                         fn(item)
                     except Exception:
-                        log.exception("error decoding %s", name)
+                        self.decode_errors += 1  # the item is dropped; the stream goes on
+                        if self.decode_errors in (1, 100) or self.decode_errors % 10000 == 0:
+                            log.exception("error decoding %s (%d so far)", name, self.decode_errors)
             except Exception as err:  # (a cancellation is not one: it ends the task)
                 why = f"failed ({type(err).__name__}: {err})"
             finally:
