@@ -39,6 +39,7 @@ from typing import ClassVar
 import numpy as np
 
 from companion.config import CompanionConfig
+from companion.delivery.hooks import RateLoopFactory, StageTimer, untimed
 from companion.delivery.shell import LandingKit
 from companion.geometry.se3 import Transform
 from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot
@@ -58,6 +59,22 @@ def _truth_pose(v: SimVehicle) -> Transform:
     return Transform.from_euler((v.pn, v.pe, v.pd), v.roll, v.pitch, v.yaw)
 
 
+@dataclass(frozen=True)
+class SimSensorHooks:
+    """How a bench instruments the simulated sensors (the defaults: as every simulation runs).
+
+    ``stage_timer`` (``(stage, fn) -> fn``, see :mod:`companion.delivery.hooks`) wraps the
+    simulator's own work, once at construction: ``"sim_render"`` (the image finished or rendered
+    on read), ``"sim_sensors"`` (the true pose, the pad in the camera frame, the field-of-view
+    test), ``"sim_uwb"`` (the ranges). ``rate_loop`` builds the sensors' exposure and ranging
+    loops. ``every_exposure``: every exposure with the camera above the pad plane is rendered and
+    readable, the pad in view or not (the detector then also searches frames without the pad)."""
+
+    stage_timer: StageTimer | None = None
+    rate_loop: RateLoopFactory = RateLoop
+    every_exposure: bool = False
+
+
 class SimCameraSource:
     api_version: ClassVar[int] = 1
     frame_listener_version: ClassVar[int] = FRAME_LISTENER_VERSION
@@ -70,6 +87,7 @@ class SimCameraSource:
         latency_s: float = 0.05,
         fails_below_m: float = 0.0,
         range_m: float = 0.0,
+        hooks: SimSensorHooks | None = None,
     ):
         self.vehicle = vehicle
         self.fails_below_m = fails_below_m  # a failed camera: no frame below this true height (0: never)
@@ -95,6 +113,16 @@ class SimCameraSource:
         cam = camera.camera
         self._half_fov_x = math.atan2(cam.width_px / 2.0, cam.fx)
         self._half_fov_y = math.atan2(cam.height_px / 2.0, cam.fy)
+        self.frames_dropped = 0  # exposures that became readable and were never read (a newer one was)
+        h = hooks or SimSensorHooks()
+        timed = h.stage_timer or untimed
+        self._rate_loop = h.rate_loop
+        self.rate_loop: RateLoop | None = None  # the exposures' loop, once started
+        self._truth_pose = timed("sim_sensors", _truth_pose)
+        self._camera_pad = timed("sim_sensors", camera.T_camera_pad)
+        self._in_view = timed("sim_sensors", self._above_pad if h.every_exposure else self._pad_in_view)
+        self._expose = timed("sim_render", camera.expose)
+        self._capture = timed("sim_render", camera.capture)
 
     def start(self) -> None:
         self._renderer = ThreadPoolExecutor(1, thread_name_prefix="sim-camera-render")
@@ -105,20 +133,20 @@ class SimCameraSource:
         self._listener.set(callback)
 
     async def _run(self) -> None:
-        rate = RateLoop(self._clock, self.rate_hz)
+        rate = self.rate_loop = self._rate_loop(self._clock, self.rate_hz)
         loop = asyncio.get_running_loop()
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
-            T = _truth_pose(self.vehicle)
+            T = self._truth_pose(self.vehicle)
             self.exposures += 1
             # rendered ahead while someone reads (polled since the last exposure, or a listener is
             # told): an unpolled camera's exposures (vision not wanted yet) would render unread
             polled, self._polled = self._polled, False
             T_cp = None
             if self._renderer is not None and (polled or self._listener.attached):
-                T_cp = self.camera.T_camera_pad(T)  # kept with the pose: read() needs it again
-                if self._pad_in_view(T_cp):
+                T_cp = self._camera_pad(T)  # kept with the pose: read() needs it again
+                if self._in_view(T_cp):
                     self._renders[t] = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
                     if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
                         self._renders.pop(next(iter(self._renders))).cancel()
@@ -147,6 +175,11 @@ class SimCameraSource:
             and abs(math.atan(p[1] / p[2])) < self._half_fov_y + margin
         )
 
+    def _above_pad(self, T_camera_pad: Transform) -> bool:
+        """The camera above the pad plane (SimSensorHooks.every_exposure; on the ground it is not)."""
+        T = T_camera_pad
+        return float((-T.R.T @ T.t)[2]) > 0.05
+
     def read(self) -> Frame | None:
         """The newest frame whose capture latency has elapsed (older ones are dropped)."""
         if self.fails_below_m > 0.0 or self.range_m > 0.0:  # a simulated failure or a short range
@@ -158,28 +191,31 @@ class SimCameraSource:
         # the newest pose that is ready and not read yet; the poses are in exposure-time order, so
         # the scan from the newest stops at the first one already read
         pose = None
+        unread = 0  # ready poses older than the newest: dropped once it is read
         for p in reversed(self._poses):
             if p[0] <= self._last_read_t:
                 break
-            if p[0] + self.latency_s <= now:
+            if pose is not None:
+                unread += 1
+            elif p[0] + self.latency_s <= now:
                 pose = p
-                break
         if pose is None:
             return None
+        self.frames_dropped += unread
         t, T, T_cp = pose
         self._last_read_t = t
         ahead = self._renders.pop(t, None)
         for k in [k for k in self._renders if k < t]:  # exposures dropped unread
             self._renders.pop(k).cancel()
         if T_cp is None:
-            T_cp = self.camera.T_camera_pad(T)
-        if not self._pad_in_view(T_cp):
+            T_cp = self._camera_pad(T)
+        if not self._in_view(T_cp):
             self.out_of_view += 1
             return None
         if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
             ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
         # not started (no renderer): rendered here, as capture() does
-        image = self.camera.expose(ahead.result()) if ahead is not None else self.camera.capture(T, t).image
+        image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
         self.rendered += 1
         self._index += 1
         return Frame(t, image, self._index)
@@ -204,10 +240,15 @@ class SimUwbSource:
         T_world_anchors_true: Transform,
         rate_hz: float = 10.0,
         fails_below_m: float = 0.0,
+        hooks: SimSensorHooks | None = None,
     ):
         self.vehicle = vehicle
         self.fails_below_m = fails_below_m  # a failed UWB: no ranging below this true height (0: never)
         self.uwb = uwb
+        h = hooks or SimSensorHooks()
+        self._twr = (h.stage_timer or untimed)("sim_uwb", uwb.twr)
+        self._rate_loop = h.rate_loop
+        self.rate_loop: RateLoop | None = None  # the ranging loop, once started
         self.T_anchors_world = T_world_anchors_true.inverse()
         self.rate_hz = rate_hz
         self._clock = LoopClock()
@@ -219,14 +260,14 @@ class SimUwbSource:
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-uwb")
 
     async def _run(self) -> None:
-        rate = RateLoop(self._clock, self.rate_hz)
+        rate = self.rate_loop = self._rate_loop(self._clock, self.rate_hz)
         while True:
             t = await rate.tick()
             self.vehicle.step_to(t)
             if self.fails_below_m > 0.0 and -self.vehicle.pd < self.fails_below_m:
                 continue
             tag = self.T_anchors_world.apply(np.array([self.vehicle.pn, self.vehicle.pe, self.vehicle.pd]))
-            m = self.uwb.twr(t, tag)
+            m = self._twr(t, tag)
             if len(m.anchor_ids) > 0:
                 self._out.append(m)
                 self.samples += 1
@@ -267,13 +308,15 @@ def sim_landing_kit(
     true_pad_ne: tuple[float, float],
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
+    hooks: SimSensorHooks | None = None,
 ) -> LandingKit:
     """Simulated camera and UWB around the *true* pad, with the real detector and solver; the
     anchors are ``landing.uwb_anchors`` (as on the vehicle).
 
     ``camera_playback``: the camera is the OpenCV camera plugin playing a recorded file on the
     simulated clock, with the detector on that file's calibration; ``record_camera``: the
-    simulated camera's frames are recorded as they are read."""
+    simulated camera's frames are recorded as they are read. ``hooks``: a bench's instruments of
+    the simulated sensors (:class:`SimSensorHooks`)."""
     from companion.delivery.landing_setup import LandingSetupError, resolve_params_file
     from companion.geometry.mounts import downward_mount, pad_pose_ned
     from companion.plugin_api import PluginError, create
@@ -332,6 +375,7 @@ def sim_landing_kit(
             lc.camera_latency_s,
             fails_below_m=config.sim.camera_fails_below_m,
             range_m=config.sim.camera_range_m,
+            hooks=hooks,
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera
@@ -351,6 +395,7 @@ def sim_landing_kit(
             T_world_pad_true,
             lc.uwb_rate_hz,
             fails_below_m=config.sim.uwb_fails_below_m,
+            hooks=hooks,
         )
         multi = Multilaterator(anchors, lc.multilateration)
     from companion.geometry.se3 import Transform

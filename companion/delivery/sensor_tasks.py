@@ -53,10 +53,13 @@ class SensorTasks:
         stats: Any,
         camera_step: Callable[[], Awaitable[None]],
         uwb_step: Callable[[], None],
+        rate_loop: Callable[[LoopClock, float], RateLoop] = RateLoop,
     ):
         """``kit``: the shell's LandingKit; ``stats``: the shell's ShellStats (how the camera is
         read, the wake-ups); ``camera_step`` / ``uwb_step``: the shell's handling of the newest
-        frame and of the readings since the last call."""
+        frame and of the readings since the last call; ``rate_loop``: how the polls' loops are
+        built (the shell's hooks)."""
+        self.rate_loop = rate_loop
         self.kit = kit
         self.clock = clock
         self.stats = stats
@@ -105,7 +108,7 @@ class SensorTasks:
             raise errors[0]
 
     async def _lock_step(self) -> None:
-        rate = RateLoop(self.clock, self.kit.poll_rate_hz)
+        rate = self.rate_loop(self.clock, self.kit.poll_rate_hz)
         while True:
             await rate.tick()
             if self.has_camera:
@@ -119,7 +122,7 @@ class SensorTasks:
         attach = frame_listener_of(self.kit.camera)
         if attach is None:
             self.stats.camera_read = "polled"
-            rate = RateLoop(self.clock, self.kit.poll_rate_hz)
+            rate = self.rate_loop(self.clock, self.kit.poll_rate_hz)
             while True:
                 await rate.tick()
                 await self.camera_step()
@@ -142,7 +145,7 @@ class SensorTasks:
 
     async def _uwb_task(self) -> None:
         """The UWB's readings at the kit's poll rate, whatever the camera does."""
-        rate = RateLoop(self.clock, self.kit.poll_rate_hz)
+        rate = self.rate_loop(self.clock, self.kit.poll_rate_hz)
         while True:
             await rate.tick()
             self.uwb_step()

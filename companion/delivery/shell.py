@@ -38,7 +38,8 @@ from companion.delivery.detection_pacer import DetectionPacer
 
 # the landing fusion's modules load with the shell, not when the fusion starts at take-off: their
 # import (scipy.spatial among them) would take the loop's CPU from guidance in flight
-from companion.delivery.fusion import FusionSetup, LandingFusion
+from companion.delivery.fusion import FusionSetup
+from companion.delivery.hooks import ShellHooks, TimedObserver
 from companion.delivery.mission import (
     DeliveryMission,
     FailureKind,
@@ -72,7 +73,6 @@ from companion.guidance.setpoint import VelocitySetpoint
 from companion.guidance.velocity_bias import VelocityBiasCorrection
 from companion.scheduling import (
     LoopClock,
-    RateLoop,
     ThreadPolicy,
     realtime_loop_thread,
     restore_thread_policy,
@@ -178,6 +178,13 @@ def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
     )
 
 
+def _velocity_bias_correction(config: CompanionConfig) -> VelocityBiasCorrection | None:
+    mc = config.mission
+    if mc.velocity_bias_tau_s > 0:
+        return VelocityBiasCorrection(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s, mc.velocity_bias_source)
+    return None
+
+
 class DeliveryShell:
     def __init__(
         self,
@@ -191,10 +198,13 @@ class DeliveryShell:
         before_flight: Callable[[], Awaitable[None]] | None = None,
         zenoh_session: Any = None,
         observers: tuple[ShellObserver, ...] = (),
+        hooks: ShellHooks | None = None,
     ):
         """``flight_log`` (flight.csv), ``recorder`` (the run folder's streams) and ``on_tick`` (a
         function of the shell and each tick's output) are observers the shell adds itself, first;
-        ``observers``: more, called after them (:meth:`add_observer`)."""
+        ``observers``: more, called after them (:meth:`add_observer`); ``hooks``: a bench's or a
+        test's instruments (:class:`~companion.delivery.hooks.ShellHooks`; None: a flight's)."""
+        self.hooks = hooks = hooks or ShellHooks()
         self.config = config
         # an open Zenoh session for the telemetry publisher (`fly --orders`: the order desk's, kept
         # across flights); None: the publisher opens its own from [telemetry]
@@ -206,21 +216,17 @@ class DeliveryShell:
         self.autopilot = autopilot
         self.mission = _delivery_mission(config)
         self.estimator = AutopilotPoseEstimator()
-        mc = config.mission
-        self._velocity_bias = (
-            VelocityBiasCorrection(mc.velocity_bias_tau_s, mc.velocity_bias_max_m_s, mc.velocity_bias_source)
-            if mc.velocity_bias_tau_s > 0
-            else None
-        )
+        self._velocity_bias = _velocity_bias_correction(config)
         self.flight_log = flight_log
         # the shell's own observers (flight log, recorder, then telemetry and GCS as they start),
         # called before those added from outside, each group in the order added
         self._parts: list[ShellObserver] = []
+        self._timed_parts: list[ShellObserver] = []  # the same, timed by hooks.stage_timer when set
         self.observers: list[ShellObserver] = []
         if flight_log is not None:
-            self._parts.append(FlightLogObserver(flight_log))
+            self._add_part(FlightLogObserver(flight_log), "logging")
         if recorder is not None:
-            self._parts.append(RecorderObserver(recorder))
+            self._add_part(RecorderObserver(recorder), "logging")
         if on_tick is not None:
             self.observers.append(TickCallback(on_tick))
         self.observers.extend(observers)
@@ -244,7 +250,8 @@ class DeliveryShell:
         self.landing = landing
         self.fusion: Any = None  # delivery.fusion.LandingFusion once the pad is known
         self._fusion_pad_index = 0  # mission.pad_index the fusion was started for
-        self.sensors = SensorTasks(landing, self._clock, self.stats, self._camera_step, self._uwb_step)
+        self.sensors = SensorTasks(landing, self._clock, self.stats, self._camera_step, self._uwb_step, hooks.rate_loop)
+        self._stop_reason: str | None = None  # stop(): the guidance loop ends at its next tick
         self.vision_always = False  # detect from the fusion's start, whatever the phase (see _vision_wanted)
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
@@ -279,8 +286,13 @@ class DeliveryShell:
         """Watch the shell from now on (after those already added): :class:`ShellObserver`."""
         self.observers.append(observer)
 
+    def _add_part(self, observer: ShellObserver, stage: str) -> None:
+        self._parts.append(observer)
+        timer = self.hooks.stage_timer
+        self._timed_parts.append(observer if timer is None else TimedObserver(observer, stage, timer))
+
     def _watching(self) -> list[ShellObserver]:
-        return self._parts + self.observers
+        return self._timed_parts + self.observers
 
     def _closing_order(self) -> list[ShellObserver]:
         """Telemetry first, the recorder next, the GCS last (it says how the mission ended), then
@@ -296,6 +308,13 @@ class DeliveryShell:
         self._abort_kind = kind
         if self._connecting is not None and not self._connecting.done():
             self._connecting.cancel()
+
+    def stop(self, reason: str) -> None:
+        """End the guidance loop at its next tick, before it steps the mission again, without
+        failing the mission (a bench's measured window is over); the shell then stops as after a
+        finished mission. Nothing is commanded: the autopilot's offboard-loss failsafe acts on a
+        vehicle left in the air."""
+        self._stop_reason = reason
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
         saved_policy = self._loop_thread_realtime(asyncio.get_running_loop())
@@ -321,7 +340,7 @@ class DeliveryShell:
                 pub = make_publisher(self.config, command_handler(loop, self), session=self._zenoh_session)
                 pub.start()
                 self.telemetry = ShellTelemetry(pub, self.autopilot.telemetry)
-                self._parts.append(TelemetryObserver(self.telemetry))
+                self._add_part(TelemetryObserver(self.telemetry), "telemetry")
             self._connecting = loop.create_task(
                 self.autopilot.connect(timeout_s=self.config.runtime.connect_timeout_s), name="connect"
             )
@@ -338,7 +357,7 @@ class DeliveryShell:
 
                 self.gcs = GcsComponent(self.config.gcs, self.autopilot, self.command)
                 if self.gcs.open():
-                    self._parts.append(GcsObserver(self.gcs))
+                    self._add_part(GcsObserver(self.gcs), "gcs")
                 else:
                     self.gcs = None
             if self.config.mission.destination == "autopilot_mission":
@@ -472,10 +491,6 @@ class DeliveryShell:
             for ob in self._watching():
                 ob.on_text(done, SEVERITY_NOTICE)
 
-    def now(self) -> float:
-        """The shell's clock: the loop's time (simulated on the virtual loop), s."""
-        return self._clock.now()
-
     def where_it_stands(self, now: float) -> str:
         """The mission's phase, the request it waits on, and what the autopilot last said (mode,
         armed, landed, height, and how old each is): for a mission that ends without finishing,
@@ -506,12 +521,17 @@ class DeliveryShell:
             await self._guidance_ticks()
 
     async def _guidance_ticks(self) -> None:
-        rate = RateLoop(self._clock, self.config.runtime.guidance_rate_hz)
+        rate = self.hooks.rate_loop(self._clock, self.config.runtime.guidance_rate_hz)
         tc = self.autopilot.telemetry
         mission = self.mission
         live = self.autopilot.liveness
-        while not mission.phase.terminal:
+        update = self.hooks.timed("guidance", self.estimator.update)
+        step = self.hooks.timed("guidance", mission.step)
+        while not mission.phase.terminal and self._stop_reason is None:
             now, _ = await rate.tick_or(self._marker_fused)
+            if self._stop_reason is not None:
+                log.info("guidance stopped: %s; the mission is in phase %s", self._stop_reason, mission.phase.value)
+                break
             live.renew()
             self.stats.guidance_overruns, self.stats.guidance_ticks = rate.overruns, rate.ticks
             if self._abort_reason is not None:
@@ -519,7 +539,7 @@ class DeliveryShell:
                     ob.on_abort(now, self._abort_reason)
                 mission.abort(now, self._abort_reason, self._abort_kind)
                 self._abort_reason = None
-            gps_frame = self.estimator.update(tc.position_ned, tc.attitude)
+            gps_frame = update(tc.position_ned, tc.attitude)
             if self.landing is not None:
                 if self.fusion is None and mission.frame is not None:
                     self._start_fusion(now)
@@ -543,7 +563,7 @@ class DeliveryShell:
                 pad_heading_age_s=heading_observation_age_s(heading, now),
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             )
-            out = mission.step(inp)
+            out = step(inp)
             for ev in out.events:
                 self.events.append(ev)
                 level = logging.WARNING if ev.kind in WARNING_EVENTS else logging.INFO
@@ -622,7 +642,7 @@ class DeliveryShell:
             velocity_bias_source=self.config.mission.velocity_bias_source,
             level_pad=self.config.landing.ekf_level_pad,
         )
-        self.fusion = LandingFusion(setup, now)
+        self.fusion = self.hooks.fusion(setup, now)
         if self._landing_target_size_m is not None:
             self._landing_target = LandingTargetBuilder(
                 self.config.landing.landing_target_output,
@@ -747,7 +767,7 @@ class DeliveryShell:
         period = 1.0 / rt.setpoint_rate_hz
         # half a period after the guidance ticks (same rate by default): a resend is decided on a
         # clock instant guidance never ticks on, so the order of two tasks due at once plays no part
-        rate = RateLoop(self._clock, rt.setpoint_rate_hz, start_s=self._clock.now() + period / 2.0)
+        rate = self.hooks.rate_loop(self._clock, rt.setpoint_rate_hz, start_s=self._clock.now() + period / 2.0)
         while True:
             now = await rate.tick()
             self.stats.setpoint_overruns = rate.overruns

@@ -45,10 +45,12 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from companion import scheduling
+from companion.autopilot.interface import Autopilot
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.delivery.observers import ShellObserver, ShellTick
 from companion.estimation.ekf import UpdateOutcome
 from companion.flightlog import logproc
-from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.csvlog import CsvLog  # the Dart bench's logging
 from companion_lab.cpu_cap import WORLD_THREAD_PREFIXES, CapKeeper, open_cgroup
 
 log = logging.getLogger(__name__)
@@ -396,6 +398,358 @@ def _timed_detector(detect: Callable[..., Any], lat: Any, loop: asyncio.Abstract
     return timed_detect
 
 
+# ---------------------------------------------------------------------------- the delivery's instruments
+# the bench measures the delivery shell through what it offers: its observer hooks (the latency
+# points, the setpoint times, the end of the window), its ShellHooks (its named stages timed, its
+# rate loops, its fusion), the collaborators the bench hands it (autopilot, camera, detector, UWB,
+# multilaterator, each wrapped) and the simulated sensors' SimSensorHooks
+SHELL_STAGE_TASKS = {"guidance": "guidance", "logging": "logging", "telemetry": "telemetry", "gcs": "link"}
+
+
+class LoopRegistry:
+    """Every fixed-rate loop a run builds through :meth:`factory`, by label, for its ticks and overruns."""
+
+    def __init__(self) -> None:
+        self.loops: list[tuple[str, scheduling.RateLoop]] = []
+
+    def factory(self, label: str) -> Callable[..., scheduling.RateLoop]:
+        def rate_loop(clock: scheduling.Clock, rate_hz: float, start_s: float | None = None) -> scheduling.RateLoop:
+            loop = scheduling.RateLoop(clock, rate_hz, start_s)
+            self.loops.append((f"{label} {rate_hz:g} Hz", loop))
+            return loop
+
+        return rate_loop
+
+
+class TimedProxy:
+    """``inner`` with the methods ``names`` timed as ``task``; every other attribute is the inner's."""
+
+    def __init__(self, inner: Any, acct: CpuAccount, task: str, names: Sequence[str]):
+        self.inner = inner
+        for name in names:
+            self.__dict__[name] = acct.wrap(task, getattr(inner, name))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+class TimedListeners(TimedProxy):
+    """An autopilot's telemetry cache whose listeners are timed by their owner's task
+    (``tasks``: {class: task}; a listener of another owner is added as it is)."""
+
+    def __init__(self, inner: Any, acct: CpuAccount, tasks: dict[type, str]):
+        super().__init__(inner, acct, "", ())
+        self._acct, self._tasks = acct, tasks
+        self._wrapped: dict[Any, Callable[..., Any]] = {}
+
+    def add_listener(self, fn: Callable[..., Any]) -> None:
+        owner = getattr(fn, "__self__", None)
+        task = next((t for cls, t in self._tasks.items() if isinstance(owner, cls)), None)
+        if task is not None:
+            fn = self._wrapped[fn] = self._acct.wrap(task, fn)
+        self.inner.add_listener(fn)
+
+    def remove_listener(self, fn: Callable[..., Any]) -> None:
+        self.inner.remove_listener(self._wrapped.pop(fn, fn))
+
+
+class TimedAutopilot(TimedProxy):
+    """The backend with its sends timed as ``link`` and its telemetry's listeners by owner."""
+
+    # the shell asks the backend's class whether it makes itself ready between missions: a backend
+    # without its own make_ready is skipped as before (TimedAutopilotMakingReady has one)
+    make_ready = Autopilot.make_ready
+
+    def __init__(self, inner: Any, acct: CpuAccount, listener_tasks: dict[type, str]):
+        super().__init__(inner, acct, "link", ("set_velocity_ned", "send_landing_target"))
+        self.telemetry = TimedListeners(inner.telemetry, acct, listener_tasks)
+
+    @staticmethod
+    def of(inner: Any, acct: CpuAccount, listener_tasks: dict[type, str]) -> TimedAutopilot:
+        own = type(inner).make_ready is not Autopilot.make_ready
+        return (TimedAutopilotMakingReady if own else TimedAutopilot)(inner, acct, listener_tasks)
+
+
+class TimedAutopilotMakingReady(TimedAutopilot):
+    async def make_ready(self) -> str | None:
+        return await self.inner.make_ready()  # type: ignore[no-any-return]
+
+
+class BenchObserver(ShellObserver):
+    """The bench's view of the shell, through its hooks: the latency points (the mission stepped,
+    the setpoint sent, a frame fused while the fused estimate steers), the setpoint times, and the
+    end of the measured window ``duration_s`` after the guidance loop started (``on_end``, then
+    :meth:`DeliveryShell.stop`). With the loop's thread at the real-time priority, the
+    simulator's threads get it too: they stand in for the autopilot and the camera, hardware that
+    does not share the companion's core, and one preempted while it holds the interpreter lock
+    would stall the companion's real-time threads."""
+
+    def __init__(self, lat: LatencyTracker, duration_s: float, on_end: Callable[[], None]):
+        self.lat = lat
+        self.duration_s = duration_s
+        self.on_end = on_end
+        self.measuring = True
+        self.setpoint_times: list[float] = []
+        self.realtime_simulator_threads: list[str] = []
+        self.shell: Any = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._end: asyncio.TimerHandle | None = None
+        self._stepped_s: float | None = None  # when the tick's mission step ended, until its setpoint or its end
+
+    def on_start(self, shell: Any) -> None:
+        self.shell = shell
+        self._loop = asyncio.get_running_loop()
+        if shell.stats.realtime.startswith("SCHED_RR"):
+            names = {t.native_id: t.name for t in threading.enumerate()}
+            priority = shell.config.runtime.realtime_priority
+            for tid, (comm, _) in thread_cpu_s().items():
+                sim = classify_thread(comm, names.get(tid)) == "sim"
+                if sim and scheduling.set_thread_realtime(priority, tid) is None:
+                    self.realtime_simulator_threads.append(names.get(tid) or comm)
+
+    def _now(self) -> float:
+        assert self._loop is not None
+        return self._loop.time()
+
+    def on_events(self, time_s: float, events: tuple[Any, ...]) -> None:
+        if self._end is None:  # the first tick: the window ends duration_s after the loop's start
+            assert self._loop is not None
+            start_s = time_s - 1.0 / self.shell.config.runtime.guidance_rate_hz
+            self._end = self._loop.call_at(start_s + self.duration_s, self.end_window)
+        if self.measuring:
+            self._stepped_s = self._now()
+
+    def on_setpoint(self, time_s: float, setpoint: Any) -> None:
+        if not self.measuring:
+            return
+        now = self._now()
+        if self._stepped_s is not None:  # this tick's setpoint: the frames processed before it went in
+            self.lat.guidance_step(True, self._stepped_s)
+            self._stepped_s = None
+        self.setpoint_times.append(now)
+        self.lat.setpoint_sent(now)
+
+    def on_tick(self, tick: ShellTick) -> None:
+        if self._stepped_s is not None:  # a tick without a setpoint
+            self.lat.guidance_step(tick.output.setpoint is not None, self._stepped_s)
+            self._stepped_s = None
+
+    def on_marker_fused(self, time_s: float, obs: Any, outcome: Any) -> None:
+        if self.measuring and outcome is UpdateOutcome.ACCEPTED and self.shell.fused_estimate_steers():
+            self.lat.frame_fused(obs.time_s)
+
+    def frame_processed(self, exposure_s: float, detected: bool, detect_s: float, now_s: float) -> None:
+        """A frame's detection done, back on the loop (the bench's detector hands it over)."""
+        if self.measuring:
+            self.lat.frame_processed(exposure_s, detected, detect_s, now_s)
+
+    def end_window(self) -> None:
+        if not self.measuring:
+            return
+        self.measuring = False
+        self.on_end()
+        log.info("bench app: %g s elapsed, the mission is in phase %s", self.duration_s, self.shell.mission.phase.value)
+        self.shell.stop(f"the bench's {self.duration_s:g} s are over")
+
+    async def close(self, shell: Any) -> None:
+        if self._end is not None:
+            self._end.cancel()
+
+
+@dataclasses.dataclass
+class Instrumented:
+    """A delivery shell composed as a flight composes it, with the bench's instruments: the shell
+    flies a TimedAutopilot of the backend and a kit of TimedProxy parts around the simulated
+    sensors (``sim_camera``: the camera source itself)."""
+
+    shell: Any
+    observer: BenchObserver
+    loops: LoopRegistry
+    sim_camera: Any
+
+
+def instrumented_shell(
+    config: CompanionConfig,
+    autopilot: Any,
+    truth: Any,
+    recorder: Any,
+    acct: CpuAccount,
+    observer: BenchObserver,
+    vision_in_thread: bool = True,
+    telemetry: bool = True,
+) -> Instrumented:
+    """The delivery shell on ``autopilot`` with the simulated landing kit on ``truth`` (the true
+    pose the camera and UWB see), ``recorder`` and telemetry, every task's CPU accounted in
+    ``acct`` and ``observer`` watching. ``vision_in_thread``: the real-time strategy (the
+    bench); False keeps the kit's lock-step one (a seeded flight in virtual time). ``telemetry``:
+    publish over Zenoh (``[telemetry]``)."""
+    from companion.delivery.fusion import LandingFusion
+    from companion.delivery.hooks import ShellHooks
+    from companion.delivery.shell import DeliveryShell
+    from companion.delivery.telemetry import ShellTelemetry
+    from companion.flightlog.recorder import FlightRecorder
+    from companion_lab.demo import true_pad_ned
+
+    loops = LoopRegistry()
+    kit, sim_camera = _bench_kit(config, truth, true_pad_ned(config), acct, loops, observer)
+    kit = dataclasses.replace(kit, vision_in_thread=vision_in_thread)
+
+    def fusion(setup: Any, now: float) -> TimedProxy:
+        return TimedProxy(LandingFusion(setup, now), acct, "fusion", ("on_sample", "on_marker", "on_uwb", "estimate"))
+
+    hooks = ShellHooks(
+        stage_timer=lambda stage, fn: acct.wrap(SHELL_STAGE_TASKS[stage], fn),
+        rate_loop=loops.factory("shell"),
+        fusion=fusion,
+    )
+    timed_ap: Any = TimedAutopilot.of(autopilot, acct, {FlightRecorder: "logging", ShellTelemetry: "telemetry"})
+    shell = DeliveryShell(
+        config, timed_ap, telemetry=telemetry, landing=kit, recorder=recorder, observers=(observer,), hooks=hooks
+    )
+    shell.vision_always = True  # the camera and detector run at full rate from the start of fusion
+    return Instrumented(shell, observer, loops, sim_camera)
+
+
+def _bench_kit(
+    config: CompanionConfig,
+    truth: Any,
+    pad_ne: tuple[float, float],
+    acct: CpuAccount,
+    loops: LoopRegistry,
+    observer: BenchObserver,
+) -> tuple[Any, Any]:
+    """The simulated landing kit with every part timed: the simulator's own stages (rendering, the
+    truth and field of view, the ranges) through SimSensorHooks, the camera's read, the detector
+    (which also hands each frame's detection to ``observer``) and the multilaterator through
+    proxies. Every exposure with the camera above the pad plane is rendered (the flight camera
+    skips those without the pad in view): the detector then runs on all 30 frames a second,
+    searching whole frames when the pad is out of view. Returns the kit and the camera source."""
+    from companion_sitl.landing_sensors import SimSensorHooks, sim_landing_kit
+
+    hooks = SimSensorHooks(stage_timer=acct.wrap, rate_loop=loops.factory("sim sensor"), every_exposure=True)
+    kit = sim_landing_kit(config, truth, pad_ne, hooks=hooks)
+    sim_camera = kit.camera
+    loop = asyncio.get_running_loop()
+    detector = TimedProxy(kit.detector, acct, "vision", ())
+    detector.__dict__["detect"] = _timed_detector(acct.wrap("vision", kit.detector.detect), observer, loop)
+    multi = kit.multilaterator
+    kit = dataclasses.replace(
+        kit,
+        camera=TimedProxy(sim_camera, acct, "vision", ("read",)),
+        detector=detector,
+        uwb=None if kit.uwb is None else TimedProxy(kit.uwb, acct, "sim_uwb", ("read",)),
+        multilaterator=None if multi is None else TimedProxy(multi, acct, "fusion", ("solve_twr",)),
+    )
+    return kit, sim_camera
+
+
+@dataclasses.dataclass
+class BenchDelivery:
+    """What one delivery run builds: the sim vehicle and its MAVLink sim, the backend (the shell
+    flies a TimedAutopilot of it), the recorder and the instrumented shell."""
+
+    vehicle: Any
+    mav_sim: Any
+    autopilot: Any
+    recorder: Any
+    run: Instrumented
+
+
+def _bench_delivery(
+    config: CompanionConfig,
+    backend: str,
+    run_dir: Path,
+    acct: CpuAccount,
+    observer: BenchObserver,
+) -> BenchDelivery:
+    """The sim vehicle and its MAVLink sim (started), the backend over loopback, the recorder, and
+    the instrumented shell."""
+    from companion.flightlog.recorder import FlightRecorder
+    from companion.flightlog.tlog_writer import open_tlog
+    from companion_lab.demo import _ThreadedTruth, loopback_autopilot, true_pad_ned
+    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+    from companion_sitl.mavlink.link import free_udp_port
+    from companion_sitl.vehicle import SimVehicle
+
+    vehicle = SimVehicle(config.sim)
+    vehicle.set_pad_truth(*true_pad_ned(config))
+    port = free_udp_port()
+    grip = {"GRIP_ENABLE": 1.0} if backend == "ardupilot" else None
+    dialect = "px4" if backend == "px4" else "ardupilot"
+    mav_sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), vehicle=vehicle, params=grip).start()
+    ap = loopback_autopilot(config, backend, port, open_tlog(run_dir / "flight.tlog"))
+    recorder = FlightRecorder(run_dir, config)
+    run = instrumented_shell(config, ap, _ThreadedTruth(mav_sim), recorder, acct, observer)
+    return BenchDelivery(vehicle, mav_sim, ap, recorder, run)
+
+
+@dataclasses.dataclass
+class _CpuCap:
+    """``--cpu-cap``: the companion's cgroup (the simulator's threads kept out of it by the keeper)
+    and the logging process's, with their throttling counters at the window's start and end."""
+
+    cgroup: Any = None
+    log_cgroup: Any = None
+    keeper: CapKeeper | None = None
+    task: asyncio.Task[None] | None = None
+    throttled: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def start(cls, cpu_cap: float | None, logging_core: bool, cap_period_us: int | None) -> _CpuCap:
+        cap = cls()
+        if cpu_cap is not None:
+            cap.cgroup = open_cgroup(cpu_cap, period_us=cap_period_us)
+            cap.cgroup.add_pid(os.getpid())
+            if logging_core:
+                cap.log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}", cap_period_us)
+            cap.keeper = CapKeeper(cap.cgroup, logging_cgroup=cap.log_cgroup)
+            cap.keeper.sweep()
+            cap.task = asyncio.get_running_loop().create_task(cap.keeper.run(), name="bench-cpu-cap")
+        return cap
+
+    def mark(self, when: str) -> None:
+        self.throttled[when] = self.cgroup.throttled() if self.cgroup is not None else {}
+        self.throttled[f"log_{when}"] = self.log_cgroup.throttled() if self.log_cgroup is not None else {}
+
+    def stop(self) -> None:
+        if self.task is not None:
+            self.task.cancel()
+        for cg in (self.cgroup, self.log_cgroup):
+            if cg is not None:
+                cg.remove()
+
+    def report(self, cpu_cap: float | None) -> dict[str, Any] | None:
+        if self.cgroup is None or self.keeper is None:
+            return None
+        t0, t1 = self.throttled["start"], self.throttled["end"]
+        l0, l1 = self.throttled["log_start"], self.throttled["log_end"]
+
+        def d(a: dict[str, int], b: dict[str, int], k: str) -> int:
+            return b.get(k, 0) - a.get(k, 0)
+
+        return {
+            "fraction_of_one_core": cpu_cap,
+            "cgroup": self.cgroup.describe(),
+            "simulator_inside_the_cap": self.keeper.world_inside,
+            "periods": d(t0, t1, "nr_periods"),
+            "throttled_periods": d(t0, t1, "nr_throttled"),
+            "throttled_ms": round(d(t0, t1, "throttled_time") / 1e6, 1),
+            "logging_process": "its own cgroup at the same cap (another core)" if self.log_cgroup else "inside the cap",
+            "logging_throttled_periods": d(l0, l1, "nr_throttled"),
+        }
+
+
+async def _sample_offboard(vehicle: Any, out: list[tuple[float, bool]]) -> None:
+    """Whether the vehicle expects the setpoint stream (armed, in the air, offboard), every 20 ms."""
+    from companion.autopilot.types import FlightMode, LandedState
+
+    loop = asyncio.get_running_loop()
+    while True:
+        expects = vehicle.armed and vehicle.mode is FlightMode.OFFBOARD and vehicle.landed is LandedState.IN_AIR
+        out.append((loop.time(), expects))
+        await asyncio.sleep(0.02)
+
+
 async def _run_delivery(
     config: CompanionConfig,
     duration_s: float,
@@ -405,242 +759,80 @@ async def _run_delivery(
     logging_core: bool = True,
     cap_period_us: int | None = None,
 ) -> dict[str, Any]:
-    from companion.delivery import shell as shell_mod
-    from companion.delivery import telemetry as shell_telemetry
-    from companion.delivery.shell import DeliveryShell
-    from companion.flightlog.recorder import FlightRecorder
-    from companion.flightlog.tlog_writer import open_tlog
-    from companion_lab.demo import _ThreadedTruth, loopback_autopilot, true_pad_ned
-    from companion_sitl import landing_sensors
-    from companion_sitl.landing_sensors import sim_landing_kit
-    from companion_sitl.mavlink.factory import mavlink_sim_vehicle
-    from companion_sitl.mavlink.link import free_udp_port
-    from companion_sitl.vehicle import SimVehicle
-
     acct = CpuAccount()
     lat = LatencyTracker()
-    _CountedRateLoop.registry.clear()
-    loop = asyncio.get_running_loop()
-
-    vehicle = SimVehicle(config.sim)
-    pad_n, pad_e = true_pad_ned(config)
-    vehicle.set_pad_truth(pad_n, pad_e)
-    port = free_udp_port()
-    grip = {"GRIP_ENABLE": 1.0} if backend == "ardupilot" else None
-    dialect = "px4" if backend == "px4" else "ardupilot"
-    mav_sim = mavlink_sim_vehicle(config.sim, dialect, remote=("127.0.0.1", port), vehicle=vehicle, params=grip).start()
-    ap: Any = loopback_autopilot(config, backend, port, open_tlog(run_dir / "flight.tlog"))
-
-    class BenchCamera(landing_sensors.SimCameraSource):
-        """Renders every exposure (the flight camera skips those without the pad in view): the
-        detector then runs on all 30 frames a second, searching whole frames when the pad is out of view."""
-
-        dropped = 0  # exposures that became readable and were never read (a newer one was)
-
-        def _pad_in_view(self, T_camera_pad: Any) -> bool:
-            T = T_camera_pad
-            return float((-T.R.T @ T.t)[2]) > 0.05  # the camera above the pad plane (on the ground it is not)
-
-        def read(self) -> Any:
-            now = self._clock.now()
-            ready = sum(1 for p in self._poses if p[0] > self._last_read_t and p[0] + self.latency_s <= now)
-            last = self._last_read_t
-            frame = super().read()
-            if self._last_read_t != last:
-                BenchCamera.dropped += max(0, ready - 1)
-            return frame
-
-    with _patched(landing_sensors, "SimCameraSource", BenchCamera):
-        kit = sim_landing_kit(config, _ThreadedTruth(mav_sim), (pad_n, pad_e))  # type: ignore[arg-type]
-    kit = dataclasses.replace(kit, vision_in_thread=True)
-    camera = kit.camera
-    acct.patch(camera.camera, "capture", "sim_render")  # the simulator's rendering, not the companion's
-    # the exposure noise added to each rendered image as the frame is read: the simulator's (a real
-    # camera plugin's read hands over a finished frame)
-    acct.patch(camera.camera, "expose", "sim_render")
-    acct.patch(camera, "read", "vision")
-    # the simulated sensors' tasks on the loop (30 Hz camera, 10 Hz UWB): the truth pose read from
-    # the MAVLink sim, the pad in the camera frame, the field-of-view test, the ranges: simulator work
-    acct.patch(camera, "_pad_in_view", "sim_sensors")
-    acct.patch(camera.camera, "T_camera_pad", "sim_sensors")
-    if kit.uwb is not None:
-        acct.patch(kit.uwb, "read", "sim_uwb")
-        acct.patch(kit.uwb.uwb, "twr", "sim_uwb")
-    if kit.multilaterator is not None:
-        acct.patch(kit.multilaterator, "solve_twr", "fusion")
-    detect = acct.wrap("vision", kit.detector.detect)
-
-    kit.detector.detect = _timed_detector(detect, lat, loop)
-
-    recorder = FlightRecorder(run_dir, config)
-    for name in ("on_sample", "on_marker", "on_uwb", "on_tick", "on_setpoint", "on_result"):
-        acct.patch(recorder, name, "logging")
-    acct.patch(ap, "set_velocity_ned", "link")
-    acct.patch(ap, "send_landing_target", "link")
-    raw_send = ap.set_velocity_ned
-    sp_times: list[float] = []
-
-    def send(sp: Any) -> Any:
-        r = raw_send(sp)
-        now = loop.time()
-        sp_times.append(now)
-        lat.setpoint_sent(now)
-        return r
-
-    ap.set_velocity_ned = send
-
     end: dict[str, Any] = {}
-
-    def snapshot_end() -> None:
-        _snapshot(end)
-
-    sim_realtime: list[str] = []  # the simulator's threads given the companion's real-time priority
-
-    class BenchShell(DeliveryShell):
-        async def _guidance_loop(self) -> None:
-            try:
-                await asyncio.wait_for(super()._guidance_loop(), duration_s)
-            except TimeoutError:
-                log.info("bench app: %g s elapsed, the mission is in phase %s", duration_s, self.mission.phase.value)
-            finally:
-                snapshot_end()
-
-        def _loop_thread_realtime(self, loop: asyncio.AbstractEventLoop) -> Any:
-            saved = super()._loop_thread_realtime(loop)
-            if saved is not None:
-                # the simulator stands in for the autopilot and the camera, hardware that does not
-                # share the companion's core; a thread of it preempted while it holds the
-                # interpreter lock would stall the companion's real-time threads
-                names = {t.native_id: t.name for t in threading.enumerate()}
-                for tid, (comm, _) in thread_cpu_s().items():
-                    sim = classify_thread(comm, names.get(tid)) == "sim"
-                    if sim and scheduling.set_thread_realtime(config.runtime.realtime_priority, tid) is None:
-                        sim_realtime.append(names.get(tid) or comm)
-            return saved
-
-        def _start_fusion(self, now: float) -> None:
-            add = self.autopilot.telemetry.add_listener
-            with _patched(self.autopilot.telemetry, "add_listener", lambda fn: add(acct.wrap("fusion", fn))):
-                super()._start_fusion(now)
-            for name in ("on_marker", "on_uwb", "estimate"):
-                acct.patch(self.fusion, name, "fusion")
-            on_marker = self.fusion.on_marker
-
-            def fused(obs: Any) -> Any:
-                out = on_marker(obs)
-                if out is UpdateOutcome.ACCEPTED and self.fused_estimate_steers():
-                    lat.frame_fused(obs.time_s)
-                return out
-
-            self.fusion.on_marker = fused
-
-    shell = BenchShell(config, ap, telemetry=True, landing=kit, recorder=recorder)
-    shell.vision_always = True  # the camera and detector run at full rate from the start of fusion
-    step = acct.wrap("guidance", shell.mission.step)
-
-    def mission_step(inp: Any) -> Any:
-        out = step(inp)
-        lat.guidance_step(out.setpoint is not None, loop.time())
-        return out
-
-    shell.mission.step = mission_step  # type: ignore[method-assign]
-    acct.patch(shell.estimator, "update", "guidance")
-
-    tel_tick = acct.wrap("telemetry", shell_telemetry.ShellTelemetry.tick)
-    tel_sample = acct.wrap("telemetry", shell_telemetry.ShellTelemetry._on_sample)
-
-    cgroup: Any = None
-    log_cgroup: Any = None
-    keeper_task: asyncio.Task[None] | None = None
-    keeper: CapKeeper | None = None
-    if cpu_cap is not None:
-        cgroup = open_cgroup(cpu_cap, period_us=cap_period_us)
-        cgroup.add_pid(os.getpid())
-        if logging_core:
-            log_cgroup = open_cgroup(cpu_cap, f"companion-cpucap-logging-{os.getpid()}", cap_period_us)
-        keeper = CapKeeper(cgroup, logging_cgroup=log_cgroup)
-        keeper.sweep()
-        keeper_task = loop.create_task(keeper.run(), name="bench-cpu-cap")
+    b = _bench_delivery(config, backend, run_dir, acct, BenchObserver(lat, duration_s, lambda: _snapshot(end)))
+    shell = b.run.shell
+    loop = asyncio.get_running_loop()
+    cap = _CpuCap.start(cpu_cap, logging_core, cap_period_us)
     offboard: list[tuple[float, bool]] = []
-
-    async def sample_mode() -> None:  # whether the vehicle expects the setpoint stream, every 20 ms
-        from companion.autopilot.types import FlightMode, LandedState
-
-        while True:
-            expects = vehicle.armed and vehicle.mode is FlightMode.OFFBOARD and vehicle.landed is LandedState.IN_AIR
-            offboard.append((loop.time(), expects))
-            await asyncio.sleep(0.02)
-
-    mode_task = loop.create_task(sample_mode(), name="bench-offboard-mode")
-    throttle0 = cgroup.throttled() if cgroup is not None else {}
-    log_throttle0 = log_cgroup.throttled() if log_cgroup is not None else {}
+    mode_task = loop.create_task(_sample_offboard(b.vehicle, offboard), name="bench-offboard-mode")
+    cap.mark("start")
     proc0 = time.process_time()
     wall0 = time.monotonic()
     threads0 = thread_cpu_s()
     end["logging_process_s0"] = logging_process_cpu_s()
     try:
-        with (
-            _patched(shell_mod, "RateLoop", _counted("shell")),
-            _patched(CsvLog, "write", acct.wrap("logging", CsvLog.write)),
-            _patched(landing_sensors, "RateLoop", _counted("sim sensor")),
-            _patched(landing_sensors, "_truth_pose", acct.wrap("sim_sensors", landing_sensors._truth_pose)),
-            _patched(shell_telemetry.ShellTelemetry, "tick", tel_tick),
-            _patched(shell_telemetry.ShellTelemetry, "_on_sample", tel_sample),
-        ):
-            summary = await shell.run(timeout_s=duration_s + 30.0)
-        snapshot_end()  # already taken unless the guidance loop never started
+        summary = await shell.run(timeout_s=duration_s + 30.0)
+        _snapshot(end)  # already taken unless the guidance loop never started
     finally:
-        throttle1 = cgroup.throttled() if cgroup is not None else {}
-        log_throttle1 = log_cgroup.throttled() if log_cgroup is not None else {}
+        cap.mark("end")
         try:
-            await ap.close()
+            await b.autopilot.close()
         finally:
-            mav_sim.stop()
-            recorder.close()
+            b.mav_sim.stop()
+            b.recorder.close()
             mode_task.cancel()
-            if keeper_task is not None:
-                keeper_task.cancel()
-            for cg in (cgroup, log_cgroup):
-                if cg is not None:
-                    cg.remove()
-    r = _report(acct, lat, threads0, end, proc0, wall0, TASKS, config.landing.camera_latency_s * 1e3)
+            cap.stop()
+    r = _report(acct, lat, threads0, end, proc0, wall0, TASKS, config.landing.camera_latency_s * 1e3, b.run.loops.loops)
     window_end = end["wall_s"] - time.monotonic() + loop.time()  # the window's end on the loop's clock
-    r["setpoint_stream"] = setpoint_stream_gaps(sp_times, window_end if sp_times else None, offboard)
-    r["camera"]["frames_dropped"] = BenchCamera.dropped
+    times = b.run.observer.setpoint_times
+    r["setpoint_stream"] = setpoint_stream_gaps(times, window_end if times else None, offboard)
+    return _delivery_report(config, backend, b, r, summary, cpu_cap, cap)
+
+
+def _delivery_report(
+    config: CompanionConfig,
+    backend: str,
+    b: BenchDelivery,
+    r: dict[str, Any],
+    summary: Any,
+    cpu_cap: float | None,
+    cap: _CpuCap,
+) -> dict[str, Any]:
+    """The delivery run's own figures beside :func:`_report`'s."""
+    from companion_lab.demo import true_pad_ned
+
+    shell, dropped = b.run.shell, b.run.sim_camera.frames_dropped
+    r["camera"]["frames_dropped"] = dropped
     r["camera"]["frames_paced"] = shell.stats.frames_paced
     r["vision_cpu_budget"] = config.runtime.vision_cpu_budget
     r["vision_thread_nice"] = config.runtime.vision_thread_nice
     r["realtime_priority"] = config.runtime.realtime_priority
     r["realtime"] = shell.stats.realtime
-    r["realtime_simulator_threads"] = sim_realtime
-    r["camera"]["frames_dropped_pct"] = round(100.0 * BenchCamera.dropped / max(1, BenchCamera.dropped + lat.frames), 2)
+    r["realtime_simulator_threads"] = b.run.observer.realtime_simulator_threads
+    r["camera"]["frames_dropped_pct"] = round(100.0 * dropped / max(1, dropped + r["camera"]["frames_processed"]), 2)
     # the guidance loop and the setpoint stream (the shell's other loops poll the landing sensors)
     rt = config.runtime
     names = {f"shell {rt.guidance_rate_hz:g} Hz", f"shell {rt.setpoint_rate_hz:g} Hz"}
-    guidance = [(n, rl) for n, rl in _CountedRateLoop.registry if n in names]
-    ticks = sum(rl.ticks for _, rl in guidance)
-    r["guidance_overruns_pct"] = round(100.0 * sum(rl.overruns for _, rl in guidance) / max(1, ticks), 3)
-    r["offboard_failsafes"] = [m for _, m in vehicle.status_texts if m.startswith("offboard lost")]
+    guidance = [rl for n, rl in b.run.loops.loops if n in names]
+    ticks = sum(rl.ticks for rl in guidance)
+    r["guidance_overruns_pct"] = round(100.0 * sum(rl.overruns for rl in guidance) / max(1, ticks), 3)
+    r["offboard_failsafes"] = [m for _, m in b.vehicle.status_texts if m.startswith("offboard lost")]
+    pad_n, pad_e = true_pad_ned(config)
 
     def near_pad(t: Any) -> bool:
         return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
 
-    pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
+    pad_td = [t for t in b.vehicle.touchdowns if near_pad(t)]
     r["pad_landing_error_m"] = (
         round(math.hypot(pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e), 4) if pad_td else None
     )
     r["delivered"] = summary.delivered
-    if cgroup is not None and keeper is not None:
-        r["cpu_cap"] = {
-            "fraction_of_one_core": cpu_cap,
-            "cgroup": cgroup.describe(),
-            "simulator_inside_the_cap": keeper.world_inside,
-            "periods": throttle1.get("nr_periods", 0) - throttle0.get("nr_periods", 0),
-            "throttled_periods": throttle1.get("nr_throttled", 0) - throttle0.get("nr_throttled", 0),
-            "throttled_ms": round((throttle1.get("throttled_time", 0) - throttle0.get("throttled_time", 0)) / 1e6, 1),
-            "logging_process": "its own cgroup at the same cap (another core)" if log_cgroup else "inside the cap",
-            "logging_throttled_periods": log_throttle1.get("nr_throttled", 0) - log_throttle0.get("nr_throttled", 0),
-        }
+    capped = cap.report(cpu_cap)
+    if capped is not None:
+        r["cpu_cap"] = capped
     r["camera"]["rate_hz"] = config.landing.camera_rate_hz
     # "frame listener": the camera task woke when each frame became readable; "polled": at the poll rate
     r["camera"]["read"] = shell.stats.camera_read
@@ -730,7 +922,8 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
             _snapshot(end)
         finally:
             await ap.close()
-    r = _report(acct, lat, threads0, end, proc0, wall0, DART_TASKS, p.sim.camera_latency_s * 1e3)
+    dart_loops = _CountedRateLoop.registry
+    r = _report(acct, lat, threads0, end, proc0, wall0, DART_TASKS, p.sim.camera_latency_s * 1e3, dart_loops)
     r["camera"]["rate_hz"] = p.runtime.rates.vision_hz
     r["commands_sent"] = summary.stats.overrides_sent + summary.stats.attitude_targets_sent
     return {"app": "dart", "backend": backend, "mission_phase_at_end": summary.phase.value, **r}
@@ -745,6 +938,7 @@ def _report(
     wall0: float,
     tasks: tuple[str, ...],
     capture_latency_ms: float,
+    rate_loops: list[tuple[str, scheduling.RateLoop]],
 ) -> dict[str, Any]:
     """CPU per task, RSS, latency and loop overruns of one run (see the module's CPU method)."""
     threads1, py_names = end["threads"], end["py_names"]
@@ -777,7 +971,7 @@ def _report(
 
     loops = [
         {"loop": name, "rate_hz": round(1.0 / rl.period_s, 3), "ticks": rl.ticks, "overruns": rl.overruns}
-        for name, rl in _CountedRateLoop.registry
+        for name, rl in rate_loops
     ]
     det = percentiles(lat.detect_ms)
     lat_all = percentiles(lat.all_ms)
@@ -790,7 +984,7 @@ def _report(
     judged, judged_on = (lat_fused, "frames fused while they steer") if lat_fused["n"] else (lat_all, "all frames")
     target_ms = LATENCY_BUDGET_MS + (det["p99"] or 0.0) + capture_latency_ms
     non_vision = pct(companion_s - per_task.get("vision", 0.0))
-    overruns = sum(rl.overruns for _, rl in _CountedRateLoop.registry)
+    overruns = sum(rl.overruns for _, rl in rate_loops)
     return {
         "duration_s": round(wall_s, 3),
         "cpu": {

@@ -3,6 +3,7 @@ accounting pieces it is built from."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import subprocess
@@ -318,3 +319,53 @@ def test_setpoint_stream_of_a_run_folder(tmp_path):
     (tmp_path / "setpoints.csv").unlink()
     with pytest.raises(BenchInputError, match=r"setpoints\.csv"):
         run_setpoint_stream(tmp_path)
+
+
+@pytest.mark.flight
+def test_the_bench_measures_a_seeded_flight_through_the_shell_hooks(tmp_path):
+    """The bench's instruments on a lock-step sitl_short flight (virtual time): its observer sees
+    every tick, every setpoint and the frames fused while they steer, the stage timer and the
+    proxies account each task, the rate-loop factories see the shell's and the simulator's loops,
+    and the window's end stops guidance without failing the mission."""
+    from companion.config import load_config, shipped_params_path
+    from companion.flightlog.recorder import FlightRecorder
+    from companion_lab.bench.app import BenchObserver, instrumented_shell
+    from companion_lab.demo import true_pad_ned
+    from companion_sitl.autopilot import SimAutopilot
+    from companion_sitl.clock import run_virtual
+    from companion_sitl.vehicle import SimVehicle
+
+    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"landing": {"fusion": True}})
+    window_s = 25.0  # the pad is in view from ~10 s
+    acct, lat, ended = CpuAccount(), LatencyTracker(), []
+
+    async def flight():
+        vehicle = SimVehicle(config.sim)
+        vehicle.set_pad_truth(*true_pad_ned(config))
+        ap = SimAutopilot(config.sim, vehicle)
+        observer = BenchObserver(lat, window_s, lambda: ended.append(asyncio.get_running_loop().time()))
+        with FlightRecorder(tmp_path / "run", config, mcap=False) as rec:
+            run = instrumented_shell(config, ap, vehicle, rec, acct, observer, vision_in_thread=False, telemetry=False)
+            try:
+                return run, await run.shell.run(timeout_s=window_s + 30.0)
+            finally:
+                await ap.close()
+
+    run, summary = run_virtual(flight())
+    shell, observer = run.shell, run.observer
+    assert summary.failure == "" and not shell.mission.phase.terminal  # stopped, not timed out
+    assert len(ended) == 1 and not observer.measuring
+    ticks = shell.stats.guidance_ticks
+    assert window_s * 20 - 2 <= ticks <= window_s * 20 + 1
+    # every setpoint sent in the window, guidance's and the stream's, was seen
+    assert 0 < len(observer.setpoint_times) == shell.stats.setpoints_sent
+    assert lat.frames > 0 and lat.detections > 0 and len(lat.detect_ms) == lat.frames
+    assert lat.fused_ms and lat.all_ms and len(lat.all_ms) == len(lat.to_setpoint_ms)
+    assert all(ms >= 1e3 * config.landing.camera_latency_s - 1e-6 for ms in lat.all_ms)
+    tasks = {task for task, _tid in acct.by_task_tid}
+    assert {"guidance", "fusion", "vision", "logging", "link", "sim_render", "sim_sensors", "sim_uwb"} <= tasks
+    assert acct.calls["guidance"] >= 2 * ticks - 2  # the estimator's update and the mission's step
+    names = [name for name, _ in run.loops.loops]
+    assert names.count("shell 20 Hz") == 2 and "shell 60 Hz" in names  # guidance, stream, the sensors' poll
+    assert "sim sensor 30 Hz" in names and "sim sensor 10 Hz" in names
+    assert run.sim_camera.frames_dropped >= 0 and run.sim_camera.rendered >= lat.frames
