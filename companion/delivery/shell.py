@@ -311,9 +311,9 @@ class DeliveryShell:
 
     def stop(self, reason: str) -> None:
         """End the guidance loop at its next tick, before it steps the mission again, without
-        failing the mission (a bench's measured window is over); the shell then stops as after a
-        finished mission. Nothing is commanded: the autopilot's offboard-loss failsafe acts on a
-        vehicle left in the air."""
+        failing the mission (a bench's measured window is over); the setpoint stream ends with it
+        and the shell stops as after a finished mission. Nothing is commanded: the autopilot's
+        offboard-loss failsafe acts on a vehicle left in the air."""
         self._stop_reason = reason
 
     async def run(self, timeout_s: float | None = None) -> MissionSummary:
@@ -531,6 +531,7 @@ class DeliveryShell:
             now, _ = await rate.tick_or(self._marker_fused)
             if self._stop_reason is not None:
                 log.info("guidance stopped: %s; the mission is in phase %s", self._stop_reason, mission.phase.value)
+                self._setpoint = None  # the stream ends on purpose: not a stalled control task
                 break
             live.renew()
             self.stats.guidance_overruns, self.stats.guidance_ticks = rate.overruns, rate.ticks
