@@ -15,8 +15,11 @@ rules that tie keys together (a pad marker that does not fit, coplanar anchors).
 | anchors | ``uwb_anchors_pad.toml`` | ``companion.uwb.anchors.load_anchor_layout`` |
 | zenoh | ``zenoh_*.toml`` | ``companion.telemetry.session.load_settings`` |
 
-The defaults here are the loaders' defaults and the limits are theirs, so ``params check`` accepts
-exactly what the application loads (tests/test_param_kinds.py holds keys and defaults together).
+The Dart's ``[control]`` and ``[mission]`` tables are taken as they are by the Dart
+(``companion.dart.params.DartControlGains``, ``companion.dart.mission.DartMissionConfig``). For
+the other tables the defaults here are the loaders' defaults and the limits are theirs, so
+``params check`` accepts exactly what the application loads (tests/test_param_kinds.py holds keys
+and defaults together).
 """
 
 from __future__ import annotations
@@ -231,7 +234,11 @@ class DartSimTable(_Section):
 
 
 class DartControlTable(_Section):
-    """Gains of the four decoupled PIDs (dart 3.2.2), in RC microseconds (companion.dart.params)."""
+    """Gains of the four decoupled PIDs (dart 3.2.2), in RC microseconds: ``[control]``, taken as
+    it is by the Dart (``companion.dart.params.DartControlGains``, ``controller_config``).
+    "Horizontal" is C_x and C_z (roll and pitch), "vertical" C_y (climb). dart 3.2.2: the PIDs
+    were tuned on numerical simulations of a simplified model; these are tuned on the simulator
+    (companion_sitl.dart_sim), identical for every estimator."""
 
     horizontal_kp: float = _s(400.0, "us/m", "roll/pitch P", ge=0.0)
     horizontal_ki: float = _s(120.0, "us/(m s)", "roll/pitch I", ge=0.0)
@@ -249,7 +256,8 @@ class DartControlTable(_Section):
 
 
 class DartMissionTable(_Section):
-    """Hover points in the marker frame, the approach's peak speed, the hover time (dart 5)."""
+    """Hover points in the marker frame, the approach's peak speed, the hover time (dart 5):
+    ``[mission]``, taken as it is by the Dart mission (``companion.dart.mission.DartMissionConfig``)."""
 
     start_distance_m: float = _s(4.0, "m", "hover distance in front of the marker (dart 5.2)", gt=0.0)
     end_distance_m: float = _s(1.5, "m", "distance the approach ends at (< start_distance_m)", gt=0.0)
@@ -264,9 +272,19 @@ class DartMissionTable(_Section):
     def _towards(self) -> DartMissionTable:
         if self.end_distance_m >= self.start_distance_m:
             raise ValueError(
-                f"end_distance_m ({self.end_distance_m}) must be < start_distance_m ({self.start_distance_m})"
+                f"end_distance_m ({self.end_distance_m}) must be < start_distance_m ({self.start_distance_m}): "
+                "the approach moves towards the marker"
             )
         return self
+
+    @property
+    def path_length_m(self) -> float:
+        return self.start_distance_m - self.end_distance_m
+
+    @property
+    def approach_duration_s(self) -> float:
+        """T = 2 D / v of the triangular profile."""
+        return 2.0 * self.path_length_m / self.max_speed_m_s
 
 
 class DartRuntimeTable(_Section):

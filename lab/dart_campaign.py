@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from companion.dart.estimators import ESTIMATORS, corrected_sample_std
 from companion.dart.mission import DartMissionConfig
+from companion.dart.params import controller_config
 from companion_sitl.dart_sim import ESTIMATOR_GIMBAL, DartParams, DartSim, load_dart_params, shipped_dart_params
 
 log = logging.getLogger(__name__)
@@ -82,7 +82,8 @@ def run_dart_campaign(
         raise ValueError(f"need duration_s > settle_s >= 0 (got {duration_s}, {settle_s})")
     names = resolve_estimators(estimators)
     loaded = params if isinstance(params, DartParams) else load_dart_params(params or shipped_dart_params())
-    mission: DartMissionConfig = replace(loaded.mission, approach=False, hover_s=0.0)
+    hover_only = {**loaded.mission.model_dump(), "approach": False, "hover_s": 0.0}
+    mission: DartMissionConfig = DartMissionConfig.model_validate(hover_only)
     result: dict[str, Any] = {
         "n": n,
         "seed": seed,
@@ -102,7 +103,7 @@ def run_dart_campaign(
                 loaded.sim,
                 mission,
                 seed=seed + k,
-                controller=loaded.control.controller_config(),
+                controller=controller_config(loaded.control),
             )
             sim.run_until(duration_s)
             est_rows.append(sim.errors(settle_s))

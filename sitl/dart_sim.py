@@ -73,10 +73,11 @@ from companion.dart.mission import (
     DartMissionConfig,
     dataclass_from_table,
     load_mission_config,
+    model_from_table,
     read_toml,
 )
 from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
-from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables
+from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables, controller_config
 from companion.geometry import Transform, euler_to_rotmat
 from companion.vision.camera import CameraModel, load_default_camera
 from companion.vision.detector import MarkerObservation, PadDetector, marker_normal_in_camera, rotation_angle
@@ -237,7 +238,7 @@ def load_dart_params(path: str | Path) -> DartParams:
     check_tables(doc, path)
     return DartParams(
         sim=dataclass_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
-        control=dataclass_from_table(DartControlGains, doc.get("control", {}), path, "control"),
+        control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
         runtime=dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
     )
@@ -440,7 +441,7 @@ class DartSim:
         self.name = self.estimator.name
         self.gimbal = gimbal if gimbal is not None else ESTIMATOR_GIMBAL[self.name]
         self.mission = DartMission(mission or DartMissionConfig(approach=False, hover_s=1e9))
-        self.controller = DartController(controller or DartControlGains().controller_config(self.rates.control_hz))
+        self.controller = DartController(controller or controller_config(DartControlGains(), self.rates.control_hz))
         self.mixer_config = RcMixerConfig()
         self.mixer = RcMixer(self.mixer_config, on_disengage=self.controller.disengage)
         self.attitude_map = AttitudeMapConfig(

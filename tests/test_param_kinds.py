@@ -211,15 +211,18 @@ def _defaults(cls: type) -> dict[str, object]:
     "schema, loader_class",
     [
         (DartSimTable, DartSimConfig),
-        (DartControlTable, DartControlGains),
-        (DartMissionTable, DartMissionConfig),
         (DartRuntimeTable, DartRuntimeConfig),
         (PadTable, PadLayout),
     ],
-    ids=["dart.sim", "dart.control", "dart.mission", "dart.runtime", "pad"],
+    ids=["dart.sim", "dart.runtime", "pad"],
 )
 def test_schema_keys_and_defaults_are_the_loaders(schema: type, loader_class: type) -> None:
     assert schema().model_dump() == _defaults(loader_class)
+
+
+def test_the_dart_gains_and_mission_are_their_schema() -> None:
+    """[control] and [mission] are declared once: the Dart takes the schema's models as they are."""
+    assert DartControlGains is DartControlTable and DartMissionConfig is DartMissionTable
 
 
 def test_zenoh_and_camera_and_anchor_schemas_know_the_loaders_keys() -> None:

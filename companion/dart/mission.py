@@ -20,8 +20,9 @@ Engagement (the pilot's switch, read by the RC mixer) drives the state machine: 
 MANUAL (no setpoint is used; the pilot flies); every engagement starts the mission over with the
 hover at the start point. The module is pure and synchronous: time and the switch are inputs.
 
-:func:`dataclass_from_table` loads a TOML table into a frozen dataclass with errors naming the
-file, key, value and rule (used for params/dart_hover.toml here and by the simulator).
+:func:`model_from_table` loads a TOML table into its schema (companion.param_kinds), and
+:func:`dataclass_from_table` into a frozen dataclass, with errors naming the file, key, value and
+rule (params/dart_hover.toml, here and in the simulator).
 """
 
 from __future__ import annotations
@@ -36,11 +37,16 @@ from enum import Enum
 from pathlib import Path
 from typing import Any, TypeVar
 
+from pydantic import BaseModel, ValidationError
+
+from companion.config import _format_errors
 from companion.dart.control import DartSetpoint
+from companion.param_kinds import DartMissionTable
 
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
+M = TypeVar("M", bound=BaseModel)
 
 
 class DartParamsError(ValueError):
@@ -94,6 +100,24 @@ def dataclass_from_table(cls: type[T], table: Mapping[str, Any], source: str | P
         raise DartParamsError(f"{source}: [{section}] {exc}") from exc
 
 
+def model_from_table(cls: type[M], table: Mapping[str, Any], source: str | Path, section: str) -> M:
+    """A table of a Dart parameter file validated against its schema ``cls`` (companion.param_kinds);
+    a bad key or value raises :class:`DartParamsError` naming ``source``, ``[section] key``, the
+    value and the rule."""
+    if not isinstance(table, Mapping):
+        raise DartParamsError(f"{source}: [{section}] = {table!r}: must be a table")
+    try:
+        return cls.model_validate(dict(table))
+    except ValidationError as err:
+        unknown = [e for e in err.errors() if e["type"] == "extra_forbidden"]
+        if unknown:  # as dataclass_from_table says it: the allowed keys with it
+            e = unknown[0]
+            problem = f"{e['loc'][0]} = {e['input']!r}: unknown key (allowed: {', '.join(cls.model_fields)})"
+        else:
+            problem = "; ".join(_format_errors(err, dict(table)))
+        raise DartParamsError(f"{source}: [{section}] {problem}") from None
+
+
 def read_toml(path: str | Path) -> dict[str, Any]:
     """A TOML file as a dict; unreadable or invalid files raise :class:`DartParamsError`."""
     p = Path(path)
@@ -109,49 +133,15 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ mission
-@dataclass(frozen=True, slots=True)
-class DartMissionConfig:
-    """The hover points (marker frame, metres), the profile's peak speed and the hover time."""
-
-    start_distance_m: float = 4.0  # dart 5.2: hovering "in front of a marker at 4 m distance"
-    end_distance_m: float = 1.5  # dart 5.3: "reaches a distance of 1.5 m away from the marker"
-    x_m: float = 0.0  # lateral offset of the path (marker x, right)
-    y_m: float = 0.0  # height of the path relative to the marker centre (marker y, up)
-    yaw_rad: float = 0.0  # heading setpoint relative to facing the marker
-    max_speed_m_s: float = 0.1  # dart 5.3: "the maximum value of the velocity is 0.1 m/s"
-    hover_s: float = 25.0  # hover before the approach (dart Fig. 16: 25 s, from 25 s to 50 s)
-    approach: bool = True  # False: hover at the start point only (the hover experiment)
-
-    def __post_init__(self) -> None:
-        for name in ("start_distance_m", "end_distance_m", "max_speed_m_s"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ValueError(f"{name} = {v!r}: must be a finite number > 0")
-        if not (math.isfinite(self.hover_s) and self.hover_s >= 0.0):
-            raise ValueError(f"hover_s = {self.hover_s!r}: must be a finite number >= 0")
-        for name in ("x_m", "y_m", "yaw_rad"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} = {getattr(self, name)!r}: must be finite")
-        if self.end_distance_m >= self.start_distance_m:
-            raise ValueError(
-                f"end_distance_m = {self.end_distance_m!r}: must be less than start_distance_m "
-                f"= {self.start_distance_m!r} (the approach moves towards the marker)"
-            )
-
-    @property
-    def path_length_m(self) -> float:
-        return self.start_distance_m - self.end_distance_m
-
-    @property
-    def approach_duration_s(self) -> float:
-        """T = 2 D / v of the triangular profile."""
-        return 2.0 * self.path_length_m / self.max_speed_m_s
+#: ``[mission]`` of a Dart parameter file: its schema (unit, limits, description of each key) is
+#: declared once, in companion.param_kinds
+DartMissionConfig = DartMissionTable
 
 
 def load_mission_config(path: str | Path) -> DartMissionConfig:
     """The ``[mission]`` table of a Dart parameter file (params/dart_hover.toml)."""
     doc = read_toml(path)
-    return dataclass_from_table(DartMissionConfig, doc.get("mission", {}), path, "mission")
+    return model_from_table(DartMissionConfig, doc.get("mission", {}), path, "mission")
 
 
 def triangular_profile(t_s: float, length_m: float, max_speed_m_s: float) -> tuple[float, float]:
@@ -245,6 +235,7 @@ __all__ = [
     "DartPhase",
     "dataclass_from_table",
     "load_mission_config",
+    "model_from_table",
     "read_toml",
     "triangular_profile",
 ]

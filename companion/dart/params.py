@@ -21,7 +21,6 @@ i.e. to the pilot's sticks. For an autopilot that reports the raw receiver (PX4)
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,8 +32,10 @@ from companion.dart.mission import (
     DartParamsError,
     dataclass_from_table,
     load_mission_config,
+    model_from_table,
     read_toml,
 )
+from companion.param_kinds import DartControlTable
 from companion.vision.opencv_threads import check_opencv_threads
 
 #: tables of a Dart parameter file; [sim] belongs to the simulator
@@ -51,57 +52,32 @@ def _check(name: str, v: float, *, low: float | None = None, positive: bool = Fa
         raise ValueError(f"{name} = {v!r}: must be >= {low}")
 
 
-@dataclass(frozen=True, slots=True)
-class DartControlGains:
-    """Gains of the four decoupled PIDs (dart.control.DartController) in RC microseconds per
-    metre (kp), per metre-second (ki), per metre/second (kd); yaw in us per rad. "Horizontal" is
-    C_x and C_z (roll and pitch), "vertical" C_y (climb). dart sec. 3.2.2: the PIDs were tuned on
-    numerical simulations of a simplified model; these are tuned on the simulator
-    (companion_sitl.dart_sim), identical for every estimator."""
+#: ``[control]`` of a Dart parameter file, declared once (unit, limits, description of each
+#: gain) in companion.param_kinds
+DartControlGains = DartControlTable
 
-    horizontal_kp: float = 400.0
-    horizontal_ki: float = 120.0
-    horizontal_kd: float = 250.0
-    horizontal_limit_us: float = 200.0
-    horizontal_i_limit_us: float = 100.0
-    vertical_kp: float = 150.0
-    vertical_ki: float = 40.0
-    vertical_kd: float = 60.0
-    vertical_limit_us: float = 200.0
-    vertical_i_limit_us: float = 150.0
-    d_filter_tau_s: float = 0.1
-    yaw_kp: float = 200.0
-    yaw_limit_us: float = 150.0
 
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            _check(f.name, getattr(self, f.name), low=0.0)
-        for name in ("horizontal_limit_us", "vertical_limit_us", "yaw_limit_us"):
-            _check(name, getattr(self, name), positive=True)
+def controller_config(gains: DartControlGains, rate_hz: float = 22.0) -> DartControllerConfig:
+    """The four PIDs (companion.dart.control.DartController) from the file's gains: the
+    horizontal ones on C_x and C_z, the vertical one on C_y, yaw proportional and wrapped."""
 
-    def controller_config(self, rate_hz: float = 22.0) -> DartControllerConfig:
-        def pid(kp: float, ki: float, kd: float, lim: float, ilim: float) -> PidGains:
-            return PidGains(
-                kp=kp,
-                ki=ki,
-                kd=kd,
-                d_filter_tau_s=self.d_filter_tau_s,
-                out_min=-lim,
-                out_max=lim,
-                i_min=-ilim,
-                i_max=ilim,
-            )
-
-        h = pid(
-            self.horizontal_kp,
-            self.horizontal_ki,
-            self.horizontal_kd,
-            self.horizontal_limit_us,
-            self.horizontal_i_limit_us,
+    def pid(kp: float, ki: float, kd: float, lim: float, ilim: float) -> PidGains:
+        return PidGains(
+            kp=kp,
+            ki=ki,
+            kd=kd,
+            d_filter_tau_s=gains.d_filter_tau_s,
+            out_min=-lim,
+            out_max=lim,
+            i_min=-ilim,
+            i_max=ilim,
         )
-        v = pid(self.vertical_kp, self.vertical_ki, self.vertical_kd, self.vertical_limit_us, self.vertical_i_limit_us)
-        yaw = PidGains(kp=self.yaw_kp, out_min=-self.yaw_limit_us, out_max=self.yaw_limit_us, wrap_error=True)
-        return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
+
+    g = gains
+    h = pid(g.horizontal_kp, g.horizontal_ki, g.horizontal_kd, g.horizontal_limit_us, g.horizontal_i_limit_us)
+    v = pid(g.vertical_kp, g.vertical_ki, g.vertical_kd, g.vertical_limit_us, g.vertical_i_limit_us)
+    yaw = PidGains(kp=g.yaw_kp, out_min=-g.yaw_limit_us, out_max=g.yaw_limit_us, wrap_error=True)
+    return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
 
 
 @dataclass(frozen=True, slots=True)
@@ -249,7 +225,7 @@ def load_dart_flight_params(path: str | Path) -> DartFlightParams:
     doc = read_toml(path)
     check_tables(doc, path)
     return DartFlightParams(
-        control=dataclass_from_table(DartControlGains, doc.get("control", {}), path, "control"),
+        control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
         runtime=dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
     )
@@ -261,6 +237,7 @@ __all__ = [
     "DartFlightParams",
     "DartRuntimeConfig",
     "check_tables",
+    "controller_config",
     "load_dart_flight_params",
     "load_runtime_config",
 ]

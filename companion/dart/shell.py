@@ -62,7 +62,7 @@ from companion.dart.estimators import (
 )
 from companion.dart.mission import DartMission, DartPhase
 from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
-from companion.dart.params import DartFlightParams, DartRuntimeConfig
+from companion.dart.params import DartFlightParams, DartRuntimeConfig, controller_config
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry import wrap_angle
 from companion.scheduling import (
@@ -261,7 +261,7 @@ class DartShell:
         )
         self.detector = PadDetector(self.camera_model, self.layout)
         self.mission = DartMission(p.mission)
-        self.controller = DartController(p.control.controller_config(rt.control_hz))
+        self.controller = DartController(controller_config(p.control, rt.control_hz))
         self.mixer_config = _mixer_config(rt)
         self.mixer = RcMixer(self.mixer_config, on_disengage=self._on_disengage)
         self.attitude_map = AttitudeMapConfig(

@@ -11,6 +11,7 @@ import pytest
 
 from companion.dart.estimators import GimbalKind, corrected_sample_std
 from companion.dart.mission import DartParamsError
+from companion.dart.params import controller_config
 from companion.geometry import rotmat_to_euler
 from companion_lab.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
 from companion_sitl.dart_sim import (
@@ -154,7 +155,7 @@ def test_cli_registers_campaign_dart() -> None:
 def test_shipped_params_and_errors(tmp_path: Path) -> None:
     p = load_dart_params(shipped_dart_params())
     assert p.sim == DartSimConfig() and p.mission.start_distance_m == 4.0
-    assert p.control.controller_config().x.kp == p.control.horizontal_kp
+    assert controller_config(p.control).x.kp == p.control.horizontal_kp
     bad = tmp_path / "bad.toml"
     bad.write_text("[sim]\ngimbal_tau_s = 0.0\n")
     with pytest.raises(DartParamsError) as err:
