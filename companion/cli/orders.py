@@ -13,13 +13,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import signal
 import sys
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -210,6 +211,152 @@ def order_settings(config: CompanionConfig) -> Any:
         raise ConfigError("telemetry.commands.secret_file", [str(err)]) from None
 
 
+@dataclass
+class _Live:
+    """What the session's signal handler and event sink reach while it runs: the flight's shell and
+    the connection being waited for."""
+
+    shell: Any = None
+    connecting: asyncio.Task[None] | None = None
+
+
+@contextlib.contextmanager
+def _signals(loop: asyncio.AbstractEventLoop, handler: Callable[[str], None]) -> Iterator[None]:
+    """SIGINT and SIGTERM call ``handler(name)`` while in the block."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, handler, signal.Signals(sig).name)
+    try:
+        yield
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.remove_signal_handler(sig)
+
+
+async def _next_order(desk: Any, stop: asyncio.Event) -> Any:
+    """The next accepted order, or None when ``stop`` came first."""
+    getter = asyncio.ensure_future(desk.next_order())
+    stopper = asyncio.ensure_future(stop.wait())
+    done, _ = await asyncio.wait({getter, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    if getter not in done:
+        getter.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await getter
+        return None
+    stopper.cancel()
+    return getter.result()
+
+
+async def _fly_order(
+    live: _Live,
+    cfg: CompanionConfig,
+    flight_dir: Path,
+    *,
+    config: CompanionConfig,
+    autopilot: Any,
+    desk: Any,
+    session: Any,
+    flight_timeout_s: float,
+    on_tick: Callable[[Any, Any], None] | None,
+    landing_for: Callable[[CompanionConfig], Any] | None,
+    before_flight_for: Callable[[CompanionConfig, Any], Any] | None,
+) -> Any:
+    """One accepted order's delivery: its summary, or why it could not start."""
+    from companion.cli.exits import StartupError
+    from companion.delivery.shell import DeliveryShell
+    from companion.flightlog.recorder import FlightRecorder
+
+    try:
+        kit = landing_for(cfg) if landing_for is not None else None
+    except Exception as err:  # a sensor that cannot start: this order is not flown
+        log.error("order flight: landing sensors: %s", err)
+        return f"landing sensors: {err}"
+    recorder = FlightRecorder(flight_dir, cfg)
+    shell = live.shell = DeliveryShell(
+        cfg,
+        autopilot,
+        telemetry=config.telemetry.enabled,
+        recorder=recorder,
+        landing=kit,
+        before_flight=before_flight_for(cfg, kit) if before_flight_for is not None else None,
+        zenoh_session=session,
+    )
+    desk.phase = shell.mission.phase
+
+    def follow(sh: Any, o: Any) -> None:
+        desk.phase = sh.mission.phase
+        if sh.telemetry is not None:  # the health topic counts refused orders too
+            sh.telemetry.publisher.count_refusals("orders", lambda: desk.refused)
+        if on_tick is not None:
+            on_tick(sh, o)
+
+    shell.add_observer(TickCallback(follow))
+    try:
+        return await shell.run(timeout_s=flight_timeout_s)
+    except StartupError as err:  # the pre-flight check refused: nothing was armed
+        return str(err)
+    finally:
+        recorder.close()
+
+
+def _flown(out: OrderSession, desk: Any, order_id: str, flight_dir: Path, summary_or_why: Any, stopped: bool) -> None:
+    """The order's flight in the session and its outcome told to the desk."""
+    if isinstance(summary_or_why, str):
+        # not started: interrupted when the operator's signal came meanwhile
+        kind = FailureKind.OPERATOR_ABORT if stopped else FailureKind.NONE
+        out.flights.append(FlownOrder(order_id, flight_dir, False, False, summary_or_why, kind))
+        desk.finished(order_id, f"not flown: {summary_or_why}")
+        return
+    s = summary_or_why
+    outcome = (
+        ("delivered" if s.delivered else "not delivered")
+        + (", returned home" if s.returned else "")
+        + (f" ({s.failure})" if s.failure else "")
+    )
+    out.flights.append(FlownOrder(order_id, flight_dir, s.delivered, s.returned, s.failure, s.failure_kind))
+    desk.finished(order_id, outcome)
+
+
+async def _connect(
+    live: _Live, autopilot: Any, config: CompanionConfig, stop: asyncio.Event, abort_reason: str
+) -> None:
+    """Connect to the autopilot; a signal while waiting ends the session before any flight."""
+    from companion.delivery.shell import AbortedBeforeFlight
+
+    live.connecting = asyncio.get_running_loop().create_task(
+        autopilot.connect(timeout_s=config.runtime.connect_timeout_s)
+    )
+    try:
+        await live.connecting
+    except asyncio.CancelledError:
+        if not stop.is_set():
+            raise
+        raise AbortedBeforeFlight(f"{abort_reason} while waiting for the autopilot") from None
+
+
+async def _take_orders(
+    live: _Live, desk: Any, stop: asyncio.Event, run_dir: Path, out: OrderSession, fly: Callable[..., Any]
+) -> None:
+    """Order after order until ``stop``: each accepted one flown by ``fly(config, flight_dir)``."""
+    n = 0
+    while not stop.is_set():
+        accepted = await _next_order(desk, stop)
+        if accepted is None:
+            break
+        order_id = accepted.order.order_id
+        if stop.is_set():  # accepted as Ctrl-C came: the operator ended the session first
+            desk.finished(order_id, "not flown: the session was ended (Ctrl-C)")
+            break
+        n += 1
+        flight_dir = run_dir / f"{n:02d}-{order_id}"
+        try:
+            summary_or_why = await fly(accepted.config, flight_dir)
+        finally:
+            live.shell = None
+        _flown(out, desk, order_id, flight_dir, summary_or_why, stop.is_set())
+
+
 async def serve_orders(
     config: CompanionConfig,
     autopilot: Any,
@@ -232,9 +379,7 @@ async def serve_orders(
     ends); ``before_flight_for(config, kit)``: the flight's pre-flight check. Either raising ends
     that flight, not the session: it is reported as the order's failure."""
     from companion.delivery.orders import OrderDesk
-    from companion.delivery.shell import AbortedBeforeFlight, DeliveryShell
     from companion.delivery.telemetry import zenoh_settings_from_config
-    from companion.flightlog.recorder import FlightRecorder
     from companion.telemetry.schema import MissionMessage
 
     auth = order_settings(config)
@@ -242,115 +387,42 @@ async def serve_orders(
     stop = stop or asyncio.Event()
     loop = asyncio.get_running_loop()
     out = OrderSession()
-    shell: DeliveryShell | None = None
+    live = _Live()
 
     def event(ev: MissionEvent) -> None:
         out.events.append(ev)
-        if shell is not None and shell.telemetry is not None:
-            shell.telemetry.publisher.publish(MissionMessage.for_event(ev))
+        if live.shell is not None and live.shell.telemetry is not None:
+            live.shell.telemetry.publisher.publish(MissionMessage.for_event(ev))
         if on_event is not None:
             on_event(ev)
 
-    connecting: asyncio.Task[None] | None = None
-
     def on_signal(name: str) -> None:
         stop.set()
-        if connecting is not None and not connecting.done():
-            connecting.cancel()  # nothing commanded yet: stop waiting for the autopilot
-        if shell is not None:
-            shell.abort(f"{abort_reason} ({name})", FailureKind.OPERATOR_ABORT)
-
-    async def _fly_one(cfg: CompanionConfig, flight_dir: Path) -> Any:
-        """One accepted order's delivery: its summary, or why it could not start."""
-        nonlocal shell
-        from companion.cli.exits import StartupError
-
-        try:
-            kit = landing_for(cfg) if landing_for is not None else None
-        except Exception as err:  # a sensor that cannot start: this order is not flown
-            log.error("order flight: landing sensors: %s", err)
-            return f"landing sensors: {err}"
-        recorder = FlightRecorder(flight_dir, cfg)
-        shell = DeliveryShell(
-            cfg,
-            autopilot,
-            telemetry=config.telemetry.enabled,
-            recorder=recorder,
-            landing=kit,
-            before_flight=before_flight_for(cfg, kit) if before_flight_for is not None else None,
-            zenoh_session=session,
-        )
-        desk.phase = shell.mission.phase
-
-        def follow(sh: Any, o: Any) -> None:
-            desk.phase = sh.mission.phase
-            if sh.telemetry is not None:  # the health topic counts refused orders too
-                sh.telemetry.publisher.count_refusals("orders", lambda: desk.refused)
-            if on_tick is not None:
-                on_tick(sh, o)
-
-        shell.add_observer(TickCallback(follow))
-        try:
-            return await shell.run(timeout_s=flight_timeout_s)
-        except StartupError as err:  # the pre-flight check refused: nothing was armed
-            return str(err)
-        finally:
-            recorder.close()
+        if live.connecting is not None and not live.connecting.done():
+            live.connecting.cancel()  # nothing commanded yet: stop waiting for the autopilot
+        if live.shell is not None:
+            live.shell.abort(f"{abort_reason} ({name})", FailureKind.OPERATOR_ABORT)
 
     session = await asyncio.to_thread(zs.open_or_explain)
     desk = OrderDesk(config, autopilot.telemetry, auth, csv_path=run_dir / "orders.csv", on_event=event)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, on_signal, signal.Signals(sig).name)
+    fly = functools.partial(
+        _fly_order,
+        live,
+        config=config,
+        autopilot=autopilot,
+        desk=desk,
+        session=session,
+        flight_timeout_s=flight_timeout_s,
+        on_tick=on_tick,
+        landing_for=landing_for,
+        before_flight_for=before_flight_for,
+    )
     try:
-        connecting = loop.create_task(autopilot.connect(timeout_s=config.runtime.connect_timeout_s))
-        try:
-            await connecting
-        except asyncio.CancelledError:
-            if not stop.is_set():
-                raise
-            raise AbortedBeforeFlight(f"{abort_reason} while waiting for the autopilot") from None
-        desk.start(session)
-        n = 0
-        while not stop.is_set():
-            getter = asyncio.ensure_future(desk.next_order())
-            stopper = asyncio.ensure_future(stop.wait())
-            done, _ = await asyncio.wait({getter, stopper}, return_when=asyncio.FIRST_COMPLETED)
-            if getter not in done:
-                getter.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await getter
-                break
-            stopper.cancel()
-            accepted = getter.result()
-            order_id = accepted.order.order_id
-            if stop.is_set():  # accepted as Ctrl-C came: the operator ended the session first
-                desk.finished(order_id, "not flown: the session was ended (Ctrl-C)")
-                break
-            n += 1
-            flight_dir = run_dir / f"{n:02d}-{order_id}"
-            try:
-                summary_or_why = await _fly_one(accepted.config, flight_dir)
-            finally:
-                shell = None
-            if isinstance(summary_or_why, str):
-                # not started: interrupted when the operator's signal came meanwhile
-                kind = FailureKind.OPERATOR_ABORT if stop.is_set() else FailureKind.NONE
-                out.flights.append(FlownOrder(order_id, flight_dir, False, False, summary_or_why, kind))
-                desk.finished(order_id, f"not flown: {summary_or_why}")
-                continue
-            s = summary_or_why
-            outcome = (
-                ("delivered" if s.delivered else "not delivered")
-                + (", returned home" if s.returned else "")
-                + (f" ({s.failure})" if s.failure else "")
-            )
-            out.flights.append(FlownOrder(order_id, flight_dir, s.delivered, s.returned, s.failure, s.failure_kind))
-            desk.finished(order_id, outcome)
+        with _signals(loop, on_signal):
+            await _connect(live, autopilot, config, stop, abort_reason)
+            desk.start(session)
+            await _take_orders(live, desk, stop, run_dir, out, fly)
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                loop.remove_signal_handler(sig)
         out.accepted, out.refused = desk.accepted, desk.refused
         desk.stop()
         try:
@@ -358,6 +430,60 @@ async def serve_orders(
         finally:
             await asyncio.to_thread(session.close)
     return out
+
+
+def _check_orders_options(args: argparse.Namespace, config: CompanionConfig, where: str) -> None:
+    """``--orders`` refused before anything is opened: with --record-camera, a mission whose pad is
+    not the parameters' (each order names it), no order secret."""
+    from companion.cli.exits import StartupError
+
+    if getattr(args, "record_camera", None):
+        raise StartupError("--record-camera is for one flight; leave it out with --orders", exits.BAD_INPUT)
+    if config.mission.destination != "params":
+        raise StartupError(
+            f"mission.destination = {config.mission.destination!r} {where}: with --orders each order names the pad; "
+            "set mission.destination = 'params' (the default) or fly without --orders",
+            exits.BAD_INPUT,
+        )
+    order_settings(config)  # no secret: refused before anything is opened
+
+
+def _orders_run_folder(args: argparse.Namespace) -> Path:
+    from companion.cli.exits import StartupError
+
+    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("orders-%Y%m%d-%H%M%S")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StartupError(
+            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
+        ) from None
+    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
+    return run_dir
+
+
+def _print_session(session: OrderSession, run_dir: Path, quiet: bool) -> None:
+    """The session's orders: one JSON line (``quiet``, ``--json``) or a line per flight."""
+    import json
+
+    flights = [
+        {
+            "order_id": f.order_id,
+            "delivered": f.delivered,
+            "returned": f.returned,
+            "failure": f.failure,
+            "run_dir": str(f.run_dir),
+        }
+        for f in session.flights
+    ]
+    if quiet:
+        doc = {"accepted": session.accepted, "refused": session.refused, "flights": flights, "run_dir": str(run_dir)}
+        print(json.dumps(doc))
+    else:
+        print(f"orders: {session.accepted} accepted, {session.refused} refused, {len(flights)} flown")
+        for f in session.flights:
+            what = ("DELIVERED" if f.delivered else "NOT DELIVERED") + (", returned home" if f.returned else "")
+            print(f"  {f.order_id}: {what}{' - ' + f.failure if f.failure else ''} ({f.run_dir})")
 
 
 def cmd_fly_orders(
@@ -371,29 +497,12 @@ def cmd_fly_orders(
     event on the terminal (``--json``: one JSON line at the end). Start-up failures raise
     :class:`StartupError` as ``fly`` does; a flight's failure does not end the session. ``fly``
     hands over its autopilot factory, pre-flight hook and operator-abort reason."""
-    import json
-
     from companion.cli.exits import StartupError
     from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
 
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
-    if getattr(args, "record_camera", None):
-        raise StartupError("--record-camera is for one flight; leave it out with --orders", exits.BAD_INPUT)
-    if config.mission.destination != "params":
-        raise StartupError(
-            f"mission.destination = {config.mission.destination!r} {where}: with --orders each order names the pad; "
-            "set mission.destination = 'params' (the default) or fly without --orders",
-            exits.BAD_INPUT,
-        )
-    order_settings(config)  # no secret: refused before anything is opened
-    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("orders-%Y%m%d-%H%M%S")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise StartupError(
-            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
-        ) from None
-    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
+    _check_orders_options(args, config, where)
+    run_dir = _orders_run_folder(args)
     quiet = getattr(args, "json", False)
 
     def say(ev: MissionEvent) -> None:
@@ -433,24 +542,7 @@ def cmd_fly_orders(
                 abort_reason=abort_reason,
             )
         )
-    flights = [
-        {
-            "order_id": f.order_id,
-            "delivered": f.delivered,
-            "returned": f.returned,
-            "failure": f.failure,
-            "run_dir": str(f.run_dir),
-        }
-        for f in session.flights
-    ]
-    if quiet:
-        doc = {"accepted": session.accepted, "refused": session.refused, "flights": flights, "run_dir": str(run_dir)}
-        print(json.dumps(doc))
-    else:
-        print(f"orders: {session.accepted} accepted, {session.refused} refused, {len(flights)} flown")
-        for f in session.flights:
-            what = ("DELIVERED" if f.delivered else "NOT DELIVERED") + (", returned home" if f.returned else "")
-            print(f"  {f.order_id}: {what}{' - ' + f.failure if f.failure else ''} ({f.run_dir})")
+    _print_session(session, run_dir, quiet)
     lost = exits.say_logs_incomplete("fly", run_dir)  # a full disk in a flight: its logs stopped, not it
     if any(f.failure_kind is FailureKind.OPERATOR_ABORT for f in session.flights):  # Ctrl-C in flight: ended
         return exits.INTERRUPTED
