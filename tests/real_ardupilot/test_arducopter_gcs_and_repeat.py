@@ -14,13 +14,11 @@ import math
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.gcs_plan import ReleaseWhere, delivery_plan
 from companion_firmware.gcs_probe import GcsProbe
-from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink.link import free_udp_port
 
 from .conftest import GRIPPER_SERVO9
@@ -28,20 +26,6 @@ from .conftest import GRIPPER_SERVO9
 pytestmark = pytest.mark.firmware
 
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
-
-
-def _config(connection: str):
-    tuning = firmware_tuning("ardupilot")
-    return load_config(
-        shipped_params_path("sitl_short.toml"),
-        overrides={
-            "autopilot": "ardupilot",
-            "connection": connection,
-            "mission": {**tuning["mission"], "ready_timeout_s": 120.0},  # EKF3 uses GPS ~41 s after boot
-            "landing": tuning["landing"],
-            "telemetry": {"enabled": False},
-        },
-    )
 
 
 def _gcs_plan(config):
@@ -66,7 +50,7 @@ async def _fly(config, on_tick=None) -> DeliveryShell:
     return shell
 
 
-async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardupilot_root, tmp_path):
+async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardupilot_root, tmp_path, mav):
     gcs_port = free_udp_port()
     sitl = ArduCopterSitl(
         ardupilot_root,
@@ -75,7 +59,7 @@ async def test_arducopter_delivery_after_delivery_and_a_return_from_the_gcs(ardu
         log_path=tmp_path / "arducopter.log",
     )
     with sitl, GcsProbe(f"udpin:127.0.0.1:{gcs_port}") as gcs:
-        config = _config(sitl.connection)
+        config = mav.firmware_config("ardupilot", sitl.connection, 120.0)  # EKF3 uses GPS ~41 s after boot
         where = ReleaseWhere()
         home = None  # flight 1's, where the plan is drawn from
         pad = None

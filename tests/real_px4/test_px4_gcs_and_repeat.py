@@ -15,31 +15,15 @@ import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import FlightMode
-from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import Phase
 from companion_firmware.gcs_plan import ReleaseWhere, delivery_plan
 from companion_firmware.gcs_probe import GcsProbe
 from companion_firmware.px4_sitl import Px4Sitl
-from companion_lab.real_campaign import firmware_tuning
 
 pytestmark = pytest.mark.firmware
 
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
-
-
-def _config():
-    tuning = firmware_tuning("px4")
-    return load_config(
-        shipped_params_path("sitl_short.toml"),
-        overrides={
-            "connection": "udpin://127.0.0.1:14540",
-            "autopilot": "px4",
-            "mission": {**tuning["mission"], "ready_timeout_s": 60.0},
-            "landing": tuning["landing"],
-            "telemetry": {"enabled": False},
-        },
-    )
 
 
 def _gcs_plan(config):
@@ -66,8 +50,8 @@ async def _fly(config, on_tick=None) -> tuple[DeliveryShell, Px4Autopilot]:
     return shell, ap
 
 
-async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, tmp_path):
-    config = _config()
+async def test_px4_delivery_after_delivery_and_a_return_from_the_gcs(px4_root, tmp_path, mav):
+    config = mav.firmware_config("px4", "udpin://127.0.0.1:14540", 60.0)
     with Px4Sitl(px4_root, log_path=tmp_path / "px4.log"), GcsProbe("udpin:127.0.0.1:14550") as gcs:
         # 1, 2: delivery after delivery; each leaves PX4 in HOLD, where the next one arms. The second
         # is the plan the operator's GCS uploads to PX4 (docs/gcs.md): a waypoint at another pad and
