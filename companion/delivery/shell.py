@@ -491,6 +491,10 @@ class DeliveryShell:
             for ob in self._watching():
                 ob.on_text(done, SEVERITY_NOTICE)
 
+    def now(self) -> float:
+        """The shell's clock: the loop's time (simulated on the virtual loop), s."""
+        return self._clock.now()
+
     def where_it_stands(self, now: float) -> str:
         """The mission's phase, the request it waits on, and what the autopilot last said (mode,
         armed, landed, height, and how old each is): for a mission that ends without finishing,
