@@ -574,3 +574,21 @@ def test_a_landing_mode_the_mission_did_not_ask_for_is_not_its_touchdown():
     for (a pilot's switch it did not see armed): nothing released."""
     m, _ = _landing_after(math.inf, 0.05, FlightMode.LAND)
     assert m.phase is Phase.FAILED and m.summary.failure_kind is FailureKind.AUTOPILOT_LANDED
+
+
+def test_a_touchdown_outside_the_pad_by_the_estimate_releases_nothing():
+    """No pad-lock policy (GPS only), the vehicle reported on the ground 2 m from the pad's centre
+    (a 1 m pad): no release, the parcel flown home (ARM for the way back); 0.4 m off: released."""
+    for off_m, released in ((2.0, False), (0.4, True)):
+        m = DeliveryMission(cfg())
+        arm = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
+        m.on_result(RequestResult(arm.id, True))  # armed: no request in flight
+        m.enter(Phase.LANDING_PAD)
+        pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+        ground = status(0.05, armed=False, mode=FlightMode.OFFBOARD)
+        out = m.step(MissionInputs(0.05, est(0.05, pn + off_m, pe, 0.0), ground, HOME))
+        if released:
+            assert m.phase is Phase.RELEASE, off_m
+        else:
+            assert out.request is not None and out.request.kind is RequestKind.ARM and m.phase is Phase.ARMING
+            assert m.summary.failure_kind is FailureKind.NOT_DELIVERED and "outside the pad" in m.summary.failure

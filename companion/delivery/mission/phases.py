@@ -243,6 +243,7 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
         if est is not None:
             if leg is Leg.OUT:
                 m.summary.pad_touchdown_ned = est.position_ned
+                st.touchdown_off_pad_m = _off_the_pad_m(m, est)
             else:
                 m.summary.home_touchdown_ned = est.position_ned
         m.emit(EventKind.TOUCHDOWN, "pad" if leg is Leg.OUT else "home")
@@ -261,9 +262,23 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
     if not status.armed:
         if leg is Leg.OUT and not st.touchdown_lock[0]:
             return Step(request=m.pads.home_with_parcel(f"no pad lock at touchdown: {st.touchdown_lock[1]}"))
+        if leg is Leg.OUT and st.touchdown_off_pad_m > 0.0:
+            off = st.touchdown_off_pad_m
+            return Step(request=m.pads.home_with_parcel(f"touched down {off:.2f} m outside the pad (by the estimate)"))
         after_touchdown(m, leg)
         return NOTHING
     return Step(request=_ask_to_disarm(m, inp, st))
+
+
+def _off_the_pad_m(m: MissionBase, est: StateEstimate) -> float:
+    """How far the estimate puts the vehicle outside the pad it lands on (0 on it): its distance
+    from the pad's centre beyond half the pad's side (mission.pad.size_m; the circle within the
+    square). A parcel is never released where the mission's own estimate says it is off the pad,
+    lock or no lock (a GPS-only delivery that came down late after a stall, 2 m off)."""
+    assert m.pad_ned is not None
+    pad = m.cfg.alternate_pad if m.pad_index and m.cfg.alternate_pad is not None else m.cfg.pad
+    off = math.hypot(est.north_m - float(m.pad_ned[0]), est.east_m - float(m.pad_ned[1])) - 0.5 * pad.size_m
+    return max(0.0, off)
 
 
 def precision_descent(m: MissionBase, est: StateEstimate, leg: Leg, time_s: float, in_sight: bool) -> VelocitySetpoint:

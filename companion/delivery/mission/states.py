@@ -45,6 +45,7 @@ class LandingState(PhaseState):
     touchdown_lock: tuple[bool, str] = (True, "")  # the pad lock judged at touchdown
     # the touchdown was the companion's (its descent, or a LAND it asked for), judged when first seen
     touchdown_ours: bool = True
+    touchdown_off_pad_m: float = 0.0  # how far outside the pad the estimate put the touchdown (0: on it)
     precland_requested: bool = False
     touchdown_land_requested: bool = False  # the last metres handed to the autopilot's LAND
     disarm_not_before: float = -math.inf
