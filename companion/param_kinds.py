@@ -15,8 +15,9 @@ rules that tie keys together (a pad marker that does not fit, coplanar anchors).
 | anchors | ``uwb_anchors_pad.toml`` | ``companion.uwb.anchors.load_anchor_layout`` |
 | zenoh | ``zenoh_*.toml`` | ``companion.telemetry.session.load_settings`` |
 
-The Dart's ``[control]`` and ``[mission]`` tables are taken as they are by the Dart
-(``companion.dart.params.DartControlGains``, ``companion.dart.mission.DartMissionConfig``). For
+The Dart's ``[control]``, ``[mission]`` and ``[runtime]`` tables are the Dart's own configs
+(``companion.dart.params.DartControlGains``, ``companion.dart.mission.DartMissionConfig``, and
+``DartRuntimeConfig``, which adds the rules that need the Dart's modules). For
 the other tables the defaults here are the loaders' defaults and the limits are theirs, so
 ``params check`` accepts exactly what the application loads (tests/test_param_kinds.py holds keys
 and defaults together).
@@ -42,6 +43,8 @@ def _s(default: Any, unit: str, description: str, **limits: Any) -> Any:
 
 
 IntQuad = tuple[int, int, int, int]
+#: RC channels a Dart file may name (MAVLink RC_CHANNELS carries 18)
+DART_RC_CHANNELS = 18
 
 # ----------------------------------------------------------------------------------- camera
 _DISTORTION = Literal["opencv", "dart"]
@@ -299,7 +302,7 @@ class DartRuntimeTable(_Section):
     control_hz: float = _s(22.0, "Hz", "control rate (dart 4: 22 Hz)", gt=0.0)
     command_hz: float = _s(44.0, "Hz", "command rate (>= control_hz)", gt=0.0)
     log_hz: float = _s(20.0, "Hz", "log rate", gt=0.0)
-    switch_channel: int = _s(7, "-", "RC channel of the pilot's engage switch", ge=1, le=18)
+    switch_channel: int = _s(7, "-", "RC channel of the pilot's engage switch", ge=1, le=DART_RC_CHANNELS)
     engage_above_us: float = _s(1700.0, "us", "switch PWM above which the cyber-pilot is engaged")
     stick_channels: IntQuad = _f((1, 2, 3, 4), "-", "channels the autopilot flies on (roll, pitch, throttle, yaw)")
     pilot_channels: IntQuad = _f((9, 10, 11, 12), "-", "channels the pilot's sticks are read on (mirrored)")
@@ -333,6 +336,39 @@ class DartRuntimeTable(_Section):
         ge=0,
         le=98,
     )
+
+    @model_validator(mode="after")
+    def _channels_and_rates(self) -> DartRuntimeTable:
+        if any(v < 0.0 for v in self.max_contribution_us):
+            raise ValueError(f"max_contribution_us = {list(self.max_contribution_us)}: must be >= 0")
+        chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)
+        if any(not 1 <= c <= DART_RC_CHANNELS for c in chans):
+            raise ValueError(f"channels must be in 1..{DART_RC_CHANNELS}: {chans}")
+        if len(set(self.stick_channels)) != 4 or self.switch_channel in self.stick_channels:
+            raise ValueError(
+                f"stick_channels = {self.stick_channels!r} and switch_channel = {self.switch_channel}: must all differ"
+            )
+        if len(set(self.pilot_channels)) != 4 or self.switch_channel in self.pilot_channels:
+            raise ValueError(
+                f"pilot_channels = {self.pilot_channels!r}: four different channels, not the switch channel"
+            )
+        if set(self.pilot_channels) & set(self.stick_channels) and self.pilot_channels != self.stick_channels:
+            raise ValueError(
+                f"pilot_channels = {self.pilot_channels!r}: either the stick_channels themselves or channels "
+                f"apart from them (stick_channels = {self.stick_channels!r})"
+            )
+        if self.command_hz < self.control_hz:
+            raise ValueError(f"command_hz = {self.command_hz!r}: must be >= control_hz = {self.control_hz!r}")
+        return self
+
+    @property
+    def estimator_name(self) -> str:
+        return self.estimator.strip().upper().replace("_", "-")
+
+    @property
+    def pilot_mirrored(self) -> bool:
+        """The pilot's sticks are read on other channels than the ones the autopilot flies on."""
+        return self.pilot_channels != self.stick_channels
 
 
 class DartFile(_Section):

@@ -28,7 +28,7 @@ import struct
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
@@ -296,7 +296,7 @@ async def _fly(
     m = p.mission
     p0 = np.array([truth.pn, truth.pe, truth.pd])
     p_marker = p0 - R_wm @ np.array([m.x_m, m.y_m, m.start_distance_m])
-    rt = replace(rt, marker_heading_deg=math.degrees(heading))
+    rt = rt.replaced(marker_heading_deg=math.degrees(heading))
     name = rt.estimator.strip().upper().replace("_", "-")
     camera = TruthWallCamera(
         truth,

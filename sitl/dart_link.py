@@ -452,7 +452,7 @@ class DartLinkSim:
             raise ValueError(f"dialect {dialect!r}: must be 'ardupilot' or 'px4'")
         p = params or DartParams()
         if dialect == "px4":  # PX4 reports the receiver's raw channels: the pilot is read there
-            p = replace(p, runtime=replace(p.runtime, pilot_channels=p.runtime.stick_channels))
+            p = replace(p, runtime=p.runtime.replaced(pilot_channels=p.runtime.stick_channels))
         self.params = p
         self.dialect = dialect
         d = p.sim
@@ -628,7 +628,7 @@ async def fly_dart_link(
         else:
             ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{port}", stream_rates_hz=DART_STREAM_RATES_HZ)
         await ap.connect(timeout_s=10.0)
-        rt = replace(sim.params.runtime, estimator=name)
+        rt = sim.params.runtime.replaced(estimator=name)
         shell = DartShell(
             ap,
             sim.camera,

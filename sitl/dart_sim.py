@@ -240,7 +240,7 @@ def load_dart_params(path: str | Path) -> DartParams:
         sim=dataclass_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
         control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
-        runtime=dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
+        runtime=model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
     )
 
 

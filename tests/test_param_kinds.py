@@ -211,18 +211,20 @@ def _defaults(cls: type) -> dict[str, object]:
     "schema, loader_class",
     [
         (DartSimTable, DartSimConfig),
-        (DartRuntimeTable, DartRuntimeConfig),
         (PadTable, PadLayout),
     ],
-    ids=["dart.sim", "dart.runtime", "pad"],
+    ids=["dart.sim", "pad"],
 )
 def test_schema_keys_and_defaults_are_the_loaders(schema: type, loader_class: type) -> None:
     assert schema().model_dump() == _defaults(loader_class)
 
 
-def test_the_dart_gains_and_mission_are_their_schema() -> None:
-    """[control] and [mission] are declared once: the Dart takes the schema's models as they are."""
+def test_the_dart_gains_mission_and_runtime_are_their_schema() -> None:
+    """[control], [mission] and [runtime] are declared once: the Dart takes the schema's models."""
     assert DartControlGains is DartControlTable and DartMissionConfig is DartMissionTable
+    # [runtime] adds rules that need the Dart's modules (the estimators' names), no keys
+    assert issubclass(DartRuntimeConfig, DartRuntimeTable)
+    assert DartRuntimeConfig.model_fields.keys() == DartRuntimeTable.model_fields.keys()
 
 
 def test_zenoh_and_camera_and_anchor_schemas_know_the_loaders_keys() -> None:

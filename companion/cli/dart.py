@@ -132,7 +132,7 @@ def _load(args: argparse.Namespace) -> Any:
     if upd:
         params = replace(params, mission=replace(mission, **upd))
     if args.estimator:
-        params = replace(params, runtime=replace(params.runtime, estimator=args.estimator))
+        params = replace(params, runtime=params.runtime.replaced(estimator=args.estimator))
     return params
 
 

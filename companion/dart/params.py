@@ -21,35 +21,27 @@ i.e. to the pilot's sticks. For an autopilot that reports the raw receiver (PX4)
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+from pydantic import field_validator
 
 from companion.dart.control import DartControllerConfig, PidGains
 from companion.dart.estimators import ESTIMATORS, DartTaskRates
 from companion.dart.mission import (
     DartMissionConfig,
     DartParamsError,
-    dataclass_from_table,
     load_mission_config,
     model_from_table,
     read_toml,
 )
-from companion.param_kinds import DartControlTable
+from companion.param_kinds import DART_RC_CHANNELS, DartControlTable, DartRuntimeTable
 from companion.vision.opencv_threads import check_opencv_threads
 
 #: tables of a Dart parameter file; [sim] belongs to the simulator
 DART_TABLES = ("sim", "control", "mission", "runtime")
-N_RC_CHANNELS = 18
-
-
-def _check(name: str, v: float, *, low: float | None = None, positive: bool = False) -> None:
-    if not math.isfinite(v):
-        raise ValueError(f"{name} = {v!r}: must be finite")
-    if positive and not v > 0.0:
-        raise ValueError(f"{name} = {v!r}: must be > 0")
-    if low is not None and v < low:
-        raise ValueError(f"{name} = {v!r}: must be >= {low}")
+N_RC_CHANNELS = DART_RC_CHANNELS
 
 
 #: ``[control]`` of a Dart parameter file, declared once (unit, limits, description of each
@@ -80,108 +72,23 @@ def controller_config(gains: DartControlGains, rate_hz: float = 22.0) -> DartCon
     return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
 
 
-@dataclass(frozen=True, slots=True)
-class DartRuntimeConfig:
-    """The Dart runtime on a real autopilot (companion.dart.shell.DartShell). Channels are
-    1-based (MAVLink chanN_raw); stick tuples are (roll, pitch, throttle, yaw)."""
+class DartRuntimeConfig(DartRuntimeTable):
+    """The Dart runtime on a real autopilot (companion.dart.shell.DartShell): ``[runtime]``, its
+    keys declared once in :class:`companion.param_kinds.DartRuntimeTable` (channels 1-based, stick
+    tuples (roll, pitch, throttle, yaw)). Here only what needs the Dart's own modules: the
+    estimator's name among the estimators, OpenCV's thread setting, the task rates."""
 
-    estimator: str = "SCF-MF-3DOF"
-    # task rates, dart sec. 4 (vision is aperiodic: the camera's frame rate; vision_hz is its poll)
-    imu_hz: float = 200.0
-    vision_hz: float = 30.0
-    control_hz: float = 22.0
-    command_hz: float = 44.0
-    log_hz: float = 20.0
-    # hybrid mixer (dart sec. 2.2): the pilot's switch engages, the sticks are read on
-    # pilot_channels and the autopilot flies on stick_channels
-    switch_channel: int = 7
-    engage_above_us: float = 1700.0
-    stick_channels: tuple[int, int, int, int] = (1, 2, 3, 4)
-    pilot_channels: tuple[int, int, int, int] = (9, 10, 11, 12)
-    stick_reversed: tuple[bool, bool, bool, bool] = (False, False, False, False)
-    max_contribution_us: tuple[float, float, float, float] = (300.0, 300.0, 250.0, 300.0)
-    # full stick deflection (500 us) for attitude setpoints (PX4; match ArduPilot's ANGLE_MAX)
-    max_tilt_deg: float = 35.0
-    max_yaw_rate_deg_s: float = 150.0
-    # watchdogs
-    contribution_timeout_s: float = 0.15  # an older control output is not mixed (pilot only)
-    rc_timeout_s: float = 0.3  # no RC_CHANNELS for this long: pilot unknown -> disengage, release
-    release_repeat: int = 5  # release messages sent after a disengagement (then silence)
-    # geometry: heading (NED, deg) of a drone facing the wall marker; the 3-DOF gimbal holds it
-    marker_heading_deg: float = 0.0
-    align_yaw_to_autopilot: bool = True  # Madgwick yaw := autopilot heading at each engagement
-    lens_offset_m: tuple[float, float, float] = (0.08, 0.0, 0.03)  # lens from the CoT, body FRD
-    # camera (a companion.cameras plugin) and the marker
-    camera_plugin: str = "opencv"
-    camera_source: str = "0"
-    camera_latency_s: float = 0.0  # subtracted from the capture time stamp (exposure -> read)
-    camera_file: str = ""  # calibration TOML ("" = the shipped Raspberry Pi camera v2)
-    camera_scale: float = 1.0
-    outer_size_m: float = 0.5
-    inner_size_m: float = 0.09
-    pad_size_m: float = 0.6
-    # threads OpenCV's parallel loops may use (companion.vision.opencv_threads; -1: OpenCV's default)
-    opencv_threads: int = 1
-    # Linux SCHED_RR priority of the shell's threads (the loop's and those it starts; the vision
-    # thread one lower), as the delivery's runtime.realtime_priority (docs/flying.md); 0: normal
-    realtime_priority: int = 0
+    @field_validator("estimator")
+    @classmethod
+    def _known_estimator(cls, v: str) -> str:
+        if v.strip().upper().replace("_", "-") not in ESTIMATORS:
+            raise ValueError(f"must be one of {', '.join(ESTIMATORS)}")
+        return v
 
-    def __post_init__(self) -> None:
-        key = self.estimator.strip().upper().replace("_", "-")
-        if key not in ESTIMATORS:
-            raise ValueError(f"estimator = {self.estimator!r}: must be one of {', '.join(ESTIMATORS)}")
-        for name in (
-            "imu_hz",
-            "vision_hz",
-            "control_hz",
-            "command_hz",
-            "log_hz",
-            "max_tilt_deg",
-            "max_yaw_rate_deg_s",
-            "contribution_timeout_s",
-            "rc_timeout_s",
-            "camera_scale",
-            "outer_size_m",
-            "inner_size_m",
-            "pad_size_m",
-        ):
-            _check(name, getattr(self, name), positive=True)
-        _check("camera_latency_s", self.camera_latency_s, low=0.0)
-        for name in ("marker_heading_deg", "engage_above_us"):
-            _check(name, getattr(self, name))
-        for v in (*self.lens_offset_m, *self.max_contribution_us):
-            _check("lens_offset_m / max_contribution_us", v)
-        if any(v < 0.0 for v in self.max_contribution_us):
-            raise ValueError(f"max_contribution_us = {self.max_contribution_us!r}: must be >= 0")
-        check_opencv_threads(self.opencv_threads)
-        if isinstance(self.realtime_priority, bool) or not 0 <= self.realtime_priority <= 98:
-            raise ValueError(f"realtime_priority = {self.realtime_priority!r}: an integer 0..98 (0: normal policy)")
-        if not self.max_tilt_deg < 80.0:
-            raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
-        chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)
-        if any(not 1 <= c <= N_RC_CHANNELS for c in chans):
-            raise ValueError(f"channels must be in 1..{N_RC_CHANNELS}: {chans}")
-        if len(set(self.stick_channels)) != 4 or self.switch_channel in self.stick_channels:
-            raise ValueError(
-                f"stick_channels = {self.stick_channels!r} and switch_channel = {self.switch_channel}: must all differ"
-            )
-        if len(set(self.pilot_channels)) != 4 or self.switch_channel in self.pilot_channels:
-            raise ValueError(
-                f"pilot_channels = {self.pilot_channels!r}: four different channels, not the switch channel"
-            )
-        if set(self.pilot_channels) & set(self.stick_channels) and self.pilot_channels != self.stick_channels:
-            raise ValueError(
-                f"pilot_channels = {self.pilot_channels!r}: either the stick_channels themselves or channels "
-                f"apart from them (stick_channels = {self.stick_channels!r})"
-            )
-        if self.release_repeat < 1:
-            raise ValueError(f"release_repeat = {self.release_repeat!r}: must be >= 1")
-        if self.command_hz < self.control_hz:
-            raise ValueError(f"command_hz = {self.command_hz!r}: must be >= control_hz = {self.control_hz!r}")
-
-    @property
-    def estimator_name(self) -> str:
-        return self.estimator.strip().upper().replace("_", "-")
+    @field_validator("opencv_threads", mode="before")
+    @classmethod
+    def _opencv_threads(cls, v: object) -> object:
+        return check_opencv_threads(v) if isinstance(v, int) else v  # the schema names a wrong type
 
     @property
     def rates(self) -> DartTaskRates:
@@ -190,10 +97,9 @@ class DartRuntimeConfig:
             command_hz=self.command_hz, log_hz=self.log_hz,
         )  # fmt: skip
 
-    @property
-    def pilot_mirrored(self) -> bool:
-        """The pilot's sticks are read on other channels than the ones the autopilot flies on."""
-        return self.pilot_channels != self.stick_channels
+    def replaced(self, **changes: Any) -> DartRuntimeConfig:
+        """A copy with ``changes``, checked as a file's values are."""
+        return type(self).model_validate({**self.model_dump(), **changes})
 
 
 @dataclass(frozen=True, slots=True)
@@ -217,7 +123,7 @@ def check_tables(doc: dict[str, object], path: str | Path) -> None:
 def load_runtime_config(path: str | Path) -> DartRuntimeConfig:
     """The ``[runtime]`` table of a Dart parameter file."""
     doc = read_toml(path)
-    return dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime")
+    return model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime")
 
 
 def load_dart_flight_params(path: str | Path) -> DartFlightParams:
@@ -227,7 +133,7 @@ def load_dart_flight_params(path: str | Path) -> DartFlightParams:
     return DartFlightParams(
         control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
-        runtime=dataclass_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
+        runtime=model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
     )
 
 

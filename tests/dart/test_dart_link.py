@@ -219,9 +219,9 @@ def test_runtime_params_load_and_reject_bad_values(tmp_path: Path) -> None:
         ('estimator = "EKF"', "estimator = 'EKF': must be one of"),
         ("pilot_channels = [9, 10, 11, 7]", "not the switch channel"),
         ("pilot_channels = [1, 2, 3, 9]", "either the stick_channels themselves"),
-        ("control_hz = 0.0", "control_hz = 0.0: must be > 0"),
+        ("control_hz = 0.0", "control_hz = 0.0: Input should be greater than 0"),
         ("command_hz = 10.0", "command_hz = 10.0: must be >= control_hz"),
-        ("realtime_priority = 99", "realtime_priority = 99: an integer 0..98"),
+        ("realtime_priority = 99", "realtime_priority = 99: Input should be less than or equal to 98"),
         ("speed = 1.0", "unknown key"),
     ):
         f.write_text(f"[runtime]\n{text}\n")
