@@ -71,7 +71,7 @@ def cut_torn_record(path: Path) -> None:
         with path.open("r+b") as fh:
             data = fh.read()
             pos = 0
-            while pos + 10 <= len(data) and data[pos + 8] == 0xFD:
+            while pos + 11 <= len(data) and data[pos + 8] == 0xFD:  # up to the incompat flags
                 end = pos + 8 + 12 + data[pos + 9] + (13 if data[pos + 10] & 1 else 0)
                 if end > len(data):
                     break

@@ -66,6 +66,8 @@ def test_tlog_bytes_continued(tmp_path: Path, fuzz_budget: int) -> None:
     seeds = [b"", one, many, many[:-5], many + one[:9], one[:8], b"\x00" * 64, many[:100] + b"\xfd" + many[100:]]
     # the second record's magic flipped: the cut used to drop every whole record after it
     seeds.append(many[: len(one) + 8] + b"\x02" + many[len(one) + 9 :])
+    # a record cut right after its length byte: the walk read the flags byte past the end (IndexError)
+    seeds.append(one + one[:10])
     n = itertools.count()
 
     def feed(data: bytes) -> str:
