@@ -39,6 +39,7 @@ from companion.autopilot.component import (
 from companion.autopilot.interface import Autopilot, AutopilotError
 from companion.config import GcsConfig
 from companion.delivery.host_status import HostStatusReader, onboard_computer_status
+from companion.delivery.mission import CommandOutcome, CommandReply
 from companion.events import EventKind, MissionEvent, Phase
 
 log = logging.getLogger(__name__)
@@ -101,15 +102,17 @@ def mission_kind(cmd: ComponentCommand) -> str | None:
     return None
 
 
-def ack_result(reply: str) -> int:
-    """MAV_RESULT of the mission's reply to a command (``DeliveryMission.command``'s wording)."""
-    if not reply.startswith("ignored"):
-        return MAV_RESULT_ACCEPTED
-    if reply.startswith("ignored: unknown command"):
-        return MAV_RESULT_UNSUPPORTED
-    if reply.startswith("ignored: mission already"):
-        return MAV_RESULT_DENIED
-    return MAV_RESULT_TEMPORARILY_REJECTED
+ACK_RESULTS = {
+    CommandOutcome.ACCEPTED: MAV_RESULT_ACCEPTED,
+    CommandOutcome.UNKNOWN: MAV_RESULT_UNSUPPORTED,
+    CommandOutcome.ENDED: MAV_RESULT_DENIED,
+    CommandOutcome.NOT_NOW: MAV_RESULT_TEMPORARILY_REJECTED,
+}
+
+
+def ack_result(reply: CommandReply) -> int:
+    """MAV_RESULT of the mission's reply to a command, by its outcome."""
+    return ACK_RESULTS[reply.outcome]
 
 
 class GcsComponent:
@@ -117,7 +120,7 @@ class GcsComponent:
     autopilot is connected, :meth:`on_events` with every tick's mission events, :meth:`close` at
     the end. ``command(kind, sender)`` runs a mission command and returns the mission's reply."""
 
-    def __init__(self, cfg: GcsConfig, autopilot: Autopilot, command: Callable[[str, str], str]) -> None:
+    def __init__(self, cfg: GcsConfig, autopilot: Autopilot, command: Callable[[str, str], CommandReply]) -> None:
         self.cfg = cfg
         self.autopilot = autopilot
         self.command = command

@@ -41,6 +41,7 @@ from companion.delivery.detection_pacer import DetectionPacer
 from companion.delivery.fusion import FusionSetup
 from companion.delivery.hooks import ShellHooks, TimedObserver
 from companion.delivery.mission import (
+    CommandReply,
     DeliveryMission,
     FailureKind,
     MissionInputs,
@@ -267,11 +268,11 @@ class DeliveryShell:
         self.made_ready: list[str] = []  # what make_ready did, before the mission and after it
         self._not_ready_said_s = -math.inf
 
-    def on_ground_command(self, cmd: Any) -> str:
+    def on_ground_command(self, cmd: Any) -> CommandReply:
         """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
         return self.command(cmd.kind.value, cmd.sender)
 
-    def command(self, kind: str, sender: str) -> str:
+    def command(self, kind: str, sender: str) -> CommandReply:
         """A hold / return / land / abort from the ground (Zenoh) or the operator's GCS (MAVLink,
         sender "gcs"), on the loop thread: to the mission, recorded; returns the mission's reply."""
         now = self._clock.now()

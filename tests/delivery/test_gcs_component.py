@@ -30,7 +30,7 @@ from companion.delivery.gcs import (
     mission_kind,
 )
 from companion.delivery.host_status import HostStatusReader, onboard_computer_status
-from companion.delivery.mission import DeliveryMission
+from companion.delivery.mission import CommandOutcome, CommandReply, DeliveryMission
 from companion.events import EventKind, MissionEvent, Phase
 
 
@@ -157,9 +157,11 @@ async def test_gcs_sees_and_commands_the_companion(mav, udp_port, dialect):
     config = mav.short_config()
     asked: list[tuple[str, str]] = []
 
-    def command(kind: str, sender: str) -> str:
+    def command(kind: str, sender: str) -> CommandReply:
         asked.append((kind, sender))
-        return "returning home along the path" if kind == "return" else "ignored: cannot hold from preflight"
+        if kind == "return":
+            return CommandReply(CommandOutcome.ACCEPTED, "returning home along the path")
+        return CommandReply(CommandOutcome.NOT_NOW, "ignored: cannot hold from preflight")
 
     with mav.sim_vehicle(config, dialect, udp_port, route_peers=True) as sim:
         if dialect == "px4":
@@ -235,9 +237,9 @@ async def test_commands_and_heartbeats_from_anyone_else_change_nothing(mav, udp_
     config = mav.short_config()
     asked: list[tuple[str, str]] = []
 
-    def command(kind: str, sender: str) -> str:
+    def command(kind: str, sender: str) -> CommandReply:
         asked.append((kind, sender))
-        return "returning home along the path"
+        return CommandReply(CommandOutcome.ACCEPTED, "returning home along the path")
 
     with mav.sim_vehicle(config, dialect, udp_port, route_peers=True) as sim:
         if dialect == "px4":
@@ -338,7 +340,11 @@ async def test_only_configured_systems_and_signed_commands_on_a_signed_link_reac
 ):
     asked: list[str] = []
     link = _Link()
-    comp = GcsComponent(GcsConfig(command_system_ids=(255, 42)), link, lambda kind, sender: asked.append(kind) or "ok")
+    comp = GcsComponent(
+        GcsConfig(command_system_ids=(255, 42)),
+        link,
+        lambda kind, sender: asked.append(kind) or CommandReply(CommandOutcome.ACCEPTED, "ok"),
+    )
     assert comp.open()
     try:
         link.on_command(ComponentCommand(0.0, source_system, 190, 20, 0, (0.0,) * 7, signed))

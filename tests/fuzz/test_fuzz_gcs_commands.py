@@ -24,7 +24,7 @@ from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.signing import SigningSetup
 from companion.config import CompanionConfig, GcsConfig
 from companion.delivery.gcs import GcsComponent
-from companion.delivery.mission import DeliveryMission
+from companion.delivery.mission import CommandReply, DeliveryMission
 from companion.events import Phase
 
 from . import harness
@@ -91,7 +91,7 @@ async def _through_component(setup_name: str, data: bytes) -> str:
     mission.phase = Phase.OUTBOUND
     calls: list[str] = []
 
-    def command(kind: str, sender: str) -> str:
+    def command(kind: str, sender: str) -> CommandReply:
         calls.append(kind)
         return mission.command(0.0, kind, sender)
 

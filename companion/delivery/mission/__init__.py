@@ -5,6 +5,7 @@ in parts: ``core`` (the step and what the phases share), ``phases`` (the handler
 shows who calls whom."""
 
 from companion.delivery.mission.base import FOLLOW_PHASES
+from companion.delivery.mission.commands import CommandOutcome, CommandReply
 from companion.delivery.mission.core import DeliveryMission
 from companion.delivery.mission.phases import TOUCHDOWN_REPORT_MARGIN_S
 from companion.delivery.mission.requests import MAX_REQUEST_TRIES, REQUEST_RETRY_DELAY_S
@@ -25,6 +26,8 @@ __all__ = [
     "MAX_REQUEST_TRIES",
     "REQUEST_RETRY_DELAY_S",
     "TOUCHDOWN_REPORT_MARGIN_S",
+    "CommandOutcome",
+    "CommandReply",
     "DeliveryMission",
     "FailureKind",
     "Leg",

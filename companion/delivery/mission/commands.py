@@ -4,6 +4,7 @@ setpoint still goes through the shell."""
 
 from __future__ import annotations
 
+import enum
 from typing import TYPE_CHECKING
 
 from companion.delivery.mission.states import AbortHoldState, AbortLandState
@@ -16,47 +17,70 @@ if TYPE_CHECKING:
 RETURNABLE_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT)
 
 
-def ground_command(m: MissionBase, time_s: float, kind: str, sender: str) -> str:
+class CommandOutcome(enum.Enum):
+    ACCEPTED = "accepted"  # done, or under way
+    NOT_NOW = "not_now"  # not in this phase (on the ground, the winch ending, nothing to return from)
+    ENDED = "ended"  # the mission has already ended
+    UNKNOWN = "unknown"  # not a command the mission knows
+
+
+class CommandReply(str):
+    """The mission's reply to a command: its text (for the operator and the log, a str as before)
+    and its ``outcome``, which the callers decide on (the GCS's MAV_RESULT)."""
+
+    outcome: CommandOutcome
+
+    def __new__(cls, outcome: CommandOutcome, text: str) -> CommandReply:
+        reply = super().__new__(cls, text)
+        reply.outcome = outcome
+        return reply
+
+
+def ground_command(m: MissionBase, time_s: float, kind: str, sender: str) -> CommandReply:
     """Returns what was done, for the reply and the log."""
     m.now = time_s
     if m.phase.terminal:
-        return f"ignored: mission already {m.phase.value}"
+        return CommandReply(CommandOutcome.ENDED, f"ignored: mission already {m.phase.value}")
     if kind == "abort":
         m.abort(time_s, f"ground command from {sender}: abort")
-        return "aborting: hold, then land"
+        return CommandReply(CommandOutcome.ACCEPTED, "aborting: hold, then land")
     if kind == "land":
         m.emit(EventKind.ABORT, f"ground command from {sender}: land here")
         if m.on_ground():
             m.summary.fail(FailureKind.ABORTED, f"ground command from {sender}: land (on the ground)")
             m.goto(Phase.FAILED)
-            return "on the ground: mission ended"
+            return CommandReply(CommandOutcome.ACCEPTED, "on the ground: mission ended")
         m.set_abort_reason(f"ground command from {sender}: land")
         m.goto(Phase.ABORT_LAND)
         m.state_as(AbortLandState).requested = False  # (again, when already landing)
-        return "landing where the vehicle is"
+        return CommandReply(CommandOutcome.ACCEPTED, "landing where the vehicle is")
     if kind == "hold":
         if m.on_ground():
-            return "ignored: on the ground"
+            return CommandReply(CommandOutcome.NOT_NOW, "ignored: on the ground")
         m.set_abort_reason(f"ground command from {sender}: hold")
         m.emit(EventKind.ABORT, m.abort_reason)
         m.goto(Phase.ABORT_HOLD)
         m.state_as(AbortHoldState).forever = True
-        return "holding position until the pilot takes over or a land/abort command"
+        return CommandReply(
+            CommandOutcome.ACCEPTED, "holding position until the pilot takes over or a land/abort command"
+        )
     if kind == "return":
         return _return(m, time_s, sender)
-    return f"ignored: unknown command {kind!r}"
+    return CommandReply(CommandOutcome.UNKNOWN, f"ignored: unknown command {kind!r}")
 
 
-def _return(m: MissionBase, time_s: float, sender: str) -> str:
+def _return(m: MissionBase, time_s: float, sender: str) -> CommandReply:
     if m.phase is Phase.WINCH and m.winch is not None:
         # the line comes in first (a parcel on the line would be dragged home); then inbound
         if m.winch.stop(time_s, f"ground command from {sender}: return"):
             m.emit(EventKind.WARNING, f"ground command from {sender}: reel in, then return home")
-            return "reeling in, then returning home along the path"
-        return "ignored: the winch sequence is already ending (reel in, then home)"
+            return CommandReply(CommandOutcome.ACCEPTED, "reeling in, then returning home along the path")
+        return CommandReply(
+            CommandOutcome.NOT_NOW, "ignored: the winch sequence is already ending (reel in, then home)"
+        )
     if m.phase in RETURNABLE_PHASES:
         m.emit(EventKind.WARNING, f"ground command from {sender}: return home without delivering")
         m.summary.fail(FailureKind.RETURNED_ON_COMMAND, "returned on ground command")
         m.goto(Phase.INBOUND)
-        return "returning home along the path"
-    return f"ignored: cannot return from {m.phase.value}"
+        return CommandReply(CommandOutcome.ACCEPTED, "returning home along the path")
+    return CommandReply(CommandOutcome.NOT_NOW, f"ignored: cannot return from {m.phase.value}")

@@ -28,7 +28,7 @@ from companion.config import (
 )
 from companion.delivery.gonogo import time_home_s, way_home
 from companion.delivery.mission.base import DELIVERY_LEG_PHASES, FOLLOW_PHASES, MissionBase
-from companion.delivery.mission.commands import ground_command
+from companion.delivery.mission.commands import CommandReply, ground_command
 from companion.delivery.mission.linkwatch import LinkCheck
 from companion.delivery.mission.padpolicy import PadPolicy
 from companion.delivery.mission.phases import HANDLERS
@@ -79,7 +79,7 @@ class DeliveryMission(MissionBase):
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
 
-    def command(self, time_s: float, kind: str, sender: str = "ground") -> str:
+    def command(self, time_s: float, kind: str, sender: str = "ground") -> CommandReply:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract
         (clamps, pilot priority) is untouched because every setpoint still goes through the shell.
         Returns what was done, for the reply and the log."""
