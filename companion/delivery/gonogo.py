@@ -12,11 +12,20 @@ downwards on the way home) down to the final-descent height, and the rest at the
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
 from companion.autopilot.types import Wind
 from companion.config import MissionConfig
+
+
+class GoNoGoVerdict(enum.Enum):
+    """A go/no-go check's verdict reached outside a guidance tick (the fence uploaded and read back,
+    or refused); its value is what commands.csv records."""
+
+    GO = "go"  # said, nothing changes
+    REFUSE = "refuse"  # the delivery is refused before take-off
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 from companion.delivery.fusion import FusionSetup, LandingFusion
+from companion.delivery.gonogo import GoNoGoVerdict
 from companion.delivery.mission import RequestResult
 from companion.delivery.observers import DeliveryShell, ShellObserver, ShellTick
 from companion.events import MissionEvent
@@ -98,7 +99,7 @@ class TimedObserver(ShellObserver):
     def on_abort(self, time_s: float, reason: str) -> None:
         self._abort(time_s, reason)
 
-    def on_go_no_go(self, time_s: float, verdict: str, detail: str) -> None:
+    def on_go_no_go(self, time_s: float, verdict: GoNoGoVerdict, detail: str) -> None:
         self._go(time_s, verdict, detail)
 
     def on_text(self, text: str, severity: int) -> None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from companion.autopilot.interface import Autopilot
+from companion.delivery.gonogo import GoNoGoVerdict
 from companion.delivery.mission import DeliveryMission, MissionInputs, MissionOutput, RequestResult
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent
@@ -79,7 +80,7 @@ class ShellObserver:
     def on_abort(self, time_s: float, reason: str) -> None:
         """An abort the shell was asked for, as the mission takes it."""
 
-    def on_go_no_go(self, time_s: float, verdict: str, detail: str) -> None:
+    def on_go_no_go(self, time_s: float, verdict: GoNoGoVerdict, detail: str) -> None:
         """A go/no-go verdict reached outside a tick (the fence uploaded, refused)."""
 
     def on_text(self, text: str, severity: int) -> None:
@@ -125,8 +126,8 @@ class RecorderObserver(ShellObserver):
     def on_abort(self, time_s: float, reason: str) -> None:
         self.recorder.on_abort(time_s, reason)
 
-    def on_go_no_go(self, time_s: float, verdict: str, detail: str) -> None:
-        self.recorder.on_go_no_go(time_s, verdict, detail)
+    def on_go_no_go(self, time_s: float, verdict: GoNoGoVerdict, detail: str) -> None:
+        self.recorder.on_go_no_go(time_s, verdict.value, detail)
 
     async def close(self, shell: DeliveryShell) -> None:
         self.recorder.detach()  # its owner closes it

@@ -33,6 +33,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from companion.delivery.gonogo import GoNoGoVerdict
 from companion.flightlog.csv_file import format_cell
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.losses import LossCause
@@ -345,7 +346,8 @@ class _ReplayShell:
             self.mission.abort(now, reason)
         elif k == "go_no_go":
             now, verdict, detail, _reply = inp.payload
-            (self.mission.refuse if verdict == "refuse" else self.mission.go_no_go)(now, detail)
+            refused = verdict == GoNoGoVerdict.REFUSE.value  # the token commands.csv records
+            (self.mission.refuse if refused else self.mission.go_no_go)(now, detail)
         elif k == "command":
             now, kind, sender, reply = inp.payload
             got = self.mission.command(now, kind, sender)

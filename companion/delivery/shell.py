@@ -39,6 +39,7 @@ from companion.delivery.detection_pacer import DetectionPacer
 # the landing fusion's modules load with the shell, not when the fusion starts at take-off: their
 # import (scipy.spatial among them) would take the loop's CPU from guidance in flight
 from companion.delivery.fusion import FusionSetup
+from companion.delivery.gonogo import GoNoGoVerdict
 from companion.delivery.hooks import ShellHooks, TimedObserver
 from companion.delivery.mission import (
     CommandReply,
@@ -435,17 +436,17 @@ class DeliveryShell:
                 raise AutopilotError(f"the fence read back differs from the one uploaded: {why}")
         except AutopilotError as err:
             log.error("fence refused: %s", err)
-            self._go_no_go("refuse", f"the autopilot's fence: {err}")
+            self._go_no_go(GoNoGoVerdict.REFUSE, f"the autopilot's fence: {err}")
             return
-        self._go_no_go("go", f"fence uploaded to the autopilot and read back: {fence.describe()}")
+        self._go_no_go(GoNoGoVerdict.GO, f"fence uploaded to the autopilot and read back: {fence.describe()}")
 
-    def _go_no_go(self, verdict: str, detail: str) -> None:
+    def _go_no_go(self, verdict: GoNoGoVerdict, detail: str) -> None:
         """A go/no-go verdict reached outside a guidance tick, to the mission (``refuse``: the
         delivery is refused; ``go``: said, nothing changes) and to the recorder, for replay."""
         now = self._clock.now()
         for ob in self._watching():
             ob.on_go_no_go(now, verdict, detail)
-        if verdict == "refuse":
+        if verdict is GoNoGoVerdict.REFUSE:
             self.mission.refuse(now, detail)
         else:
             self.mission.go_no_go(now, detail)
