@@ -55,6 +55,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import model_validator
 
 from companion.dart.control import DartCommand, DartController, DartControllerConfig, DartSetpoint
 from companion.dart.estimators import (
@@ -71,7 +72,6 @@ from companion.dart.estimators import (
 from companion.dart.mission import (
     DartMission,
     DartMissionConfig,
-    dataclass_from_table,
     load_mission_config,
     model_from_table,
     read_toml,
@@ -79,6 +79,7 @@ from companion.dart.mission import (
 from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
 from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables, controller_config
 from companion.geometry import Transform, euler_to_rotmat
+from companion.param_kinds import DartSimTable
 from companion.vision.camera import CameraModel, load_default_camera
 from companion.vision.detector import MarkerObservation, PadDetector, marker_normal_in_camera, rotation_angle
 from companion.vision.pad import PadLayout
@@ -104,117 +105,15 @@ SWITCH_ON_US = 2000.0
 SWITCH_OFF_US = 1000.0
 
 
-def _finite(name: str, v: float, *, low: float | None = None, positive: bool = False) -> None:
-    if not math.isfinite(v):
-        raise ValueError(f"{name} = {v!r}: must be finite")
-    if positive and not v > 0.0:
-        raise ValueError(f"{name} = {v!r}: must be > 0")
-    if low is not None and v < low:
-        raise ValueError(f"{name} = {v!r}: must be >= {low}")
+class DartSimConfig(DartSimTable):
+    """Every physical and sensor parameter of the Dart simulation: ``[sim]`` of a Dart file, its
+    keys declared once (unit, limits, description) in companion.param_kinds.DartSimTable; here
+    the one rule that needs the vision code: the wall marker's sizes make a pad."""
 
-
-@dataclass(frozen=True, slots=True)
-class DartSimConfig:
-    """Every physical and sensor parameter of the Dart simulation (SI units, *_deg in degrees)."""
-
-    physics_hz: float = 1000.0
-    # vehicle and low-level flight controller
-    drag_per_s: float = 0.3  # linear drag / mass, 1/s
-    attitude_tau_s: float = 0.08  # roll/pitch first-order response to the setpoint
-    yaw_rate_tau_s: float = 0.1
-    max_tilt_deg: float = 35.0  # full stick (500 us)
-    max_yaw_rate_deg_s: float = 150.0
-    throttle_mode: str = "climb_rate"  # "climb_rate" (ALT_HOLD) or "thrust" (STABILIZE)
-    max_climb_m_s: float = 2.5  # full stick in climb_rate mode
-    climb_gain_per_s: float = 4.0  # vertical speed loop gain in climb_rate mode
-    hover_throttle: float = 0.5  # thrust fraction that hovers in thrust mode
-    # disturbances
-    wind_ned_m_s: tuple[float, float, float] = (0.3, 0.2, 0.0)
-    gust_std_m_s: float = 0.1  # horizontal gusts (vertical: half)
-    gust_tau_s: float = 2.0
-    attitude_disturbance_deg: float = 0.2  # std of the inner loop's residual attitude error
-    attitude_disturbance_tau_s: float = 0.3
-    # IMU (Pololu AltIMU-10 v5 class, rigidly mounted, no vibration damping)
-    gyro_noise_rad_s: float = 0.0012  # white, per sample
-    gyro_bias_rad_s: float = 0.0005  # residual after the start-up calibration, per axis (std)
-    accel_noise_m_s2: float = 0.01
-    accel_bias_m_s2: float = 0.03
-    accel_vibration_m_s2: float = 2.0  # amplitude per axis at vibration_hz
-    gyro_vibration_rad_s: float = 0.1  # amplitude per axis at vibration_hz
-    vibration_hz: float = 117.0  # motor rotation ~7000 rpm
-    # camera
-    camera_file: str = ""  # camera TOML ("" = the shipped nominal Raspberry Pi camera v2)
-    camera_scale: float = 1.0  # 1.0: 640x480; 0.5: 320x240
-    camera_latency_s: float = 0.06  # exposure -> observation available to the estimator
-    exposure_s: float = 0.008  # motion blur integrates the image motion over this
-    image_noise_std: float = 2.0  # grey levels
-    lens_offset_m: tuple[float, float, float] = (0.08, 0.0, 0.03)  # lens from the CoT, body FRD
-    gimbal_tau_s: float = 0.01
-    gimbal_coupling: float = 0.2  # fraction of the body's rotation that reaches a gimbal axis
-    gimbal_noise_deg: float = 0.02  # the Tarot gimbals' 0.02 deg precision (dart sec. 2.4)
-    # the wall marker: a nested pad (outer 5x5, inner 4x4), centre at the world origin
-    outer_size_m: float = 0.5
-    inner_size_m: float = 0.09
-    pad_size_m: float = 0.6
-    wall_size_m: float = 12.0
-    wall_clutter: int = 40
-    # start
-    start_offset_m: tuple[float, float, float] = (0.05, -0.05, 0.1)  # marker frame, from the setpoint
-
-    def __post_init__(self) -> None:
-        for name in (
-            "physics_hz",
-            "attitude_tau_s",
-            "yaw_rate_tau_s",
-            "max_tilt_deg",
-            "max_yaw_rate_deg_s",
-            "max_climb_m_s",
-            "climb_gain_per_s",
-            "hover_throttle",
-            "gust_tau_s",
-            "attitude_disturbance_tau_s",
-            "vibration_hz",
-            "camera_scale",
-            "exposure_s",
-            "gimbal_tau_s",
-            "outer_size_m",
-            "inner_size_m",
-            "pad_size_m",
-            "wall_size_m",
-        ):
-            _finite(name, getattr(self, name), positive=True)
-        for name in (
-            "drag_per_s",
-            "gust_std_m_s",
-            "attitude_disturbance_deg",
-            "gyro_noise_rad_s",
-            "gyro_bias_rad_s",
-            "accel_noise_m_s2",
-            "accel_bias_m_s2",
-            "accel_vibration_m_s2",
-            "gyro_vibration_rad_s",
-            "camera_latency_s",
-            "image_noise_std",
-            "gimbal_coupling",
-            "gimbal_noise_deg",
-        ):
-            _finite(name, getattr(self, name), low=0.0)
-        for name in ("wind_ned_m_s", "lens_offset_m", "start_offset_m"):
-            for v in getattr(self, name):
-                _finite(name, v)
-        if self.throttle_mode not in ("climb_rate", "thrust"):
-            raise ValueError(f"throttle_mode = {self.throttle_mode!r}: must be 'climb_rate' or 'thrust'")
-        if not self.hover_throttle < 1.0:
-            raise ValueError(f"hover_throttle = {self.hover_throttle!r}: must be < 1")
-        if not self.max_tilt_deg < 80.0:
-            raise ValueError(f"max_tilt_deg = {self.max_tilt_deg!r}: must be < 80")
-        if not self.physics_hz >= 400.0:
-            raise ValueError(f"physics_hz = {self.physics_hz!r}: must be >= 400 (the IMU runs at 200 Hz)")
-        if not self.gimbal_coupling <= 1.0:
-            raise ValueError(f"gimbal_coupling = {self.gimbal_coupling!r}: must be <= 1")
-        if self.wall_clutter < 0:
-            raise ValueError(f"wall_clutter = {self.wall_clutter!r}: must be >= 0")
-        PadLayout(outer_size_m=self.outer_size_m, inner_size_m=self.inner_size_m, pad_size_m=self.pad_size_m)
+    @model_validator(mode="after")
+    def _marker_fits(self) -> DartSimConfig:
+        self.layout  # noqa: B018 -- PadLayout checks the sizes
+        return self
 
     @property
     def layout(self) -> PadLayout:
@@ -237,7 +136,7 @@ def load_dart_params(path: str | Path) -> DartParams:
     doc = read_toml(path)
     check_tables(doc, path)
     return DartParams(
-        sim=dataclass_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
+        sim=model_from_table(DartSimConfig, doc.get("sim", {}), path, "sim"),
         control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
         runtime=model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
