@@ -309,6 +309,33 @@ def apply_to_mavlink(mav: Any, setup: SigningSetup, initial_timestamp: int | Non
     if initial_timestamp is None:
         initial_timestamp = setup.initial_timestamp()
     signing.timestamp = max(int(signing.timestamp or 0), initial_timestamp)
+    _note_times_of_signed_packets_only(mav)
+
+
+def _note_times_of_signed_packets_only(mav: Any) -> None:
+    """pymavlink's ``check_signature`` notes a stream's timestamp before it checks the signature, so
+    one forged packet with a far-future timestamp under the autopilot's ids would make every later
+    genuine packet of that stream look replayed (all telemetry refused: a link loss bought with one
+    datagram). ArduPilot checks the signature first; so does this: a packet whose check fails
+    leaves the stream's timestamp as it was."""
+    if getattr(mav, "_times_of_signed_only", False):
+        return
+    check = mav.check_signature
+
+    def check_then_note(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        stamps = mav.signing.stream_timestamps
+        key = (msgbuf[-13], src_system, src_component)
+        had, before = key in stamps, stamps.get(key)
+        ok = bool(check(msgbuf, src_system, src_component))
+        if not ok:
+            if had:
+                stamps[key] = before
+            else:
+                stamps.pop(key, None)
+        return ok
+
+    mav.check_signature = check_then_note
+    mav._times_of_signed_only = True
 
 
 def setup_signing_message(

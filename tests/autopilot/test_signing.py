@@ -154,6 +154,36 @@ def test_apply_to_mavlink_signs_and_never_turns_the_timestamp_back():
     assert mav.signing.timestamp == 9_000 and mav.signing.allow_unsigned_callback(mav, 0)
 
 
+def test_a_forged_far_future_packet_does_not_lock_out_the_stream_it_names():
+    """One packet under the autopilot's ids (1/1) with a timestamp far ahead and a wrong signature
+    is refused and leaves that stream's timestamp as it was: the autopilot's next genuine packet is
+    still taken (pymavlink alone noted the forged time first, and refused every genuine packet
+    after it as replayed)."""
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    key, t0 = SigningKey(SECRET, "k"), 400_000_000_000
+
+    def sender(secret: bytes, timestamp: int):
+        mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        mav.signing.secret_key, mav.signing.link_id, mav.signing.sign_outgoing = secret, 0, True
+        mav.signing.timestamp = timestamp
+        return mav
+
+    def heartbeat(mav) -> bytes:
+        return mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(mav)
+
+    rx = mavlink.MAVLink(None)
+    rx.robust_parsing = True
+    apply_to_mavlink(rx, SigningSetup(key, allow_unsigned=False), initial_timestamp=t0)
+    genuine, forger = sender(SECRET, t0 + 10), sender(bytes(32), t0 + 10**12)
+    got = [m.get_type() for m in rx.parse_buffer(heartbeat(genuine) + heartbeat(forger) + heartbeat(genuine)) or []]
+    assert got == ["HEARTBEAT", "BAD_DATA", "HEARTBEAT"], got
+    assert rx.signing.stream_timestamps[(0, 1, 1)] < t0 + 10**6  # the forged time never noted
+    apply_to_mavlink(rx, SigningSetup(key, allow_unsigned=False), initial_timestamp=t0)  # applied twice: wrapped once
+    assert [m.get_type() for m in rx.parse_buffer(heartbeat(genuine)) or []] == ["HEARTBEAT"]
+
+
 def test_signing_section_rules():
     with pytest.raises(ConfigError, match=r"signing.enabled needs signing.key_file"):
         config_from_dict({"signing": {"enabled": True}})
