@@ -21,7 +21,7 @@ Two measurements of the GPS-only demo flight, in one run:
   process, or formatted and written here when logging in process). A hook is charged to its
   stream (a guidance tick's ``on_tick`` to ``guidance.csv``, with the ekf/events rows it
   writes); ``flight.csv`` is charged the shell's building and queueing of its row
-  (``DeliveryShell._record``) and its batches, ``truth.csv`` its queueing and its batches,
+  (``FlightLogObserver.on_tick``) and its batches, ``truth.csv`` its queueing and its batches,
   ``flight.tlog`` its hooks (one record per sample, setpoint, command or answer queued) and
   its batches. The hand-over itself (one pickle and send per wake-up,
   :mod:`companion.flightlog.logproc`) is timed as a whole and given per row, and so is the
@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
-from companion.delivery.shell import DeliveryShell
+from companion.delivery.observers import FlightLogObserver
 from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.handover import HandedOverLog
@@ -203,7 +203,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
 
     def write(orig: Any) -> Any:
         def timed(self: CsvLog, row: Any) -> None:
-            if self.path.name == "truth.csv":  # no recorder hook builds these rows (flight.csv's: _record)
+            if self.path.name == "truth.csv":  # no recorder hook builds these rows (flight.csv's: FlightLogObserver)
                 t0 = time.thread_time()
                 orig(self, row)
                 write_s[self.path.name] += time.thread_time() - t0
@@ -247,7 +247,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
         for name in ("on_sample", *_HOOK_STREAM):
             patch(FlightRecorder, name, functools.partial(hook, name))
         patch(CsvLog, "write", write)
-        patch(DeliveryShell, "_record", record)  # flight.csv's row, built and written
+        patch(FlightLogObserver, "on_tick", record)  # flight.csv's row, built and written
         patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
         for name in _TLOG_HOOKS:
             patch(TelemetryTlog, name, tlog_hook)

@@ -65,8 +65,9 @@ async def test_delivery_lands_on_the_displaced_pad_with_sensors_rendered_from_tr
         config = config.model_copy(
             update={
                 "sim": config.sim.model_copy(update={"profile": profile}),
-                "mission": config.mission.model_copy(update=tuning["mission"]),
-                "landing": config.landing.model_copy(update=tuning["landing"]),
+                # validated, so the tuning's nested tables ([mission.descent], [landing.ekf]) are models
+                "mission": config.mission.model_validate({**config.mission.model_dump(), **tuning["mission"]}),
+                "landing": config.landing.model_validate({**config.landing.model_dump(), **tuning["landing"]}),
             }
         )
     h = config.sim.home

@@ -239,8 +239,14 @@ async def test_px4_precision_landing_fed_our_landing_target(px4_root, tmp_path):
     r, _ = await _delivery(
         px4_root, tmp_path, return_home=False, controller="autopilot", landing_target_output="local_ned"
     )
-    assert r.delivered, r.failure  # (the return leg is the companion's, flown in the test above)
     assert r.landing_targets_sent > 20
     # PX4 lands by its own estimate, which wanders: even with a perfect target its precision
     # landing is tens of cm off on this SIH (GPS only: our pad lies 1.5 m away)
     assert r.pad_landing_error_m < 1.0, r
+    # the parcel is released only where the mission's (fused, pad-relative) estimate puts the
+    # touchdown on the 1 x 1 m pad; off it, it stays aboard (the return leg is the companion's,
+    # flown in the test above)
+    if r.delivered:
+        assert r.pad_landing_error_m < 0.6, r
+    else:
+        assert "outside the pad" in r.failure, r.failure
