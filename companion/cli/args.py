@@ -80,3 +80,22 @@ def output_folder(out: str | None, default_name: str, need_bytes: int = FLIGHT_L
         ) from None
     check_writable(folder, need_bytes)
     return folder
+
+
+def made_run_folder(out: str | None, prefix: str, need_bytes: int) -> Path:
+    """The run folder (``--out``, else runs/PREFIX-<time>), created and probed: one line and exit 2
+    (StartupError) when it cannot be made, is read-only or has less room than ``need_bytes``."""
+    import time
+
+    from companion.cli import exits
+    from companion.cli.exits import StartupError
+
+    run_dir = Path(out) if out else Path("runs") / time.strftime(f"{prefix}-%Y%m%d-%H%M%S")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StartupError(
+            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
+        ) from None
+    check_writable(run_dir, need_bytes)  # read-only, full: refused before the link opens
+    return run_dir

@@ -10,7 +10,6 @@ import contextlib
 import json
 import logging
 import signal
-import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from typing import Any
 from companion.autopilot import factory
 from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDeviceMissing
 from companion.cli import exits
-from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
+from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, made_run_folder
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
@@ -229,18 +228,6 @@ def _started_landing_kit(args: argparse.Namespace, config: CompanionConfig) -> A
     return kit
 
 
-def _made_run_folder(args: argparse.Namespace) -> Path:
-    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("fly-%Y%m%d-%H%M%S")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise StartupError(
-            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
-        ) from None
-    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
-    return run_dir
-
-
 def _fly_exit(args: argparse.Namespace, summary: MissionSummary, run_dir: Path, display: _FlyDisplay) -> int:
     """The flight's result printed (JSON or the table) and its exit code."""
     if getattr(args, "json", False):
@@ -275,7 +262,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     kit = None
     try:
         kit = _started_landing_kit(args, config)
-        run_dir = _made_run_folder(args)
+        run_dir = made_run_folder(args.out, "fly", FLIGHT_LOGS_MIN_BYTES)
         new_folder = not any(run_dir.iterdir())
         try:
             with exits.flight_startup_errors(where, args.params, config):

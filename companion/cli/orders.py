@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.cli import exits
-from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, check_writable
+from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, made_run_folder
 from companion.config import CompanionConfig
 from companion.delivery.mission import FailureKind
 from companion.delivery.observers import TickCallback
@@ -448,20 +448,6 @@ def _check_orders_options(args: argparse.Namespace, config: CompanionConfig, whe
     order_settings(config)  # no secret: refused before anything is opened
 
 
-def _orders_run_folder(args: argparse.Namespace) -> Path:
-    from companion.cli.exits import StartupError
-
-    run_dir = Path(args.out) if args.out else Path("runs") / time.strftime("orders-%Y%m%d-%H%M%S")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise StartupError(
-            f"cannot create the run folder {run_dir}: {err.strerror}; pass another --out", exits.BAD_INPUT
-        ) from None
-    check_writable(run_dir, FLIGHT_LOGS_MIN_BYTES)  # read-only, full: refused before the link opens
-    return run_dir
-
-
 def _print_session(session: OrderSession, run_dir: Path, quiet: bool) -> None:
     """The session's orders: one JSON line (``quiet``, ``--json``) or a line per flight."""
     import json
@@ -502,7 +488,7 @@ def cmd_fly_orders(
 
     where = f"in {args.params}" + (" (--connection)" if args.connection else " (or --connection)")
     _check_orders_options(args, config, where)
-    run_dir = _orders_run_folder(args)
+    run_dir = made_run_folder(args.out, "orders", FLIGHT_LOGS_MIN_BYTES)
     quiet = getattr(args, "json", False)
 
     def say(ev: MissionEvent) -> None:
