@@ -12,6 +12,7 @@ from typing import Any
 from companion.cli import exits
 from companion.cli.args import output_folder
 from companion.cli.exits import StartupError
+from companion.cli.fly_display import PHASES  # the mission's phases in flight order: the bar's steps
 from companion.config import (
     DEFAULT_PARAMS,
     CompanionConfig,
@@ -127,21 +128,6 @@ def _figures(run_dir: Path) -> list[Path]:
         return []
 
 
-# the mission's phases in flight order: the progress bar's steps
-_PHASES = [
-    "preflight",
-    "arming",
-    "takeoff",
-    "outbound",
-    "landing_pad",
-    "release",
-    "takeoff_return",
-    "inbound",
-    "landing_home",
-    "done",
-]
-
-
 def _print_demo_header(console: Any, cfg: CompanionConfig, realtime: bool) -> None:
     m = cfg.mission
     console.print(
@@ -169,11 +155,11 @@ def _fly_demo(args: argparse.Namespace, cfg: CompanionConfig, run_dir: Path, pla
         console=console,
         disable=args.quiet,
     ) as progress:
-        task = progress.add_task("preflight", total=len(_PHASES) - 1, t=0.0, where="")
+        task = progress.add_task("preflight", total=len(PHASES) - 1, t=0.0, where="")
 
         def on_tick(shell: Any, out: Any) -> None:
             ph = out.phase.value
-            done = _PHASES.index(ph) if ph in _PHASES else progress.tasks[0].completed
+            done = PHASES.index(ph) if ph in PHASES else progress.tasks[0].completed
             e = shell.estimate
             where = f"S{out.sector}  alt {-e.down_m:5.1f} m" if e is not None and out.sector else ""
             progress.update(task, description=ph, completed=done, t=flight_time_s(shell), where=where)
