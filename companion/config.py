@@ -180,6 +180,17 @@ class DescentConfig(_Section):
         le=20.0,
     )
     xy_integral_max_m_s: float = _f(0.5, "m/s", "largest horizontal speed the integral term may add", ge=0.0, le=3.0)
+    contact_time_s: float = _f(
+        0.0,
+        "s",
+        "ground contact: once the vehicle, descending, has sunk slower than a quarter of the commanded "
+        "descent this long within 2 m of the ground (by the estimate), only the descent is commanded (as below "
+        "touchdown_height_m) and the touchdown is judged where the contact was, not where the "
+        "autopilot's estimate has drifted to by the time its land detector fires (PX4 SIH: 3 s, "
+        "0.4 m; 0 = off)",
+        ge=0.0,
+        le=2.0,
+    )
     xy_accel_feedforward: float = _f(
         0.0,
         "-",

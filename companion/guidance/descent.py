@@ -24,6 +24,12 @@ from companion.config import DescentConfig
 # above the floor, about what an autopilot's vertical velocity loop needs to stop (PX4, ArduCopter:
 # 0.3-0.5 s)
 SETTLE_BAND_S = 0.4
+# descent.contact_time_s: contact is sought only this close to the ground by the estimate (PX4
+# SIH's height, GPS only, was 1.2 m off at the ground after 20 s of flight), and only while the
+# commanded descent is at least half the land speed (a hold or a settle's wait is not a contact)
+CONTACT_HEIGHT_M = 2.0
+CONTACT_DESCENDING = 0.5  # the vehicle was descending: its sink rate reached this share of the command
+CONTACT_STOPPED = 0.25  # and then stayed below this share for descent.contact_time_s
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +55,9 @@ class PrecisionDescent:
         self._integral_t: float | None = None
         self._settle_since: float | None = None  # the error within the tolerance since (descent.settle_s)
         self._settle_released = False
+        self.contact = False  # ground contact seen (descent.contact_time_s): only the descent from then on
+        self._descending = False
+        self._stopped_since: float | None = None
 
     def command(
         self,
@@ -58,14 +67,19 @@ class PrecisionDescent:
         time_s: float,
         may_hold: bool,
         velocity_xy: Callable[[], tuple[float, float]],
+        down_m_s: float | None = None,
     ) -> DescentCommand:
         """``ex``, ``ey``: the error from the target in F_I (m); ``height_m`` above the ground;
         ``may_hold``: the target in sight and time left before the touchdown timeout (the policy's
         gate for the hold above the floor and for descent.settle_s's wait); ``velocity_xy``: the
-        estimated velocity in F_I, asked only for the feedforward."""
+        estimated velocity in F_I, asked only for the feedforward; ``down_m_s``: the estimated sink
+        rate, for the ground contact (descent.contact_time_s)."""
         c = self.cfg
         e = math.hypot(ex, ey)
-        zeroed = height_m < c.touchdown_height_m
+        vz = -self.land_speed_m_s * self._slow(e, height_m, time_s, may_hold)
+        if c.contact_time_s > 0.0 and down_m_s is not None and not self.contact:
+            self.contact = self._contact(-vz, down_m_s, height_m, time_s)
+        zeroed = height_m < c.touchdown_height_m or self.contact
         vx, vy = -c.xy_gain_1_s * ex, -c.xy_gain_1_s * ey
         if c.xy_integral_gain_1_s2 > 0.0:
             ix, iy = self._integral(ex, ey, time_s, frozen=zeroed, p_cmd=(vx, vy))
@@ -75,16 +89,10 @@ class PrecisionDescent:
         saturated = vh > c.max_xy_speed_m_s
         if saturated:
             vx, vy = vx * c.max_xy_speed_m_s / vh, vy * c.max_xy_speed_m_s / vh
-        tol = c.xy_tolerance_m
         if zeroed:
             # touching down: a sideways command on the ground keeps the autopilot's land detector
             # from ever firing (ArduCopter), so only the descent remains
             vx = vy = 0.0
-        gated = may_hold and height_m > c.hold_min_height_m
-        slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
-        if c.settle_s > 0.0 and not self._settle_released:
-            slow = min(slow, self._settle_slow(e, height_m, time_s, may_hold))
-        vz = -self.land_speed_m_s * slow
         acc = None
         if c.xy_accel_feedforward > 0.0 and not zeroed and not saturated:
             # the command's rate: d/dt(-k_p e - k_i int e) = -k_p v - k_i e, v the estimated velocity
@@ -94,6 +102,37 @@ class PrecisionDescent:
             ay = -k * (c.xy_gain_1_s * v_y + c.xy_integral_gain_1_s2 * ey)
             acc = (ax, ay)
         return DescentCommand(vx, vy, vz, acc)
+
+    def _slow(self, e: float, height_m: float, time_s: float, may_hold: bool) -> float:
+        """The descent's speed factor: slower while off-centre (by e, m) and held at twice the
+        tolerance while the mission says it may hold above descent.hold_min_height_m; with
+        descent.settle_s the wait at that floor."""
+        c = self.cfg
+        tol = c.xy_tolerance_m
+        gated = may_hold and height_m > c.hold_min_height_m
+        slow = min(1.0, max(0.0, 1.0 - (e - tol) / tol)) if gated else 1.0
+        if c.settle_s > 0.0 and not self._settle_released:
+            slow = min(slow, self._settle_slow(e, height_m, time_s, may_hold))
+        return slow
+
+    def _contact(self, sink_cmd_m_s: float, sink_m_s: float, height_m: float, time_s: float) -> bool:
+        """Ground contact (descent.contact_time_s): within CONTACT_HEIGHT_M of the ground, under a
+        commanded sink of at least half the land speed, the vehicle sank at CONTACT_DESCENDING of
+        it and then below CONTACT_STOPPED of it for contact_time_s. An autopilot's land detector
+        waits longer (PX4: its ground-contact and maybe-landed stages, 2-3 s on SIH), while the
+        estimate of a vehicle that cannot move drifts under a sideways command."""
+        if height_m > CONTACT_HEIGHT_M or sink_cmd_m_s < 0.5 * self.land_speed_m_s:
+            self._descending, self._stopped_since = False, None
+            return False
+        if sink_m_s >= CONTACT_DESCENDING * sink_cmd_m_s:
+            self._descending, self._stopped_since = True, None
+            return False
+        if not self._descending or sink_m_s >= CONTACT_STOPPED * sink_cmd_m_s:
+            self._stopped_since = None
+            return False
+        if self._stopped_since is None:
+            self._stopped_since = time_s
+        return time_s - self._stopped_since >= self.cfg.contact_time_s
 
     def _settle_slow(self, e: float, height: float, time_s: float, may_wait: bool) -> float:
         """The descent's speed factor from descent.settle_s: 1 while the error has stayed within

@@ -11,6 +11,7 @@ for ends autonomy (core).
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -33,6 +34,8 @@ from companion.guidance.setpoint import VelocitySetpoint
 if TYPE_CHECKING:
     from companion.delivery.mission.base import MissionBase
     from companion.estimation.types import StateEstimate
+
+log = logging.getLogger(__name__)
 
 # an autopilot's land detector after contact (PX4 SIH: ON_GROUND 3-7 s after it; ArduCopter ~2 s):
 # what the final descent's hold leaves before the touchdown timeout, besides the descent itself
@@ -243,7 +246,8 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
         if est is not None:
             if leg is Leg.OUT:
                 m.summary.pad_touchdown_ned = est.position_ned
-                st.touchdown_off_pad_m = _off_the_pad_m(m, est)
+                # judged where the descent felt the ground, if it did (descent.contact_time_s)
+                st.touchdown_off_pad_m = _off_the_pad_m(m, st.contact_ned or est.position_ned)
             else:
                 m.summary.home_touchdown_ned = est.position_ned
         m.emit(EventKind.TOUCHDOWN, "pad" if leg is Leg.OUT else "home")
@@ -270,14 +274,14 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
     return Step(request=_ask_to_disarm(m, inp, st))
 
 
-def _off_the_pad_m(m: MissionBase, est: StateEstimate) -> float:
+def _off_the_pad_m(m: MissionBase, ned: tuple[float, float, float]) -> float:
     """How far the estimate puts the vehicle outside the pad it lands on (0 on it): its distance
     from the pad's centre beyond half the pad's side (mission.pad.size_m; the circle within the
     square). A parcel is never released where the mission's own estimate says it is off the pad,
     lock or no lock (a GPS-only delivery that came down late after a stall, 2 m off)."""
     assert m.pad_ned is not None
     pad = m.cfg.alternate_pad if m.pad_index and m.cfg.alternate_pad is not None else m.cfg.pad
-    off = math.hypot(est.north_m - float(m.pad_ned[0]), est.east_m - float(m.pad_ned[1])) - 0.5 * pad.size_m
+    off = math.hypot(ned[0] - float(m.pad_ned[0]), ned[1] - float(m.pad_ned[1])) - 0.5 * pad.size_m
     return max(0.0, off)
 
 
@@ -304,7 +308,10 @@ def precision_descent(m: MissionBase, est: StateEstimate, leg: Leg, time_s: floa
         v_i = frame.vector_from_ned((est.north_m_s, est.east_m_s, est.down_m_s))
         return float(v_i[0]), float(v_i[1])
 
-    cmd = st.descent.command(ex, ey, height, time_s, in_sight and in_time, velocity_xy)
+    cmd = st.descent.command(ex, ey, height, time_s, in_sight and in_time, velocity_xy, est.down_m_s)
+    if st.descent.contact and st.contact_ned is None:
+        st.contact_ned = est.position_ned
+        log.info("ground contact at %.2f m height (by the estimate): only the descent from here", height)
     v_ned = frame.vector_to_ned((cmd.x_m_s, cmd.y_m_s, cmd.z_m_s))
     acc = None
     if cmd.accel_xy_m_s2 is not None:
