@@ -34,7 +34,20 @@ def _landing_variants(args: argparse.Namespace) -> list[str]:
 
     variants = ["fusion", "gps_only"] + (list(FAILURE_VARIANTS) if args.failures else [])
     if args.variants:
-        variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+        variants = _named_variants(args.variants)
+    return variants
+
+
+def _named_variants(text: str) -> list[str]:
+    """The comma-separated --variants, each a known one: else StartupError (one line, exit 2)."""
+    from companion_lab.campaign_landing import VARIANTS
+
+    variants = [v.strip() for v in text.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown or not variants:
+        known = ", ".join(sorted(VARIANTS))
+        what = ", ".join(unknown) or "(none given)"
+        raise exits.StartupError(f"--variants {text!r}: unknown {what}; choose from {known}", exits.BAD_INPUT)
     return variants
 
 
@@ -182,7 +195,7 @@ def cmd_campaign_parity(args: argparse.Namespace) -> int:
     from companion.cli.console import make_console
     from companion_lab.real_campaign import run_parity
 
-    variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())
+    variants = tuple(_named_variants(args.variants))
     if args.weather and args.autopilot != "ardupilot":
         print("companion campaign parity: --weather needs --autopilot ardupilot (PX4 SIH has no wind)", file=sys.stderr)
         return exits.BAD_INPUT

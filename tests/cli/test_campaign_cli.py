@@ -112,3 +112,13 @@ def test_weather_on_the_profile_keeps_the_drawn_gusts(monkeypatch, tmp_path):
     assert seen["profile"] == "arducopter-sitl"
     assert seen["tuning"]["sim"] == {"profile_weather": True}
     assert "velocity_bias_tau_s" in seen["tuning"]["mission"]  # still the firmware's tuning
+
+
+@pytest.mark.parametrize("command", [["landing"], ["parity", "--autopilot", "px4"]])
+@pytest.mark.parametrize("variants", ["fusion,bogus", " , "])
+def test_an_unknown_variant_is_one_line_and_exit_2_before_anything_flies(command, variants, capsys, tmp_path):
+    code = main(["campaign", *command, "--variants", variants, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "--variants" in err and "choose from" in err and "fusion" in err, err
+    assert not (tmp_path / "out").exists()  # nothing written

@@ -132,3 +132,18 @@ def test_an_out_that_cannot_be_a_folder_is_refused_before_the_flight(tmp_path, c
 def test_bench_app_refuses_a_cap_with_real_time_threads(capsys):
     assert main(["bench", "app", "--cpu-cap", "pi4", "--realtime-priority", "5"]) == 2
     assert "--realtime-priority" in capsys.readouterr().err
+
+
+def test_a_reader_that_closes_the_pipe_ends_the_command_quietly():
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-c", "import sys; from companion.cli.main import main; sys.exit(main())", "params", "show"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    first = proc.stdout.readline()  # as `| head -1`: one line read, then the pipe closed
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    # 1 once the pipe broke; 0 in the rare run where all 42 kB fitted the pipe before it closed
+    assert proc.wait(timeout=60) in (0, 1) and first.startswith(b"#")
+    assert err == "", err  # no BrokenPipeError traceback, no "Exception ignored" on the final flush
