@@ -37,7 +37,7 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
     if args.gps_bias is not None:
         sim["gps_bias_m"] = _parse_vec(args.gps_bias, "--gps-bias")
     if args.pad_offset is not None:
-        sim["pad_offset_m"] = _parse_vec(args.pad_offset, "--pad-offset")[:2]
+        sim["pad_offset_m"] = _parse_vec(args.pad_offset, "--pad-offset", "north,east")
     overrides: dict[str, Any] = {"sim": sim} if sim else {}
     if args.gps_only:  # the paper's GPS-only baseline: released where it lands (docs/delivery-policy.md)
         overrides["landing"] = {"fusion": False, "policy": {"require_pad_lock": False}}
@@ -46,11 +46,17 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
     return load_config(*paths, overrides=overrides or None)
 
 
-def _parse_vec(text: str, opt: str) -> list[float]:
+def _parse_vec(text: str, opt: str, form: str = "north[,east[,down]]") -> list[float]:
+    """``text`` as metres in ``form``: "north[,east[,down]]" (1 to 3 numbers, the rest 0) or
+    "north,east" (exactly 2)."""
     try:
         vals = [float(v) for v in text.split(",")]
     except ValueError:
         raise ConfigError(opt, [f"{text!r}: expected numbers separated by commas, e.g. 2,0 or 1.5,-1,0"]) from None
+    if form == "north,east":
+        if len(vals) != 2:
+            raise ConfigError(opt, [f"{text!r}: expected 2 components (north,east) in metres, e.g. 0.4,-0.6"])
+        return vals
     if len(vals) == 1:
         vals = [vals[0], 0.0, 0.0]
     elif len(vals) == 2:

@@ -43,6 +43,15 @@ def test_bad_gps_bias_option(capsys):
     assert "--gps-bias" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("offset", ["0.4", "0.4,-0.6,1"])
+def test_a_pad_offset_of_other_than_north_and_east_is_refused(offset, capsys, tmp_path):
+    # it was taken as 0.4,0 (and the third number dropped) silently
+    assert main(["demo", "--pad-offset", offset, "--quiet", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "--pad-offset" in err and "expected 2 components (north,east)" in err, err
+    assert not (tmp_path / "run").exists()
+
+
 def test_params_show_documents_units(capsys):
     assert main(["params", "show"]) == 0
     out = capsys.readouterr().out
