@@ -26,15 +26,16 @@ PHASES = (
 
 def distance_to_go_m(shell: Any) -> float | None:
     """Horizontal distance from the estimate to where the vehicle is going: the pad until the
-    parcel is delivered (or the way home is taken), then home. None before the path is planned."""
+    parcel is delivered (or the way home is taken), then home: where the outbound started, which
+    the return flies to. Not the autopilot's home: ArduCopter and PX4 move theirs to where they
+    arm, the pad for the way back. None before the path is planned."""
     m, e = shell.mission, shell.estimate
     if e is None or m.pad_ned is None:
         return None
     if m.summary.delivered or m.returning:
-        home = shell.autopilot.telemetry.home
-        if home is None:
+        if m.start_ned is None:
             return None
-        target = (home.north_m, home.east_m)
+        target = (float(m.start_ned[0]), float(m.start_ned[1]))
     else:
         target = (float(m.pad_ned[0]), float(m.pad_ned[1]))
     return math.hypot(e.north_m - target[0], e.east_m - target[1])
@@ -70,9 +71,9 @@ def summary_rows(summary: MissionSummary, shell: Any | None, run_dir: Any) -> li
         if s.pad_touchdown_ned is not None and pad is not None:
             off = math.hypot(s.pad_touchdown_ned[0] - pad[0], s.pad_touchdown_ned[1] - pad[1])
             rows.append(("touchdown from the configured pad (estimate)", format_m(off)))
-        home = shell.autopilot.telemetry.home
+        home = shell.mission.start_ned  # where the outbound started (distance_to_go_m)
         if s.home_touchdown_ned is not None and home is not None:
-            off = math.hypot(s.home_touchdown_ned[0] - home.north_m, s.home_touchdown_ned[1] - home.east_m)
+            off = math.hypot(s.home_touchdown_ned[0] - home[0], s.home_touchdown_ned[1] - home[1])
             rows.append(("touchdown from home (estimate)", format_m(off)))
         st = shell.stats
         rows.append(("setpoints sent / clamped", f"{st.setpoints_sent} / {st.setpoints_clamped}"))
