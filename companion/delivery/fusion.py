@@ -24,7 +24,7 @@ from companion.delivery.pad_heading import PadHeadingEstimator
 from companion.delivery.pad_tilt import PadTiltEstimator
 from companion.delivery.padlock import PAD_DATA_FRESH_S
 from companion.estimation.delayed import DelayedMeasurementBuffer
-from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
+from companion.estimation.ekf import DeliveryEkf, EkfConfig, EkfSensor, UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.geometry.heading import pad_heading_rad
 from companion.geometry.mounts import pad_pose_ned
@@ -61,11 +61,19 @@ class FusionCounters:
     markers_used: int = 0
     markers_ambiguous: int = 0
     uwb_used: int = 0
+    # "sensor.outcome" -> count (EkfSensor's and UpdateOutcome's values: "sdk.accepted"), as
+    # written out (campaign JSON); the two totals below are counted from the enums, not this text
     outcomes: dict[str, int] = field(default_factory=dict)
+    accepted: int = 0  # updates of any sensor the EKF accepted
+    rejected: int = 0  # and those it did not (any UpdateOutcome but ACCEPTED)
 
-    def count(self, sensor: str, outcome: UpdateOutcome) -> None:
-        k = f"{sensor}.{outcome.value}"
+    def count(self, sensor: EkfSensor, outcome: UpdateOutcome) -> None:
+        k = f"{sensor.value}.{outcome.value}"
         self.outcomes[k] = self.outcomes.get(k, 0) + 1
+        if outcome is UpdateOutcome.ACCEPTED:
+            self.accepted += 1
+        else:
+            self.rejected += 1
 
 
 @dataclass(frozen=True)
@@ -128,7 +136,7 @@ class LandingFusion:
             if self.tilt is not None and euler is not None:
                 euler = self.tilt.corrected(euler)
             out = self.buffer.update_sdk(sample.time_s, (sample.north_m, sample.east_m, sample.down_m), euler)
-            self.counters.count("sdk", out)
+            self.counters.count(EkfSensor.SDK, out)
 
     def _predict(self, t: float) -> None:
         if t >= self.buffer.now_s:
@@ -144,7 +152,7 @@ class LandingFusion:
         if self.tilt is not None:
             self.tilt.on_observation(obs.time_s, obs.T_camera_pad.R, self.setup.T_body_camera.R)  # type: ignore[attr-defined]
         out = self.buffer.update_aruco(obs.time_s, obs.T_camera_pad, self.T_world_pad)  # type: ignore[attr-defined]
-        self.counters.count("aruco", out)
+        self.counters.count(EkfSensor.ARUCO, out)
         if out is UpdateOutcome.ACCEPTED:
             self.counters.markers_used += 1
             self._last_marker_s = obs.time_s  # type: ignore[attr-defined]
@@ -179,7 +187,7 @@ class LandingFusion:
 
     def on_uwb(self, fix: object) -> UpdateOutcome:
         out = self.buffer.update_uwb(fix, self.T_world_anchors)  # type: ignore[arg-type]
-        self.counters.count("uwb", out)
+        self.counters.count(EkfSensor.UWB, out)
         if out is UpdateOutcome.ACCEPTED:
             self.counters.uwb_used += 1
             self._last_uwb_s = fix.time_s  # type: ignore[attr-defined]

@@ -120,8 +120,7 @@ class ShellTelemetry:
         if fusion is not None and fusion.ekf.initialized:
             fe = fusion.estimate()
             c = fusion.counters
-            rejected = sum(n for k, n in c.outcomes.items() if ".rejected" in k)
-            accepted = sum(n for k, n in c.outcomes.items() if k.endswith(".accepted"))
+            rejected, accepted = c.rejected, c.accepted
             x = fusion.ekf.x
             pub.publish(
                 EstimateMessage(

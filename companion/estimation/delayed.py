@@ -19,7 +19,8 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from enum import Enum
+from typing import Any, assert_never
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -29,10 +30,21 @@ from companion.estimation.types import StateEstimate
 from companion.geometry import Transform
 
 
+class BufferEventKind(Enum):
+    """What an event of the buffer is: a process input or a measurement of one of the EKF's
+    sensors (the values are :class:`~companion.estimation.ekf.EkfSensor`'s, and name the event in
+    :attr:`BufferCounters.extra`: ``"aruco.rejected_too_old"``)."""
+
+    INPUT = "input"
+    SDK = "sdk"
+    ARUCO = "aruco"
+    UWB = "uwb"
+
+
 @dataclass
 class _Event:
     time_s: float
-    kind: str  # "input", "sdk", "aruco", "uwb"
+    kind: BufferEventKind
     payload: tuple[Any, ...]
     before: tuple[EkfSnapshot, float, np.ndarray] | None = None
     outcome: UpdateOutcome | None = None
@@ -83,18 +95,18 @@ class DelayedMeasurementBuffer:
         if not math.isfinite(time_s) or time_s < self._now:
             self.counters.input_out_of_order += 1
             return
-        self._add(_Event(float(time_s), "input", (uu,)))
+        self._add(_Event(float(time_s), BufferEventKind.INPUT, (uu,)))
 
     def update_sdk(self, time_s: float, position_ned_m: ArrayLike, euler_rad: ArrayLike | None = None) -> UpdateOutcome:
         pos = np.asarray(position_ned_m, dtype=float).copy()
         eul = None if euler_rad is None else np.asarray(euler_rad, dtype=float).copy()
-        return self._add(_Event(float(time_s), "sdk", (pos, eul)))
+        return self._add(_Event(float(time_s), BufferEventKind.SDK, (pos, eul)))
 
     def update_aruco(self, time_s: float, T_camera_marker: Transform, T_world_marker: Transform) -> UpdateOutcome:
-        return self._add(_Event(float(time_s), "aruco", (T_camera_marker, T_world_marker)))
+        return self._add(_Event(float(time_s), BufferEventKind.ARUCO, (T_camera_marker, T_world_marker)))
 
     def update_uwb(self, fix: PositionFix, T_world_anchor: Transform) -> UpdateOutcome:
-        return self._add(_Event(float(fix.time_s), "uwb", (fix, T_world_anchor)))
+        return self._add(_Event(float(fix.time_s), BufferEventKind.UWB, (fix, T_world_anchor)))
 
     # ---- machinery -----------------------------------------------------------------------
 
@@ -113,15 +125,18 @@ class DelayedMeasurementBuffer:
         if dt > 0.0:
             self.ekf.predict(self._held_u, dt)
             self._now = ev.time_s
-        if ev.kind == "input":
+        kind = ev.kind
+        if kind is BufferEventKind.INPUT:
             self._held_u = ev.payload[0]
             ev.outcome = UpdateOutcome.ACCEPTED
-        elif ev.kind == "sdk":
+        elif kind is BufferEventKind.SDK:
             ev.outcome = self.ekf.update_sdk(ev.payload[0], ev.payload[1])
-        elif ev.kind == "aruco":
+        elif kind is BufferEventKind.ARUCO:
             ev.outcome = self.ekf.update_aruco(ev.payload[0], ev.payload[1])
-        else:
+        elif kind is BufferEventKind.UWB:
             ev.outcome = self.ekf.update_uwb(ev.payload[0], ev.payload[1])
+        else:
+            assert_never(kind)
         return ev.outcome
 
     def _add(self, ev: _Event) -> UpdateOutcome:
@@ -155,7 +170,7 @@ class DelayedMeasurementBuffer:
     def _refuse(self, ev: _Event) -> UpdateOutcome:
         # counted here, not in the EKF's counters (those are rewound with its snapshots)
         self.counters.too_old += 1
-        key = f"{ev.kind}.{UpdateOutcome.REJECTED_TOO_OLD.value}"
+        key = f"{ev.kind.value}.{UpdateOutcome.REJECTED_TOO_OLD.value}"
         self.counters.extra[key] = self.counters.extra.get(key, 0) + 1
         return UpdateOutcome.REJECTED_TOO_OLD
 

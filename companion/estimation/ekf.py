@@ -85,8 +85,6 @@ R_IDX = slice(3, 6)
 BP_IDX = slice(6, 9)
 BW_IDX = slice(9, 12)
 
-SENSORS = ("sdk", "aruco", "uwb")
-
 _TWO_PI = 2.0 * math.pi
 
 
@@ -96,6 +94,17 @@ def chi2_ppf(p: float, dof: int) -> float:
     ``scipy.stats.chi2.ppf`` evaluates; called directly, the ~0.6 s import of ``scipy.stats`` stays
     out of every process that builds a filter (tests/estimation: equal to chi2.ppf)."""
     return float(2.0 * gammaincinv(dof / 2.0, p))
+
+
+class EkfSensor(Enum):
+    """The sensors the EKF fuses; the value names the sensor in the counters (``"sdk.accepted"``)."""
+
+    SDK = "sdk"  # the autopilot's (GPS) pose, delivery eq 12
+    ARUCO = "aruco"  # the pad's marker pose in the camera, eqs 13-14
+    UWB = "uwb"  # a UWB position fix, eq 15
+
+
+SENSORS = tuple(EkfSensor)
 
 
 class UpdateOutcome(Enum):
@@ -495,7 +504,7 @@ class EkfSnapshot(NamedTuple):
     initialized: bool
     last_input: np.ndarray
     counters: dict[str, int]
-    consecutive_rejections: dict[str, int]
+    consecutive_rejections: dict[EkfSensor, int]
 
 
 class DeliveryEkf:
@@ -555,11 +564,12 @@ class DeliveryEkf:
         self.counters: dict[str, int] = {"input.nonfinite": 0, "predict.bad_dt": 0, "covariance.repairs": 0}
         for s in SENSORS:
             for o in UpdateOutcome:
-                self.counters[f"{s}.{o.value}"] = 0
-            self.counters[f"{s}.gate_resets"] = 0
+                self.counters[f"{s.value}.{o.value}"] = 0
+            self.counters[f"{s.value}.gate_resets"] = 0
         # the counter names (the enum's value property and an f-string cost ~1 us per update)
-        self._counter_key = {(s, o): f"{s}.{o.value}" for s in SENSORS for o in UpdateOutcome}
-        self._accepted_key = {s: f"{s}.{UpdateOutcome.ACCEPTED.value}" for s in SENSORS}
+        self._counter_key = {(s, o): f"{s.value}.{o.value}" for s in SENSORS for o in UpdateOutcome}
+        self._accepted_key = {s: f"{s.value}.{UpdateOutcome.ACCEPTED.value}" for s in SENSORS}
+        self._gate_resets_key = {s: f"{s.value}.gate_resets" for s in SENSORS}
 
     # ---- bookkeeping ---------------------------------------------------------------------
 
@@ -656,7 +666,7 @@ class DeliveryEkf:
         with_angles = euler_rad is not None
         z = np.concatenate([pos, np.asarray(euler_rad, dtype=float).reshape(3)]) if with_angles else pos
         if not np.all(np.isfinite(z)):
-            return self._count("sdk", UpdateOutcome.REJECTED_NONFINITE)
+            return self._count(EkfSensor.SDK, UpdateOutcome.REJECTED_NONFINITE)
         xi = 1.0 if self.xi else 0.0
         sp = cfg.sdk_position_sigma_m + cfg.sdk_position_sigma_gain_m_per_m * self.height_above_pad_m
         sig = [sp] * 3 + ([cfg.sdk_angle_sigma_rad] * 3 if with_angles else [])
@@ -670,8 +680,9 @@ class DeliveryEkf:
             self.P[:, 0:n] = 0.0
             self.P[0:n, 0:n] = R
             self.initialized = True
-            return self._count("sdk", UpdateOutcome.ACCEPTED)
-        return self._update("sdk", z, h_sdk(self.x, xi, with_angles), jacobian_sdk(xi, with_angles), R, with_angles)
+            return self._count(EkfSensor.SDK, UpdateOutcome.ACCEPTED)
+        hx, H = h_sdk(self.x, xi, with_angles), jacobian_sdk(xi, with_angles)
+        return self._update(EkfSensor.SDK, z, hx, H, R, with_angles)
 
     def update_aruco(self, T_camera_marker: Transform, T_world_marker: Transform) -> UpdateOutcome:
         """Marker pose from PnP, as measured (delivery eqs 13-14), diagonal R."""
@@ -680,12 +691,12 @@ class DeliveryEkf:
         t0, t1, t2 = np.asarray(T_camera_marker.t, dtype=float).reshape(3).tolist()
         # one finiteness test: the angles of a finite R are finite (atan2, asin of a clamped value)
         if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, t0, t1, t2))):
-            return self._count("aruco", UpdateOutcome.REJECTED_NONFINITE)
+            return self._count(EkfSensor.ARUCO, UpdateOutcome.REJECTED_NONFINITE)
         # z: the marker's position and ZYX Euler angles in the camera (eqs 13-14; as _euler_of)
         z = np.array((t0, t1, t2, math.atan2(m21, m22), -math.asin(max(-1.0, min(1.0, m20))), math.atan2(m10, m00)))
         height = self.height_above_pad_m
         if height > cfg.aruco_max_height_m:
-            return self._count("aruco", UpdateOutcome.REJECTED_HEIGHT)
+            return self._count(EkfSensor.ARUCO, UpdateOutcome.REJECTED_HEIGHT)
         sp = cfg.aruco_position_sigma_m + cfg.aruco_position_sigma_gain_m_per_m * height
         sa = cfg.aruco_angle_sigma_gain_rad_per_m * height
         s_rp = cfg.aruco_roll_pitch_sigma_rad + sa
@@ -694,14 +705,14 @@ class DeliveryEkf:
         R.reshape(-1)[::7] = (sp * sp, sp * sp, sp * sp, s_rp * s_rp, s_rp * s_rp, s_y * s_y)  # diagonal R
         T_bc = self.T_body_camera
         model = self._aruco_model_fn
-        return self._local_update("aruco", z, lambda x: model(x, T_bc, T_world_marker), R, True)
+        return self._local_update(EkfSensor.ARUCO, z, lambda x: model(x, T_bc, T_world_marker), R, True)
 
     def update_uwb(self, fix: PositionFix, T_world_anchor: Transform) -> UpdateOutcome:
         """A UWB fix in the anchor frame, mapped to world NED: delivery eq 15, h = p."""
         cfg = self.config
         p_a = np.array([fix.x_m, fix.y_m, fix.z_m], dtype=float)
         if not np.all(np.isfinite(p_a)):
-            return self._count("uwb", UpdateOutcome.REJECTED_NONFINITE)
+            return self._count(EkfSensor.UWB, UpdateOutcome.REJECTED_NONFINITE)
         z = T_world_anchor.R @ p_a + T_world_anchor.t
         sigma = cfg.uwb_position_sigma_m + cfg.uwb_position_sigma_gain_m_per_m * self.height_above_pad_m
         pdop = float(fix.pdop)
@@ -725,7 +736,7 @@ class DeliveryEkf:
                 sigma *= pdop / math.sqrt(3.0)
             R = np.eye(3) * sigma * sigma  # isotropic: invariant under the anchor->world rotation
         H = self._H_uwb[:, 0:3]  # eq 15 only sees p
-        return self._local_update("uwb", z, lambda x: (h_uwb(x), H), R, False)
+        return self._local_update(EkfSensor.UWB, z, lambda x: (h_uwb(x), H), R, False)
 
     # ---- internals -----------------------------------------------------------------------
 
@@ -735,13 +746,13 @@ class DeliveryEkf:
             gate = self._gate[dof] = chi2_ppf(self.config.gate_probability, dof)
         return gate
 
-    def _count(self, sensor: str, outcome: UpdateOutcome) -> UpdateOutcome:
+    def _count(self, sensor: EkfSensor, outcome: UpdateOutcome) -> UpdateOutcome:
         self.counters[self._counter_key[sensor, outcome]] += 1
         return outcome
 
     def _local_update(
         self,
-        sensor: str,
+        sensor: EkfSensor,
         z: np.ndarray,
         model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
         R: np.ndarray,
@@ -767,7 +778,7 @@ class DeliveryEkf:
         return outcome
 
     def _update(
-        self, sensor: str, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, has_angles: bool
+        self, sensor: EkfSensor, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, has_angles: bool
     ) -> UpdateOutcome:
         """Gate, then correct (eqs 7, 9) with the Joseph form of eq 8.
 
@@ -808,7 +819,7 @@ class DeliveryEkf:
         self.counters[self._accepted_key[sensor]] += 1
         return UpdateOutcome.ACCEPTED
 
-    def _note_gate_rejection(self, sensor: str) -> None:
+    def _note_gate_rejection(self, sensor: EkfSensor) -> None:
         """Count consecutive gate rejections; after too many, inflate what the sensor disputes."""
         cfg = self.config
         self.consecutive_rejections[sensor] += 1
@@ -818,10 +829,10 @@ class DeliveryEkf:
         ):
             return
         self.consecutive_rejections[sensor] = 0
-        self.counters[f"{sensor}.gate_resets"] += 1
+        self.counters[self._gate_resets_key[sensor]] += 1
         if not self.xi:
             blocks = [P_IDX]  # before xi every sensor measures p (p is the GPS-frame position)
-        elif sensor == "sdk":
+        elif sensor is EkfSensor.SDK:
             blocks = [BP_IDX]  # GPS disagrees with the pad-local estimate: the bias moved
         else:
             blocks = [P_IDX, BP_IDX]  # the pad sensor disagrees: p (and with it b_p) is lost

@@ -23,6 +23,7 @@ from companion.estimation.ekf import (
     _TWO_PI,
     N_STATES,
     DeliveryEkf,
+    EkfSensor,
     UpdateOutcome,
     h_aruco,
     jacobian_aruco,
@@ -73,7 +74,7 @@ class DenseDeliveryEkf(DeliveryEkf):
         return True
 
     def _update(
-        self, sensor: str, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, has_angles: bool
+        self, sensor: EkfSensor, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, has_angles: bool
     ) -> UpdateOutcome:
         H_full = np.zeros((H.shape[0], N_STATES))
         H_full[:, 0 : H.shape[1]] = H

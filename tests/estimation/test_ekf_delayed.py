@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.estimation.delayed import DelayedMeasurementBuffer
-from companion.estimation.ekf import DeliveryEkf, UpdateOutcome
+from companion.estimation.ekf import DeliveryEkf, EkfSensor, UpdateOutcome
 from companion.geometry import Transform, euler_to_rotmat
 from companion.uwb.anchors import anchor_frame_to_ned
 from companion.uwb.multilateration import UwbFix
@@ -63,11 +63,12 @@ def _run(delay_aruco_s: float, delay_uwb_s: float) -> DelayedMeasurementBuffer:
     fix = UwbFix(
         t_u, *T_WA.inverse().apply(truth(t_u).p + 0.04), pdop=1.4, residual_rms_m=0.03, anchors_used=(), frame="pad"
     )
-    pending = [(t_a + delay_aruco_s, "aruco"), (t_u + delay_uwb_s, "uwb")]
+    pending = [(t_a + delay_aruco_s, EkfSensor.ARUCO), (t_u + delay_uwb_s, EkfSensor.UWB)]
     for t, u, k in _inputs(200):
         for due, kind in list(pending):
             if due <= t:  # deliver before the input event at t (on time: at capture time)
-                out = buf.update_aruco(t_a, _aruco(t_a), MARKER) if kind == "aruco" else buf.update_uwb(fix, T_WA)
+                aruco = kind is EkfSensor.ARUCO
+                out = buf.update_aruco(t_a, _aruco(t_a), MARKER) if aruco else buf.update_uwb(fix, T_WA)
                 assert out is UpdateOutcome.ACCEPTED
                 pending.remove((due, kind))
         buf.predict(t, u)

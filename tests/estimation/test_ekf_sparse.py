@@ -13,6 +13,7 @@ import pytest
 from companion.estimation.ekf import (
     DeliveryEkf,
     EkfConfig,
+    EkfSensor,
     UpdateOutcome,
     aruco_model,
     h_aruco,
@@ -270,26 +271,26 @@ def test_every_step_keeps_p_exactly_symmetric() -> None:
     ekf = DeliveryEkf(EkfConfig(gate_reset_after_rejections=3), T_body_camera=T_bc, x0=x0, P0=P0)
     np.testing.assert_array_equal(ekf.P, ekf.P.T)
     T_wm = Transform(euler_to_rotmat(math.pi, 0.0, 0.4), np.array([0.2, 0.1, 0.0]))
-    accepted: set[str] = set()
+    accepted: set[EkfSensor] = set()
     for i in range(400):
         assert ekf.predict(rng.normal(0.0, 0.3, 6), 0.12 if i % 40 == 0 else 0.005)
         np.testing.assert_array_equal(ekf.P, ekf.P.T)
         truth = ekf.x + rng.normal(0.0, 0.02, 12)
         if i % 5 == 1:
             T_cm = (T_bc.inverse() @ Transform.from_euler(truth[0:3], *truth[3:6]).inverse()) @ T_wm
-            outcome, sensor = ekf.update_aruco(T_cm, T_wm), "aruco"
+            outcome, sensor = ekf.update_aruco(T_cm, T_wm), EkfSensor.ARUCO
         elif i % 5 == 2:
-            outcome, sensor = ekf.update_uwb(_Fix(truth[0:3], 1.5), Transform.identity()), "uwb"
+            outcome, sensor = ekf.update_uwb(_Fix(truth[0:3], 1.5), Transform.identity()), EkfSensor.UWB
         elif i % 5 == 3:
             far = 50.0 if 100 <= i < 200 else 0.0  # a GPS jump: gate rejections, then resets
             outcome = ekf.update_sdk(truth[0:3] + truth[6:9] * ekf.xi + far, truth[3:6])
-            sensor = "sdk"
+            sensor = EkfSensor.SDK
         else:
             continue
         if outcome is UpdateOutcome.ACCEPTED:
             accepted.add(sensor)
         np.testing.assert_array_equal(ekf.P, ekf.P.T)
-    assert accepted == {"aruco", "uwb", "sdk"} and ekf.xi
+    assert accepted == set(EkfSensor) and ekf.xi
     assert ekf.counters["sdk.gate_resets"] > 0
 
 
