@@ -88,6 +88,26 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_order)
 
 
+def _pad_problem(args: argparse.Namespace, prefix: str) -> str:
+    """Why the pad of --{prefix}lat/lon/alt cannot be a pad ("" if it can): the vehicle's own pad
+    schema ([mission.pad]), so the ground refuses what the vehicle would, in the same words."""
+    from pydantic import ValidationError
+
+    from companion.config import PadConfig
+
+    lat, lon, alt = (getattr(args, f"{prefix}{k}") for k in ("lat", "lon", "alt"))
+    if lat is None:
+        return ""
+    try:
+        PadConfig(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+    except ValidationError as e:
+        err = e.errors()[0]
+        field = {"lat_deg": "lat", "lon_deg": "lon", "alt_amsl_m": "alt"}.get(str(err["loc"][0]), str(err["loc"][0]))
+        opt = f"--{prefix.replace('_', '-')}{field}"
+        return f"{opt} {getattr(args, prefix + field)}: {err['msg'].lower()}"
+    return ""
+
+
 def cmd_order(args: argparse.Namespace) -> int:
     from companion.telemetry.auth import MAX_NOTE_CHARS, CommandSettings, sender_ok
     from companion.telemetry.ground import GroundStation
@@ -108,6 +128,10 @@ def cmd_order(args: argparse.Namespace) -> int:
             return bad(f"--{name.replace('_', '-')} {v}: expected a finite number")
     if (args.alternate_lat is None) != (args.alternate_lon is None):
         return bad("--alternate-lat and --alternate-lon go together")
+    for prefix in ("", "alternate_"):
+        problem = _pad_problem(args, prefix)
+        if problem:
+            return bad(problem)
     if args.alternate_alt is not None and args.alternate_lat is None:
         return bad("--alternate-alt needs --alternate-lat and --alternate-lon")
     if args.order_id is not None and not order_id_ok(args.order_id):
@@ -140,6 +164,7 @@ def cmd_order(args: argparse.Namespace) -> int:
     except Exception as e:  # zenoh.ZError: bad endpoint, port in use
         print(f"companion order: cannot open the Zenoh session: {e}", file=sys.stderr)
         return exits.FAILED
+    t0 = time.monotonic()
     try:
         reply = station.send_order(
             args.vehicle,
@@ -154,7 +179,12 @@ def cmd_order(args: argparse.Namespace) -> int:
     finally:
         station.stop()
     if not reply.replied:
-        print(f"order to {args.vehicle}: no answer within {args.timeout:g} s (is `fly --orders` running there?)")
+        waited_s = time.monotonic() - t0
+        if waited_s < 0.9 * args.timeout:  # Zenoh ends a query at once that no queryable matches
+            why = f"nobody answers orders for {args.vehicle} on the Zenoh network (the query ended in {waited_s:.1f} s)"
+        else:
+            why = f"no answer within {args.timeout:g} s"
+        print(f"order to {args.vehicle}: {why} (is `fly --orders` running there?)")
         return NO_ANSWER
     print(f"order to {args.vehicle}: {'ACCEPTED' if reply.accepted else 'REFUSED'}: {reply.reason}")
     return exits.OK if reply.accepted else exits.FAILED
