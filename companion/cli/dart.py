@@ -19,6 +19,7 @@ import asyncio
 import json
 import logging
 import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -38,18 +39,18 @@ def _cmd_campaign_dart(args: argparse.Namespace) -> int:
     try:
         from companion_lab.dart_campaign import campaign_table, resolve_estimators, run_dart_campaign
     except ImportError as exc:  # the simulator ships with the distribution; a stripped install may lack it
-        print(f"error: the embedded simulator is not installed: {exc}")
+        print(f"companion campaign dart: the embedded simulator is not installed: {exc}", file=sys.stderr)
         return 2
     try:
         names = resolve_estimators(args.estimator)
     except ValueError as exc:
-        print(f"error: {exc}")
+        print(f"companion campaign dart: {exc}", file=sys.stderr)
         return 2
     if args.json:  # its folder first: an hour of campaign must not end on a missing folder
         try:
             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            print(f"error: --json {args.json}: {exc}")
+            print(f"companion campaign dart: --json {args.json}: {exc}", file=sys.stderr)
             return 2
         check_writable(Path(args.json).parent, RESULTS_MIN_BYTES, "--json")  # read-only, full: exit 2
     console = make_console()
@@ -70,10 +71,10 @@ def _cmd_campaign_dart(args: argparse.Namespace) -> int:
                 progress=progress,
             )
     except DartParamsError as exc:
-        print(f"error: bad parameters: {exc}")
+        print(f"companion campaign dart: bad parameters: {exc}", file=sys.stderr)
         return 2
     except ValueError as exc:
-        print(f"error: {exc}")
+        print(f"companion campaign dart: {exc}", file=sys.stderr)
         return 2
     console.print(campaign_table(result))
     if args.json:
@@ -199,18 +200,21 @@ def _cmd_dart(args: argparse.Namespace) -> int:
     try:
         params = _load(args)
     except DartParamsError as exc:
-        print(f"error: bad parameters: {exc}")
+        print(f"companion dart: bad parameters: {exc}", file=sys.stderr)
         return 2
     except ValueError as exc:
-        print(f"error: {exc}")
+        print(f"companion dart: {exc}", file=sys.stderr)
         return 2
     try:
         if args.sim and getattr(args, "signing_key", None):
-            print("error: --signing-key signs the link to a real autopilot; --sim flies unsigned")
+            print(
+                "companion dart: --signing-key signs the link to a real autopilot; --sim flies unsigned",
+                file=sys.stderr,
+            )
             return 2
         return _fly_sim(args, params) if args.sim else _fly(args, params)
     except AutopilotError as exc:
-        print(f"error: {exc}")
+        print(f"companion dart: {exc}", file=sys.stderr)
         return 1
 
 
@@ -219,7 +223,7 @@ def _fly_sim(args: argparse.Namespace, params: Any) -> int:
 
     m = params.mission
     if args.pilot_test and args.sim != "ardupilot":
-        print("error: --pilot-test measures the release of RC overrides: use --sim ardupilot")
+        print("companion dart: --pilot-test measures the release of RC overrides: use --sim ardupilot", file=sys.stderr)
         return 2
     latencies: list[float] = []
     flips = 5
@@ -269,12 +273,15 @@ def _fly(args: argparse.Namespace, params: Any) -> int:
     signing = None  # read before anything is started: a bad key file stops us here
     if getattr(args, "signing_key", None):
         if args.autopilot == "px4":
-            print("error: --signing-key: the PX4 backend cannot sign (mavsdk 4.1 has no signing API)")
+            print(
+                "companion dart: --signing-key: the PX4 backend cannot sign (mavsdk 4.1 has no signing API)",
+                file=sys.stderr,
+            )
             return 2
         try:
             signing = SigningSetup(read_key_file(args.signing_key))
         except SigningKeyError as exc:
-            print(f"error: --signing-key: {exc}")
+            print(f"companion dart: --signing-key: {exc}", file=sys.stderr)
             return 2
     rt = params.runtime
     try:
@@ -282,7 +289,7 @@ def _fly(args: argparse.Namespace, params: Any) -> int:
             "companion.cameras", rt.camera_plugin, source=rt.camera_source, latency_s=rt.camera_latency_s
         )
     except plugin_api.PluginError as exc:
-        print(f"error: camera: {exc}")
+        print(f"companion dart: camera: {exc}", file=sys.stderr)
         return 2
     ap: Autopilot
     if args.autopilot == "px4":

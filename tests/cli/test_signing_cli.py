@@ -129,11 +129,11 @@ def test_dart_signing_key_errors_stop_before_anything_starts(tmp_path, capsys):
     dart_params = str(shipped_params_path("dart_hover.toml"))
     missing = tmp_path / "nope.key"
     assert main(["dart", "--params", dart_params, "--signing-key", str(missing)]) == exits.BAD_INPUT
-    assert f"error: --signing-key: signing key file {missing}: not found" in capsys.readouterr().out
+    assert f"companion dart: --signing-key: signing key file {missing}: not found" in capsys.readouterr().err
     assert main(["dart", "--params", dart_params, "--autopilot", "px4", "--signing-key", str(missing)]) == 2
-    assert "the PX4 backend cannot sign" in capsys.readouterr().out
+    assert "the PX4 backend cannot sign" in capsys.readouterr().err
     assert main(["dart", "--sim", "ardupilot", "--signing-key", str(missing)]) == 2
-    assert "--sim flies unsigned" in capsys.readouterr().out
+    assert "--sim flies unsigned" in capsys.readouterr().err
 
 
 def test_fly_against_a_vehicle_that_does_not_sign_stops_naming_signing(tmp_path):

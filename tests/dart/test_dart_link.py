@@ -313,7 +313,7 @@ def test_cli_registers_companion_dart(capsys: pytest.CaptureFixture[str]) -> Non
     args = parser.parse_args(["dart", "--params", "f.toml", "--connection", "/dev/ttyACM0:115200"])
     assert args.autopilot == "ardupilot" and args.connection == "/dev/ttyACM0:115200"
     assert main(["dart"]) == 2  # a real flight needs its parameter file
-    assert "--params FILE is required" in capsys.readouterr().out
+    assert "companion dart: --params FILE is required" in capsys.readouterr().err  # on stderr, not stdout
 
 
 async def test_px4_backend_sends_attitude_targets_and_reads_rc_channels() -> None:
