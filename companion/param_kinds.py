@@ -15,9 +15,14 @@ rules that tie keys together (a pad marker that does not fit, coplanar anchors).
 | anchors | ``uwb_anchors_pad.toml`` | ``companion.uwb.anchors.load_anchor_layout`` |
 | zenoh | ``zenoh_*.toml`` | ``companion.telemetry.session.load_settings`` |
 
-The Dart's ``[control]``, ``[mission]`` and ``[runtime]`` tables are the Dart's own configs
-(``companion.dart.params.DartControlGains``, ``companion.dart.mission.DartMissionConfig``, and
-``DartRuntimeConfig``, which adds the rules that need the Dart's modules). For
+The Dart's tables are the Dart's own configs, taken as they are: ``[control]``
+(``companion.dart.params.DartControlGains``), ``[mission]`` (``companion.dart.mission.DartMissionConfig``),
+``[runtime]`` (``DartRuntimeConfig``, which adds the rules that need the Dart's modules; it *is*
+the RC mixer's config, :class:`RcMixerTable`, and the attitude map, :class:`AttitudeMapTable`, whose
+keys it inherits), ``[estimator]`` with ``[estimator.madgwick]`` and ``[estimator.complementary]``
+(``companion.dart.estimators.DartEstimatorConfig`` adds the geometry;
+``companion.estimation.madgwick.MadgwickConfig`` and ``...complementary.ComplementaryConfig`` are
+:class:`MadgwickTable` and :class:`ComplementaryTable`), and ``[sim]`` (an attitude map too). For
 the other tables the defaults here are the loaders' defaults and the limits are theirs, so
 ``params check`` accepts exactly what the application loads (tests/test_param_kinds.py holds keys
 and defaults together).
@@ -25,6 +30,7 @@ and defaults together).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -191,7 +197,135 @@ class ZenohFile(_Section):
 
 
 # ------------------------------------------------------------------------------------- dart
-class DartSimTable(_Section):
+class MadgwickTable(_Section):
+    """The Madgwick attitude filter (dart eqs 12-13), ``[estimator.madgwick]``; taken as it is by
+    ``companion.estimation.madgwick.MadgwickFilter`` (``MadgwickConfig``). The defaults give an
+    accelerometer correction of gamma*mu/T = 0.1 quaternion units per second (Madgwick's default
+    beta) at 200 Hz: mu "constant and large", gamma "quite small"."""
+
+    mu: float = _s(0.1, "-", "dart eq 12 step size per sample at the nominal rate", ge=0.0)
+    gamma: float = _s(0.005, "-", "dart eq 13 weight of the accelerometer quaternion", ge=0.0, le=1.0)
+    nominal_rate_hz: float = _s(200.0, "Hz", "IMU rate mu is given at (dart sec. 4: 200 Hz)", gt=0.0)
+    max_dt_s: float = _s(0.1, "s", "a longer IMU gap is integrated as max_dt_s (and counted)", gt=0.0)
+    accel_min_m_s2: float = _s(
+        1.0, "m/s^2", "|a| below: no gravity direction (free fall, zero read), no correction", ge=0.0
+    )
+    accel_max_m_s2: float = _s(40.0, "m/s^2", "|a| above: implausible, no correction (> accel_min_m_s2)", gt=0.0)
+
+    @model_validator(mode="after")
+    def _accel_band(self) -> MadgwickTable:
+        if not self.accel_min_m_s2 < self.accel_max_m_s2:
+            raise ValueError(f"accel_min_m_s2 ({self.accel_min_m_s2}) must be < accel_max_m_s2 ({self.accel_max_m_s2})")
+        return self
+
+
+class ComplementaryTable(_Section):
+    """The complementary filter of FCF-CF (dart eq 14), ``[estimator.complementary]``; taken as
+    it is by ``companion.estimation.complementary.ComplementaryFilter`` (``ComplementaryConfig``)."""
+
+    lam: float = _s(0.9, "-", "dart eq 14 weight lambda (1: gyro only, 0: vision only)", ge=0.0, le=1.0)
+    wrap: tuple[bool, bool, bool] = _f((True, True, True), "-", "which of the three components are angles to wrap")
+    max_dt_s: float = _s(0.1, "s", "a longer prediction gap is integrated as max_dt_s (and counted)", gt=0.0)
+
+    @staticmethod
+    def from_time_constant(tau_s: float, period_s: float) -> ComplementaryTable:
+        """lambda giving a first-order blend with time constant tau at the correction period:
+        lambda = tau / (tau + T)."""
+        if not (tau_s >= 0.0 and period_s > 0.0):
+            raise ValueError("need tau_s >= 0 and period_s > 0")
+        return ComplementaryTable(lam=tau_s / (tau_s + period_s))
+
+
+class DartEstimatorTable(_Section):
+    """The four position estimators' filter settings (dart eqs 12-21), ``[estimator]``; the
+    geometry (camera mount, lens offset, marker heading) comes from ``[runtime]`` or ``[sim]``
+    (``companion.dart.estimators.DartEstimatorConfig`` adds it)."""
+
+    yaw_offset_rad: float = _s(0.0, "rad", "Madgwick yaw + offset = world yaw")
+    yaw_align_tau_s: float | None = _s(
+        None, "s", "vision yaw alignment time constant (not in the paper; absent: off)", ge=0.0
+    )
+    history_s: float = _s(0.5, "s", "attitude history kept for delayed camera observations", gt=0.0)
+    max_attitude_age_s: float = _s(
+        0.2, "s", "newest IMU sample older than this at the exposure: observation rejected", gt=0.0
+    )
+    max_rotation_error: float = _s(1e-3, "-", "|R R^T - I| of an observation above this: rejected", gt=0.0)
+    madgwick: MadgwickTable = Field(default_factory=MadgwickTable)
+    complementary: ComplementaryTable = Field(default_factory=ComplementaryTable)
+
+
+class AttitudeMapTable(_Section):
+    """Full stick deflection (500 us from neutral) in attitude units: the PX4 path's attitude
+    setpoints (``companion.dart.mixer.AttitudeMapConfig``) and the simulated vehicle's response.
+    Degrees in the file, radians to the code (``max_tilt_rad``, ``max_yaw_rate_rad_s``)."""
+
+    max_tilt_deg: float = _s(35.0, "deg", "tilt at full stick deflection (500 us)", gt=0.0, lt=80.0)
+    max_yaw_rate_deg_s: float = _s(150.0, "deg/s", "yaw rate at full stick deflection", gt=0.0)
+
+    @property
+    def max_tilt_rad(self) -> float:
+        return math.radians(self.max_tilt_deg)
+
+    @property
+    def max_yaw_rate_rad_s(self) -> float:
+        return math.radians(self.max_yaw_rate_deg_s)
+
+
+class RcMixerTable(_Section):
+    """The hybrid RC mixer (dart 3.2.2; ``companion.dart.mixer.RcMixer``, ``RcMixerConfig``):
+    which channels the autopilot flies on, the pilot's engage switch, the stick range and the
+    cyber-pilot's authority. Channels are 1-based (MAVLink chan1_raw = channel 1); stick tuples
+    are (roll, pitch, throttle, yaw). The default map is ArduPilot's RCMAP (roll 1, pitch 2,
+    throttle 3, yaw 4); with the FRD contribution signs no stick needs reversing on ArduPilot."""
+
+    stick_channels: IntQuad = _f((1, 2, 3, 4), "-", "channels the autopilot flies on (roll, pitch, throttle, yaw)")
+    stick_reversed: tuple[bool, bool, bool, bool] = _f((False, False, False, False), "-", "reversed sticks")
+    switch_channel: int = _s(7, "-", "RC channel of the pilot's engage switch", ge=1, le=DART_RC_CHANNELS)
+    engage_above_us: float = _s(
+        1700.0, "us", "switch PWM above which the cyber-pilot is engaged (inside min_us..max_us)"
+    )
+    min_us: float = _s(1000.0, "us", "stick range: low end (pilot readings clamped to it)")
+    max_us: float = _s(2000.0, "us", "stick range: high end")
+    neutral_us: float = _s(1500.0, "us", "stick centre (min_us < neutral_us < max_us)")
+    valid_min_us: float = _s(800.0, "us", "a pilot reading below this is invalid: disengage (<= min_us)")
+    valid_max_us: float = _s(2200.0, "us", "a pilot reading above this is invalid: disengage (>= max_us)")
+    max_contribution_us: tuple[float, float, float, float] = _f(
+        (300.0, 300.0, 250.0, 300.0), "us", "largest autonomous contribution per stick (each >= 0)"
+    )
+
+    @model_validator(mode="after")
+    def _mixer_rules(self) -> RcMixerTable:
+        if any(v < 0.0 for v in self.max_contribution_us):
+            raise ValueError(f"max_contribution_us = {list(self.max_contribution_us)}: must be >= 0")
+        chans = (*self.stick_channels, self.switch_channel)
+        if any(not 1 <= c <= DART_RC_CHANNELS for c in chans):
+            raise ValueError(f"channels must be in 1..{DART_RC_CHANNELS}: {chans}")
+        if len(set(chans)) != len(chans):
+            raise ValueError(
+                f"stick_channels = {self.stick_channels!r} and switch_channel = {self.switch_channel}: must all differ"
+            )
+        if not self.valid_min_us <= self.min_us < self.neutral_us < self.max_us <= self.valid_max_us:
+            raise ValueError(
+                f"valid_min_us <= min_us < neutral_us < max_us <= valid_max_us: got {self.valid_min_us}, "
+                f"{self.min_us}, {self.neutral_us}, {self.max_us}, {self.valid_max_us}"
+            )
+        if not self.min_us < self.engage_above_us < self.max_us:
+            raise ValueError(
+                f"engage_above_us = {self.engage_above_us}: must lie inside min_us..max_us "
+                f"({self.min_us}..{self.max_us})"
+            )
+        return self
+
+    @property
+    def channels(self) -> IntQuad:
+        return self.stick_channels
+
+    @property
+    def signs(self) -> tuple[float, float, float, float]:
+        return tuple(-1.0 if r else 1.0 for r in self.stick_reversed)  # type: ignore[return-value]
+
+
+class DartSimTable(AttitudeMapTable):
     """The Dart simulator (companion_sitl.dart_sim.DartSimConfig): vehicle, disturbances, IMU,
     camera and gimbal, the wall marker."""
 
@@ -199,8 +333,6 @@ class DartSimTable(_Section):
     drag_per_s: float = _s(0.3, "1/s", "linear drag per unit mass", ge=0.0)
     attitude_tau_s: float = _s(0.08, "s", "roll/pitch first-order response to the setpoint", gt=0.0)
     yaw_rate_tau_s: float = _s(0.1, "s", "yaw-rate first-order response", gt=0.0)
-    max_tilt_deg: float = _s(35.0, "deg", "tilt at full stick (500 us)", gt=0.0, lt=80.0)
-    max_yaw_rate_deg_s: float = _s(150.0, "deg/s", "yaw rate at full stick", gt=0.0)
     throttle_mode: Literal["climb_rate", "thrust"] = _f(
         "climb_rate", "-", "climb_rate (ALT_HOLD: stick -> climb rate) or thrust (STABILIZE)"
     )
@@ -256,6 +388,8 @@ class DartControlTable(_Section):
     d_filter_tau_s: float = _s(0.1, "s", "derivative low-pass time constant", ge=0.0)
     yaw_kp: float = _s(200.0, "us/rad", "yaw P", ge=0.0)
     yaw_limit_us: float = _s(150.0, "us", "yaw output limit", gt=0.0)
+    max_dt_s: float = _s(0.5, "s", "a longer gap between control steps: the derivative restarts", gt=0.0)
+    max_estimate_age_s: float = _s(0.3, "s", "an older position estimate gives no contribution", gt=0.0)
 
 
 class DartMissionTable(_Section):
@@ -290,7 +424,7 @@ class DartMissionTable(_Section):
         return 2.0 * self.path_length_m / self.max_speed_m_s
 
 
-class DartRuntimeTable(_Section):
+class DartRuntimeTable(RcMixerTable, AttitudeMapTable):
     """The Dart runtime on a real autopilot (companion.dart.params.DartRuntimeConfig). Channels
     are 1-based; stick tuples are (roll, pitch, throttle, yaw)."""
 
@@ -302,16 +436,7 @@ class DartRuntimeTable(_Section):
     control_hz: float = _s(22.0, "Hz", "control rate (dart 4: 22 Hz)", gt=0.0)
     command_hz: float = _s(44.0, "Hz", "command rate (>= control_hz)", gt=0.0)
     log_hz: float = _s(20.0, "Hz", "log rate", gt=0.0)
-    switch_channel: int = _s(7, "-", "RC channel of the pilot's engage switch", ge=1, le=DART_RC_CHANNELS)
-    engage_above_us: float = _s(1700.0, "us", "switch PWM above which the cyber-pilot is engaged")
-    stick_channels: IntQuad = _f((1, 2, 3, 4), "-", "channels the autopilot flies on (roll, pitch, throttle, yaw)")
     pilot_channels: IntQuad = _f((9, 10, 11, 12), "-", "channels the pilot's sticks are read on (mirrored)")
-    stick_reversed: tuple[bool, bool, bool, bool] = _f((False, False, False, False), "-", "reversed sticks")
-    max_contribution_us: tuple[float, float, float, float] = _f(
-        (300.0, 300.0, 250.0, 300.0), "us", "largest autonomous contribution per stick"
-    )
-    max_tilt_deg: float = _s(35.0, "deg", "tilt at full deflection (attitude setpoints, PX4)", gt=0.0, lt=80.0)
-    max_yaw_rate_deg_s: float = _s(150.0, "deg/s", "yaw rate at full deflection", gt=0.0)
     contribution_timeout_s: float = _s(0.15, "s", "an older control output is not mixed", gt=0.0)
     rc_timeout_s: float = _s(0.3, "s", "no RC_CHANNELS for this long: disengage and release", gt=0.0)
     release_repeat: int = _s(5, "-", "release messages sent after a disengagement", ge=1)
@@ -339,15 +464,9 @@ class DartRuntimeTable(_Section):
 
     @model_validator(mode="after")
     def _channels_and_rates(self) -> DartRuntimeTable:
-        if any(v < 0.0 for v in self.max_contribution_us):
-            raise ValueError(f"max_contribution_us = {list(self.max_contribution_us)}: must be >= 0")
-        chans = (*self.stick_channels, *self.pilot_channels, self.switch_channel)
+        chans = (*self.pilot_channels,)
         if any(not 1 <= c <= DART_RC_CHANNELS for c in chans):
             raise ValueError(f"channels must be in 1..{DART_RC_CHANNELS}: {chans}")
-        if len(set(self.stick_channels)) != 4 or self.switch_channel in self.stick_channels:
-            raise ValueError(
-                f"stick_channels = {self.stick_channels!r} and switch_channel = {self.switch_channel}: must all differ"
-            )
         if len(set(self.pilot_channels)) != 4 or self.switch_channel in self.pilot_channels:
             raise ValueError(
                 f"pilot_channels = {self.pilot_channels!r}: four different channels, not the switch channel"
@@ -376,6 +495,7 @@ class DartFile(_Section):
     control: DartControlTable = Field(default_factory=DartControlTable)
     mission: DartMissionTable = Field(default_factory=DartMissionTable)
     runtime: DartRuntimeTable = Field(default_factory=DartRuntimeTable)
+    estimator: DartEstimatorTable = Field(default_factory=DartEstimatorTable)
 
 
 # ------------------------------------------------------------------------------------ kinds
@@ -390,7 +510,7 @@ KINDS: dict[str, ParamKind] = {
     k.name: k
     for k in (
         ParamKind("vehicle", CompanionConfig, "delivery vehicle and mission (companion demo/fly/campaign --params)"),
-        ParamKind("dart", DartFile, "Dart cyber-pilot: simulator, PID gains, mission, runtime (companion dart)"),
+        ParamKind("dart", DartFile, "Dart cyber-pilot: sim, PID gains, mission, runtime, estimators (companion dart)"),
         ParamKind("camera", CameraFile, "camera calibration (landing.camera_calibration, companion calibrate)"),
         ParamKind("pad", PadFile, "nested ArUco landing pad (landing.pad_file, companion pad)"),
         ParamKind("anchors", AnchorsFile, "UWB anchor layout around the pad (landing.uwb_anchors)"),

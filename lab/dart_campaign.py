@@ -104,6 +104,7 @@ def run_dart_campaign(
                 mission,
                 seed=seed + k,
                 controller=controller_config(loaded.control),
+                estimator_table=loaded.estimator,
             )
             sim.run_until(duration_s)
             est_rows.append(sim.errors(settle_s))

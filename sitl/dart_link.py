@@ -95,9 +95,7 @@ class StickSimVehicle(SimVehicle):
     def __init__(self, cfg: SimConfig, dart: DartSimConfig | None = None) -> None:
         super().__init__(cfg)
         self.dart = d = dart or DartSimConfig()
-        self.attitude_map = AttitudeMapConfig(
-            max_tilt_rad=math.radians(d.max_tilt_deg), max_yaw_rate_rad_s=math.radians(d.max_yaw_rate_deg_s)
-        )
+        self.attitude_map: AttitudeMapConfig = d  # [sim] is an attitude map (param_kinds.AttitudeMapTable)
         self.rcmap = RcMixerConfig()  # roll 1, pitch 2, throttle 3, yaw 4 (ArduPilot RCMAP)
         self.copter_mode = ""
         self.sticks_us: tuple[float, float, float, float] = (NEUTRAL_US, NEUTRAL_US, NEUTRAL_US, NEUTRAL_US)
@@ -632,7 +630,7 @@ async def fly_dart_link(
         shell = DartShell(
             ap,
             sim.camera,
-            DartFlightParams(control=p.control, mission=p.mission, runtime=rt),
+            DartFlightParams(control=p.control, mission=p.mission, runtime=rt, estimator=p.estimator),
             output="attitude" if dialect == "px4" else "rc_override",
             camera_model=sim.camera.camera_model,
             layout=p.sim.layout,

@@ -79,7 +79,7 @@ from companion.dart.mission import (
 from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
 from companion.dart.params import DartControlGains, DartRuntimeConfig, check_tables, controller_config
 from companion.geometry import Transform, euler_to_rotmat
-from companion.param_kinds import DartSimTable
+from companion.param_kinds import DartEstimatorTable, DartSimTable
 from companion.vision.camera import CameraModel, load_default_camera
 from companion.vision.detector import MarkerObservation, PadDetector, marker_normal_in_camera, rotation_angle
 from companion.vision.pad import PadLayout
@@ -128,10 +128,11 @@ class DartParams:
     control: DartControlGains = field(default_factory=DartControlGains)
     mission: DartMissionConfig = field(default_factory=DartMissionConfig)
     runtime: DartRuntimeConfig = field(default_factory=DartRuntimeConfig)  # the companion over MAVLink
+    estimator: DartEstimatorTable = field(default_factory=DartEstimatorTable)  # the estimators' filters
 
 
 def load_dart_params(path: str | Path) -> DartParams:
-    """params/dart_hover.toml: tables [sim], [control], [mission], [runtime]; errors name file,
+    """params/dart_hover.toml: tables [sim], [control], [mission], [runtime], [estimator]; errors name file,
     key, value and rule."""
     doc = read_toml(path)
     check_tables(doc, path)
@@ -140,6 +141,7 @@ def load_dart_params(path: str | Path) -> DartParams:
         control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
         runtime=model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
+        estimator=model_from_table(DartEstimatorTable, doc.get("estimator", {}), path, "estimator"),
     )
 
 
@@ -328,8 +330,10 @@ class DartSim:
         rates: DartTaskRates | None = None,
         camera: CameraModel | None = None,
         attitude_aid: AttitudeAid | None = None,
+        estimator_table: DartEstimatorTable | None = None,
     ) -> None:
         self.config = c = config or DartSimConfig()
+        self.estimator_table = estimator_table or DartEstimatorTable()  # [estimator] of a Dart file
         self.attitude_aid = attitude_aid
         self._rng_aid = np.random.default_rng(np.random.SeedSequence([seed, 0xA77]))
         self.detection_log: list[DetectionRecord] = []
@@ -343,9 +347,7 @@ class DartSim:
         self.controller = DartController(controller or controller_config(DartControlGains(), self.rates.control_hz))
         self.mixer_config = RcMixerConfig()
         self.mixer = RcMixer(self.mixer_config, on_disengage=self.controller.disengage)
-        self.attitude_map = AttitudeMapConfig(
-            max_tilt_rad=math.radians(c.max_tilt_deg), max_yaw_rate_rad_s=math.radians(c.max_yaw_rate_deg_s)
-        )
+        self.attitude_map: AttitudeMapConfig = c  # [sim] is an attitude map (param_kinds.AttitudeMapTable)
         ss = np.random.SeedSequence(seed)
         s_phys, s_imu, s_cam, s_render = ss.spawn(4)
         self._n_phys = BlockNoise(np.random.default_rng(s_phys))
@@ -418,7 +420,8 @@ class DartSim:
         self.rc_in: tuple[float, float, float, float] = (NEUTRAL_US,) * 4  # what the FC flies on
 
     def _estimator_config(self) -> DartEstimatorConfig:
-        return DartEstimatorConfig(
+        return DartEstimatorConfig.with_geometry(
+            self.estimator_table,
             R_body_cam=camera_mount(),
             t_body_cam_m=tuple(self.config.lens_offset_m),  # type: ignore[arg-type]
             R_world_marker=wall_marker(0.0),

@@ -67,7 +67,7 @@ ALLOWED: dict[str, set[str]] = {
     "secret_files": {"config"},  # secret files read only when no one but their owner can read or write them
     "vision": {"geometry", "config"},  # its parameters' schema (config.py)
     "uwb": {"geometry", "config"},
-    "estimation": {"geometry", "config"},
+    "estimation": {"geometry", "config", "param_kinds"},  # the Dart filters' schemas (param_kinds.py)
     "guidance": {"geometry", "config"},
     "autopilot": {"geometry", "config", "estimation", "guidance", "timebase", "secret_files"},
     "telemetry": {

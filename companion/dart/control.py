@@ -31,42 +31,52 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
 
+from pydantic import Field, model_validator
+
+from companion.config import _f, _Section
 from companion.geometry import wrap_angle
+from companion.param_kinds import _s
 
 logger = logging.getLogger(__name__)
 
 Command = Literal["roll", "pitch", "throttle"]
 
 
-@dataclass(frozen=True, slots=True)
-class PidGains:
-    """Gains in output units per error unit (here RC microseconds per metre or radian)."""
+def _limit(default: float, description: str) -> Any:
+    """An output or integrator limit, output units; +-inf (TOML inf) for none."""
+    return _s(default, "out", description, allow_inf_nan=True)
 
-    kp: float
-    ki: float = 0.0
-    kd: float = 0.0
-    d_filter_tau_s: float = 0.1  # derivative low-pass time constant (0: unfiltered)
-    out_min: float = -math.inf
-    out_max: float = math.inf
-    i_min: float = -math.inf  # limits of the integral term, output units
-    i_max: float = math.inf
-    wrap_error: bool = False  # angles: wrap the error and the measurement differences
-    max_dt_s: float = 0.5  # longer gaps: the derivative restarts, integration uses max_dt_s
 
-    def __post_init__(self) -> None:
-        for name in ("kp", "ki", "kd", "d_filter_tau_s", "max_dt_s"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {v}")
+class PidGains(_Section):
+    """One PID loop's gains, in output units per error unit (here RC microseconds per metre or
+    radian). A Dart file gives them as ``[control]`` (companion.param_kinds.DartControlTable:
+    one horizontal set for C_x and C_z, one vertical for C_y, yaw proportional), turned into the
+    four loops by companion.dart.params.controller_config."""
+
+    kp: float = _s(..., "out/err", "proportional gain", ge=0.0)
+    ki: float = _s(0.0, "out/(err s)", "integral gain", ge=0.0)
+    kd: float = _s(0.0, "out s/err", "derivative gain (on the measurement)", ge=0.0)
+    d_filter_tau_s: float = _s(0.1, "s", "derivative low-pass time constant (0: unfiltered)", ge=0.0)
+    out_min: float = _limit(-math.inf, "output lower limit (< out_max)")
+    out_max: float = _limit(math.inf, "output upper limit")
+    i_min: float = _limit(-math.inf, "integral term lower limit (<= i_max)")
+    i_max: float = _limit(math.inf, "integral term upper limit")
+    wrap_error: bool = _s(False, "-", "angles: wrap the error and the measurement differences")
+    max_dt_s: float = _s(0.5, "s", "a longer gap: the derivative restarts, integration uses max_dt_s", gt=0.0)
+
+    @model_validator(mode="after")
+    def _limits(self) -> PidGains:
+        lims = (self.out_min, self.out_max, self.i_min, self.i_max)
+        if any(math.isnan(v) for v in lims):
+            raise ValueError(f"out_min, out_max, i_min, i_max = {lims}: NaN is not a limit")
         if not self.out_min < self.out_max:
-            raise ValueError("need out_min < out_max")
+            raise ValueError(f"need out_min < out_max, got {self.out_min}, {self.out_max}")
         if not self.i_min <= self.i_max:
-            raise ValueError("need i_min <= i_max")
-        if self.max_dt_s == 0.0:
-            raise ValueError("max_dt_s must be > 0")
+            raise ValueError(f"need i_min <= i_max, got {self.i_min}, {self.i_max}")
+        return self
 
 
 class Pid:
@@ -207,27 +217,30 @@ def _yaw() -> PidGains:
     return PidGains(kp=200.0, out_min=-150.0, out_max=150.0, wrap_error=True)
 
 
-@dataclass(frozen=True, slots=True)
-class DartControllerConfig:
-    """Gains (us per m, us per m*s, us*s per m; yaw in us per rad) and the axis mapping."""
+class DartControllerConfig(_Section):
+    """The four decoupled PIDs (dart Fig. 6; gains in us per m, us per m*s, us*s per m, yaw in us
+    per rad) and the axis mapping; from a Dart file's ``[control]`` and ``[runtime] control_hz``
+    (companion.dart.params.controller_config)."""
 
-    x: PidGains = field(default_factory=_horizontal)
-    y: PidGains = field(default_factory=_vertical)
-    z: PidGains = field(default_factory=_horizontal)
-    yaw: PidGains = field(default_factory=_yaw)
-    axis_channels: tuple[Command, Command, Command] = ("roll", "throttle", "pitch")
-    axis_signs: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    yaw_sign: float = 1.0
-    rate_hz: float = 22.0  # dart sec. 4: control task at 22 Hz (half the 44 Hz PPM bandwidth)
-    max_estimate_age_s: float = 0.3  # an older estimate gives no contribution
+    x: PidGains = Field(default_factory=_horizontal, description="C_x (marker x error -> axis_channels[0])")
+    y: PidGains = Field(default_factory=_vertical, description="C_y (marker y error -> axis_channels[1])")
+    z: PidGains = Field(default_factory=_horizontal, description="C_z (marker z error -> axis_channels[2])")
+    yaw: PidGains = Field(default_factory=_yaw, description="C_psi (yaw error, wrapped)")
+    axis_channels: tuple[Command, Command, Command] = _f(
+        ("roll", "throttle", "pitch"), "-", "stick each of C_x, C_y, C_z drives (roll, pitch, throttle once each)"
+    )
+    axis_signs: tuple[float, float, float] = _f((1.0, 1.0, 1.0), "-", "sign of each of C_x, C_y, C_z (+1 or -1)")
+    yaw_sign: float = _s(1.0, "-", "sign of C_psi (+1 or -1)")
+    rate_hz: float = _s(22.0, "Hz", "control rate (dart sec. 4: half the 44 Hz PPM bandwidth)", gt=0.0)
+    max_estimate_age_s: float = _s(0.3, "s", "an older estimate gives no contribution", gt=0.0)
 
-    def __post_init__(self) -> None:
+    @model_validator(mode="after")
+    def _axes(self) -> DartControllerConfig:
         if sorted(self.axis_channels) != ["pitch", "roll", "throttle"]:
             raise ValueError(f"axis_channels must use roll, pitch and throttle once each: {self.axis_channels}")
         if any(s not in (1.0, -1.0) for s in (*self.axis_signs, self.yaw_sign)):
             raise ValueError("axis_signs and yaw_sign must be +1 or -1")
-        if not self.max_estimate_age_s > 0.0:
-            raise ValueError("max_estimate_age_s must be > 0")
+        return self
 
 
 class DartController:

@@ -56,16 +56,18 @@ import logging
 import math
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from enum import Enum
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field, field_validator
 
-from companion.estimation.complementary import ComplementaryConfig, ComplementaryFilter
-from companion.estimation.madgwick import MadgwickConfig, MadgwickFilter
+from companion.config import _f
+from companion.estimation.complementary import ComplementaryFilter
+from companion.estimation.madgwick import MadgwickFilter
 from companion.geometry import (
     euler_to_rotmat,
     quat_to_rotmat,
@@ -73,6 +75,7 @@ from companion.geometry import (
     rotmat_to_euler,
     wrap_angle,
 )
+from companion.param_kinds import DartEstimatorTable, _s
 
 logger = logging.getLogger(__name__)
 
@@ -229,30 +232,34 @@ class DartTaskRates:
     log_hz: float = 20.0  # mission log, lowest priority
 
 
-@dataclass(frozen=True, slots=True)
-class DartEstimatorConfig:
-    """Geometry and filter parameters shared by the four estimators."""
+def _unit(unit: str, description: str, factory: Callable[[], Any]) -> Any:
+    """A geometry field with its unit and description; its default from ``factory``."""
+    return Field(default_factory=factory, description=description, json_schema_extra={"unit": unit})
 
-    R_body_cam: Matrix3 = field(default_factory=camera_mount)  # forward camera
-    t_body_cam_m: tuple[float, float, float] = (0.08, 0.0, 0.03)  # lens from CoT (Q_off, body)
-    R_world_marker: Matrix3 = field(default_factory=wall_marker)  # wall marker, drone heading N
-    reference_yaw_rad: float = 0.0  # body heading reported as yaw 0 (facing the marker)
-    gimbal_yaw_rad: float = 0.0  # heading the 3-DOF gimbal holds (world)
-    yaw_offset_rad: float = 0.0  # Madgwick yaw + offset = world yaw
-    yaw_align_tau_s: float | None = None  # vision yaw alignment (not in the paper): off
-    madgwick: MadgwickConfig = field(default_factory=MadgwickConfig)
-    complementary: ComplementaryConfig = field(default_factory=ComplementaryConfig)
-    history_s: float = 0.5  # attitude history kept for delayed observations
-    max_attitude_age_s: float = 0.2  # newest IMU sample older than this at exposure: rejected
-    max_rotation_error: float = 1e-3  # |R R^T - I| above: observation rejected
 
-    def __post_init__(self) -> None:
-        _as_matrix3(self.R_body_cam)
-        _as_matrix3(self.R_world_marker)
-        if not self.history_s > 0.0:
-            raise ValueError("history_s must be > 0")
-        if self.yaw_align_tau_s is not None and not self.yaw_align_tau_s >= 0.0:
-            raise ValueError("yaw_align_tau_s must be >= 0 or None")
+class DartEstimatorConfig(DartEstimatorTable):
+    """What the four estimators take: the filter settings of ``[estimator]`` (declared once in
+    companion.param_kinds.DartEstimatorTable, the Madgwick and complementary filters' tables in
+    it) and the geometry, which a Dart file gives as ``[runtime]`` (lens_offset_m,
+    marker_heading_deg) or ``[sim]`` (lens_offset_m): :meth:`with_geometry`."""
+
+    R_body_cam: Matrix3 = _unit("-", "camera mount rotation, body FRD from camera (forward camera)", camera_mount)
+    t_body_cam_m: tuple[float, float, float] = _f(
+        (0.08, 0.0, 0.03), "m", "lens from the centre of thrust, body FRD (the paper's Q_off)"
+    )
+    R_world_marker: Matrix3 = _unit("-", "marker orientation in world NED (wall marker, drone heading N)", wall_marker)
+    reference_yaw_rad: float = _s(0.0, "rad", "body heading reported as yaw 0 (facing the marker)")
+    gimbal_yaw_rad: float = _s(0.0, "rad", "heading (world) the 3-DOF gimbal holds")
+
+    @field_validator("R_body_cam", "R_world_marker", mode="before")
+    @classmethod
+    def _rotation(cls, v: Any) -> Matrix3:
+        return _as_matrix3(v)
+
+    @classmethod
+    def with_geometry(cls, table: DartEstimatorTable, **geometry: Any) -> DartEstimatorConfig:
+        """``table``'s settings (``[estimator]`` of a file) with the geometry given here."""
+        return cls(**dict(table), **geometry)
 
 
 def corrected_sample_std(errors: Sequence[float]) -> float:

@@ -16,7 +16,7 @@ Output values (MAVLink RC_CHANNELS_OVERRIDE semantics):
 
 - engaged, for the four mixed channels: clamp(pilot + sign * contribution, 1000, 2000) us, with
   sign = -1 for a reversed channel;
-- disengaged, with ``release_when_disengaged`` (default): the four channels are *released* back
+- disengaged, with ``RcMixer(release_when_disengaged=True)`` (default): the four channels are *released* back
   to the RC radio — 0 for channels 1-8, UINT16_MAX-1 (65534) for channels 9-18 — so the autopilot
   uses the pilot's sticks directly, without a companion round trip. Without it, the pilot's own
   values are echoed unchanged (exactly the pilot's sticks);
@@ -35,13 +35,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from companion.param_kinds import DART_RC_CHANNELS, AttitudeMapTable, RcMixerTable
+
 logger = logging.getLogger(__name__)
 
 UINT16_MAX = 65535
 IGNORE = UINT16_MAX  # "ignore this field" for every channel
 RELEASE_LOW = 0  # channels 1-8: "release back to the RC radio"
 RELEASE_HIGH = UINT16_MAX - 1  # channels 9-18: "release back to the RC radio"
-N_OVERRIDE_CHANNELS = 18
+N_OVERRIDE_CHANNELS = DART_RC_CHANNELS  # MAVLink RC_CHANNELS_OVERRIDE carries 18
 
 AXES = ("roll", "pitch", "throttle", "yaw")
 
@@ -59,58 +61,10 @@ class ContributionLike(Protocol):
     def yaw_rate_us(self) -> float: ...
 
 
-@dataclass(frozen=True, slots=True)
-class RcMixerConfig:
-    """Channel numbers are 1-based (MAVLink chan1_raw = channel 1). The default map is
-    ArduPilot's RCMAP (roll 1, pitch 2, throttle 3, yaw 4); with the FRD contribution signs no
-    channel needs reversing on ArduPilot (RC2 high = nose up)."""
-
-    roll_channel: int = 1
-    pitch_channel: int = 2
-    throttle_channel: int = 3
-    yaw_channel: int = 4
-    roll_reversed: bool = False
-    pitch_reversed: bool = False
-    throttle_reversed: bool = False
-    yaw_reversed: bool = False
-    switch_channel: int = 7
-    engage_above_us: float = 1700.0
-    min_us: float = 1000.0
-    max_us: float = 2000.0
-    neutral_us: float = 1500.0
-    valid_min_us: float = 800.0  # a pilot reading outside [valid_min, valid_max] is invalid
-    valid_max_us: float = 2200.0
-    # largest contribution accepted per axis (roll, pitch, throttle, yaw), us
-    max_contribution_us: tuple[float, float, float, float] = (300.0, 300.0, 250.0, 300.0)
-    release_when_disengaged: bool = True
-
-    def __post_init__(self) -> None:
-        chans = (
-            self.roll_channel,
-            self.pitch_channel,
-            self.throttle_channel,
-            self.yaw_channel,
-            self.switch_channel,
-        )
-        if any(not 1 <= c <= N_OVERRIDE_CHANNELS for c in chans):
-            raise ValueError(f"channels must be in 1..{N_OVERRIDE_CHANNELS}: {chans}")
-        if len(set(chans)) != len(chans):
-            raise ValueError(f"roll, pitch, throttle, yaw and switch channels must differ: {chans}")
-        if not self.valid_min_us <= self.min_us < self.neutral_us < self.max_us <= self.valid_max_us:
-            raise ValueError("need valid_min <= min < neutral < max <= valid_max (us)")
-        if not self.min_us < self.engage_above_us < self.max_us:
-            raise ValueError("engage_above_us must lie inside [min_us, max_us]")
-        if any(not (math.isfinite(m) and m >= 0.0) for m in self.max_contribution_us):
-            raise ValueError("max_contribution_us must be finite and >= 0")
-
-    @property
-    def channels(self) -> tuple[int, int, int, int]:
-        return (self.roll_channel, self.pitch_channel, self.throttle_channel, self.yaw_channel)
-
-    @property
-    def signs(self) -> tuple[float, float, float, float]:
-        rev = (self.roll_reversed, self.pitch_reversed, self.throttle_reversed, self.yaw_reversed)
-        return tuple(-1.0 if r else 1.0 for r in rev)  # type: ignore[return-value]
+#: the mixer's channels, switch, stick range and authority: declared once (unit, limits,
+#: description of each key) in companion.param_kinds.RcMixerTable, the keys ``[runtime]`` of a
+#: Dart file shares with it (companion.dart.params.DartRuntimeConfig *is* a mixer config)
+RcMixerConfig = RcMixerTable
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,8 +103,13 @@ class RcMixer:
         self,
         config: RcMixerConfig | None = None,
         on_disengage: Callable[[], None] | None = None,
+        *,
+        release_when_disengaged: bool = True,
     ) -> None:
         self.config = config or RcMixerConfig()
+        #: disengaged: release the four channels to the radio (True, what flight does) or echo
+        #: the pilot's values (the mixer board's own behaviour, tests)
+        self.release_when_disengaged = release_when_disengaged
         self.on_disengage = on_disengage
         self._engaged = False
         self.invalid_inputs = 0
@@ -213,7 +172,7 @@ class RcMixer:
             for ch, v, ok in zip(c.channels, raw, valid, strict=True):
                 pilot = round(v) if ok and v is not None else None
                 sticks.append(pilot)
-                if c.release_when_disengaged or pilot is None:
+                if self.release_when_disengaged or pilot is None:
                     out[ch - 1] = self._release_value(ch)
                 else:
                     out[ch - 1] = pilot  # exactly the pilot's stick
@@ -262,12 +221,10 @@ class RcMixer:
 
 
 # -------------------------------------------------------------------------------- PX4 path
-@dataclass(frozen=True, slots=True)
-class AttitudeMapConfig:
-    """Full stick deflection (500 us from neutral) in attitude units."""
-
-    max_tilt_rad: float = math.radians(35.0)
-    max_yaw_rate_rad_s: float = math.radians(150.0)
+#: full stick deflection in attitude units: companion.param_kinds.AttitudeMapTable (degrees in
+#: the file, ``max_tilt_rad`` and ``max_yaw_rate_rad_s`` to the code); ``[runtime]`` and ``[sim]``
+#: of a Dart file are attitude maps themselves
+AttitudeMapConfig = AttitudeMapTable
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,5 +1,9 @@
-"""Dart parameters for flight: the controller gains ``[control]``, the mission ``[mission]`` and
-the runtime ``[runtime]`` of a Dart parameter file (params/dart_hover.toml).
+"""Dart parameters for flight: the controller gains ``[control]``, the mission ``[mission]``, the
+runtime ``[runtime]`` and the estimators' filters ``[estimator]`` (with ``[estimator.madgwick]``
+and ``[estimator.complementary]``) of a Dart parameter file (params/dart_hover.toml). Every key
+is declared once, with its unit, limits and description, in companion.param_kinds; the
+components take the tables as they are: ``[runtime]`` is the RC mixer's config and the attitude
+map, ``[estimator]`` the estimators' settings (plus the geometry from ``[runtime]``).
 
 The same file also carries the simulator's ``[sim]`` table (companion_sitl.dart_sim); flight
 code accepts the table and does not read it. Every key is optional; an unknown table or key, a
@@ -36,11 +40,11 @@ from companion.dart.mission import (
     model_from_table,
     read_toml,
 )
-from companion.param_kinds import DART_RC_CHANNELS, DartControlTable, DartRuntimeTable
+from companion.param_kinds import DART_RC_CHANNELS, DartControlTable, DartEstimatorTable, DartRuntimeTable
 from companion.vision.opencv_threads import check_opencv_threads
 
 #: tables of a Dart parameter file; [sim] belongs to the simulator
-DART_TABLES = ("sim", "control", "mission", "runtime")
+DART_TABLES = ("sim", "control", "mission", "runtime", "estimator")
 N_RC_CHANNELS = DART_RC_CHANNELS
 
 
@@ -63,13 +67,14 @@ def controller_config(gains: DartControlGains, rate_hz: float = 22.0) -> DartCon
             out_max=lim,
             i_min=-ilim,
             i_max=ilim,
+            max_dt_s=gains.max_dt_s,
         )
 
     g = gains
     h = pid(g.horizontal_kp, g.horizontal_ki, g.horizontal_kd, g.horizontal_limit_us, g.horizontal_i_limit_us)
     v = pid(g.vertical_kp, g.vertical_ki, g.vertical_kd, g.vertical_limit_us, g.vertical_i_limit_us)
-    yaw = PidGains(kp=g.yaw_kp, out_min=-g.yaw_limit_us, out_max=g.yaw_limit_us, wrap_error=True)
-    return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz)
+    yaw = PidGains(kp=g.yaw_kp, out_min=-g.yaw_limit_us, out_max=g.yaw_limit_us, wrap_error=True, max_dt_s=g.max_dt_s)
+    return DartControllerConfig(x=h, y=v, z=h, yaw=yaw, rate_hz=rate_hz, max_estimate_age_s=g.max_estimate_age_s)
 
 
 class DartRuntimeConfig(DartRuntimeTable):
@@ -109,6 +114,7 @@ class DartFlightParams:
     control: DartControlGains = field(default_factory=DartControlGains)
     mission: DartMissionConfig = field(default_factory=DartMissionConfig)
     runtime: DartRuntimeConfig = field(default_factory=DartRuntimeConfig)
+    estimator: DartEstimatorTable = field(default_factory=DartEstimatorTable)
 
 
 def check_tables(doc: dict[str, object], path: str | Path) -> None:
@@ -127,13 +133,15 @@ def load_runtime_config(path: str | Path) -> DartRuntimeConfig:
 
 
 def load_dart_flight_params(path: str | Path) -> DartFlightParams:
-    """[control], [mission] and [runtime] of a Dart parameter file ([sim] is the simulator's)."""
+    """[control], [mission], [runtime] and [estimator] of a Dart parameter file ([sim] is the
+    simulator's)."""
     doc = read_toml(path)
     check_tables(doc, path)
     return DartFlightParams(
         control=model_from_table(DartControlGains, doc.get("control", {}), path, "control"),
         mission=load_mission_config(path),
         runtime=model_from_table(DartRuntimeConfig, doc.get("runtime", {}), path, "runtime"),
+        estimator=model_from_table(DartEstimatorTable, doc.get("estimator", {}), path, "estimator"),
     )
 
 

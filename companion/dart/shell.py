@@ -65,6 +65,7 @@ from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, atti
 from companion.dart.params import DartFlightParams, DartRuntimeConfig, controller_config
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry import wrap_angle
+from companion.param_kinds import DartEstimatorTable
 from companion.scheduling import (
     Clock,
     LoopClock,
@@ -165,10 +166,12 @@ class DartRunSummary:
     releases: list[float] = field(default_factory=list)  # times the overrides were released
 
 
-def estimator_config(rt: DartRuntimeConfig) -> DartEstimatorConfig:
-    """The estimators' geometry from ``[runtime]``: forward camera, lens offset, wall marker."""
+def estimator_config(rt: DartRuntimeConfig, table: DartEstimatorTable | None = None) -> DartEstimatorConfig:
+    """The estimators' settings ``[estimator]`` (``table``; default its defaults) with the
+    geometry from ``[runtime]``: forward camera, lens offset, wall marker."""
     heading = math.radians(rt.marker_heading_deg)
-    return DartEstimatorConfig(
+    return DartEstimatorConfig.with_geometry(
+        table or DartEstimatorTable(),
         R_body_cam=camera_mount(),
         t_body_cam_m=rt.lens_offset_m,
         R_world_marker=wall_marker(heading),
@@ -210,26 +213,6 @@ def _choose_output(autopilot: Autopilot, output: Output | None, rt: DartRuntimeC
     return output
 
 
-def _mixer_config(rt: DartRuntimeConfig) -> RcMixerConfig:
-    """The RC mixer's channels, reversals, switch and authority from ``[runtime]``."""
-    r, pi, t, y = rt.stick_channels
-    rr, pr, tr, yr = rt.stick_reversed
-    return RcMixerConfig(
-        roll_channel=r,
-        pitch_channel=pi,
-        throttle_channel=t,
-        yaw_channel=y,
-        roll_reversed=rr,
-        pitch_reversed=pr,
-        throttle_reversed=tr,
-        yaw_reversed=yr,
-        switch_channel=rt.switch_channel,
-        engage_above_us=rt.engage_above_us,
-        max_contribution_us=rt.max_contribution_us,
-        release_when_disengaged=True,
-    )
-
-
 class DartShell:
     """Runs the Dart cyber-pilot against ``autopilot`` with frames from ``camera`` (a
     ``companion.cameras`` plugin instance, frames stamped on this loop's clock)."""
@@ -254,7 +237,7 @@ class DartShell:
         self.output: Output = _choose_output(autopilot, output, rt)
         self.clock: Clock = clock or LoopClock()
         self.rates = rt.rates
-        self.estimator: DartEstimator = make_estimator(rt.estimator_name, estimator_config(rt))
+        self.estimator: DartEstimator = make_estimator(rt.estimator_name, estimator_config(rt, p.estimator))
         self.camera_model = camera_model or runtime_camera_model(rt)
         self.layout = layout or PadLayout(
             outer_size_m=rt.outer_size_m, inner_size_m=rt.inner_size_m, pad_size_m=rt.pad_size_m
@@ -262,11 +245,11 @@ class DartShell:
         self.detector = PadDetector(self.camera_model, self.layout)
         self.mission = DartMission(p.mission)
         self.controller = DartController(controller_config(p.control, rt.control_hz))
-        self.mixer_config = _mixer_config(rt)
-        self.mixer = RcMixer(self.mixer_config, on_disengage=self._on_disengage)
-        self.attitude_map = AttitudeMapConfig(
-            max_tilt_rad=math.radians(rt.max_tilt_deg), max_yaw_rate_rad_s=math.radians(rt.max_yaw_rate_deg_s)
-        )
+        # [runtime] is the mixer's config and the attitude map (its keys declared once, in
+        # companion.param_kinds.RcMixerTable and AttitudeMapTable)
+        self.mixer_config: RcMixerConfig = rt
+        self.mixer = RcMixer(self.mixer_config, on_disengage=self._on_disengage, release_when_disengaged=True)
+        self.attitude_map: AttitudeMapConfig = rt
         self.log_path = Path(log_path) if log_path is not None else None
         self.keep_steps = keep_steps
         self.stats = DartShellStats()

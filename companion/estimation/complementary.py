@@ -25,34 +25,17 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from companion.geometry import wrap_angle
+from companion.param_kinds import ComplementaryTable
 
 logger = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, slots=True)
-class ComplementaryConfig:
-    """dart eq 14 weight lambda in [0, 1] (1: gyro only, 0: vision only)."""
-
-    lam: float = 0.9
-    wrap: tuple[bool, bool, bool] = (True, True, True)  # which components are angles to wrap
-    max_dt_s: float = 0.1  # longer prediction gaps are integrated as max_dt_s (and counted)
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.lam <= 1.0:
-            raise ValueError(f"lambda must be in [0, 1], got {self.lam}")
-        if not self.max_dt_s > 0.0:
-            raise ValueError(f"max_dt_s must be > 0, got {self.max_dt_s}")
-
-    @staticmethod
-    def from_time_constant(tau_s: float, period_s: float) -> ComplementaryConfig:
-        """lambda giving a first-order blend with time constant tau at the correction period:
-        lambda = tau / (tau + T)."""
-        if not (tau_s >= 0.0 and period_s > 0.0):
-            raise ValueError("need tau_s >= 0 and period_s > 0")
-        return ComplementaryConfig(lam=tau_s / (tau_s + period_s))
+#: dart eq 14 weight lambda and the wrapped components: ``[estimator.complementary]`` of a Dart
+#: file, every key declared once (unit, limits, description) in
+#: companion.param_kinds.ComplementaryTable (``from_time_constant`` too)
+ComplementaryConfig = ComplementaryTable
 
 
 class ComplementaryFilter:

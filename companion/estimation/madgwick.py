@@ -38,36 +38,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from companion.geometry import euler_to_quat
+from companion.param_kinds import MadgwickTable
 
 logger = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, slots=True)
-class MadgwickConfig:
-    """Madgwick filter parameters (dart eqs 12-13).
-
-    The defaults give an accelerometer correction of gamma*mu/T = 0.1 quaternion units per
-    second (Madgwick's default beta) at 200 Hz: mu "constant and large", gamma "quite small".
-    """
-
-    mu: float = 0.1  # dart eq 12 step size per sample at the nominal rate
-    gamma: float = 0.005  # dart eq 13 weight of the accelerometer quaternion, in [0, 1]
-    nominal_rate_hz: float = 200.0  # dart sec. 4: IMU thread at 200 Hz
-    max_dt_s: float = 0.1  # a longer gap is integrated as max_dt_s (and counted)
-    accel_min_m_s2: float = 1.0  # |a| below: no gravity direction (free fall, zero read)
-    accel_max_m_s2: float = 40.0  # |a| above: implausible, accelerometer correction skipped
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.gamma <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
-        if not self.mu >= 0.0:
-            raise ValueError(f"mu must be >= 0, got {self.mu}")
-        if not self.nominal_rate_hz > 0.0:
-            raise ValueError(f"nominal_rate_hz must be > 0, got {self.nominal_rate_hz}")
-        if not self.max_dt_s > 0.0:
-            raise ValueError(f"max_dt_s must be > 0, got {self.max_dt_s}")
-        if not 0.0 <= self.accel_min_m_s2 < self.accel_max_m_s2:
-            raise ValueError("need 0 <= accel_min_m_s2 < accel_max_m_s2")
+#: Madgwick filter parameters (dart eqs 12-13): ``[estimator.madgwick]`` of a Dart file, every
+#: key declared once (unit, limits, description) in companion.param_kinds.MadgwickTable
+MadgwickConfig = MadgwickTable
 
 
 @dataclass(frozen=True, slots=True)

@@ -48,13 +48,13 @@ def test_disengaged_releases_the_mixed_channels_and_ignores_the_rest() -> None:
 
 
 def test_disengaged_echo_mode_is_exactly_the_pilot() -> None:
-    mixer = RcMixer(RcMixerConfig(release_when_disengaged=False))
+    mixer = RcMixer(RcMixerConfig(), release_when_disengaged=False)
     out = mixer.mix(sticks(roll=1234, pitch=1777, throttle=990, yaw=2011, switch=OFF), Contribution(50, 50, 50, 50))
     assert out.channels[:4] == (1234, 1777, 990, 2011)
 
 
 def test_engaged_adds_contribution_with_sign_and_clamps() -> None:
-    mixer = RcMixer(RcMixerConfig(pitch_reversed=True))
+    mixer = RcMixer(RcMixerConfig(stick_reversed=(False, True, False, False)))
     c = Contribution(roll_us=120.4, pitch_us=80.0, thrust_us=-60.0, yaw_rate_us=-30.0)
     out = mixer.mix(sticks(roll=1510, pitch=1490, throttle=1450, yaw=1500, switch=ON), c)
     assert out.engaged
@@ -142,7 +142,7 @@ def test_invalid_pilot_input_disengages_and_counts() -> None:
 
 def test_channel_map_and_high_channels() -> None:
     # TAER order, yaw on channel 9 (release value for channels 9-18 is 65534)
-    cfg = RcMixerConfig(throttle_channel=1, roll_channel=2, pitch_channel=3, yaw_channel=9, switch_channel=5)
+    cfg = RcMixerConfig(stick_channels=(2, 3, 1, 9), switch_channel=5)  # roll, pitch, throttle, yaw
     mixer = RcMixer(cfg)
     pilot = [1300.0, 1500.0, 1500.0, 1500.0, 1900.0, 1500.0, 1500.0, 1500.0, 1600.0]
     out = mixer.mix(pilot, Contribution(roll_us=10.0, pitch_us=20.0, thrust_us=30.0, yaw_rate_us=40.0))
@@ -154,13 +154,13 @@ def test_channel_map_and_high_channels() -> None:
     out = mixer.mix(pilot, None)
     assert out.channels[8] == RELEASE_HIGH and out.channels[0] == RELEASE_LOW
     with pytest.raises(ValueError):
-        RcMixerConfig(roll_channel=3)  # same as throttle
+        RcMixerConfig(stick_channels=(3, 2, 3, 4))  # roll on throttle's channel
     with pytest.raises(ValueError):
         RcMixerConfig(switch_channel=19)
 
 
 def test_px4_attitude_setpoint() -> None:
-    m = AttitudeMapConfig(max_tilt_rad=math.radians(30.0), max_yaw_rate_rad_s=math.radians(100.0))
+    m = AttitudeMapConfig(max_tilt_deg=30.0, max_yaw_rate_deg_s=100.0)
     # pilot: roll 1600 (+100 us), pitch neutral, throttle 1500, yaw 1450 (-50 us)
     # contribution: roll +50, pitch +100 (nose up), thrust +50, yaw +100
     sp = attitude_setpoint(
@@ -174,7 +174,7 @@ def test_px4_attitude_setpoint() -> None:
     assert sp.yaw_rate_rad_s == pytest.approx(50 / 500 * math.radians(100.0))
     assert sp.thrust == pytest.approx(0.55)
     # reversed pitch channel: stick 1400 means +100 us nose up; clamp at full deflection
-    cfg = RcMixerConfig(pitch_reversed=True)
+    cfg = RcMixerConfig(stick_reversed=(False, True, False, False))
     sp = attitude_setpoint(sticks(pitch=1400, roll=1900), Contribution(roll_us=300.0), cfg, m)
     assert sp is not None
     assert sp.pitch_rad == pytest.approx(0.2 * math.radians(30.0))
