@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from companion.cli import exits
 from companion.telemetry.session import SettingsError, ZenohSettings, load_settings
 
 DEFAULT_ROUTER_LISTEN = "tcp/0.0.0.0:7447"
@@ -183,7 +184,9 @@ def cmd_ground(args: argparse.Namespace) -> int:
     if bridge is not None:
         console.print(f"Foxglove: open ws://{args.foxglove_host}:{bridge.port} (Open connection -> Foxglove WebSocket)")
     try:
-        run_live(station, duration_s=args.duration, refresh_hz=args.refresh, console=console)
+        interrupted = run_live(station, duration_s=args.duration, refresh_hz=args.refresh, console=console)
+    except KeyboardInterrupt:  # before the live table was up
+        interrupted = True
     finally:
         station.stop()
         if bridge is not None:
@@ -191,7 +194,7 @@ def cmd_ground(args: argparse.Namespace) -> int:
     c = station.counters()
     console.print()
     console.print(f"received {c.received}, lost {c.lost}, malformed {c.malformed}, recorded {c.recorded}")
-    return 0
+    return exits.INTERRUPTED if interrupted else exits.OK  # Ctrl-C: 130, as every command (exits.py)
 
 
 def format_bench_result(result: dict[str, Any]) -> str:

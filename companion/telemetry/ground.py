@@ -448,8 +448,9 @@ def run_live(
     duration_s: float | None = None,
     refresh_hz: float = 4.0,
     console: Console | None = None,
-) -> None:
-    """Show the live table until ``duration_s`` elapses (None: until Ctrl-C)."""
+) -> bool:
+    """Show the live table until ``duration_s`` elapses (None: until Ctrl-C); True if Ctrl-C
+    ended it."""
     end = None if duration_s is None else time.monotonic() + duration_s
     with Live(render_table(station.snapshot()), console=console, refresh_per_second=refresh_hz) as live:
         try:
@@ -458,4 +459,5 @@ def run_live(
                 live.update(render_table(station.snapshot()))
                 station.flush()
         except KeyboardInterrupt:
-            pass
+            return True
+    return False

@@ -251,3 +251,32 @@ def test_render_table_shows_a_gone_vehicle_as_history() -> None:
     assert "ok" not in lines["d3"] and "offboard (last)" in lines["d3"]  # no live link on a vanished vehicle
     assert "4.0 mm" in lines["d3"]  # never "0.00 m" for a non-zero error
     assert "ok" in lines["d4"] and "hold (5s old)" in lines["d4"] and "1.23 m" in lines["d4"]
+
+
+def test_ctrl_c_ends_ground_with_its_counts_and_exit_130(tmp_path: Path) -> None:
+    """Ctrl-C is how an operator ends `ground` without --duration: it still prints what it
+    received, and exits 130 as every command does on Ctrl-C (companion.cli.exits); it exited 0."""
+    import signal
+    import subprocess
+    import sys
+
+    port = free_tcp_port()
+    # Ctrl-C as from a terminal, whatever SIGINT disposition the test runner's shell leaves children
+    code = (
+        "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "from companion.cli.main import main; sys.exit(main())"
+    )
+    argv = [sys.executable, "-c", code, "ground", "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30.0
+        assert proc.stdout is not None
+        while "ground station:" not in proc.stdout.readline():  # the session is open
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, (proc.returncode, out, err)
+    assert "received 0, lost 0" in out and "Traceback" not in err, (out, err)
