@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import json
 import logging
 from collections.abc import Sequence
@@ -37,10 +38,13 @@ class Table:
         """``rows``: header and body already read (from an MCAP, ``path`` then names the file
         and channel); otherwise the CSV at ``path`` is read."""
         self.path = path
+        complete = True  # the last line ends in a newline (the writers end every row with one)
         if rows is None:
             try:
                 with path.open(newline="", encoding="utf-8") as fh:
-                    rows = list(csv.reader(fh))
+                    content = fh.read()
+                rows = list(csv.reader(io.StringIO(content)))
+                complete = content.endswith("\n")
             except FileNotFoundError:
                 raise LogFormatError(f"{path}: file not found") from None
             except (OSError, UnicodeDecodeError, csv.Error) as err:
@@ -56,9 +60,15 @@ class Table:
         self.index = {c: i for i, c in enumerate(self.header)}
         self.rows = rows[1:]
         self.torn = False
+        if not complete and self.rows:
+            # cut in the middle of its last field, a row can still have all its fields ("1.5,2.3,4"
+            # of "1.5,2.3,4.75\n"): without its newline it is torn, whatever it holds
+            log.warning("%s: line %d: torn last line dropped (no newline at its end)", path, len(rows))
+            self.rows.pop()
+            self.torn = True
         for k, r in enumerate(self.rows):
             if len(r) != len(self.header):
-                if k == len(self.rows) - 1:
+                if k == len(self.rows) - 1 and not self.torn:
                     log.warning(
                         "%s: line %d: torn last line dropped (%d of %d fields)", path, k + 2, len(r), len(self.header)
                     )

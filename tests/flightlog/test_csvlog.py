@@ -83,3 +83,19 @@ def test_open_logs_are_drained_and_closed_at_interpreter_exit(tmp_path):
     assert proc.returncode == 3, proc.stderr
     cols = read_csv(p)
     assert len(cols["time_s"]) == 60000 and cols["x_m"][-1] == "29999.5"
+
+
+def test_a_last_line_cut_without_its_newline_is_torn_even_with_every_field(tmp_path, caplog):
+    from companion.flightlog.reader import LogFormatError, Table
+
+    f = tmp_path / "ap_position.csv"
+    f.write_text("time_s,seq,north_m\r\n0.0,0,1.25\r\n0.05,1,1.5", encoding="utf-8")  # "1.5" of "1.5625\r\n"
+    t = Table(f)
+    assert t.torn and len(t) == 1 and t.floats("north_m").tolist() == [1.25]
+    assert "torn last line dropped (no newline at its end)" in caplog.text
+    f.write_text("time_s,seq,north_m\r\n0.0,0,1.25\r\n0.05,1,1.5\r\n", encoding="utf-8")
+    t = Table(f)
+    assert not t.torn and t.floats("north_m").tolist() == [1.25, 1.5]
+    f.write_text("time_s,seq,north_m\r\n0.0,0\r\n0.05,1,1.5", encoding="utf-8")  # only one tear at the end
+    with pytest.raises(LogFormatError, match="line 2: 2 fields, the header has 3"):
+        Table(f)
