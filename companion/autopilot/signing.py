@@ -152,8 +152,14 @@ def _is_hex(data: bytes) -> bool:
     return len(digits) == 2 * KEY_LEN and all(c in "0123456789abcdefABCDEF" for c in digits)
 
 
-def parse_key_bytes(data: bytes, fmt: KeyFormat, path: str) -> SigningKey:
-    """The key in a key file's bytes (see the module docstring for the formats)."""
+# where a reader of a parameter file says a key file holds a passphrase
+PASSPHRASE_SETTING = "signing.key_format = 'passphrase'"
+
+
+def parse_key_bytes(data: bytes, fmt: KeyFormat, path: str, passphrase_setting: str = PASSPHRASE_SETTING) -> SigningKey:
+    """The key in a key file's bytes (see the module docstring for the formats); ``passphrase_setting``:
+    what the reader sets for a passphrase file, named when the bytes are no key (a command line's
+    option, or the parameter file's key)."""
     if fmt == "auto":
         if _is_hex(data):
             fmt = "hex"
@@ -162,7 +168,7 @@ def parse_key_bytes(data: bytes, fmt: KeyFormat, path: str) -> SigningKey:
         else:
             raise SigningKeyError(
                 f"{path}: {len(data)} bytes is not a signing key: expected {2 * KEY_LEN} hexadecimal digits "
-                f"or exactly {KEY_LEN} raw bytes (a passphrase file needs signing.key_format = 'passphrase')"
+                f"or exactly {KEY_LEN} raw bytes (a passphrase file needs {passphrase_setting})"
             )
     if fmt == "raw":
         if len(data) != KEY_LEN:
@@ -186,7 +192,9 @@ def parse_key_bytes(data: bytes, fmt: KeyFormat, path: str) -> SigningKey:
     raise SigningKeyError(f"{path}: key format {fmt!r} unknown (auto, hex, raw, passphrase)")
 
 
-def read_key_file(path: str | Path, fmt: KeyFormat = "auto") -> SigningKey:
+def read_key_file(
+    path: str | Path, fmt: KeyFormat = "auto", passphrase_setting: str = PASSPHRASE_SETTING
+) -> SigningKey:
     """Read a signing key file; :class:`SigningKeyError` names the file and what is expected.
     A key file group or others can read or write is refused (its message names the mode and the
     ``chmod 600``; the :class:`~companion.secret_files.SecretFileExposed` is its cause)."""
@@ -205,7 +213,7 @@ def read_key_file(path: str | Path, fmt: KeyFormat = "auto") -> SigningKey:
         raise SigningKeyError(f"signing key file {p}: cannot read: {err.strerror}") from None
     if not data:
         raise SigningKeyError(f"signing key file {p}: empty; expected {2 * KEY_LEN} hex digits or {KEY_LEN} bytes")
-    return parse_key_bytes(data, fmt, str(p))
+    return parse_key_bytes(data, fmt, str(p), passphrase_setting)
 
 
 def generate_key() -> SigningKey:

@@ -156,12 +156,13 @@ def cmd_keygen(args: argparse.Namespace) -> int:
             path = write_key_file(args.file, key, overwrite=args.force)
     except SigningKeyError as err:
         raise StartupError(str(err), exits.BAD_INPUT) from None
-    print(f"wrote {path} (mode 0600), fingerprint {key.fingerprint}")
-    print(f"secret (hex): {key.hex}")
+    # the secret stays in the file: a terminal's scrollback, a screen share or a CI log keeps what
+    # is printed (`signing show --hex` prints it on demand)
+    print(f"wrote {path} (mode 0600), fingerprint {key.fingerprint}; the secret: companion signing show --hex {path}")
     fmt = ", key_format = 'passphrase'" if args.passphrase else ""
     print(f"companion: [signing] enabled = true, key_file = {str(path)!r}{fmt}")
     if args.passphrase:
-        print(f"MAVProxy (same secret): signing setup {phrase}")
+        print(f'MAVProxy (same secret): signing setup "$(cat {path})"')
     else:
         print("MAVProxy takes a passphrase only (`signing setup PASSPHRASE`): use keygen --passphrase to share with it")
     print(
@@ -173,7 +174,7 @@ def cmd_keygen(args: argparse.Namespace) -> int:
 
 def cmd_show(args: argparse.Namespace) -> int:
     try:
-        key = read_key_file(args.file, args.format)
+        key = read_key_file(args.file, args.format, passphrase_setting="--format passphrase")
     except SigningKeyError as err:
         raise StartupError(str(err), exits.BAD_INPUT) from None
     print(f"{args.file}: fingerprint {key.fingerprint}")

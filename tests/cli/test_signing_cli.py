@@ -19,7 +19,8 @@ def test_keygen_writes_a_key_show_reads_it_and_keygen_never_replaces_it(tmp_path
     assert main(["signing", "keygen", str(key_file)]) == exits.OK
     out = capsys.readouterr().out
     key = read_key_file(key_file)
-    assert f"fingerprint {key.fingerprint}" in out and f"secret (hex): {key.hex}" in out
+    assert f"fingerprint {key.fingerprint}" in out and key.hex not in out  # the secret is not printed
+    assert f"companion signing show --hex {key_file}" in out
     assert f"key_file = '{key_file}'" in out and (key_file.stat().st_mode & 0o777) == 0o600
     assert main(["signing", "keygen", str(key_file)]) == exits.BAD_INPUT
     assert "exists; refusing to replace a key (pass --force)" in capsys.readouterr().err
@@ -36,8 +37,13 @@ def test_keygen_passphrase_prints_the_mavproxy_command_for_the_same_secret(tmp_p
     assert main(["signing", "keygen", "--passphrase", str(key_file)]) == exits.OK
     out = capsys.readouterr().out
     phrase = key_file.read_text().strip()
-    assert f"MAVProxy (same secret): signing setup {phrase}" in out
-    assert hashlib.sha256(phrase.encode()).hexdigest() in out and "key_format = 'passphrase'" in out
+    assert f'MAVProxy (same secret): signing setup "$(cat {key_file})"' in out and "key_format = 'passphrase'" in out
+    assert phrase not in out and hashlib.sha256(phrase.encode()).hexdigest() not in out  # neither the secret
+    # read as a key it is no key, and the hint names this command's option, not a parameter-file key
+    assert main(["signing", "show", str(key_file)]) == exits.BAD_INPUT
+    assert "a passphrase file needs --format passphrase" in capsys.readouterr().err
+    assert main(["signing", "show", "--format", "passphrase", "--hex", str(key_file)]) == exits.OK
+    assert hashlib.sha256(phrase.encode()).hexdigest() in capsys.readouterr().out
 
 
 def test_show_names_the_file_and_what_is_expected(tmp_path, capsys):
