@@ -52,29 +52,40 @@ def _cmd_pad(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    def bad(msg: str) -> int:
+        print(f"companion calibrate: {msg}", file=sys.stderr)
+        return 2
+
     try:
         pattern = CalibrationPattern.parse(args.pattern)
     except ValueError as exc:
-        print(f"error: {exc}")
-        return 2
+        return bad(str(exc))
     images = []
-    for name in args.images:
+    for name in args.images:  # every image is bad input alike: unreadable, or not the first's size
         img = cv2.imread(str(name), cv2.IMREAD_GRAYSCALE)
         if img is None:
-            print(f"error: cannot read image {name}")
-            return 2
+            return bad(f"cannot read image {name} (missing, or not an image OpenCV reads)")
+        if images and img.shape != images[0].shape:
+            h, w = img.shape[:2]
+            h0, w0 = images[0].shape[:2]
+            return bad(f"image {name} is {w}x{h}, expected {w0}x{h0} as {args.images[0]} (one camera, one size)")
         images.append(img)
+    skipped: list[tuple[int, str]] = []
     try:
-        cam, rms = calibrate(images, pattern, kind=args.model, min_views=args.min_views)
+        cam, rms = calibrate(
+            images, pattern, kind=args.model, min_views=args.min_views, on_skip=lambda i, why: skipped.append((i, why))
+        )
     except ValueError as exc:
-        print(f"error: {exc}")
+        _say_skipped(args.images, skipped)
+        print(f"companion calibrate: {exc}", file=sys.stderr)
         return 1
+    _say_skipped(args.images, skipped)
     out = save_camera(
         cam,
         args.out,
         rms_px=rms,
-        n_images=len(images),
-        note=f"calibrated from {len(images)} images, pattern {args.pattern}",
+        n_images=len(images) - len(skipped),
+        note=f"calibrated from {len(images) - len(skipped)} of {len(images)} images, pattern {args.pattern}",
     )
     print(f"reprojection error (RMS): {rms:.3f} px")
     print(
@@ -85,6 +96,14 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if rms > 1.0:
         print("warning: RMS above 1 px; check the images (focus, motion blur, pattern flatness)")
     return 0
+
+
+def _say_skipped(names: list[Any], skipped: list[tuple[int, str]]) -> None:
+    """Each image the target was not found in, by name, and how many were used."""
+    for i, why in skipped:
+        print(f"skipped {names[i]}: {why}", file=sys.stderr)
+    if skipped:
+        print(f"used {len(names) - len(skipped)} of {len(names)} images", file=sys.stderr)
 
 
 def register(subparsers: Any) -> None:

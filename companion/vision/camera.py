@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import tomllib
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -453,7 +453,9 @@ def _to_gray(image: Any) -> NDArray[np.uint8]:
     raise ValueError(f"calibration image shape {image.shape}: must be HxW or HxWx3")
 
 
-def _find_views(images: Iterable[Any], pattern: CalibrationPattern) -> tuple[_Views, tuple[int, int]]:
+def _find_views(
+    images: Iterable[Any], pattern: CalibrationPattern, on_skip: Callable[[int, str], None] | None = None
+) -> tuple[_Views, tuple[int, int]]:
     views = _Views()
     size: tuple[int, int] | None = None
     charuco = None
@@ -472,6 +474,8 @@ def _find_views(images: Iterable[Any], pattern: CalibrationPattern) -> tuple[_Vi
             ok, corners = cv2.findChessboardCorners(gray, (pattern.cols, pattern.rows), flags=flags)
             if not ok:
                 log.info("calibration image %d: chessboard not found", i)
+                if on_skip is not None:
+                    on_skip(i, f"no {pattern.cols}x{pattern.rows} chessboard found")
                 continue
             crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
             corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
@@ -481,6 +485,8 @@ def _find_views(images: Iterable[Any], pattern: CalibrationPattern) -> tuple[_Vi
             ch_corners, ch_ids, _, _ = charuco.detectBoard(gray)
             if ch_ids is None or len(ch_ids) < 6:
                 log.info("calibration image %d: too few ChArUco corners", i)
+                if on_skip is not None:
+                    on_skip(i, f"{0 if ch_ids is None else len(ch_ids)} ChArUco corners found, at least 6 needed")
                 continue
             obj, img = pattern.charuco_board().matchImagePoints(ch_corners, ch_ids)
             views.obj.append(np.asarray(obj, np.float32).reshape(-1, 3))
@@ -505,8 +511,10 @@ def calibrate(
     *,
     kind: DistortionKind = "opencv",
     min_views: int = 5,
+    on_skip: Callable[[int, str], None] | None = None,
 ) -> tuple[CameraModel, float]:
-    """Calibrate from >= ``min_views`` views of a chessboard or ChArUco target.
+    """Calibrate from >= ``min_views`` views of a chessboard or ChArUco target; ``on_skip(index,
+    why)`` hears of each image the target was not found in.
 
     Returns ``(camera, rms_px)``: the model and the RMS reprojection error in pixels reported by
     ``cv2.calibrateCamera``. ``kind="dart"`` fits radial k1 only and converts it to the Dart
@@ -515,7 +523,7 @@ def calibrate(
     pat = CalibrationPattern.parse(pattern) if isinstance(pattern, str) else pattern
     if kind not in DISTORTION_KINDS:
         raise ValueError(f"calibrate kind {kind!r}: must be one of {DISTORTION_KINDS}")
-    views, size = _find_views(images, pat)
+    views, size = _find_views(images, pat, on_skip)
     if len(views.obj) < min_views:
         raise ValueError(f"calibration: the pattern was found in {len(views.obj)} image(s), need >= {min_views}")
     flags = 0

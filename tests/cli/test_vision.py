@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from companion.cli.vision import register
@@ -87,6 +88,30 @@ def test_calibrate_command_errors(tmp_path: Path, capsys: pytest.CaptureFixture[
             str(tmp_path / "c.toml"),
         ]
     )
-    assert args.func(args) == 2 and "cannot read" in capsys.readouterr().out
+    assert args.func(args) == 2 and "companion calibrate: cannot read image" in capsys.readouterr().err
     args = _parser().parse_args(["calibrate", "x.png", "--pattern", "rings:3", "--out", "c.toml"])
-    assert args.func(args) == 2 and "pattern" in capsys.readouterr().out
+    assert args.func(args) == 2 and "pattern" in capsys.readouterr().err
+
+
+def test_calibrate_names_the_images_it_skipped_and_a_wrong_size_is_bad_input_as_a_missing_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth = CameraModel(640, 480, 510.0, 510.0, 320.0, 240.0, dist=(0.08, -0.1, 0.0, 0.0, 0.0))
+    names = []
+    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"), 6, seed=9)):
+        p = tmp_path / f"view{i}.png"
+        cv2.imwrite(str(p), img)
+        names.append(str(p))
+    blank = tmp_path / "lens_cap.png"
+    cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))
+    out = tmp_path / "camera_test.toml"
+    argv = ["calibrate", *names[:3], str(blank), *names[3:], "--pattern", "chessboard:9x6:0.025", "--out", str(out)]
+    assert _parser().parse_args(argv).func(_parser().parse_args(argv)) == 0
+    err = capsys.readouterr().err
+    assert f"skipped {blank}: no 9x6 chessboard found" in err and "used 6 of 7 images" in err, err
+    assert "calibrated from 6 of 7 images" in out.read_text()
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.full((240, 320), 128, np.uint8))
+    argv = ["calibrate", *names[:2], str(small), "--pattern", "chessboard:9x6:0.025", "--out", str(out)]
+    assert _parser().parse_args(argv).func(_parser().parse_args(argv)) == 2  # as a missing image: bad input
+    assert f"image {small} is 320x240, expected 640x480" in capsys.readouterr().err
