@@ -6,6 +6,24 @@ import argparse
 import contextlib
 import os
 from pathlib import Path
+from typing import Any
+
+
+class Once(argparse.Action):
+    """An option a command reads once (``--params`` of a command that takes one file): given again,
+    argparse's usage error (exit 2) names both values, rather than the last one silently winning.
+    ``companion demo`` and ``bench app`` take ``--params`` more than once, as overlays."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option: str | None = None
+    ) -> None:
+        before = getattr(namespace, self.dest, None)
+        if before is not None and before != self.default:
+            parser.error(
+                f"{option} given twice ({before}, then {values}): this command reads one file "
+                "(overlays of parameter files: companion demo and companion bench app)"
+            )
+        setattr(namespace, self.dest, values)
 
 
 def positive_int(text: str) -> int:

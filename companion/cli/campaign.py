@@ -10,7 +10,7 @@ import time
 from typing import Any
 
 from companion.cli import exits
-from companion.cli.args import RESULTS_MIN_BYTES, output_folder, positive_int
+from companion.cli.args import RESULTS_MIN_BYTES, Once, output_folder, positive_int
 from companion.units import format_cm
 
 log = logging.getLogger(__name__)
@@ -251,7 +251,7 @@ def register_campaign(csub: Any) -> None:
         help="comma-separated variants, overrides --failures (default: fusion,gps_only, and the failure "
         "variants with --failures)",
     )
-    cl.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cl.add_argument("--params", action=Once, help="scenario parameters (default: the shipped landing_campaign.toml)")
     cl.add_argument("--out", help="output folder (default runs/landing-<time>)")
     cl.add_argument("--quiet", action="store_true", help="no progress bar")
     cl.add_argument(
@@ -302,7 +302,7 @@ def register_campaign(csub: Any) -> None:
     cp.add_argument("--n", type=positive_int, default=10, help="landings (each real one takes about a minute)")
     cp.add_argument("--seed", type=int, default=1, help="seed of the draws")
     cp.add_argument("--variants", default="fusion", help="comma-separated variants (default fusion)")
-    cp.add_argument("--params", help="scenario parameters (default: the shipped landing_campaign.toml)")
+    cp.add_argument("--params", action=Once, help="scenario parameters (default: the shipped landing_campaign.toml)")
     cp.add_argument("--out", help="output folder (default runs/parity-<autopilot>-<time>)")
     cp.add_argument("--weather", action="store_true", help="both sides fly the drawn weather (docs/weather.md)")
     cp.set_defaults(func=cmd_campaign_parity)

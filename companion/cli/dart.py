@@ -25,7 +25,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from companion.cli.args import RESULTS_MIN_BYTES, check_writable, positive_int
+from companion.cli.args import RESULTS_MIN_BYTES, Once, check_writable, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +101,7 @@ def register_campaign(csub: Any) -> None:
     d.add_argument(
         "--settle", type=float, default=8.0, help="left out at the start of each run, s (default: %(default)s)"
     )
-    d.add_argument("--params", help="Dart parameter file (default: the shipped params/dart_hover.toml)")
+    d.add_argument("--params", action=Once, help="Dart parameter file (default: the shipped params/dart_hover.toml)")
     d.add_argument(
         "--json", help="also write the result as JSON to this file, creating its folder (default: not written)"
     )
@@ -329,6 +329,7 @@ def register(subparsers: Any) -> None:
     )
     d.add_argument(
         "--params",
+        action=Once,
         help="Dart parameter file: [control], [mission], [runtime] (and [sim] for --sim); "
         "default with --sim: the shipped dart_hover.toml, required otherwise",
     )

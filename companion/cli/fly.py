@@ -17,7 +17,7 @@ from typing import Any
 from companion.autopilot import factory
 from companion.autopilot.interface import Autopilot, ConnectionUrlError, LinkDeviceMissing
 from companion.cli import exits
-from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, made_run_folder
+from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, Once, made_run_folder
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
@@ -49,7 +49,9 @@ def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwa
 def register(subparsers: Any) -> None:
     """Add ``fly`` to the CLI's subparsers."""
     p = subparsers.add_parser("fly", help="fly the delivery mission on the configured real autopilot")
-    p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
+    p.add_argument(
+        "--params", action=Once, required=True, help="parameter file (TOML); autopilot/connection select the vehicle"
+    )
     p.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
     p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds")
     p.add_argument("--out", help="run folder for flight.tlog and the per-stream CSV logs (default runs/fly-<time>)")

@@ -26,6 +26,7 @@ from companion.autopilot.preflight.report import (
 )
 from companion.autopilot.preflight.runner import preflight
 from companion.cli import exits
+from companion.cli.args import Once
 from companion.cli.console import make_console
 from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, load_config
@@ -40,7 +41,9 @@ def register(subparsers: Any) -> None:
         "preflight",
         help="check the autopilot's parameters, the landing sensors and the clock against the configuration",
     )
-    p.add_argument("--params", required=True, help="parameter file (TOML); autopilot/connection select the vehicle")
+    p.add_argument(
+        "--params", action=Once, required=True, help="parameter file (TOML); autopilot/connection select the vehicle"
+    )
     p.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     p.add_argument(

@@ -21,7 +21,7 @@ from companion.autopilot.signing import (
     write_key_file,
 )
 from companion.cli import exits
-from companion.cli.args import positive_int
+from companion.cli.args import Once, positive_int
 from companion.cli.exits import StartupError
 from companion.config import load_config
 
@@ -49,7 +49,7 @@ def register(subparsers: Any) -> None:
         "push",
         help="give the vehicle the key in [signing] with SETUP_SIGNING, then check it signs with it",
     )
-    pu.add_argument("--params", required=True, help="parameter file: connection and [signing] key_file")
+    pu.add_argument("--params", action=Once, required=True, help="parameter file: connection and [signing] key_file")
     pu.add_argument("--connection", help="MAVLink connection URL (default: connection in the parameters)")
     pu.add_argument("--off", action="store_true", help="send the all-zero key instead: turn the vehicle's signing off")
     pu.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the vehicle")

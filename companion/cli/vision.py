@@ -14,6 +14,7 @@ from typing import Any
 
 import cv2
 
+from companion.cli.args import Once
 from companion.vision.camera import CalibrationPattern, calibrate, save_camera
 from companion.vision.pad import PadLayout, load_pad, pad_side_px, save_pad_pdf, save_pad_png
 
@@ -60,7 +61,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         pattern = CalibrationPattern.parse(args.pattern)
     except ValueError as exc:
         return bad(str(exc))
-    images = []
+    images: list[Any] = []
     for name in args.images:  # every image is bad input alike: unreadable, or not the first's size
         img = cv2.imread(str(name), cv2.IMREAD_GRAYSCALE)
         if img is None:
@@ -121,6 +122,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--params",
+        action=Once,
         type=Path,
         default=None,
         help="pad layout TOML with a [pad] table (default: the delivery paper's pad)",

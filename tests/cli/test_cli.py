@@ -156,3 +156,24 @@ def test_a_reader_that_closes_the_pipe_ends_the_command_quietly():
     # 1 once the pipe broke; 0 in the rare run where all 42 kB fitted the pipe before it closed
     assert proc.wait(timeout=60) in (0, 1) and first.startswith(b"#")
     assert err == "", err  # no BrokenPipeError traceback, no "Exception ignored" on the final flush
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["fly"],
+        ["preflight"],
+        ["signing", "push"],
+        ["campaign", "landing"],
+        ["campaign", "parity", "--autopilot", "px4"],
+        ["dart"],
+        ["campaign", "dart"],
+        ["pad"],
+    ],
+)
+def test_a_command_that_reads_one_parameter_file_refuses_two(argv, capsys):
+    # `fly --params a --params b` flew b alone, silently; demo and bench app take overlays
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, "--params", "a.toml", "--params", "b.toml"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--params given twice (a.toml, then b.toml)" in err, err
