@@ -1,4 +1,5 @@
-"""Typed mission phases and events (timestamped on the shell's clock)."""
+"""Typed mission phases and events (timestamped on the shell's clock), and the commands the mission
+takes from the ground."""
 
 from __future__ import annotations
 
@@ -49,6 +50,16 @@ class EventKind(enum.Enum):
     GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
     WINCH = "winch"  # a step of the winch delivery (payout, parcel down, reeled in) or why it failed
     ORDER = "order"  # a delivery order from the ground: received, accepted or refused (with the reason), flown
+
+
+class CommandKind(enum.Enum):
+    """A command to the mission from the ground (Zenoh, :mod:`companion.telemetry.auth`) or the
+    operator's GCS (:mod:`companion.delivery.gcs`); its value is the wire's and the logs' name."""
+
+    HOLD = "hold"  # stop and hold position
+    RETURN = "return"  # fly back home along the path
+    LAND = "land"  # land where the vehicle is
+    ABORT = "abort"  # the mission's abort procedure (hold, then land)
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
 import logging
 import time
 from collections.abc import Callable, Iterable
@@ -40,7 +41,7 @@ from companion.autopilot.interface import Autopilot, AutopilotError
 from companion.config import GcsConfig
 from companion.delivery.host_status import HostStatusReader, onboard_computer_status
 from companion.delivery.mission import CommandOutcome, CommandReply
-from companion.events import EventKind, MissionEvent, Phase
+from companion.events import CommandKind, EventKind, MissionEvent, Phase
 
 log = logging.getLogger(__name__)
 
@@ -89,22 +90,27 @@ def event_text(ev: MissionEvent) -> str:
     return ev.kind.value + (f": {ev.detail}" if ev.detail else "")
 
 
-def mission_kind(cmd: ComponentCommand) -> str | None:
+class GcsOnly(enum.Enum):
+    """A COMMAND_LONG we understand that is no mission command: answered here, never the mission's."""
+
+    CONTINUE = "continue"  # DO_PAUSE_CONTINUE, param1 = 1: resume after a pause (DENIED)
+
+
+def mission_kind(cmd: ComponentCommand) -> CommandKind | GcsOnly | None:
     """The mission command (hold, return, land) a COMMAND_LONG asks for; None: not one of ours."""
     if cmd.command == MAV_CMD_NAV_LOITER_UNLIM:
-        return "hold"
+        return CommandKind.HOLD
     if cmd.command == MAV_CMD_DO_PAUSE_CONTINUE:
-        return "hold" if cmd.params[0] == 0 else "continue"
+        return CommandKind.HOLD if cmd.params[0] == 0 else GcsOnly.CONTINUE
     if cmd.command == MAV_CMD_NAV_RETURN_TO_LAUNCH:
-        return "return"
+        return CommandKind.RETURN
     if cmd.command == MAV_CMD_NAV_LAND:
-        return "land"
+        return CommandKind.LAND
     return None
 
 
 ACK_RESULTS = {
     CommandOutcome.ACCEPTED: MAV_RESULT_ACCEPTED,
-    CommandOutcome.UNKNOWN: MAV_RESULT_UNSUPPORTED,
     CommandOutcome.ENDED: MAV_RESULT_DENIED,
     CommandOutcome.NOT_NOW: MAV_RESULT_TEMPORARILY_REJECTED,
 }
@@ -120,7 +126,9 @@ class GcsComponent:
     autopilot is connected, :meth:`on_events` with every tick's mission events, :meth:`close` at
     the end. ``command(kind, sender)`` runs a mission command and returns the mission's reply."""
 
-    def __init__(self, cfg: GcsConfig, autopilot: Autopilot, command: Callable[[str, str], CommandReply]) -> None:
+    def __init__(
+        self, cfg: GcsConfig, autopilot: Autopilot, command: Callable[[CommandKind, str], CommandReply]
+    ) -> None:
         self.cfg = cfg
         self.autopilot = autopilot
         self.command = command
@@ -204,7 +212,7 @@ class GcsComponent:
         kind = mission_kind(cmd)
         if kind is None:
             result, reply = MAV_RESULT_UNSUPPORTED, f"command {cmd.command} not supported (hold, return, land)"
-        elif kind == "continue":
+        elif kind is GcsOnly.CONTINUE:
             result, reply = MAV_RESULT_DENIED, "continue not supported: a hold lasts until land or the pilot"
         elif not self.cfg.accept_commands:
             result, reply = MAV_RESULT_DENIED, "commands from the GCS are off (gcs.accept_commands = false)"

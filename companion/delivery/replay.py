@@ -22,6 +22,7 @@ so equal text means equal doubles.
 
 from __future__ import annotations
 
+import enum
 import itertools
 import logging
 import math
@@ -29,11 +30,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
 from companion.delivery.gonogo import GoNoGoVerdict
+from companion.events import CommandKind
 from companion.flightlog.csv_file import format_cell
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.losses import LossCause
@@ -58,6 +60,8 @@ from companion.flightlog.streams import (
 
 log = logging.getLogger(__name__)
 
+E = TypeVar("E", bound=enum.Enum)
+
 
 # Columns added after the log format was first released, with the value older logs imply.
 OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
@@ -74,15 +78,30 @@ OPTIONAL_COLUMNS: dict[tuple[str, str], Any] = {
 # ---------------------------------------------------------------------------------------------
 # the merged input stream
 
+
+class InputKind(enum.Enum):
+    """What a recorded input of the core is, and so where replay feeds it (its value names it in
+    messages)."""
+
+    SAMPLE = "sample"  # an autopilot sample (the ap_*.csv files): the telemetry cache
+    MARKER = "marker"  # a pad observation (camera.csv): the landing fusion
+    UWB = "uwb"  # a UWB fix (uwb.csv): the landing fusion
+    RESULT = "result"  # a request's result (requests.csv): the mission
+    ABORT = "abort"  # an operator abort (commands.csv): the mission
+    COMMAND = "command"  # a ground or GCS command (commands.csv): the mission
+    GO_NO_GO = "go_no_go"  # a go/no-go verdict reached outside a tick (commands.csv): the mission
+    TICK = "tick"  # a guidance tick (guidance.csv)
+
+
 # commands.csv's sources -> input kinds: operator aborts, ground commands, go/no-go verdicts
 # reached outside a tick (the fence upload; logs before them have none)
-_COMMAND_SOURCES = {"operator": "abort", "ground": "command", "go_no_go": "go_no_go"}
+_COMMAND_SOURCES = {"operator": InputKind.ABORT, "ground": InputKind.COMMAND, "go_no_go": InputKind.GO_NO_GO}
 
 
 @dataclass(frozen=True)
 class _Input:
     seq: int
-    kind: str  # sample, marker, uwb, result, abort, command, go_no_go, tick
+    kind: InputKind
     payload: Any
     where: str  # file:line, for messages
 
@@ -99,7 +118,7 @@ def _sample_inputs(t: Table, name: str, cls: Any) -> list[_Input]:
             t.value(k, "time_s"),
             *(t.value(k, n, typ) if n in t.index else OPTIONAL_COLUMNS[(name, n)] for n, typ in fields_),
         )
-        out.append(_Input(_int(t, k, "seq"), "sample", sample, f"{name}:{k + 2}"))
+        out.append(_Input(_int(t, k, "seq"), InputKind.SAMPLE, sample, f"{name}:{k + 2}"))
     return out
 
 
@@ -117,7 +136,7 @@ def _marker_inputs(t: Table) -> list[_Input]:
             tuple(t.text(k, "markers").split()),
             t.value(k, "reprojection_error_px"),
         )
-        out.append(_Input(_int(t, k, "seq"), "marker", obs, f"camera.csv:{k + 2}"))
+        out.append(_Input(_int(t, k, "seq"), InputKind.MARKER, obs, f"camera.csv:{k + 2}"))
     return out
 
 
@@ -143,7 +162,7 @@ def _uwb_inputs(t: Table) -> list[_Input]:
                 else OPTIONAL_COLUMNS[("uwb.csv", "vertical_weak")]
             ),
         )
-        out.append(_Input(_int(t, k, "seq"), "uwb", fix, f"uwb.csv:{k + 2}"))
+        out.append(_Input(_int(t, k, "seq"), InputKind.UWB, fix, f"uwb.csv:{k + 2}"))
     return out
 
 
@@ -154,7 +173,7 @@ def _result_inputs(t: Table) -> list[_Input]:
     for k in range(len(t)):
         permanent = "permanent" in t.index and t.value(k, "permanent", bool)
         res = RequestResult(_int(t, k, "id"), t.value(k, "ok", bool), t.text(k, "error"), permanent)
-        out.append(_Input(_int(t, k, "seq"), "result", res, f"requests.csv:{k + 2}"))
+        out.append(_Input(_int(t, k, "seq"), InputKind.RESULT, res, f"requests.csv:{k + 2}"))
     return out
 
 
@@ -167,16 +186,35 @@ def _command_inputs(t: Table) -> list[_Input]:
                 f"{t.path}: line {k + 2}, column 'source': {src!r} is not one of "
                 + ", ".join(repr(s) for s in _COMMAND_SOURCES)
             )
-        cmd = (t.value(k, "time_s"), t.text(k, "kind"), t.text(k, "detail"), t.text(k, "reply"))
-        if src == "go_no_go" and cmd[1] not in ("go", "refuse"):
-            raise LogFormatError(f"{t.path}: line {k + 2}, column 'kind': {cmd[1]!r} is not one of 'go', 'refuse'")
-        out.append(_Input(_int(t, k, "seq"), _COMMAND_SOURCES[src], cmd, f"commands.csv:{k + 2}"))
+        input_kind = _COMMAND_SOURCES[src]
+        kind = t.text(k, "kind")
+        parsed: Any = kind  # an operator abort's kind is not read
+        if input_kind is InputKind.GO_NO_GO:
+            parsed = _token(t, k, GoNoGoVerdict, kind)
+        elif input_kind is InputKind.COMMAND:
+            parsed = _token(t, k, CommandKind, kind)
+        cmd = (t.value(k, "time_s"), parsed, t.text(k, "detail"), t.text(k, "reply"))
+        out.append(_Input(_int(t, k, "seq"), input_kind, cmd, f"commands.csv:{k + 2}"))
     return out
+
+
+def _token(t: Table, k: int, kinds: type[E], text: str) -> E:
+    """commands.csv's ``kind`` column as the enum it names (the log's text is read here only)."""
+    try:
+        return kinds(text)
+    except ValueError:
+        allowed = ", ".join(repr(m.value) for m in kinds)
+        raise LogFormatError(f"{t.path}: line {k + 2}, column 'kind': {text!r} is not one of {allowed}") from None
 
 
 def _tick_inputs(t: Table) -> list[_Input]:
     return [
-        _Input(_int(t, k, "seq"), "tick", (t.value(k, "time_s"), t.value(k, "link_ok", bool)), f"guidance.csv:{k + 2}")
+        _Input(
+            _int(t, k, "seq"),
+            InputKind.TICK,
+            (t.value(k, "time_s"), t.value(k, "link_ok", bool)),
+            f"guidance.csv:{k + 2}",
+        )
         for k in range(len(t))
     ]
 
@@ -333,29 +371,31 @@ class _ReplayShell:
 
     def feed(self, inp: _Input) -> Any:
         k = inp.kind
-        if k == "sample":
+        if k is InputKind.SAMPLE:
             self.telemetry.push(inp.payload)
-        elif k in ("marker", "uwb"):
+        elif k is InputKind.MARKER or k is InputKind.UWB:
             if self.fusion is None:
-                raise LogFormatError(f"{inp.where}: a {k} input before the landing fusion started (seq {inp.seq})")
-            (self.fusion.on_marker if k == "marker" else self.fusion.on_uwb)(inp.payload)
-        elif k == "result":
+                raise LogFormatError(
+                    f"{inp.where}: a {k.value} input before the landing fusion started (seq {inp.seq})"
+                )
+            (self.fusion.on_marker if k is InputKind.MARKER else self.fusion.on_uwb)(inp.payload)
+        elif k is InputKind.RESULT:
             self.mission.on_result(inp.payload)
-        elif k == "abort":
+        elif k is InputKind.ABORT:
             now, _kind, reason, _reply = inp.payload
             self.mission.abort(now, reason)
-        elif k == "go_no_go":
+        elif k is InputKind.GO_NO_GO:
             now, verdict, detail, _reply = inp.payload
-            refused = verdict == GoNoGoVerdict.REFUSE.value  # the token commands.csv records
+            refused = verdict is GoNoGoVerdict.REFUSE
             (self.mission.refuse if refused else self.mission.go_no_go)(now, detail)
-        elif k == "command":
+        elif k is InputKind.COMMAND:
             now, kind, sender, reply = inp.payload
             got = self.mission.command(now, kind, sender)
             if got != reply:
                 self.notes.append(
-                    f"{inp.where}: ground command {kind!r} replied {got!r} in replay, {reply!r} in flight"
+                    f"{inp.where}: ground command {kind.value!r} replied {got!r} in replay, {reply!r} in flight"
                 )
-        elif k == "tick":
+        elif k is InputKind.TICK:
             now, link_ok = inp.payload
             return self.tick(now, link_ok, wind=self.wind_by_seq.get(inp.seq), winch=self.winch_by_seq.get(inp.seq))
         return None

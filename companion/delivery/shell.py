@@ -67,7 +67,7 @@ from companion.delivery.passthrough import AutopilotPoseEstimator
 from companion.delivery.sensor_tasks import SensorTasks
 from companion.estimation.ekf import UpdateOutcome
 from companion.estimation.types import StateEstimate
-from companion.events import EventKind, MissionEvent, Phase
+from companion.events import CommandKind, EventKind, MissionEvent, Phase
 from companion.flightlog.csvlog import CsvLog
 from companion.geometry.mounts import pad_pose_ned
 from companion.guidance.limits import clamp_velocity
@@ -271,17 +271,18 @@ class DeliveryShell:
 
     def on_ground_command(self, cmd: Any) -> CommandReply:
         """An authenticated ground command (telemetry.auth.GroundCommand), on the loop thread."""
-        return self.command(cmd.kind.value, cmd.sender)
+        return self.command(cmd.kind, cmd.sender)
 
-    def command(self, kind: str, sender: str) -> CommandReply:
+    def command(self, kind: CommandKind, sender: str) -> CommandReply:
         """A hold / return / land / abort from the ground (Zenoh) or the operator's GCS (MAVLink,
-        sender "gcs"), on the loop thread: to the mission, recorded; returns the mission's reply."""
+        sender "gcs"), on the loop thread: to the mission, recorded; returns the mission's reply.
+        The kind's name is written only for the logs and the observers (commands.csv, telemetry)."""
         now = self._clock.now()
         reply = self.mission.command(now, kind, sender)
         for ob in self._watching():
-            ob.on_command(now, kind, sender, reply)
-        self.ground_commands.append((kind, reply))
-        log.warning("ground command %s from %s: %s", kind, sender, reply)
+            ob.on_command(now, kind.value, sender, str(reply))
+        self.ground_commands.append((kind.value, reply))
+        log.warning("ground command %s from %s: %s", kind.value, sender, reply)
         return reply
 
     def add_observer(self, observer: ShellObserver) -> None:

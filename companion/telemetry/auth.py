@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from companion.events import CommandKind as CommandKind  # the mission's vocabulary; parsed here
 from companion.secret_files import read_private
 from companion.telemetry.schema import SchemaError, check_vehicle_id, parse_json
 from companion.timebase import VehicleClock, vehicle_clock
@@ -71,13 +72,6 @@ MAX_ISSUED_MS = 1 << 53  # an issued time beyond this is no time (and no float h
 def sender_ok(sender: str) -> bool:
     """Whether ``sender`` is a valid sender name (1-64 of letters, digits, ``_ . @ -``)."""
     return bool(_SENDER.match(sender))
-
-
-class CommandKind(enum.Enum):
-    HOLD = "hold"  # stop and hold position
-    RETURN = "return"  # fly back home along the path
-    LAND = "land"  # land where the vehicle is
-    ABORT = "abort"  # the mission's abort procedure (hold, then land)
 
 
 class RefusalKind(enum.Enum):

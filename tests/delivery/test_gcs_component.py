@@ -24,6 +24,7 @@ from companion.delivery.gcs import (
     MAV_RESULT_TEMPORARILY_REJECTED,
     MAV_RESULT_UNSUPPORTED,
     GcsComponent,
+    GcsOnly,
     ack_result,
     event_severity,
     event_text,
@@ -31,7 +32,7 @@ from companion.delivery.gcs import (
 )
 from companion.delivery.host_status import HostStatusReader, onboard_computer_status
 from companion.delivery.mission import CommandOutcome, CommandReply, DeliveryMission
-from companion.events import EventKind, MissionEvent, Phase
+from companion.events import CommandKind, EventKind, MissionEvent, Phase
 
 
 def _cmd(command: int, p1: float = 0.0) -> ComponentCommand:
@@ -61,27 +62,51 @@ def test_long_texts_are_chunked():
 
 
 def test_command_table():
-    assert mission_kind(_cmd(17)) == "hold"
-    assert mission_kind(_cmd(193, 0.0)) == "hold"
-    assert mission_kind(_cmd(193, 1.0)) == "continue"
-    assert mission_kind(_cmd(20)) == "return"
-    assert mission_kind(_cmd(21)) == "land"
+    assert mission_kind(_cmd(17)) is CommandKind.HOLD
+    assert mission_kind(_cmd(193, 0.0)) is CommandKind.HOLD
+    assert mission_kind(_cmd(193, 1.0)) is GcsOnly.CONTINUE
+    assert mission_kind(_cmd(20)) is CommandKind.RETURN
+    assert mission_kind(_cmd(21)) is CommandKind.LAND
     assert mission_kind(_cmd(400)) is None
 
 
 def test_ack_results_follow_the_mission_replies():
     """The mission's own replies, phase by phase, give the MAV_RESULTs the GCS sees."""
     m = DeliveryMission(CompanionConfig().mission)
-    assert ack_result(m.command(0.0, "return", "gcs")) == MAV_RESULT_TEMPORARILY_REJECTED  # pre-flight
-    assert ack_result(m.command(0.0, "hold", "gcs")) == MAV_RESULT_TEMPORARILY_REJECTED  # on the ground
-    assert ack_result(m.command(0.0, "nonsense", "gcs")) == MAV_RESULT_UNSUPPORTED
+    assert ack_result(m.command(0.0, CommandKind.RETURN, "gcs")) == MAV_RESULT_TEMPORARILY_REJECTED  # pre-flight
+    assert ack_result(m.command(0.0, CommandKind.HOLD, "gcs")) == MAV_RESULT_TEMPORARILY_REJECTED  # on the ground
     m.phase = Phase.OUTBOUND
-    assert ack_result(m.command(1.0, "return", "gcs")) == MAV_RESULT_ACCEPTED
+    assert ack_result(m.command(1.0, CommandKind.RETURN, "gcs")) == MAV_RESULT_ACCEPTED
     assert m.phase is Phase.INBOUND
-    assert ack_result(m.command(2.0, "land", "gcs")) == MAV_RESULT_ACCEPTED
+    assert ack_result(m.command(2.0, CommandKind.LAND, "gcs")) == MAV_RESULT_ACCEPTED
     assert m.phase is Phase.ABORT_LAND
     m.phase = Phase.DONE
-    assert ack_result(m.command(3.0, "hold", "gcs")) == MAV_RESULT_DENIED
+    assert ack_result(m.command(3.0, CommandKind.HOLD, "gcs")) == MAV_RESULT_DENIED
+    # every outcome the mission can reply with has its MAV_RESULT
+    assert {ack_result(CommandReply(o, "")) for o in CommandOutcome} <= {
+        MAV_RESULT_ACCEPTED,
+        MAV_RESULT_DENIED,
+        MAV_RESULT_TEMPORARILY_REJECTED,
+    }
+
+
+async def test_an_unsupported_command_and_continue_never_reach_the_mission():
+    """Not a mission command: UNSUPPORTED, and DO_PAUSE_CONTINUE's continue DENIED, both decided
+    here; only the hold reaches the mission, as the kind it is."""
+    asked: list[CommandKind] = []
+    link = _Link()
+    comp = GcsComponent(
+        GcsConfig(), link, lambda kind, sender: asked.append(kind) or CommandReply(CommandOutcome.ACCEPTED, "ok")
+    )
+    assert comp.open()
+    try:
+        link.on_command(ComponentCommand(0.0, 255, 190, 400, 0, (0.0,) * 7, None))
+        link.on_command(ComponentCommand(0.0, 255, 190, 193, 0, (1.0,) + (0.0,) * 6, None))
+        link.on_command(ComponentCommand(0.0, 255, 190, 193, 0, (0.0,) * 7, None))
+    finally:
+        await comp.close()
+    assert asked == [CommandKind.HOLD]
+    assert [r for _, r, _ in comp.commands] == [MAV_RESULT_UNSUPPORTED, MAV_RESULT_DENIED, MAV_RESULT_ACCEPTED]
 
 
 def test_host_status_from_proc_files(tmp_path):
@@ -155,11 +180,11 @@ async def test_gcs_sees_and_commands_the_companion(mav, udp_port, dialect):
     controller, 1/191), its STATUSTEXTs and ONBOARD_COMPUTER_STATUS; its RTL addressed to 1/191
     reaches the mission as "return" from "gcs" and is answered with a COMMAND_ACK from 1/191."""
     config = mav.short_config()
-    asked: list[tuple[str, str]] = []
+    asked: list[tuple[CommandKind, str]] = []
 
-    def command(kind: str, sender: str) -> CommandReply:
+    def command(kind: CommandKind, sender: str) -> CommandReply:
         asked.append((kind, sender))
-        if kind == "return":
+        if kind is CommandKind.RETURN:
             return CommandReply(CommandOutcome.ACCEPTED, "returning home along the path")
         return CommandReply(CommandOutcome.NOT_NOW, "ignored: cannot hold from preflight")
 
@@ -202,7 +227,7 @@ async def test_gcs_sees_and_commands_the_companion(mav, udp_port, dialect):
     assert "".join(t[1] for t in abort).startswith("abort: battery low")
     acks = [(m.command, m.result, m.target_system, m.target_component) for m in gcs.from_(1, 191, "COMMAND_ACK")]
     assert acks == [(20, 0, 255, 190), (17, 1, 255, 190), (400, 3, 255, 190)], acks
-    assert asked == [("return", "gcs"), ("hold", "gcs")]
+    assert asked == [(CommandKind.RETURN, "gcs"), (CommandKind.HOLD, "gcs")]
     # the mission's reply follows each answer: NOTICE when it acted, WARNING when not
     assert (5, "returning home along the path") in [t[:2] for t in texts]
     assert (4, "ignored: cannot hold from preflight") in [t[:2] for t in texts]
@@ -235,9 +260,9 @@ async def test_commands_and_heartbeats_from_anyone_else_change_nothing(mav, udp_
     GCS (255) does; HEARTBEATs claiming an armed vehicle in companion control from (1, 190) and
     from (2, 1) never change the vehicle's mode or armed state as the backend reports them."""
     config = mav.short_config()
-    asked: list[tuple[str, str]] = []
+    asked: list[tuple[CommandKind, str]] = []
 
-    def command(kind: str, sender: str) -> CommandReply:
+    def command(kind: CommandKind, sender: str) -> CommandReply:
         asked.append((kind, sender))
         return CommandReply(CommandOutcome.ACCEPTED, "returning home along the path")
 
@@ -292,7 +317,7 @@ async def test_commands_and_heartbeats_from_anyone_else_change_nothing(mav, udp_
             await comp.close()
             await ap.close()
     assert set(seen) == {(real_mode.value, False)}, set(seen)
-    assert asked == [("return", "gcs")]  # the GCS's, not system 200's
+    assert asked == [(CommandKind.RETURN, "gcs")]  # the GCS's, not system 200's
     assert forged >= 20 and comp.refused == forged and comp.refused_by_system == {200: forged}
     assert [(m.command, m.result) for m in gcs.from_(1, 191, "COMMAND_ACK")] == [(20, MAV_RESULT_ACCEPTED)]
     assert not [m for m in forger.got if m.get_type() == "COMMAND_ACK" and m.target_system == 200]
@@ -338,7 +363,7 @@ class _Link:
 async def test_only_configured_systems_and_signed_commands_on_a_signed_link_reach_the_mission(
     source_system, signed, acted
 ):
-    asked: list[str] = []
+    asked: list[CommandKind] = []
     link = _Link()
     comp = GcsComponent(
         GcsConfig(command_system_ids=(255, 42)),
@@ -351,5 +376,5 @@ async def test_only_configured_systems_and_signed_commands_on_a_signed_link_reac
     finally:
         await comp.close()
     acks = [f for name, f in link.sent if name == "COMMAND_ACK"]
-    assert (asked == ["return"]) is acted and (len(acks) == 1) is acted
+    assert (asked == [CommandKind.RETURN]) is acted and (len(acks) == 1) is acted
     assert comp.refused == (0 if acted else 1)

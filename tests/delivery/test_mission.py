@@ -9,7 +9,7 @@ from companion.config import MissionConfig, PadConfig
 from companion.delivery.mission import DeliveryMission, FailureKind, Leg, MissionInputs, RequestKind, RequestResult
 from companion.delivery.mission.phases import precision_descent
 from companion.estimation.types import StateEstimate
-from companion.events import EventKind, Phase
+from companion.events import CommandKind, EventKind, Phase
 
 HOME = HomePosition(0.0, -19.869, -43.9638, 850.0)
 
@@ -334,7 +334,7 @@ def test_the_failure_kind_is_the_one_the_abort_was_asked_with_not_read_from_the_
     m.refuse(0.0, "too windy")
     assert m.summary.failure_kind is FailureKind.REFUSED
     m = DeliveryMission(cfg())
-    m.command(0.0, "land", "ground")
+    m.command(0.0, CommandKind.LAND, "ground")
     assert m.summary.failure_kind is FailureKind.ABORTED
     assert DeliveryMission(cfg()).summary.failure_kind is FailureKind.NONE
 

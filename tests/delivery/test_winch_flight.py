@@ -12,6 +12,7 @@ import pytest
 
 from companion.config import CompanionConfig, load_config, shipped_params_path
 from companion.delivery.replay import replay_run
+from companion.events import CommandKind
 from companion_lab.campaign_landing import draw_scenarios
 from companion_lab.demo import run_demo
 
@@ -109,7 +110,7 @@ def test_a_return_command_during_the_payout_reels_in_and_brings_the_parcel_home(
     def on_tick(shell, out) -> None:  # type: ignore[no-untyped-def]
         w = shell.autopilot.telemetry.winch
         if not replies and out.phase.value == "winch" and w is not None and w.line_length_m > 2.0:
-            replies.append(shell.command("return", "test"))
+            replies.append(shell.command(CommandKind.RETURN, "test"))
 
     r = run_demo(_config(), on_tick=on_tick)
     assert replies == ["reeling in, then returning home along the path"]

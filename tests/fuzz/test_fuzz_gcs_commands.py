@@ -25,7 +25,7 @@ from companion.autopilot.signing import SigningSetup
 from companion.config import CompanionConfig, GcsConfig
 from companion.delivery.gcs import GcsComponent
 from companion.delivery.mission import CommandReply, DeliveryMission
-from companion.events import Phase
+from companion.events import CommandKind, Phase
 
 from . import harness
 from .signed_mavlink import KEY, OTHER_KEY, T0, pack, packer, read_through, signed_packets, twin_parse
@@ -78,9 +78,10 @@ SEEDS = _seeds()
 OURS = set(signed_packets(SEEDS))
 
 
-def _kind(m: Any) -> str | None:
+def _kind(m: Any) -> CommandKind | None:
     c, p1 = int(m.command), m.param1
-    return {17: "hold", 20: "return", 21: "land"}.get(c) or ("hold" if c == 193 and p1 == 0 else None)
+    table = {17: CommandKind.HOLD, 20: CommandKind.RETURN, 21: CommandKind.LAND}
+    return table.get(c) or (CommandKind.HOLD if c == 193 and p1 == 0 else None)
 
 
 async def _through_component(setup_name: str, data: bytes) -> str:
@@ -89,9 +90,9 @@ async def _through_component(setup_name: str, data: bytes) -> str:
     ap._loop = asyncio.get_running_loop()
     mission = DeliveryMission(CompanionConfig().mission)
     mission.phase = Phase.OUTBOUND
-    calls: list[str] = []
+    calls: list[CommandKind] = []
 
-    def command(kind: str, sender: str) -> CommandReply:
+    def command(kind: CommandKind, sender: str) -> CommandReply:
         calls.append(kind)
         return mission.command(0.0, kind, sender)
 

@@ -5,11 +5,11 @@ setpoint still goes through the shell."""
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, assert_never
 
 from companion.delivery.mission.states import AbortHoldState, AbortLandState
 from companion.delivery.mission.types import FailureKind
-from companion.events import EventKind, Phase
+from companion.events import CommandKind, EventKind, Phase
 
 if TYPE_CHECKING:
     from companion.delivery.mission.base import MissionBase
@@ -21,7 +21,6 @@ class CommandOutcome(enum.Enum):
     ACCEPTED = "accepted"  # done, or under way
     NOT_NOW = "not_now"  # not in this phase (on the ground, the winch ending, nothing to return from)
     ENDED = "ended"  # the mission has already ended
-    UNKNOWN = "unknown"  # not a command the mission knows
 
 
 class CommandReply(str):
@@ -35,16 +34,22 @@ class CommandReply(str):
         reply.outcome = outcome
         return reply
 
+    def __getnewargs__(self) -> tuple[CommandOutcome, str]:  # type: ignore[override]
+        # pickled whole (to the logging process, a campaign's worker): str's would call
+        # __new__ with the text alone
+        return self.outcome, str(self)
 
-def ground_command(m: MissionBase, time_s: float, kind: str, sender: str) -> CommandReply:
-    """Returns what was done, for the reply and the log."""
+
+def ground_command(m: MissionBase, time_s: float, kind: CommandKind, sender: str) -> CommandReply:
+    """Returns what was done, for the reply and the log. ``kind`` arrives parsed (the wire's text is
+    read at the edges: :mod:`companion.telemetry.auth`, :mod:`companion.delivery.gcs`, the replay)."""
     m.now = time_s
     if m.phase.terminal:
         return CommandReply(CommandOutcome.ENDED, f"ignored: mission already {m.phase.value}")
-    if kind == "abort":
+    if kind is CommandKind.ABORT:
         m.abort(time_s, f"ground command from {sender}: abort")
         return CommandReply(CommandOutcome.ACCEPTED, "aborting: hold, then land")
-    if kind == "land":
+    if kind is CommandKind.LAND:
         m.emit(EventKind.ABORT, f"ground command from {sender}: land here")
         if m.on_ground():
             m.summary.fail(FailureKind.ABORTED, f"ground command from {sender}: land (on the ground)")
@@ -54,7 +59,7 @@ def ground_command(m: MissionBase, time_s: float, kind: str, sender: str) -> Com
         m.goto(Phase.ABORT_LAND)
         m.state_as(AbortLandState).requested = False  # (again, when already landing)
         return CommandReply(CommandOutcome.ACCEPTED, "landing where the vehicle is")
-    if kind == "hold":
+    if kind is CommandKind.HOLD:
         if m.on_ground():
             return CommandReply(CommandOutcome.NOT_NOW, "ignored: on the ground")
         m.set_abort_reason(f"ground command from {sender}: hold")
@@ -64,9 +69,9 @@ def ground_command(m: MissionBase, time_s: float, kind: str, sender: str) -> Com
         return CommandReply(
             CommandOutcome.ACCEPTED, "holding position until the pilot takes over or a land/abort command"
         )
-    if kind == "return":
+    if kind is CommandKind.RETURN:
         return _return(m, time_s, sender)
-    return CommandReply(CommandOutcome.UNKNOWN, f"ignored: unknown command {kind!r}")
+    assert_never(kind)
 
 
 def _return(m: MissionBase, time_s: float, sender: str) -> CommandReply:

@@ -47,7 +47,7 @@ from companion.delivery.mission.types import (
     RequestResult,
     Step,
 )
-from companion.events import EventKind, Phase
+from companion.events import CommandKind, EventKind, Phase
 from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,7 @@ class DeliveryMission(MissionBase):
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
 
-    def command(self, time_s: float, kind: str, sender: str = "ground") -> CommandReply:
+    def command(self, time_s: float, kind: CommandKind, sender: str = "ground") -> CommandReply:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract
         (clamps, pilot priority) is untouched because every setpoint still goes through the shell.
         Returns what was done, for the reply and the log."""
