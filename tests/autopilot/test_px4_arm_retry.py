@@ -69,3 +69,71 @@ async def test_a_health_denial_that_lasts_ends_at_arm_timeout_with_px4s_answer(m
         await ap.arm()
     assert err.value.result == "DENIED" and err.value.reason == HEALTH_DENIAL
     assert 3 < action.calls < 10**6
+
+
+def test_px4s_answer_is_kept_as_its_mav_result():
+    """MAVSDK's result enum and the COMMAND_ACK's number both become a :class:`MavResult` (the
+    refusal's ``result`` stays its name); the arm retry decides on it, the text only says which
+    check failed."""
+    from companion.autopilot.interface import LINK_DOWN, NO_ANSWER
+    from companion.autopilot.px4.requests import MavResult, Px4CommandRejected
+
+    ap, _ = _autopilot([])
+    denied = Px4CommandRejected("arm", MavResult.DENIED, HEALTH_DENIAL)
+    assert denied.result == "DENIED" and denied.mav_result is MavResult.DENIED and denied.permanent
+    assert str(denied) == f"arm: DENIED ({HEALTH_DENIAL})"
+    assert ap._check_refusal(denied)
+    assert ap._check_refusal(Px4CommandRejected("arm", MavResult.TEMPORARILY_REJECTED, HEALTH_DENIAL))
+    for other in (MavResult.FAILED, MavResult.UNSUPPORTED, NO_ANSWER, LINK_DOWN):
+        err = Px4CommandRejected("arm", other, HEALTH_DENIAL)
+        assert not ap._check_refusal(err), other
+        assert err.mav_result is (other if isinstance(other, MavResult) else None)
+    # another backend's refusal carries no MAV_RESULT of PX4's: not a check to wait for
+    assert not ap._check_refusal(CommandRejected("arm", "DENIED", HEALTH_DENIAL))
+
+
+async def test_mavsdks_result_enum_becomes_the_mav_result():
+    from companion.autopilot.px4.requests import MavResult
+
+    ap, _ = _autopilot([])
+
+    async def busy() -> None:
+        raise ActionError(ActionResult.BUSY, "arm()")
+
+    async def timeout() -> None:
+        raise ActionError(ActionResult.TIMEOUT, "arm()")
+
+    with pytest.raises(CommandRejected) as err:
+        await ap._call("arm", busy)
+    assert err.value.mav_result is MavResult.TEMPORARILY_REJECTED and err.value.result == "TEMPORARILY_REJECTED"
+    with pytest.raises(CommandRejected) as err:
+        await ap._call("arm", timeout)
+    assert err.value.mav_result is None and err.value.result == "NO_ANSWER"
+
+
+async def test_a_command_acks_result_becomes_the_mav_result(monkeypatch):
+    from companion.autopilot.px4.requests import MavResult
+
+    ap, _ = _autopilot([])
+
+    class Ack:
+        def __init__(self, result: int) -> None:
+            self.fields_json = f'{{"result": {result}}}'
+
+    for number, want in ((2, MavResult.DENIED), (1, MavResult.TEMPORARILY_REJECTED), (4, MavResult.FAILED)):
+
+        async def answered(name, fn, number=number):  # type: ignore[no-untyped-def]
+            return Ack(number)
+
+        monkeypatch.setattr(ap, "_call", answered)
+        with pytest.raises(CommandRejected) as err:
+            await ap._direct_command("arm (switch to HOLD first)", 176, 1, 4, 3)
+        assert err.value.mav_result is want and err.value.result == want.name
+    monkeypatch.setattr(ap, "_call", lambda name, fn: _answer(Ack(99)))
+    with pytest.raises(CommandRejected) as err:
+        await ap._direct_command("arm (switch to HOLD first)", 176, 1, 4, 3)
+    assert err.value.mav_result is None and err.value.result == "99"
+
+
+async def _answer(value):  # type: ignore[no-untyped-def]
+    return value

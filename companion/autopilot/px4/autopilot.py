@@ -46,7 +46,7 @@ from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.mission import Px4Mission
-from companion.autopilot.px4.requests import Px4Requests
+from companion.autopilot.px4.requests import MavResult, Px4CommandRejected, Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.autopilot.types import (
     FlightMode,
@@ -71,8 +71,12 @@ PX4_AUTO_LOITER = 3
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 PX4_MAIN_OFFBOARD = 6
 ARM_RETRY_S = 1.0  # between arms PX4 denied for a failing check
-# PX4's arming-check texts (commander's health and arming checks); lower case
+# PX4's arming-check texts (commander's health and arming checks); lower case. A decision on
+# text, kept: PX4 says which check refused an arm only in the STATUSTEXT that follows the ack
+# (the COMMAND_ACK's MAV_RESULT is DENIED for a failing check and for a wrong mode alike)
 ARM_CHECK_TEXTS = ("resolve system health failures", "preflight fail")
+# the MAV_RESULTs a failing check is refused with
+ARM_CHECK_RESULTS = frozenset({MavResult.DENIED, MavResult.TEMPORARILY_REJECTED})
 
 
 class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
@@ -204,7 +208,7 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
     def _check_refusal(self, err: CommandRejected) -> bool:
         """A refusal a waiting pilot would see clear: PX4's health or pre-flight checks failing
         (said in its text, or in its health report at the time), not a mode or a switch."""
-        if err.result not in ("DENIED", "TEMPORARILY_REJECTED"):
+        if not isinstance(err, Px4CommandRejected) or err.mav_result not in ARM_CHECK_RESULTS:
             return False
         return any(t in err.reason.lower() for t in ARM_CHECK_TEXTS) or not self._healthy
 

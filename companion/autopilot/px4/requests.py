@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
 import json
 import logging
 import time
@@ -22,27 +23,54 @@ from companion.autopilot.px4.telemetry import Px4Telemetry
 log = logging.getLogger(__name__)
 
 MAV_CMD_REQUEST_MESSAGE = 512
-MAV_RESULT_NAMES = {
-    0: "ACCEPTED",
-    1: "TEMPORARILY_REJECTED",
-    2: "DENIED",
-    3: "UNSUPPORTED",
-    4: "FAILED",
-    5: "IN_PROGRESS",
-    6: "CANCELLED",
-}
-# MAVSDK's Action/Offboard result names -> the MAV_RESULT behind them (CommandRejected.result)
-_MAVSDK_RESULTS = {
-    "COMMAND_DENIED": "DENIED",
-    "COMMAND_DENIED_LANDED_STATE_UNKNOWN": "DENIED",
-    "COMMAND_DENIED_NOT_LANDED": "DENIED",
-    "UNSUPPORTED": "UNSUPPORTED",
-    "FAILED": "FAILED",
-    "BUSY": "TEMPORARILY_REJECTED",
+
+
+class MavResult(enum.IntEnum):
+    """MAV_RESULT (MAVLink common.xml): how PX4 answered a command. Its name is what
+    :attr:`CommandRejected.result` carries."""
+
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+    CANCELLED = 6
+
+
+MAV_RESULT_NAMES = {r.value: r.name for r in MavResult}
+# MAVSDK's Action/Offboard results (the plugins' result enums, by member name: each plugin has its
+# own enum) -> the MAV_RESULT behind them, or the outcome without a COMMAND_ACK
+_MAVSDK_RESULTS: dict[str, MavResult | str] = {
+    "COMMAND_DENIED": MavResult.DENIED,
+    "COMMAND_DENIED_LANDED_STATE_UNKNOWN": MavResult.DENIED,
+    "COMMAND_DENIED_NOT_LANDED": MavResult.DENIED,
+    "UNSUPPORTED": MavResult.UNSUPPORTED,
+    "FAILED": MavResult.FAILED,
+    "BUSY": MavResult.TEMPORARILY_REJECTED,
     "TIMEOUT": NO_ANSWER,
     "NO_SYSTEM": LINK_DOWN,
     "CONNECTION_ERROR": LINK_DOWN,
 }
+
+
+class Px4CommandRejected(CommandRejected):
+    """:class:`CommandRejected` keeping PX4's answer as a type: ``mav_result`` is the MAV_RESULT
+    (None: no answer, the link down, or a MAVSDK result with no MAV_RESULT behind it);
+    ``result`` its name, as every backend's refusal carries it."""
+
+    def __init__(self, command: str, result: MavResult | str, reason: str = ""):
+        super().__init__(command, result.name if isinstance(result, MavResult) else result, reason)
+        self.mav_result = result if isinstance(result, MavResult) else None
+
+
+def _mavsdk_result_name(err: Exception) -> str:
+    """The member name of the result a MAVSDK plugin error carries (``ActionError.result``, an
+    ``ActionResult``; ``OffboardError.result``, ...); the text before ``;`` where there is none."""
+    result = getattr(err, "result", None)
+    if isinstance(result, enum.Enum):
+        return result.name
+    return str(err).split(";", 1)[0].strip()
 
 
 class Px4Requests(Px4Telemetry):
@@ -120,22 +148,22 @@ class Px4Requests(Px4Telemetry):
     async def _call(self, name: str, fn: Callable[[], Awaitable[Any]]) -> Any:
         """One MAVSDK call, bounded by ``command_timeout_s``; failures as :class:`CommandRejected`."""
         if self._system is None:
-            raise CommandRejected(name, LINK_DOWN, "not connected")
+            raise Px4CommandRejected(name, LINK_DOWN, "not connected")
         if not self.link_ok:
-            raise CommandRejected(name, LINK_DOWN, "link is down")
+            raise Px4CommandRejected(name, LINK_DOWN, "link is down")
         texts_before = self._texts_seen
         try:
             return await asyncio.wait_for(fn(), self.command_timeout_s)
         except TimeoutError:
             # the native call goes on blocking a MAVSDK thread; we stop waiting for it
             self.calls_unanswered += 1
-            raise CommandRejected(name, NO_ANSWER, f"no answer within {self.command_timeout_s:.1f} s") from None
+            raise Px4CommandRejected(name, NO_ANSWER, f"no answer within {self.command_timeout_s:.1f} s") from None
         except Exception as err:  # MAVSDK's ActionError, OffboardError, ... (all MavsdkError)
             await asyncio.sleep(0.05)  # the STATUSTEXT with PX4's reason follows the ack
             reason = self._last_text if self._texts_seen != texts_before else ""
-            code = str(err).split(";", 1)[0].strip()
+            code = _mavsdk_result_name(err)
             result = _MAVSDK_RESULTS.get(code, code or type(err).__name__)
-            raise CommandRejected(name, result, reason or str(err)) from None
+            raise Px4CommandRejected(name, result, reason or str(err)) from None
 
     async def _direct_command(self, name: str, command: int, *params: float) -> None:
         """COMMAND_LONG through MavlinkDirect; returns on ACCEPTED, else :class:`CommandRejected`."""
@@ -156,4 +184,5 @@ class Px4Requests(Px4Telemetry):
         if result != 0:
             await asyncio.sleep(0.05)  # PX4's STATUSTEXT with the reason follows the ack
             reason = self._last_text if self._texts_seen != texts_before else ""
-            raise CommandRejected(name, MAV_RESULT_NAMES.get(result, str(result)), reason)
+            known = result in MAV_RESULT_NAMES
+            raise Px4CommandRejected(name, MavResult(result) if known else str(result), reason)
