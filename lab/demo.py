@@ -22,10 +22,11 @@ import numpy as np
 
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
-from companion.delivery.mission import MissionOutput
+from companion.delivery.mission import FailureKind, MissionOutput
 from companion.delivery.observers import FLIGHT_LOG_COLUMNS
 from companion.delivery.planning import pad_config_ned, pad_position_ned
 from companion.delivery.shell import DeliveryShell
+from companion.delivery.signals import abort_on_signals
 from companion.events import Phase
 from companion.flightlog.atomic import write_text_atomic
 from companion.flightlog.csvlog import CsvLog
@@ -88,6 +89,7 @@ class DemoResult:
     # winch delivery: where the parcel first touched the ground minus the true pad centre (N, E, m);
     # NaN without a winch delivery or when the parcel never reached the ground
     parcel_touchdown_ne_m: tuple[float, float] = (math.nan, math.nan)
+    failure_kind: FailureKind = FailureKind.NONE  # why it did not finish as planned (failure: the detail)
 
     @property
     def parcel_touchdown_error_m(self) -> float:
@@ -282,6 +284,7 @@ def _demo_result(
         returned=summary.returned,
         phase=shell.mission.phase.value,
         failure=summary.failure,
+        failure_kind=summary.failure_kind,
         flight_time_s=flight_time,
         sim_time_s=vehicle.time_s,
         wall_time_s=wall,
@@ -318,6 +321,10 @@ def _write_summary(config: CompanionConfig, run_dir: Path, result: DemoResult, s
         del summary_json["parcel_touchdown_ne_m"]  # no winch delivery: as before
     else:
         summary_json["parcel_touchdown_error_m"] = result.parcel_touchdown_error_m
+    if result.failure_kind is FailureKind.NONE:
+        del summary_json["failure_kind"]  # finished as planned: as before
+    else:
+        summary_json["failure_kind"] = result.failure_kind.value
     summary_json["speedup"] = result.speedup
     summary_json["true_pad_ned_m"] = list(true_pad_ned(config))
     summary_json.update(path_summary(config, scorer))
@@ -378,7 +385,8 @@ async def fly(
     )
     wall0 = time.perf_counter()
     try:
-        summary = await shell.run(timeout_s=timeout_s)
+        with abort_on_signals(shell):  # Ctrl-C: hold, then land, as `fly` does (docs/flying.md)
+            summary = await shell.run(timeout_s=timeout_s)
     finally:
         try:
             await ap.close()

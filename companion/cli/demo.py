@@ -20,6 +20,7 @@ from companion.config import (
     load_config,
     shipped_params_path,
 )
+from companion.delivery.mission import FailureKind
 from companion.units import format_m
 
 log = logging.getLogger(__name__)
@@ -244,6 +245,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     lost = describe_losses(run_dir)
     if lost:
         console.print(f"[bold red]{escape(lost)}[/]: {escape(str(run_dir))} holds the flight up to where they stopped")
+    if result.failure_kind is FailureKind.OPERATOR_ABORT:  # Ctrl-C in flight: held, landed, ended
+        return exits.INTERRUPTED
     return exits.FAILED if not ok else exits.LOGS_INCOMPLETE if lost else exits.OK
 
 

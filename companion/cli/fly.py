@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import logging
-import signal
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -22,12 +20,11 @@ from companion.cli.exits import StartupError
 from companion.config import CompanionConfig, load_config
 from companion.delivery.mission import FailureKind, MissionSummary
 from companion.delivery.shell import DeliveryShell
+from companion.delivery.signals import OPERATOR_ABORT, abort_on_signals
 from companion.flightlog.recorder import FlightRecorder
 from companion.secret_files import configured_secret_files, exposed_secret
 
 log = logging.getLogger(__name__)
-
-OPERATOR_ABORT = "operator abort"  # the abort reason a signal gives (exit 130 when it ended the flight)
 
 
 def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwargs: Any) -> Autopilot:
@@ -106,18 +103,10 @@ async def run_delivery(
         before_flight=before_flight,
         on_tick=on_tick,
     )
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(
-                sig, shell.abort, f"{OPERATOR_ABORT} ({signal.Signals(sig).name})", FailureKind.OPERATOR_ABORT
-            )
     try:
-        return await shell.run(timeout_s=timeout_s)
+        with abort_on_signals(shell):
+            return await shell.run(timeout_s=timeout_s)
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                loop.remove_signal_handler(sig)
         try:
             await autopilot.close()
         finally:

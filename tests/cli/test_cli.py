@@ -177,3 +177,39 @@ def test_a_command_that_reads_one_parameter_file_refuses_two(argv, capsys):
         main([*argv, "--params", "a.toml", "--params", "b.toml"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "--params given twice (a.toml, then b.toml)" in err, err
+
+
+@pytest.mark.flight
+def test_ctrl_c_in_the_demo_holds_lands_and_ends_with_the_summary_and_130(tmp_path):
+    """As `fly` (docs/flying.md): the operator's abort is flown (hold, then land), the summary is
+    printed, commands.csv holds the abort, exit 130. It ended at once with an empty commands.csv."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    code = (
+        "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "from companion.cli.main import main; sys.exit(main())"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "demo", "--quiet", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60.0
+    while not (out / "events.csv").exists() or "takeoff" not in (out / "events.csv").read_text():
+        assert time.monotonic() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120.0)
+    assert proc.returncode == 130, (stdout[-2000:], stderr[-2000:])
+    assert "NOT DELIVERED  aborted: operator abort (SIGINT)" in stdout and "flight time" in stdout, stdout
+    rows = (out / "commands.csv").read_text().splitlines()
+    assert any(",operator,abort,operator abort (SIGINT)," in r for r in rows), rows
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failure_kind"] == "operator_abort" and not summary["delivered"]
+    phases = [r.split(",")[3] for r in (out / "events.csv").read_text().splitlines()[1:] if ",phase," in r]
+    assert phases[-3:] == ["abort_hold", "abort_land", "failed"], phases  # held, landed, ended
