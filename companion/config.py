@@ -206,6 +206,60 @@ class DescentConfig(_Section):
 MISSION_OLD_DESCENT_KEYS = {f"landing_{k}": k for k in DescentConfig.model_fields}
 
 
+class RangefinderConfig(_Section):
+    """The autopilot's downward rangefinder (DISTANCE_SENSOR) in the final descent and for the
+    touchdown: ``[mission.rangefinder]`` (companion.estimation.rangefinder, docs/rangefinder.md).
+    A reading is used only when fresh, within the sensor's range, looking down, level enough, and
+    consistent with the estimate's height; then the descent's height above the ground is the
+    estimate's corrected by the rangefinder."""
+
+    enabled: bool = _f(
+        False,
+        "-",
+        "ask the autopilot for DISTANCE_SENSOR and fly the final descent and judge the ground contact on its "
+        "height (off: the estimate's height alone, as before)",
+    )
+    max_age_s: float = _f(
+        0.5, "s", "a reading older than this is not used (PX4 SIH, ArduCopter: 10 Hz)", gt=0.0, le=5.0
+    )
+    max_jump_m: float = _f(
+        0.5,
+        "m",
+        "a reading whose offset from the estimate's height moved more than this from the reading before, or "
+        "from the last one used while it is held, is rejected (a leg, the parcel or a failed sensor seen)",
+        gt=0.0,
+        le=10.0,
+    )
+    max_disagreement_m: float = _f(
+        3.0,
+        "m",
+        "a reading this far from the estimate's height is rejected (the estimate drifted up to 1.7 m on PX4 SIH)",
+        gt=0.0,
+        le=50.0,
+    )
+    below_height_m: float = _f(
+        4.0, "m", "used only below this height above the ground (by the estimate)", gt=0.0, le=100.0
+    )
+    max_tilt_deg: float = _f(
+        25.0,
+        "deg",
+        "not used while the vehicle is tilted more than this (the beam hits the ground off-centre)",
+        ge=0.0,
+        le=60.0,
+    )
+    min_quality_pct: int = _f(
+        1, "%", "a reading whose reported signal quality is below this is rejected (not reported: taken)", ge=0, le=100
+    )
+    hold_s: float = _f(
+        2.0,
+        "s",
+        "the correction of the last reading used is kept this long when none passes (below the sensor's minimum "
+        "range at the ground: ArduCopter's RNGFND1_MIN, 0.2 m)",
+        ge=0.0,
+        le=10.0,
+    )
+
+
 class MissionConfig(_Section):
     """Delivery path (delivery section 4.1) and vector field (delivery eqs 16-19)."""
 
@@ -275,6 +329,7 @@ class MissionConfig(_Section):
     )
     land_speed_m_s: float = _f(0.5, "m/s", "final descent speed", gt=0.05, le=2.0)
     descent: DescentConfig = Field(default_factory=DescentConfig)
+    rangefinder: RangefinderConfig = Field(default_factory=RangefinderConfig)
     release_time_s: float = _f(2.0, "s", "time the payload actuator needs to release", ge=0.0, le=30.0)
     abort_hold_s: float = _f(5.0, "s", "abort: hold this long, then land", ge=0.0, le=120.0)
     ready_timeout_s: float = _f(60.0, "s", "preflight: wait this long for a healthy vehicle", gt=0.0, le=600.0)
@@ -807,6 +862,14 @@ class SimConfig(_Section):
         "+0.10 to +0.14, sitl/profiles.py)",
         ge=-0.5,
         le=0.5,
+    )
+    height_estimate_drift_m_s: float = _f(
+        0.0,
+        "m/s",
+        "the autopilot's height estimate drifts up from the true height at this rate while armed (PX4 v1.16 "
+        "SIH, GPS only: 0.3-1.7 m within one 20 s flight; docs/rangefinder.md)",
+        ge=-1.0,
+        le=1.0,
     )
     gps_rate_hz: float = _f(8.0, "Hz", "GPS fix rate", gt=0.5, le=50.0)
     position_rate_hz: float = _f(30.0, "Hz", "LOCAL/GLOBAL_POSITION stream rate", gt=1.0, le=200.0)

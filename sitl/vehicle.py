@@ -262,6 +262,7 @@ class SimVehicle:
         self.landing_targets_received = 0
         self._sp_times: list[float] = []
         self._ground_since: float | None = 0.0
+        self._armed_s = 0.0  # when it was last armed (height_estimate_drift_m_s)
         self._landed_since: float | None = 0.0
         self._release_at: float | None = None
         self._rates = (0.0, 0.0, 0.0)
@@ -285,6 +286,7 @@ class SimVehicle:
         if self.battery_pct < 10.0:
             raise SimCommandError(f"arming denied: battery {self.battery_pct:.0f} %")
         self.armed = True
+        self._armed_s = self.time_s  # the height estimate's drift counts from here (height_estimate_drift_m_s)
         self.mode = FlightMode.HOLD
         self._int = [0.0, 0.0, 0.0]
         self._yaw_sp = self.estimated_yaw()
@@ -416,6 +418,8 @@ class SimVehicle:
         profile's scale error, ``height_estimate_scale_error``)."""
         w = self._walk
         d = self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x
+        if self.cfg.height_estimate_drift_m_s and self.armed:  # reads higher by rate x time armed
+            d -= self.cfg.height_estimate_drift_m_s * (self.time_s - self._armed_s)
         if self.profile.gps_error_estimate_tau_s > 0.0:
             # the horizontal error is the part the estimate has taken (gps_error_estimate_*)
             return (self.pn + self._gps_in_est[0], self.pe + self._gps_in_est[1], d)

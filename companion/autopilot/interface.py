@@ -25,6 +25,7 @@ from companion.autopilot.types import (
     Imu,
     LandingTarget,
     PositionNed,
+    RangefinderReading,
     StatusText,
     TelemetrySample,
     VehicleStatus,
@@ -180,6 +181,8 @@ class TelemetryCache:
         self.rc_input: RcInput | None = None
         self.wind: Wind | None = None  # the autopilot's wind estimate, when asked for (push_wind)
         self.winch: WinchStatus | None = None  # the winch's newest report (push_winch), where one is fitted
+        # the newest downward DISTANCE_SENSOR (push_rangefinder), when asked for ([mission.rangefinder])
+        self.rangefinder: RangefinderReading | None = None
         self._listeners: list[Callable[[TelemetrySample], None]] = []
         self._rc_listeners: list[Callable[[RcInput], None]] = []
 
@@ -234,6 +237,21 @@ class TelemetryCache:
             return False
         self.received["WinchStatus"] = self.received.get("WinchStatus", 0) + 1
         self.winch = status
+        return True
+
+    def push_rangefinder(self, reading: RangefinderReading) -> bool:
+        """Store the newest downward rangefinder reading (rejected and counted when not finite or
+        not looking down: a forward sensor's range is no height); no listener sees it."""
+        try:
+            reading.validate()
+            if not reading.downward:
+                raise ValueError(f"RangefinderReading.orientation {reading.orientation} is not downward (25)")
+        except ValueError as err:
+            self.rejected["RangefinderReading"] = self.rejected.get("RangefinderReading", 0) + 1
+            self.last_rejection = str(err)
+            return False
+        self.received["RangefinderReading"] = self.received.get("RangefinderReading", 0) + 1
+        self.rangefinder = reading
         return True
 
     def push(self, sample: TelemetrySample) -> bool:

@@ -135,6 +135,29 @@ class Wind(_Finite):
         return math.hypot(self.north_m_s, self.east_m_s)
 
 
+#: MAV_SENSOR_ORIENTATION of a rangefinder looking down (ArduPilot RNGFND1_ORIENT = 25, PX4 SIH's)
+MAV_SENSOR_ROTATION_PITCH_270 = 25
+
+
+@dataclass(frozen=True, slots=True)
+class RangefinderReading(_Finite):
+    """One DISTANCE_SENSOR: the range the sensor measured along its axis (m, not tilt-corrected),
+    the range it can measure (a reading outside it is no measurement), its orientation
+    (MAV_SENSOR_ORIENTATION; only MAV_SENSOR_ROTATION_PITCH_270, downward, is a height) and its
+    signal quality (1-100 %; None: not reported, MAVLink's 0)."""
+
+    time_s: float
+    distance_m: float
+    min_distance_m: float
+    max_distance_m: float
+    orientation: int = MAV_SENSOR_ROTATION_PITCH_270
+    signal_quality_pct: int | None = None
+
+    @property
+    def downward(self) -> bool:
+        return self.orientation == MAV_SENSOR_ROTATION_PITCH_270
+
+
 @dataclass(frozen=True, slots=True)
 class HomePosition(_Finite):
     """Home as the autopilot reports it (MAVLink HOME_POSITION): geodetic, and where it lies in

@@ -567,6 +567,7 @@ class DeliveryShell:
                 self._pad_lock(now),
                 wind=tc.wind,
                 winch=tc.winch,
+                rangefinder=tc.rangefinder,
                 pad_heading_rad=landing_heading_rad(self.config.mission, mission.pad_index, heading),
                 pad_heading_age_s=heading_observation_age_s(heading, now),
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,

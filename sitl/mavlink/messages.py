@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+import numpy as np
+
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -356,6 +358,43 @@ class MessageStreams(RcInput):
         nan = math.nan
         return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, nan, nan, nan, 32767, w.flags())
 
+    def _rangefinder(self) -> tuple[float, float, int, float] | None:
+        """The rangefinder the vehicle's parameters configure: (min m, max m, MAV_SENSOR_ORIENTATION,
+        noise m), None: none. ArduCopter: RNGFND1_TYPE != 0 (100: the SITL's), RNGFND1_MIN/MAX (m, 4.7's
+        defaults 0.2 and 7), RNGFND1_ORIENT (25: down), SIM_SONAR_RND (the SITL's noise, m). PX4 SIH
+        streams its own (SIH_DISTSNSR_MIN/MAX, 0-100 m, downward) on every onboard link, measured; this
+        vehicle only when its parameters name SIH_DISTSNSR_MAX, so the links of the flights before it
+        carry what they did."""
+        p = self._params
+        if self.dialect == "ardupilot":
+            if p.get("RNGFND1_TYPE", 0.0) == 0.0:
+                return None
+            rnd = p.get("SIM_SONAR_RND", 0.0)
+            return p.get("RNGFND1_MIN", 0.2), p.get("RNGFND1_MAX", 7.0), int(p.get("RNGFND1_ORIENT", 25.0)), rnd
+        if "SIH_DISTSNSR_MAX" not in p:
+            return None
+        return p.get("SIH_DISTSNSR_MIN", 0.0), p["SIH_DISTSNSR_MAX"], mavlink.MAV_SENSOR_ROTATION_PITCH_270, 0.0
+
+    def _msg_distance_sensor(self) -> Any:
+        """DISTANCE_SENSOR from the true height above the flat ground along the sensor's axis (a
+        downward one tilts with the vehicle), with the SITL's uniform noise from a generator of its
+        own (the seed's), in centimetres as the firmware sends it."""
+        rf = self._rangefinder()
+        if rf is None:
+            return None
+        lo, hi, orient, noise = rf
+        v = self.vehicle
+        rng = getattr(self, "_rng_rangefinder", None)
+        if rng is None:
+            rng = self._rng_rangefinder = np.random.default_rng([v.cfg.seed, 0x524E])
+        cos_tilt = math.cos(v.roll) * math.cos(v.pitch)
+        d = max(0.0, -v.pd) / max(cos_tilt, 0.1) if orient == mavlink.MAV_SENSOR_ROTATION_PITCH_270 else hi
+        d += noise * float(rng.uniform(-1.0, 1.0))
+        cm = max(0, min(65535, round(100.0 * d)))
+        return self._enc.distance_sensor_encode(
+            self._t_ms(), round(100 * lo), round(100 * hi), cm, mavlink.MAV_DISTANCE_SENSOR_LASER, 0, orient, 0
+        )
+
     def _msg_autopilot_version(self) -> Any:
         e = self._enc
         caps = (
@@ -391,6 +430,7 @@ class MessageStreams(RcInput):
                 mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
                 mavlink.MAVLINK_MSG_ID_HOME_POSITION,
                 mavlink.MAVLINK_MSG_ID_WINCH_STATUS,  # ArduPilot accepts it with or without a winch
+                mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR,  # both accept it with or without a rangefinder
             )
         ):
             return mavlink.MAV_RESULT_UNSUPPORTED
@@ -427,5 +467,6 @@ _BUILDERS: dict[int, Callable[[MessageStreams], Any]] = {
     mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: MessageStreams._msg_hil_state_quaternion,
     mavlink.MAVLINK_MSG_ID_RC_CHANNELS: MessageStreams._msg_rc_channels,
     mavlink.MAVLINK_MSG_ID_WINCH_STATUS: MessageStreams._msg_winch_status,
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: MessageStreams._msg_distance_sensor,
     mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: MessageStreams._msg_autopilot_version,
 }

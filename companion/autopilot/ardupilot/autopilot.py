@@ -56,6 +56,7 @@ log = logging.getLogger(__name__)
 
 WIND_MSG_ID = 168  # WIND (ardupilotmega): EKF3's wind estimate
 WINCH_STATUS_MSG_ID = 9005  # WINCH_STATUS: the winch's line length (AP_Winch)
+DISTANCE_SENSOR_MSG_ID = 132  # DISTANCE_SENSOR: a rangefinder (RNGFND1_TYPE != 0)
 
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
 ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
@@ -185,6 +186,10 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
             if winch.wind_drift_s_m > 0:
                 rates[WIND_MSG_ID] = 2.0
             kwargs["stream_rates_hz"] = rates
+        mission = getattr(config, "mission", None)
+        if mission is not None and mission.rangefinder.enabled:
+            # the final descent's height (docs/rangefinder.md): ArduCopter streams it only when asked
+            kwargs["stream_rates_hz"] = {**kwargs["stream_rates_hz"], DISTANCE_SENSOR_MSG_ID: 10.0}
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)

@@ -27,6 +27,7 @@ from companion.autopilot.types import (
     Imu,
     LandedState,
     PositionNed,
+    RangefinderReading,
     StatusText,
     TelemetrySample,
     VehicleStatus,
@@ -208,6 +209,19 @@ class ArduPilotTelemetry(ArduPilotRequests):
         d = math.radians(m.direction)
         self._post(self.telemetry.push_wind, Wind(now, -m.speed * math.cos(d), -m.speed * math.sin(d)))
 
+    def _on_distance_sensor(self, m: Any, now: float) -> None:
+        # centimetres; signal_quality 0: not known (ArduPilot sends 0 when its backend has none)
+        q = int(m.signal_quality)
+        reading = RangefinderReading(
+            now,
+            m.current_distance / 100.0,
+            m.min_distance / 100.0,
+            m.max_distance / 100.0,
+            int(m.orientation),
+            q if q > 0 else None,
+        )
+        self._post(self.telemetry.push_rangefinder, reading)
+
     def _on_winch_status(self, m: Any, now: float) -> None:
         self._post(self.telemetry.push_winch, WinchStatus(now, float(m.line_length), float(m.speed), int(m.status)))
 
@@ -255,6 +269,7 @@ _VEHICLE_HANDLERS: dict[str, Callable[[ArduPilotTelemetry, Any, float], None]] =
     "COMMAND_ACK": ArduPilotTelemetry._on_command_ack,
     "WIND": ArduPilotTelemetry._on_wind,
     "WINCH_STATUS": ArduPilotTelemetry._on_winch_status,
+    "DISTANCE_SENSOR": ArduPilotTelemetry._on_distance_sensor,
     **dict.fromkeys(MISSION_MESSAGES, ArduPilotTelemetry._on_mission),
     "SERVO_OUTPUT_RAW": ArduPilotTelemetry._on_servo_output_raw,
     "PARAM_VALUE": ArduPilotTelemetry._on_param_value,

@@ -189,6 +189,8 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
         gng = getattr(config, "go_no_go", None)
         ap.want_wind = gng is not None and gng.wind_limit_m_s > 0  # the wind check's input (WIND_COV)
+        mission = getattr(config, "mission", None)
+        ap.want_rangefinder = mission is not None and mission.rangefinder.enabled  # the descent's height
         ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
         ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
         return ap

@@ -19,6 +19,7 @@ from companion.autopilot.interface import (
 )
 from companion.autopilot.px4.link import Px4Link
 from companion.autopilot.types import (
+    MAV_SENSOR_ROTATION_PITCH_270,
     Attitude,
     FlightMode,
     GlobalPosition,
@@ -27,6 +28,7 @@ from companion.autopilot.types import (
     Imu,
     LandedState,
     PositionNed,
+    RangefinderReading,
     StatusText,
     VehicleStatus,
     Wind,
@@ -38,6 +40,8 @@ STREAM_RESUBSCRIBE_S = 1.0  # a MAVSDK stream that ended or raised is subscribed
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS = 6
+RANGEFINDER_RATE_HZ = 10.0
+MAV_SENSOR_ROTATION_OTHER = 100  # MAV_SENSOR_ROTATION_CUSTOM: what is not downward here
 
 _FLIGHT_MODES = {
     "UNKNOWN": FlightMode.UNKNOWN,
@@ -107,6 +111,7 @@ class Px4Telemetry(Px4Link):
     """The telemetry streams, the connection watch and the stale-setpoint guard."""
 
     want_wind = False  # subscribe to the wind estimate ([go_no_go] wind_limit_m_s)
+    want_rangefinder = False  # subscribe to DISTANCE_SENSOR ([mission.rangefinder] enabled)
     # [runtime] autopilot_attitude_rate_hz / autopilot_position_rate_hz (None: PX4's own rates)
     attitude_rate_hz: float | None = None
     position_rate_hz: float | None = None
@@ -149,6 +154,9 @@ class Px4Telemetry(Px4Link):
                 self.telemetry.push_wind(Wind(now(), w.wind_x_ned_m_s, w.wind_y_ned_m_s))
 
             streams.append((tel.subscribe_wind, on_wind))
+        if self.want_rangefinder:
+            streams.append((self._tel.subscribe_distance_sensor, self._rangefinder_handler(now)))
+            self._tasks.append(loop.create_task(self._rangefinder_rate(), name="px4-rangefinder-rate"))
         for sub, fn in streams:
             self._tasks.append(loop.create_task(self._consume(sub, fn), name=f"px4-{fn.__name__}"))
         for message, fn in self._direct_streams(now):
@@ -158,6 +166,27 @@ class Px4Telemetry(Px4Link):
             self._tasks.append(loop.create_task(self._set_stream_rates(), name="px4-stream-rates"))
         if self.setpoint_transport == "offboard":
             self._tasks.append(loop.create_task(self._stale_guard(), name="px4-stale-guard"))
+
+    def _rangefinder_handler(self, now: Callable[[], float]) -> Callable[[Any], None]:
+        """MAVSDK's DistanceSensor (DISTANCE_SENSOR in metres, its orientation as Euler angles in
+        degrees: PX4 SIH's MAV_SENSOR_ROTATION_PITCH_270 comes as pitch 270 or -90) as a reading;
+        MAVSDK passes no signal quality."""
+
+        def on_distance_sensor(d: Any) -> None:
+            o = d.orientation
+            down = abs(o.roll_deg) < 1.0 and abs((o.pitch_deg % 360.0) - 270.0) < 1.0
+            orientation = MAV_SENSOR_ROTATION_PITCH_270 if down else MAV_SENSOR_ROTATION_OTHER
+            r = RangefinderReading(now(), d.current_distance_m, d.minimum_distance_m, d.maximum_distance_m, orientation)
+            self.telemetry.push_rangefinder(r)
+
+        return on_distance_sensor
+
+    async def _rangefinder_rate(self) -> None:
+        """DISTANCE_SENSOR at RANGEFINDER_RATE_HZ (PX4 SIH's onboard link streams it at 10 Hz anyway)."""
+        try:
+            await self._tel.set_rate_distance_sensor(RANGEFINDER_RATE_HZ)
+        except Exception as err:  # MAVSDK's TelemetryError, or the link gone meanwhile
+            log.warning("PX4 did not take DISTANCE_SENSOR at %g Hz (%s)", RANGEFINDER_RATE_HZ, err)
 
     def _direct_subscription(self, message: str) -> Callable[[], AsyncIterator[Any]]:
         """MavlinkDirect's stream of one message by name, subscribed anew at each call."""

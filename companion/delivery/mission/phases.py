@@ -16,7 +16,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from companion.autopilot.types import FlightMode, LandedState
+from companion.autopilot.types import FlightMode, LandedState, RangefinderReading
 from companion.delivery.mission.offboard import enter_offboard, in_offboard, offboard_reentry
 from companion.delivery.mission.states import (
     AbortHoldState,
@@ -182,7 +182,9 @@ def _follow(m: MissionBase, inp: MissionInputs, leg: Leg, landing: Phase) -> Ste
         # v5 then slows onto it instead of sinking ~v5 x lag below (1.6 m on ArduCopter SITL)
         lead_m = m.cfg.sector_speed_m_s[4] * WINCH_APPROACH_LEAD_S
         approach_m = max(approach_m, m.winch_cfg.hover_height_m + lead_m)
-    if m.sector == target_sector and m.height_above_ground(est) < approach_m:
+    # the approach height by the rangefinder where it is on and passes (MissionBase.descent_height):
+    # on an estimate reading 1.2 m high the final descent began below a metre, at v5
+    if m.sector == target_sector and m.descent_height(est, inp.rangefinder, inp.time_s) < approach_m:
         if leg is Leg.OUT and m.pad_policy is not None:
             ok, why = m.pads.judge(inp.pad_lock)
             if not ok:
@@ -230,7 +232,7 @@ def _landing(m: MissionBase, inp: MissionInputs, leg: Leg) -> Step:
         elif h > m.pad_policy.commit_height_m and not m.pads.lock_reopening(st, inp.pad_lock, inp.time_s):
             return Step(m.pads.try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"))
     in_sight = leg is Leg.OUT and pad_in_sight(inp.pad_lock)
-    return Step(precision_descent(m, est, leg, inp.time_s, in_sight))
+    return Step(precision_descent(m, est, leg, inp.time_s, in_sight, inp.rangefinder))
 
 
 def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingState) -> Step:
@@ -285,7 +287,14 @@ def _off_the_pad_m(m: MissionBase, ned: tuple[float, float, float]) -> float:
     return max(0.0, off)
 
 
-def precision_descent(m: MissionBase, est: StateEstimate, leg: Leg, time_s: float, in_sight: bool) -> VelocitySetpoint:
+def precision_descent(
+    m: MissionBase,
+    est: StateEstimate,
+    leg: Leg,
+    time_s: float,
+    in_sight: bool,
+    rangefinder: RangefinderReading | None = None,
+) -> VelocitySetpoint:
     """The final descent onto the target (the pad for Leg.OUT, home for Leg.HOME) by the
     landing phase's controller (guidance.descent), in F_I. It holds and waits only while the
     target is in sight (a camera or UWB observation of the pad within padlock.PAD_DATA_FRESH_S)
@@ -293,14 +302,15 @@ def precision_descent(m: MissionBase, est: StateEstimate, leg: Leg, time_s: floa
     autopilot's own estimate (PX4 SIH: 77 cm off), worse than going on down mid-swing. Blind (GPS
     only, at home, or the pad lost) it does not hold: holding cannot improve the estimate, and on
     an autopilot's estimate drifting near the ground it can sit on the ground until the touchdown
-    timeout (docs/firmware-px4.md)."""
+    timeout (docs/firmware-px4.md). The height above the ground is the rangefinder's where
+    [mission.rangefinder] is on and its gate passes (MissionBase.descent_height)."""
     assert m.frame is not None and m.path is not None
     frame, c, st = m.frame, m.cfg, m.state_as(LandingState)
     assert st.descent is not None
     p_i = frame.point_from_ned(est.position_ned)
     ex = float(p_i[0]) if leg is Leg.OUT else float(p_i[0]) + m.path.d
     ey = float(p_i[1])
-    height = m.height_above_ground(est)
+    height = m.descent_height(est, rangefinder, time_s)
     time_left_s = c.touchdown_timeout_s - (time_s - st.t0)
     in_time = time_left_s > max(height, 0.0) / c.land_speed_m_s + TOUCHDOWN_REPORT_MARGIN_S
 
@@ -311,7 +321,7 @@ def precision_descent(m: MissionBase, est: StateEstimate, leg: Leg, time_s: floa
     cmd = st.descent.command(ex, ey, height, time_s, in_sight and in_time, velocity_xy, est.down_m_s)
     if st.descent.contact and st.contact_ned is None:
         st.contact_ned = est.position_ned
-        log.info("ground contact at %.2f m height (by the estimate): only the descent from here", height)
+        log.info("ground contact at %.2f m height: only the descent from here", height)
     v_ned = frame.vector_to_ned((cmd.x_m_s, cmd.y_m_s, cmd.z_m_s))
     acc = None
     if cmd.accel_xy_m_s2 is not None:

@@ -7,7 +7,7 @@ import enum
 import math
 from dataclasses import dataclass, field
 
-from companion.autopilot.types import HomePosition, VehicleStatus, Wind
+from companion.autopilot.types import HomePosition, RangefinderReading, VehicleStatus, Wind
 from companion.autopilot.winch import WinchCommand, WinchStatus
 from companion.delivery.padlock import PadLock
 from companion.estimation.types import StateEstimate
@@ -92,6 +92,7 @@ class MissionInputs:
     pad_heading_age_s: float = math.inf
     autopilot_yaw_rad: float | None = None  # the autopilot's own yaw (ATTITUDE); None: not known
     winch: WinchStatus | None = None  # the winch's newest report (mission.delivery = "winch")
+    rangefinder: RangefinderReading | None = None  # the newest downward DISTANCE_SENSOR ([mission.rangefinder])
 
 
 @dataclass(frozen=True, slots=True)
