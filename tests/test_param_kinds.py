@@ -41,6 +41,7 @@ KIND_OF = {
     "px4_sih_quad.toml": "vehicle",
     "sitl_short.toml": "vehicle",
     "slow_board.toml": "vehicle",  # an overlay: validates on the defaults alone
+    "serial_115200.toml": "vehicle",  # an overlay too (docs/serial-link.md)
     "dart_hover.toml": "dart",
     "camera_rpi_v2.toml": "camera",
     "pad_delivery.toml": "pad",
