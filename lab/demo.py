@@ -239,16 +239,17 @@ def _vehicle_link(
 
 
 def _open_logs(
-    config: CompanionConfig, run_dir: Path | None, sim_ap: SimAutopilot | None
+    config: CompanionConfig, run_dir: Path | None, sim_ap: SimAutopilot | None, mcap: bool = True
 ) -> tuple[CsvLog | None, CsvLog | None, FlightRecorder | None]:
-    """flight.csv, truth.csv and the per-stream recorder in ``run_dir`` (none without it)."""
+    """flight.csv, truth.csv and the per-stream recorder in ``run_dir`` (none without it); ``mcap``:
+    the recorder also writes flight.mcap (with the camera frames: most of a run folder's bytes)."""
     if run_dir is None:
         return None, None, None
     run_dir.mkdir(parents=True, exist_ok=True)
     flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
     truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
     # per-stream logs (events.csv included, written as they happen) for replay and reports
-    recorder = FlightRecorder(run_dir, config)
+    recorder = FlightRecorder(run_dir, config, mcap=mcap)
     if sim_ap is not None:
         sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
     return flight_log, truth_log, recorder
@@ -344,6 +345,7 @@ async def fly(
     fusion: bool | None = None,
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
+    mcap: bool = True,
 ) -> DemoResult:
     """Fly one delivery on the simulator (on whatever loop is running) and score it.
 
@@ -365,7 +367,7 @@ async def fly(
     tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
     ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog, mavlink)
     use_fusion = config.landing.fusion if fusion is None else fusion
-    flight_log, truth_log, recorder = _open_logs(config, run_dir, sim_ap)
+    flight_log, truth_log, recorder = _open_logs(config, run_dir, sim_ap, mcap)
     scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
@@ -451,6 +453,7 @@ def run_demo(
     fusion: bool | None = None,
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
+    mcap: bool = True,
 ) -> DemoResult:
     """Fly the demo: lock-step virtual time (default), or real time (``realtime``, or always
     with ``mavlink``, whose simulator runs on the wall clock behind real sockets)."""
@@ -463,6 +466,7 @@ def run_demo(
         fusion=fusion,
         camera_playback=camera_playback,
         record_camera=record_camera,
+        mcap=mcap,
     )
     if realtime or mavlink:
         return asyncio.run(coro)

@@ -181,9 +181,23 @@ def _fly_demo(args: argparse.Namespace, cfg: CompanionConfig, run_dir: Path, pla
                 mavlink=args.mavlink,
                 camera_playback=playback,
                 record_camera=Path(args.record_camera) if args.record_camera else None,
+                mcap=not args.no_mcap,
             )
         except LandingSetupError as err:
             raise StartupError(str(err), exits.BAD_INPUT) from None
+
+
+def _folder_size(run_dir: Path) -> str:
+    """What the run folder keeps on disk, and how to keep less (a demo a day fills runs/)."""
+    total = sum(f.stat().st_size for f in run_dir.iterdir() if f.is_file())
+    mcap = run_dir / "flight.mcap"
+    if mcap.exists():
+        share = (
+            f"{mcap.stat().st_size / 1e6:.0f} MB of it flight.mcap (Foxglove, camera frames): --no-mcap leaves it out"
+        )
+    else:
+        share = "no flight.mcap (--no-mcap)"
+    return f"run folder size {total / 1e6:.0f} MB, {share}"
 
 
 def _result_rows(result: Any, run_dir: Path, plots: list[Path]) -> list[tuple[str, str]]:
@@ -242,6 +256,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     for k, v in _result_rows(result, run_dir, plots):
         console.print(f"  {k:<62} {v}")
     console.print(f"  scored reference: {result.path_reference}")
+    console.print(f"  {_folder_size(run_dir)}")
     lost = describe_losses(run_dir)
     if lost:
         console.print(f"[bold red]{escape(lost)}[/]: {escape(str(run_dir))} holds the flight up to where they stopped")
@@ -274,6 +289,11 @@ def register_demo(sub: Any) -> None:
         "default: the in-process simulator, lock-step)",
     )
     demo.add_argument("--out", help="run folder (default: runs/demo-<time>)")
+    demo.add_argument(
+        "--no-mcap",
+        action="store_true",
+        help="do not write flight.mcap (Foxglove: every stream and the camera frames, ~3/4 of the folder)",
+    )
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.add_argument(
         "--telemetry",

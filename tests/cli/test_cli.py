@@ -213,3 +213,18 @@ def test_ctrl_c_in_the_demo_holds_lands_and_ends_with_the_summary_and_130(tmp_pa
     assert summary["failure_kind"] == "operator_abort" and not summary["delivered"]
     phases = [r.split(",")[3] for r in (out / "events.csv").read_text().splitlines()[1:] if ",phase," in r]
     assert phases[-3:] == ["abort_hold", "abort_land", "failed"], phases  # held, landed, ended
+
+
+@pytest.mark.flight
+def test_the_demo_says_what_its_folder_keeps_and_no_mcap_keeps_less(tmp_path, capsys):
+    short = str(shipped_params_path("sitl_short.toml"))
+    assert main(["demo", "--quiet", "--params", short, "--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "run folder size" in out and "of it flight.mcap" in out and "--no-mcap leaves it out" in out, out
+    assert main(["demo", "--quiet", "--no-mcap", "--params", short, "--out", str(tmp_path / "b")]) == 0
+    assert "no flight.mcap (--no-mcap)" in capsys.readouterr().out
+    assert (tmp_path / "a" / "flight.mcap").exists() and not (tmp_path / "b" / "flight.mcap").exists()
+    size = {d: sum(f.stat().st_size for f in (tmp_path / d).iterdir()) for d in ("a", "b")}
+    assert size["b"] < size["a"] / 2, size
+    # the rest of the folder is the same flight
+    assert (tmp_path / "a" / "events.csv").read_bytes() == (tmp_path / "b" / "events.csv").read_bytes()
