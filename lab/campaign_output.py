@@ -32,6 +32,17 @@ COLOURS = {
     "outer_only": "tab:purple",
     "inner_only": "tab:brown",
 }
+# the other variants, in the order a campaign lists them: no colour shared with the ones above
+# (their tab10 colours) nor with each other
+SPARE_COLOURS = ("tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo")
+
+
+def variant_colours(variants: list[str]) -> dict[str, str]:
+    """A distinct colour per variant: the fixed ones of COLOURS, then SPARE_COLOURS in order."""
+    spare = iter(SPARE_COLOURS)
+    return {v: COLOURS[v] if v in COLOURS else next(spare, "gray") for v in variants}
+
+
 #: Half-width of the pad view (right panel) at least, metres.
 PAD_VIEW_HALF_M = 0.75
 
@@ -54,7 +65,11 @@ def landing_scatter(result: dict[str, Any]) -> Figure:
     legend sits below the panels, covering nothing."""
     from matplotlib.patches import Ellipse, Rectangle
 
-    fig, (ax, ax_pad) = plt.subplots(1, 2, figsize=(12, 6.8))
+    variants = list(result["landings"])
+    colours = variant_colours(variants)
+    legend_rows = math.ceil((len(variants) + 2) / 2)  # + the pad and the ellipse entries, two columns
+    legend_in = 0.2 * legend_rows + 0.5  # the legend's height below the panels, inches
+    fig, (ax, ax_pad) = plt.subplots(1, 2, figsize=(12, 6.2 + legend_in))
     for a in (ax, ax_pad):
         a.add_patch(
             Rectangle((-0.5, -0.5), 1.0, 1.0, fill=False, lw=1.5, color="k", label="1 x 1 m pad" if a is ax else None)
@@ -65,7 +80,7 @@ def landing_scatter(result: dict[str, Any]) -> Figure:
         pts = np.array(
             [(x["east_m"], x["north_m"]) for x in ls if x["north_m"] is not None and math.isfinite(x["north_m"])]
         )
-        c = COLOURS.get(v, "gray")
+        c = colours[v]
         s = result["summary"][v]
         if pts.size == 0:  # still in the legend: every variant's landings are counted
             ax.scatter([], [], marker="x", color=c, label=f"{v}: no touchdown drawn ({s.get('failed', 0)} failed)")
@@ -100,7 +115,7 @@ def landing_scatter(result: dict[str, Any]) -> Figure:
     ax_pad.set_title("On the pad (same data, zoomed)", fontsize=10)
     ax.plot([], [], "k--", lw=1.5, label="2-sigma ellipse per variant (cf. delivery Fig. 15)")
     fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0.0, 0.12, 1.0, 1.0))
+    fig.tight_layout(rect=(0.0, legend_in / fig.get_figheight(), 1.0, 1.0))  # the legend's room kept free
     return fig
 
 

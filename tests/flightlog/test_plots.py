@@ -170,6 +170,35 @@ def test_landing_scatter_shows_both_ellipses_unclipped():
         plt.close(fig)
 
 
+def test_with_every_failure_variant_the_legend_covers_no_label_and_no_two_share_a_colour():
+    # `campaign landing --failures`: 13 variants; the legend covered the x-axis labels and five
+    # variants were drawn in the same grey
+    from matplotlib.colors import to_rgba
+
+    from companion_lab.campaign_landing import VARIANTS
+
+    rng = np.random.default_rng(3)
+    result = {"n": 5, "landings": {}, "summary": {}}
+    for v in sorted(VARIANTS):
+        pts = rng.normal(0.0, 0.2, size=(5, 2))
+        result["landings"][v] = [{"east_m": float(e), "north_m": float(n)} for e, n in pts]
+        result["summary"][v] = {"mean_m": 0.1, "on_pad_pct": 100.0, "n": 5}
+    fig = landing_scatter(result)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+        legend = fig.legends[0].get_window_extent(renderer)
+        for a in fig.axes[:2]:
+            for text in (a.xaxis.label, *a.get_xticklabels()):
+                box = text.get_window_extent(renderer)
+                assert not legend.overlaps(box), (text.get_text(), legend, box)
+            assert not legend.overlaps(a.get_window_extent(renderer))
+        colours = [to_rgba(c.get_edgecolor()[0]) for c in fig.axes[0].collections]
+        assert len(colours) == len(VARIANTS) and len(set(colours)) == len(colours), colours
+    finally:
+        plt.close(fig)
+
+
 def test_the_distance_drawn_is_the_distance_scored(tmp_path):
     # a pad 2.5 m from its configured place: on the pad the vehicle is 2.5 m off the configured
     # path's end, which no path figure scores; the figure draws what the summary's maximum counts
