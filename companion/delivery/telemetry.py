@@ -40,7 +40,11 @@ def zenoh_settings_from_config(cfg: CompanionConfig) -> ZenohSettings:
     ref = cfg.telemetry.zenoh_config
     path = Path(ref)
     if not path.is_file():
-        path = shipped_params_path(ref)
+        try:
+            path = shipped_params_path(ref)
+        except ConfigError:  # neither: say both, the path first (a typo in a path is the likelier)
+            problem = f"{ref!r}: no file {path.resolve()}, and no shipped parameter set of that name"
+            raise ConfigError("telemetry.zenoh_config", [problem]) from None
     try:
         return load_settings(path)
     except SettingsError as err:
