@@ -21,7 +21,8 @@ per direction, so the same seed and the same bytes give the same faults however 
 chunked. A corrupted byte is XORed with a random non-zero value (it always changes).
 
 ``python -m companion_lab.serial_relay --baud 921600 [--drop 0.01] [--corrupt 0.01] [--seed 1]``
-prints both device names, then the counters every ``--report-s`` seconds, until Ctrl-C.
+prints both device names, then the counters every ``--report-s`` seconds, until Ctrl-C (or for
+``--duration`` seconds).
 """
 
 from __future__ import annotations
@@ -342,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corrupt", type=float, default=0.0, help="fraction of the bytes corrupted (default 0)")
     ap.add_argument("--seed", type=int, default=0, help="the faults' random seed (default 0)")
     ap.add_argument("--report-s", type=float, default=5.0, help="seconds between counter lines (default 5)")
+    ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (default 0: Ctrl-C)")
     args = ap.parse_args(argv)
     try:
         relay = SerialRelay(args.baud, args.drop, args.corrupt, args.seed).start()
@@ -352,9 +354,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"autopilot side: {ap_dev}  (ArduCopter SITL: --serial2 uart:{ap_dev}:{args.baud})")
     print(f'companion side: {co_dev}  (connection = "serial://{co_dev}:{args.baud}")')
     print(f"line: {args.baud} baud, {relay.bytes_per_s:.0f} bytes/s each way", flush=True)
+    end = time.monotonic() + args.duration if args.duration > 0 else math.inf
     try:
-        while True:
-            time.sleep(args.report_s)
+        while time.monotonic() < end:
+            relay.stopping.wait(max(0.0, min(args.report_s, end - time.monotonic())))
             print(relay.report(), flush=True)
     except KeyboardInterrupt:
         pass

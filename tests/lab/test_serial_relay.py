@@ -70,7 +70,8 @@ def test_each_direction_is_paced_at_the_baud_rate_on_its_own():
         assert got["down"][0] == down and got["up"][0] == up
         for key in ("down", "up"):
             elapsed = got[key][1] - t0
-            assert 0.45 < elapsed < 0.75, (key, elapsed)  # 0.5 s of line time, not the pty's instant
+            # 0.5 s of line time, not the pty's instant (the upper bound leaves room for a loaded machine)
+            assert 0.45 < elapsed < 1.5, (key, elapsed)
         assert relay.to_companion.delivered == n and relay.to_autopilot.delivered == n
         assert relay.to_companion.line == n and relay.to_autopilot.read == n
         assert relay.to_companion.dropped == relay.to_companion.corrupted == 0
@@ -95,7 +96,7 @@ def test_a_faster_line_is_faster_and_the_backlog_stays_within_the_fifo():
             os.close(ap)
             os.close(co)
     assert got == data
-    assert 0.45 < last - t0 < 0.75, last - t0  # 4800 bytes at 9600 bytes/s
+    assert 0.45 < last - t0 < 1.5, last - t0  # 4800 bytes at 9600 bytes/s
     assert relay.to_companion.max_backlog <= 256
     assert relay.to_autopilot.line == 0
 
@@ -179,14 +180,11 @@ def test_bad_settings_are_refused(kwargs):
         SerialRelay(**kwargs)
 
 
-def test_the_command_line_prints_both_devices(capsys, monkeypatch):
+def test_the_command_line_prints_both_devices_and_the_counters(capsys):
     from companion_lab import serial_relay
 
-    def stop(_s: float) -> None:
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(serial_relay.time, "sleep", stop)
-    assert serial_relay.main(["--baud", "115200"]) == 0
+    assert serial_relay.main(["--baud", "115200", "--duration", "0.3", "--report-s", "0.1"]) == 0
     out = capsys.readouterr().out
     assert "--serial2 uart:/dev/pts/" in out and "serial:///dev/pts/" in out and "11520 bytes/s" in out
+    assert out.count("to_companion: 0 bytes") >= 2 and "to_autopilot: 0 bytes" in out
     assert serial_relay.main(["--baud", "0"]) == 2
