@@ -7,6 +7,7 @@ ArduPilot/pymavlink backend, so the application cannot tell them apart.
 from __future__ import annotations
 
 import abc
+import enum
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -79,30 +80,52 @@ class AutopilotUnreachable(AutopilotError):
     within the connect timeout."""
 
 
-# MAV_RESULT names a command can end with, plus the two outcomes that carry no COMMAND_ACK.
-NO_ANSWER = "NO_ANSWER"  # no COMMAND_ACK at all (PX4 ignores commands no module handles)
-LINK_DOWN = "LINK_DOWN"
+class CommandResult(enum.Enum):
+    """How a command ended without ACCEPTED: a MAV_RESULT (MAVLink common.xml, by its name
+    without the prefix), or one of the two outcomes that carry no COMMAND_ACK."""
+
+    TEMPORARILY_REJECTED = "TEMPORARILY_REJECTED"
+    DENIED = "DENIED"
+    UNSUPPORTED = "UNSUPPORTED"
+    FAILED = "FAILED"
+    IN_PROGRESS = "IN_PROGRESS"
+    CANCELLED = "CANCELLED"
+    COMMAND_LONG_ONLY = "COMMAND_LONG_ONLY"
+    COMMAND_INT_ONLY = "COMMAND_INT_ONLY"
+    COMMAND_UNSUPPORTED_MAV_FRAME = "COMMAND_UNSUPPORTED_MAV_FRAME"
+    NO_ANSWER = "NO_ANSWER"  # no COMMAND_ACK at all (PX4 ignores commands no module handles)
+    LINK_DOWN = "LINK_DOWN"
+    OTHER = "OTHER"  # an answer of no kind above (a MAV_RESULT number beyond common.xml, ...)
+
+
+NO_ANSWER = CommandResult.NO_ANSWER.value
+LINK_DOWN = CommandResult.LINK_DOWN.value
 # Results that will not change by sending the same command again: the autopilot lacks the
 # feature (UNSUPPORTED), its configuration or state forbids it (DENIED), the action itself failed
 # (FAILED: e.g. ArduCopter's DO_GRIPPER with GRIP_ENABLE = 0), or nothing handles it (NO_ANSWER).
-PERMANENT_RESULTS = frozenset({"UNSUPPORTED", "DENIED", "FAILED", NO_ANSWER})
+PERMANENT_RESULTS = frozenset(
+    {CommandResult.UNSUPPORTED, CommandResult.DENIED, CommandResult.FAILED, CommandResult.NO_ANSWER}
+)
 
 
 class CommandRejected(AutopilotError):
-    """A command ended without ACCEPTED. ``result`` is the MAV_RESULT name (``"DENIED"``,
-    ``"UNSUPPORTED"``, ``"FAILED"``, ``"TEMPORARILY_REJECTED"``, ...), :data:`NO_ANSWER` or
-    :data:`LINK_DOWN`; ``reason`` the autopilot's STATUSTEXT that came with it, if any."""
+    """A command ended without ACCEPTED. ``kind`` is how (:class:`CommandResult`: decide on it);
+    ``result`` its name as the backend gave it (``"DENIED"``, ``"NO_ANSWER"``, or an unknown
+    answer's own words, for messages); ``reason`` the autopilot's STATUSTEXT that came with it."""
 
-    def __init__(self, command: str, result: str, reason: str = ""):
+    def __init__(self, command: str, result: CommandResult | str, reason: str = ""):
         self.command = command
-        self.result = result
+        if isinstance(result, CommandResult):
+            self.kind, self.result = result, result.value
+        else:  # a name, from the wire: parsed once, here
+            self.kind, self.result = CommandResult.__members__.get(result, CommandResult.OTHER), result
         self.reason = reason
-        super().__init__(f"{command}: {result}" + (f" ({reason})" if reason else ""))
+        super().__init__(f"{command}: {self.result}" + (f" ({reason})" if reason else ""))
 
     @property
     def permanent(self) -> bool:
         """Sending the same command again will get the same answer (see :data:`PERMANENT_RESULTS`)."""
-        return self.result in PERMANENT_RESULTS
+        return self.kind in PERMANENT_RESULTS
 
 
 @dataclass(frozen=True, slots=True)

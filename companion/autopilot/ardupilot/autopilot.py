@@ -33,6 +33,7 @@ from companion.autopilot.interface import (
     Autopilot,
     AutopilotError,
     CommandRejected,
+    CommandResult,
     LinkLatch,
     OpenPacketSink,
     PacketSink,
@@ -59,7 +60,7 @@ WINCH_STATUS_MSG_ID = 9005  # WINCH_STATUS: the winch's line length (AP_Winch)
 DISTANCE_SENSOR_MSG_ID = 132  # DISTANCE_SENSOR: a rangefinder (RNGFND1_TYPE != 0)
 
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
-ARM_RETRY_RESULTS = frozenset({"FAILED", "TEMPORARILY_REJECTED", "DENIED"})
+ARM_RETRY_RESULTS = frozenset({CommandResult.FAILED, CommandResult.TEMPORARILY_REJECTED, CommandResult.DENIED})
 
 
 class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, ArduPilotTelemetry, Autopilot):
@@ -249,7 +250,7 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
                 await self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arm")
                 break
             except CommandRejected as err:
-                if err.result not in ARM_RETRY_RESULTS or time.monotonic() + 1.0 > deadline:
+                if err.kind not in ARM_RETRY_RESULTS or time.monotonic() + 1.0 > deadline:
                     raise
                 log.info("GUIDED/arming refused (EKF/GPS not ready?), retrying: %s", err)
                 await asyncio.sleep(1.0)
@@ -376,7 +377,9 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
             return
         seen = self.servo_outputs[channel - 1] if len(self.servo_outputs) >= channel else None
         raise CommandRejected(
-            what, "FAILED", f"output {channel} at {seen} us, not {pwm} us, {self.release_confirm_timeout_s:.1f} s after"
+            what,
+            CommandResult.FAILED,
+            f"output {channel} at {seen} us, not {pwm} us, {self.release_confirm_timeout_s:.1f} s after",
         )
 
     async def _find_gripper_output(self) -> tuple[int, int] | None:

@@ -17,10 +17,9 @@ from typing import Any
 from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.ardupilot.link import ArduPilotLink
 from companion.autopilot.interface import (
-    LINK_DOWN,
-    NO_ANSWER,
     AutopilotError,
     CommandRejected,
+    CommandResult,
 )
 from companion.autopilot.signing import (
     AP_KEY_LOAD_OFFSET,
@@ -93,9 +92,9 @@ class ArduPilotRequests(ArduPilotLink):
         :data:`NO_ANSWER` when no ack came after the tries, :data:`LINK_DOWN` without a link."""
         name = what or command_name(cmd)
         if self._conn is None or self._loop is None:
-            raise CommandRejected(name, LINK_DOWN, "not connected")
+            raise CommandRejected(name, CommandResult.LINK_DOWN, "not connected")
         if not self.link_ok:
-            raise CommandRejected(name, LINK_DOWN, "link is down")
+            raise CommandRejected(name, CommandResult.LINK_DOWN, "link is down")
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         ts, tc = self.target_system or 1, self.target_component
         old = self._acks.pop(cmd, None)
@@ -119,13 +118,17 @@ class ArduPilotRequests(ArduPilotLink):
                     try:
                         result = await asyncio.wait_for(fut, 30.0)
                     except TimeoutError:
-                        raise CommandRejected(name, NO_ANSWER, "IN_PROGRESS without a final ack") from None
+                        raise CommandRejected(
+                            name, CommandResult.NO_ANSWER, "IN_PROGRESS without a final ack"
+                        ) from None
                 if result == mavlink.MAV_RESULT_ACCEPTED:
                     return
                 # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
                 reason = self._last_text if self._texts_seen != texts_before else ""
                 raise CommandRejected(name, result_name(result), reason)
-            raise CommandRejected(name, NO_ANSWER, f"no COMMAND_ACK after {tries} tries{self._signing_hint()}")
+            raise CommandRejected(
+                name, CommandResult.NO_ANSWER, f"no COMMAND_ACK after {tries} tries{self._signing_hint()}"
+            )
         finally:
             if self._acks.get(cmd) is fut:
                 del self._acks[cmd]
