@@ -64,6 +64,10 @@ async def _fly(mav, port: int, dialect: str, rangefinder: bool):  # type: ignore
     touchdown = next(e for e in shell.events if e.kind is EventKind.TOUCHDOWN)
     td = sim.vehicle.touchdowns[0]
     error = math.hypot(td.north_m - config.mission.pad.north_m, td.east_m - config.mission.pad.east_m)
+    m = shell.mission
+    assert m.summary.pad_touchdown_ned is not None and m.pad_ned is not None
+    by_estimate = math.hypot(*(m.summary.pad_touchdown_ned[i] - float(m.pad_ned[i]) for i in (0, 1)))
+    print(f"{dialect} rangefinder {'on' if rangefinder else 'off'}: landing error by the estimate {by_estimate:.2f} m")
     return shell, ap, sink, touchdown.time_s - offset - t_contact, error
 
 
