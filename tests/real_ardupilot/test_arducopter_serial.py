@@ -152,7 +152,7 @@ async def test_delivery_over_a_921600_baud_serial_link(ardupilot_root, tmp_path)
     assert 4000 < down_bps < 0.25 * budget, down_bps
     assert 1000 < up_bps < 0.05 * budget, up_bps
     assert relay.to_companion.peak_bytes_per_s < 0.25 * budget
-    assert 19.0 < setpoint_hz < 22.0, setpoint_hz
+    assert 18.5 < setpoint_hz < 22.5, setpoint_hz  # a 20 Hz stream: 19.8-21.2 /s counted
     assert overrun == (0, 0), overrun
     assert ap.counters.bad_data == 0  # a clean line: every byte parsed
 
@@ -169,7 +169,7 @@ async def test_delivery_over_a_115200_baud_serial_link_with_its_stream_rates(ard
     assert 1500 < down_bps < 0.5 * budget, down_bps
     assert relay.to_companion.peak_bytes_per_s < 0.6 * budget
     assert 1000 < up_bps < 0.2 * budget, up_bps
-    assert 19.0 < setpoint_hz < 22.0, setpoint_hz
+    assert 18.5 < setpoint_hz < 22.5, setpoint_hz  # a 20 Hz stream: 19.8-21.2 /s counted
     assert overrun == (0, 0), overrun
 
 
@@ -186,7 +186,7 @@ async def test_a_serial_link_losing_and_corrupting_a_tenth_of_a_percent_of_its_b
         assert 0.0006 < faults / st.line < 0.0014, (st.name, faults, st.line)
     assert ap.counters.bad_data > 10 and ap.counters.garbage_bytes > 100, ap.counters
     _assert_delivered(r)
-    assert setpoint_hz > 19.0  # sent at 20 Hz; ~4 % of them do not arrive
+    assert setpoint_hz > 18.5  # the 20 Hz stream goes on (about 4 % of its frames are lost on the line)
 
 
 async def test_a_serial_link_losing_one_percent_of_its_bytes_keeps_the_parcel_aboard(ardupilot_root, tmp_path):
