@@ -56,7 +56,8 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
                 "max_xy_speed_m_s": 1.0,
                 "hold_min_height_m": 0.3,  # down to where the camera still sees the pad
                 "settle_s": 0.0,  # no wait at that height (held out, it did not help)
-                "touchdown_height_m": -1.0,  # closed until PX4 reports the touchdown
+                "touchdown_height_m": -1.0,  # closed until the ground contact...
+                "contact_time_s": 0.3,  # ...once it stopped sinking 0.3 s, not PX4's ON_GROUND seconds later
                 "xy_integral_gain_1_s2": 2.5,
                 "xy_integral_max_m_s": 0.5,
                 "xy_accel_feedforward": 0.4,  # the command's rate fed forward: no circling
