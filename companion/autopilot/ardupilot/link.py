@@ -347,9 +347,12 @@ class ArduPilotLink(abc.ABC):
             elif alive and (now >= next_hb or next_hb_alive <= now):
                 next_hb = now + 1.0
                 next_hb_alive = math.inf
+                # as the GCS's system (255) the type is GCS: ArduPilot forwards heartbeats to its
+                # other ports, and a ground station there (MAVProxy) takes a non-GCS type for a
+                # second vehicle, 255:191; ArduPilot's GCS failsafe reads the system id only
                 self._send(
                     lambda mav: mav.heartbeat_send(
-                        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                        mavlink.MAV_TYPE_GCS,
                         mavlink.MAV_AUTOPILOT_INVALID,
                         0,
                         0,
