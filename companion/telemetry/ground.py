@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -450,14 +451,23 @@ def run_live(
     console: Console | None = None,
 ) -> bool:
     """Show the live table until ``duration_s`` elapses (None: until Ctrl-C); True if Ctrl-C
-    ended it."""
+    ended it. On the main thread Ctrl-C only sets a flag the loop reads each refresh: an interrupt
+    raised wherever the main thread happened to be (inside rich's or Zenoh's calls) once left the
+    command running after it (CI, under load)."""
     end = None if duration_s is None else time.monotonic() + duration_s
-    with Live(render_table(station.snapshot()), console=console, refresh_per_second=refresh_hz) as live:
-        try:
-            while end is None or time.monotonic() < end:
-                time.sleep(1.0 / refresh_hz)
+    stop = threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: stop.set())
+    try:
+        with Live(render_table(station.snapshot()), console=console, refresh_per_second=refresh_hz) as live:
+            while not stop.is_set() and (end is None or time.monotonic() < end):
+                stop.wait(1.0 / refresh_hz)
                 live.update(render_table(station.snapshot()))
                 station.flush()
-        except KeyboardInterrupt:
-            return True
-    return False
+    except KeyboardInterrupt:  # off the main thread, or before the handler was in place
+        return True
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    return stop.is_set()

@@ -72,6 +72,11 @@ def test_each_direction_is_paced_at_the_baud_rate_on_its_own():
             elapsed = got[key][1] - t0
             # 0.5 s of line time, not the pty's instant (the upper bound leaves room for a loaded machine)
             assert 0.45 < elapsed < 1.5, (key, elapsed)
+        # the relay counts a byte once its write returns, which can be just after the reader has it
+        deadline = time.monotonic() + 1.0
+        while relay.to_companion.delivered < n or relay.to_autopilot.delivered < n:
+            assert time.monotonic() < deadline, (relay.to_companion, relay.to_autopilot)
+            time.sleep(0.01)
         assert relay.to_companion.delivered == n and relay.to_autopilot.delivered == n
         assert relay.to_companion.line == n and relay.to_autopilot.read == n
         assert relay.to_companion.dropped == relay.to_companion.corrupted == 0
