@@ -60,13 +60,19 @@ def test_pad_command_writes_pdf_and_png_by_default(
     assert "--out pad.svg: must end in .pdf (vector, true size) or .png" in capsys.readouterr().err
 
 
-def test_calibrate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def _chessboard_images(folder: Path, n: int) -> list[str]:
+    """``n`` PNG views of a 9x6 chessboard (25 mm squares) through a known camera, their paths."""
     truth = CameraModel(640, 480, 510.0, 510.0, 320.0, 240.0, dist=(0.08, -0.1, 0.0, 0.0, 0.0))
     names = []
-    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"), 7, seed=9)):
-        p = tmp_path / f"view{i}.png"
+    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"), n, seed=9)):
+        p = folder / f"view{i}.png"
         cv2.imwrite(str(p), img)
         names.append(str(p))
+    return names
+
+
+def test_calibrate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    names = _chessboard_images(tmp_path, 7)
     out = tmp_path / "camera_test.toml"
     args = _parser().parse_args(["calibrate", *names, "--pattern", "chessboard:9x6:0.025", "--out", str(out)])
     assert args.func(args) == 0
@@ -96,12 +102,7 @@ def test_calibrate_command_errors(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_calibrate_names_the_images_it_skipped_and_a_wrong_size_is_bad_input_as_a_missing_one(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    truth = CameraModel(640, 480, 510.0, 510.0, 320.0, 240.0, dist=(0.08, -0.1, 0.0, 0.0, 0.0))
-    names = []
-    for i, img in enumerate(chessboard_views(truth, CalibrationPattern.parse("chessboard:9x6:0.025"), 6, seed=9)):
-        p = tmp_path / f"view{i}.png"
-        cv2.imwrite(str(p), img)
-        names.append(str(p))
+    names = _chessboard_images(tmp_path, 6)
     blank = tmp_path / "lens_cap.png"
     cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))
     out = tmp_path / "camera_test.toml"
