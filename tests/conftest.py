@@ -73,6 +73,22 @@ async def wait_for(pred, timeout_s: float, what: str = "condition") -> None:
         await asyncio.sleep(0.02)
 
 
+def rangefinder_trace(trace: list):  # type: ignore[no-untyped-def]
+    """A monitor for ``fly`` that appends (reading time, range, the estimate's height above the
+    ground, phase) to ``trace`` every 50 ms once the route is planned: the rangefinder tests."""
+
+    async def watch(shell) -> None:  # type: ignore[no-untyped-def]
+        while True:
+            r, est = shell.autopilot.telemetry.rangefinder, shell.estimate
+            if r is not None and est is not None and shell.mission.frame is not None:
+                trace.append(
+                    (r.time_s, r.distance_m, shell.mission.height_above_ground(est), shell.mission.phase.value)
+                )
+            await asyncio.sleep(0.05)
+
+    return watch
+
+
 async def fly(config, autopilot, monitor=None, timeout_s: float = 90.0):
     shell = DeliveryShell(config, autopilot)
     mon = asyncio.get_running_loop().create_task(monitor(shell)) if monitor else None
@@ -213,6 +229,7 @@ def mav():
         sim_vehicle=sim_vehicle,
         wait_for=wait_for,
         fly=fly,
+        rangefinder_trace=rangefinder_trace,
         orders_scenario=orders_scenario,
         firmware_config=firmware_config,
         connect_only_zenoh=connect_only_zenoh,

@@ -5,8 +5,6 @@ test is ~40 s."""
 
 from __future__ import annotations
 
-import asyncio
-
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
@@ -44,14 +42,7 @@ async def test_arducopter_distance_sensor_flies_the_final_descent(mav, ardupilot
     figures in docs/rangefinder.md)."""
     trace: list[tuple[float, float, float, str]] = []  # time, range, the estimate's height, phase
 
-    async def watch(shell) -> None:  # type: ignore[no-untyped-def]
-        while True:
-            r, est = shell.autopilot.telemetry.rangefinder, shell.estimate
-            if r is not None and est is not None and shell.mission.frame is not None:
-                trace.append(
-                    (r.time_s, r.distance_m, shell.mission.height_above_ground(est), shell.mission.phase.value)
-                )
-            await asyncio.sleep(0.05)
+    watch = mav.rangefinder_trace(trace)
 
     sitl = ArduCopterSitl(
         ardupilot_root, instance=INSTANCE, extra_params={**GRIPPER_SERVO9, **RANGEFINDER}, log_path=tmp_path / "ac.log"

@@ -7,8 +7,6 @@ reads the ground)."""
 
 from __future__ import annotations
 
-import asyncio
-
 import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
@@ -37,14 +35,7 @@ async def _fly(mav, px4_root, tmp_path, rangefinder: bool):  # type: ignore[no-u
     config = _config(mav, rangefinder)
     trace: list[tuple[float, float, float, str]] = []  # time, range, the estimate's height, phase
 
-    async def watch(shell) -> None:  # type: ignore[no-untyped-def]
-        while True:
-            r, est = shell.autopilot.telemetry.rangefinder, shell.estimate
-            if r is not None and est is not None and shell.mission.frame is not None:
-                trace.append(
-                    (r.time_s, r.distance_m, shell.mission.height_above_ground(est), shell.mission.phase.value)
-                )
-            await asyncio.sleep(0.05)
+    watch = mav.rangefinder_trace(trace)
 
     with Px4Sitl(px4_root, instance=INSTANCE, log_path=tmp_path / "px4.log"):
         ap = Px4Autopilot.from_config(config)
