@@ -89,6 +89,22 @@ def rangefinder_trace(trace: list):  # type: ignore[no-untyped-def]
     return watch
 
 
+def descent_to_ground(trace: list, ground_m: float):  # type: ignore[no-untyped-def]
+    """From a ``rangefinder_trace``: the first row of the final descent (Phase.LANDING_PAD), the
+    last row above the ground (the first reading at or below ``ground_m`` ends the descent; the
+    lowest reading where the trace ended before one did) and the sink rate over its last 0.3 s."""
+    from companion.events import Phase
+
+    first = next(row for row in trace if row[3] == Phase.LANDING_PAD.value)
+    start = trace.index(first)
+    after = range(start, len(trace))
+    ground = next((i for i in after if trace[i][1] <= ground_m), min(after, key=lambda i: trace[i][1]))
+    air = trace[start:ground]
+    last = air[-1]
+    before = next(row for row in reversed(air) if row[0] < last[0] - 0.3)
+    return first, last, (before[1] - last[1]) / (last[0] - before[0])
+
+
 async def fly(config, autopilot, monitor=None, timeout_s: float = 90.0):
     shell = DeliveryShell(config, autopilot)
     mon = asyncio.get_running_loop().create_task(monitor(shell)) if monitor else None
@@ -230,6 +246,7 @@ def mav():
         wait_for=wait_for,
         fly=fly,
         rangefinder_trace=rangefinder_trace,
+        descent_to_ground=descent_to_ground,
         orders_scenario=orders_scenario,
         firmware_config=firmware_config,
         connect_only_zenoh=connect_only_zenoh,

@@ -10,7 +10,7 @@ import pytest
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.ardupilot.autopilot import DISTANCE_SENSOR_MSG_ID
 from companion.config import load_config, shipped_params_path
-from companion.events import EventKind, Phase
+from companion.events import EventKind
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_lab.real_campaign import firmware_tuning
 
@@ -58,15 +58,10 @@ async def test_arducopter_distance_sensor_flies_the_final_descent(mav, ardupilot
     assert ap.telemetry.received["RangefinderReading"] > 100
     gate = shell.mission.rangefinder
     assert (gate is not None) == rangefinder
-    landing = [row for row in trace if row[3] == Phase.LANDING_PAD.value]
     approach = config.mission.final_descent_alt_m
     # the descent down to the first reading at the ground (below RNGFND1_MIN, 0.2 m)
-    start = trace.index(landing[0])
-    ground = next(i for i in range(start, len(trace)) if trace[i][1] <= 0.25)
-    air = trace[start:ground]
-    last = air[-1]
-    before = next(row for row in reversed(air) if row[0] < last[0] - 0.3)
-    sink = (before[1] - last[1]) / (last[0] - before[0])
+    first, last, sink = mav.descent_to_ground(trace, 0.25)
+    landing = [first]
     touchdown = next(e.time_s for e in shell.events if e.kind is EventKind.TOUCHDOWN)
     print(
         f"ArduCopter rangefinder {'on' if rangefinder else 'off'}: final descent from {landing[0][1]:.2f} m "

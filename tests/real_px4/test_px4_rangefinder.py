@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
-from companion.events import EventKind, Phase
+from companion.events import EventKind
 from companion_firmware.px4_sitl import Px4Sitl
 
 pytestmark = pytest.mark.firmware
@@ -43,17 +43,11 @@ async def _fly(mav, px4_root, tmp_path, rangefinder: bool):  # type: ignore[no-u
         shell, summary = await mav.fly(config, ap, watch, timeout_s=80.0)
     assert summary.delivered, summary.failure
     assert ap.telemetry.received.get("RangefinderReading", 0) > 100
-    landing = [row for row in trace if row[3] == Phase.LANDING_PAD.value]
-    drift = landing[0][2] - landing[0][1]  # the estimate's height - the rangefinder's at the final descent
     # the descent down to the first reading at the ground (its minimum, 0); when the flight's trace
     # ended before a 10 Hz reading said 0 (it once did, under CI load), its lowest reading
-    start = trace.index(landing[0])
-    after = range(start, len(trace))
-    ground = next((i for i in after if trace[i][1] <= 0.05), min(after, key=lambda i: trace[i][1]))
-    air = trace[start:ground]
-    last = air[-1]
-    before = next(row for row in reversed(air) if row[0] < last[0] - 0.3)
-    sink = (before[1] - last[1]) / (last[0] - before[0])
+    first, last, sink = mav.descent_to_ground(trace, 0.05)
+    landing = [first]
+    drift = landing[0][2] - landing[0][1]  # the estimate's height - the rangefinder's at the final descent
     touchdown = next(e.time_s for e in shell.events if e.kind is EventKind.TOUCHDOWN)
     print(
         f"PX4 SIH rangefinder {'on' if rangefinder else 'off'}: final descent from {landing[0][1]:.2f} m "
