@@ -94,6 +94,7 @@ class CommandResult(enum.Enum):
     COMMAND_INT_ONLY = "COMMAND_INT_ONLY"
     COMMAND_UNSUPPORTED_MAV_FRAME = "COMMAND_UNSUPPORTED_MAV_FRAME"
     NO_ANSWER = "NO_ANSWER"  # no COMMAND_ACK at all (PX4 ignores commands no module handles)
+    LOST = "LOST"  # no COMMAND_ACK while the link lost or garbled messages: worth sending again
     LINK_DOWN = "LINK_DOWN"
     OTHER = "OTHER"  # an answer of no kind above (a MAV_RESULT number beyond common.xml, ...)
 
@@ -102,7 +103,8 @@ NO_ANSWER = CommandResult.NO_ANSWER.value
 LINK_DOWN = CommandResult.LINK_DOWN.value
 # Results that will not change by sending the same command again: the autopilot lacks the
 # feature (UNSUPPORTED), its configuration or state forbids it (DENIED), the action itself failed
-# (FAILED: e.g. ArduCopter's DO_GRIPPER with GRIP_ENABLE = 0), or nothing handles it (NO_ANSWER).
+# (FAILED: e.g. ArduCopter's DO_GRIPPER with GRIP_ENABLE = 0), or nothing handles it (NO_ANSWER:
+# silence on a clean link; silence on a link seen losing messages is LOST, and retried).
 PERMANENT_RESULTS = frozenset(
     {CommandResult.UNSUPPORTED, CommandResult.DENIED, CommandResult.FAILED, CommandResult.NO_ANSWER}
 )

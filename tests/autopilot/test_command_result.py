@@ -15,6 +15,7 @@ from companion.autopilot.interface import PERMANENT_RESULTS, CommandRejected, Co
         ("DENIED", CommandResult.DENIED, True),
         ("TEMPORARILY_REJECTED", CommandResult.TEMPORARILY_REJECTED, False),
         (CommandResult.NO_ANSWER, CommandResult.NO_ANSWER, True),
+        (CommandResult.LOST, CommandResult.LOST, False),  # silence on a lossy link: sent again
         ("LINK_DOWN", CommandResult.LINK_DOWN, False),
         ("MAV_RESULT 42", CommandResult.OTHER, False),  # a number beyond common.xml
         ("denied", CommandResult.OTHER, False),  # names are exact: no guessing from text

@@ -27,6 +27,7 @@ from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters
 from companion.autopilot.ardupilot.mission import ArduPilotMission
 from companion.autopilot.ardupilot.modes import COPTER_MODES
+from companion.autopilot.ardupilot.remote_id import ArduPilotRemoteId
 from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ, configured_stream_rates
 from companion.autopilot.ardupilot.telemetry import ArduPilotTelemetry
 from companion.autopilot.interface import (
@@ -51,6 +52,7 @@ from companion.autopilot.types import (
     LandingTarget,
 )
 from companion.autopilot.winch import MAV_CMD_DO_WINCH, WinchCommand
+from companion.config import RemoteIdConfig
 from companion.guidance.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
@@ -60,10 +62,14 @@ WINCH_STATUS_MSG_ID = 9005  # WINCH_STATUS: the winch's line length (AP_Winch)
 DISTANCE_SENSOR_MSG_ID = 132  # DISTANCE_SENSOR: a rangefinder (RNGFND1_TYPE != 0)
 
 # arming refusals that clear by themselves (pre-arm checks while the EKF converges)
-ARM_RETRY_RESULTS = frozenset({CommandResult.FAILED, CommandResult.TEMPORARILY_REJECTED, CommandResult.DENIED})
+ARM_RETRY_RESULTS = frozenset(
+    {CommandResult.FAILED, CommandResult.TEMPORARILY_REJECTED, CommandResult.DENIED, CommandResult.LOST}
+)
 
 
-class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, ArduPilotTelemetry, Autopilot):
+class ArduPilotAutopilot(
+    ArduPilotMission, ArduPilotFence, ArduPilotComponent, ArduPilotRemoteId, ArduPilotTelemetry, Autopilot
+):
     def __init__(
         self,
         connection: str = "udpin:0.0.0.0:14550",
@@ -84,8 +90,10 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         stream_rates_hz: dict[int, float] | None = None,
         tlog: OpenPacketSink | None = None,
         signing: SigningSetup | None = None,
+        remote_id: RemoteIdConfig | None = None,
     ):
         self.connection = connection
+        self.remote_id = remote_id  # [remote_id]: sent and gated on when enabled (.remote_id)
         self.signing = signing
         self.baud = baud
         self.link_timeout_s = link_timeout_s
@@ -191,6 +199,9 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         if mission is not None and mission.rangefinder.enabled:
             # the final descent's height (docs/rangefinder.md): ArduCopter streams it only when asked
             kwargs["stream_rates_hz"] = {**kwargs["stream_rates_hz"], DISTANCE_SENSOR_MSG_ID: 10.0}
+        rid = getattr(config, "remote_id", None)
+        if rid is not None and rid.enabled:
+            kwargs.setdefault("remote_id", rid)  # docs/remote-id.md
         sc = getattr(config, "signing", None)
         if sc is not None and sc.enabled and "signing" not in kwargs:
             key = read_key_file(sc.key_file, sc.key_format)
@@ -229,6 +240,14 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         ts, tc = self.target_system or 1, self.target_component
         self._send(lambda mav: mav.rc_channels_override_send(ts, tc, *ch, *ext))
 
+    async def connect(self, timeout_s: float = 10.0) -> None:
+        await super().connect(timeout_s)
+        self._start_remote_id()  # with [remote_id] enabled: its messages, from now on
+
+    async def close(self) -> None:
+        await self._stop_remote_id()
+        await super().close()
+
     # ------------------------------------------------------------------ commands
     async def set_mode(self, name: str) -> None:
         num = COPTER_MODES[name]
@@ -241,9 +260,18 @@ class ArduPilotAutopilot(ArduPilotMission, ArduPilotFence, ArduPilotComponent, A
         with "Mode change to GUIDED failed: requires position", arming with "Arm: Need Position
         Estimate". Both are retried every second until ``arm_timeout_s``, then the last refusal
         is raised. Arming in LAND (the mode a LAND leaves it in) is refused for good ("Arm: LAND
-        mode not armable"): GUIDED comes first."""
+        mode not armable"): GUIDED comes first. With ``[remote_id] enabled`` the transponder's
+        ARM_STATUS must be fresh and good first (:meth:`remote_id_gate`), waited for as long, then
+        refused (DENIED, with the gate's reason)."""
         deadline = time.monotonic() + self.arm_timeout_s
         while True:
+            gate = self.remote_id_gate()
+            if not gate.may_arm:
+                if time.monotonic() + 1.0 > deadline:
+                    raise CommandRejected("arm", CommandResult.DENIED, gate.reason)
+                log.info("arming waits for Remote ID (%s): %s", gate.verdict.value, gate.reason)
+                await asyncio.sleep(1.0)
+                continue
             try:
                 if self.copter_mode != COPTER_MODES["GUIDED"]:
                     await self.set_mode("GUIDED")

@@ -266,6 +266,13 @@ class ArduPilotLink(abc.ABC):
         return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
 
     @property
+    def messages_lost(self) -> int:
+        """Messages this link has lost so far: bytes that did not parse (each run of them one) plus
+        gaps in the autopilot's sequence numbers (pymavlink's count)."""
+        conn = self._conn
+        return self.counters.bad_data + (int(conn.mav_loss) if conn is not None else 0)
+
+    @property
     def link_ok(self) -> bool:
         if self._conn is None:
             return False

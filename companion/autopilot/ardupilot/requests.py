@@ -89,7 +89,8 @@ class ArduPilotRequests(ArduPilotLink):
     async def _command(self, cmd: int, *params: float, what: str = "", retries: int | None = None) -> None:
         """COMMAND_LONG, resent until its COMMAND_ACK arrives. Anything but ACCEPTED raises
         :class:`CommandRejected` with the MAV_RESULT name (with the STATUSTEXT that came with it),
-        :data:`NO_ANSWER` when no ack came after the tries, :data:`LINK_DOWN` without a link."""
+        :data:`NO_ANSWER` when no ack came after the tries (``LOST`` if the link lost messages
+        meanwhile), :data:`LINK_DOWN` without a link."""
         name = what or command_name(cmd)
         if self._conn is None or self._loop is None:
             raise CommandRejected(name, CommandResult.LINK_DOWN, "not connected")
@@ -102,7 +103,7 @@ class ArduPilotRequests(ArduPilotLink):
             old.cancel()
         fut: asyncio.Future[int] = self._loop.create_future()
         self._acks[cmd] = fut
-        texts_before = self._texts_seen
+        texts_before, lost_before = self._texts_seen, self.messages_lost
         tries = self.command_retries if retries is None else retries
         try:
             for attempt in range(tries):
@@ -126,6 +127,11 @@ class ArduPilotRequests(ArduPilotLink):
                 # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
                 reason = self._last_text if self._texts_seen != texts_before else ""
                 raise CommandRejected(name, result_name(result), reason)
+            lost = self.messages_lost - lost_before
+            if lost > 0:  # a lossy link (a noisy serial line): the acks may have been lost, not refused
+                raise CommandRejected(
+                    name, CommandResult.LOST, f"no COMMAND_ACK after {tries} tries while the link lost {lost} messages"
+                )
             raise CommandRejected(
                 name, CommandResult.NO_ANSWER, f"no COMMAND_ACK after {tries} tries{self._signing_hint()}"
             )
