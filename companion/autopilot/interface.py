@@ -313,6 +313,17 @@ class TelemetryCache:
         return True
 
 
+@dataclass(frozen=True, slots=True)
+class LinkTraffic:
+    """The link's line and the bytes over it so far: ``baud`` of a serial line (None on UDP or
+    TCP, which have no budget worth stating); the byte counts None where the backend cannot
+    count them (MAVSDK keeps its link to itself)."""
+
+    baud: int | None
+    rx_bytes: int | None = None
+    tx_bytes: int | None = None
+
+
 class Autopilot(abc.ABC):
     """Async interface to one vehicle's flight controller.
 
@@ -344,6 +355,10 @@ class Autopilot(abc.ABC):
         """Seconds since the autopilot's last HEARTBEAT; None before the first one, or for a
         backend without heartbeats (the embedded simulator)."""
         return None
+
+    def link_traffic(self) -> LinkTraffic:
+        """The line the link runs on and the bytes it carried (for the pre-flight link budget)."""
+        return LinkTraffic(None)
 
     @abc.abstractmethod
     async def arm(self) -> None: ...

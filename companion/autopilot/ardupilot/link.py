@@ -36,6 +36,7 @@ from companion.autopilot.interface import (
     ConnectionUrlError,
     LinkDeviceMissing,
     LinkLatch,
+    LinkTraffic,
     OpenPacketSink,
     PacketSink,
     TelemetryCache,
@@ -264,6 +265,14 @@ class ArduPilotLink(abc.ABC):
     @property
     def heartbeat_age_s(self) -> float | None:
         return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
+
+    def link_traffic(self) -> LinkTraffic:
+        _, baud, kind = parse_connection(self.connection, self.baud)
+        conn = self._conn
+        if conn is None:
+            return LinkTraffic(baud if kind == "serial" else None)
+        mav = conn.mav
+        return LinkTraffic(baud if kind == "serial" else None, int(mav.total_bytes_received), int(mav.total_bytes_sent))
 
     @property
     def messages_lost(self) -> int:

@@ -33,6 +33,7 @@ from companion.autopilot.interface import (
     AutopilotError,
     AutopilotUnreachable,
     LinkLatch,
+    LinkTraffic,
     OpenPacketSink,
     PacketSink,
     TelemetryCache,
@@ -233,6 +234,15 @@ class Px4Link(abc.ABC):
     @property
     def heartbeat_age_s(self) -> float | None:
         return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
+
+    def link_traffic(self) -> LinkTraffic:
+        """The serial line's baud as the URL gives it (none given: unknown, no budget); MAVSDK
+        counts no bytes we can read."""
+        scheme, _, rest = self.connection.strip().partition("://")
+        if scheme != "serial":
+            return LinkTraffic(None)
+        tail = rest.rsplit(":", 1)[-1]
+        return LinkTraffic(int(tail) if tail.isdigit() and ":" in rest else None)
 
     @property
     def link_ok(self) -> bool:
