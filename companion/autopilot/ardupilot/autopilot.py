@@ -28,7 +28,11 @@ from companion.autopilot.ardupilot.link import LinkCounters
 from companion.autopilot.ardupilot.mission import ArduPilotMission
 from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.ardupilot.remote_id import ArduPilotRemoteId
-from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ, configured_stream_rates
+from companion.autopilot.ardupilot.requests import (
+    DEFAULT_STREAM_RATES_HZ,
+    STREAM_CHECK_PERIOD_S,
+    configured_stream_rates,
+)
 from companion.autopilot.ardupilot.telemetry import ArduPilotTelemetry
 from companion.autopilot.interface import (
     Autopilot,
@@ -137,6 +141,10 @@ class ArduPilotAutopilot(
         self._last_attitude = -math.inf
         self._last_stream_request = -math.inf
         self._highres_accepted = False
+        self.stream_check_period_s = STREAM_CHECK_PERIOD_S
+        self._streams_refused: set[int] = set()
+        self._stream_rerequests: dict[int, int] = {}
+        self._stream_window: tuple[float, dict[int, int]] | None = None
         self._t_boot = time.monotonic()
 
     def _init_vehicle_state(self) -> None:

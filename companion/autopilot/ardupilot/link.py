@@ -71,6 +71,7 @@ class LinkCounters:
     setpoints_dropped: int = 0
     commands_sent: int = 0
     stream_requests: int = 0
+    stream_rerequests: int = 0  # single streams asked for again, arriving at under half their rate
     signature_rejects: int = 0  # packets dropped by our signing check (unsigned or another key)
     signed_heartbeats: int = 0  # heartbeats of the vehicle whose signature our key verified
     signed_from_vehicle: int = 0  # any packet of the vehicle whose signature our key verified
@@ -150,6 +151,12 @@ class ArduPilotLink(abc.ABC):
     _last_attitude: float
     _last_stream_request: float
     _highres_accepted: bool  # the vehicle took HIGHRES_IMU: RAW_IMU (its fallback) is not asked for
+    stream_check_period_s: float  # the thin-stream check's window (requests.STREAM_CHECK_PERIOD_S)
+    _streams_refused: set[int]  # streams the vehicle refused (UNSUPPORTED, DENIED, FAILED)
+    _stream_rerequests: dict[int, int]  # thin streams asked for again, how often
+    # the thin-stream check's window: (its start, messages of the vehicle per id); None before the
+    # streams were first asked for
+    _stream_window: tuple[float, dict[int, int]] | None
     _t_boot: float
     copter_mode: int
     _armed: bool
@@ -386,6 +393,7 @@ class ArduPilotLink(abc.ABC):
             if m is None:
                 self._check_streams(now)
                 continue
+            self._count_stream(m, now)
             tlog = self.tlog
             if tlog is not None and m.get_type() != "BAD_DATA":
                 tlog.write(m.get_msgbuf())
@@ -412,6 +420,10 @@ class ArduPilotLink(abc.ABC):
     @abc.abstractmethod
     def _on_message(self, m: Any) -> None:
         """Decode one received message (:class:`~.telemetry.ArduPilotTelemetry`)."""
+
+    @abc.abstractmethod
+    def _count_stream(self, m: Any, now: float) -> None:
+        """Count a received message for the thin-stream check (:class:`~.requests.ArduPilotRequests`)."""
 
     @abc.abstractmethod
     def _check_streams(self, now: float) -> None:

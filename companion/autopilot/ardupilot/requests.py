@@ -1,6 +1,7 @@
 """Requests to ArduPilot: COMMAND_LONGs retried until acknowledged, the telemetry streams
-(ArduCopter streams nothing until asked: message intervals are requested on connect and again if
-telemetry stops while heartbeats go on, e.g. after an autopilot reboot), parameters by name,
+(ArduCopter streams nothing until asked: message intervals are requested on connect, again if
+telemetry stops while heartbeats go on, e.g. after an autopilot reboot, and one by one for a
+stream arriving at under half its rate, its request or ack lost on a noisy line), parameters by name,
 SYSTEM_TIME, and giving the vehicle a signing key (SETUP_SIGNING)."""
 
 from __future__ import annotations
@@ -49,6 +50,16 @@ DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
     147: 1.0,  # BATTERY_STATUS
     65: 5.0,  # RC_CHANNELS
 }
+
+# a stream arriving at under THIN_STREAM_SHARE of its rate over a STREAM_CHECK_PERIOD_S window is
+# asked for again (its request or its ack may have been lost on a noisy line), at most
+# MAX_STREAM_REREQUESTS times; only streams that expect MIN_EXPECTED_IN_WINDOW messages a window
+THIN_STREAM_SHARE = 0.5
+STREAM_CHECK_PERIOD_S = 5.0
+MAX_STREAM_REREQUESTS = 3
+MIN_EXPECTED_IN_WINDOW = 10
+# answers that mean the autopilot will not send a stream: not asked again
+STREAM_REFUSALS = frozenset({CommandResult.UNSUPPORTED, CommandResult.DENIED, CommandResult.FAILED})
 
 HIGHRES_IMU_ID, RAW_IMU_ID = 105, 27
 ATTITUDE_STREAMS = (30, HIGHRES_IMU_ID, RAW_IMU_ID)  # the streams [runtime] autopilot_attitude_rate_hz sets
@@ -228,6 +239,8 @@ class ArduPilotRequests(ArduPilotLink):
                 await self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mid, 1e6 / hz, retries=2)
             except AutopilotError as err:
                 log.info("message %d at %.1f Hz not available: %s", mid, hz, err)
+                if isinstance(err, CommandRejected) and err.kind in STREAM_REFUSALS:
+                    self._streams_refused.add(mid)
             else:
                 if mid == HIGHRES_IMU_ID:
                     self._highres_accepted = True
@@ -235,11 +248,14 @@ class ArduPilotRequests(ArduPilotLink):
         self._last_stream_request = time.monotonic()
         self.counters.stream_requests += 1
         self._highres_accepted = False
+        self._streams_refused = set()
         for mid, hz in self._streams_to_request():  # one at a time: the ack futures are keyed by command
             if self._stream_wanted(mid):
                 await one(mid, hz)
         with contextlib.suppress(AutopilotError):
             await self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, 242, retries=1)
+        self._stream_rerequests = {}
+        self._stream_window = (time.monotonic(), {})  # the thin-stream check starts counting now
 
     def _rerequest_streams_fire_and_forget(self) -> None:
         ts, tc = self.target_system or 1, self.target_component
@@ -257,6 +273,59 @@ class ArduPilotRequests(ArduPilotLink):
                 )
             )
         self.counters.stream_requests += 1
+
+    def _count_stream(self, m: Any, now: float) -> None:
+        """Reader thread: one message of the vehicle's counted for the thin-stream check, which runs
+        once a window."""
+        window = self._stream_window
+        if window is None or m.get_srcSystem() != self.target_system:
+            return
+        t0, counts = window
+        mid = m.get_msgId()
+        counts[mid] = counts.get(mid, 0) + 1
+        if now - t0 >= self.stream_check_period_s:
+            self._stream_window = (now, {})
+            self._rerequest_thin_streams(counts, now - t0)
+
+    def _rerequest_thin_streams(self, counts: dict[int, int], window_s: float) -> None:
+        """Ask again (fire and forget) for each stream that arrived at under THIN_STREAM_SHARE of
+        its rate, unless the autopilot refused it or it was asked MAX_STREAM_REREQUESTS times."""
+        if not self.link_ok:
+            return
+        ts, tc = self.target_system or 1, self.target_component
+        for mid, hz in self._streams_to_request():
+            expected = hz * window_s
+            if (
+                not self._stream_wanted(mid)
+                or mid in self._streams_refused
+                or expected < MIN_EXPECTED_IN_WINDOW
+                or counts.get(mid, 0) >= THIN_STREAM_SHARE * expected
+            ):
+                continue
+            n = self._stream_rerequests.get(mid, 0)
+            if n >= MAX_STREAM_REREQUESTS:
+                continue
+            self._stream_rerequests[mid] = n + 1
+            self.counters.stream_rerequests += 1
+            log.info(
+                "message %d: %d in %.1f s of %.0f asked for; asking again (%d of %d)",
+                mid,
+                counts.get(mid, 0),
+                window_s,
+                expected,
+                n + 1,
+                MAX_STREAM_REREQUESTS,
+            )
+            self._send(
+                functools.partial(
+                    _command_long,
+                    ts=ts,
+                    tc=tc,
+                    cmd=mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                    confirmation=0,
+                    params=(mid, 1e6 / hz, 0, 0, 0, 0, 0),
+                )
+            )
 
     def _check_streams(self, now: float) -> None:
         if (
