@@ -38,6 +38,12 @@ def test_the_worse_direction_decides(down_share, status):
         assert "serial_115200.toml" in row.detail  # what to do about it
     (up_row,) = check_link_budget(AP, LinkProbe(921600, 0.02 * line, down_share * line, 2.0))
     assert up_row.status is status
+    assert f"{down_share * line:.0f} B/s measured before it" in up_row.detail
+
+
+def test_the_uplink_counts_the_setpoint_stream_the_check_runs_before():
+    (row,) = check_link_budget(AP, LinkProbe(115200, 1000.0, 300.0, 2.0))
+    assert f"up {predicted_uplink_bytes_s(AP):.0f} B/s" in row.detail and "300 B/s measured before it" in row.detail
 
 
 def test_without_byte_counts_the_uplink_is_predicted_from_the_setpoint_rate():

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.truth_feed import MavlinkTruth
@@ -25,6 +25,7 @@ from companion_firmware.truth_harness import HarnessResult, flight_story, fly_on
 from companion_lab.real_campaign import firmware_tuning
 from companion_lab.serial_relay import DirectionStats, SerialRelay
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9
 
@@ -101,7 +102,7 @@ async def _fly_serial(
             "landing": tuning["landing"],
         }
         files = [shipped_params_path(f) for f in ("sitl_short.toml", *overlays)]
-        config = load_config(*files, overrides=overrides)
+        config = load_simulated_config(*files, overrides=overrides)
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
         rec = FlightRecorder(tmp_path / "run", config)
         down0, up0 = relay.to_companion.snapshot(), relay.to_autopilot.snapshot()
@@ -209,3 +210,39 @@ async def test_a_serial_link_losing_one_percent_of_its_bytes_keeps_the_parcel_ab
         assert r.pad_landing_error_m < PAD_HALF_SIZE_M, r
     else:
         assert not r.delivered
+
+
+async def test_preflight_states_the_link_budget_of_a_115200_baud_line(ardupilot_root, tmp_path):
+    """`preflight` on the real SITL over the 115200 line: its `link budget` row measures the bytes
+    each way as the relay counts them; the default streams take well over half the downlink (not
+    ok), params/serial_115200.toml brings them under half (ok). One SITL, two connections."""
+    from companion.autopilot.preflight.report import Status, requirements_from_config
+    from companion.autopilot.preflight.runner import preflight
+    from companion.config import load_config
+
+    relay = SerialRelay(baud=115200, seed=57)
+    rows = {}
+    with relay, _arducopter_on_serial(ardupilot_root, tmp_path, relay):
+        for name, overlays in (("defaults", ()), ("serial_115200", ("serial_115200.toml",))):
+            files = [shipped_params_path(f) for f in ("sitl_short.toml", *overlays)]
+            config = load_config(
+                *files,
+                overrides={"autopilot": "ardupilot", "connection": f"serial://{relay.companion_device}:115200"},
+            )
+            ap = ArduPilotAutopilot.from_config(config)
+            try:
+                await ap.connect(timeout_s=30.0)
+                await asyncio.sleep(2.0)  # the streams at the rates just asked for
+                before = relay.to_companion.snapshot()
+                t0 = time.monotonic()
+                report = await preflight(ap, requirements_from_config(config), stream_window_s=3.0)
+                relay_down = (relay.to_companion.snapshot().line - before.line) / (time.monotonic() - t0)
+            finally:
+                await ap.close()
+            (row,) = [c for c in report.checks if c.name == "link budget"]
+            rows[name] = row
+            print(f"\n{name}: {row.status.value} {row.value}: {row.detail}; relay counted {relay_down:.0f} B/s down")
+            measured = float(row.detail.split("down ", 1)[1].split(" B/s", 1)[0])
+            assert abs(measured - relay_down) < 0.15 * relay_down, (measured, relay_down)
+    assert rows["defaults"].status in (Status.WARN, Status.WRONG), rows["defaults"]
+    assert rows["serial_115200"].status is Status.OK, rows["serial_115200"]

@@ -1,7 +1,8 @@
 """The pre-flight rule for a serial link's budget (docs/serial-link.md): the bytes each way
-against what the line carries (8N1: 10 bits a byte). Measured over the check where the backend
-counts bytes (ArduPilot), the companion's own uplink predicted from its setpoint rate otherwise
-(MAVSDK counts none); a link over half its line is a warning, over LINK_WRONG_SHARE wrong."""
+against what the line carries (8N1: 10 bits a byte). The downlink measured over the check where
+the backend counts bytes (ArduPilot; MAVSDK counts none), the uplink predicted from the setpoint
+rate (the stream starts after the check) or measured if more; over half the line is a warning,
+over LINK_WRONG_SHARE wrong."""
 
 from __future__ import annotations
 
@@ -45,11 +46,13 @@ def check_link_budget(req: Requirements, probe: LinkProbe | None) -> list[CheckR
     if probe.baud <= 0:
         return [CheckResult("link budget", Status.WRONG, f"{probe.baud} baud", "a serial line needs a baud rate > 0")]
     line = probe.baud / BITS_PER_BYTE
-    up, up_how = (
-        (probe.up_bytes_s, "measured")
-        if probe.up_bytes_s is not None
-        else (predicted_uplink_bytes_s(req), "predicted from runtime.setpoint_rate_hz")
-    )
+    # the check runs before the setpoint stream starts: the uplink in flight is the larger of what
+    # was measured and what the stream adds
+    predicted = predicted_uplink_bytes_s(req)
+    up = predicted if probe.up_bytes_s is None else max(probe.up_bytes_s, predicted)
+    up_how = f"with the {req.setpoint_rate_hz:g} Hz setpoint stream, predicted from runtime.setpoint_rate_hz"
+    if probe.up_bytes_s is not None:
+        up_how += f"; {probe.up_bytes_s:.0f} B/s measured before it"
     parts = [f"up {up:.0f} B/s ({100 * up / line:.1f} %, {up_how})"]
     shares = [up / line]
     if probe.down_bytes_s is not None:
