@@ -1414,6 +1414,99 @@ class SigningConfig(_Section):
         return self
 
 
+class RemoteIdConfig(_Section):
+    """Remote ID (docs/remote-id.md): what the companion gives the autopilot for its OpenDroneID
+    transponder (OPEN_DRONE_ID_BASIC_ID, SELF_ID, SYSTEM, OPERATOR_ID, SYSTEM_UPDATE) and the arming
+    gate on the transponder's OPEN_DRONE_ID_ARM_STATUS. Field encodings: MAVLink common.xml."""
+
+    enabled: bool = _f(
+        False,
+        "-",
+        "send the Remote ID messages at the rates below, and arm for a delivery only while the transponder's "
+        "ARM_STATUS says good to arm (false: nothing sent, no gate)",
+    )
+    ua_type: int = _f(2, "-", "BASIC_ID ua_type, MAV_ODID_UA_TYPE (2: helicopter or multirotor; 0-15)", ge=0, le=15)
+    id_type: int = _f(
+        1,
+        "-",
+        "BASIC_ID id_type, MAV_ODID_ID_TYPE: 1 serial number (ANSI/CTA-2063-A), 2 CAA registration, "
+        "3 UTM assigned UUID, 4 specific session id",
+        ge=1,
+        le=4,
+    )
+    uas_id: str = _f(
+        "", "-", "BASIC_ID uas_id: the aircraft's id in id_type's format (ASCII, at most 20 characters)", max_length=20
+    )
+    operator_id: str = _f(
+        "",
+        "-",
+        "OPERATOR_ID operator_id: the operator's registration (operator_id_type CAA; ASCII, at most 20 characters; "
+        "empty: OPERATOR_ID not sent)",
+        max_length=20,
+    )
+    self_id: str = _f(
+        "",
+        "-",
+        "SELF_ID description, the flight's purpose as free text (description_type text; ASCII, at most 23 "
+        "characters; empty: SELF_ID not sent)",
+        max_length=23,
+    )
+    operator_location: Literal["home", "fixed"] = _f(
+        "home",
+        "-",
+        "SYSTEM operator location: 'home' the autopilot's home position (operator_location_type takeoff), "
+        "'fixed' operator_lat_deg / operator_lon_deg / operator_alt_m (operator_location_type fixed)",
+    )
+    operator_lat_deg: float = _f(0.0, "deg", "operator latitude (WGS-84) with operator_location 'fixed'", ge=-90, le=90)
+    operator_lon_deg: float = _f(
+        0.0, "deg", "operator longitude (WGS-84) with operator_location 'fixed'", ge=-180, le=180
+    )
+    operator_alt_m: float = _f(
+        -1000.0,
+        "m",
+        "operator geodetic altitude (WGS-84) with operator_location 'fixed'; -1000: unknown (the spec's invalid)",
+        ge=-1000.0,
+        le=ALT_AMSL_MAX_M,
+    )
+    static_rate_hz: float = _f(
+        0.5,
+        "Hz",
+        "rate of each of BASIC_ID, SELF_ID, OPERATOR_ID and SYSTEM (ArduPilot re-sends its copies to the "
+        "transponder by itself; its pre-arm check wants a SYSTEM or SYSTEM_UPDATE less than 3 s old)",
+        ge=0.2,
+        le=5.0,
+    )
+    system_update_rate_hz: float = _f(
+        1.0,
+        "Hz",
+        "rate of SYSTEM_UPDATE, the operator location and time (FAA: at least 1 Hz); 0: not sent",
+        ge=0.0,
+        le=10.0,
+    )
+    arm_status_max_age_s: float = _f(
+        3.0,
+        "s",
+        "an ARM_STATUS older than this counts as absent for the arming gate (ArduPilot's own check: 3 s)",
+        gt=0.0,
+        le=60.0,
+    )
+
+    @field_validator("uas_id", "operator_id", "self_id")
+    @classmethod
+    def _ascii(cls, v: str) -> str:
+        if not v.isascii() or not v.isprintable():
+            raise ValueError("must be printable ASCII (the MAVLink field is a char array)")
+        return v
+
+    @model_validator(mode="after")
+    def _identified(self) -> RemoteIdConfig:
+        if self.enabled and not self.uas_id:
+            raise ValueError("remote_id.enabled needs remote_id.uas_id (BASIC_ID carries it)")
+        if self.enabled and self.operator_location == "fixed" and self.operator_lat_deg == self.operator_lon_deg == 0:
+            raise ValueError("remote_id.operator_location 'fixed' needs operator_lat_deg / operator_lon_deg")
+        return self
+
+
 class CompanionConfig(_Section):
     vehicle_id: str = _f(
         "drone1",
@@ -1437,6 +1530,7 @@ class CompanionConfig(_Section):
     fence: FenceConfig = Field(default_factory=FenceConfig)
     go_no_go: GoNoGoConfig = Field(default_factory=GoNoGoConfig)
     winch: WinchConfig = Field(default_factory=WinchConfig)
+    remote_id: RemoteIdConfig = Field(default_factory=RemoteIdConfig)
 
     @model_validator(mode="after")
     def _fence_holds_home_and_pad(self) -> CompanionConfig:

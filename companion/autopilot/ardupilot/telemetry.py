@@ -46,6 +46,9 @@ class ArduPilotTelemetry(ArduPilotRequests):
     def _on_component_command(self, m: Any) -> None:
         """A COMMAND_LONG (:class:`~.component.ArduPilotComponent`)."""
 
+    def _on_odid_arm_status(self, m: Any, now: float) -> None:
+        """An OPEN_DRONE_ID_ARM_STATUS from the transponder, any system (:class:`~.remote_id.ArduPilotRemoteId`)."""
+
     @property
     def mode(self) -> FlightMode:
         return COPTER_TO_FLIGHT_MODE.get(self.copter_mode, FlightMode.UNKNOWN)
@@ -76,6 +79,9 @@ class ArduPilotTelemetry(ArduPilotRequests):
             self._on_bad_data(m)
             return
         now = time.monotonic()
+        if t == "OPEN_DRONE_ID_ARM_STATUS":  # the Remote ID transponder, forwarded by the autopilot
+            self._on_odid_arm_status(m, now)
+            return
         if t == "COMMAND_LONG":  # from the operator's GCS (any system), for the companion's component
             self._on_component_command(m)
             return
