@@ -2,7 +2,9 @@
 
 Every parameter is declared once, here, with its unit, limits and description (``Field``).
 An unknown key, a wrong type or an out-of-range value fails at load time with a
-:class:`ConfigError` naming the file, the dotted key, the offending value and the rule.
+:class:`ConfigError` naming the file, the dotted key, the offending value and the rule. The
+``[sim]`` tables are the embedded simulator's: taken as they are here, declared and validated in
+``companion_sitl.params`` (``SimulatedConfig``, ``load_simulated_config``).
 """
 
 from __future__ import annotations
@@ -11,11 +13,10 @@ import math
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from companion.geometry.earth import GeoPoint, geo_to_ned
 from companion.geometry.polygon import point_in_polygon, polygon_problem
 
 
@@ -759,187 +760,6 @@ class RuntimeConfig(_Section):
     )
 
 
-class VehicleSimConfig(_Section):
-    """Embedded multicopter model (sitl/): inner loops that behave like PX4's."""
-
-    max_tilt_deg: float = _f(35.0, "deg", "tilt limit of the attitude loop", gt=5.0, le=70.0)
-    max_horizontal_accel_m_s2: float = _f(5.0, "m/s^2", "horizontal acceleration limit", gt=0.1, le=20.0)
-    max_up_accel_m_s2: float = _f(4.0, "m/s^2", "upward acceleration limit", gt=0.1, le=20.0)
-    max_down_accel_m_s2: float = _f(3.0, "m/s^2", "downward acceleration limit", gt=0.1, le=9.8)
-    attitude_time_constant_s: float = _f(0.12, "s", "first-order tilt response", gt=0.005, le=2.0)
-    velocity_p_gain: float = _f(1.8, "1/s", "velocity loop P (MPC_XY_VEL_P_ACC-like)", gt=0.0, le=20.0)
-    velocity_i_gain: float = _f(0.4, "1/s^2", "velocity loop I", ge=0.0, le=20.0)
-    vertical_velocity_p_gain: float | None = _f(
-        None, "1/s", "vertical velocity loop P (MPC_Z_VEL_P_ACC-like; default: velocity_p_gain)", gt=0.0, le=20.0
-    )
-    vertical_velocity_i_gain: float | None = _f(
-        None, "1/s^2", "vertical velocity loop I (MPC_Z_VEL_I_ACC-like; default: velocity_i_gain)", ge=0.0, le=20.0
-    )
-    position_p_gain: float = _f(0.95, "1/s", "position loop P for hold/land (MPC_XY_P-like)", gt=0.0, le=10.0)
-    drag_coefficient_1_s: float = _f(0.35, "1/s", "linear drag per unit air-relative speed", ge=0.0, le=5.0)
-    takeoff_speed_m_s: float = _f(1.5, "m/s", "autopilot takeoff climb rate", gt=0.1, le=5.0)
-    takeoff_altitude_acceptance_m: float = _f(
-        0.05,
-        "m",
-        "the take-off is reported done (TAKEOFF -> HOLD, still climbing to its height) this far below it "
-        "(PX4's NAV_MC_ALT_RAD)",
-        gt=0.0,
-        le=5.0,
-    )
-    land_speed_m_s: float = _f(0.7, "m/s", "autopilot LAND descent rate", gt=0.1, le=5.0)
-    soft_ground: bool = _f(
-        False,
-        "-",
-        "the ground stops the vehicle only while the net vertical force points down, where it is caught "
-        "(PX4 SIH's fake ground, sih.cpp): a steady descent passes below the take-off level until the thrust "
-        "drops; false: a hard ground at the take-off level",
-    )
-    offboard_loss_timeout_s: float = _f(1.0, "s", "COM_OF_LOSS_T: offboard setpoints lost -> hold", gt=0.1, le=60.0)
-    offboard_max_horizontal_m_s: float = _f(
-        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, horizontal (MPC_XY_VEL_MAX)", gt=0.0
-    )
-    offboard_max_up_m_s: float = _f(
-        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, up (MPC_Z_VEL_MAX_UP)", gt=0.0
-    )
-    offboard_max_down_m_s: float = _f(
-        30.0, "m/s", "the autopilot's own cut of an offboard velocity setpoint, down (MPC_Z_VEL_MAX_DN)", gt=0.0
-    )
-    physics_rate_hz: float = _f(200.0, "Hz", "integration rate", ge=50.0, le=2000.0)
-    release_delay_s: float = _f(0.5, "s", "payload actuator travel time", ge=0.0, le=10.0)
-    command_latency_s: float = _f(0.02, "s", "time for a command to be acknowledged", ge=0.0, le=5.0)
-    battery_endurance_s: float = _f(1500.0, "s", "flight time from 100 % to 0 % battery", gt=10.0, le=36000.0)
-
-
-class SimWinchConfig(_Section):
-    """The simulated winch and parcel (sitl/winch.py; docs/winch.md)."""
-
-    fitted: bool = _f(
-        False,
-        "-",
-        "a winch is fitted (as ArduCopter with WINCH_TYPE = 1 and an output at SERVOn_FUNCTION = 88); false: "
-        "DO_WINCH answers FAILED, as ArduCopter does without one",
-    )
-    rate_max_m_s: float = _f(0.5, "m/s", "the winch's largest line speed (ArduCopter WINCH_RATE_MAX)", gt=0.0, le=10.0)
-    pos_p: float = _f(1.0, "1/s", "length control gain (ArduCopter WINCH_POS_P)", gt=0.0, le=10.0)
-    stuck: bool = _f(
-        False, "-", "the drum does not turn: the line never pays out (a failure; an encoder reports it as it is)"
-    )
-    parcel_drag_1_s: float = _f(
-        0.3, "1/s", "the parcel's linear air drag per unit air-relative speed (pulls it downwind)", ge=0.0, le=5.0
-    )
-
-
-class SimConfig(_Section):
-    """A simulated scenario: seed, home, wind, sensors."""
-
-    seed: int = _f(1, "-", "random seed (every noise source derives from it)", ge=0)
-    profile: Literal["ideal", "px4-sih", "arducopter-sitl"] = _f(
-        "ideal",
-        "-",
-        "autopilot behaviour measured on the real firmware SITL (estimate errors, velocity response, land "
-        "detector, start-up delay, wind model; sitl/profiles.py); it overrides the fields it fixes",
-    )
-    profile_weather: bool = _f(
-        False,
-        "-",
-        "with a firmware profile: keep this file's gusts and GPS noise and wander instead of the profile's "
-        "calm SITL defaults (the weather `campaign landing --autopilot ardupilot --weather` drives on the real "
-        "SITL; docs/weather.md)",
-    )
-    home: GeoConfig = Field(default_factory=lambda: GeoConfig(lat_deg=-19.869, lon_deg=-43.9638, alt_amsl_m=850.0))
-    wind_speed_m_s: float = _f(0.0, "m/s", "mean wind speed", ge=0.0, le=25.0)
-    wind_from_deg: float = _f(270.0, "deg", "direction the wind blows from (0 = north)", ge=0.0, lt=360.0)
-    gust_std_m_s: float = _f(-1.0, "m/s", "gust intensity (std); -1 = 20 % of wind speed", ge=-1.0, le=10.0)
-    gust_time_constant_s: float = _f(3.0, "s", "gust correlation time", gt=0.0, le=60.0)
-    gps_bias_m: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m", "constant GPS error (N, E, D)")
-    gps_noise_m: float = _f(0.05, "m", "white GPS noise (std, horizontal)", ge=0.0, le=10.0)
-    gps_walk_m: float = _f(0.15, "m", "slow GPS error wander (std, horizontal, Gauss-Markov)", ge=0.0, le=10.0)
-    gps_walk_time_constant_s: float = _f(20.0, "s", "correlation time of the GPS wander", gt=0.0, le=3600.0)
-    height_estimate_scale_error: float = _f(
-        0.0,
-        "-",
-        "the autopilot's height estimate reads (1 + this) x the true height above home (PX4 v1.16 SIH in flight: "
-        "+0.10 to +0.14, sitl/profiles.py)",
-        ge=-0.5,
-        le=0.5,
-    )
-    height_estimate_drift_m_s: float = _f(
-        0.0,
-        "m/s",
-        "the autopilot's height estimate drifts up from the true height at this rate while armed (PX4 v1.16 "
-        "SIH, GPS only: 0.3-1.7 m within one 20 s flight; docs/rangefinder.md)",
-        ge=-1.0,
-        le=1.0,
-    )
-    gps_rate_hz: float = _f(8.0, "Hz", "GPS fix rate", gt=0.5, le=50.0)
-    position_rate_hz: float = _f(30.0, "Hz", "LOCAL/GLOBAL_POSITION stream rate", gt=1.0, le=200.0)
-    attitude_rate_hz: float = _f(50.0, "Hz", "ATTITUDE stream rate", gt=1.0, le=500.0)
-    imu_rate_hz: float = _f(50.0, "Hz", "IMU stream rate", gt=1.0, le=1000.0)
-    status_rate_hz: float = _f(5.0, "Hz", "status/heartbeat rate", gt=0.5, le=50.0)
-    gyro_noise_rad_s: float = _f(0.003, "rad/s", "gyro white noise", ge=0.0, le=1.0)
-    accel_noise_m_s2: float = _f(0.05, "m/s^2", "accelerometer white noise", ge=0.0, le=10.0)
-    baro_noise_m: float = _f(0.1, "m", "barometer white noise", ge=0.0, le=10.0)
-    ready_delay_s: float = _f(2.0, "s", "time after boot until the vehicle is healthy (GPS, EKF)", ge=0.0, le=120.0)
-    pad_offset_m: tuple[float, float] = _f((0.0, 0.0), "m", "true pad displacement from its configured position (N, E)")
-    pad_heading_offset_deg: float = _f(
-        0.0,
-        "deg",
-        "the true pad's heading minus its configured mission.pad.heading_deg (a dock placed slightly "
-        "rotated; only with a pad heading configured)",
-        ge=-180.0,
-        le=180.0,
-    )
-    camera_fails_below_m: float = _f(
-        0.0,
-        "m",
-        "the simulated landing camera gives no frame below this true height above the pad (a failure; "
-        "0 = never; higher than the flight = failed all flight)",
-        ge=0.0,
-        le=10000.0,
-    )
-    camera_range_m: float = _f(
-        0.0,
-        "m",
-        "the simulated landing camera gives no frame above this true height above the pad (a short detection "
-        "range; 0 = unlimited)",
-        ge=0.0,
-        le=10000.0,
-    )
-    uwb_fails_below_m: float = _f(
-        0.0,
-        "m",
-        "the simulated UWB gives no ranging below this true height above the pad (0 = never; higher than "
-        "the flight = failed all flight)",
-        ge=0.0,
-        le=10000.0,
-    )
-    pad_at_alternate: bool = _f(
-        False,
-        "-",
-        "the simulated pad (the camera's target, the UWB anchors) lies at mission.alternate_pad (plus "
-        "pad_offset_m), and none at mission.pad: a delivery whose first pad is missing",
-    )
-    vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
-    winch: SimWinchConfig = Field(default_factory=SimWinchConfig)
-
-    @model_validator(mode="after")
-    def _finite(self) -> SimConfig:
-        for name in ("gps_bias_m", "pad_offset_m"):
-            for v in getattr(self, name):
-                if not math.isfinite(v) or abs(v) > 1000.0:
-                    raise ValueError(f"{name} component {v} must be finite and within +-1000 m")
-        if self.profile_weather and self.profile != "arducopter-sitl":
-            raise ValueError(
-                f"profile_weather = true with profile {self.profile!r}: only the arducopter-sitl profile has a "
-                "weather to keep (PX4 SIH v1.16 has no wind; ideal flies this file's weather anyway)"
-            )
-        return self
-
-    @property
-    def gust_std_effective_m_s(self) -> float:
-        return 0.2 * self.wind_speed_m_s if self.gust_std_m_s < 0 else self.gust_std_m_s
-
-
 class TelemetryCommandsConfig(_Section):
     """Commands from the ground (hold, return, land, abort). Off by default (safety contract, docs/architecture.md)."""
 
@@ -1522,7 +1342,12 @@ class CompanionConfig(_Section):
     mission: MissionConfig = Field(default_factory=MissionConfig)
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
     runtime: RuntimeConfig = Field(default_factory=RuntimeConfig)
-    sim: SimConfig = Field(default_factory=SimConfig)
+    sim: dict[str, Any] = Field(
+        default_factory=dict,
+        description="the embedded simulator's scenario ([sim], [sim.vehicle], [sim.winch]): taken as it is here "
+        "and validated where the simulator loads it (companion_sitl.params.SimulatedConfig)",
+        json_schema_extra={"unit": "-"},
+    )
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     landing: LandingConfig = Field(default_factory=LandingConfig)
     payload: PayloadConfig = Field(default_factory=PayloadConfig)
@@ -1532,57 +1357,35 @@ class CompanionConfig(_Section):
     winch: WinchConfig = Field(default_factory=WinchConfig)
     remote_id: RemoteIdConfig = Field(default_factory=RemoteIdConfig)
 
+    def _fenced_points(self) -> list[tuple[float, float, str]]:
+        """(lat, lon, key) of every point the fence must hold at load: the pads given in lat/lon (a
+        real home is only known in flight: the mission checks it when it plans). The simulator's
+        config (companion_sitl.params.SimulatedConfig) puts its simulated home first."""
+        return [
+            (pad.lat_deg, pad.lon_deg, key)
+            for key, pad in (("mission.pad", self.mission.pad), ("mission.alternate_pad", self.mission.alternate_pad))
+            if pad is not None and pad.lat_deg is not None and pad.lon_deg is not None
+        ]
+
     @model_validator(mode="after")
     def _fence_holds_home_and_pad(self) -> CompanionConfig:
-        """The simulated home and a pad given in lat/lon must lie inside the fence (a real home is
-        only known in flight: the mission checks it when it plans)."""
+        """The points of :meth:`_fenced_points` must lie inside the fence."""
         f = self.fence
         if not f.enabled:
             return self
-        problems = []
-        if self.autopilot == "sim":
-            h = self.sim.home
-            problems.append(f.problem_at(h.lat_deg, h.lon_deg, "sim.home"))
-        for key, pad in (("mission.pad", self.mission.pad), ("mission.alternate_pad", self.mission.alternate_pad)):
-            if pad is not None and pad.lat_deg is not None and pad.lon_deg is not None:
-                problems.append(f.problem_at(pad.lat_deg, pad.lon_deg, key))
-        bad = [p for p in problems if p]
+        bad = [p for p in (f.problem_at(lat, lon, key) for lat, lon, key in self._fenced_points()) if p]
         if bad:
             raise ValueError("fence: " + "; ".join(bad))
         return self
 
     @model_validator(mode="after")
-    def _geodetic_pads_near_sim_home(self) -> CompanionConfig:
-        """A pad given in lat/lon lies within PAD_OFFSET_MAX_M (north and east) of the simulated
-        home, as a pad given in north/east must (a real home is only known in flight: the
-        planner checks it there)."""
-        if self.autopilot != "sim":
-            return self
-        h = self.sim.home
-        home = GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
-        for key, pad in (("mission.pad", self.mission.pad), ("mission.alternate_pad", self.mission.alternate_pad)):
-            if pad is None or pad.lat_deg is None or pad.lon_deg is None:
-                continue
-            north_m, east_m, _ = geo_to_ned(home, GeoPoint(pad.lat_deg, pad.lon_deg, h.alt_amsl_m))
-            if max(abs(north_m), abs(east_m)) > PAD_OFFSET_MAX_M:
-                raise ValueError(
-                    f"{key} ({pad.lat_deg}, {pad.lon_deg}) lies {north_m:.0f} m north, {east_m:.0f} m east of "
-                    f"sim.home: each must be within +-{PAD_OFFSET_MAX_M:g} m"
-                )
-        return self
-
-    @model_validator(mode="after")
     def _alternate_pad_given(self) -> CompanionConfig:
-        """A divert, or a simulated pad at the alternate, needs the alternate pad."""
-        if self.mission.alternate_pad is not None:
-            return self
-        if self.landing.policy.fallback == "alternate":
+        """A divert needs the alternate pad."""
+        if self.mission.alternate_pad is None and self.landing.policy.fallback == "alternate":
             raise ValueError(
                 "landing.policy.fallback = 'alternate' needs mission.alternate_pad (the pad to divert to); "
                 "set [mission.alternate_pad] or fallback = 'home'"
             )
-        if self.sim.pad_at_alternate:
-            raise ValueError("sim.pad_at_alternate = true needs mission.alternate_pad (where the simulated pad lies)")
         return self
 
     @model_validator(mode="after")
@@ -1680,11 +1483,20 @@ def _format_errors(err: ValidationError, data: dict[str, Any]) -> list[str]:
     return problems
 
 
-def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CompanionConfig:
+_C = TypeVar("_C", bound=CompanionConfig)
+
+
+def validate_config(schema: type[_C], data: dict[str, Any], source: str = "<dict>") -> _C:
+    """``data`` validated by ``schema`` (:class:`CompanionConfig` or a subclass: the simulator's,
+    companion_sitl.params.SimulatedConfig); :class:`ConfigError` naming ``source``."""
     try:
-        return CompanionConfig.model_validate(data)
+        return schema.model_validate(data)
     except ValidationError as err:
         raise ConfigError(source, _format_errors(err, data)) from None
+
+
+def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CompanionConfig:
+    return validate_config(CompanionConfig, data, source)
 
 
 def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
@@ -1726,8 +1538,9 @@ def shipped_params_path(name: str) -> Path:
     return path
 
 
-def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> CompanionConfig:
-    """Load and validate one or more TOML files (later ones override earlier ones)."""
+def read_params(*paths: str | Path, overrides: dict[str, Any] | None = None) -> tuple[dict[str, Any], str]:
+    """The tables of one or more TOML files merged (later ones override earlier ones, then
+    ``overrides``), and the source to name in errors."""
     data: dict[str, Any] = {}
     sources = []
     for p in paths:
@@ -1736,7 +1549,12 @@ def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> 
     if overrides:
         data = _merge(data, overrides)
         sources.append("<command line>")
-    return config_from_dict(data, " + ".join(sources) or "<defaults>")
+    return data, " + ".join(sources) or "<defaults>"
+
+
+def load_config(*paths: str | Path, overrides: dict[str, Any] | None = None) -> CompanionConfig:
+    """Load and validate one or more TOML files (later ones override earlier ones)."""
+    return config_from_dict(*read_params(*paths, overrides=overrides))
 
 
 def _describe_field(key: str, value: Any, f: Any) -> str:

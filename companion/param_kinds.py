@@ -540,24 +540,31 @@ def _data_keys(data: Mapping[str, Any], prefix: str = "") -> set[str]:
     return out
 
 
-_KIND_KEYS = {name: _keys(k.schema) for name, k in KINDS.items()}
+_SCHEMA_KEYS: dict[type[BaseModel], frozenset[str]] = {}
 
 
-def detect_kind(data: Mapping[str, Any]) -> str:
+def _schema_keys(schema: type[BaseModel]) -> frozenset[str]:
+    if schema not in _SCHEMA_KEYS:
+        _SCHEMA_KEYS[schema] = frozenset(_keys(schema))
+    return _SCHEMA_KEYS[schema]
+
+
+def detect_kind(data: Mapping[str, Any], kinds: Mapping[str, ParamKind] = KINDS) -> str:
     """The kind whose schema declares most of the file's dotted keys (ties: the order of
-    :data:`KINDS`, vehicle first). A file with a typo or a bad value still matches its kind."""
+    ``kinds``, vehicle first). A file with a typo or a bad value still matches its kind.
+    ``kinds``: :data:`KINDS`, or the command line's, whose vehicle schema validates ``[sim]`` too."""
     keys = _data_keys(data)
-    scores = {name: len(keys & known) for name, known in _KIND_KEYS.items()}
-    return max(KINDS, key=lambda name: scores[name])  # max keeps the first of equal scores
+    scores = {name: len(keys & _schema_keys(k.schema)) for name, k in kinds.items()}
+    return max(kinds, key=lambda name: scores[name])  # max keeps the first of equal scores
 
 
-def validate(data: Mapping[str, Any], kind: str, source: str) -> BaseModel:
-    """``data`` checked against the schema of ``kind``; :class:`ConfigError` naming ``source`` and,
-    per problem, the dotted key, the value and what is expected."""
-    if kind not in KINDS:
-        raise ConfigError(source, [f"kind {kind!r}: expected one of {', '.join(KINDS)}"])
+def validate(data: Mapping[str, Any], kind: str, source: str, kinds: Mapping[str, ParamKind] = KINDS) -> BaseModel:
+    """``data`` checked against the schema of ``kind`` (in ``kinds``, as :func:`detect_kind`);
+    :class:`ConfigError` naming ``source`` and, per problem, the dotted key, the value and what is expected."""
+    if kind not in kinds:
+        raise ConfigError(source, [f"kind {kind!r}: expected one of {', '.join(kinds)}"])
     try:
-        return KINDS[kind].schema.model_validate(dict(data))
+        return kinds[kind].schema.model_validate(dict(data))
     except ValidationError as err:
         raise ConfigError(source, _format_errors(err, dict(data))) from None
 

@@ -22,7 +22,6 @@ import numpy as np
 
 from companion.autopilot.interface import Autopilot
 from companion.autopilot.types import LandedState
-from companion.config import CompanionConfig
 from companion.delivery.mission import MissionOutput
 from companion.delivery.planning import pad_position_ned
 from companion.delivery.shell import DeliveryShell
@@ -30,6 +29,7 @@ from companion.events import EventKind, Phase
 from companion.geometry.earth import GeoPoint
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.landing_sensors import sim_landing_kit
+from companion_sitl.params import SimulatedConfig
 from companion_sitl.scoring import PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
 
@@ -103,7 +103,7 @@ LANDING_TRACE_FIELDS = (
 )  # fmt: skip
 
 
-def true_pad_ne(config: CompanionConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
+def true_pad_ne(config: SimulatedConfig, origin: GeoPoint, pad_offset_m: tuple[float, float]) -> tuple[float, float]:
     """The pad's true position in the truth frame: configured (from the true home) + displacement."""
     p = pad_position_ned(config.mission, origin)
     return float(p[0]) + pad_offset_m[0], float(p[1]) + pad_offset_m[1]
@@ -194,7 +194,7 @@ class _TruthScore:
                 self.believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
 
 
-def _harness_result(config: CompanionConfig, summary: Any, shell: DeliveryShell, sc: _TruthScore) -> HarnessResult:
+def _harness_result(config: SimulatedConfig, summary: Any, shell: DeliveryShell, sc: _TruthScore) -> HarnessResult:
     pad_ne = sc.pad_ne
     td = sc.touchdown[0] if sc.touchdown else (math.nan, math.nan)
     err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])
@@ -241,7 +241,7 @@ def _harness_result(config: CompanionConfig, summary: Any, shell: DeliveryShell,
 
 
 async def fly_on_truth(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     autopilot: Autopilot,
     truth: MavlinkTruth,
     origin: GeoPoint,

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from companion.config import CompanionConfig, PadConfig, SimConfig, load_config
+from companion.config import PadConfig
 from companion_lab.demo import run_demo
+from companion_sitl.params import SimConfig, SimulatedConfig, load_simulated_config
 from companion_sitl.profiles import get_profile
 
 # [landing] overrides of each variant. gps_only is the paper's baseline: it has no pad lock, so it
@@ -66,7 +67,7 @@ def pad_heading_draw(seed: int) -> tuple[float, float]:
     return float(rng.uniform(-180.0, 180.0)), float(rng.uniform(-PAD_HEADING_PLACED_DEG, PAD_HEADING_PLACED_DEG))
 
 
-def with_pad_heading(config: CompanionConfig, seed: int) -> CompanionConfig:
+def with_pad_heading(config: SimulatedConfig, seed: int) -> SimulatedConfig:
     """``config`` with the pad_heading variant's draw for ``seed``: the pad's configured heading and
     the true pad's rotation from it (the real-firmware campaign, whose configuration is per variant)."""
     heading_deg, placed_deg = pad_heading_draw(seed)
@@ -130,7 +131,7 @@ def draw_scenarios(
 
 def scenario_config(
     base_file: Path, d: Draw, variant: str, profile: str = "ideal", tuning: dict[str, dict[str, Any]] | None = None
-) -> CompanionConfig:
+) -> SimulatedConfig:
     """The draw ``d`` flown as ``variant`` on the embedded simulator with the autopilot ``profile``
     (sitl/profiles.py: a profile without wind flies the draw in still air); ``tuning``:
     config overrides by table (a firmware's landing tuning, see real_campaign.firmware_tuning)."""
@@ -160,7 +161,7 @@ def scenario_config(
         heading_deg, placed_deg = pad_heading_draw(d.seed)
         mission["pad"] = {**mission.get("pad", {}), "heading_deg": heading_deg}
         sim["pad_heading_offset_deg"] = placed_deg
-    return load_config(base_file, overrides=overrides)
+    return load_simulated_config(base_file, overrides=overrides)
 
 
 def renders_camera(variant: str) -> bool:

@@ -21,7 +21,6 @@ from typing import Any, cast
 import numpy as np
 
 from companion.autopilot.interface import Autopilot
-from companion.config import CompanionConfig
 from companion.delivery.mission import FailureKind, MissionOutput
 from companion.delivery.observers import FLIGHT_LOG_COLUMNS
 from companion.delivery.planning import pad_config_ned, pad_position_ned
@@ -36,6 +35,7 @@ from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.landing_sensors import CameraPlayback, sim_landing_kit
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import SimulatedConfig
 from companion_sitl.scoring import REFERENCE, PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
 
@@ -144,7 +144,7 @@ class _Scorer:
             )
 
 
-def path_summary(config: CompanionConfig, scorer: _Scorer) -> dict[str, Any]:
+def path_summary(config: SimulatedConfig, scorer: _Scorer) -> dict[str, Any]:
     """summary.json's path figures: the outbound path as planned (``path``, in its F_I), the true
     pad in that F_I and the path to the true pad that the way out is scored against."""
     if scorer.outbound is None:
@@ -173,7 +173,7 @@ def path_summary(config: CompanionConfig, scorer: _Scorer) -> dict[str, Any]:
     return out
 
 
-def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
+def true_pad_ned(config: SimulatedConfig) -> tuple[float, float]:
     """Where the pad really is in the simulator's truth frame (true home at the origin): at the
     alternate pad's place with ``sim.pad_at_alternate`` (the first pad missing)."""
     h = config.sim.home
@@ -186,7 +186,7 @@ def true_pad_ned(config: CompanionConfig) -> tuple[float, float]:
     return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
 
 
-def loopback_autopilot(config: CompanionConfig, backend: str, port: int, tlog: Any = None) -> Autopilot:
+def loopback_autopilot(config: SimulatedConfig, backend: str, port: int, tlog: Any = None) -> Autopilot:
     """The ``backend``'s autopilot ("px4": MAVSDK, else pymavlink) listening on loopback UDP
     ``port`` for a MAVLink sim vehicle, with the configured link timeout and stream rates."""
     from companion.autopilot.ardupilot import ArduPilotAutopilot
@@ -204,7 +204,7 @@ def loopback_autopilot(config: CompanionConfig, backend: str, port: int, tlog: A
     )
 
 
-def _gps_only_config(config: CompanionConfig, fusion: bool | None) -> CompanionConfig:
+def _gps_only_config(config: SimulatedConfig, fusion: bool | None) -> SimulatedConfig:
     """``fusion`` = False: the parcel released where the vehicle lands (the pad-lock policy off)."""
     if fusion is False and config.landing.policy.require_pad_lock:
         policy = config.landing.policy.model_copy(update={"require_pad_lock": False})
@@ -213,7 +213,7 @@ def _gps_only_config(config: CompanionConfig, fusion: bool | None) -> CompanionC
 
 
 def _vehicle_link(
-    config: CompanionConfig, vehicle: SimVehicle, tlog: Path | None, mavlink: str | None
+    config: SimulatedConfig, vehicle: SimVehicle, tlog: Path | None, mavlink: str | None
 ) -> tuple[Autopilot, SimAutopilot | None, Any]:
     """The autopilot the shell flies: the in-process SimAutopilot (also returned as such), or the
     backend over loopback MAVLink to the started sim vehicle (returned third)."""
@@ -239,7 +239,7 @@ def _vehicle_link(
 
 
 def _open_logs(
-    config: CompanionConfig, run_dir: Path | None, sim_ap: SimAutopilot | None, mcap: bool = True
+    config: SimulatedConfig, run_dir: Path | None, sim_ap: SimAutopilot | None, mcap: bool = True
 ) -> tuple[CsvLog | None, CsvLog | None, FlightRecorder | None]:
     """flight.csv, truth.csv and the per-stream recorder in ``run_dir`` (none without it); ``mcap``:
     the recorder also writes flight.mcap (with the camera frames: most of a run folder's bytes)."""
@@ -256,7 +256,7 @@ def _open_logs(
 
 
 def _demo_result(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     summary: Any,
     shell: DeliveryShell,
     vehicle: SimVehicle,
@@ -313,7 +313,7 @@ def _demo_result(
     )
 
 
-def _write_summary(config: CompanionConfig, run_dir: Path, result: DemoResult, scorer: _Scorer) -> None:
+def _write_summary(config: SimulatedConfig, run_dir: Path, result: DemoResult, scorer: _Scorer) -> None:
     """summary.json: the result without its events, plus the speed-up, the true pad and the path."""
     summary_json = {k: v for k, v in asdict(result).items() if k != "events"}
     if math.isnan(result.pad_heading_error_deg):
@@ -336,7 +336,7 @@ def _write_summary(config: CompanionConfig, run_dir: Path, result: DemoResult, s
 
 
 async def fly(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     run_dir: Path | None = None,
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,
     timeout_s: float = 1800.0,
@@ -444,7 +444,7 @@ def _json_default(o: object) -> object:
 
 
 def run_demo(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     run_dir: Path | None = None,
     realtime: bool = False,
     on_tick: Callable[[DeliveryShell, MissionOutput], None] | None = None,

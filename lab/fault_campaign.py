@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 
 from companion.autopilot import FlightMode
-from companion.config import CompanionConfig, load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import Phase
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +119,7 @@ def draw_faults(n: int, seed: int, faults: tuple[str, ...]) -> list[FaultDraw]:
     return out
 
 
-def failsafe_timeout_s(config: CompanionConfig, dialect: str, fault: str) -> float | None:
+def failsafe_timeout_s(config: SimulatedConfig, dialect: str, fault: str) -> float | None:
     """How long the fault must last for the autopilot's own failsafe to fire (None: it stops
     nothing of ours). ArduCopter: FS_GCS_TIMEOUT from the last heartbeat, which a stall stops
     only once the watchdog shuts the gate, ``loop_stall_s`` in. PX4: COM_OF_LOSS_T from the last
@@ -131,7 +132,7 @@ def failsafe_timeout_s(config: CompanionConfig, dialect: str, fault: str) -> flo
     return ARDUCOPTER_FS_GCS_TIMEOUT_S + (config.runtime.loop_stall_s if f.kind == "stall" else 0.0)
 
 
-def failsafe_required(config: CompanionConfig, d: FaultDraw) -> bool:
+def failsafe_required(config: SimulatedConfig, d: FaultDraw) -> bool:
     """The fault outlasts the autopilot's timeout (and the margin): its failsafe must fire."""
     timeout = failsafe_timeout_s(config, d.dialect, d.fault)
     return timeout is not None and FAULTS[d.fault].duration_s > timeout + FAILSAFE_MARGIN_S
@@ -195,7 +196,7 @@ class _Forger:
         self.sock.close()
 
 
-def pad_ne(config: CompanionConfig) -> tuple[float, float]:
+def pad_ne(config: SimulatedConfig) -> tuple[float, float]:
     """The pad's north and east of home (the sim vehicle's true frame), as the parameters give it."""
     pad = config.mission.pad
     if pad.north_m is None or pad.east_m is None:
@@ -203,7 +204,7 @@ def pad_ne(config: CompanionConfig) -> tuple[float, float]:
     return pad.north_m, pad.east_m
 
 
-def _at_moment(config: CompanionConfig, d: FaultDraw, shell: Any) -> bool:
+def _at_moment(config: SimulatedConfig, d: FaultDraw, shell: Any) -> bool:
     """The vehicle (as the companion sees it) has reached the draw's moment."""
     p = shell.autopilot.telemetry.position_ned
     if p is None:
@@ -219,7 +220,7 @@ def _at_moment(config: CompanionConfig, d: FaultDraw, shell: Any) -> bool:
     return from_pad < 3.0 and climb < -0.2 and height < d.height_m
 
 
-def _autopilot(config: CompanionConfig, dialect: str, port: int) -> Any:
+def _autopilot(config: SimulatedConfig, dialect: str, port: int) -> Any:
     if dialect == "ardupilot":
         from companion.autopilot.ardupilot import ArduPilotAutopilot
 
@@ -229,7 +230,7 @@ def _autopilot(config: CompanionConfig, dialect: str, port: int) -> Any:
     return Px4Autopilot.from_config(config.model_copy(update={"connection": f"udpin://127.0.0.1:{port}"}))
 
 
-async def _fly(config: CompanionConfig, d: FaultDraw, sim: Any, truth: _Truth) -> dict[str, Any]:
+async def _fly(config: SimulatedConfig, d: FaultDraw, sim: Any, truth: _Truth) -> dict[str, Any]:
     """The delivery with the fault injected at its moment, on the loop (a stall) or beside it."""
     from companion.delivery.shell import DeliveryShell
 
@@ -268,7 +269,7 @@ async def _fly(config: CompanionConfig, d: FaultDraw, sim: Any, truth: _Truth) -
     }
 
 
-def fly_fault_landing(config: CompanionConfig, d: FaultDraw) -> dict[str, Any]:
+def fly_fault_landing(config: SimulatedConfig, d: FaultDraw) -> dict[str, Any]:
     """Fly one landing of the fault campaign and score it: the campaign JSON's row."""
     cfg = config.model_copy(update={"sim": config.sim.model_copy(update={"seed": d.seed})})
     port = free_udp_port()
@@ -297,7 +298,7 @@ def _touchdown_speed(truth_log: list[Any], t_td: float) -> float:
 
 
 def _score(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     d: FaultDraw,
     r: dict[str, Any],
     truth: _Truth,
@@ -373,7 +374,7 @@ def run_fault_campaign(
     ``progress(fault, done, total)`` is called as each landing finishes."""
     base = Path(params) if params else shipped_params_path("sitl_short.toml")
     # the delivery's landing alone: a fault's consequences, not the flight home, are scored
-    config = load_config(base, overrides={"mission": {"return_home": False}})
+    config = load_simulated_config(base, overrides={"mission": {"return_home": False}})
     draws = draw_faults(n, seed, faults)
     rows: dict[str, list[dict[str, Any]]] = {f: [] for f in faults}
     t0 = time.perf_counter()

@@ -36,12 +36,13 @@ from typing import Any
 import numpy as np
 
 from companion.autopilot.interface import Autopilot
-from companion.config import CompanionConfig, SimConfig
+from companion.config import CompanionConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.real_vehicle import real_vehicle
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_lab.firmware_probe import hover_in_offboard, write_csv
 from companion_lab.real_weather import WIND_TC_S, FirmwareWeather, glitch_deg, static_params
+from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import GaussMarkov, SimVehicle
 
 COLUMNS = ("t_s", "phase", "truth_n_m", "est_n_m")

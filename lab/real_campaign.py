@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from companion.config import CompanionConfig, PadConfig, load_config, shipped_params_path
+from companion.config import PadConfig, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
@@ -54,6 +54,7 @@ from companion_lab.campaign_landing import (
 )
 from companion_lab.landing_campaign import run_landing_campaign, summarize
 from companion_lab.real_weather import FirmwareWeather, WeatherDriver, WeatherError, WeatherProcess, static_params
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +85,7 @@ MAV_CMD_DO_SET_HOME = 179
 def firmware_tuning(autopilot: str) -> dict[str, dict[str, Any]]:
     """The landing tuning (fusion and final descent) the shipped parameters of ``autopilot``
     carry (see FIRMWARE_PARAMS), as config overrides by table."""
-    cfg = load_config(shipped_params_path(FIRMWARE_PARAMS[autopilot]))
+    cfg = load_simulated_config(shipped_params_path(FIRMWARE_PARAMS[autopilot]))
 
     def value(table: str, key: str) -> Any:
         v = getattr(getattr(cfg, table), key)
@@ -98,7 +99,7 @@ def real_pad_displacement(d: Draw) -> tuple[float, float]:
     return d.pad_offset_m[0] + d.gps_bias_m[0], d.pad_offset_m[1] + d.gps_bias_m[1]
 
 
-def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
+def real_config(base: Path, autopilot: str, variant: str) -> SimulatedConfig:
     """The campaign parameters for a real SITL: the pad as north/east offsets from home (where it
     lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
     if variant not in VARIANTS:
@@ -109,7 +110,7 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
             "winch delivery is tested by tests/real_ardupilot/test_arducopter_winch.py (docs/winch.md)"
         )
     tuning = firmware_tuning(autopilot)
-    cfg = load_config(
+    cfg = load_simulated_config(
         base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
     )
     h = cfg.sim.home
@@ -119,7 +120,7 @@ def real_config(base: Path, autopilot: str, variant: str) -> CompanionConfig:
     return cfg.model_copy(update={"mission": mission, "autopilot": autopilot})
 
 
-def landing_config(config: CompanionConfig, variant: str, d: Draw) -> CompanionConfig:
+def landing_config(config: SimulatedConfig, variant: str, d: Draw) -> SimulatedConfig:
     """The variant's configuration for draw ``d``: the draw's seed drives the noise of the camera
     and UWB rendered from the truth, as in the embedded campaign (scenario_config), so that no two
     landings share a noise sequence; the pad_heading variant takes its draw too."""
@@ -127,7 +128,7 @@ def landing_config(config: CompanionConfig, variant: str, d: Draw) -> CompanionC
     return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"seed": d.seed})})
 
 
-def draw_weather(config: CompanionConfig, d: Draw) -> FirmwareWeather:
+def draw_weather(config: SimulatedConfig, d: Draw) -> FirmwareWeather:
     """The draw's weather as the embedded campaign flies it: its wind, the [sim] gusts and noise."""
     return FirmwareWeather.of(
         config.sim.model_copy(update={"wind_speed_m_s": d.wind_speed_m_s, "wind_from_deg": d.wind_from_deg})
@@ -149,7 +150,7 @@ async def _set_sensor_noise(rv: RealVehicle, w: FirmwareWeather) -> None:
 
 async def _one_landing(
     rv: RealVehicle,
-    config: CompanionConfig,
+    config: SimulatedConfig,
     d: Draw,
     rel_pad: tuple[float, float],
     weather: bool = False,

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.config import SimConfig
+from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import GaussMarkov
 
 log = logging.getLogger(__name__)

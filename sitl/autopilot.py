@@ -28,11 +28,11 @@ from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCa
 from companion.autopilot.mission_plan import PlanItem
 from companion.autopilot.types import FlightMode, LandingTarget, StatusText, Wind
 from companion.autopilot.winch import WinchCommand, WinchStatus
-from companion.config import SimConfig
 from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.clock import VirtualTimeEventLoop
+from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import SimCommandError, SimVehicle
 
 log = logging.getLogger(__name__)

@@ -48,7 +48,6 @@ import numpy as np
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import FlightMode, Imu, LandedState
-from companion.config import SimConfig, VehicleSimConfig
 from companion.dart.estimators import GimbalKind, camera_mount, wall_marker
 from companion.dart.mission import DartPhase
 from companion.dart.mixer import AttitudeMapConfig, RcMixerConfig, attitude_setpoint
@@ -58,6 +57,7 @@ from companion.geometry import Transform, euler_to_rotmat, rot_z, wrap_angle
 from companion.plugin_api import Frame
 from companion.scheduling import RateLoop
 from companion.vision.camera import CameraModel, load_camera, load_default_camera
+from companion_sitl.params import SimConfig, VehicleSimConfig
 
 from .camera import SimCameraConfig, SimulatedCamera
 from .dart_sim import (

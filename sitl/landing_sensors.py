@@ -38,7 +38,6 @@ from typing import ClassVar
 
 import numpy as np
 
-from companion.config import CompanionConfig
 from companion.delivery.hooks import RateLoopFactory, StageTimer, untimed
 from companion.delivery.shell import LandingKit
 from companion.geometry.se3 import Transform
@@ -46,6 +45,7 @@ from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlo
 from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.multilateration import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
+from companion_sitl.params import SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
 
@@ -303,7 +303,7 @@ class CameraPlayback:
 
 
 def sim_landing_kit(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     vehicle: SimVehicle,
     true_pad_ne: tuple[float, float],
     camera_playback: CameraPlayback | None = None,

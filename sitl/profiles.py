@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
 
-from companion.config import SimConfig
+from companion_sitl.params import SimConfig
 
 PROFILE_NAMES = ("ideal", "px4-sih", "arducopter-sitl")
 

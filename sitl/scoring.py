@@ -14,12 +14,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from companion.config import CompanionConfig, PadConfig
+from companion.config import PadConfig
 from companion.delivery.mission import DeliveryMission
 from companion.events import Phase
 from companion.geometry.heading import heading_difference_rad
 from companion.geometry.mission_frame import MissionFrame
 from companion.guidance.path import DeliveryPath
+from companion_sitl.params import SimulatedConfig
 
 REFERENCE = "outbound: nearer of the configured path and the path to the true pad; inbound: the mission's path home"
 
@@ -75,13 +76,13 @@ def rms(xs: list[float]) -> float:
     return math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else math.nan
 
 
-def simulated_pad(config: CompanionConfig) -> PadConfig:
+def simulated_pad(config: SimulatedConfig) -> PadConfig:
     """The configured pad the simulator places: the alternate with ``sim.pad_at_alternate``."""
     alternate = config.mission.alternate_pad
     return alternate if config.sim.pad_at_alternate and alternate is not None else config.mission.pad
 
 
-def true_pad_heading_rad(config: CompanionConfig) -> float:
+def true_pad_heading_rad(config: SimulatedConfig) -> float:
     """The simulated pad's true heading (NED): the configured heading of the pad the simulator
     places plus ``sim.pad_heading_offset_deg``; a pad without a heading lies as it always has
     (heading 0: its up edge north)."""

@@ -30,10 +30,10 @@ from companion.autopilot.types import (
     VehicleStatus,
 )
 from companion.autopilot.winch import WinchCommand
-from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion.geometry.rotations import wrap_angle
 from companion.guidance.setpoint import VelocitySetpoint
+from companion_sitl.params import SimConfig
 from companion_sitl.profiles import (
     VELOCITY_BIAS_DESCENT_SPEED_M_S,
     VELOCITY_BIAS_DESCENT_START_M,

@@ -9,15 +9,18 @@ import time
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.telemetry.loopback import free_tcp_port
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 
 def short_config(**mission):
-    return load_config(shipped_params_path("sitl_short.toml"), overrides={"mission": mission} if mission else None)
+    return load_simulated_config(
+        shipped_params_path("sitl_short.toml"), overrides={"mission": mission} if mission else None
+    )
 
 
 def firmware_config(firmware: str, connection: str, ready_timeout_s: float, telemetry: dict | None = None):
@@ -27,7 +30,7 @@ def firmware_config(firmware: str, connection: str, ready_timeout_s: float, tele
     from companion_lab.real_campaign import firmware_tuning
 
     tuning = firmware_tuning(firmware)
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "autopilot": firmware,

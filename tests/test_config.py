@@ -3,6 +3,7 @@ from pathlib import Path
 import pytest
 
 from companion.config import ConfigError, config_from_dict, describe_parameters, load_config, shipped_params_path
+from companion_sitl.params import SimulatedConfig, load_simulated_config, simulated_config_from_dict
 
 
 def write(tmp_path: Path, text: str) -> Path:
@@ -71,8 +72,28 @@ def test_missing_and_malformed_files(tmp_path):
 
 def test_later_files_and_overrides_win(tmp_path):
     a = write(tmp_path, "[sim]\nseed = 3\nwind_speed_m_s = 2.0\n")
-    c = load_config(a, overrides={"sim": {"seed": 9}})
+    c = load_simulated_config(a, overrides={"sim": {"seed": 9}})
     assert c.sim.seed == 9 and c.sim.wind_speed_m_s == 2.0
+    assert load_config(a, overrides={"sim": {"seed": 9}}).sim == {"seed": 9, "wind_speed_m_s": 2.0}
+
+
+def test_the_application_takes_the_sim_tables_as_they_are_and_the_simulator_checks_them(tmp_path):
+    """[sim] is the embedded simulator's (companion_sitl.params): the application loads every
+    shipped file with its [sim] tables unread; the simulator's loader refuses a bad value."""
+    for name in ("delivery_paper.toml", "sitl_short.toml", "px4_sih_quad.toml", "ardupilot_quad.toml"):
+        app, sim = load_config(shipped_params_path(name)), load_simulated_config(shipped_params_path(name))
+        assert app.model_dump(exclude={"sim"}) == sim.model_dump(exclude={"sim"})
+    p = write(tmp_path, "[sim]\nwind_speed_m_s = 99.0\n[sim.vehicle]\nmax_tilt_deg = 1.0\n")
+    assert load_config(p).sim == {"wind_speed_m_s": 99.0, "vehicle": {"max_tilt_deg": 1.0}}
+    with pytest.raises(ConfigError) as err:
+        load_simulated_config(p)
+    assert err.value.source == str(p)
+    assert any(
+        x.startswith("sim.wind_speed_m_s = 99.0: Input should be less than or equal to 25") for x in err.value.problems
+    )
+    assert any(
+        x.startswith("sim.vehicle.max_tilt_deg = 1.0: Input should be greater than 5") for x in err.value.problems
+    )
 
 
 def test_describe_parameters_lists_units_and_limits():
@@ -119,16 +140,14 @@ def _nested(key: str, value: object) -> dict:
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
 def test_every_float_of_the_vehicle_file_refuses_nan_and_infinity_as_not_finite(value):
-    from companion.config import CompanionConfig
-
-    keys = list(_float_keys(CompanionConfig))
+    keys = list(_float_keys(SimulatedConfig))  # the simulator's [sim] tables included
     assert len(keys) > 140  # the walk reaches every table
     for key in keys:
         data = _nested(key, value)
         if key.startswith("mission.pad."):  # the pad's own table: the other keys keep it whole
             data["mission"]["pad"] |= {"north_m": 10.0, "east_m": 10.0} | {key.rsplit(".", 1)[1]: value}
         with pytest.raises(ConfigError) as err:
-            config_from_dict(data, "f.toml")
+            simulated_config_from_dict(data, "f.toml")
         assert f"{key} = {value!r}: not finite; expected a finite number" in err.value.problems, err.value.problems
         assert "should be" not in str(err.value)  # a NaN is never compared with a limit
 
@@ -144,7 +163,7 @@ def test_every_float_of_the_vehicle_file_refuses_nan_and_infinity_as_not_finite(
 )
 def test_a_non_finite_number_in_an_array_or_a_limited_key_is_named(tmp_path, text, line):
     with pytest.raises(ConfigError) as err:
-        load_config(write(tmp_path, text))
+        load_simulated_config(write(tmp_path, text))
     assert line in str(err.value) and str(tmp_path / "p.toml") in str(err.value)
     assert "should be" not in str(err.value)
 
@@ -167,10 +186,10 @@ def test_the_pad_lies_within_the_stated_box_around_home(pad, key, ok):
     for table in ("pad", "alternate_pad"):
         data = {"mission": {table: pad}, "sim": {"home": home}}
         if ok:
-            config_from_dict(data)
+            simulated_config_from_dict(data)
             continue
         with pytest.raises(ConfigError) as err:
-            config_from_dict(data)
+            simulated_config_from_dict(data)
         assert key.replace("mission.pad", f"mission.{table}") in str(err.value), err.value.problems
     if "lat_deg" in pad:  # on a real autopilot home is known in flight: the planner checks it there
         assert config_from_dict({"autopilot": "px4", "mission": {"pad": pad}}).mission.pad.lat_deg == pad["lat_deg"]
@@ -207,8 +226,8 @@ def test_a_bad_value_ends_demo_and_fly_with_one_line_and_exit_2(tmp_path, capsys
 @pytest.mark.parametrize("lat_deg", [90.0, -90.0, 89.5])
 def test_the_simulated_home_stays_off_the_poles(lat_deg):
     with pytest.raises(ConfigError, match=rf"sim.home.lat_deg = {lat_deg}: Input should be"):
-        config_from_dict({"sim": {"home": {"lat_deg": lat_deg, "lon_deg": 0.0}}})
-    assert config_from_dict({"sim": {"home": {"lat_deg": 89.0, "lon_deg": 0.0}}}).sim.home.lat_deg == 89.0
+        simulated_config_from_dict({"sim": {"home": {"lat_deg": lat_deg, "lon_deg": 0.0}}})
+    assert simulated_config_from_dict({"sim": {"home": {"lat_deg": 89.0, "lon_deg": 0.0}}}).sim.home.lat_deg == 89.0
 
 
 def test_the_estimators_and_solvers_tuning_is_a_table_of_the_landing(tmp_path):

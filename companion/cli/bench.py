@@ -14,12 +14,9 @@ from typing import Any
 from companion.cli import exits
 from companion.cli.args import positive_int
 from companion.cli.exits import StartupError
-from companion.config import (
-    DEFAULT_PARAMS,
-    load_config,
-    shipped_params_path,
-)
+from companion.config import DEFAULT_PARAMS, shipped_params_path
 from companion.units import format_m
+from companion_sitl.params import load_simulated_config
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +24,7 @@ log = logging.getLogger(__name__)
 def cmd_bench_sim(args: argparse.Namespace) -> int:
     from companion_lab.demo import run_demo
 
-    cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
+    cfg = load_simulated_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
     best = {}
     for label, fusion in (
         ("GPS-only (simulator + guidance)", False),
@@ -118,7 +115,7 @@ def cmd_bench_campaign(args: argparse.Namespace) -> int:
 def cmd_bench_log(args: argparse.Namespace) -> int:
     from companion_lab.bench.log import bench_log
 
-    cfg = load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
+    cfg = load_simulated_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": args.seed}})
     if args.rounds < 1:
         raise StartupError(f"--rounds {args.rounds}: must be >= 1", exits.BAD_INPUT)
     r = bench_log(config=cfg, rounds=args.rounds)

@@ -13,20 +13,15 @@ from companion.cli import exits
 from companion.cli.args import output_folder
 from companion.cli.exits import StartupError
 from companion.cli.fly_display import PHASES  # the mission's phases in flight order: the bar's steps
-from companion.config import (
-    DEFAULT_PARAMS,
-    CompanionConfig,
-    ConfigError,
-    load_config,
-    shipped_params_path,
-)
+from companion.config import DEFAULT_PARAMS, ConfigError, shipped_params_path
 from companion.delivery.mission import FailureKind
 from companion.units import format_m
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
 
-def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
+def _load_demo_config(args: argparse.Namespace) -> SimulatedConfig:
     paths = [Path(p) for p in args.params] if args.params else [shipped_params_path(DEFAULT_PARAMS)]
     sim: dict[str, Any] = {}
     if args.seed is not None:
@@ -44,7 +39,7 @@ def _load_demo_config(args: argparse.Namespace) -> CompanionConfig:
         overrides["landing"] = {"fusion": False, "policy": {"require_pad_lock": False}}
     if getattr(args, "zenoh_config", None):
         overrides["telemetry"] = {"zenoh_config": args.zenoh_config}
-    return load_config(*paths, overrides=overrides or None)
+    return load_simulated_config(*paths, overrides=overrides or None)
 
 
 def _parse_vec(text: str, opt: str, form: str = "north[,east[,down]]") -> list[float]:
@@ -82,7 +77,7 @@ def flight_time_s(shell: Any) -> float:
     return float(shell.now() - t0) if t0 is not None else 0.0
 
 
-def _camera_playback(args: argparse.Namespace, cfg: CompanionConfig) -> Any:
+def _camera_playback(args: argparse.Namespace, cfg: SimulatedConfig) -> Any:
     """``--camera-file`` and its options as a ``companion_sitl.landing_sensors.CameraPlayback`` (None without
     it); misuse is a StartupError naming the option."""
     from companion_sitl.landing_sensors import CameraPlayback
@@ -135,7 +130,7 @@ def _figures(run_dir: Path) -> list[Path]:
         return []
 
 
-def _print_demo_header(console: Any, cfg: CompanionConfig, realtime: bool) -> None:
+def _print_demo_header(console: Any, cfg: SimulatedConfig, realtime: bool) -> None:
     m = cfg.mission
     console.print(
         f"[bold]companion demo[/]: h = {m.height_m} m, r = {m.arc_radius_m} m, v = {list(m.sector_speed_m_s)} m/s, "
@@ -146,7 +141,7 @@ def _print_demo_header(console: Any, cfg: CompanionConfig, realtime: bool) -> No
     )
 
 
-def _fly_demo(args: argparse.Namespace, cfg: CompanionConfig, run_dir: Path, playback: Any, console: Any) -> Any:
+def _fly_demo(args: argparse.Namespace, cfg: SimulatedConfig, run_dir: Path, playback: Any, console: Any) -> Any:
     """The demo flown with a progress bar of its phases; its ``DemoResult``."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 

@@ -34,7 +34,10 @@ def make_autopilot(config: CompanionConfig, tlog_path: Path | None = None, **kwa
     if config.autopilot == "sim":
         log.info("autopilot backend sim on embedded simulator")
         from companion_sitl.autopilot import SimAutopilot
+        from companion_sitl.params import SimulatedConfig, simulated_config_from_dict
 
+        if not isinstance(config, SimulatedConfig):  # the application's config: [sim] not validated yet
+            config = simulated_config_from_dict(config.model_dump(), "the parameters' [sim]")
         return SimAutopilot(config.sim, tlog_path=tlog_path, **kwargs)
     if tlog_path is not None:
         from companion.flightlog.tlog_writer import open_tlog

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -12,8 +13,13 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from companion.config import ConfigError, describe_parameters, describe_schema, load_config, read_toml
+from companion.config import ConfigError, describe_parameters, describe_schema, read_toml
 from companion.param_kinds import KINDS, detect_kind, validate
+from companion_sitl.params import SimulatedConfig, load_simulated_config
+
+#: the kinds of file the command line shows and checks: a vehicle file's [sim] tables are the
+#: embedded simulator's (``companion demo``, ``campaign``), so they are shown and checked too
+CLI_KINDS = {**KINDS, "vehicle": dataclasses.replace(KINDS["vehicle"], schema=SimulatedConfig)}
 
 
 def _loader_check(kind: str) -> Callable[[Path], object] | None:
@@ -47,10 +53,10 @@ def load_params_file(path: str | Path, kind: str | None = None) -> tuple[str, Ba
     the file and, per problem, the key, the value and what is expected."""
     p = Path(path)
     data = read_toml(p)
-    k = kind or detect_kind(data)
+    k = kind or detect_kind(data, CLI_KINDS)
     if k == "vehicle":
-        return k, load_config(p)
-    model = validate(data, k, str(p))
+        return k, load_simulated_config(p)
+    model = validate(data, k, str(p), CLI_KINDS)
     check = _loader_check(k)
     if check is not None:
         try:
@@ -68,7 +74,7 @@ def cmd_params_show(args: argparse.Namespace) -> int:
     else:
         kind = args.kind or "vehicle"
         print(f"# defaults of kind {kind}, {KINDS[kind].what}; other kinds: --kind {{{','.join(KINDS)}}}")
-        lines = describe_schema(KINDS[kind].schema)
+        lines = describe_schema(CLI_KINDS[kind].schema)
     for line in lines:
         print(line)
     return 0

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
-from companion.config import CompanionConfig, ConfigError, config_from_dict
+from companion.config import CompanionConfig, ConfigError, validate_config
 
 
 class DestinationError(ValueError):
@@ -59,10 +59,14 @@ class Destination:
     alternate: GeoPad | None = None
 
 
-def config_for_destination(config: CompanionConfig, dest: Destination) -> CompanionConfig:
+_C = TypeVar("_C", bound=CompanionConfig)
+
+
+def config_for_destination(config: _C, dest: Destination) -> _C:
     """``config`` with its pad (and alternate pad) replaced by ``dest``'s; the pad size stays the
-    configured one. Raises :class:`DestinationError` when the schema refuses the result (a pad
-    outside the fence, a coordinate out of range)."""
+    configured one, and the config keeps its schema (the simulator's checks its [sim] again). Raises
+    :class:`DestinationError` when the schema refuses the result (a pad outside the fence, a
+    coordinate out of range)."""
     dest.pad.check("pad")
     if dest.alternate is not None:
         dest.alternate.check("alternate_pad")
@@ -73,6 +77,6 @@ def config_for_destination(config: CompanionConfig, dest: Destination) -> Compan
         size = (config.mission.alternate_pad or config.mission.pad).size_m
         mission["alternate_pad"] = dest.alternate.as_table(size)
     try:
-        return config_from_dict(data, dest.source)
+        return validate_config(type(config), data, dest.source)
     except ConfigError as err:
         raise DestinationError("; ".join(err.problems)) from None

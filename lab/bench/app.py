@@ -46,12 +46,13 @@ from typing import Any, ClassVar
 
 from companion import scheduling
 from companion.autopilot.interface import Autopilot
-from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.config import DEFAULT_PARAMS, shipped_params_path
 from companion.delivery.observers import ShellObserver, ShellTick
 from companion.estimation.ekf import UpdateOutcome
 from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog  # the Dart bench's logging
 from companion_lab.cpu_cap import WORLD_THREAD_PREFIXES, CapKeeper, open_cgroup
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
@@ -569,7 +570,7 @@ class Instrumented:
 
 
 def instrumented_shell(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     autopilot: Any,
     truth: Any,
     recorder: Any,
@@ -611,7 +612,7 @@ def instrumented_shell(
 
 
 def _bench_kit(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     truth: Any,
     pad_ne: tuple[float, float],
     acct: CpuAccount,
@@ -656,7 +657,7 @@ class BenchDelivery:
 
 
 def _bench_delivery(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     backend: str,
     run_dir: Path,
     acct: CpuAccount,
@@ -751,7 +752,7 @@ async def _sample_offboard(vehicle: Any, out: list[tuple[float, bool]]) -> None:
 
 
 async def _run_delivery(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     duration_s: float,
     backend: str,
     run_dir: Path,
@@ -793,7 +794,7 @@ async def _run_delivery(
 
 
 def _delivery_report(
-    config: CompanionConfig,
+    config: SimulatedConfig,
     backend: str,
     b: BenchDelivery,
     r: dict[str, Any],
@@ -1052,7 +1053,7 @@ def bench_app(
     with tempfile.TemporaryDirectory(prefix="bench-app-") as tmp:
         folder = Path(tmp)
         zfile = _write_zenoh_file(folder, gport)
-        config = load_config(
+        config = load_simulated_config(
             *paths,
             overrides={
                 "telemetry": {"enabled": True, "zenoh_config": str(zfile)},

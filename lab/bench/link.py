@@ -9,10 +9,10 @@ import statistics
 import time
 from typing import Any
 
-from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import SimConfig
 
 
 def _pct(xs: list[float], q: float) -> float:

@@ -43,7 +43,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from companion.config import DEFAULT_PARAMS, CompanionConfig, load_config, shipped_params_path
+from companion.config import DEFAULT_PARAMS, shipped_params_path
 from companion.delivery.observers import FlightLogObserver
 from companion.flightlog import logproc
 from companion.flightlog.csvlog import CsvLog
@@ -53,6 +53,7 @@ from companion.flightlog.recorder import FlightRecorder
 from companion.flightlog.streams import SAMPLE_FILES
 from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion_lab import demo
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
@@ -256,10 +257,10 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
         yield
 
 
-def bench_log(seed: int = 1, config: CompanionConfig | None = None, rounds: int = 2) -> dict[str, Any]:
+def bench_log(seed: int = 1, config: SimulatedConfig | None = None, rounds: int = 2) -> dict[str, Any]:
     """Wall times of the GPS-only demo bare / with CSV logs / with the whole run folder, the
     logging shares, and per stream rows and microseconds per row (see the module doc)."""
-    cfg = config or load_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": seed}})
+    cfg = config or load_simulated_config(shipped_params_path(DEFAULT_PARAMS), overrides={"sim": {"seed": seed}})
     out: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="bench-log-") as tmp:
         root = Path(tmp)

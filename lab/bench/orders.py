@@ -181,7 +181,8 @@ def _child(role: str, port: int, *extra: str) -> subprocess.Popen[str]:
 
 
 def _config(tmp: Path, udp_port: int) -> Any:
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
+    from companion_sitl.params import load_simulated_config
 
     secret = tmp / "secret"
     secret.write_bytes(SECRET)
@@ -196,7 +197,7 @@ def _config(tmp: Path, udp_port: int) -> Any:
     )
     f = tmp / "vehicle.toml"
     f.write_text(text)
-    return load_config(f)
+    return load_simulated_config(f)
 
 
 async def _until(pred: Any, timeout_s: float, what: str) -> None:

@@ -18,11 +18,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.autopilot.types import FlightMode
 from companion.autopilot.winch import WinchAction, WinchCommand
-from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink.gcs_failsafe import GcsFailsafe
 from companion_sitl.mavlink.mission import StoredMissionItem
 from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
+from companion_sitl.params import SimConfig
 
 # ArduCopter mode numbers
 COPTER_STABILIZE = 0

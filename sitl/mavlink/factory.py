@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from companion.config import SimConfig
 from companion_sitl.mavlink.ardupilot import ArduPilotSimVehicle
 from companion_sitl.mavlink.px4 import Px4SimVehicle
 from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
+from companion_sitl.params import SimConfig
 
 DIALECTS: dict[str, type[MavlinkSimVehicle]] = {"px4": Px4SimVehicle, "ardupilot": ArduPilotSimVehicle}
 

@@ -35,7 +35,7 @@ from companion.autopilot.signing import (
     accept_unsigned_ardupilot,
     clock_timestamp,
 )
-from companion.config import SimConfig
+from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)

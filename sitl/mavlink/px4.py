@@ -15,10 +15,10 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.autopilot.types import FlightMode
-from companion.config import SimConfig
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.mavlink.messages import PX4_DEFAULT_STREAMS_HZ
 from companion_sitl.mavlink.vehicle import Dialect, MavlinkSimVehicle
+from companion_sitl.params import SimConfig
 
 # PX4 custom modes (px4_custom_mode.h)
 PX4_MAIN_MANUAL = 1

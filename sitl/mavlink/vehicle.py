@@ -15,12 +15,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.autopilot.signing import clock_timestamp
 from companion.autopilot.types import FlightMode
-from companion.config import SimConfig
 from companion.geometry.earth import GeoPoint, LocalTangentPlane
 from companion_sitl.mavlink.commands import CommandHandler
 from companion_sitl.mavlink.fence import FenceServer
 from companion_sitl.mavlink.link import LinkStats, PacketWriter
 from companion_sitl.mavlink.mission import MissionServer
+from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import SimVehicle
 
 Dialect = Literal["px4", "ardupilot"]

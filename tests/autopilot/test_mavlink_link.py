@@ -155,7 +155,7 @@ async def test_hil_state_quaternion_truth_on_request(mav, udp_port):
 
 
 def test_sim_vehicle_rejects_an_unknown_dialect():
-    from companion.config import SimConfig
+    from companion_sitl.params import SimConfig
 
     with pytest.raises(ValueError, match="dialect"):
         mavlink_sim_vehicle(SimConfig(), "inav")  # type: ignore[arg-type]

@@ -10,9 +10,9 @@ import time
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.preflight.report import ParamUnavailable
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import SimConfig
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import SimConfig
 
 
 def test_px4_reads_by_type_and_names_a_missing_parameter() -> None:

@@ -14,12 +14,13 @@ from companion.autopilot.ardupilot.autopilot import DISTANCE_SENSOR_MSG_ID
 from companion.autopilot.interface import TelemetryCache
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import MAV_SENSOR_ROTATION_PITCH_270, RangefinderReading
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.params import load_simulated_config
 
 
 def _config(enabled: bool):
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"), overrides={"mission": {"rangefinder": {"enabled": enabled}}}
     )
 

@@ -13,10 +13,11 @@ from companion.autopilot.interface import TelemetryCache
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, PositionNed, VehicleStatus
 from companion.cli import exits
 from companion.cli.main import main
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.orders import OrderDesk
 from companion.telemetry.auth import CommandSettings
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
+from companion_sitl.params import load_simulated_config
 
 SECRET = b"cli-test-secret-0123456789"
 
@@ -95,7 +96,7 @@ def test_no_vehicle_answering_is_exit_5(tmp_path, secret_file, capsys) -> None: 
 
 
 async def test_accepted_and_refused_orders_print_the_answer(tmp_path, secret_file, capsys) -> None:  # type: ignore[no-untyped-def]
-    config = load_config(shipped_params_path("sitl_short.toml"))
+    config = load_simulated_config(shipped_params_path("sitl_short.toml"))
     h = config.sim.home
     tc = TelemetryCache()
     tc.status = VehicleStatus(0.0, False, FlightMode.HOLD, LandedState.ON_GROUND, True, 90.0, False)

@@ -17,8 +17,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.cli import exits
-from companion.config import SimConfig
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.params import SimConfig
 
 TIME_LIMIT_S = 60.0
 URLS = {"px4": "udpin://127.0.0.1:{port}", "ardupilot": "udpin:127.0.0.1:{port}"}

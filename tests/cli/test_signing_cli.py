@@ -10,8 +10,9 @@ import sys
 from companion.autopilot.signing import read_key_file
 from companion.cli import exits
 from companion.cli.main import main
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.params import load_simulated_config
 
 
 def test_keygen_writes_a_key_show_reads_it_and_keygen_never_replaces_it(tmp_path, capsys):
@@ -74,7 +75,7 @@ def test_push_gives_the_sim_vehicle_the_key_and_off_takes_it_away(tmp_path, caps
     params = tmp_path / "vehicle.toml"
     params.write_text(f'autopilot = "ardupilot"\n[signing]\nkey_file = "{key_file}"\n')
     port = _free_udp_port()
-    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
     try:
         args = ["signing", "push", "--params", str(params), "--connection", f"udpin:127.0.0.1:{port}"]
@@ -93,7 +94,7 @@ def test_push_to_a_vehicle_signing_with_another_key_fails_naming_it(tmp_path, ca
     params = tmp_path / "vehicle.toml"
     params.write_text(f'autopilot = "ardupilot"\n[signing]\nkey_file = "{key_file}"\n')
     port = _free_udp_port()
-    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     other = hashlib.sha256(b"someone else's key").digest()
     sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port), signing_key=other).start()
     try:
@@ -152,7 +153,7 @@ def test_fly_against_a_vehicle_that_does_not_sign_stops_naming_signing(tmp_path)
         f'[signing]\nenabled = true\nkey_file = "{key_file}"\n[runtime]\nconnect_timeout_s = 2.0\n'
         "[landing]\nfusion = false\nuse_camera = false\nuse_uwb = false\n[telemetry]\nenabled = false\n"
     )
-    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     sim = mavlink_sim_vehicle(cfg.sim, "ardupilot", remote=("127.0.0.1", port)).start()
     try:
         proc = subprocess.run(

@@ -322,10 +322,10 @@ async def test_px4_backend_sends_attitude_targets_and_reads_rc_channels() -> Non
     set_attitude_target leaves as SET_ATTITUDE_TARGET with the attitude as a quaternion."""
     from companion.autopilot.interface import AttitudeTarget
     from companion.autopilot.px4 import Px4Autopilot
-    from companion.config import SimConfig
     from companion.geometry import euler_to_quat
     from companion_sitl.mavlink.factory import mavlink_sim_vehicle
     from companion_sitl.mavlink.messages import PX4_DEFAULT_STREAMS_HZ
+    from companion_sitl.params import SimConfig
 
     port = free_udp_port()
     got: list[object] = []

@@ -10,7 +10,7 @@ import pytest
 
 from companion.autopilot.interface import AutopilotError
 from companion.autopilot.mission_plan import PlanItem
-from companion.config import config_from_dict, load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.autopilot_mission import (
     MissionDownloadError,
     MissionPlanError,
@@ -21,6 +21,7 @@ from companion.delivery.shell import DeliveryShell
 from companion.geometry.earth import GeoPoint, geo_to_ned, ned_to_geo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
+from companion_sitl.params import load_simulated_config, simulated_config_from_dict
 from companion_sitl.vehicle import SimVehicle
 
 LAT, LON = 47.3977, 8.5456
@@ -146,11 +147,11 @@ class _Holding:
 
 
 def test_the_parameters_still_decide_a_pad_outside_the_fence_or_a_failed_download() -> None:
-    base = load_config(shipped_params_path("px4_sih_quad.toml"))
+    base = load_simulated_config(shipped_params_path("px4_sih_quad.toml"))
     data = base.model_dump()
     box = [[47.39, 8.54], [47.39, 8.55], [47.40, 8.55], [47.40, 8.54]]
     data["fence"] = {"enabled": True, "inclusion": [{"vertices_deg": box}]}
-    fenced = config_from_dict(data, "fenced")
+    fenced = simulated_config_from_dict(data, "fenced")
     flown, said = run_virtual(config_from_autopilot_mission(fenced, _Holding((wp(1), release(2)))))  # type: ignore[arg-type]
     assert flown.mission.pad.lat_deg == pytest.approx(LAT) and flown.mission.pad.north_m is None
     assert said.startswith("destination: autopilot mission item 1 NAV_WAYPOINT (16): pad 47.3977000, 8.5456000")
@@ -164,7 +165,7 @@ def test_the_parameters_still_decide_a_pad_outside_the_fence_or_a_failed_downloa
 
 
 def _config():  # type: ignore[no-untyped-def]
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={"mission": {"destination": "autopilot_mission"}, "landing": {"fusion": False}},
     )

@@ -6,13 +6,14 @@ from __future__ import annotations
 from typing import Any
 
 from companion.autopilot.types import LandedState
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import Phase
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 
 def test_uwb_only_landing_with_anchors_at_one_height() -> None:
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("delivery_paper.toml"),
         overrides={
             "sim": {"seed": 3, "gps_bias_m": (2.0, 0.0, 0.0), "pad_offset_m": (0.4, -0.6)},

@@ -6,27 +6,28 @@ import math
 import pytest
 
 from companion.autopilot import AutopilotError, FlightMode, PositionNed
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase
 from companion.scheduling import LoopClock
 from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
+from companion_sitl.params import load_simulated_config
 from companion_sitl.vehicle import SimVehicle
 
 pytestmark = pytest.mark.flight
 
 
 def cfg(**sim):
-    return load_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": sim} if sim else None)
+    return load_simulated_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": sim} if sim else None)
 
 
 def no_sensors_cfg(**sim):
     """For a shell flown without landing sensors (the tests of its requests): GPS-only release by
     explicit choice, else the pad-lock policy brings the parcel home (docs/delivery-policy.md)."""
     over = {"sim": sim, "landing": {"policy": {"require_pad_lock": False}}}
-    return load_config(shipped_params_path("delivery_paper.toml"), overrides=over)
+    return load_simulated_config(shipped_params_path("delivery_paper.toml"), overrides=over)
 
 
 def test_full_mission_no_wind():
@@ -299,7 +300,7 @@ def test_abort_holds_then_lands():
 
 def test_impossible_geometry_fails_in_preflight_with_a_clear_reason():
     # pad 5 m away: two 6 m arcs cannot fit
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("delivery_paper.toml"),
         overrides={
             "mission": {"pad": {"lat_deg": None, "lon_deg": None, "alt_amsl_m": None, "north_m": 3.0, "east_m": 4.0}}
@@ -354,7 +355,7 @@ def test_field_lookahead_keeps_the_tight_short_path_at_its_arcs():
     base = shipped_params_path("sitl_short.toml")
     runs = {}
     for la in (0.0, 0.5):
-        c = load_config(base, overrides={"mission": {"field_lookahead_s": la}, "landing": {"fusion": False}})
+        c = load_simulated_config(base, overrides={"mission": {"field_lookahead_s": la}, "landing": {"fusion": False}})
         runs[la] = run_demo(c)
         assert runs[la].delivered and runs[la].returned, runs[la].failure
     assert runs[0.0].path_max_truth_m > 1.2

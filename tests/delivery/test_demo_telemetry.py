@@ -5,12 +5,13 @@ import time
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import EventKind
 from companion.telemetry.auth import CommandKind
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 SECRET = b"integration-secret-0123456789"
 
@@ -23,7 +24,9 @@ def _config(tmp_path, zenoh_config, commands):
         "zenoh_config": str(zenoh_config),
         "commands": {"enabled": commands, "secret_file": str(secret) if commands else None},
     }
-    return load_config(shipped_params_path("delivery_paper.toml"), overrides={"sim": {"seed": 1}, "telemetry": tele})
+    return load_simulated_config(
+        shipped_params_path("delivery_paper.toml"), overrides={"sim": {"seed": 1}, "telemetry": tele}
+    )
 
 
 def _wait(pred, timeout_s=3.0):

@@ -6,7 +6,7 @@ import math
 import pytest
 
 from companion.autopilot.types import FlightMode, LandedState, VehicleStatus
-from companion.config import ConfigError, MissionConfig, PadConfig, PadLockPolicyConfig, load_config
+from companion.config import ConfigError, MissionConfig, PadConfig, PadLockPolicyConfig
 from companion.config import shipped_params_path as shipped
 from companion.delivery.mission import (
     DeliveryMission,
@@ -18,6 +18,7 @@ from companion.delivery.mission import (
 )
 from companion.delivery.padlock import NO_SENSORS
 from companion.events import EventKind, Phase
+from companion_sitl.params import load_simulated_config
 
 from .test_mission import HOME, est, status
 from .test_padlock import LOCKED, PAD, STALE, _fly
@@ -69,10 +70,12 @@ def _pad_lock_details(m: DeliveryMission) -> list[str]:
 
 def test_fallback_alternate_needs_the_alternate_pad() -> None:
     with pytest.raises(ConfigError, match=r"landing\.policy\.fallback = 'alternate' needs mission\.alternate_pad"):
-        load_config(shipped("delivery_paper.toml"), overrides={"landing": {"policy": {"fallback": "alternate"}}})
+        load_simulated_config(
+            shipped("delivery_paper.toml"), overrides={"landing": {"policy": {"fallback": "alternate"}}}
+        )
     with pytest.raises(ConfigError, match=r"sim\.pad_at_alternate = true needs mission\.alternate_pad"):
-        load_config(shipped("delivery_paper.toml"), overrides={"sim": {"pad_at_alternate": True}})
-    c = load_config(
+        load_simulated_config(shipped("delivery_paper.toml"), overrides={"sim": {"pad_at_alternate": True}})
+    c = load_simulated_config(
         shipped("delivery_paper.toml"),
         overrides={
             "landing": {"policy": {"fallback": "alternate"}},
@@ -81,7 +84,9 @@ def test_fallback_alternate_needs_the_alternate_pad() -> None:
     )
     assert c.landing.policy.fallback == "alternate" and c.mission.alternate_pad is not None
     with pytest.raises(ConfigError, match="fallback"):
-        load_config(shipped("delivery_paper.toml"), overrides={"landing": {"policy": {"fallback": "anywhere"}}})
+        load_simulated_config(
+            shipped("delivery_paper.toml"), overrides={"landing": {"policy": {"fallback": "anywhere"}}}
+        )
 
 
 def test_an_alternate_pad_outside_the_fence_is_refused() -> None:
@@ -91,9 +96,11 @@ def test_an_alternate_pad_outside_the_fence_is_refused() -> None:
     }
     base = shipped("landing_campaign.toml")
     inside = {"lat_deg": -19.8686, "lon_deg": -43.9637}
-    assert load_config(base, overrides={"fence": fence, "mission": {"alternate_pad": inside}}).mission.alternate_pad
+    assert load_simulated_config(
+        base, overrides={"fence": fence, "mission": {"alternate_pad": inside}}
+    ).mission.alternate_pad
     with pytest.raises(ConfigError, match=r"mission\.alternate_pad"):
-        load_config(
+        load_simulated_config(
             base, overrides={"fence": fence, "mission": {"alternate_pad": {"lat_deg": -19.86, "lon_deg": -43.9637}}}
         )
 

@@ -8,15 +8,16 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.replay import replay_run
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
 
 def test_a_delivery_on_10_and_5_hz_streams_lands_within_centimetres_and_replays(tmp_path: Path) -> None:
-    cfg = load_config(
+    cfg = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={"runtime": {"autopilot_attitude_rate_hz": 10.0, "autopilot_position_rate_hz": 5.0}},
     )

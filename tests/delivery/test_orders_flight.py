@@ -22,13 +22,14 @@ from companion.autopilot.types import FlightMode
 from companion.cli import exits
 from companion.cli.main import main as companion_main
 from companion.cli.orders import serve_orders
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import EventKind
 from companion.geometry.earth import GeoPoint, ned_to_geo
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.telemetry.orders import OrderPad
 from companion.telemetry.schema import MissionMessage
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
@@ -49,7 +50,7 @@ def _params(tmp_path, udp_port: int):  # type: ignore[no-untyped-def]
     )
     f = tmp_path / "vehicle.toml"
     f.write_text(text)
-    return load_config(f), secret
+    return load_simulated_config(f), secret
 
 
 def _pad(home: GeoPoint, north_m: float, east_m: float) -> OrderPad:

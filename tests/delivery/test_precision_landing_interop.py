@@ -7,9 +7,10 @@ import math
 
 import pytest
 
-from companion.config import ConfigError, load_config, shipped_params_path
+from companion.config import ConfigError, shipped_params_path
 from companion.events import EventKind
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
@@ -19,7 +20,9 @@ PAD_OFFSET = [0.4, -0.3]
 
 def _cfg(landing: dict) -> object:
     sim = {"seed": 3, "gps_bias_m": BIAS, "pad_offset_m": PAD_OFFSET, "wind_speed_m_s": 2.0}
-    return load_config(shipped_params_path("landing_campaign.toml"), overrides={"sim": sim, "landing": landing})
+    return load_simulated_config(
+        shipped_params_path("landing_campaign.toml"), overrides={"sim": sim, "landing": landing}
+    )
 
 
 def test_autopilot_precision_landing_fed_landing_target_ends_on_the_displaced_pad():
@@ -65,7 +68,7 @@ def test_over_mavlink_each_autopilot_lands_on_the_pad_from_its_own_landing_targe
         "mission": {"return_home": False},
         "landing": {"controller": "autopilot", "landing_target_output": form},
     }
-    config = load_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
+    config = load_simulated_config(shipped_params_path("sitl_short.toml"), overrides=overrides)
     seen = {}
 
     def tick(shell, out):

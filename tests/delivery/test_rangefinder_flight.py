@@ -15,9 +15,10 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.estimation.rangefinder import Rejection
 from companion.events import EventKind
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
@@ -30,7 +31,7 @@ PARAMS = {
 
 
 def _config(rangefinder: bool):
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "mission": {

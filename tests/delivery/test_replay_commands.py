@@ -8,16 +8,17 @@ import csv
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.mission import CommandOutcome
 from companion.delivery.replay import InputKind, read_inputs, replay_run
 from companion.events import CommandKind, Phase
 from companion.flightlog.reader import LogFormatError, Table
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 
 def _fly_with_commands(run) -> list[str]:  # type: ignore[no-untyped-def]
-    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 3}})
+    config = load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 3}})
     replies: list[str] = []
     inbound_ticks = [0]
 

@@ -13,19 +13,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.telemetry import FRESH_S
 from companion.flightlog.reader import read_columns
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
 
 def _config(zenoh_config: Path):
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "sim": {"seed": 4, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, 0.2]},
@@ -84,7 +85,7 @@ def test_mission_fields_match_the_flight_log(flight):
     ticks = {float(t): i for i, t in enumerate(fl["time_s"])}
     meta = json.loads((run / "run.json").read_text())
     conf_pad = meta["mission"]["pad_ned_m"]
-    speeds = load_config(shipped_params_path("sitl_short.toml")).mission.sector_speed_m_s
+    speeds = load_simulated_config(shipped_params_path("sitl_short.toml")).mission.sector_speed_m_s
     gl = read_columns(run / "guidance.csv")
     guidance_at = {float(t): i for i, t in enumerate(gl["time_s"])}
     senses: dict[str, set[int]] = {}

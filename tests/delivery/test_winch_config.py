@@ -4,25 +4,26 @@ from __future__ import annotations
 
 import pytest
 
-from companion.config import ConfigError, load_config, shipped_params_path
+from companion.config import ConfigError, shipped_params_path
+from companion_sitl.params import load_simulated_config
 
 
 def test_winch_delivery_is_off_by_default() -> None:
-    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     assert cfg.mission.delivery == "land" and not cfg.sim.winch.fitted
     assert cfg.winch.wind_drift_s_m == 0.0
 
 
 def test_px4_cannot_fly_a_winch_delivery() -> None:
     with pytest.raises(ConfigError, match=r"PX4 v1\.16 has no winch"):
-        load_config(
+        load_simulated_config(
             shipped_params_path("sitl_short.toml"), overrides={"autopilot": "px4", "mission": {"delivery": "winch"}}
         )
 
 
 def test_a_winch_delivery_is_not_handed_to_the_autopilots_precision_landing() -> None:
     with pytest.raises(ConfigError, match="never hands a descent to the autopilot"):
-        load_config(
+        load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "mission": {"delivery": "winch"},
@@ -33,7 +34,7 @@ def test_a_winch_delivery_is_not_handed_to_the_autopilots_precision_landing() ->
 
 def test_winch_values_out_of_range_name_the_key() -> None:
     with pytest.raises(ConfigError, match=r"winch\.hover_height_m"):
-        load_config(shipped_params_path("sitl_short.toml"), overrides={"winch": {"hover_height_m": 0.2}})
+        load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"winch": {"hover_height_m": 0.2}})
 
 
 def test_the_winch_campaign_variant_flies_winch_deliveries_on_the_embedded_simulator_only() -> None:

@@ -10,20 +10,21 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import CompanionConfig, load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.replay import replay_run
 from companion.events import CommandKind
 from companion_lab.campaign_landing import draw_scenarios
 from companion_lab.demo import run_demo
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 pytestmark = pytest.mark.flight
 
 
-def _config(fitted: bool = True, stuck: bool = False, draw: int = 3, drift_s_m: float = 0.0) -> CompanionConfig:
+def _config(fitted: bool = True, stuck: bool = False, draw: int = 3, drift_s_m: float = 0.0) -> SimulatedConfig:
     # seed 11003: 1.2 m/s of wind; 11000: 4.6 m/s (landing_campaign.toml's draws of seed 11)
     d = draw_scenarios(5, 11)[draw]
     sim = {**d.sim_overrides(), "winch": {"fitted": fitted, "stuck": stuck}}
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("landing_campaign.toml"),
         overrides={"sim": sim, "mission": {"delivery": "winch"}, "winch": {"wind_drift_s_m": drift_s_m}},
     )
@@ -91,7 +92,7 @@ def test_no_winch_fitted_refuses_and_brings_the_parcel_home() -> None:
 def test_winch_delivery_over_mavlink_against_the_ardupilot_sim_vehicle() -> None:
     """The same code path over a real socket: the pymavlink backend sends DO_WINCH, the sim vehicle
     answers it as ArduCopter does (WINCH_TYPE 1) and streams WINCH_STATUS on request."""
-    cfg = load_config(shipped_params_path("sitl_short.toml"))
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     sim = cfg.sim.model_copy(update={"winch": cfg.sim.winch.model_copy(update={"fitted": True})})
     cfg = cfg.model_copy(
         update={"autopilot": "ardupilot", "mission": cfg.mission.model_copy(update={"delivery": "winch"}), "sim": sim}

@@ -72,12 +72,13 @@ def test_relay_keeps_the_commands_the_companion_sent_to_the_autopilot():
 
 
 def test_fly_params_lay_the_short_mission_over_a_shipped_file(tmp_path):
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
     from companion_firmware.companion_kill import SHORT_MISSION, write_fly_params
+    from companion_sitl.params import load_simulated_config
 
-    shipped = load_config(shipped_params_path("ardupilot_quad.toml"))
+    shipped = load_simulated_config(shipped_params_path("ardupilot_quad.toml"))
     path = write_fly_params(shipped_params_path("ardupilot_quad.toml"), tmp_path / "f.toml", {"mission": SHORT_MISSION})
-    cfg = load_config(path)
+    cfg = load_simulated_config(path)
     assert (cfg.mission.pad.north_m, cfg.mission.pad.east_m, cfg.mission.height_m) == (14.0, 14.0, 8.0)
     # everything else is what ships
     assert cfg.runtime == shipped.runtime and cfg.limits == shipped.limits and cfg.payload == shipped.payload

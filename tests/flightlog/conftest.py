@@ -9,13 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.logproc import LogProcess
+from companion_sitl.params import load_simulated_config
 
 
 def short_config(**sim):
     over = {"sim": {"seed": 3, **sim}}
-    return load_config(shipped_params_path("sitl_short.toml"), overrides=over)
+    return load_simulated_config(shipped_params_path("sitl_short.toml"), overrides=over)
 
 
 @pytest.fixture(scope="session")

@@ -107,11 +107,12 @@ PINNED_CPU_ENV = {
 _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
+from companion_sitl.params import load_simulated_config
 from companion_lab.demo import run_demo
 run, fusion = Path(sys.argv[1]), sys.argv[2] == "1"
 over = {"sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]}}
-r = run_demo(load_config(shipped_params_path("sitl_short.toml"), overrides=over), fusion=fusion, run_dir=run)
+r = run_demo(load_simulated_config(shipped_params_path("sitl_short.toml"), overrides=over), fusion=fusion, run_dir=run)
 assert r.delivered and r.returned, r.failure
 print(json.dumps({f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(run.glob("*.csv"))}))
 """

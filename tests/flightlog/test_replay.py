@@ -123,10 +123,11 @@ def test_fly_logs_an_operator_ctrl_c_and_replays_it(tmp_path):
 def test_replay_of_a_flight_on_anchors_at_one_height_is_identical(tmp_path):
     """uwb.csv carries HDOP/VDOP and vertical_weak: the replayed EKF weights the weak vertical as
     the flight did (without them the replay would fuse the fixes isotropically and differ)."""
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
     from companion_lab.demo import run_demo
+    from companion_sitl.params import load_simulated_config
 
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]},
@@ -157,13 +158,14 @@ def test_replay_of_a_flight_with_every_shell_input_is_identical(tmp_path):
     recorded and replayed: the velocity-bias correction of every setpoint (PX4 SIH's tuning), the
     fence's verdict reached before the first tick (commands.csv, source go_no_go) and the wind
     estimate each tick handed the wind go/no-go (wind.csv)."""
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
     from companion.geometry.earth import GeoPoint, ned_to_geo
     from companion_lab.demo import run_demo
+    from companion_sitl.params import load_simulated_config
 
     home = GeoPoint(-19.869, -43.9638, 850.0)  # sitl_short.toml's [sim.home]
     corners = [ned_to_geo(home, n, e, 0.0) for n, e in ((-50, -50), (100, -50), (100, 100), (-50, 100))]
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "sim": {"seed": 3, "profile": "px4-sih"},
@@ -270,10 +272,11 @@ def test_replay_of_the_bias_measured_against_the_fused_position_is_identical(tmp
     EKF's input corrected by it ([mission] velocity_bias_source, [landing] ekf_velocity_bias_tau_s)
     and the attitude's tilt taken out on the level pad ([landing] ekf_level_pad) are replayed bit
     for bit from run.json; without either correction the EKF's estimates differ."""
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
     from companion_lab.demo import run_demo
+    from companion_sitl.params import load_simulated_config
 
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "sim": {"seed": 3, "profile": "px4-sih"},

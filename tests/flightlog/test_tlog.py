@@ -26,7 +26,7 @@ from companion.autopilot.types import (
     StatusText,
     VehicleStatus,
 )
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.flightlog.tlog import read_tlog, record_time_s, tlog_timestamp_us
 from companion.flightlog.tlog_encoder import TelemetryEncoder
@@ -36,6 +36,7 @@ from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SIM_TLOG_EPOCH_S, SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.mavlink.px4 import px4_custom_mode
+from companion_sitl.params import load_simulated_config
 
 T0 = 1_700_000_000.0
 
@@ -373,7 +374,7 @@ def test_telemetry_encoder_maps_samples_and_companion_messages(tmp_path):
 
 # ------------------------------------------------------------------ simulated flights (virtual time)
 def sim_config():
-    return load_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 4}})
+    return load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 4}})
 
 
 def summarize(path):

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
+from companion_sitl.params import load_simulated_config
 
 from .harness import BUDGETS, COUNTS, RUN_FOLDER_BUDGETS, SIM_START_BUDGETS, SIM_START_S
 
@@ -44,7 +45,7 @@ def fuzz_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     run = tmp_path_factory.mktemp("fuzz-demo") / "run"
     over = {"sim": {"seed": 3, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, -0.2]}}
-    r = run_demo(load_config(shipped_params_path("sitl_short.toml"), overrides=over), run_dir=run)
+    r = run_demo(load_simulated_config(shipped_params_path("sitl_short.toml"), overrides=over), run_dir=run)
     assert r.delivered and r.returned, r.failure
     return run
 

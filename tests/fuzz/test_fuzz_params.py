@@ -23,8 +23,9 @@ from hypothesis import strategies as st
 from pydantic import BaseModel
 
 from companion.cli.params import load_params_file
-from companion.config import CompanionConfig, ConfigError, load_config, read_toml
+from companion.config import ConfigError, read_toml
 from companion.param_kinds import KINDS, detect_kind
+from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 from . import harness
 
@@ -95,7 +96,7 @@ def test_load_config_bytes(tmp_path, fuzz_budget) -> None:
     def feed(data: bytes) -> str:
         p = tmp_path / f"c{next(n)}.toml"
         p.write_bytes(data)
-        load_config(p)
+        load_simulated_config(p)
         return "loaded"
 
     for data in vehicle + NASTY:
@@ -137,7 +138,7 @@ def _numbers(schema: type[BaseModel], prefix: str = "") -> list[tuple[str, int |
     return out
 
 
-NUMBERS = _numbers(CompanionConfig)
+NUMBERS = _numbers(SimulatedConfig)
 
 
 def _edge_values(f: Any) -> list[float | int]:
@@ -189,7 +190,7 @@ def _with_value(base: dict[str, Any], key: str, index: int | None, value: Any) -
     for t in tables:
         node = node.setdefault(t, {})
     if index is not None:
-        default = CompanionConfig.model_validate(base)
+        default = SimulatedConfig.model_validate(base)
         for name in key.split("."):
             default = getattr(default, name)
         items = list(node.get(leaf, default))
@@ -229,7 +230,7 @@ def _check_or_fly(tmp_path: Path, sim_s: float) -> Any:
                 assert f"{shown} = {value!r}: not finite" in text, text
                 assert "should be" not in text, text  # a NaN is never compared with a limit
             return "refused, naming the key"
-        assert kind == "vehicle" and isinstance(cfg, CompanionConfig)
+        assert kind == "vehicle" and isinstance(cfg, SimulatedConfig)
         result = run_virtual(fly(cfg, run_dir=p.with_suffix(""), timeout_s=sim_s))
         assert math.isfinite(result.sim_time_s) and result.sim_time_s > 0.0, result
         return "accepted, the simulator started"

@@ -12,8 +12,9 @@ import time
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
+from companion_sitl.params import load_simulated_config
 
 from . import harness
 from .mavlink_corpus import from_ground
@@ -25,7 +26,7 @@ SEEDS = from_ground()
 
 @pytest.mark.parametrize("dialect", ["px4", "ardupilot"])
 def test_mavlink_datagrams_into_the_sim_vehicle(dialect, fuzz_budget) -> None:
-    cfg = load_config(shipped_params_path("sitl_short.toml")).sim
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml")).sim
     sim = mavlink_sim_vehicle(cfg, dialect, params={"ardupilot": {"GRIP_ENABLE": 1.0}, "px4": {}}[dialect])
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))

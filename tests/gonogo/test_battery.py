@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.gonogo import BatteryMonitor, WayHome, time_home_s
 from companion_lab.demo import run_demo
+from companion_sitl.params import load_simulated_config
 
 # the paper's speeds: cruise v3 5 m/s, descent v1 2 m/s, landing 0.5 m/s below 3 m, climb v5 1.5 m/s to 45 m
 WAY = WayHome(5.0, 2.0, 0.5, final_descent_alt_m=3.0, climb_m_s=1.5, cruise_height_m=45.0, arc_radius_m=6.0)
@@ -43,7 +44,7 @@ def test_measured_use_and_verdict() -> None:
 
 
 def cfg(**go_no_go: object):  # type: ignore[no-untyped-def]
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("delivery_paper.toml"),
         overrides={"go_no_go": {"battery_check": True, **go_no_go}, "sim": {"vehicle": {"battery_endurance_s": 120.0}}},
     )

@@ -8,13 +8,14 @@ import asyncio
 import pytest
 
 from companion.autopilot.fence import AutopilotFence, FencePolygon
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind
 from companion.geometry.earth import GeoPoint, ned_to_geo
 from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
+from companion_sitl.params import load_simulated_config
 from companion_sitl.vehicle import SimVehicle
 
 HOME = GeoPoint(-19.869, -43.9638, 850.0)  # delivery_paper.toml's sim home; the pad 100 m away at 45 deg
@@ -26,7 +27,7 @@ def square(n0: float, e0: float, n1: float, e1: float) -> list[list[float]]:
 
 
 def cfg(fence: dict[str, object]):  # type: ignore[no-untyped-def]
-    return load_config(shipped_params_path("delivery_paper.toml"), overrides={"fence": fence})
+    return load_simulated_config(shipped_params_path("delivery_paper.toml"), overrides={"fence": fence})
 
 
 def test_a_path_through_an_exclusion_is_refused_before_take_off() -> None:

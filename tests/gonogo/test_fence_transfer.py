@@ -11,9 +11,9 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.fence import AutopilotFence, FencePolygon, fence_mismatch
 from companion.autopilot.interface import AutopilotError
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import SimConfig
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import SimConfig
 
 LAT, LON = -198690000, -439638000
 D = 20000  # 1e-7 deg: 220 m

@@ -19,7 +19,7 @@ from companion.autopilot.fence import (
     fence_items,
     fence_mismatch,
 )
-from companion.config import ConfigError, FenceConfig, LimitsConfig, config_from_dict
+from companion.config import ConfigError, FenceConfig, LimitsConfig
 from companion.geometry.earth import GeoPoint, ned_to_geo
 from companion.geometry.polygon import (
     point_in_polygon,
@@ -28,6 +28,7 @@ from companion.geometry.polygon import (
     segments_intersect,
 )
 from companion.guidance.geofence import check_leg, fence_in_ned, section_at
+from companion_sitl.params import simulated_config_from_dict
 
 HOME = GeoPoint(-19.869, -43.9638, 850.0)
 SQUARE = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]
@@ -70,7 +71,8 @@ def test_polygon_problems_are_named() -> None:
 
 # ---------------------------------------------------------------- [fence] validation
 def _cfg(fence: dict[str, object], **extra: object) -> object:
-    return config_from_dict({"fence": fence, **extra}, "test.toml")
+    """The simulator's config: the fence holds the simulated home too."""
+    return simulated_config_from_dict({"fence": fence, **extra}, "test.toml")
 
 
 def test_fence_table_validation_names_key_and_rule() -> None:

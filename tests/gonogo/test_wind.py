@@ -7,13 +7,14 @@ from __future__ import annotations
 import pytest
 
 from companion.autopilot.types import Wind
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.gonogo import WindMonitor
 from companion.delivery.shell import DeliveryShell
 from companion.scheduling import LoopClock
 from companion_lab.demo import run_demo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
+from companion_sitl.params import load_simulated_config
 from companion_sitl.vehicle import SimVehicle
 
 
@@ -35,7 +36,7 @@ def test_wind_monitor() -> None:
 
 
 def cfg(wind_m_s: float, limit_m_s: float = 6.0):  # type: ignore[no-untyped-def]
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("delivery_paper.toml"),
         overrides={"go_no_go": {"wind_limit_m_s": limit_m_s}, "sim": {"wind_speed_m_s": wind_m_s}},
     )

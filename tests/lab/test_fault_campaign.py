@@ -9,12 +9,13 @@ import math
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_lab import fault_campaign as fc
+from companion_sitl.params import load_simulated_config
 
 
 def _config():
-    return load_config(shipped_params_path("sitl_short.toml"))
+    return load_simulated_config(shipped_params_path("sitl_short.toml"))
 
 
 def test_the_draws_are_the_seeds_alone_fault_major_and_within_their_ranges():
@@ -142,7 +143,9 @@ def test_a_3_s_stall_late_in_the_cruise_on_arducopter_releases_nothing_off_the_p
     last setpoint on, ~11 m past the pad) the resumed GPS-only descent (sitl_short's
     require_pad_lock = false) came down ~2 m off the pad. The mission never releases where its own
     estimate puts the touchdown outside the pad: it flies home with the parcel."""
-    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"mission": {"return_home": False}})
+    config = load_simulated_config(
+        shipped_params_path("sitl_short.toml"), overrides={"mission": {"return_home": False}}
+    )
     row = fc.fly_fault_landing(config, fc.FaultDraw(13, 1013, "stall_3s", "ardupilot", "cruise", 6.8, 0.69))
     assert row["fired"] and not row["lost"], row
     assert not row["released_off_pad"], (row["touchdown_ne_m"], row["failure_kind"])

@@ -11,7 +11,7 @@ import matplotlib.image as mpimg
 import pytest
 
 from companion.cli.main import main
-from companion.config import EkfConfig, load_config, shipped_params_path
+from companion.config import EkfConfig, shipped_params_path
 from companion.delivery.planning import pad_position_ned
 from companion.geometry.earth import GeoPoint
 from companion_lab.campaign_landing import Draw, draw_scenarios, scenario_config
@@ -25,6 +25,7 @@ from companion_lab.real_campaign import (
     real_config,
     real_pad_displacement,
 )
+from companion_sitl.params import load_simulated_config
 
 
 def test_a_draw_maps_onto_a_sitl_without_gps_bias():
@@ -33,7 +34,7 @@ def test_a_draw_maps_onto_a_sitl_without_gps_bias():
     base = shipped_params_path("landing_campaign.toml")
     cfg = real_config(base, "px4", "fusion")
     h = cfg.sim.home
-    n, e, _ = pad_position_ned(load_config(base).mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
+    n, e, _ = pad_position_ned(load_simulated_config(base).mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
     assert cfg.mission.pad.north_m == pytest.approx(n) and cfg.mission.pad.east_m == pytest.approx(e)
     assert cfg.mission.pad.lat_deg is None and cfg.autopilot == "px4"
     assert math.hypot(n, e) == pytest.approx(15.0, abs=0.5)  # the shipped pad, 15 m from home
@@ -88,7 +89,7 @@ def test_each_real_landing_renders_its_sensors_with_its_own_draw_seed():
         got = [landing_config(cfg, variant, d) for d in (a, b)]
         embedded = [scenario_config(base, d, variant).sim.seed for d in (a, b)]
         assert [c.sim.seed for c in got] == [a.seed, b.seed] == embedded
-        assert cfg.sim.seed == load_config(base).sim.seed  # the variant's own configuration is left as it was
+        assert cfg.sim.seed == load_simulated_config(base).sim.seed  # the variant's own configuration is left as it was
         assert got[0].mission.pad.north_m == cfg.mission.pad.north_m  # the pad stays where the SITL's home puts it
     heading = landing_config(real_config(base, "ardupilot", "pad_heading"), "pad_heading", a)
     assert heading.mission.pad.heading_deg == scenario_config(base, a, "pad_heading").mission.pad.heading_deg

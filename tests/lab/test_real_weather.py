@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import SimConfig
 from companion_lab.real_weather import (
     DRIVE_HZ,
     EARTH_RADIUS_M,
@@ -20,6 +19,7 @@ from companion_lab.real_weather import (
     static_params,
     wind_speed_dir,
 )
+from companion_sitl.params import SimConfig
 
 W = FirmwareWeather.of(SimConfig(wind_speed_m_s=4.0, wind_from_deg=90.0))
 

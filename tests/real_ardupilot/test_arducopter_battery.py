@@ -8,10 +8,11 @@ from __future__ import annotations
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
@@ -27,7 +28,7 @@ MISSION = {"height_m": 15.0, "pad": {"north_m": 56.6, "east_m": 56.6}}
 async def test_a_small_battery_brings_the_parcel_home(ardupilot_root, tmp_path):
     with arducopter(ardupilot_root, tmp_path, extra_params={**GRIPPER_SERVO9, **SMALL_BATTERY}) as (sitl, truth):
         tuning = firmware_tuning("ardupilot")
-        config = load_config(
+        config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "autopilot": "ardupilot",

@@ -13,13 +13,14 @@ import time
 import pytest
 
 from companion.autopilot.ardupilot.modes import COPTER_MODES
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.companion_kill import SHORT_MISSION, fly_and_kill, log_line_after_s, write_fly_params
 from companion_firmware.real_vehicle import ARDUCOPTER_GRIPPER_SERVO9
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.udp_relay import UdpRelay
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -101,7 +102,7 @@ async def test_arducopter_lands_by_itself_while_the_companion_hangs_or_is_frozen
     r, grip = await _fly_and_stop(ardupilot_root, tmp_path, how)
     said = log_line_after_s(tmp_path / "run.out", "control loop stalled", r.stopped_at_unix_s)
     print(f"\nArduCopter SITL, companion {how} {STOP_S:.0f} s: {r.story()}; watchdog said it {said} s after")
-    stall_s = load_config(shipped_params_path("ardupilot_quad.toml")).runtime.loop_stall_s
+    stall_s = load_simulated_config(shipped_params_path("ardupilot_quad.toml")).runtime.loop_stall_s
     if how == "hang":  # said from the watchdog's thread while the loop was still blocked
         assert said is not None and stall_s - 0.05 <= said <= stall_s + 0.5, said
     # FS_GCS_TIMEOUT = 5 s after the last heartbeat (the loop's last tick + loop_stall_s on a hang)

@@ -11,12 +11,13 @@ import asyncio
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.replay import replay_run
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.demo import run_demo
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
@@ -35,7 +36,7 @@ def _config(connection: str, return_home: bool = True, overlays: tuple[str, ...]
         "landing": {**tuning["landing"], **landing},
     }
     files = [shipped_params_path(f) for f in ("sitl_short.toml", *overlays)]
-    return load_config(*files, overrides=overrides)
+    return load_simulated_config(*files, overrides=overrides)
 
 
 async def _fly(ardupilot_root, tmp_path, params, return_home: bool = True, **landing):

@@ -16,7 +16,7 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.ardupilot.modes import COPTER_MODES
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
@@ -24,6 +24,7 @@ from companion_firmware.dart_arducopter import RCIN_PORT, SitlRcInput
 from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -34,7 +35,7 @@ SITL_CH5_US = 1800  # the SITL's own RC default (position 6, STABILIZE): sent un
 async def test_link_loss_resumes_and_the_pilots_mode_switch_ends_autonomy(ardupilot_root, tmp_path):
     relay_port, port = free_udp_port(), free_udp_port()
     tuning = firmware_tuning("ardupilot")
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "connection": f"udpin://127.0.0.1:{port}",

@@ -8,10 +8,11 @@ from __future__ import annotations
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
@@ -31,7 +32,7 @@ POLICY = {
 async def test_arducopter_with_camera_and_uwb_dead_flies_home_with_the_parcel(ardupilot_root, tmp_path):
     tuning = firmware_tuning("ardupilot")
     with arducopter(ardupilot_root, tmp_path, extra_params=GRIPPER_SERVO9) as (sitl, truth):
-        config = load_config(
+        config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "autopilot": "ardupilot",

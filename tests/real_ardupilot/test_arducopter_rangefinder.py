@@ -9,10 +9,11 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.ardupilot.autopilot import DISTANCE_SENSOR_MSG_ID
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import EventKind
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9
 
@@ -27,7 +28,7 @@ def _config(connection: str, rangefinder: bool):  # type: ignore[no-untyped-def]
     mission = {**tuning["mission"], "ready_timeout_s": 120.0, "return_home": False}
     mission["rangefinder"] = {"enabled": rangefinder}
     landing = {**tuning["landing"], "fusion": False, "use_camera": False, "use_uwb": False}
-    return load_config(
+    return load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={"autopilot": "ardupilot", "connection": connection, "mission": mission, "landing": landing},
     )

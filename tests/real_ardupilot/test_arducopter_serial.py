@@ -23,7 +23,7 @@ from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import HarnessResult, flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
-from companion_lab.serial_relay import DirectionStats, SerialRelay
+from companion_lab.serial_relay import DirectionStats, SerialRelay, frame_summary
 from companion_sitl.mavlink.link import free_udp_port
 from companion_sitl.params import load_simulated_config
 
@@ -33,6 +33,7 @@ pytestmark = pytest.mark.firmware
 
 PAD_OFFSET = (1.2, -0.9)  # 1.5 m: GPS alone would land 1.5 m off the true pad
 SERIAL_PORT = 2  # TELEM2
+SET_POSITION_TARGET_LOCAL_NED = 84  # the setpoints, timed on the line
 # the pad is 1 m square: a release farther than this from its centre is off the pad
 PAD_HALF_SIZE_M = 0.5
 
@@ -90,8 +91,9 @@ async def _fly_serial(
     ready_timeout_s: float = 120.0,
 ):
     """Fly the delivery over the relay; the result, the autopilot (its counters), the relay, the
-    bytes/s each way over the flight (from connect to the end) and the setpoints/s while they flowed."""
-    relay = SerialRelay(baud=baud, drop=drop, corrupt=corrupt, seed=57)
+    bytes/s each way over the flight (from connect to the end), and the setpoints/s while they flowed
+    with the setpoints' latency and intervals on the line (the relay's frame_summary)."""
+    relay = SerialRelay(baud=baud, drop=drop, corrupt=corrupt, seed=57, watch=(SET_POSITION_TARGET_LOCAL_NED,))
     with relay, _arducopter_on_serial(ardupilot_root, tmp_path, relay) as (_sitl, truth):
         tuning = firmware_tuning("ardupilot")
         connection = f"serial://{relay.companion_device}:{baud}"
@@ -122,18 +124,30 @@ async def _fly_serial(
         print(flight_story(tmp_path / "run", tmp_path / "arducopter.log"))
     rates = (_rate(down0, down, seconds), _rate(up0, up, seconds))
     setpoint_hz = _streaming_rate(samples)
+    line = frame_summary(relay.frame_times("to_autopilot"), SET_POSITION_TARGET_LOCAL_NED)
     print(
         f"\n{baud} baud: {seconds:.1f} s; autopilot -> companion {rates[0]:.0f} B/s (peak second "
         f"{down.peak_bytes_per_s}), companion -> autopilot {rates[1]:.0f} B/s (peak {up.peak_bytes_per_s}) "
         f"of {relay.bytes_per_s:.0f} B/s each way; setpoints {setpoint_hz:.1f}/s; "
         f"backlog max {down.max_backlog} / {up.max_backlog} bytes\n{relay.report()}\n"
+        f"setpoints on the line: {_line_text(line)}\n"
         f"link: bad data {ap.counters.bad_data} ({ap.counters.garbage_bytes} bytes), messages "
         f"{ap.counters.messages}; pad error on truth {r.pad_landing_error_m * 100:.1f} cm, releases {r.releases}; "
         f"failure {r.failure!r}"
     )
     # the companion read everything while it flew (overrun: bytes its side did not take in time)
     overrun = (down.overrun - down0.overrun, up.overrun - up0.overrun)
-    return r, ap, relay, rates, setpoint_hz, overrun
+    return r, ap, relay, rates, (setpoint_hz, line), overrun
+
+
+def _line_text(s: dict[str, float]) -> str:
+    if not s:
+        return "none timed"
+    return (
+        f"{s['n']:.0f} timed, latency p50 {s['latency_p50_ms']:.2f} / p99 {s['latency_p99_ms']:.2f} / max "
+        f"{s['latency_max_ms']:.2f} ms, interval {s['interval_mean_ms']:.1f} +- {s['interval_std_ms']:.1f} ms "
+        f"(max {s['interval_max_ms']:.0f})"
+    )
 
 
 def _assert_delivered(r: HarnessResult) -> None:
@@ -145,8 +159,10 @@ async def test_delivery_over_a_921600_baud_serial_link(ardupilot_root, tmp_path)
     """The whole delivery with the default streams (ATTITUDE and HIGHRES_IMU at 50 Hz, the
     positions at 30 Hz) and 20 Hz setpoints over TELEM2 at 921600 baud: delivered and home, every
     byte intact, and the traffic a small share of the line each way."""
-    r, ap, relay, (down_bps, up_bps), setpoint_hz, overrun = await _fly_serial(ardupilot_root, tmp_path, 921600)
+    r, ap, relay, (down_bps, up_bps), (setpoint_hz, line), overrun = await _fly_serial(ardupilot_root, tmp_path, 921600)
     _assert_delivered(r)
+    # a 65-byte frame takes 0.7 ms at 921600; the line adds at most a few frames' wait to a setpoint
+    assert line["latency_p99_ms"] < 5.0 and line["interval_mean_ms"] < 55.0, line
     assert ap.releases_unconfirmed == 0
     budget = relay.bytes_per_s  # 92160 bytes/s each way
     # the requested streams did flow: 50 Hz ATTITUDE alone is 2000 B/s, 20 Hz setpoints 1260 B/s
@@ -162,10 +178,12 @@ async def test_delivery_over_a_115200_baud_serial_link_with_its_stream_rates(ard
     """At 115200 baud (11520 bytes/s) the default streams would take most of the line; with
     params/serial_115200.toml (attitude and IMU at 20 Hz, positions at 10 Hz) the delivery flies
     within half of it, setpoints still at 20 Hz."""
-    r, _ap, relay, (down_bps, up_bps), setpoint_hz, overrun = await _fly_serial(
+    r, _ap, relay, (down_bps, up_bps), (setpoint_hz, line), overrun = await _fly_serial(
         ardupilot_root, tmp_path, 115200, overlays=("serial_115200.toml",)
     )
     _assert_delivered(r)
+    # a 65-byte frame takes 5.6 ms at 115200: the setpoint waits only behind what is on the line
+    assert line["latency_p99_ms"] < 40.0 and line["interval_mean_ms"] < 55.0, line
     budget = relay.bytes_per_s  # 11520 bytes/s each way
     assert 1500 < down_bps < 0.5 * budget, down_bps
     assert relay.to_companion.peak_bytes_per_s < 0.6 * budget
@@ -178,7 +196,7 @@ async def test_a_serial_link_losing_and_corrupting_a_tenth_of_a_percent_of_its_b
     """At 921600 baud, 0.05 % of the bytes dropped and 0.05 % corrupted each way (seeded): about
     one frame in 25 lost either way. The delivery flies and comes home; the relay counts the
     faults at their fraction and the companion's link the garbage it skipped."""
-    r, ap, relay, _rates, setpoint_hz, _overrun = await _fly_serial(
+    r, ap, relay, _rates, (setpoint_hz, _line), _overrun = await _fly_serial(
         ardupilot_root, tmp_path, 921600, drop=0.0005, corrupt=0.0005
     )
     for st in (relay.to_companion, relay.to_autopilot):

@@ -14,13 +14,14 @@ import math
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.ardupilot_sitl import ArduCopterSitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9
 
@@ -46,7 +47,7 @@ async def test_arducopter_winch_delivery_hovers_lowers_releases_reels_in_and_ret
     with sitl, truth:
         await asyncio.to_thread(truth.wait, 15.0)
         await asyncio.to_thread(truth.command, MAV_CMD_SET_MESSAGE_INTERVAL, SERVO_OUTPUT_RAW, 100_000)
-        config = load_config(
+        config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "autopilot": "ardupilot",

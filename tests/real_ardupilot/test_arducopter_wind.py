@@ -9,10 +9,11 @@ from __future__ import annotations
 import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .conftest import GRIPPER_SERVO9, arducopter
 
@@ -34,7 +35,7 @@ WINDY = {
 async def test_wind_above_the_limit_in_flight_brings_the_parcel_home(ardupilot_root, tmp_path):
     with arducopter(ardupilot_root, tmp_path, extra_params={**GRIPPER_SERVO9, **WINDY}) as (sitl, truth):
         tuning = firmware_tuning("ardupilot")
-        config = load_config(
+        config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "autopilot": "ardupilot",

@@ -9,12 +9,13 @@ import asyncio
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion_firmware.companion_kill import SHORT_MISSION, fly_and_kill, log_line_after_s, write_fly_params
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.udp_relay import UdpRelay
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -87,7 +88,7 @@ async def test_px4_lands_by_itself_while_the_companion_hangs_or_is_frozen(px4_ro
     r = await _fly_and_stop(px4_root, tmp_path, how)
     said = log_line_after_s(tmp_path / "run.out", "control loop stalled", r.stopped_at_unix_s)
     print(f"\nPX4 SIH, companion {how} {STOP_S:.0f} s: {r.story()}; watchdog said it {said} s after")
-    stall_s = load_config(shipped_params_path("px4_sih_quad.toml")).runtime.loop_stall_s
+    stall_s = load_simulated_config(shipped_params_path("px4_sih_quad.toml")).runtime.loop_stall_s
     if how == "hang":  # said from the watchdog's thread while the loop was still blocked
         assert said is not None and stall_s - 0.05 <= said <= stall_s + 0.5, said
     # COM_OF_LOSS_T = 1 s after our last setpoint: AUTO.LAND, as when the companion dies

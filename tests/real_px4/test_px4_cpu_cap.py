@@ -15,7 +15,7 @@ import asyncio
 import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
@@ -23,6 +23,7 @@ from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.bench.app import capped_flight_report
 from companion_lab.cpu_cap import cap_unavailable, capped_process, pi4_factor_here
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 from .test_px4_sitl import PAD_OFFSET_M
 
@@ -37,7 +38,7 @@ async def test_delivery_on_px4_with_the_companion_at_one_pi4_core(px4_root, tmp_
         pytest.skip(f"no CPU cap here: {why}")
     pi4 = pi4_factor_here()  # this host's, measured: the built-in factor is one machine's
     tuning = firmware_tuning("px4")
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         shipped_params_path("slow_board.toml"),
         overrides={"mission": tuning["mission"], "landing": tuning["landing"]},

@@ -14,7 +14,7 @@ import time
 import pytest
 
 from companion.autopilot.types import FlightMode, LandedState
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.events import EventKind, Phase
 from companion_firmware.px4_sitl import Px4Sitl
@@ -22,6 +22,7 @@ from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.udp_relay import UdpRelay
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -32,7 +33,7 @@ PX4_AUTO_LOITER = (1.0, 4.0, 3.0)  # base mode custom, PX4 main mode AUTO, sub m
 async def test_link_loss_resumes_and_a_pilot_mode_switch_ends_autonomy(px4_root, tmp_path):
     port = free_udp_port()
     tuning = firmware_tuning("px4")
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={"connection": f"udpin://127.0.0.1:{port}", "autopilot": "px4", **tuning},
     )

@@ -9,12 +9,13 @@ import asyncio
 import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -32,7 +33,7 @@ POLICY = {
 
 async def test_px4_with_camera_and_uwb_dead_flies_home_with_the_parcel(px4_root, tmp_path):
     tuning = firmware_tuning("px4")
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "mission": {**tuning["mission"], "return_home": True},

@@ -14,13 +14,14 @@ import time
 import pytest
 
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
 from companion_lab.serial_relay import SerialRelay
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -56,7 +57,7 @@ async def test_px4_delivery_over_a_921600_baud_serial_link(px4_root, tmp_path):
     ):
         _start_serial_mavlink(sitl, relay.autopilot_device, BAUD)
         await asyncio.to_thread(truth.wait, 30.0)
-        config = load_config(
+        config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
                 "autopilot": "px4",

@@ -16,7 +16,7 @@ import pytest
 from companion.autopilot.interface import CommandRejected
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import FlightMode, LandedState
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.delivery.replay import replay_run
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_firmware.px4_sitl import Px4NotFound, Px4Sitl, find_px4
@@ -24,6 +24,7 @@ from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.demo import run_demo
 from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
@@ -154,7 +155,7 @@ async def _delivery(px4_root, tmp_path, return_home: bool = True, **landing):
 
     # the landing tuning params/px4_sih_quad.toml ships for PX4 SIH (fusion and final descent)
     tuning = firmware_tuning("px4")
-    config = load_config(
+    config = load_simulated_config(
         shipped_params_path("sitl_short.toml"),
         overrides={
             "mission": {**tuning["mission"], "return_home": return_home},

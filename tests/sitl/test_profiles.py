@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from companion.autopilot.types import FlightMode, LandedState
-from companion.config import ConfigError, SimConfig, config_from_dict
+from companion.config import ConfigError
 from companion.guidance.setpoint import VelocitySetpoint
 from companion_lab.firmware_probe import COLUMNS, analyse
+from companion_sitl.params import SimConfig, simulated_config_from_dict
 from companion_sitl.profiles import (
     PROFILE_NAMES,
     PROFILES,
@@ -34,7 +35,7 @@ def test_ideal_is_the_configuration_itself_and_names_are_checked():
     with pytest.raises(ValueError, match="autopilot profile 'px5'"):
         get_profile("px5")
     with pytest.raises(ConfigError, match="profile"):
-        config_from_dict({"sim": {"profile": "px5"}}, "test.toml")
+        simulated_config_from_dict({"sim": {"profile": "px5"}}, "test.toml")
 
 
 def test_px4_sih_profile_fixes_what_the_firmware_decides_and_has_no_wind():

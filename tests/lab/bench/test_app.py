@@ -327,15 +327,16 @@ def test_the_bench_measures_a_seeded_flight_through_the_shell_hooks(tmp_path):
     every tick, every setpoint and the frames fused while they steer, the stage timer and the
     proxies account each task, the rate-loop factories see the shell's and the simulator's loops,
     and the window's end stops guidance without failing the mission."""
-    from companion.config import load_config, shipped_params_path
+    from companion.config import shipped_params_path
     from companion.flightlog.recorder import FlightRecorder
     from companion_lab.bench.app import BenchObserver, instrumented_shell
     from companion_lab.demo import true_pad_ned
     from companion_sitl.autopilot import SimAutopilot
     from companion_sitl.clock import run_virtual
+    from companion_sitl.params import load_simulated_config
     from companion_sitl.vehicle import SimVehicle
 
-    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"landing": {"fusion": True}})
+    config = load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"landing": {"fusion": True}})
     window_s = 25.0  # the pad is in view from ~10 s
     acct, lat, ended = CpuAccount(), LatencyTracker(), []
 

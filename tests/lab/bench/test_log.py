@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import pytest
 
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.flightlog.streams import SAMPLE_FILES, STREAM_FILES
 from companion_lab.bench.log import bench_log
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
 
 def short_config():
-    return load_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 3}})
+    return load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"sim": {"seed": 3}})
 
 
 def test_bench_log_reports_shares_and_per_stream_costs():
