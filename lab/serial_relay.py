@@ -20,6 +20,9 @@ drawn from a geometric distribution of ``drop + corrupt`` per byte from one ``ra
 per direction, so the same seed and the same bytes give the same faults however the bytes were
 chunked. A corrupted byte is XORed with a random non-zero value (it always changes).
 
+With ``watch`` (MAVLink message ids) each direction also times those frames from the sender's
+write to their delivery (:class:`FrameTime`; :func:`frame_summary` for latency and jitter).
+
 ``python -m companion_lab.serial_relay --baud 921600 [--drop 0.01] [--corrupt 0.01] [--seed 1]``
 prints both device names, then the counters every ``--report-s`` seconds, until Ctrl-C (or for
 ``--duration`` seconds).
@@ -28,12 +31,15 @@ prints both device names, then the counters every ``--report-s`` seconds, until 
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import errno
+import itertools
 import math
 import os
 import random
 import select
+import statistics
 import sys
 import termios
 import threading
@@ -116,6 +122,110 @@ class DirectionStats:
         )
 
 
+MAVLINK2_STX, MAVLINK1_STX = 0xFD, 0xFE
+MAVLINK2_IFLAG_SIGNED = 0x01
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTime:
+    """One watched MAVLink frame on the line: when its last byte was read from the sender, when
+    that byte left the emulated wire (its line time: the wait for the line plus the byte times)
+    and when the relay wrote it to the receiver (later by the relay thread's own scheduling)."""
+
+    msgid: int
+    read_s: float
+    line_s: float
+    delivered_s: float
+
+    @property
+    def latency_s(self) -> float:
+        """The UART's latency for this frame: from the sender's write to the frame's last bit."""
+        return self.line_s - self.read_s
+
+    @property
+    def relay_lag_s(self) -> float:
+        """What the emulator added (its thread not scheduled at the byte's time): not the UART's."""
+        return self.delivered_s - self.line_s
+
+
+class FrameClock:
+    """Finds the MAVLink frames of ``msgids`` in a direction's sender stream (clean: faults come
+    after) and times each from its read to its delivery. The framing is the header's length (and
+    the signature flag); a byte that starts no frame is skipped."""
+
+    def __init__(self, msgids: frozenset[int]) -> None:
+        self.msgids = msgids
+        self._buf = bytearray()
+        self._buf_offset = 0  # the sender stream's offset of _buf[0]
+        self._pending: collections.deque[tuple[int, float, int]] = collections.deque()  # end, read_s, msgid
+        self.frames: list[FrameTime] = []
+
+    def on_read(self, data: bytes, now: float) -> None:
+        buf = self._buf
+        buf += data
+        i, n = 0, len(buf)
+        while i < n:
+            stx = buf[i]
+            if stx == MAVLINK2_STX:
+                if n - i < 10:
+                    break
+                total = 12 + buf[i + 1] + (13 if buf[i + 2] & MAVLINK2_IFLAG_SIGNED else 0)
+                msgid = buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
+            elif stx == MAVLINK1_STX:
+                if n - i < 6:
+                    break
+                total, msgid = 8 + buf[i + 1], buf[i + 5]
+            else:
+                i += 1
+                continue
+            if n - i < total:
+                break
+            if msgid in self.msgids:
+                self._pending.append((self._buf_offset + i + total, now, msgid))
+            i += total
+        del buf[:i]
+        self._buf_offset += i
+
+    def on_delivered(self, offset: int, now: float, base_offset: int, base_s: float, byte_s: float) -> None:
+        """The line has carried the sender's stream up to ``offset``, the bytes from ``base_offset``
+        on one after another from ``base_s`` (each ``byte_s`` long); written out at ``now``."""
+        pending = self._pending
+        while pending and pending[0][0] <= offset:
+            end, read_s, msgid = pending.popleft()
+            line_s = base_s + (end - base_offset) * byte_s
+            self.frames.append(FrameTime(msgid, read_s, line_s, now))
+
+
+def _pct(sorted_ms: list[float], q: float) -> float:
+    return sorted_ms[min(len(sorted_ms) - 1, max(0, math.ceil(q * len(sorted_ms)) - 1))]
+
+
+def frame_summary(frames: list[FrameTime], msgid: int, pause_s: float = 0.5) -> dict[str, float]:
+    """The frames of ``msgid``: the UART's latency (ms: p50, p99, max), the intervals between
+    their line times while they stream (ms: mean, std, max; a gap over ``pause_s`` is a pause of
+    the stream, counted in ``pauses``, not jitter) and the relay's own lag (ms: p99, max). Empty
+    without two frames."""
+    times = [f for f in frames if f.msgid == msgid]
+    if len(times) < 2:
+        return {}
+    lat = sorted(1e3 * f.latency_s for f in times)
+    lag = sorted(1e3 * f.relay_lag_s for f in times)
+    gaps = [1e3 * (b.line_s - a.line_s) for a, b in itertools.pairwise(times)]
+    streaming = [g for g in gaps if g <= 1e3 * pause_s] or [math.nan]
+    return {
+        "n": float(len(times)),
+        "latency_p50_ms": _pct(lat, 0.5),
+        "latency_p99_ms": _pct(lat, 0.99),
+        "latency_max_ms": lat[-1],
+        "interval_mean_ms": statistics.fmean(streaming),
+        "interval_std_ms": statistics.pstdev(streaming),
+        "interval_max_ms": max(streaming),
+        "pauses": float(len(gaps) - len([g for g in gaps if g <= 1e3 * pause_s])),
+        "relay_lag_p99_ms": _pct(lag, 0.99),
+        "relay_lag_max_ms": lag[-1],
+    }
+
+
 class _Direction:
     """One direction of the line: a thread from ``src`` (a pty master) to ``dst`` (another)."""
 
@@ -127,6 +237,8 @@ class _Direction:
         self.queue = bytearray()
         self.line_until = 0.0  # monotonic time through which the line has been used
         self.until_fault = self._draw_gap()
+        self.on_line = 0  # bytes of the sender's stream the line has carried
+        self.clock = FrameClock(relay.watch) if relay.watch else None
         self.thread = threading.Thread(target=self._run, name=f"serial-relay-{name}", daemon=True)
 
     def _draw_gap(self) -> int:
@@ -178,8 +290,12 @@ class _Direction:
             return
         chunk = bytes(self.queue[:n])
         del self.queue[:n]
+        base_s, base_offset = self.line_until, self.on_line
         self.line_until += n * byte_s
         self._count_line(n, now)
+        self.on_line += n
+        if self.clock is not None:
+            self.clock.on_delivered(self.on_line, now, base_offset, base_s, byte_s)
         data = self.apply_faults(chunk)
         while data:
             try:
@@ -223,6 +339,8 @@ class _Direction:
                 self.line_until = max(self.line_until, now)  # an idle line starts now
             self.queue += data
             self.stats.read += len(data)
+            if self.clock is not None:
+                self.clock.on_read(data, now)
             self.stats.max_backlog = max(self.stats.max_backlog, len(self.queue))
 
 
@@ -242,6 +360,7 @@ class SerialRelay:
         seed: int = 0,
         bits_per_byte: int = BITS_PER_BYTE_8N1,
         queue_limit: int = DEFAULT_QUEUE_LIMIT,
+        watch: tuple[int, ...] = (),
     ) -> None:
         if baud <= 0:
             raise SerialRelayError(f"baud {baud}: expected a positive rate")
@@ -258,6 +377,7 @@ class SerialRelay:
         self.bits_per_byte = bits_per_byte
         self.drop, self.corrupt, self.seed = drop, corrupt, seed
         self.queue_limit = queue_limit
+        self.watch = frozenset(watch)  # MAVLink message ids timed on the line, each way (frame_times)
         self.stopping = threading.Event()
         self.started_s = math.nan
         self._fds: list[int] = []
@@ -281,6 +401,13 @@ class SerialRelay:
     @property
     def to_autopilot(self) -> DirectionStats:
         return self._dirs[1].stats
+
+    def frame_times(self, direction: str) -> list[FrameTime]:
+        """The watched frames delivered so far in ``direction`` ("to_companion", "to_autopilot")."""
+        for d in self._dirs:
+            if d.stats.name == direction:
+                return list(d.clock.frames) if d.clock is not None else []
+        raise ValueError(f"direction {direction!r}: expected 'to_companion' or 'to_autopilot'")
 
     def start(self) -> SerialRelay:
         try:

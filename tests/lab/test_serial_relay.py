@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from companion_lab.serial_relay import SerialRelay, SerialRelayError, _Direction
+from companion_lab.serial_relay import FrameClock, SerialRelay, SerialRelayError, _Direction, frame_summary
 
 
 def _open(path: str) -> int:
@@ -193,3 +193,66 @@ def test_the_command_line_prints_both_devices_and_the_counters(capsys):
     assert "--serial2 uart:/dev/pts/" in out and "serial:///dev/pts/" in out and "11520 bytes/s" in out
     assert out.count("to_companion: 0 bytes") >= 2 and "to_autopilot: 0 bytes" in out
     assert serial_relay.main(["--baud", "0"]) == 2
+
+
+def _setpoint_frames(n: int) -> tuple[bytes, int]:
+    """``n`` MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frames (with heartbeats between them, which
+    are not watched) and one setpoint frame's length."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    out, size = bytearray(), 0
+    for i in range(n):
+        sp = mav.set_position_target_local_ned_encode(i, 1, 1, 1, 0xFC7, 0, 0, 0, 1.0 + i, -2.0, 0.5, 0, 0, 0, 0, 0)
+        frame = sp.pack(mav)
+        size = len(frame)
+        out += frame + mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(mav)
+    return bytes(out), size
+
+
+def test_watched_frames_are_timed_from_the_write_to_the_delivery():
+    """At 9600 baud (960 bytes/s) a burst of 10 setpoints (and 10 heartbeats) written at once:
+    each setpoint is delivered after every byte before it crossed the line, so the k-th waits k
+    frames' line time; the heartbeats are not timed; the intervals are one setpoint + one
+    heartbeat of line time."""
+    data, size = _setpoint_frames(10)
+    with SerialRelay(baud=9600, watch=(84,)) as relay:
+        ap, co = _open(relay.autopilot_device), _open(relay.companion_device)
+        try:
+            _write_all(co, data)
+            got, _ = _read(ap, len(data), 2.0)
+        finally:
+            os.close(ap)
+            os.close(co)
+        frames = relay.frame_times("to_autopilot")
+        assert relay.frame_times("to_companion") == []
+    assert got == data
+    assert [f.msgid for f in frames] == [84] * 10
+    pair_s = (len(data) / 10) / 960  # one setpoint and one heartbeat on the line
+    for k, f in enumerate(frames):
+        # written at once: frame k ends after k pairs and its own bytes (the reads may be split)
+        expected = k * pair_s + size / 960
+        assert expected - 0.05 < f.latency_s < expected + 0.05, (k, f.latency_s, expected)
+    s = frame_summary(frames, 84)
+    # line times are the wire's: a setpoint + heartbeat apart exactly, whatever the relay's lag
+    assert s["n"] == 10 and abs(s["interval_mean_ms"] - 1e3 * pair_s) < 0.01, s
+    assert s["interval_std_ms"] < 0.01 and s["pauses"] == 0 and s["relay_lag_max_ms"] >= 0.0
+    assert s["latency_p50_ms"] <= s["latency_p99_ms"] <= s["latency_max_ms"]
+    assert frame_summary(frames, 0) == {}  # heartbeats were not watched
+
+
+def test_the_frame_clock_finds_frames_split_across_reads_and_skips_noise():
+    data, _size = _setpoint_frames(3)
+    clock = FrameClock(frozenset({84}))
+    noise = b"\x00\x11garbage"
+    stream = noise + data
+    for i in range(0, len(stream), 7):  # 7-byte reads: headers and frames split everywhere
+        clock.on_read(stream[i : i + 7], float(i))
+    clock.on_delivered(len(stream), 1000.0, 0, 900.0, 0.001)
+    assert [f.msgid for f in clock.frames] == [84, 84, 84]
+    assert all(f.delivered_s == 1000.0 for f in clock.frames)
+    pair = len(data) // 3
+    ends = [len(noise) + k * pair + _size for k in range(3)]  # each setpoint's last byte
+    assert [round(f.line_s, 6) for f in clock.frames] == [round(900.0 + e * 0.001, 6) for e in ends]
+    with pytest.raises(ValueError, match="direction"):
+        SerialRelay().frame_times("sideways")

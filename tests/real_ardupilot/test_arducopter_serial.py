@@ -146,7 +146,8 @@ def _line_text(s: dict[str, float]) -> str:
     return (
         f"{s['n']:.0f} timed, latency p50 {s['latency_p50_ms']:.2f} / p99 {s['latency_p99_ms']:.2f} / max "
         f"{s['latency_max_ms']:.2f} ms, interval {s['interval_mean_ms']:.1f} +- {s['interval_std_ms']:.1f} ms "
-        f"(max {s['interval_max_ms']:.0f})"
+        f"(max {s['interval_max_ms']:.0f}; {s['pauses']:.0f} pauses > 0.5 s), the relay's own lag p99 "
+        f"{s['relay_lag_p99_ms']:.1f} / max {s['relay_lag_max_ms']:.1f} ms"
     )
 
 
@@ -162,7 +163,8 @@ async def test_delivery_over_a_921600_baud_serial_link(ardupilot_root, tmp_path)
     r, ap, relay, (down_bps, up_bps), (setpoint_hz, line), overrun = await _fly_serial(ardupilot_root, tmp_path, 921600)
     _assert_delivered(r)
     # a 65-byte frame takes 0.7 ms at 921600; the line adds at most a few frames' wait to a setpoint
-    assert line["latency_p99_ms"] < 5.0 and line["interval_mean_ms"] < 55.0, line
+    # (measured p50 0.71, p99 1.87, max 5.5 ms)
+    assert line["latency_p99_ms"] < 8.0 and line["interval_mean_ms"] < 55.0, line
     assert ap.releases_unconfirmed == 0
     budget = relay.bytes_per_s  # 92160 bytes/s each way
     # the requested streams did flow: 50 Hz ATTITUDE alone is 2000 B/s, 20 Hz setpoints 1260 B/s
@@ -183,7 +185,8 @@ async def test_delivery_over_a_115200_baud_serial_link_with_its_stream_rates(ard
     )
     _assert_delivered(r)
     # a 65-byte frame takes 5.6 ms at 115200: the setpoint waits only behind what is on the line
-    assert line["latency_p99_ms"] < 40.0 and line["interval_mean_ms"] < 55.0, line
+    # (measured p50 5.6, p99 27, max 39 ms)
+    assert line["latency_p99_ms"] < 60.0 and line["interval_mean_ms"] < 55.0, line
     budget = relay.bytes_per_s  # 11520 bytes/s each way
     assert 1500 < down_bps < 0.5 * budget, down_bps
     assert relay.to_companion.peak_bytes_per_s < 0.6 * budget

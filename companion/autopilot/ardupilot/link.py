@@ -282,9 +282,10 @@ class ArduPilotLink(abc.ABC):
         return LinkTraffic(baud if kind == "serial" else None, int(mav.total_bytes_received), int(mav.total_bytes_sent))
 
     @property
-    def messages_lost(self) -> int:
-        """Messages this link has lost so far: bytes that did not parse (each run of them one) plus
-        gaps in the autopilot's sequence numbers (pymavlink's count)."""
+    def link_errors(self) -> int:
+        """What this link has lost so far: pymavlink's bad-data reports (one per frame that did
+        not check, one per byte skipped looking for the next frame) plus the messages missing
+        from the autopilot's sequence numbers (its mav_loss)."""
         conn = self._conn
         return self.counters.bad_data + (int(conn.mav_loss) if conn is not None else 0)
 

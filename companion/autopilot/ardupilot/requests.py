@@ -114,7 +114,7 @@ class ArduPilotRequests(ArduPilotLink):
             old.cancel()
         fut: asyncio.Future[int] = self._loop.create_future()
         self._acks[cmd] = fut
-        texts_before, lost_before = self._texts_seen, self.messages_lost
+        texts_before, errors_before = self._texts_seen, self.link_errors
         tries = self.command_retries if retries is None else retries
         try:
             for attempt in range(tries):
@@ -138,10 +138,12 @@ class ArduPilotRequests(ArduPilotLink):
                 # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
                 reason = self._last_text if self._texts_seen != texts_before else ""
                 raise CommandRejected(name, result_name(result), reason)
-            lost = self.messages_lost - lost_before
-            if lost > 0:  # a lossy link (a noisy serial line): the acks may have been lost, not refused
+            errors = self.link_errors - errors_before
+            if errors > 0:  # a lossy link (a noisy serial line): the acks may have been lost, not refused
                 raise CommandRejected(
-                    name, CommandResult.LOST, f"no COMMAND_ACK after {tries} tries while the link lost {lost} messages"
+                    name,
+                    CommandResult.LOST,
+                    f"no COMMAND_ACK after {tries} tries while the link was losing data ({errors} errors)",
                 )
             raise CommandRejected(
                 name, CommandResult.NO_ANSWER, f"no COMMAND_ACK after {tries} tries{self._signing_hint()}"
