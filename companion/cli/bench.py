@@ -383,6 +383,80 @@ def register_bench_micro(bsub: Any) -> None:
     bv.set_defaults(func=cmd_bench_vision)
 
 
+# ---------------------------------------------------------------------------- bench check
+CHECK_APP_PARAMS = "sitl_short.toml"  # the pad in view from about 10 s: vision's share counts
+
+
+def cmd_bench_check(args: argparse.Namespace) -> int:
+    """Run the benches that carry targets (companion_lab.bench.targets) and fail when a figure is past its limit."""
+    from companion_lab.bench.estimation import bench_ekf
+    from companion_lab.bench.targets import BENCHES, judge
+    from companion_lab.bench.vision import bench_vision
+
+    only = [b.strip() for b in args.only.split(",")] if args.only else list(BENCHES)
+    unknown = [b for b in only if b not in BENCHES]
+    if unknown or not only:
+        raise StartupError(
+            f"--only {args.only!r}: expected a comma-separated subset of {', '.join(BENCHES)}", exits.BAD_INPUT
+        )
+    if not (args.app_duration_s > 0 and math.isfinite(args.app_duration_s)):
+        raise StartupError(
+            f"--app-duration-s {args.app_duration_s}: must be a positive number of seconds", exits.BAD_INPUT
+        )
+    results: dict[str, dict[str, Any]] = {}
+    for bench in only:
+        if bench == "ekf":
+            results[bench] = dict(bench_ekf(args.ekf_n))
+        elif bench == "vision":
+            results[bench] = dict(bench_vision(args.vision_frames, 0))
+        else:
+            from companion_lab.bench.app import bench_app
+
+            results[bench] = bench_app(args.app_duration_s, "ardupilot", [shipped_params_path(CHECK_APP_PARAMS)])
+    verdicts = [v for bench in only for v in judge(bench, results[bench])]
+    failed = [v for v in verdicts if not v.ok]
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "targets": [
+                        {
+                            "bench": v.target.bench,
+                            "figure": v.target.key,
+                            "limit": v.target.limit,
+                            "unit": v.target.unit,
+                            "measured": v.measured,
+                            "ok": v.ok,
+                        }
+                        for v in verdicts
+                    ],
+                    "failed": len(failed),
+                },
+                indent=2,
+            )
+        )
+    else:
+        print(f"bench check: {len(verdicts)} targets of {', '.join(only)} (load average {os.getloadavg()[0]:.2f})")
+        for v in verdicts:
+            print("  " + v.line())
+        print(f"  {len(failed)} past their limit" if failed else "  every figure within its target")
+    return exits.FAILED if failed else exits.OK
+
+
+def register_bench_check(bsub: Any) -> None:
+    bc = bsub.add_parser(
+        "check", help="run the benches with targets (ekf, vision, app) and fail when a figure is past its target"
+    )
+    bc.add_argument("--only", help="comma-separated benches to run (default: ekf,vision,app)")
+    bc.add_argument("--ekf-n", type=positive_int, default=2000, help="calls timed per EKF step")
+    bc.add_argument("--vision-frames", type=positive_int, default=120, help="rendered frames for the vision bench")
+    bc.add_argument(
+        "--app-duration-s", type=float, default=45.0, help=f"seconds of the app bench on params/{CHECK_APP_PARAMS}"
+    )
+    bc.add_argument("--json", action="store_true", help="print the verdicts as JSON")
+    bc.set_defaults(func=cmd_bench_check)
+
+
 # ---------------------------------------------------------------------------- bench app
 def _ok(flag: bool) -> str:
     return "ok" if flag else "NOT MET"

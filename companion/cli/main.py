@@ -56,6 +56,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     bench.register_bench_link(bsub)
     bench.register_bench_micro(bsub)
     bench.register_bench_app(bsub)
+    bench.register_bench_check(bsub)
     params.register(sub)
     plugins.register(sub)
 
