@@ -20,12 +20,13 @@ from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
-from companion_lab.serial_relay import SerialRelay
+from companion_lab.serial_relay import SerialRelay, frame_summary
 from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.firmware
 
 BAUD = 921600
+SET_POSITION_TARGET_LOCAL_NED = 84  # MAVSDK's offboard velocity setpoints, timed on the line
 
 
 def _start_serial_mavlink(sitl: Px4Sitl, device: str, baud: int) -> None:
@@ -48,10 +49,10 @@ async def _overrun_once_linked(ap: Px4Autopilot, relay: SerialRelay) -> tuple[in
 
 async def test_px4_delivery_over_a_921600_baud_serial_link(px4_root, tmp_path):
     """Delivered and home over the serial link, the traffic within the line each way, and the
-    setpoints at their 20 Hz."""
+    setpoints at their 20 Hz with the line adding little to them."""
     tuning = firmware_tuning("px4")
     with (
-        SerialRelay(baud=BAUD, seed=57) as relay,
+        SerialRelay(baud=BAUD, seed=57, watch=(SET_POSITION_TARGET_LOCAL_NED,)) as relay,
         Px4Sitl(px4_root, log_path=tmp_path / "px4.log") as sitl,
         MavlinkTruth("udpin:127.0.0.1:14550") as truth,
     ):
@@ -83,6 +84,13 @@ async def test_px4_delivery_over_a_921600_baud_serial_link(px4_root, tmp_path):
     if not r.delivered or not r.returned:
         print(flight_story(tmp_path / "run", tmp_path / "px4.log"))
     down_bps, up_bps = (down.line - down0.line) / seconds, (up.line - up0.line) / seconds
+    line = frame_summary(relay.frame_times("to_autopilot"), SET_POSITION_TARGET_LOCAL_NED)
+    print(
+        f"\nsetpoints on the line: {line.get('n', 0):.0f} timed, latency p50 {line.get('latency_p50_ms', 0):.2f} / "
+        f"p99 {line.get('latency_p99_ms', 0):.2f} / max {line.get('latency_max_ms', 0):.2f} ms, interval "
+        f"{line.get('interval_mean_ms', 0):.1f} +- {line.get('interval_std_ms', 0):.1f} ms (max "
+        f"{line.get('interval_max_ms', 0):.0f}), the relay's own lag p99 {line.get('relay_lag_p99_ms', 0):.1f} ms"
+    )
     print(
         f"\nPX4 {BAUD} baud: {seconds:.1f} s; autopilot -> companion {down_bps:.0f} B/s (peak second "
         f"{down.peak_bytes_per_s}), companion -> autopilot {up_bps:.0f} B/s (peak {up.peak_bytes_per_s}) of "
@@ -91,6 +99,8 @@ async def test_px4_delivery_over_a_921600_baud_serial_link(px4_root, tmp_path):
     )
     assert r.delivered and r.returned, r.failure
     assert r.pad_landing_error_m < 0.3, r
+    # one 65-byte frame is 0.7 ms at 921600: a setpoint waits at most a few frames for the line
+    assert line and line["latency_p99_ms"] < 8.0 and line["interval_mean_ms"] < 55.0, line
     budget = relay.bytes_per_s
     # onboard mode's streams plus what MAVSDK asks for; PX4 keeps them under its data rate (half the line)
     assert 5000 < down_bps < 0.5 * budget, down_bps
