@@ -1242,8 +1242,8 @@ class RemoteIdConfig(_Section):
     enabled: bool = _f(
         False,
         "-",
-        "send the Remote ID messages at the rates below, and arm for a delivery only while the transponder's "
-        "ARM_STATUS says good to arm (false: nothing sent, no gate)",
+        "send the Remote ID messages at the rates below, and (ArduPilot) arm for a delivery only while the "
+        "transponder's ARM_STATUS says good to arm (false: nothing sent, no gate)",
     )
     ua_type: int = _f(2, "-", "BASIC_ID ua_type, MAV_ODID_UA_TYPE (2: helicopter or multirotor; 0-15)", ge=0, le=15)
     id_type: int = _f(
@@ -1299,7 +1299,8 @@ class RemoteIdConfig(_Section):
     system_update_rate_hz: float = _f(
         1.0,
         "Hz",
-        "rate of SYSTEM_UPDATE, the operator location and time (FAA: at least 1 Hz); 0: not sent",
+        "rate of SYSTEM_UPDATE, the operator location and time (FAA: at least 1 Hz; PX4 reads no SYSTEM_UPDATE: "
+        "there it is SYSTEM's rate); 0: not sent (PX4: SYSTEM at static_rate_hz)",
         ge=0.0,
         le=10.0,
     )

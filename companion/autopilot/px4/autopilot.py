@@ -46,6 +46,7 @@ from companion.autopilot.px4.component import Px4Component
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.mission import Px4Mission
+from companion.autopilot.px4.remote_id import Px4RemoteId
 from companion.autopilot.px4.requests import MavResult, Px4CommandRejected, Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.autopilot.types import (
@@ -79,7 +80,7 @@ ARM_CHECK_TEXTS = ("resolve system health failures", "preflight fail")
 ARM_CHECK_RESULTS = frozenset({MavResult.DENIED, MavResult.TEMPORARILY_REJECTED})
 
 
-class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
+class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",
@@ -193,7 +194,13 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4Requests, Autopilot):
         ap.want_rangefinder = mission is not None and mission.rangefinder.enabled  # the descent's height
         ap.attitude_rate_hz = config.runtime.autopilot_attitude_rate_hz
         ap.position_rate_hz = config.runtime.autopilot_position_rate_hz
+        rid = getattr(config, "remote_id", None)
+        ap.remote_id = rid if rid is not None and rid.enabled else None  # docs/remote-id.md
         return ap
+
+    async def connect(self, timeout_s: float = 10.0) -> None:
+        await super().connect(timeout_s)
+        self._start_remote_id()  # with [remote_id] enabled: OPERATOR_ID, SELF_ID, SYSTEM from now on
 
     async def arm(self) -> None:
         deadline = time.monotonic() + self.arm_timeout_s
