@@ -74,6 +74,13 @@ def register(subparsers: Any) -> None:
         "after connecting, before arming; see `companion preflight`)",
     )
     p.add_argument(
+        "--plan",
+        metavar="FILE.plan",
+        help="a QGroundControl plan file: its delivery item is the pad (NAV_PAYLOAD_PLACE, or a waypoint or landing "
+        "followed by a gripper release), a second one or a rally point the alternate pad, its geofence the fence "
+        "(docs/gcs.md; default: the pad in the parameters)",
+    )
+    p.add_argument(
         "--orders",
         action="store_true",
         help="take delivery orders from the ground over Zenoh, one after another, until Ctrl-C: each accepted "
@@ -198,7 +205,30 @@ def _checked_config(args: argparse.Namespace) -> tuple[CompanionConfig, str]:
         exposed = exposed_secret(path, what)
         if exposed is not None:
             raise StartupError(f"{exposed} ({key} in {args.params})", exits.BAD_INPUT)
+    plan = getattr(args, "plan", None)
+    if plan:
+        config = config_with_plan(config, plan, args.params, orders=getattr(args, "orders", False))
     return config, where
+
+
+def config_with_plan(config: CompanionConfig, plan: str, params: str, orders: bool = False) -> CompanionConfig:
+    """``config`` with the pad, alternate and fence of a QGroundControl plan file (--plan)."""
+    from companion.delivery.qgc_plan import PlanFileError, config_from_plan, read_plan
+
+    if orders:
+        raise StartupError("--plan with --orders: each order names its own pad; drop one of them", exits.BAD_INPUT)
+    if config.mission.destination != "params":
+        raise StartupError(
+            f"--plan with mission.destination = {config.mission.destination!r} in {params}: two sources of the "
+            "pad; set destination = 'params' or drop --plan",
+            exits.BAD_INPUT,
+        )
+    try:
+        config, said = config_from_plan(config, read_plan(plan))
+    except PlanFileError as err:
+        raise StartupError(err.reason, exits.BAD_INPUT) from None
+    log.info("%s", said)
+    return config
 
 
 def _started_landing_kit(args: argparse.Namespace, config: CompanionConfig) -> Any:

@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "companion.cli.logs",
     "companion.cli.dart",
     "companion.cli.signing",
+    "companion.cli.plan",
 )
 
 

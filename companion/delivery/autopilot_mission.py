@@ -64,37 +64,37 @@ class MissionPlanError(DestinationError):
     and what is expected."""
 
 
-def _is_release(item: PlanItem) -> bool:
+def _is_release(item: PlanItem, where: str) -> bool:
     if item.command != MAV_CMD_DO_GRIPPER:
         return False
     if not math.isfinite(item.param2):  # neither release nor grab: the parcel's fate unknown
         raise MissionPlanError(
-            f"autopilot mission {item.describe()}: gripper action {item.param2}: expected 0 (release) or 1 (grab)"
+            f"{where} {item.describe()}: gripper action {item.param2}: expected 0 (release) or 1 (grab)"
         )
     return round(item.param2) == GRIPPER_ACTION_RELEASE
 
 
-def delivery_items(items: Sequence[PlanItem]) -> list[PlanItem]:
+def delivery_items(items: Sequence[PlanItem], where: str = "autopilot mission") -> list[PlanItem]:
     """The delivery items of a mission, in order (the rule in the module's docstring); a release
-    that follows no waypoint or landing is refused."""
+    that follows no waypoint or landing is refused. ``where`` names the mission in errors."""
     found: list[PlanItem] = []
     for i, it in enumerate(items):
         if it.command == MAV_CMD_NAV_PAYLOAD_PLACE:
             found.append(it)
-        elif _is_release(it):
+        elif _is_release(it, where):
             prev = items[i - 1] if i > 0 else None
             if prev is None or prev.command not in (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LAND):
                 after = f"follows {prev.describe()}" if prev is not None else "is the mission's first item"
                 raise MissionPlanError(
-                    f"autopilot mission {it.describe()} (release) {after}: the companion cannot tell where "
+                    f"{where} {it.describe()} (release) {after}: the companion cannot tell where "
                     f"it would drop the parcel; {EXPECTED}"
                 )
             found.append(prev)
     return found
 
 
-def _pad(item: PlanItem) -> GeoPad:
-    where = f"autopilot mission {item.describe()}"
+def _pad(item: PlanItem, mission: str) -> GeoPad:
+    where = f"{mission} {item.describe()}"
     frame = item.frame
     if frame not in AMSL_FRAMES + RELATIVE_FRAMES:
         raise MissionPlanError(
@@ -121,34 +121,47 @@ def _pad(item: PlanItem) -> GeoPad:
     return GeoPad(lat, lon, alt)
 
 
-def destination_from_mission(items: Sequence[PlanItem], min_separation_m: float = 1.0) -> Destination:
+def _whole(where: str) -> str:
+    """The mission as a whole, in an error: the autopilot's, or a plan file's."""
+    return "the autopilot's mission" if where == "autopilot mission" else where
+
+
+def destination_from_mission(
+    items: Sequence[PlanItem], min_separation_m: float = 1.0, where: str = "autopilot mission"
+) -> Destination:
     """The delivery the mission plans: its pad (and alternate), ``source`` naming the items; a
-    :class:`MissionPlanError` when the mission plans none the companion can fly."""
+    :class:`MissionPlanError` when the mission plans none the companion can fly. ``where`` names
+    the mission in the errors and the source ("autopilot mission", or a plan file's)."""
     if not items:
-        raise MissionPlanError(f"the autopilot holds no mission: upload one from the GCS; {EXPECTED}")
-    found = delivery_items(items)
+        empty = (
+            "the autopilot holds no mission: upload one from the GCS"
+            if where == "autopilot mission"
+            else f"{where} has no mission items"
+        )
+        raise MissionPlanError(f"{empty}; {EXPECTED}")
+    found = delivery_items(items, where)
     if not found:
         listed = ", ".join(f"{it.index} {command_name(it.command)}" for it in items[:12])
         more = f" and {len(items) - 12} more" if len(items) > 12 else ""
-        raise MissionPlanError(f"the autopilot's mission (items {listed}{more}) has no delivery item: {EXPECTED}")
+        raise MissionPlanError(f"{_whole(where)} (items {listed}{more}) has no delivery item: {EXPECTED}")
     if len(found) > 2:
         names = ", ".join(it.describe() for it in found)
         raise MissionPlanError(
-            f"the autopilot's mission has {len(found)} delivery items ({names}): ambiguous; expected one (the pad) "
+            f"{_whole(where)} has {len(found)} delivery items ({names}): ambiguous; expected one (the pad) "
             "or two (the pad, then the alternate pad)"
         )
-    pad = _pad(found[0])
-    source = f"autopilot mission {found[0].describe()}"
+    pad = _pad(found[0], where)
+    source = f"{where} {found[0].describe()}"
     alternate = None
     if len(found) == 2:
-        alternate = _pad(found[1])
+        alternate = _pad(found[1], where)
         n, e, _ = geo_to_ned(
             GeoPoint(pad.lat_deg, pad.lon_deg, 0.0), GeoPoint(alternate.lat_deg, alternate.lon_deg, 0.0)
         )
         apart = math.hypot(n, e)
         if apart < min_separation_m:
             raise MissionPlanError(
-                f"autopilot mission {found[0].describe()} and {found[1].describe()} are {apart:.2f} m apart: "
+                f"{where} {found[0].describe()} and {found[1].describe()} are {apart:.2f} m apart: "
                 f"ambiguous; expected the second (the alternate pad) at least {min_separation_m:g} m from the "
                 "first, or one delivery item"
             )
