@@ -352,7 +352,7 @@ class _ReplayShell:
         except (KeyError, TypeError, ValueError) as err:
             raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
         if self.fusion is not None:
-            # diverted: the fusion starts again on the alternate pad, as DeliveryShell._start_fusion
+            # diverted: the fusion starts again on the alternate pad, as LandingSensing.start_fusion
             self.telemetry.remove_listener(self.fusion.on_sample)
             self._fusion_pad_index = self.mission.pad_index
             self.fusion = LandingFusion(setup, now)
@@ -401,7 +401,7 @@ class _ReplayShell:
         return None
 
     def _pad_lock(self, now: float) -> Any:
-        """As DeliveryShell._pad_lock, from the recorded kit and the replayed fusion."""
+        """As LandingSensing.pad_lock, from the recorded kit and the replayed fusion."""
         from companion.delivery.padlock import NO_SENSORS, PadLock, measure_pad_lock
 
         lc = self.config.landing

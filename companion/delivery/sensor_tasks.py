@@ -9,8 +9,8 @@
   from its capture thread (``loop.call_soon_threadsafe``): the frame is read and handed to the
   detector as soon as it is readable. A camera without it is polled at the kit's rate, as is the UWB.
 
-What a step does with a frame or a reading (detect, fuse, record) is the shell's: it hands the
-two steps in.
+What a step does with a frame or a reading (detect, fuse, record) is the landing sensing's
+(:mod:`companion.delivery.landing_sensing`): it hands the two steps in.
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ class SensorTasks:
         rate_loop: Callable[[LoopClock, float], RateLoop] = RateLoop,
     ):
         """``kit``: the shell's LandingKit; ``stats``: the shell's ShellStats (how the camera is
-        read, the wake-ups); ``camera_step`` / ``uwb_step``: the shell's handling of the newest
-        frame and of the readings since the last call; ``rate_loop``: how the polls' loops are
+        read, the wake-ups); ``camera_step`` / ``uwb_step``: the landing sensing's handling of the
+        newest frame and of the readings since the last call; ``rate_loop``: how the polls' loops are
         built (the shell's hooks)."""
         self.rate_loop = rate_loop
         self.kit = kit

@@ -59,14 +59,14 @@ def test_the_detector_thread_lowers_its_own_priority_once():
     import os
     import threading
 
-    from companion.delivery.shell import _cpu_timed
+    from companion.delivery.detector_thread import cpu_timed
 
     seen: dict[str, int] = {}
 
     def on_thread() -> None:
         tid = threading.get_native_id()
         before = os.getpriority(os.PRIO_PROCESS, tid)
-        out, cpu_s = _cpu_timed(lambda x: x + 1, 1, nice=before + 5)
+        out, cpu_s = cpu_timed(lambda x: x + 1, 1, nice=before + 5)
         seen.update(out=out, before=before, after=os.getpriority(os.PRIO_PROCESS, tid), cpu_ok=int(cpu_s >= 0))
 
     t = threading.Thread(target=on_thread)
@@ -81,13 +81,13 @@ def test_the_detector_thread_runs_one_below_the_loops_real_time_priority():
     import os
     import threading
 
-    from companion.delivery.shell import _cpu_timed
+    from companion.delivery.detector_thread import cpu_timed
     from companion.scheduling import thread_policy
 
     seen: dict[str, object] = {}
 
     def on_thread() -> None:
-        out, _ = _cpu_timed(lambda x: x * 2, 3, nice=10, realtime=12)
+        out, _ = cpu_timed(lambda x: x * 2, 3, nice=10, realtime=12)
         seen.update(out=out, policy=thread_policy())
 
     t = threading.Thread(target=on_thread)

@@ -28,11 +28,11 @@ def test_the_landing_fusion_is_loaded_with_the_shell():
 
 
 def test_starting_the_fusion_imports_nothing_new():
-    """_start_fusion and _uwb_step name no module of their own (a lazy import there is what this guards)."""
+    """start_fusion and uwb_step name no module of their own (a lazy import there is what this guards)."""
     import inspect
 
-    from companion.delivery.shell import DeliveryShell
+    from companion.delivery.landing_sensing import LandingSensing
 
-    for method in (DeliveryShell._start_fusion, DeliveryShell._uwb_step):
+    for method in (LandingSensing.start_fusion, LandingSensing.follow_pad, LandingSensing.uwb_step):
         src = inspect.getsource(method)
         assert "import " not in src, method.__name__
