@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import serial
 
 from companion.uwb.anchors import AnchorLayout
-from companion.uwb.multilateration import TwrMeasurement
+from companion.uwb.measurements import TwrMeasurement
 
 log = logging.getLogger(__name__)
 

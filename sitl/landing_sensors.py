@@ -43,7 +43,7 @@ from companion.delivery.shell import LandingKit
 from companion.geometry.se3 import Transform
 from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlot
 from companion.scheduling import LoopClock, RateLoop
-from companion.uwb.multilateration import TwrMeasurement
+from companion.uwb.measurements import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.params import SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb

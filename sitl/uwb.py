@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from companion.uwb.anchors import AnchorLayout
-from companion.uwb.multilateration import TdoaMeasurement, TwrMeasurement
+from companion.uwb.measurements import TdoaMeasurement, TwrMeasurement
 
 log = logging.getLogger(__name__)
 

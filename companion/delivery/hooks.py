@@ -25,7 +25,7 @@ from companion.delivery.observers import DeliveryShell, ShellObserver, ShellTick
 from companion.events import MissionEvent
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import Clock, RateLoop
-from companion.uwb.multilateration import UwbFix
+from companion.uwb.measurements import UwbFix
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -19,7 +19,7 @@ from companion.events import MissionEvent
 from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.streams import ENUM_VALUE
 from companion.guidance.setpoint import VelocitySetpoint
-from companion.uwb.multilateration import UwbFix
+from companion.uwb.measurements import UwbFix
 
 
 class DeliveryShell(Protocol):

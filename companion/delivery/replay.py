@@ -141,7 +141,7 @@ def _marker_inputs(t: Table) -> list[_Input]:
 
 
 def _uwb_inputs(t: Table) -> list[_Input]:
-    from companion.uwb.multilateration import UwbFix
+    from companion.uwb.measurements import UwbFix
 
     out = []
     for k in range(len(t)):

@@ -1,6 +1,7 @@
 """UWB positioning (delivery section 4.2.2): anchor layouts and robust multilateration (TDoA,
 delivery eqs 2-4, and two-way ranging as a DWM1001 in PANS mode reports it)."""
 
+from companion.config import MultilaterationConfig
 from companion.uwb.anchors import (
     DWM1001_MAX_RANGE_M,
     AnchorLayout,
@@ -8,22 +9,17 @@ from companion.uwb.anchors import (
     anchor_frame_to_ned,
     load_anchor_layout,
 )
-from companion.uwb.multilateration import (
-    TDOA,
-    TWR,
-    MeasurementModel,
-    MultilaterationConfig,
+from companion.uwb.measurements import (
     MultilaterationCounters,
-    Multilaterator,
     RejectReason,
     TdoaMeasurement,
     TwrMeasurement,
     UwbFix,
     UwbRejection,
-    dilutions_of_precision,
-    solve_tdoa,
-    solve_twr,
 )
+from companion.uwb.models import TDOA, TWR, MeasurementModel
+from companion.uwb.multilateration import Multilaterator, solve_tdoa, solve_twr
+from companion.uwb.solver import dilutions_of_precision
 
 __all__ = [
     "DWM1001_MAX_RANGE_M",

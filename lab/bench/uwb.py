@@ -7,7 +7,8 @@ import time
 import numpy as np
 
 from companion.uwb.anchors import AnchorLayout, load_anchor_layout
-from companion.uwb.multilateration import Multilaterator, TdoaMeasurement, TwrMeasurement
+from companion.uwb.measurements import TdoaMeasurement, TwrMeasurement
+from companion.uwb.multilateration import Multilaterator
 
 
 def bench_multilateration(n: int = 200, layout: AnchorLayout | None = None) -> dict[str, float]:

@@ -28,7 +28,7 @@ from companion.plugin_api import (
     discover,
     frame_listener_of,
 )
-from companion.uwb.multilateration import UwbFix
+from companion.uwb.measurements import UwbFix
 
 POLL_HZ_SLOW = 0.25  # a poll tick 4 s after the start: far later than any test here waits
 

@@ -12,7 +12,7 @@ from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfSensor, UpdateOutcome
 from companion.geometry import Transform, euler_to_rotmat
 from companion.uwb.anchors import anchor_frame_to_ned
-from companion.uwb.multilateration import UwbFix
+from companion.uwb.measurements import UwbFix
 
 sys.path.insert(0, str(Path(__file__).parent))
 from ekf_sim import GPS_BIAS, GYRO_BIAS, aruco_truth, truth

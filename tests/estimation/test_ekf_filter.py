@@ -13,7 +13,8 @@ from companion.estimation.ekf import DeliveryEkf, EkfConfig, UpdateOutcome
 from companion.estimation.types import StateEstimate
 from companion.geometry import Transform, euler_to_rotmat
 from companion.uwb.anchors import anchor_frame_to_ned, load_anchor_layout
-from companion.uwb.multilateration import Multilaterator, UwbFix
+from companion.uwb.measurements import UwbFix
+from companion.uwb.multilateration import Multilaterator
 from companion_sitl.uwb import SimulatedUwb, UwbSimConfig
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from companion.uwb.anchors import load_anchor_layout
-from companion.uwb.multilateration import Multilaterator, UwbFix
+from companion.uwb.measurements import UwbFix
+from companion.uwb.multilateration import Multilaterator
 from companion_plugins.dwm1001 import (
     Dwm1001Driver,
     Dwm1001Error,

@@ -16,7 +16,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.uwb.multilateration import Multilaterator, UwbFix
+from companion.uwb.measurements import UwbFix
+from companion.uwb.multilateration import Multilaterator
 from companion_plugins.dwm1001 import LecParser, anchor_layout_from_reading
 
 #: PANS anchor ids (hex) and positions: four tripods 1.0 m high on a 5 x 5 m square around the pad

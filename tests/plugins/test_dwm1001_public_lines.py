@@ -27,7 +27,8 @@ import numpy as np
 import pytest
 
 from companion.uwb.anchors import AnchorLayout
-from companion.uwb.multilateration import Multilaterator, TwrMeasurement, UwbFix, UwbRejection
+from companion.uwb.measurements import TwrMeasurement, UwbFix, UwbRejection
+from companion.uwb.multilateration import Multilaterator
 from companion_plugins.dwm1001 import LecParser, LineKind, anchor_layout_from_reading, explain_lec_line
 
 #: (line, the tag's side of the anchors' plane as its POS shows it). Lines printed by DWM1001

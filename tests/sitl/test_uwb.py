@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from companion.uwb.anchors import load_anchor_layout
-from companion.uwb.multilateration import Multilaterator, UwbFix
+from companion.uwb.measurements import UwbFix
+from companion.uwb.multilateration import Multilaterator
 from companion_plugins.dwm1001 import parse_lec_line
 from companion_sitl.uwb import SimulatedUwb, UwbSimConfig, format_lec_line
 

@@ -19,16 +19,10 @@ from companion.uwb.anchors import (
     layout_from_positions,
     load_anchor_layout,
 )
-from companion.uwb.multilateration import (
-    TWR,
-    Multilaterator,
-    TdoaMeasurement,
-    TwrMeasurement,
-    UwbFix,
-    UwbRejection,
-    dilution_of_precision,
-    dilutions_of_precision,
-)
+from companion.uwb.measurements import TdoaMeasurement, TwrMeasurement, UwbFix, UwbRejection
+from companion.uwb.models import TWR
+from companion.uwb.multilateration import Multilaterator
+from companion.uwb.solver import dilution_of_precision, dilutions_of_precision
 
 #: four anchors on tripods at 1.2 m around the pad, 6 x 6 m (the paper's four-anchor set-up)
 SQUARE = np.array([[3.0, 3.0, 1.2], [-3.0, 3.0, 1.2], [-3.0, -3.0, 1.2], [3.0, -3.0, 1.2]])
@@ -336,8 +330,9 @@ def test_ekf_gets_the_weak_vertical_and_the_isotropic_case_is_unchanged() -> Non
     T = anchor_frame_to_ned(np.array([10.0, 5.0, 0.0]), math.pi / 2)
     p_world = np.array([10.0, 5.0, -3.0])
     p_anchor = T.inverse().apply(p_world)
-    weak = UwbFix(0.0, *p_anchor, 3.0, 0.0, (), "pad", hdop=1.0, vdop=2.8, outliers_checked=False, vertical_weak=True)
-    iso = UwbFix(0.0, *p_anchor, 3.0, 0.0, (), "pad", hdop=1.0, vdop=2.8)
+    x, y, z = (float(v) for v in p_anchor)
+    weak = UwbFix(0.0, x, y, z, 3.0, 0.0, (), "pad", hdop=1.0, vdop=2.8, outliers_checked=False, vertical_weak=True)
+    iso = UwbFix(0.0, x, y, z, 3.0, 0.0, (), "pad", hdop=1.0, vdop=2.8)
     e_weak, e_iso = _ekf_at(p_world), _ekf_at(p_world)
     P0 = e_weak.P.copy()
     assert e_weak.update_uwb(weak, T).value == "accepted"

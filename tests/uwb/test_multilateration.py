@@ -7,25 +7,19 @@ import math
 import numpy as np
 import pytest
 
+from companion.config import MultilaterationConfig
 from companion.uwb.anchors import layout_from_positions, load_anchor_layout
-from companion.uwb.multilateration import (
+from companion.uwb.measurements import (
     SPEED_OF_LIGHT_M_S,
-    TDOA,
-    TWR,
-    MultilaterationConfig,
-    Multilaterator,
     RejectReason,
     TdoaMeasurement,
     TwrMeasurement,
     UwbFix,
     UwbRejection,
-    dilution_of_precision,
-    linear_tdoa_seeds,
-    linear_twr_seed,
-    model_residuals,
-    solve_tdoa,
-    solve_twr,
 )
+from companion.uwb.models import TDOA, TWR, linear_tdoa_seeds, linear_twr_seed, model_residuals
+from companion.uwb.multilateration import Multilaterator, solve_tdoa, solve_twr
+from companion.uwb.solver import dilution_of_precision
 
 LAYOUT = load_anchor_layout()
 A = LAYOUT.positions_array()
@@ -59,8 +53,10 @@ def _fix(r: UwbFix | UwbRejection) -> UwbFix:
 def test_linear_seeds_are_exact_on_noiseless_data() -> None:
     for p in _positions(10):
         d = np.linalg.norm(A - p, axis=1)
-        np.testing.assert_allclose(linear_twr_seed(A, d), p, atol=1e-9)
-        np.testing.assert_allclose(linear_twr_seed(A[:4], d[:4]), p, atol=1e-9)
+        seed_all, seed_four = linear_twr_seed(A, d), linear_twr_seed(A[:4], d[:4])
+        assert seed_all is not None and seed_four is not None
+        np.testing.assert_allclose(seed_all, p, atol=1e-9)
+        np.testing.assert_allclose(seed_four, p, atol=1e-9)
         rho = d - d[0]  # delivery eq 2 with the base anchor first
         (seed,) = linear_tdoa_seeds(A, rho)
         np.testing.assert_allclose(seed[:3], p, atol=1e-8)
