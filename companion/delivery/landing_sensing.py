@@ -41,7 +41,7 @@ from companion.estimation.ekf import UpdateOutcome
 from companion.events import Phase
 from companion.geometry.mounts import pad_pose_ned
 from companion.scheduling import LoopClock
-from companion.uwb.multilateration import UwbFix
+from companion.uwb.measurements import UwbFix
 
 log = logging.getLogger(__name__)
 
