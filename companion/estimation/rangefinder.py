@@ -112,23 +112,14 @@ class RangefinderGate:
         self, r: RangefinderSample, time_s: float, est_h: float, roll_rad: float, pitch_rad: float
     ) -> tuple[float | None, Rejection | None]:
         c = self.cfg
-        if r.orientation != MAV_SENSOR_ROTATION_PITCH_270:
-            return None, Rejection.NOT_DOWNWARD
-        q = r.signal_quality_pct
-        if q is not None and q < c.min_quality_pct:
-            return None, Rejection.LOW_QUALITY
-        if time_s - r.time_s > c.max_age_s:
-            return None, Rejection.STALE
-        if not (r.min_distance_m <= r.distance_m < r.max_distance_m):
-            return None, Rejection.OUT_OF_RANGE
         cos_tilt = math.cos(roll_rad) * math.cos(pitch_rad)
-        if cos_tilt < math.cos(math.radians(c.max_tilt_deg)):
-            return None, Rejection.TILTED
-        if est_h > c.below_height_m:
-            return None, Rejection.TOO_HIGH
         h = r.distance_m * cos_tilt  # the beam's length to the vertical (flat ground)
-        if abs(h - est_h) > c.max_disagreement_m:
-            return None, Rejection.INCONSISTENT
+        why = self._unusable(r, time_s, est_h, cos_tilt, h)
+        if why is not None:
+            # a reading not used breaks the chain: the next one must be confirmed by its own
+            # successor, not by one from before the gap (two spikes around a gap would agree)
+            self._candidate = None
+            return None, why
         # between samples: against the reading before (a spike is not confirmed by the next true
         # one) and against the last one used while it is held (a leg staying in the beam)
         off = h - est_h
@@ -141,3 +132,25 @@ class RangefinderGate:
         ):
             return None, Rejection.JUMP
         return h, None
+
+    def _unusable(
+        self, r: RangefinderSample, time_s: float, est_h: float, cos_tilt: float, h: float
+    ) -> Rejection | None:
+        """Why one reading, on its own, is not a height above the ground (None: it may be)."""
+        c = self.cfg
+        if r.orientation != MAV_SENSOR_ROTATION_PITCH_270:
+            return Rejection.NOT_DOWNWARD
+        q = r.signal_quality_pct
+        if q is not None and q < c.min_quality_pct:
+            return Rejection.LOW_QUALITY
+        if time_s - r.time_s > c.max_age_s:
+            return Rejection.STALE
+        if not (r.min_distance_m <= r.distance_m < r.max_distance_m):
+            return Rejection.OUT_OF_RANGE
+        if cos_tilt < math.cos(math.radians(c.max_tilt_deg)):
+            return Rejection.TILTED
+        if est_h > c.below_height_m:
+            return Rejection.TOO_HIGH
+        if abs(h - est_h) > c.max_disagreement_m:
+            return Rejection.INCONSISTENT
+        return None

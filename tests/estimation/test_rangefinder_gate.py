@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from companion.autopilot.types import MAV_SENSOR_ROTATION_PITCH_270, RangefinderReading
@@ -112,8 +112,9 @@ def test_nothing_received_flies_the_estimate() -> None:
     assert g.accepted == 0 and not g.rejected
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
 @given(seed=st.integers(0, 2**32 - 1))
+@example(seed=13419180)  # two spikes around rejected readings once confirmed each other
 def test_properties_over_seeded_random_readings(seed: int) -> None:
     """A descent from 3 m with an estimate biased by up to +-1.5 m, readings with noise, spikes
     (a leg, the parcel), drop-outs, tilt and the ground below the minimum range: whatever the gate
