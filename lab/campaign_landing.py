@@ -15,6 +15,7 @@ import numpy as np
 
 from companion.config import PadConfig
 from companion_lab.demo import run_demo
+from companion_sitl.camera_conditions import CONDITION_KEYS, condition_tables
 from companion_sitl.params import SimConfig, SimulatedConfig, load_simulated_config
 from companion_sitl.profiles import get_profile
 
@@ -35,6 +36,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "pad_missing_alternate": {"policy": {"fallback": "alternate"}},
     "pad_heading": {},
     "winch": {},
+    # a real board camera's images ([sim.camera], companion_sitl.camera_conditions): one condition
+    # each at params/camera_real.toml's level, and camera_real with all of them
+    **{f"camera_{name}": {} for name in CONDITION_KEYS},
+    "camera_real": {},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -46,6 +51,8 @@ SIM_VARIANTS: dict[str, dict[str, Any]] = {
     "pad_4m_search": {"camera_range_m": 6.0},
     # the first pad is not there; the real one (camera target, UWB anchors) is at the alternate
     "pad_missing_alternate": {"pad_at_alternate": True},
+    **{f"camera_{name}": {"camera": table} for name, table in condition_tables().items() if name != "all"},
+    "camera_real": {"camera": condition_tables()["all"]},
 }
 
 # [mission] overrides: the alternate pad, 25 m north of params/landing_campaign.toml's pad (beyond

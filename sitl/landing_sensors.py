@@ -45,6 +45,7 @@ from companion.plugin_api import FRAME_LISTENER_VERSION, Frame, FrameListenerSlo
 from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.measurements import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
+from companion_sitl.camera_conditions import CameraConditions, FrameFate, pad_velocity_px_s
 from companion_sitl.params import SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
@@ -88,8 +89,13 @@ class SimCameraSource:
         fails_below_m: float = 0.0,
         range_m: float = 0.0,
         hooks: SimSensorHooks | None = None,
+        conditions: CameraConditions | None = None,
     ):
         self.vehicle = vehicle
+        # a real camera's effects ([sim.camera]): None or inactive, the renderer's frames bit for bit
+        self.conditions = conditions if conditions is not None and conditions.active else None
+        self._fates: dict[float, tuple[FrameFate, tuple[float, float]]] = {}  # exposure -> fate, image velocity
+        self._prev_pad: tuple[float, np.ndarray] | None = None
         self.fails_below_m = fails_below_m  # a failed camera: no frame below this true height (0: never)
         self.range_m = range_m  # no frame above this true height (0: unlimited)
         self.camera = camera
@@ -151,14 +157,42 @@ class SimCameraSource:
                     if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
                         self._renders.pop(next(iter(self._renders))).cancel()
             self._poses.append((t, T, T_cp))
+            late = 0.0
+            if self.conditions is not None:
+                late = self._draw_fate(t, T_cp if T_cp is not None else self._camera_pad(T))
+                if late < 0:  # dropped by the driver: never readable
+                    continue
             if self._listener.attached:
-                loop.call_at(t + self.latency_s, self._frame_ready, t)
+                loop.call_at(t + self.latency_s + late, self._frame_ready, t)
+
+    def _draw_fate(self, t: float, T_cp: Transform) -> float:
+        """The exposure's fate under the conditions and its image velocity, kept for read(): the
+        extra latency, or -1 when the driver drops it."""
+        assert self.conditions is not None
+        fate = self.conditions.fate()
+        cam = self.camera.camera
+        prev = self._prev_pad
+        v = pad_velocity_px_s(
+            cam.fx, cam.fy, cam.cx, cam.cy, None if prev is None else prev[1], T_cp.t, t - prev[0] if prev else 0.0
+        )
+        self._prev_pad = (t, T_cp.t.copy())
+        self._fates[t] = (fate, v)
+        while len(self._fates) > 64:
+            self._fates.pop(next(iter(self._fates)))
+        return -1.0 if fate.dropped else fate.extra_latency_s
+
+    def _late_s(self, t: float) -> float:
+        """Extra latency of the exposure at ``t``; inf when the driver dropped it."""
+        got = self._fates.get(t)
+        if got is None:
+            return 0.0
+        return math.inf if got[0].dropped else got[0].extra_latency_s
 
     def _frame_ready(self, exposure_s: float) -> None:
         """The frame exposed at ``exposure_s`` is readable now: tell the listener."""
         if self._task is None:  # stopped meanwhile
             return
-        ready_s = exposure_s + self.latency_s
+        ready_s = exposure_s + self.latency_s + (self._late_s(exposure_s) if self.conditions is not None else 0.0)
         if self._clock.now() < ready_s:  # asyncio may run a timer up to its clock resolution early
             asyncio.get_running_loop().call_at(ready_s, self._frame_ready, exposure_s)
             return
@@ -195,9 +229,12 @@ class SimCameraSource:
         for p in reversed(self._poses):
             if p[0] <= self._last_read_t:
                 break
+            late = self._late_s(p[0]) if self.conditions is not None else 0.0
+            if late == math.inf:  # dropped by the driver: it never was a frame
+                continue
             if pose is not None:
                 unread += 1
-            elif p[0] + self.latency_s <= now:
+            elif p[0] + self.latency_s + late <= now:
                 pose = p
         if pose is None:
             return None
@@ -214,11 +251,21 @@ class SimCameraSource:
             return None
         if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
             ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
-        # not started (no renderer): rendered here, as capture() does
-        image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
+        if self.conditions is not None:
+            image = self._with_conditions(t, T_cp, ahead)
+        else:  # not started (no renderer): rendered here, as capture() does
+            image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
         self.rendered += 1
         self._index += 1
         return Frame(t, image, self._index)
+
+    def _with_conditions(self, t: float, T_cp: Transform, ahead: Future[U8Image] | None) -> U8Image:
+        """The frame as the real camera gives it: motion on the optics, exposure, then the rest."""
+        assert self.conditions is not None
+        optics = ahead.result() if ahead is not None else self.camera.render_optics(T_cp, fresh=True)
+        got = self._fates.get(t)
+        velocity = got[1] if got is not None else (0.0, 0.0)
+        return self.conditions.photometric(self._expose(self.conditions.motion(optics, velocity)), t)
 
     def stop(self) -> None:
         if self._task is not None:
@@ -376,6 +423,7 @@ def sim_landing_kit(
             fails_below_m=config.sim.camera_fails_below_m,
             range_m=config.sim.camera_range_m,
             hooks=hooks,
+            conditions=CameraConditions(config.sim.camera, seed),
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera

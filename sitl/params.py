@@ -99,6 +99,41 @@ class SimWinchConfig(_Section):
     )
 
 
+class SimCameraConditionsConfig(_Section):
+    """What a real board camera adds to the simulated frames (companion_sitl.camera_conditions,
+    docs/vision.md#a-real-cameras-images); every key off by default."""
+
+    exposure_s: float = _f(
+        0.0,
+        "s",
+        "exposure time: the frame is smeared by the image's motion during it (0: no motion blur)",
+        ge=0.0,
+        le=0.1,
+    )
+    rolling_shutter_s: float = _f(
+        0.0,
+        "s",
+        "readout from the top row to the bottom one (a Pi camera v2 at 640x480: about 0.02; 0: global shutter)",
+        ge=0.0,
+        le=0.1,
+    )
+    exposure_steps_s: float = _f(
+        0.0, "s", "auto-exposure steps under passing clouds: their mean interval (0: none)", ge=0.0, le=600.0
+    )
+    exposure_step_gain: float = _f(0.45, "-", "brightness during a step, before auto-exposure recovers", gt=0.0, le=4.0)
+    exposure_recover_s: float = _f(0.6, "s", "auto-exposure's time to recover from a step", gt=0.0, le=10.0)
+    shadow: float = _f(
+        0.0, "-", "darkening inside a shadow band drifting across the frame (0.6: 60 % darker; 0: none)", ge=0.0, lt=1.0
+    )
+    glare: float = _f(
+        0.0, "grey levels", "brightness a glare spot adds at its centre (sun on the pad; 0: none)", ge=0.0, le=255.0
+    )
+    low_light_noise: float = _f(0.0, "grey levels", "extra sensor noise of a dim scene (std; 0: none)", ge=0.0, le=50.0)
+    jpeg_quality: int = _f(0, "-", "JPEG quality of an MJPG camera's frames, 1-100 (0: raw frames)", ge=0, le=100)
+    drop_fraction: float = _f(0.0, "-", "share of the frames the driver drops", ge=0.0, le=0.5)
+    late_s: float = _f(0.0, "s", "extra latency of a frame, drawn uniformly up to this (0: none)", ge=0.0, le=0.5)
+
+
 class SimConfig(_Section):
     """A simulated scenario: seed, home, wind, sensors."""
 
@@ -191,6 +226,7 @@ class SimConfig(_Section):
     )
     vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
     winch: SimWinchConfig = Field(default_factory=SimWinchConfig)
+    camera: SimCameraConditionsConfig = Field(default_factory=SimCameraConditionsConfig)
 
     @model_validator(mode="after")
     def _finite(self) -> SimConfig:

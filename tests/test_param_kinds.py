@@ -42,6 +42,7 @@ KIND_OF = {
     "sitl_short.toml": "vehicle",
     "slow_board.toml": "vehicle",  # an overlay: validates on the defaults alone
     "serial_115200.toml": "vehicle",  # an overlay too (docs/serial-link.md)
+    "camera_real.toml": "vehicle",  # an overlay of [sim.camera] (docs/vision.md)
     "dart_hover.toml": "dart",
     "camera_rpi_v2.toml": "camera",
     "pad_delivery.toml": "pad",

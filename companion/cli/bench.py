@@ -204,12 +204,38 @@ def cmd_bench_uwb(args: argparse.Namespace) -> int:
 def cmd_bench_vision(args: argparse.Namespace) -> int:
     from companion_lab.bench.vision import bench_vision
 
+    if args.conditions:
+        return _bench_vision_conditions(args)
     if args.range or args.ambiguity:
         return _bench_vision_extra(args)
     frames = 120 if args.frames is None else args.frames
     r = bench_vision(frames, args.seed)
     _print_bench(f"bench vision ({frames} rendered 640x480 frames of a descent, same frames in one run):", r)
     return 0
+
+
+def _bench_vision_conditions(args: argparse.Namespace) -> int:
+    from companion_lab.bench.vision import bench_vision_conditions
+
+    frames = 120 if args.frames is None else args.frames
+    if frames < 2:
+        raise StartupError(f"--frames {frames}: must be >= 2", exits.BAD_INPUT)
+    r = bench_vision_conditions(frames, args.seed)
+    if args.json:
+        print(json.dumps(r, indent=2))
+        return exits.OK
+    print(
+        f"bench vision --conditions: the pad detector on {frames} rendered frames of a descent (12 -> 1.2 m, "
+        f"seed {args.seed}) per real-camera condition (companion_sitl.camera_conditions, params/camera_real.toml)"
+    )
+    print(f"  {'condition':<16} {'detected':>9} {'fused':>7} {'median':>9} {'p90':>9} {'max':>9} {'ms/frame':>9}")
+    for name, c in r["conditions"].items():
+        print(
+            f"  {name:<16} {c['detection_rate']:>9.2f} {c['fused_rate']:>7.2f} "
+            f"{format_m(c['median_position_error_m']):>9} {format_m(c['p90_position_error_m']):>9} "
+            f"{format_m(c['max_position_error_m']):>9} {c['ms_per_frame']:>9.1f}"
+        )
+    return exits.OK
 
 
 def format_range_result(r: dict[str, Any]) -> str:
@@ -379,7 +405,13 @@ def register_bench_micro(bsub: Any) -> None:
         "before / after (rendered approach; --frames, default 300 here) and on the Dart hover",
     )
     bv.add_argument("--dart-duration", type=float, default=10.0, help="seconds of Dart hover with --ambiguity")
-    bv.add_argument("--json", action="store_true", help="print --range / --ambiguity results as JSON")
+    bv.add_argument(
+        "--conditions",
+        action="store_true",
+        help="detection rate and pose error per real-camera condition (motion blur, rolling shutter, auto-exposure "
+        "steps, shadow, glare, low light, JPEG, all together) on the same rendered descent",
+    )
+    bv.add_argument("--json", action="store_true", help="print --range / --ambiguity / --conditions results as JSON")
     bv.set_defaults(func=cmd_bench_vision)
 
 
