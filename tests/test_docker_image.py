@@ -7,7 +7,7 @@ Debian's mirror, PyPI, root and those tools); skipped with the reason when any i
 podman cannot run a container on this machine. A build or a demo that fails, fails.
 
 The base root is cached under ~/.cache/companion-docker and buildah keeps the image's layers, so a
-run after the first rebuilds only what changed (about 3 minutes with the pip install, 2026-12-02).
+run after the first rebuilds only what changed (2 min 16 s with the pip install, 2026-12-02).
 The build and the demo run at nice 10: the real SITL flights of the other worker keep the CPU.
 """
 
