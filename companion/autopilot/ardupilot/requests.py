@@ -260,21 +260,24 @@ class ArduPilotRequests(ArduPilotLink):
         self._stream_window = (time.monotonic(), {})  # the thin-stream check starts counting now
 
     def _rerequest_streams_fire_and_forget(self) -> None:
-        ts, tc = self.target_system or 1, self.target_component
         for mid, hz in self._streams_to_request():
-            if not self._stream_wanted(mid):
-                continue
-            self._send(
-                functools.partial(
-                    _command_long,
-                    ts=ts,
-                    tc=tc,
-                    cmd=mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
-                    confirmation=0,
-                    params=(mid, 1e6 / hz, 0, 0, 0, 0, 0),
-                )
-            )
+            if self._stream_wanted(mid):
+                self._send_interval(mid, hz)
         self.counters.stream_requests += 1
+
+    def _send_interval(self, mid: int, hz: float) -> None:
+        """SET_MESSAGE_INTERVAL for one stream, its ack not waited for (from the reader thread too)."""
+        ts, tc = self.target_system or 1, self.target_component
+        self._send(
+            functools.partial(
+                _command_long,
+                ts=ts,
+                tc=tc,
+                cmd=mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                confirmation=0,
+                params=(mid, 1e6 / hz, 0, 0, 0, 0, 0),
+            )
+        )
 
     def _count_stream(self, m: Any, now: float) -> None:
         """Reader thread: one message of the vehicle's counted for the thin-stream check, which runs
@@ -294,7 +297,6 @@ class ArduPilotRequests(ArduPilotLink):
         its rate, unless the autopilot refused it or it was asked MAX_STREAM_REREQUESTS times."""
         if not self.link_ok:
             return
-        ts, tc = self.target_system or 1, self.target_component
         for mid, hz in self._streams_to_request():
             expected = hz * window_s
             if (
@@ -318,16 +320,7 @@ class ArduPilotRequests(ArduPilotLink):
                 n + 1,
                 MAX_STREAM_REREQUESTS,
             )
-            self._send(
-                functools.partial(
-                    _command_long,
-                    ts=ts,
-                    tc=tc,
-                    cmd=mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
-                    confirmation=0,
-                    params=(mid, 1e6 / hz, 0, 0, 0, 0, 0),
-                )
-            )
+            self._send_interval(mid, hz)
 
     def _check_streams(self, now: float) -> None:
         if (
