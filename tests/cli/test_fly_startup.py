@@ -114,14 +114,15 @@ def test_ctrl_c_while_waiting_for_the_autopilot_ends_at_once(
         time.sleep(1.0)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=15.0)  # far below the 30 s connect timeout
+        out, err = proc.communicate(timeout=25.0)  # below what is left of the 30 s connect wait
         took = time.monotonic() - t0
     finally:
         proc.kill()
     line = _one_line(err, out)
     assert proc.returncode == exits.INTERRUPTED == 130
     assert "operator abort (SIGINT) while waiting for the autopilot: nothing was commanded" in line
-    assert took < 10.0, took
+    # at once, not when the wait runs out (29 s or more from here); a loaded CI core took 14.7 s
+    assert took < 20.0, took
 
 
 @pytest.mark.parametrize(
