@@ -34,7 +34,10 @@ COLOURS = {
 }
 # the other variants, in the order a campaign lists them: no colour shared with the ones above
 # (their tab10 colours) nor with each other
-SPARE_COLOURS = ("tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo")
+SPARE_COLOURS = (
+    "tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo",
+    "maroon", "darkgreen", "magenta", "sienna", "steelblue", "khaki", "crimson",
+)  # fmt: skip
 
 
 def variant_colours(variants: list[str]) -> dict[str, str]:

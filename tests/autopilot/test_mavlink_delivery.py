@@ -12,11 +12,12 @@ import pytest
 from companion.autopilot import FlightMode
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import load_config, shipped_params_path
+from companion.config import shipped_params_path
 from companion.events import EventKind, Phase
 from companion.flightlog.tlog import read_tlog
 from companion.flightlog.tlog_writer import open_tlog
 from companion.scheduling import thread_policy
+from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
@@ -55,7 +56,9 @@ def _pad_error(sim, config):
 async def test_full_delivery_ardupilot_over_udp(mav, udp_port, tmp_path):
     # runtime.realtime_priority: the loop's thread and the threads it starts (the link's reader)
     # fly SCHED_RR, and the loop's thread is back to its policy afterwards
-    config = load_config(shipped_params_path("sitl_short.toml"), overrides={"runtime": {"realtime_priority": 9}})
+    config = load_simulated_config(
+        shipped_params_path("sitl_short.toml"), overrides={"runtime": {"realtime_priority": 9}}
+    )
     received = []  # what reached the vehicle
     policies: dict[str, tuple[int, int]] = {}
     before = thread_policy()

@@ -53,7 +53,7 @@ NASTY = [
 ]
 ALLOWED = (ConfigError,)
 #: a problem that names its key: "KEY = VALUE: rule", "TABLE: a rule between its keys", "KEY (VALUE) must ..."
-_KEYED = re.compile(r"^[A-Za-z_][\w.\[\]-]*( = |: | \()")
+_KEYED = re.compile(r"^[\w-][\w.\[\]-]*( = |: | \()")  # TOML bare keys may start with a digit
 #: the file's own faults, before any key: not TOML, not UTF-8, unreadable
 _FILE_LEVEL = ("not valid TOML", "not UTF-8", "cannot read", "file not found")
 _TABLE_NAMED = re.compile(r"\[\w+\] table|key '\w+'")
