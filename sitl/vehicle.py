@@ -388,6 +388,29 @@ class SimVehicle:
             ve_e += be
         return (ve_n, ve_e, ve_d)
 
+    # read-only views of the autopilot's estimate for tests and tools (the private methods stay
+    # what the vehicle's own parts call; these only read them, nothing is drawn)
+    @property
+    def velocity_bias_ne_m_s(self) -> tuple[float, float]:
+        """The estimator state's horizontal velocity bias now (N, E; m/s; zero without a state)."""
+        return self._velocity_bias()
+
+    @property
+    def estimate_ned_m(self) -> tuple[float, float, float]:
+        """The autopilot's position estimate in its own frame (N, E, D; m), before home is taken off."""
+        return self._estimate()
+
+    @property
+    def local_estimate_ned_m(self) -> tuple[float, float, float]:
+        """The autopilot's position estimate from home (N, E, D; m): what position_ned reports
+        before its report noise."""
+        return self._local()
+
+    @property
+    def home_offset_ned_m(self) -> tuple[float, float, float]:
+        """The local origin in the estimate's frame (N, E, D; m): the estimate when home was set."""
+        return self._home_offset
+
     @property
     def estimator_state(self) -> EstimatorState | None:
         """The estimator state drawn for this flight (profiles.EstimatorState; None without)."""

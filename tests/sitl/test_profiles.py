@@ -165,19 +165,19 @@ def test_px4_sih_estimator_state_offsets_the_reported_attitude_and_biases_veloci
     b0, b1, b_top = es.velocity_bias_m_s[0], es.velocity_bias_m_s[1], es.velocity_bias_m_s[-1]
     assert len(es.velocity_bias_m_s) == len(VELOCITY_BIAS_HEIGHTS_M)
     v.pd = -0.5 * (VELOCITY_BIAS_HEIGHTS_M[0] + VELOCITY_BIAS_HEIGHTS_M[1])
-    assert v._velocity_bias() == pytest.approx((0.5 * (b0[0] + b1[0]), 0.5 * (b0[1] + b1[1])))
+    assert v.velocity_bias_ne_m_s == pytest.approx((0.5 * (b0[0] + b1[0]), 0.5 * (b0[1] + b1[1])))
     v.pd = -0.1
-    assert v._velocity_bias() == pytest.approx(b0)
+    assert v.velocity_bias_ne_m_s == pytest.approx(b0)
     v.pd = -10.0
-    assert v._velocity_bias() == pytest.approx(b_top)
+    assert v.velocity_bias_ne_m_s == pytest.approx(b_top)
     # on the ground from the start: the position estimate at its steady state b * tau
     g = SimVehicle(SimConfig(profile="px4-sih", seed=3))
     tau_p = es.position_follows_bias_tau_s
-    assert g._pos_bias == pytest.approx([b0[0] * tau_p, b0[1] * tau_p])
+    assert g.estimator_error.pos_bias == pytest.approx([b0[0] * tau_p, b0[1] * tau_p])
     # the reported velocity carries the bias (report noise 3 cm/s, the Gauss-Markov part 0.07)
     rep = [g.position_ned() for _ in range(400)]
-    assert np.mean([r.north_m_s for r in rep]) == pytest.approx(b0[0] + g._verr[0].x, abs=0.01)
-    assert np.mean([r.east_m_s for r in rep]) == pytest.approx(b0[1] + g._verr[1].x, abs=0.01)
+    assert np.mean([r.north_m_s for r in rep]) == pytest.approx(b0[0] + g.estimator_error.verr[0].x, abs=0.01)
+    assert np.mean([r.east_m_s for r in rep]) == pytest.approx(b0[1] + g.estimator_error.verr[1].x, abs=0.01)
     # ideal and arducopter-sitl have no state: attitude and velocity as before
     for name in ("ideal", "arducopter-sitl"):
         w = SimVehicle(SimConfig(profile=name, seed=3))
@@ -203,7 +203,7 @@ def test_px4_sih_velocity_bias_follows_the_time_since_the_descent_passed_3_m():
     es = v.estimator_state
     assert es is not None
     t = _switched_to_offboard(v, _airborne(v, 5.0))
-    assert v._bias_descent_t0 is None and -v.pd > 3.0
+    assert v.estimator_error.descent_t0 is None and -v.pd > 3.0
     passed = None
     while v.time_s < t + 20.0:
         v.set_velocity(VelocitySetpoint(0.0, 0.0, 1.0, 0.0))
@@ -211,32 +211,32 @@ def test_px4_sih_velocity_bias_follows_the_time_since_the_descent_passed_3_m():
         v.step_to(t)
         if passed is None and -v.pd < 3.0:
             passed = v.time_s
-            assert v._bias_descent_t0 == pytest.approx(passed, abs=0.01)
+            assert v.estimator_error.descent_t0 == pytest.approx(passed, abs=0.01)
         if passed is not None and v.time_s >= passed + 2.0:
             break
     assert passed is not None and 0.3 < -v.pd < 1.5  # well below the 2 m whose bias it carries
-    h_eq = 3.0 - 0.5 * (v.time_s - v._bias_descent_t0)
+    h_eq = 3.0 - 0.5 * (v.time_s - v.estimator_error.descent_t0)
     assert h_eq == pytest.approx(2.0, abs=0.03)
-    assert v._velocity_bias() == pytest.approx(_bias_curve_at(es, h_eq), abs=1e-9)
-    assert v._velocity_bias() != pytest.approx(_bias_curve_at(es, -v.pd), abs=1e-3)
+    assert v.velocity_bias_ne_m_s == pytest.approx(_bias_curve_at(es, h_eq), abs=1e-9)
+    assert v.velocity_bias_ne_m_s != pytest.approx(_bias_curve_at(es, -v.pd), abs=1e-3)
     # two seconds past the lowest band (0.15 m): its value plus two seconds of the drift
-    rn, re = v._bias_drift_m_s2
-    v._bias_descent_t0 = v.time_s - (3.0 - VELOCITY_BIAS_HEIGHTS_M[0]) / 0.5 - 2.0
+    rn, re = v.estimator_error.drift_m_s2
+    v.estimator_error.descent_t0 = v.time_s - (3.0 - VELOCITY_BIAS_HEIGHTS_M[0]) / 0.5 - 2.0
     b0 = es.velocity_bias_m_s[0]
-    assert v._velocity_bias() == pytest.approx((b0[0] + 2.0 * rn, b0[1] + 2.0 * re), abs=1e-9)
-    v._bias_descent_t0 = v.time_s - 1000.0  # a long hover: the drift at its bound
+    assert v.velocity_bias_ne_m_s == pytest.approx((b0[0] + 2.0 * rn, b0[1] + 2.0 * re), abs=1e-9)
+    v.estimator_error.descent_t0 = v.time_s - 1000.0  # a long hover: the drift at its bound
     cap = VELOCITY_BIAS_DRIFT_MAX_M_S
-    assert v._velocity_bias() == pytest.approx((b0[0] + math.copysign(cap, rn), b0[1] + math.copysign(cap, re)))
+    assert v.velocity_bias_ne_m_s == pytest.approx((b0[0] + math.copysign(cap, rn), b0[1] + math.copysign(cap, re)))
     # climbing back above 3 m: the true height again
     v.pd = -3.5
     v.step_to(v.time_s + 0.01)
-    assert v._bias_descent_t0 is None
-    assert v._velocity_bias() == pytest.approx(es.velocity_bias_m_s[-1])
+    assert v.estimator_error.descent_t0 is None
+    assert v.velocity_bias_ne_m_s == pytest.approx(es.velocity_bias_m_s[-1])
     # the rates drawn over flights: mean 0, SD 0.06 m/s^2
-    rates = np.array([SimVehicle(SimConfig(profile="px4-sih", seed=s))._bias_drift_m_s2 for s in range(300)])
+    rates = np.array([SimVehicle(SimConfig(profile="px4-sih", seed=s)).estimator_error.drift_m_s2 for s in range(300)])
     assert abs(rates.mean()) < 0.01
     assert rates.std() == pytest.approx(VELOCITY_BIAS_DRIFT_RATE_M_S2, rel=0.12)
-    assert SimVehicle(SimConfig(profile="ideal", seed=3))._bias_drift_m_s2 == (0.0, 0.0)
+    assert SimVehicle(SimConfig(profile="ideal", seed=3)).estimator_error.drift_m_s2 == (0.0, 0.0)
 
 
 def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
@@ -249,7 +249,7 @@ def test_the_heading_is_flown_on_the_autopilots_yaw_estimate():
         t = v.cfg.ready_delay_s + 0.5
         v.step_to(t)
         v.arm()
-        assert v._yaw_sp == pytest.approx(v.estimated_yaw())
+        assert v.modes.yaw_sp == pytest.approx(v.estimated_yaw())
         v.takeoff(3.0)
         t += 8.0
         v.step_to(t)
@@ -305,7 +305,7 @@ def test_the_thrust_is_pointed_with_the_autopilots_attitude_estimate():
         v = SimVehicle(SimConfig(profile="px4-sih", seed=seed))
         es = v.estimator_state
         if not keep_offset:
-            v._att_bias = (0.0, 0.0, 0.0)
+            v.estimator_error.att_bias = (0.0, 0.0, 0.0)
         t = _switched_to_offboard(v, _airborne(v, 3.0))
         hold = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
         for _ in range(100):  # 5 s hovering on the setpoint
@@ -342,15 +342,15 @@ def test_a_gps_error_moves_an_arducopter_vehicle_and_not_its_estimate():
     for name in ("arducopter-sitl", "ideal"):
         v = SimVehicle(SimConfig(profile=name, seed=1))
         t = _switched_to_offboard(v, _airborne(v, 6.0))
-        for w in v._walk:  # the error held where it is put
+        for w in v.gps_error.walk:  # the error held where it is put
             w.sigma, w.tau = 0.0, 1e9
         v.cfg = v.cfg.model_copy(update={"gps_noise_m": 0.0})
         for _ in range(100):
             t += 0.05
             v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
             v.step_to(t)
-        n0, est0 = v.pn, v._local()[0]
-        v._walk[0].x += 1.0
+        n0, est0 = v.pn, v.local_estimate_ned_m[0]
+        v.gps_error.walk[0].x += 1.0
         trace = []
         for k in range(200):  # 10 s
             t += 0.05
@@ -362,7 +362,7 @@ def test_a_gps_error_moves_an_arducopter_vehicle_and_not_its_estimate():
             t63 = next(tt for tt, dn in trace if dn <= -0.63)
             assert 1.9 < t63 < 2.7, t63  # real 2.3 s
             assert trace[-1][1] == pytest.approx(-1.0, abs=0.05)
-            assert v._local()[0] - est0 == pytest.approx(0.0, abs=0.05)  # the estimate came back
+            assert v.local_estimate_ned_m[0] - est0 == pytest.approx(0.0, abs=0.05)  # the estimate came back
     assert max(abs(dn) for _, dn in moved["ideal"]) < 0.02
 
 
@@ -375,23 +375,24 @@ def test_the_arducopter_estimate_takes_a_gps_step_as_a_second_order_response():
     assert 0.0 < zeta < 1.0
     v = SimVehicle(SimConfig(profile="arducopter-sitl", seed=1, gps_noise_m=0.0))
     t = _switched_to_offboard(v, _airborne(v, 6.0))
-    for wk in v._walk:  # the error held where it is put
+    for wk in v.gps_error.walk:  # the error held where it is put
         wk.sigma, wk.tau = 0.0, 1e9
     for _ in range(200):
         t += 0.05
         v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
         v.step_to(t)
-    x0 = v._gps_in_est[0]
-    v._walk[0].x += 1.0
+    x0 = v.gps_error.in_est[0]
+    v.gps_error.walk[0].x += 1.0
     t0, peak = t, (0.0, -1.0)
     while t < t0 + 12.0:
         t += 0.01
         v.set_velocity(VelocitySetpoint(0.0, 0.0, 0.0, 0.0))
         v.step_to(t)
-        x = v._gps_in_est[0] - x0
+        x = v.gps_error.in_est[0] - x0
         if x > peak[1]:
             peak = (t - t0, x)
-        assert v._local()[0] - v.pn == pytest.approx(v._gps_in_est[0] - v._home_offset[0], abs=1e-9)
+        in_est_n = v.gps_error.in_est[0] - v.home_offset_ned_m[0]
+        assert v.local_estimate_ned_m[0] - v.pn == pytest.approx(in_est_n, abs=1e-9)
     d = math.sqrt(1.0 - zeta * zeta)
     assert peak[1] == pytest.approx(1.0 + math.exp(-math.pi * zeta / d), abs=0.003)
     assert peak[0] == pytest.approx(math.pi / (w * d), abs=0.03)
@@ -413,7 +414,7 @@ def _hover_in_offboard(name: str) -> tuple[SimVehicle, float]:
     GPS error held still; the time."""
     v = SimVehicle(SimConfig(profile=name, seed=1, gps_noise_m=0.0))
     t = _switched_to_offboard(v, _airborne(v, 6.0))
-    for w in v._walk:
+    for w in v.gps_error.walk:
         w.sigma, w.tau = 0.0, 1e9
     for _ in range(200):
         t += 0.05
@@ -430,8 +431,8 @@ def test_guided_shapes_a_small_velocity_step_with_jerk_over_accel():
     pr = PROFILES["arducopter-sitl"]
     assert pr.guided_jerk_max_m_s3 / pr.guided_accel_max_m_s2 == pytest.approx(2.0)
     v, t = _hover_in_offboard("arducopter-sitl")
-    assert v._guided is not None
-    v0 = v._guided[1][0]
+    assert v.modes.guided is not None
+    v0 = v.modes.guided[1][0]
     t0 = t
     for k in range(1, 61):  # 3 s at 20 Hz
         t = t0 + 0.05 * k
@@ -439,7 +440,7 @@ def test_guided_shapes_a_small_velocity_step_with_jerk_over_accel():
         v.step_to(t)
         if k in (10, 20):
             want = 0.1 * (1.0 - math.exp(-2.0 * (v.time_s - t0)))
-            assert v._guided[1][0] - v0 == pytest.approx(want, abs=0.004), (k, want)
+            assert v.modes.guided[1][0] - v0 == pytest.approx(want, abs=0.004), (k, want)
     assert v.vn == pytest.approx(0.1, abs=0.01)
 
 
@@ -477,15 +478,15 @@ def test_px4_sih_reports_the_take_off_done_within_nav_mc_alt_rad_and_climbs_on_i
         t = v.cfg.ready_delay_s + 0.5
         v.step_to(t)
         v.arm()
-        d0 = v._estimate()[2]  # the autopilot's estimate, which its take-off and HOLD close on
+        d0 = v.estimate_ned_m[2]  # the autopilot's estimate, which its take-off and HOLD close on
         v.takeoff(2.5)
         while v.mode is FlightMode.TAKEOFF and t < 60.0:
             t += 0.02
             v.step_to(t)
         assert v.mode is FlightMode.HOLD
-        at_hold = d0 - v._estimate()[2]
+        at_hold = d0 - v.estimate_ned_m[2]
         v.step_to(t + 8.0)
-        climbs[name] = (at_hold, d0 - v._estimate()[2])
+        climbs[name] = (at_hold, d0 - v.estimate_ned_m[2])
     accept = PROFILES["px4-sih"].vehicle["takeoff_altitude_acceptance_m"]
     assert accept == 0.8
     assert 2.5 - accept <= climbs["px4-sih"][0] < 2.5 - accept + 0.1  # one 20 ms step at 1.5 m/s: 0.03 m
@@ -535,7 +536,7 @@ def test_px4_sih_soft_ground_catches_the_vehicle_only_while_the_net_force_points
         v.set_velocity(VelocitySetpoint(0.2, 0.0, 0.2, 0.0))
         v.step_to(t)
         depth.append(v.pd)
-        assert v._accel[2] <= 0.0 or v.pd < 0.0
+        assert v.dynamics.accel[2] <= 0.0 or v.pd < 0.0
     assert depth[-1] > 0.05 and v.vd > 0.1 and v.vn > 0.1
     # asking to descend faster turns the net force down: caught at once, resting where it was
     # caught with every speed zeroed; it stays there
