@@ -66,7 +66,7 @@ class CsvLog(HandedOverLog):
         self._remote_written = 0  # rows handed to the logging process (its count once closed)
         self._remote_dropped = 0
         self._max = int(max_queue)
-        self._q: list[tuple[object, ...]] = []  # append and _drain's slicing are each atomic (the GIL)
+        self._q: list[tuple[object, ...]] = []  # append and drain's slicing are each atomic (the GIL)
         self._io = threading.Lock()  # the writer thread and close() take turns on the file
         self._closed = False
         self._sink = sink

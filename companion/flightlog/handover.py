@@ -43,7 +43,9 @@ HANDOVER_ROWS = 256
 class Drainable(Protocol):
     """What the writer thread serves: a log that hands over (or writes) what it queued."""
 
-    def _drain(self) -> None: ...
+    def drain(self) -> None:
+        """Hand over (or write) what was queued so far: the writer thread's round, public so a
+        test can hand over mid-stream as that thread would."""
 
 
 class SharedWriter:
@@ -101,7 +103,7 @@ class SharedWriter:
             wait_s = min(period, WAKE_PERIOD_S) if queued * period >= HANDOVER_ROWS * (now - last) else period
             last = now
             for lg in logs:
-                lg._drain()
+                lg.drain()
             flush_current()
 
 
@@ -112,7 +114,7 @@ class HandedOverLog(abc.ABC):
     """The flight's side of a log the logging process writes
     (:class:`~companion.flightlog.csvlog.CsvLog`, the simulator's
     :class:`~companion.flightlog.telemetry_tlog.TelemetryTlog`): what the loop queued is handed
-    over as one batch per writer round (:meth:`_drain`), or written here when logging in process;
+    over as one batch per writer round (:meth:`drain`), or written here when logging in process;
     if the logging process dies, the file is continued here, first with the batches it was never
     handed (:meth:`_go_local`). A subclass says how its file is continued, written and closed here, and
     names its operations in the logging process (``_POST_OP``, ``_CLOSE_OP``)."""
@@ -120,7 +122,7 @@ class HandedOverLog(abc.ABC):
     _POST_OP: ClassVar[str]
     _CLOSE_OP: ClassVar[str]
     path: Path
-    _q: list[tuple[object, ...]]  # appended at the end by the producer, taken from the front by _drain
+    _q: list[tuple[object, ...]]  # appended at the end by the producer, taken from the front by drain
     _io: threading.Lock  # the writer thread and close() take turns on the file
     _proc: LogProcess | None
     _id: int
@@ -161,7 +163,7 @@ class HandedOverLog(abc.ABC):
         for op in returned:
             self._write_local(op[2])  # a file that could not be reopened counts them dropped
 
-    def _drain(self) -> None:
+    def drain(self) -> None:
         """Hand over (or write, in process) what has been queued so far, as one batch."""
         with self._io:
             if not self._is_local() and self._proc is not None and self._proc.dead:
@@ -207,7 +209,7 @@ def close_files(logs: Sequence[HandedOverLog]) -> None:
     for lg in logs:
         try:
             lg._shared.detach(lg)
-            lg._drain()
+            lg.drain()
             if not lg._is_local():
                 assert lg._proc is not None
                 remote.setdefault(id(lg._proc), (lg._proc, []))[1].append(lg)

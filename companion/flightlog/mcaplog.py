@@ -116,14 +116,14 @@ class McapFlightLog:
             ops.append(("img", *self._images.popleft()))
         return ops
 
-    def _drain(self) -> None:
+    def drain(self) -> None:
         """Hand the queued frames and path updates to the file, then (in process) end the chunk
         and flush it to the OS (the shared writer thread, every 0.1 s)."""
         with self._io:
             self._hand_over()
 
     def _hand_over(self) -> None:
-        """:meth:`_drain` (caller holds ``_io``: what the writer took is posted before a close)."""
+        """:meth:`drain` (caller holds ``_io``: what the writer took is posted before a close)."""
         if self._closed or self._lost:
             return
         if not self._images and not self._pending:

@@ -230,7 +230,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
             orig(self, *args)
             hook_s[_TLOG] += time.thread_time() - t0
             calls[_TLOG] += 1
-            calls[_TLOG + " records"] += 1  # calls[_TLOG] also counts its batches taken (_drain)
+            calls[_TLOG + " records"] += 1  # calls[_TLOG] also counts its batches taken (drain)
 
         return timed
 
@@ -249,7 +249,7 @@ def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict
             patch(FlightRecorder, name, functools.partial(hook, name))
         patch(CsvLog, "write", write)
         patch(FlightLogObserver, "on_tick", record)  # flight.csv's row, built and written
-        patch(HandedOverLog, "_drain", drain)  # every CSV log's and the .tlog's
+        patch(HandedOverLog, "drain", drain)  # every CSV log's and the .tlog's
         for name in _TLOG_HOOKS:
             patch(TelemetryTlog, name, tlog_hook)
         patch(logproc.LogProcess, "flush", handover)

@@ -159,6 +159,6 @@ def test_batched_log_writes_what_csv_writer_writes_row_by_row(tmp_path):
         for i, row in enumerate(rows):
             lg.write(row)
             if i % 700 == 0:
-                lg._drain()  # as the writer thread would, mid-stream
+                lg.drain()  # as the writer thread would, mid-stream
     assert (tmp_path / "a.csv").read_bytes() == ref.getvalue().encode("utf-8")
     assert lg.written == len(rows) and lg.dropped == 0

@@ -64,7 +64,7 @@ def test_the_logging_process_writes_the_bytes_the_in_process_path_writes(tmp_pat
         for i, row in enumerate(rows):
             lg.write(row)
             if i % 500 == 0:
-                lg._drain()  # handed over mid-stream, as the writer thread would
+                lg.drain()  # handed over mid-stream, as the writer thread would
     assert (lg.written, lg.dropped) == (len(rows), 0)
     monkeypatch.setattr(logproc, "IN_PROCESS", True)
     with CsvLog(tmp_path / "local.csv", COLS, max_queue=10**6) as local:
@@ -140,8 +140,8 @@ def test_a_dead_logging_process_hands_the_logs_back(tmp_path, own_process, caplo
     for i in range(100):
         lg.write((float(i), 1.0 * i))
         plain.write((float(i), 2.0 * i))
-    lg._drain()
-    plain._drain()
+    lg.drain()
+    plain.drain()
     assert proc.cpu_s() is not None  # an answer: everything before it was written
     proc.child.kill()
     proc.child.wait()
@@ -212,7 +212,7 @@ def test_a_write_error_in_the_logging_process_is_logged_once_by_path(tmp_path, c
         for _ in range(3):
             for i in range(10):
                 lg.write((float(i), 0.0))
-            lg._drain()
+            lg.drain()
             logproc.flush_current()
         lg.close()
     errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
@@ -283,7 +283,7 @@ def test_a_logging_process_that_dies_before_a_batched_close_leaves_every_log_com
     for lg in logs:
         for i in range(40):
             lg.write((float(i), 0.5 * i))
-        lg._drain()
+        lg.drain()
     assert proc.cpu_s() is not None  # answered: the first 40 rows of each are written
     proc.child.kill()
     proc.child.wait()
@@ -324,7 +324,7 @@ def test_rows_queued_while_the_writer_takes_a_batch_are_neither_lost_nor_doubled
         t = threading.Thread(target=produce)
         t.start()
         while not done.is_set():
-            lg._drain()  # the writer thread drains too: two takers, one producer
+            lg.drain()  # the writer thread drains too: two takers, one producer
         t.join()
     got = read_csv(tmp_path / "a.csv")["i"]
     assert got == [str(i) for i in range(n)] and lg.written == n and lg.dropped == 0

@@ -155,14 +155,14 @@ def test_a_csv_log_on_a_full_disk_says_how_many_rows_it_lost(tmp_path: Path, cap
         assert lg.in_process is in_process
         for i in range(20):
             lg.write((float(i), 1.0))
-        lg._drain()
+        lg.drain()
         logproc.flush_current()
         fill(d)
         with caplog.at_level(logging.WARNING):
             for k in range(3):  # well past the file's last page: every later batch is lost
                 for i in range(2000):
                     lg.write((float(k * 2000 + i), 1.0 / 3.0))
-                lg._drain()
+                lg.drain()
                 logproc.flush_current()
             # the flight's process knows before the close, also from the logging process
             deadline = time.monotonic() + 10.0

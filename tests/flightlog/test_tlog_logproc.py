@@ -116,7 +116,7 @@ def test_the_same_bytes_through_the_logging_process_and_in_process(tmp_path, mon
     assert not remote.in_process
     for k in range(0, len(calls), 700):
         _replay(calls[k : k + 700], remote, clock)
-        remote._drain()  # handed over mid-stream, as the writer thread would
+        remote.drain()  # handed over mid-stream, as the writer thread would
     remote.close()
     assert (tmp_path / "remote.tlog").read_bytes() == want
     n = len(list(read_tlog(tmp_path / "ref.tlog")))
@@ -154,7 +154,7 @@ def _shared(tmp_path: Path, name: str, calls: list[tuple[float, str, Any]], deta
         else:
             getattr(tl, what)(arg)
         if i % 700 == 699:
-            tl._drain()  # handed over mid-stream, as the writer thread would
+            tl.drain()  # handed over mid-stream, as the writer thread would
     rec.unshare_samples(tl)
     tl.close()
     rec.close()
@@ -220,7 +220,7 @@ def test_a_dead_logging_process_leaves_the_file_to_this_process(tmp_path, own_pr
     proc = LogProcess._current
     assert proc is not None and not t.in_process
     _replay(calls[:1000], t, clock)
-    t._drain()
+    t.drain()
     assert proc.cpu_s() is not None  # an answer: everything before it was written
     handed_over = (tmp_path / "a.tlog").stat().st_size
     assert 0 < handed_over < len(want)
@@ -297,7 +297,7 @@ def test_a_record_that_does_not_pickle_leaves_the_file_to_this_process(tmp_path,
         _replay(calls[:150], t, clock)
         t.sample(Odd(clock[0]))  # type: ignore[arg-type]  # no MAVLink for it: nothing written
         _replay(calls[150:], t, clock)
-        t._drain()
+        t.drain()
         logproc.flush_current()
         t.close()
     assert t.in_process and len(want) > 0
