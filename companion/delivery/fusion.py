@@ -196,6 +196,17 @@ class LandingFusion:
 
     # ---- outputs -------------------------------------------------------------------------
     @property
+    def process_velocity_ned_m_s(self) -> tuple[float, float, float]:
+        """The velocity the EKF predicts with now (N, E, D; m/s): the autopilot's reported one,
+        plus the learned correction when [landing] ekf_velocity_bias_tau_s is on."""
+        return (float(self._vel[0]), float(self._vel[1]), float(self._vel[2]))
+
+    @property
+    def velocity_bias_correction(self) -> VelocityBiasCorrection | None:
+        """The correction of a biased autopilot velocity (None when ekf_velocity_bias_tau_s is 0)."""
+        return self._vel_bias
+
+    @property
     def pad_locked(self) -> bool:
         """Pad-local data has been fused (xi = 1, delivery eq 12)."""
         return bool(self.ekf.xi)

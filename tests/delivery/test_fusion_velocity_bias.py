@@ -48,9 +48,9 @@ def test_off_by_default_the_reported_velocity_carries_the_estimate():
 def test_the_corrected_input_removes_the_lag_once_the_bias_is_learned():
     f, errs = fly(0.5)
     _, raw = fly(0.0)
-    assert f._vel_bias is not None and f._vel_bias.active.settled
+    assert f.velocity_bias_correction is not None and f.velocity_bias_correction.active.settled
     # the process input is the true velocity after ~10 tau
-    assert f._vel[:2] == pytest.approx(TRUE_V[:2], abs=1e-3)
+    assert f.process_velocity_ned_m_s[:2] == pytest.approx(TRUE_V[:2], abs=1e-3)
     assert np.mean(errs[-50:]) < 0.1 * np.mean(raw[-50:])
 
 
@@ -65,4 +65,4 @@ def test_the_correction_is_held_to_its_limit():
     for k in range(1, 200):
         t = k * 0.02
         f.on_sample(PositionNed(t, TRUE_V[0] * t, TRUE_V[1] * t, -3.0, 0.0, 0.0, 0.0))
-    assert math.hypot(f._vel[0], f._vel[1]) == pytest.approx(0.1, abs=1e-6)
+    assert math.hypot(*f.process_velocity_ned_m_s[:2]) == pytest.approx(0.1, abs=1e-6)
