@@ -87,9 +87,10 @@ class Pid:
         self.rejected = 0
         self.reset()
 
-    def reset(self) -> None:
-        """Integral to zero, derivative state cleared, output zero."""
-        self._integral = 0.0
+    def reset(self, integral: float = 0.0) -> None:
+        """Integral to ``integral`` (zero unless a caller starts the loop from a known one),
+        derivative state cleared, output zero."""
+        self._integral = integral
         self._d_filtered = 0.0
         self._prev_meas: float | None = None
         self._prev_t: float | None = None

@@ -69,8 +69,8 @@ def test_integral_limits_and_integration_towards_unsaturation() -> None:
     assert pid.integral == pytest.approx(0.3)
     # saturated high, error negative: integrating is allowed (it leaves saturation)
     pid2 = Pid(PidGains(kp=10.0, ki=1.0, out_min=-1.0, out_max=1.0))
+    pid2.reset(integral=0.5)  # as if integrated earlier
     pid2.update(0.0, 0.0, 0.0)
-    pid2._integral = 0.5  # as if integrated earlier
     u = pid2.update(0.1, -0.05, 0.0)  # P = -0.5, candidate I = 0.5 - 0.005
     assert pid2.integral == pytest.approx(0.495)
     assert u == pytest.approx(-0.005)
