@@ -298,7 +298,7 @@ class MavlinkTruth:
         v = (_mid_cm_s(m.vx), _mid_cm_s(m.vy), _mid_cm_s(m.vz))
         # PX4 leaves time_usec at 0 in this stream (its msg{} is never stamped): timed on arrival
         t = m.time_usec * 1e-6 if getattr(m, "time_usec", 0) else time.monotonic()
-        self._store(list(m.attitude_quaternion), (int(m.lat), int(m.lon), m.alt * 1e-3), v, t)
+        self.store_sample(list(m.attitude_quaternion), (int(m.lat), int(m.lon), m.alt * 1e-3), v, t)
 
     def _on_sim_state(self, m: Any) -> None:
         """ArduPilot SITL's SIM_STATE: degE7 in lat_int/lon_int (MAVLink 2 extensions); without
@@ -313,7 +313,7 @@ class MavlinkTruth:
             if abs(lat) > 90.0 or abs(lon) > 180.0:
                 lat, lon = lat * 1e-7, lon * 1e-7
             geo = (float(lat), float(lon), m.alt)
-        self._store([m.q1, m.q2, m.q3, m.q4], geo, (m.vn, m.ve, m.vd), time.monotonic())
+        self.store_sample([m.q1, m.q2, m.q3, m.q4], geo, (m.vn, m.ve, m.vd), time.monotonic())
 
     def _dequantise(
         self, lat_e7: int, lon_e7: int, alt_m: float, vel: tuple[float, float, float], t: float
@@ -334,14 +334,17 @@ class MavlinkTruth:
         lon_d = self._lon.update(lon_e7, step_lon) * 1e-7
         return GeoPoint(lat_d, lon_d, alt_m)
 
-    def _store(
+    def store_sample(
         self,
         q: list[float],
         geo: tuple[float, float, float],
         vel: tuple[float, float, float],
         t: float,
     ) -> None:
-        """``geo``: latitude and longitude as degE7 ints (dequantised here) or as degrees."""
+        """One truth sample, as both message handlers decode it (public: a test feeds samples
+        without a link). ``q``: attitude quaternion (w, x, y, z); ``geo``: latitude and longitude
+        as degE7 ints (dequantised here) or as degrees, altitude AMSL in m; ``vel``: NED m/s;
+        ``t``: its time in s."""
         if not all(math.isfinite(v) for v in (*q, *geo, *vel)) or abs(sum(v * v for v in q) - 1.0) > 0.1:
             self.rejected += 1
             return

@@ -73,7 +73,7 @@ def test_feed_recovers_positions_inside_the_degE7_step():
     for k in range(n):
         g = ltp.to_geo(float(pn[k]), float(pe[k]), -1.0)
         lat_i, lon_i = int(g.lat_deg * 1e7), int(g.lon_deg * 1e7)
-        feed._store(q, (lat_i, lon_i, g.alt_amsl_m), (float(vn[k]), float(ve[k]), 0.0), 100.0 + k * dt)
+        feed.store_sample(q, (lat_i, lon_i, g.alt_amsl_m), (float(vn[k]), float(ve[k]), 0.0), 100.0 + k * dt)
         if k >= 250:
             err_feed.append(math.hypot(feed.pn - pn[k], feed.pe - pe[k]))
             qn, qe, _ = ltp.to_ned(GeoPoint(lat_i * 1e-7, lon_i * 1e-7, g.alt_amsl_m))
@@ -90,10 +90,10 @@ def test_a_gap_in_the_samples_starts_afresh_in_the_middle_of_the_step():
     feed = MavlinkTruth("udpout:127.0.0.1:9", origin=CMAC)
     q = [1.0, 0.0, 0.0, 0.0]
     lat_i, lon_i = int(CMAC.lat_deg * 1e7), int(CMAC.lon_deg * 1e7)
-    feed._store(q, (lat_i, lon_i, 584.0), (0.0, 0.0, 0.0), 10.0)
-    feed._store(q, (lat_i, lon_i, 584.0), (5.0, 0.0, 0.0), 10.02)  # 5 m/s: clamped to the step's edge
+    feed.store_sample(q, (lat_i, lon_i, 584.0), (0.0, 0.0, 0.0), 10.0)
+    feed.store_sample(q, (lat_i, lon_i, 584.0), (5.0, 0.0, 0.0), 10.02)  # 5 m/s: clamped to the step's edge
     edge = feed.pn
-    feed._store(q, (lat_i, lon_i, 584.0), (5.0, 0.0, 0.0), 11.0)  # 0.98 s later: not integrated
+    feed.store_sample(q, (lat_i, lon_i, 584.0), (5.0, 0.0, 0.0), 11.0)  # 0.98 s later: not integrated
     mid = LocalTangentPlane(CMAC).to_ned(GeoPoint((lat_i - 0.5) * 1e-7, (lon_i + 0.5) * 1e-7, 584.0))
     assert feed.pn == pytest.approx(mid[0], abs=1e-6) and feed.pe == pytest.approx(mid[1], abs=1e-6)
     assert edge == pytest.approx(
