@@ -425,6 +425,11 @@ class CapKeeper:
         self._thread = threading.Thread(target=loop, name="cpu-cap-keeper", daemon=True)
         self._thread.start()
 
+    @property
+    def native_thread_id(self) -> int | None:
+        """The keeper thread's kernel thread id while :meth:`start` runs it (None before and after)."""
+        return None if self._thread is None else self._thread.native_id
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:

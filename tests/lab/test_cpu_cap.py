@@ -4,6 +4,7 @@ the files written, and the errors that name the file."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -227,16 +228,16 @@ def test_the_keepers_own_thread_is_a_world_thread(tmp_path):
     keeper = cpu_cap.CapKeeper(cg, period_s=0.01)
     keeper.start()
     try:
-        assert keeper._thread is not None
-        tid = keeper._thread.native_id
+        tid = keeper.native_thread_id
+        assert tid is not None
         for _ in range(200):
             if tid in cg.released:
                 break
-            keeper._stop.wait(0.01)
+            time.sleep(0.01)
         assert tid in cg.released
     finally:
         keeper.stop()
-    assert keeper._thread is None
+    assert keeper.native_thread_id is None
 
 
 def test_the_factor_measured_here_is_calibrates_ratio_and_is_measured_once(monkeypatch):
