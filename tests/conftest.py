@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from companion.config import shipped_params_path
+from companion.config import load_config, shipped_params_path
 from companion.delivery.shell import DeliveryShell
 from companion.telemetry.loopback import free_tcp_port
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
@@ -17,10 +17,17 @@ from companion_sitl.mavlink.link import free_udp_port
 from companion_sitl.params import load_simulated_config
 
 
+def shipped_config(params: str = "sitl_short.toml", *, simulated: bool = True, **tables):
+    """A shipped params file with some of its tables' keys overridden (``mission={...}``,
+    ``sim={...}``: read_params merges them into the file's): the simulator's config, or with
+    ``simulated=False`` the companion's alone (load_config)."""
+    load = load_simulated_config if simulated else load_config
+    return load(shipped_params_path(params), overrides=tables or None)
+
+
 def short_config(**mission):
-    return load_simulated_config(
-        shipped_params_path("sitl_short.toml"), overrides={"mission": mission} if mission else None
-    )
+    """The short scenario (sitl_short.toml) with keys of its [mission] overridden."""
+    return shipped_config(mission=mission) if mission else shipped_config()
 
 
 def firmware_config(firmware: str, connection: str, ready_timeout_s: float, telemetry: dict | None = None):
@@ -244,6 +251,7 @@ def mav():
     return SimpleNamespace(
         free_udp_port=free_udp_port,
         free_tcp_port=free_tcp_port,
+        shipped_config=shipped_config,
         short_config=short_config,
         sim_vehicle=sim_vehicle,
         wait_for=wait_for,

@@ -14,22 +14,15 @@ from companion.autopilot.ardupilot.autopilot import DISTANCE_SENSOR_MSG_ID
 from companion.autopilot.interface import TelemetryCache
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import MAV_SENSOR_ROTATION_PITCH_270, RangefinderReading
-from companion.config import shipped_params_path
 from companion_sitl.mavlink.factory import mavlink_sim_vehicle
-from companion_sitl.params import load_simulated_config
 
 
-def _config(enabled: bool):
-    return load_simulated_config(
-        shipped_params_path("sitl_short.toml"), overrides={"mission": {"rangefinder": {"enabled": enabled}}}
-    )
-
-
-def test_the_stream_is_asked_for_only_with_the_rangefinder_on() -> None:
-    assert DISTANCE_SENSOR_MSG_ID not in ArduPilotAutopilot.from_config(_config(False)).stream_rates_hz
-    assert ArduPilotAutopilot.from_config(_config(True)).stream_rates_hz[DISTANCE_SENSOR_MSG_ID] == 10.0
-    assert not Px4Autopilot.from_config(_config(False)).want_rangefinder
-    assert Px4Autopilot.from_config(_config(True)).want_rangefinder
+def test_the_stream_is_asked_for_only_with_the_rangefinder_on(mav) -> None:  # type: ignore[no-untyped-def]
+    off, on = (mav.short_config(rangefinder={"enabled": enabled}) for enabled in (False, True))
+    assert DISTANCE_SENSOR_MSG_ID not in ArduPilotAutopilot.from_config(off).stream_rates_hz
+    assert ArduPilotAutopilot.from_config(on).stream_rates_hz[DISTANCE_SENSOR_MSG_ID] == 10.0
+    assert not Px4Autopilot.from_config(off).want_rangefinder
+    assert Px4Autopilot.from_config(on).want_rangefinder
 
 
 def test_ardupilot_decodes_distance_sensor_in_centimetres() -> None:
@@ -75,8 +68,8 @@ def test_the_cache_rejects_a_reading_that_is_not_finite() -> None:
         ("px4", {"SIH_DISTSNSR_MAX": 100.0}, 0.0, 100.0),
     ],
 )
-def test_the_sim_vehicle_measures_the_true_height_along_its_tilted_axis(dialect, params, lo, hi) -> None:  # type: ignore[no-untyped-def]
-    cfg = _config(True).sim
+def test_the_sim_vehicle_measures_the_true_height_along_its_tilted_axis(mav, dialect, params, lo, hi) -> None:  # type: ignore[no-untyped-def]
+    cfg = mav.short_config(rangefinder={"enabled": True}).sim
     assert mavlink_sim_vehicle(cfg, dialect)._build(DISTANCE_SENSOR_MSG_ID) is None  # none fitted: nothing sent
 
     def ranges(seed: int) -> list[float]:

@@ -13,13 +13,9 @@ from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.ardupilot.requests import DEFAULT_STREAM_RATES_HZ, configured_stream_rates
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.types import Attitude, PositionNed
-from companion.config import ConfigError, load_config, shipped_params_path
+from companion.config import ConfigError
 
 WIND_MSG_ID = 168
-
-
-def _config(**runtime):
-    return load_config(shipped_params_path("sitl_short.toml"), overrides={"runtime": runtime})
 
 
 def test_configured_rates_replace_only_the_attitude_and_position_streams():
@@ -32,22 +28,26 @@ def test_configured_rates_replace_only_the_attitude_and_position_streams():
     assert configured_stream_rates(None, 5.0)[30] == DEFAULT_STREAM_RATES_HZ[30]
 
 
-def test_from_config_requests_the_configured_rates_with_the_wind_check_beside_them():
-    ap = ArduPilotAutopilot.from_config(_config(autopilot_attitude_rate_hz=25.0, autopilot_position_rate_hz=8.0))
+def _config(mav, **runtime):  # the companion's own config (load_config) with [runtime] keys set
+    return mav.shipped_config(simulated=False, runtime=runtime)
+
+
+def test_from_config_requests_the_configured_rates_with_the_wind_check_beside_them(mav):
+    ap = ArduPilotAutopilot.from_config(_config(mav, autopilot_attitude_rate_hz=25.0, autopilot_position_rate_hz=8.0))
     assert ap.stream_rates_hz[30] == 25.0 and ap.stream_rates_hz[33] == 8.0
-    cfg = _config(autopilot_attitude_rate_hz=25.0)
+    cfg = _config(mav, autopilot_attitude_rate_hz=25.0)
     cfg = cfg.model_copy(update={"go_no_go": cfg.go_no_go.model_copy(update={"wind_limit_m_s": 8.0})})
     ap = ArduPilotAutopilot.from_config(cfg)
     assert ap.stream_rates_hz[WIND_MSG_ID] == 2.0 and ap.stream_rates_hz[105] == 25.0
     assert ap.stream_rates_hz[32] == DEFAULT_STREAM_RATES_HZ[32]
-    px4 = Px4Autopilot.from_config(_config(autopilot_position_rate_hz=8.0))
+    px4 = Px4Autopilot.from_config(_config(mav, autopilot_position_rate_hz=8.0))
     assert px4.attitude_rate_hz is None and px4.position_rate_hz == 8.0
 
 
 @pytest.mark.parametrize(("key", "value"), [("autopilot_attitude_rate_hz", 2.0), ("autopilot_position_rate_hz", 500.0)])
-def test_a_rate_out_of_range_names_the_key(key, value):
+def test_a_rate_out_of_range_names_the_key(mav, key, value):
     with pytest.raises(ConfigError, match=key):
-        _config(**{key: value})
+        _config(mav, **{key: value})
 
 
 async def test_px4_asks_for_each_configured_rate_and_a_refusal_is_a_warning(caplog):

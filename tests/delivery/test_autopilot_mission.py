@@ -10,7 +10,6 @@ import pytest
 
 from companion.autopilot.interface import AutopilotError
 from companion.autopilot.mission_plan import PlanItem
-from companion.config import shipped_params_path
 from companion.delivery.autopilot_mission import (
     MissionDownloadError,
     MissionPlanError,
@@ -21,7 +20,7 @@ from companion.delivery.shell import DeliveryShell
 from companion.geometry.earth import GeoPoint, geo_to_ned, ned_to_geo
 from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
-from companion_sitl.params import load_simulated_config, simulated_config_from_dict
+from companion_sitl.params import simulated_config_from_dict
 from companion_sitl.vehicle import SimVehicle
 
 LAT, LON = 47.3977, 8.5456
@@ -146,8 +145,8 @@ class _Holding:
         return self.items
 
 
-def test_the_parameters_still_decide_a_pad_outside_the_fence_or_a_failed_download() -> None:
-    base = load_simulated_config(shipped_params_path("px4_sih_quad.toml"))
+def test_the_parameters_still_decide_a_pad_outside_the_fence_or_a_failed_download(mav) -> None:  # type: ignore[no-untyped-def]
+    base = mav.shipped_config("px4_sih_quad.toml")
     data = base.model_dump()
     box = [[47.39, 8.54], [47.39, 8.55], [47.40, 8.55], [47.40, 8.54]]
     data["fence"] = {"enabled": True, "inclusion": [{"vertices_deg": box}]}
@@ -164,11 +163,8 @@ def test_the_parameters_still_decide_a_pad_outside_the_fence_or_a_failed_downloa
 # ---------------------------------------------------------------- the shell on the embedded simulator
 
 
-def _config():  # type: ignore[no-untyped-def]
-    return load_simulated_config(
-        shipped_params_path("sitl_short.toml"),
-        overrides={"mission": {"destination": "autopilot_mission"}, "landing": {"fusion": False}},
-    )
+# the short scenario flown to the pad of the mission uploaded to the autopilot (mav.shipped_config)
+FROM_THE_AUTOPILOT = {"mission": {"destination": "autopilot_mission"}, "landing": {"fusion": False}}
 
 
 def _fly(config, items):  # type: ignore[no-untyped-def]
@@ -186,8 +182,8 @@ def _fly(config, items):  # type: ignore[no-untyped-def]
     return run_virtual(go())
 
 
-def test_a_plan_without_a_delivery_is_refused_before_anything_is_armed() -> None:
-    config = _config()
+def test_a_plan_without_a_delivery_is_refused_before_anything_is_armed(mav) -> None:  # type: ignore[no-untyped-def]
+    config = mav.shipped_config(**FROM_THE_AUTOPILOT)
     armed: list[bool] = []
 
     class Watched(SimAutopilot):
@@ -209,8 +205,8 @@ def test_a_plan_without_a_delivery_is_refused_before_anything_is_armed() -> None
 
 
 @pytest.mark.flight
-def test_the_shell_flies_to_the_pad_of_the_uploaded_mission() -> None:
-    config = _config()
+def test_the_shell_flies_to_the_pad_of_the_uploaded_mission(mav) -> None:  # type: ignore[no-untyped-def]
+    config = mav.shipped_config(**FROM_THE_AUTOPILOT)
     h = config.sim.home
     home = GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
     pad = ned_to_geo(home, -12.0, 15.0, 0.0)  # not the parameters' pad (N 14, E 14)

@@ -10,18 +10,18 @@ import pytest
 
 from companion.cli import exits
 from companion.cli.main import main
-from companion.config import load_config, shipped_params_path
 from companion.delivery.landing_setup import LandingSetupError, build_landing_kit, start_sensors
 
 FIXTURES = Path(__file__).parents[1] / "vision" / "fixtures"
 
 
-def _cfg(tmp_path, **landing):
-    return load_config(shipped_params_path("px4_sih_quad.toml"), overrides={"landing": {"fusion": True, **landing}})
+def _cfg(mav, **landing):  # type: ignore[no-untyped-def]
+    """The PX4 quad's params (the companion's config alone) with fusion on and [landing] keys set."""
+    return mav.shipped_config("px4_sih_quad.toml", simulated=False, landing={"fusion": True, **landing})
 
 
-def test_kit_from_config_sees_the_pad_in_a_real_image_through_the_camera_plugin(tmp_path):
-    cfg = _cfg(tmp_path, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
+def test_kit_from_config_sees_the_pad_in_a_real_image_through_the_camera_plugin(mav, tmp_path):
+    cfg = _cfg(mav, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
     kit = build_landing_kit(cfg)
     assert kit is not None and kit.uwb is None and kit.multilaterator is None
     start_sensors(kit)
@@ -41,37 +41,37 @@ def test_kit_from_config_sees_the_pad_in_a_real_image_through_the_camera_plugin(
     assert np.linalg.norm(obs.T_camera_pad.t - truth) < 0.05
 
 
-def test_missing_camera_fails_on_the_ground_and_says_how_to_fly_without(tmp_path):
-    kit = build_landing_kit(_cfg(tmp_path, camera_source=str(tmp_path / "no_such_video.mp4"), use_uwb=False))
+def test_missing_camera_fails_on_the_ground_and_says_how_to_fly_without(mav, tmp_path):
+    kit = build_landing_kit(_cfg(mav, camera_source=str(tmp_path / "no_such_video.mp4"), use_uwb=False))
     with pytest.raises(LandingSetupError, match=r"landing\.camera_source, or set landing\.use_camera = false") as info:
         start_sensors(kit)
     assert info.value.device_missing
 
 
-def test_missing_uwb_port_fails_on_the_ground(tmp_path):
-    kit = build_landing_kit(_cfg(tmp_path, use_camera=False, uwb_port=str(tmp_path / "ttyNOPE")))
+def test_missing_uwb_port_fails_on_the_ground(mav, tmp_path):
+    kit = build_landing_kit(_cfg(mav, use_camera=False, uwb_port=str(tmp_path / "ttyNOPE")))
     with pytest.raises(LandingSetupError, match=r"landing\.uwb_port, or set landing\.use_uwb = false") as info:
         start_sensors(kit)
     assert info.value.device_missing
 
 
-def test_bad_files_and_plugins_are_named(tmp_path):
+def test_bad_files_and_plugins_are_named(mav, tmp_path):
     with pytest.raises(LandingSetupError, match="camera_calibration") as info:
-        build_landing_kit(_cfg(tmp_path, camera_calibration="nope.toml"))
+        build_landing_kit(_cfg(mav, camera_calibration="nope.toml"))
     assert not info.value.device_missing  # a setting to change, not a device to plug in
     bad_pad = tmp_path / "pad_bad.toml"
     bad_pad.write_text("[pad]\nouter_size_m = -1.0\n")
     with pytest.raises(LandingSetupError, match=r"landing.pad_file = '.*pad_bad.toml': .*'pad.outer_size_m' = -1.0"):
-        build_landing_kit(_cfg(tmp_path, pad_file=str(bad_pad), use_uwb=False))
+        build_landing_kit(_cfg(mav, pad_file=str(bad_pad), use_uwb=False))
     bad_anchors = tmp_path / "anchors_bad.toml"
     bad_anchors.write_text('frame = "pad"\n')
     with pytest.raises(LandingSetupError, match=r"landing.uwb_anchors = '.*anchors_bad.toml'"):
-        build_landing_kit(_cfg(tmp_path, uwb_anchors=str(bad_anchors), use_camera=False))
+        build_landing_kit(_cfg(mav, uwb_anchors=str(bad_anchors), use_camera=False))
     with pytest.raises(LandingSetupError, match=r"no plugin companion\.cameras/nosuch"):
-        build_landing_kit(_cfg(tmp_path, camera_plugin="nosuch", use_uwb=False))
+        build_landing_kit(_cfg(mav, camera_plugin="nosuch", use_uwb=False))
     with pytest.raises(LandingSetupError, match="nothing to fuse"):
-        build_landing_kit(_cfg(tmp_path, use_camera=False, use_uwb=False))
-    assert build_landing_kit(load_config(shipped_params_path("px4_sih_quad.toml"))) is None  # fusion off
+        build_landing_kit(_cfg(mav, use_camera=False, use_uwb=False))
+    assert build_landing_kit(mav.shipped_config("px4_sih_quad.toml", simulated=False)) is None  # fusion off
 
 
 def test_fly_refuses_to_start_without_its_camera(tmp_path, capsys):
@@ -85,11 +85,11 @@ def test_fly_refuses_to_start_without_its_camera(tmp_path, capsys):
     assert not (tmp_path / "run").exists()  # nothing flew, nothing logged
 
 
-def test_record_camera_wraps_the_kit_camera_and_writes_the_frames_it_reads(tmp_path):
+def test_record_camera_wraps_the_kit_camera_and_writes_the_frames_it_reads(mav, tmp_path):
     from companion.delivery.landing_setup import record_camera
     from companion.flightlog.camera_file import load_frame_times, times_path_for
 
-    cfg = _cfg(tmp_path, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
+    cfg = _cfg(mav, camera_source=str(FIXTURES / "pad_2m5.png"), use_uwb=False)
     kit = build_landing_kit(cfg)
     assert kit is not None
     with pytest.raises(LandingSetupError, match=r"--record-camera .*x\.gif: .*extension '\.gif'"):
@@ -107,11 +107,11 @@ def test_record_camera_wraps_the_kit_camera_and_writes_the_frames_it_reads(tmp_p
     finally:
         rec.camera.stop()
     assert load_frame_times(times_path_for(video)) == [frame.time_s]
-    no_cam = build_landing_kit(_cfg(tmp_path, use_camera=False))
+    no_cam = build_landing_kit(_cfg(mav, use_camera=False))
     with pytest.raises(LandingSetupError, match="no camera to record"):
         record_camera(no_cam, video, 30.0)
 
 
-def test_vision_attitude_reaches_the_kit(tmp_path):
-    assert build_landing_kit(_cfg(tmp_path, use_camera=False)).vision_attitude is False  # off by default
-    assert build_landing_kit(_cfg(tmp_path, use_camera=False, vision_attitude=True)).vision_attitude is True
+def test_vision_attitude_reaches_the_kit(mav, tmp_path):
+    assert build_landing_kit(_cfg(mav, use_camera=False)).vision_attitude is False  # off by default
+    assert build_landing_kit(_cfg(mav, use_camera=False, vision_attitude=True)).vision_attitude is True

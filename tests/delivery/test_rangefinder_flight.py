@@ -15,10 +15,8 @@ import pytest
 
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 from companion.autopilot.px4 import Px4Autopilot
-from companion.config import shipped_params_path
 from companion.estimation.rangefinder import Rejection
 from companion.events import EventKind
-from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
@@ -30,17 +28,11 @@ PARAMS = {
 }
 
 
-def _config(rangefinder: bool):
-    return load_simulated_config(
-        shipped_params_path("sitl_short.toml"),
-        overrides={
-            "mission": {
-                "return_home": False,
-                "descent": {"contact_time_s": 0.3},
-                "rangefinder": {"enabled": rangefinder},
-            },
-            "sim": {"height_estimate_drift_m_s": DRIFT_M_S},
-        },
+def _config(mav, rangefinder: bool):  # type: ignore[no-untyped-def]
+    """The short scenario, one way, on a height estimate drifting at DRIFT_M_S."""
+    return mav.shipped_config(
+        mission={"return_home": False, "descent": {"contact_time_s": 0.3}, "rangefinder": {"enabled": rangefinder}},
+        sim={"height_estimate_drift_m_s": DRIFT_M_S},
     )
 
 
@@ -53,7 +45,7 @@ def _contact(sim) -> tuple[float, float]:  # type: ignore[no-untyped-def]
 
 
 async def _fly(mav, port: int, dialect: str, rangefinder: bool):  # type: ignore[no-untyped-def]
-    config = _config(rangefinder)
+    config = _config(mav, rangefinder)
     with mav.sim_vehicle(config, dialect, port, params=PARAMS[dialect]) as sim:
         url = f"udpin:127.0.0.1:{port}" if dialect == "ardupilot" else f"udpin://127.0.0.1:{port}"
         cls = ArduPilotAutopilot if dialect == "ardupilot" else Px4Autopilot
@@ -102,7 +94,7 @@ async def test_a_noisy_rangefinder_is_gated_and_the_landing_goes_on(mav, udp_por
     max_jump_m from one to the next; the gate rejects those, flies on the ones that agree or on the
     held correction, and the delivery lands as it would on the estimate."""
     params = {**PARAMS["ardupilot"], "SIM_SONAR_RND": 1.0}
-    config = _config(True)
+    config = _config(mav, True)
     with mav.sim_vehicle(config, "ardupilot", udp_port, params=params) as sim:
         ap = ArduPilotAutopilot.from_config(config.model_copy(update={"connection": f"udpin:127.0.0.1:{udp_port}"}))
         shell, summary = await mav.fly(config, ap)

@@ -13,26 +13,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import shipped_params_path
 from companion.delivery.telemetry import FRESH_S
 from companion.flightlog.reader import read_columns
 from companion.telemetry.ground import GroundStation
 from companion.telemetry.loopback import free_tcp_port, loopback_settings
 from companion.vision.pad import PadLayout
 from companion_lab.demo import run_demo
-from companion_sitl.params import load_simulated_config
 
 pytestmark = pytest.mark.flight
 
 
-def _config(zenoh_config: Path):
-    return load_simulated_config(
-        shipped_params_path("sitl_short.toml"),
-        overrides={
-            "sim": {"seed": 4, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, 0.2]},
-            "landing": {"fusion": True},
-            "telemetry": {"zenoh_config": str(zenoh_config)},
-        },
+def _config(mav, zenoh_config: Path):  # type: ignore[no-untyped-def]
+    """The short scenario fused, on a biased GPS and a displaced pad, publishing over ``zenoh_config``."""
+    return mav.shipped_config(
+        sim={"seed": 4, "gps_bias_m": [1.0, -0.5, 0.0], "pad_offset_m": [0.3, 0.2]},
+        landing={"fusion": True},
+        telemetry={"zenoh_config": str(zenoh_config)},
     )
 
 
@@ -51,7 +47,7 @@ def flight(tmp_path_factory, mav):
     port = free_tcp_port()
     run = tmp / "run"
     with GroundStation(loopback_settings(listen_port=port), out_dir=tmp / "rec") as ground:
-        r = run_demo(_config(mav.connect_only_zenoh(tmp, port)), run_dir=run, telemetry=True)
+        r = run_demo(_config(mav, mav.connect_only_zenoh(tmp, port)), run_dir=run, telemetry=True)
         end = time.monotonic() + 5.0
         while time.monotonic() < end and not ("sitl1" in ground.snapshot() and not ground.snapshot()["sitl1"].alive):
             time.sleep(0.01)
@@ -79,13 +75,13 @@ def test_state_fields_come_from_the_tick_they_were_published_at(flight):
     assert states[-1]["armed"] is False  # the last state is the disarmed vehicle at home
 
 
-def test_mission_fields_match_the_flight_log(flight):
+def test_mission_fields_match_the_flight_log(mav, flight):
     _r, run, rec, _row = flight
     fl = read_columns(run / "flight.csv")
     ticks = {float(t): i for i, t in enumerate(fl["time_s"])}
     meta = json.loads((run / "run.json").read_text())
     conf_pad = meta["mission"]["pad_ned_m"]
-    speeds = load_simulated_config(shipped_params_path("sitl_short.toml")).mission.sector_speed_m_s
+    speeds = mav.short_config().mission.sector_speed_m_s
     gl = read_columns(run / "guidance.csv")
     guidance_at = {float(t): i for i, t in enumerate(gl["time_s"])}
     senses: dict[str, set[int]] = {}

@@ -9,13 +9,7 @@ import math
 
 import pytest
 
-from companion.config import shipped_params_path
 from companion_lab import fault_campaign as fc
-from companion_sitl.params import load_simulated_config
-
-
-def _config():
-    return load_simulated_config(shipped_params_path("sitl_short.toml"))
 
 
 def test_the_draws_are_the_seeds_alone_fault_major_and_within_their_ranges():
@@ -53,8 +47,8 @@ def test_the_fault_list_of_the_command_line():
         ("forged_command", False, False),  # stops nothing of ours
     ],
 )
-def test_the_failsafe_is_required_where_the_fault_outlasts_the_autopilots_timeout(fault, ardupilot, px4):
-    config = _config()
+def test_the_failsafe_is_required_where_the_fault_outlasts_the_autopilots_timeout(mav, fault, ardupilot, px4):
+    config = mav.short_config()
     got = {
         dialect: fc.failsafe_required(config, fc.FaultDraw(0, 0, fault, dialect, "descent", 5.0, 0.5))
         for dialect in fc.DIALECTS
@@ -137,15 +131,13 @@ def test_a_small_fault_campaign_keeps_the_safety_contract():
 
 
 @pytest.mark.flight
-def test_a_3_s_stall_late_in_the_cruise_on_arducopter_releases_nothing_off_the_pad():
+def test_a_3_s_stall_late_in_the_cruise_on_arducopter_releases_nothing_off_the_pad(mav):
     """The campaign's draw that found an off-pad release (seed 1 of `--faults all --n 10`, landing
     14): after a 3 s stall in the cruise (under ArduCopter's 5.5 s failsafe; GUID_TIMEOUT flew the
     last setpoint on, ~11 m past the pad) the resumed GPS-only descent (sitl_short's
     require_pad_lock = false) came down ~2 m off the pad. The mission never releases where its own
     estimate puts the touchdown outside the pad: it flies home with the parcel."""
-    config = load_simulated_config(
-        shipped_params_path("sitl_short.toml"), overrides={"mission": {"return_home": False}}
-    )
+    config = mav.short_config(return_home=False)
     row = fc.fly_fault_landing(config, fc.FaultDraw(13, 1013, "stall_3s", "ardupilot", "cruise", 6.8, 0.69))
     assert row["fired"] and not row["lost"], row
     assert not row["released_off_pad"], (row["touchdown_ne_m"], row["failure_kind"])
