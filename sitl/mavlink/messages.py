@@ -81,6 +81,7 @@ class MessageStreams(RcInput):
     SOFTWARE_VERSION: ClassVar[int] = 0  # AUTOPILOT_VERSION flight_sw_version
     clock_offset_s: float  # added to the UTC this vehicle reports (SYSTEM_TIME)
     _streams: dict[int, list[float]]
+    unsupported_messages: frozenset[int]  # SET_MESSAGE_INTERVAL answers UNSUPPORTED for these
     _hb_period: float
     _hb_next: float
     _texts_sent: int
@@ -410,8 +411,13 @@ class MessageStreams(RcInput):
         uid = 0x5349_4D00 + self.system_id
         return e.autopilot_version_encode(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
 
+    @property
+    def streamed_message_ids(self) -> frozenset[int]:
+        """The message ids streamed now: the defaults and what was asked for, less what was stopped."""
+        return frozenset(self._streams)
+
     def _set_interval(self, mid: int, interval_us: float) -> int:
-        if mavlink.mavlink_map.get(mid) is None:
+        if mavlink.mavlink_map.get(mid) is None or mid in self.unsupported_messages:
             return mavlink.MAV_RESULT_UNSUPPORTED
         if interval_us < 0:
             self._streams.pop(mid, None)

@@ -31,7 +31,9 @@ class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
 
     ``bind`` is the vehicle's own address (port 0 picks a free one; see :attr:`address`).
     ``remote`` is where it sends before anyone has spoken to it (a companion listening with
-    ``udpin``). Use as a context manager or call :meth:`start` / :meth:`stop`.
+    ``udpin``). ``unsupported_messages``: message ids SET_MESSAGE_INTERVAL answers UNSUPPORTED
+    for (an autopilot without them, e.g. no HIGHRES_IMU). Use as a context manager or call
+    :meth:`start` / :meth:`stop`.
 
     The dialect's subclass (:class:`~companion_sitl.mavlink.px4.Px4SimVehicle`,
     :class:`~companion_sitl.mavlink.ardupilot.ArduPilotSimVehicle`) fills in the hooks;
@@ -64,6 +66,7 @@ class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
         trusted_link: bool = False,
         clock_offset_s: float = 0.0,
         route_peers: bool = False,
+        unsupported_messages: frozenset[int] = frozenset(),
     ):
         if dialect is not None and dialect != self.dialect:
             raise ValueError(f"dialect {dialect!r}: this is the {self.dialect!r} sim vehicle")
@@ -81,6 +84,7 @@ class MavlinkSimVehicle(MissionServer, FenceServer, CommandHandler):
         # pass what one peer sends, unless addressed to the vehicle itself, to the others (the
         # firmware's routing between its links: a GCS peer sees the companion's component)
         self.route_peers = route_peers
+        self.unsupported_messages = frozenset(unsupported_messages)
         self._rx_addr: tuple[str, int] | None = None
         self.release_servo = release_servo
         self.release_pwm = release_pwm

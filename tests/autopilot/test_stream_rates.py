@@ -118,16 +118,15 @@ async def test_the_sim_vehicle_streams_at_the_rates_asked_for(mav, udp_port, dia
 @pytest.mark.parametrize("highres", [True, False])
 async def test_raw_imu_is_asked_for_only_where_highres_imu_is_refused(mav, udp_port, highres):
     config = mav.short_config()
-    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
-        if not highres:  # an autopilot without HIGHRES_IMU answers UNSUPPORTED
-            set_interval = sim._set_interval
-            sim._set_interval = lambda mid, us: 3 if mid == 105 else set_interval(mid, us)
+    # an autopilot without HIGHRES_IMU (105) answers UNSUPPORTED
+    refused = frozenset() if highres else frozenset({105})
+    with mav.sim_vehicle(config, "ardupilot", udp_port, unsupported_messages=refused) as sim:
         ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
         try:
             await ap.connect(timeout_s=5.0)
-            await mav.wait_for(lambda: 33 in sim._streams, 5.0, "the stream requests answered")
+            await mav.wait_for(lambda: 33 in sim.streamed_message_ids, 5.0, "the stream requests answered")
             resent = [m for m, _ in ap._streams_to_request() if ap._stream_wanted(m)]
         finally:
             await ap.close()
-    assert (105 in sim._streams, 27 in sim._streams) == (highres, not highres)
+    assert (105 in sim.streamed_message_ids, 27 in sim.streamed_message_ids) == (highres, not highres)
     assert (27 in resent) == (not highres)  # the re-requests after a silent stream say the same
