@@ -214,6 +214,11 @@ class TelemetryCache:
     def add_listener(self, fn: Callable[[TelemetrySample], None]) -> None:
         self._listeners.append(fn)
 
+    @property
+    def listeners(self) -> tuple[Callable[[TelemetrySample], None], ...]:
+        """The sample listeners, in the order a valid sample is handed to them (a copy)."""
+        return tuple(self._listeners)
+
     def remove_listener(self, fn: Callable[[TelemetrySample], None]) -> None:
         if fn in self._listeners:
             self._listeners.remove(fn)

@@ -144,10 +144,10 @@ def _shared(tmp_path: Path, name: str, calls: list[tuple[float, str, Any]], deta
     for i, (t, what, arg) in enumerate(calls):
         if i == detach_at:
             rec.close()
-            assert tc._listeners == [tl.sample]  # the .tlog listens for itself again
+            assert tc.listeners == (tl.sample,)  # the .tlog listens for itself again
         clock[0] = t
         if what == "sample":
-            for fn in tc._listeners:  # what TelemetryCache.push does once the sample is valid
+            for fn in tc.listeners:  # what TelemetryCache.push does once the sample is valid
                 fn(arg)
         elif what in ("command", "command_ack"):
             getattr(tl, what)(*arg)
