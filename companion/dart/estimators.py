@@ -320,6 +320,13 @@ class DartEstimator(ABC):
         self.ambiguous_observations = 0  # IPPE mirror pair unresolved: gated, not fused
 
     # history ---------------------------------------------------------------
+    @property
+    def attitude_history(self) -> tuple[tuple[float, ...], ...]:
+        """The attitude history delayed frames are fused against, oldest first (a copy): per IMU
+        sample its time in s, then the estimator's attitude (FCF-CF: roll, pitch, yaw in rad;
+        Madgwick: its quaternion)."""
+        return tuple(self._history)
+
     def _record(self, entry: tuple[float, ...]) -> None:
         h = self._history
         h.append(entry)

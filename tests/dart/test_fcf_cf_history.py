@@ -43,11 +43,11 @@ def test_in_place_shift_equals_rebuilding_the_history(seed):
             exposure = imu[max(0, k - int(rng.integers(0, 24)))][0]
         R = o.R_cam_marker @ _small_rotation(rng)
         frame = CameraMarkerObservation(exposure, R, o.t_cam_marker_m)
-        before = list(ref._history)
+        before = list(ref.attitude_history)
         e1, e2 = fast.update_vision(frame), ref.update_vision(frame)
         assert e1 == e2
-        assert list(fast._history) == list(ref._history)
-        shifted += sum(1 for x, y in zip(before, ref._history, strict=True) if x != y)
+        assert list(fast.attitude_history) == list(ref.attitude_history)
+        shifted += sum(1 for x, y in zip(before, ref.attitude_history, strict=True) if x != y)
     assert fast.accepted_observations > 300 and shifted > 1000  # the tails were really shifted
 
 
