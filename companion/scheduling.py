@@ -15,8 +15,9 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol, TypeVar
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +99,27 @@ class RateLoop:
         await self.clock.sleep_until(deadline)
         self.ticks += 1
         return deadline, False
+
+
+# How a bench or a test instruments a shell without changing its flight: a stage timer
+# ``(stage, fn) -> fn`` the shell applies once where it binds a named stage (None: nothing
+# wrapped), and the factory its fixed-rate loops are built with.
+StageTimer = Callable[[str, Callable[..., Any]], Callable[..., Any]]
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class RateLoopFactory(Protocol):
+    def __call__(self, clock: Clock, rate_hz: float, start_s: float | None = None) -> RateLoop: ...
+
+
+def untimed(stage: str, fn: F) -> F:
+    """The stage timer of a flight: ``fn`` itself."""
+    return fn
+
+
+def timed(timer: StageTimer | None, stage: str, fn: F) -> F:
+    """``fn`` timed as ``stage`` when a stage timer is set, else ``fn`` itself."""
+    return fn if timer is None else timer(stage, fn)  # type: ignore[return-value]
 
 
 # ---------------------------------------------------------------------------- thread priority

@@ -43,6 +43,7 @@ import contextlib
 import logging
 import math
 from collections import deque
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +61,7 @@ from companion.dart.estimators import (
     make_estimator,
     wall_marker,
 )
+from companion.dart.hooks import DartHooks
 from companion.dart.mission import DartMission, DartPhase
 from companion.dart.mixer import AttitudeMapConfig, RcMixer, RcMixerConfig, attitude_setpoint
 from companion.dart.params import DartFlightParams, DartRuntimeConfig, controller_config
@@ -69,7 +71,6 @@ from companion.param_kinds import DartEstimatorTable
 from companion.scheduling import (
     Clock,
     LoopClock,
-    RateLoop,
     realtime_loop_thread,
     restore_thread_policy,
     set_thread_realtime,
@@ -229,6 +230,7 @@ class DartShell:
         log_path: str | Path | None = None,
         clock: Clock | None = None,
         keep_steps: bool = True,
+        hooks: DartHooks | None = None,
     ) -> None:
         self.params = p = params or DartFlightParams()
         rt = self.rt = p.runtime
@@ -236,6 +238,7 @@ class DartShell:
         self.camera = camera
         self.output: Output = _choose_output(autopilot, output, rt)
         self.clock: Clock = clock or LoopClock()
+        self.hooks = h = hooks or DartHooks()
         self.rates = rt.rates
         self.estimator: DartEstimator = make_estimator(rt.estimator_name, estimator_config(rt, p.estimator))
         self.camera_model = camera_model or runtime_camera_model(rt)
@@ -270,6 +273,11 @@ class DartShell:
         self._executor: ThreadPoolExecutor | None = None
         self._csv: CsvLog | None = None
         self._t0 = 0.0
+        # the stages a bench times (DartHooks), bound once; a flight binds the functions themselves
+        self._sample_listener = h.timed("imu", self._on_sample)
+        self._command_step = h.timed("commands", self._send_command)
+        self._rc_out = h.timed("link", self._send_rc_override)
+        self._attitude_out = h.timed("link", self._set_attitude_target)
 
     # ------------------------------------------------------------------ inputs
     def _on_sample(self, sample: TelemetrySample) -> None:
@@ -335,8 +343,9 @@ class DartShell:
 
     # ------------------------------------------------------------------ tasks
     async def _imu_task(self) -> None:
-        rate = RateLoop(self.clock, self.rates.imu_hz)
+        rate = self.hooks.rate_loop(self.clock, self.rates.imu_hz)
         est = self.estimator
+        update_imu = self.hooks.timed("imu", est.update_imu)
         while True:
             await rate.tick()
             while self._imu:
@@ -346,7 +355,7 @@ class DartShell:
                     if att is not None:  # start from the autopilot's attitude, not from level-north
                         est.madgwick.reset_euler(att.roll_rad, att.pitch_rad, att.yaw_rad)
                         self._madgwick_started = True
-                ok = est.update_imu(
+                ok = update_imu(
                     s.time_s,
                     (s.gyro_x_rad_s, s.gyro_y_rad_s, s.gyro_z_rad_s),
                     (s.accel_x_m_s2, s.accel_y_m_s2, s.accel_z_m_s2),
@@ -360,6 +369,8 @@ class DartShell:
         loop = asyncio.get_running_loop()
         assert self._executor is not None
         poll_s = 0.25 / self.rates.vision_hz
+        detect = self.hooks.timed("detect", self.detector.detect)
+        update_vision = self.hooks.timed("vision", self.estimator.update_vision)
         while True:
             frame = self.camera.read()
             if frame is None:
@@ -367,7 +378,7 @@ class DartShell:
                 continue
             self.stats.frames += 1
             try:
-                det = await loop.run_in_executor(self._executor, self.detector.detect, frame.image, frame.time_s)
+                det = await loop.run_in_executor(self._executor, detect, frame.image, frame.time_s)
             except ValueError as err:  # an unusable frame is counted, never fatal
                 self.stats.vision_errors += 1
                 log.warning("dart vision: frame %d rejected: %s", frame.index, err)
@@ -377,14 +388,15 @@ class DartShell:
             self.stats.detections += 1
             if det.ambiguous:
                 self.stats.ambiguous += 1
-            if self.estimator.update_vision(CameraMarkerObservation.from_detection(det)) is not None:
+            if update_vision(CameraMarkerObservation.from_detection(det)) is not None:
                 self.stats.estimates += 1
 
     async def _control_task(self) -> None:
-        rate = RateLoop(self.clock, self.rates.control_hz)
+        rate = self.hooks.rate_loop(self.clock, self.rates.control_hz)
+        step = self.hooks.timed("control", self.control_step)
         while True:
             t = await rate.tick()
-            self.control_step(t)
+            step(t)
 
     def control_step(self, t: float) -> DartCommand:
         """Engagement, mission setpoint and the PIDs' contribution at ``t``."""
@@ -412,10 +424,10 @@ class DartShell:
         return self.command
 
     async def _command_task(self) -> None:
-        rate = RateLoop(self.clock, self.rates.command_hz)
+        rate = self.hooks.rate_loop(self.clock, self.rates.command_hz)
         while True:
             t = await rate.tick()
-            self._send_command(t)
+            self._command_step(t)
 
     def _contribution(self, now: float) -> DartCommand | None:
         c = self.command
@@ -443,7 +455,7 @@ class DartShell:
         else:
             return  # released and repeated: silence (the radio flies)
         try:
-            self.autopilot.send_rc_override(out.channels)
+            self._rc_out(out.channels)
         except AutopilotError as err:
             self.stats.send_errors += 1
             log.warning("dart: RC override not sent: %s", err)
@@ -471,7 +483,7 @@ class DartShell:
             return
         target = AttitudeTarget(sp.roll_rad, sp.pitch_rad, att.yaw_rad, sp.yaw_rate_rad_s, sp.thrust)
         try:
-            ap.set_attitude_target(target)
+            self._attitude_out(target)
         except AutopilotError as err:
             self.stats.send_errors += 1
             log.warning("dart: attitude setpoint not sent: %s", err)
@@ -492,6 +504,12 @@ class DartShell:
             self._offboard_asked_at = now
             self._offboard_task = asyncio.get_running_loop().create_task(self._request(ap.start_offboard(), "offboard"))
 
+    def _send_rc_override(self, channels: Sequence[int]) -> None:
+        self.autopilot.send_rc_override(channels)  # looked up each time: a test may spy on it
+
+    def _set_attitude_target(self, target: AttitudeTarget) -> None:
+        self.autopilot.set_attitude_target(target)
+
     async def _request(self, coro: Any, what: str) -> None:
         try:
             await coro
@@ -499,16 +517,17 @@ class DartShell:
             log.warning("dart: %s refused: %s", what, err)
 
     async def _log_task(self) -> None:
-        rate = RateLoop(self.clock, self.rates.log_hz)
+        rate = self.hooks.rate_loop(self.clock, self.rates.log_hz)
+        write = None if self._csv is None else self.hooks.timed("logging", self._csv.write)
         while True:
             t = await rate.tick()
-            if self._csv is None:
+            if write is None:
                 continue
             e = self.estimator.last
             sp = self._last_sp
             c = self.command
             nan = math.nan
-            self._csv.write(
+            write(
                 (
                     t - self._t0,
                     int(self.engaged),
@@ -544,7 +563,7 @@ class DartShell:
         )
         if self.log_path is not None:
             self._csv = CsvLog(self.log_path, LOG_COLUMNS)
-        tel.add_listener(self._on_sample)
+        tel.add_listener(self._sample_listener)
         tel.add_rc_listener(self._on_rc)
         self.camera.start()
         tasks = [
@@ -570,7 +589,7 @@ class DartShell:
                     await t
             self._shutdown()
             await self._leave_offboard()
-            tel.remove_listener(self._on_sample)
+            tel.remove_listener(self._sample_listener)
             tel.remove_rc_listener(self._on_rc)
             self.camera.stop()
             self._executor.shutdown(wait=True)
@@ -608,7 +627,7 @@ class DartShell:
         out = self.mixer.mix([], None)  # invalid input: disengages (controller reset), release values
         if self.output == "rc_override" and (out.disengaged_now or self._release_left > 0):
             with contextlib.suppress(AutopilotError):
-                self.autopilot.send_rc_override(out.channels)
+                self._rc_out(out.channels)
                 self.stats.releases_sent += 1
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 from companion.delivery.fusion import FusionSetup, LandingFusion
 from companion.delivery.gonogo import GoNoGoVerdict
@@ -24,22 +24,15 @@ from companion.delivery.mission import RequestResult
 from companion.delivery.observers import DeliveryShell, ShellObserver, ShellTick
 from companion.events import MissionEvent
 from companion.guidance.setpoint import VelocitySetpoint
-from companion.scheduling import Clock, RateLoop
+from companion.scheduling import RateLoop, RateLoopFactory, StageTimer, timed, untimed
 from companion.uwb.measurements import UwbFix
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-StageTimer = Callable[[str, Callable[..., Any]], Callable[..., Any]]
 FusionFactory = Callable[[FusionSetup, float], Any]
 
-
-class RateLoopFactory(Protocol):
-    def __call__(self, clock: Clock, rate_hz: float, start_s: float | None = None) -> RateLoop: ...
-
-
-def untimed(stage: str, fn: F) -> F:
-    """The stage timer of a flight: ``fn`` itself."""
-    return fn
+# (StageTimer, RateLoopFactory and untimed live in companion.scheduling, shared with the Dart shell)
+__all__ = ["FusionFactory", "RateLoopFactory", "ShellHooks", "StageTimer", "TimedObserver", "untimed"]
 
 
 @dataclass(frozen=True)
@@ -50,7 +43,7 @@ class ShellHooks:
 
     def timed(self, stage: str, fn: F) -> F:
         """``fn`` timed as ``stage`` when a stage timer is set, else ``fn`` itself."""
-        return fn if self.stage_timer is None else self.stage_timer(stage, fn)  # type: ignore[return-value]
+        return timed(self.stage_timer, stage, fn)
 
 
 class TimedObserver(ShellObserver):

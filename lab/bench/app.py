@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import asyncio
 import bisect
-import contextlib
 import dataclasses
 import itertools
 import logging
@@ -40,9 +39,9 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 from companion import scheduling
 from companion.autopilot.interface import Autopilot
@@ -50,7 +49,6 @@ from companion.config import DEFAULT_PARAMS, shipped_params_path
 from companion.delivery.observers import ShellObserver, ShellTick
 from companion.estimation.ekf import UpdateOutcome
 from companion.flightlog import logproc
-from companion.flightlog.csvlog import CsvLog  # the Dart bench's logging
 from companion_lab.bench.targets import judge
 from companion_lab.cpu_cap import WORLD_THREAD_PREFIXES, CapKeeper, open_cgroup
 from companion_sitl.params import SimulatedConfig, load_simulated_config
@@ -126,10 +124,6 @@ class CpuAccount:
                     self.calls[task] += 1
 
         return wrapped
-
-    def patch(self, obj: Any, name: str, task: str) -> None:
-        """Wrap ``obj.name`` (an instance attribute shadowing the method)."""
-        setattr(obj, name, self.wrap(task, getattr(obj, name)))
 
 
 def classify_thread(comm: str, py_name: str | None) -> str:
@@ -273,32 +267,6 @@ def run_setpoint_stream(run_dir: Path) -> dict[str, Any]:
         for r in rows("ap_status.csv")
     ]
     return setpoint_stream_gaps(times, None, modes)
-
-
-# ---------------------------------------------------------------------------- rate loops
-class _CountedRateLoop(scheduling.RateLoop):
-    """A RateLoop that registers itself so the bench can read every loop's ticks and overruns."""
-
-    registry: ClassVar[list[tuple[str, scheduling.RateLoop]]] = []
-    label = "loop"
-
-    def __init__(self, clock: scheduling.Clock, rate_hz: float, start_s: float | None = None):
-        super().__init__(clock, rate_hz, start_s)
-        _CountedRateLoop.registry.append((f"{self.label} {rate_hz:g} Hz", self))
-
-
-def _counted(label: str) -> type[scheduling.RateLoop]:
-    return type(f"RateLoop_{label}", (_CountedRateLoop,), {"label": label})
-
-
-@contextlib.contextmanager
-def _patched(obj: Any, name: str, value: Any) -> Iterator[None]:
-    old = getattr(obj, name)
-    setattr(obj, name, value)
-    try:
-        yield
-    finally:
-        setattr(obj, name, old)
 
 
 # ---------------------------------------------------------------------------- the run
@@ -862,12 +830,52 @@ def _with_targets(r: dict[str, Any]) -> dict[str, Any]:
     return r
 
 
+# the Dart shell's stages (companion.dart.hooks.DartHooks) by the bench's task
+DART_STAGE_TASKS = {
+    "imu": "imu",
+    "detect": "vision",
+    "vision": "vision",
+    "control": "control",
+    "commands": "commands",
+    "link": "link",
+    "logging": "logging",
+}
+
+
+def _dart_stage_timer(acct: CpuAccount, lat: LatencyTracker, loop: asyncio.AbstractEventLoop) -> Any:
+    """Each Dart stage timed as its task; the detector, the control step and the command also
+    give the latency account its points (a frame detected, the step done, the command sent)."""
+
+    def timer(stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        timed = acct.wrap(DART_STAGE_TASKS[stage], fn)
+        if stage == "detect":
+            return _timed_detector(timed, lat, loop)
+        if stage == "control":
+
+            def control_step(t: float) -> Any:
+                out = timed(t)
+                lat.guidance_step(True, loop.time())
+                return out
+
+            return control_step
+        if stage == "commands":
+
+            def send_command(now: float) -> None:
+                timed(now)
+                lat.setpoint_sent(loop.time())
+
+            return send_command
+        return timed
+
+    return timer
+
+
 async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str, Any]:
     """The Dart shell at dart sec. 4's rates against the Dart link sim (companion_sitl.dart_link):
     IMU 200 Hz, vision at the camera's 30 fps, control 22 Hz, commands 44 Hz, the CSV log 20 Hz."""
     from companion.autopilot.ardupilot import ArduPilotAutopilot
     from companion.autopilot.px4 import Px4Autopilot
-    from companion.dart import shell as dart_shell_mod
+    from companion.dart.hooks import DartHooks
     from companion.dart.params import DartFlightParams
     from companion.dart.shell import DART_STREAM_RATES_HZ, DartShell
     from companion_sitl.dart_link import DartLinkSim
@@ -876,7 +884,7 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
 
     acct = CpuAccount()
     lat = LatencyTracker()
-    _CountedRateLoop.registry.clear()
+    loops = LoopRegistry()
     loop = asyncio.get_running_loop()
     p = DartParams()
     port = free_udp_port()
@@ -898,47 +906,20 @@ async def _run_dart(duration_s: float, backend: str, run_dir: Path) -> dict[str,
                 camera_model=sim.camera.camera_model,
                 layout=p.sim.layout,
                 log_path=run_dir / "dart.csv",
+                hooks=DartHooks(stage_timer=_dart_stage_timer(acct, lat, loop), rate_loop=loops.factory("dart")),
             )
             sim.set_pilot(switch_on=True)
-            detect = acct.wrap("vision", shell.detector.detect)
-
-            timed = _timed_detector(detect, lat, loop)
-            setattr(shell.detector, "detect", timed)  # noqa: B010  (an instance attribute shadows it)
-            acct.patch(shell.estimator, "update_imu", "imu")
-            acct.patch(shell.estimator, "update_vision", "vision")
-            acct.patch(shell, "_on_sample", "imu")  # queues the autopilot's IMU samples
-            step = acct.wrap("control", shell.control_step)
-
-            def control_step(t: float) -> Any:
-                out = step(t)
-                lat.guidance_step(True, loop.time())
-                return out
-
-            shell.control_step = control_step  # type: ignore[method-assign]
-            send = acct.wrap("commands", shell._send_command)
-
-            def send_command(now: float) -> None:
-                send(now)
-                lat.setpoint_sent(loop.time())
-
-            shell._send_command = send_command  # type: ignore[method-assign]
-            acct.patch(ap, "send_rc_override" if backend == "ardupilot" else "set_attitude_target", "link")
             proc0 = time.process_time()
             wall0 = time.monotonic()
             threads0 = thread_cpu_s()
             end["logging_process_s0"] = logging_process_cpu_s()
             stop_snapshot = loop.call_later(duration_s - 0.02, _snapshot, end)
-            with (
-                _patched(dart_shell_mod, "RateLoop", _counted("dart")),
-                _patched(CsvLog, "write", acct.wrap("logging", CsvLog.write)),
-            ):
-                summary = await shell.run(duration_s)
+            summary = await shell.run(duration_s)
             stop_snapshot.cancel()
             _snapshot(end)
         finally:
             await ap.close()
-    dart_loops = _CountedRateLoop.registry
-    r = _report(acct, lat, threads0, end, proc0, wall0, DART_TASKS, p.sim.camera_latency_s * 1e3, dart_loops)
+    r = _report(acct, lat, threads0, end, proc0, wall0, DART_TASKS, p.sim.camera_latency_s * 1e3, loops.loops)
     r["camera"]["rate_hz"] = p.runtime.rates.vision_hz
     r["commands_sent"] = summary.stats.overrides_sent + summary.stats.attitude_targets_sent
     return {"app": "dart", "backend": backend, "mission_phase_at_end": summary.phase.value, **r}
