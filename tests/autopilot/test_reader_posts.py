@@ -1,6 +1,6 @@
-"""The ArduPilot backend's reader thread hands its calls to the event loop in bursts: every call
-runs on the loop, in the order posted, one raising call does not stop the others, and calls posted
-before the loop gets to them share one wake-up."""
+"""The ArduPilot backend's reader thread hands its calls to the event loop in bursts (LoopPoster,
+the backend's _post): every call runs on the loop, in the order posted, one raising call does not
+stop the others, and calls posted before the loop gets to them share one wake-up."""
 
 from __future__ import annotations
 
@@ -10,19 +10,19 @@ from typing import Any
 
 import pytest
 
-from companion.autopilot.ardupilot import ArduPilotAutopilot
+from companion.autopilot.ardupilot.link import LoopPoster
 
 
-def _backend(loop: asyncio.AbstractEventLoop) -> ArduPilotAutopilot:
-    ap = ArduPilotAutopilot("udpin:127.0.0.1:14999")
-    ap._loop = loop  # what connect() sets; no link is opened here
-    return ap
+def _poster(loop: asyncio.AbstractEventLoop) -> LoopPoster:
+    p = LoopPoster()
+    p.bind(loop)  # what the backend's connect() does; no link is opened here
+    return p
 
 
 def test_posts_run_on_the_loop_in_order_and_share_wakeups(caplog: pytest.LogCaptureFixture) -> None:
     async def main() -> tuple[list[Any], set[int], int]:
         loop = asyncio.get_running_loop()
-        ap = _backend(loop)
+        poster = _poster(loop)
         seen: list[Any] = []
         threads: set[int] = set()
 
@@ -45,12 +45,12 @@ def test_posts_run_on_the_loop_in_order_and_share_wakeups(caplog: pytest.LogCapt
 
         def reader() -> None:  # two bursts of 50, the second after the loop has drained the first
             for k in range(50):
-                ap._post(record, k)
+                poster.post(record, k)
                 if k == 10:
-                    ap._post(boom)
+                    poster.post(boom)
             drained.wait(5.0)
             for k in range(50, 100):
-                ap._post(record, k)
+                poster.post(record, k)
 
         drained = threading.Event()
         t = threading.Thread(target=reader)
@@ -73,15 +73,15 @@ def test_posts_run_on_the_loop_in_order_and_share_wakeups(caplog: pytest.LogCapt
 
 def test_a_closed_loop_drops_posts_and_a_new_loop_gets_them() -> None:
     loop = asyncio.new_event_loop()
-    ap = _backend(loop)
+    poster = _poster(loop)
     loop.close()
-    ap._post(print, "never")  # the loop is closed: nothing scheduled, nothing kept
-    assert not ap._posted and not ap._drain_scheduled
+    poster.post(print, "never")  # the loop is closed: nothing scheduled, nothing kept
+    assert poster.pending == 0 and not poster.drain_scheduled
 
     async def main() -> list[int]:
-        ap._loop = asyncio.get_running_loop()
+        poster.bind(asyncio.get_running_loop())
         got: list[int] = []
-        ap._post(got.append, 1)
+        poster.post(got.append, 1)
         await asyncio.sleep(0.01)
         return got
 

@@ -92,7 +92,7 @@ def _arm_status_message(status: int, error: bytes) -> mavlink.MAVLink_message:
 
 async def test_backend_keeps_arm_status_and_refuses_to_arm() -> None:
     ap = ArduPilotAutopilot("udpin:127.0.0.1:1", arm_timeout_s=0.5, remote_id=CFG)
-    ap._loop = asyncio.get_running_loop()
+    ap.attach_loop(asyncio.get_running_loop())
     with pytest.raises(CommandRejected, match="no OPEN_DRONE_ID_ARM_STATUS") as err:
         await ap.arm()
     assert err.value.kind is CommandResult.DENIED and err.value.permanent

@@ -177,7 +177,7 @@ class _Vehicle:
 
 def _backend(items: list[Item], mission_type: int) -> ArduPilotAutopilot:
     ap = ArduPilotAutopilot("udpin:127.0.0.1:14550", target_system=1)
-    ap._loop = asyncio.get_running_loop()
+    ap.attach_loop(asyncio.get_running_loop())
     vehicle = _Vehicle(ap, items, mission_type)
 
     def send(fn: Any) -> bool:

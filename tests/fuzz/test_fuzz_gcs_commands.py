@@ -87,7 +87,7 @@ def _kind(m: Any) -> CommandKind | None:
 async def _through_component(setup_name: str, data: bytes) -> str:
     setup = SETUPS[setup_name]
     ap = ArduPilotAutopilot("udpin:127.0.0.1:14550", target_system=1, signing=setup)
-    ap._loop = asyncio.get_running_loop()
+    ap.attach_loop(asyncio.get_running_loop())
     mission = DeliveryMission(CompanionConfig().mission)
     mission.phase = Phase.OUTBOUND
     calls: list[CommandKind] = []

@@ -12,19 +12,18 @@ send. The link, the requests and the telemetry decoding are its base classes
 from __future__ import annotations
 
 import asyncio
-import collections
 import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
 from companion.autopilot.ardupilot.component import ArduPilotComponent
 from companion.autopilot.ardupilot.dialect import mavlink
 from companion.autopilot.ardupilot.fence import ArduPilotFence
-from companion.autopilot.ardupilot.link import LinkCounters
+from companion.autopilot.ardupilot.link import LinkCounters, LoopPoster
 from companion.autopilot.ardupilot.mission import ArduPilotMission
 from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.ardupilot.remote_id import ArduPilotRemoteId
@@ -127,9 +126,7 @@ class ArduPilotAutopilot(
         self._tlog_opened = False  # a reconnect appends to the same file
         self._conn: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        # calls from the reader thread waiting for the loop (_post), and whether a drain is on its way
-        self._posted: collections.deque[tuple[Callable[..., Any], tuple[Any, ...]]] = collections.deque()
-        self._drain_scheduled = False
+        self._poster = LoopPoster()  # calls from the reader thread waiting for the loop (_post)
         self._reader: threading.Thread | None = None
         self._running = False
         self._send_lock = threading.Lock()

@@ -114,6 +114,61 @@ def parse_connection(url: str, baud: int = 57600) -> tuple[str, int, str]:
     return dev, int(b) if b else baud, "serial"
 
 
+class LoopPoster:
+    """Calls handed from a thread (the MAVLink reader) to an event loop, run there in the order
+    posted. Calls posted while the loop has not yet run the previous ones go in one wake-up (an
+    autopilot sends its streams in bursts: one self-pipe write and one loop iteration per burst,
+    not per message); one raising call is logged and does not stop the others."""
+
+    def __init__(self) -> None:
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._posted: collections.deque[tuple[Callable[..., Any], tuple[Any, ...]]] = collections.deque()
+        self._drain_scheduled = False
+
+    def bind(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Post to ``loop`` from now on; calls left for a loop that has gone are dropped."""
+        self.loop = loop
+        self._posted.clear()
+        self._drain_scheduled = False
+
+    @property
+    def pending(self) -> int:
+        """Calls posted that the loop has not run yet."""
+        return len(self._posted)
+
+    @property
+    def drain_scheduled(self) -> bool:
+        """A wake-up of the loop is on its way (the next calls posted share it)."""
+        return self._drain_scheduled
+
+    def post(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` on the loop; nothing (and nothing kept) when it is closed or unbound."""
+        loop = self.loop
+        if loop is None or loop.is_closed():
+            return
+        self._posted.append((fn, args))
+        if self._drain_scheduled:  # the loop has not started the drain yet: it will run this too
+            return
+        self._drain_scheduled = True
+        try:
+            loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # loop closing: nothing will run them
+            self._posted.clear()
+            self._drain_scheduled = False
+
+    def _drain(self) -> None:
+        # cleared before draining: a call posted from now on schedules a drain of its own (at
+        # worst an empty one), so none is left waiting
+        self._drain_scheduled = False
+        posted = self._posted
+        while posted:
+            fn, args = posted.popleft()
+            try:
+                fn(*args)
+            except Exception:  # as the loop would for a callback of its own: log, go on with the next
+                log.exception("error in %s posted from the MAVLink reader", getattr(fn, "__qualname__", fn))
+
+
 class ArduPilotLink(abc.ABC):
     """The connection, the send lock and the reader thread of :class:`ArduPilotAutopilot`; the
     decoding and the requests are in its subclasses (:mod:`.requests`, :mod:`.telemetry`)."""
@@ -138,8 +193,7 @@ class ArduPilotLink(abc.ABC):
     _tlog_opened: bool
     _conn: Any
     _loop: asyncio.AbstractEventLoop | None
-    _posted: collections.deque[tuple[Callable[..., Any], tuple[Any, ...]]]
-    _drain_scheduled: bool
+    _poster: LoopPoster  # the reader thread's calls to the loop (_post)
     _reader: threading.Thread | None
     _running: bool
     _send_lock: threading.Lock
@@ -181,9 +235,8 @@ class ArduPilotLink(abc.ABC):
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._conn is not None:
             return
-        self._loop = asyncio.get_running_loop()
-        self._posted.clear()  # left from a loop that has gone (a reconnect from another loop)
-        self._drain_scheduled = False
+        self._loop = asyncio.get_running_loop()  # set here too: the rest of connect uses it
+        self.attach_loop(self._loop)
         device, baud, kind = parse_connection(self.connection, self.baud)
         if kind == "serial" and not os.path.exists(device):
             raise LinkDeviceMissing(f"serial device {device} does not exist (connection {self.connection!r})")
@@ -310,34 +363,16 @@ class ArduPilotLink(abc.ABC):
             return False
         return True
 
-    def _post(self, fn: Callable[..., Any], *args: Any) -> None:
-        """Run ``fn(*args)`` on the event loop, in the order posted. Calls posted while the loop has
-        not yet run the previous ones go in one wake-up (an autopilot sends its streams in bursts:
-        one self-pipe write and one loop iteration per burst, not per message)."""
-        loop = self._loop
-        if loop is None or loop.is_closed():
-            return
-        self._posted.append((fn, args))
-        if self._drain_scheduled:  # the loop has not started the drain yet: it will run this too
-            return
-        self._drain_scheduled = True
-        try:
-            loop.call_soon_threadsafe(self._drain_posted)
-        except RuntimeError:  # loop closing: nothing will run them
-            self._posted.clear()
-            self._drain_scheduled = False
+    def attach_loop(self, loop: asyncio.AbstractEventLoop) -> None:
+        """The event loop the backend's futures and the reader's calls belong to (what
+        :meth:`connect` does first; calls left for a loop that has gone are dropped). Public so a
+        test or a fuzzer can drive the message handlers without opening a link."""
+        self._loop = loop
+        self._poster.bind(loop)
 
-    def _drain_posted(self) -> None:
-        # cleared before draining: a call posted from now on schedules a drain of its own (at
-        # worst an empty one), so none is left waiting
-        self._drain_scheduled = False
-        posted = self._posted
-        while posted:
-            fn, args = posted.popleft()
-            try:
-                fn(*args)
-            except Exception:  # as the loop would for a callback of its own: log, go on with the next
-                log.exception("error in %s posted from the MAVLink reader", getattr(fn, "__qualname__", fn))
+    def _post(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` on the event loop, in the order posted (:class:`LoopPoster`)."""
+        self._poster.post(fn, *args)
 
     def _save_signing_timestamp(self) -> None:
         """Keep our signing timestamp in ``signing.timestamp_file`` (every 30 s and on close)."""
