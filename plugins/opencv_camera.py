@@ -114,6 +114,11 @@ class OpenCvCamera:
             raise PluginError(f"camera {self.source!r}: playback has no capture thread to notify from; poll read()")
         self._listener.set(callback)
 
+    @property
+    def listener_errors(self) -> int:
+        """Frame-listener calls that raised (each counted, the capture goes on)."""
+        return self._listener.errors
+
     def _open(self) -> cv2.VideoCapture:
         src = self.source
         if isinstance(src, str) and src.isdigit():

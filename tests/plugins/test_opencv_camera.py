@@ -97,7 +97,7 @@ def test_a_failing_listener_is_logged_and_capture_goes_on(tmp_path, caplog):
     cam.set_frame_listener(listener)
     with caplog.at_level(logging.ERROR, logger="companion.plugin_api"):
         _run_to_eof(cam)
-    assert cam.frames == 10 and len(calls) == 10 and cam._listener.errors == 10
+    assert cam.frames == 10 and len(calls) == 10 and cam.listener_errors == 10
     errors = [r for r in caplog.records if "listener bug" in r.getMessage()]
     assert len(errors) == 1 and "capture goes on" in errors[0].getMessage()  # the first, not every frame
 
