@@ -130,6 +130,16 @@ class SimCameraSource:
         self._expose = timed("sim_render", camera.expose)
         self._capture = timed("sim_render", camera.capture)
 
+    @property
+    def pending_renders(self) -> int:
+        """Exposures in view rendered ahead (or being rendered) on the render thread, not yet read."""
+        return len(self._renders)
+
+    @property
+    def render_thread_running(self) -> bool:
+        """The render thread is up: :meth:`start` ran and :meth:`stop` has not."""
+        return self._renderer is not None
+
     def start(self) -> None:
         self._renderer = ThreadPoolExecutor(1, thread_name_prefix="sim-camera-render")
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim-camera")

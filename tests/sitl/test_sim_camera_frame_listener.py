@@ -78,7 +78,7 @@ def test_unread_frames_are_not_hoarded_and_an_old_one_read_late_is_rendered_then
         src.set_frame_listener(lambda: None)  # told, but never reads (vision not wanted)
         src.start()
         await asyncio.sleep(1.0)
-        kept = len(src._renders)
+        kept = src.pending_renders
         rendered = len(render_threads)
         f = src.read()  # the newest readable one, whatever was dropped before it
         src.stop()

@@ -89,7 +89,7 @@ def test_frames_rendered_ahead_on_the_thread_are_the_frames_rendered_on_read() -
             f = src.read()
             if f is not None:
                 out.append((f.time_s, f.image))
-        assert src._renderer is not None  # the frames came from the render thread
+        assert src.render_thread_running  # the frames came from the render thread
         src.stop()
         assert src.out_of_view > 0 and src.rendered == len(out)
         return out
@@ -125,12 +125,12 @@ def test_exposures_are_rendered_ahead_only_while_the_camera_is_read() -> None:
     async def go() -> tuple[tuple[int, int], list[int]]:
         src.start()
         await asyncio.sleep(0.5)  # 15 exposures in view, nobody reads (vision not wanted yet)
-        unread = (len(renders), len(src._renders))
+        unread = (len(renders), src.pending_renders)
         pending = []
         for _ in range(30):  # then polled at 60 Hz, as the lock-step shell does
             await asyncio.sleep(1.0 / 60.0)
             src.read()
-            pending.append(len(src._renders))
+            pending.append(src.pending_renders)
         src.stop()
         return unread, pending
 
