@@ -529,6 +529,12 @@ class DartSim:
         self.t += dt
 
     # ---------------------------------------------------------------- sensors
+    def imu_reading(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The IMU's reading now: body rates (rad/s) and specific force (m/s^2), with the
+        configured bias, noise and vibration (a noisy IMU draws from the sim's generator: a
+        reading taken outside the run shifts the run's later draws)."""
+        return self._imu()
+
     def _imu(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         c = self.config
         n = self._n_imu

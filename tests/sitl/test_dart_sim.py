@@ -94,7 +94,7 @@ def test_imu_at_rest_reads_gravity_and_zero_rates() -> None:
         camera_scale=0.5,
     )
     sim = DartSim("FCF-MF", cfg)
-    gyro, accel = sim._imu()
+    gyro, accel = sim.imu_reading()
     assert np.allclose(gyro, 0.0) and np.allclose(accel, (0.0, 0.0, -9.80665))
 
 
