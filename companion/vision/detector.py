@@ -545,6 +545,11 @@ class PadDetector:
         self._cells = {m: aruco_dictionary(getattr(lay, f"{m}_dict")).markerSize + 2 for m in MARKERS}
         self.reset()
 
+    @property
+    def marker_cells(self) -> dict[str, int]:
+        """Cells along each marker's side, its black border included ("outer", "inner"; a copy)."""
+        return dict(self._cells)
+
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget tracking state and the pose prior (counters are kept)."""

@@ -389,7 +389,7 @@ def test_edge_refinement_equals_the_per_side_reference_bit_for_bit(sim: Simulate
     from companion.vision.detector import refine_corners_by_edges
 
     det = PadDetector(CAM, LAYOUT)
-    cells = {m: det._cells[m] for m in ("outer", "inner")}
+    cells = {m: det.marker_cells[m] for m in ("outer", "inner")}
     compared = 0
     for i, (n, e, alt, roll, pitch, yaw) in enumerate(
         [
