@@ -168,11 +168,16 @@ class WeatherDriver:
         ):
             self._send(name, value)
 
-    def _run(self) -> None:
+    def run(self, max_ticks: int | None = None) -> None:
+        """Drive on this thread until :meth:`stop`, a failed send, or ``max_ticks`` ticks
+        (:meth:`start` runs it on a thread of its own)."""
+        self._run(max_ticks)
+
+    def _run(self, max_ticks: int | None = None) -> None:
         dt = self.process.dt
         mean = self.process._mean
         next_t = self._clock()
-        while not self._stop.is_set():
+        while not self._stop.is_set() and (max_ticks is None or self.ticks < max_ticks):
             wind, gps = self.process.step()
             self.max_gust_m_s = max(self.max_gust_m_s, math.hypot(wind[0] - mean[0], wind[1] - mean[1]))
             self.max_gps_error_m = max(self.max_gps_error_m, math.hypot(*gps))

@@ -114,17 +114,14 @@ def test_the_driver_sends_wind_and_glitch_and_leaves_the_mean_wind():
 def test_the_driver_keeps_its_rate_and_counts_late_ticks():
     clock = _Clock()
     sent: list[str] = []
-    d = WeatherDriver(WeatherProcess(W, 1), lambda n, v: sent.append(n), lat_deg=0.0, clock=clock)
 
     def send(name: str, value: float) -> None:
         sent.append(name)
         if name == "SIM_GPS1_GLTCH_Y":  # one tick's four values sent: time moves on
             clock.t += 1.0 / DRIVE_HZ if d.ticks != 2 else 1.0  # the third tick takes 1 s
-            if d.ticks >= 5:
-                d._stop.set()
 
-    d._send = send
-    d._run()
+    d = WeatherDriver(WeatherProcess(W, 1), send, lat_deg=0.0, clock=clock)
+    d.run(max_ticks=6)
     assert d.ticks == 6
     assert d.overruns == 1
     assert sent.count("SIM_WIND_SPD") == 6
