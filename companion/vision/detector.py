@@ -504,6 +504,85 @@ def _corner_intersections(lines: list[tuple[FloatArray, float]]) -> FloatArray |
 # ---------------------------------------------------------------------------- the detector
 
 
+def level_rotation(ref_cam: Any) -> FloatArray:
+    """The smallest rotation taking ``ref_cam`` (a world-fixed direction near the optical axis,
+    in the camera frame) onto the camera's z axis: image points rotated by it no longer move
+    when the camera tilts (the gyro-derotation of optical flow). Identity without one."""
+    if ref_cam is None:
+        return np.eye(3)
+    ref = np.asarray(ref_cam, dtype=float).reshape(1, 3)
+    rot, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), ref)
+    return np.asarray(rot.as_matrix())
+
+
+class RoiTrack:
+    """The pad's derotated image motion between the frames that found it (:class:`PadDetector`'s
+    ROI follows it): :meth:`update` with each frame that finds the pad, :meth:`prediction` for
+    the next frame's ROI. ``camera`` and ``config`` are the detector's."""
+
+    def __init__(self, camera: CameraModel, config: DetectorConfig) -> None:
+        self.camera = camera
+        self.config = config
+        # the last frame that found the pad: its time, derotated centre (_to_level), centre (px)
+        # and scale (px per metre); the motion between it and the one before (derotated centre
+        # per second, d ln(scale)/dt in 1/s)
+        self._track: tuple[float, FloatArray, FloatArray, float] | None = None
+        self._motion: tuple[FloatArray, float] | None = None
+
+    def clear(self) -> None:
+        """Forget the track (a frame that did not find the pad)."""
+        self._track = self._motion = None
+
+    def _to_level(self, pixel: FloatArray, R_level_cam: FloatArray) -> FloatArray | None:
+        """A pixel's ray in the derotated camera, on its z = 1 plane (None beyond 90 deg of z)."""
+        b = R_level_cam @ self.camera.unproject(pixel)[0]
+        return b[:2] / b[2] if b[2] > 1e-6 else None
+
+    def prediction(self, time_s: float | None, R_level_cam: FloatArray) -> tuple[FloatArray, float]:
+        """How far (px) the pad's image has moved, and by what factor it has grown, since the last
+        frame that found it: its centre derotated by the attitude then, moved at the derotated
+        image velocity and scale rate of the last two frames that found it, and rotated back by
+        the attitude now (``R_level_cam``: :func:`level_rotation`). With frames far apart (a CPU
+        budget, runtime.vision_cpu_budget) a rocking or turning vehicle moves the pad's image by
+        more than the ROI's margin, and a missed ROI costs a full-frame search on top. No track,
+        or a gap over ``roi_predict_max_gap_s``: no prediction."""
+        none = (np.zeros(2), 1.0)
+        if time_s is None or self._track is None:
+            return none
+        t0, level0, centre0, _ = self._track
+        dt = time_s - t0
+        if not 0.0 < dt <= self.config.roi_predict_max_gap_s:
+            return none
+        level, growth = level0, 1.0
+        if self._motion is not None:
+            velocity, log_scale_rate = self._motion
+            level = level0 + velocity * dt
+            # bounded to [1/2, 2]: a wrong rate must not make the ROI vanish or swallow the frame
+            growth = float(np.clip(math.exp(log_scale_rate * dt), 0.5, 2.0))
+        centre = self.camera.project(R_level_cam.T @ np.array([level[0], level[1], 1.0]))[0]
+        if not np.all(np.isfinite(centre)):
+            return none
+        return centre - centre0, growth
+
+    def update(
+        self, found: dict[str, FloatArray], px_per_m: float, time_s: float | None, R_level_cam: FloatArray
+    ) -> None:
+        """Keep the pad's derotated image motion from this frame (its markers' corners by name,
+        its scale in px per metre, its time in s) and the last one that found it."""
+        # the pad's markers are concentric (see detect_markers): the centre does not jump when one
+        # of them comes into or out of view
+        centre = np.vstack(list(found.values())).mean(axis=0)
+        level = self._to_level(centre, R_level_cam)
+        prev, self._track, self._motion = self._track, None, None
+        if time_s is None or level is None:
+            return
+        if prev is not None:
+            dt = time_s - prev[0]
+            if 0.0 < dt <= self.config.roi_predict_max_gap_s:
+                self._motion = ((level - prev[1]) / dt, math.log(px_per_m / prev[3]) / dt)
+        self._track = (time_s, level, centre, px_per_m)
+
+
 class PadDetector:
     """Detects the nested pad and estimates ``T_camera_pad``; keeps ROI-tracking state.
 
@@ -555,11 +634,7 @@ class PadDetector:
         """Forget tracking state and the pose prior (counters are kept)."""
         self._roi_corners: FloatArray | None = None
         self._min_side_px = 0.0
-        # the last frame that found the pad: its time, derotated centre (_to_level), centre (px)
-        # and scale (px per metre); the motion between it and the one before (derotated centre
-        # per second, d ln(scale)/dt in 1/s)
-        self._track: tuple[float, FloatArray, FloatArray, float] | None = None
-        self._motion: tuple[FloatArray, float] | None = None
+        self.roi_track = RoiTrack(self.camera, self.config)  # the pad's image motion (the ROI follows it)
         self._frames_since_full = 0
         self._prior: tuple[float, FloatArray] | None = None
         if not hasattr(self, "_counts"):
@@ -596,64 +671,6 @@ class PadDetector:
                 found[which] = pts
         return found
 
-    def _level_rotation(self, ref_cam: Any) -> FloatArray:
-        """The smallest rotation taking ``ref_cam`` (a world-fixed direction near the optical axis,
-        in the camera frame) onto the camera's z axis: image points rotated by it no longer move
-        when the camera tilts (the gyro-derotation of optical flow). Identity without one."""
-        if ref_cam is None:
-            return np.eye(3)
-        ref = np.asarray(ref_cam, dtype=float).reshape(1, 3)
-        rot, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), ref)
-        return np.asarray(rot.as_matrix())
-
-    def _to_level(self, pixel: FloatArray, R_level_cam: FloatArray) -> FloatArray | None:
-        """A pixel's ray in the derotated camera, on its z = 1 plane (None beyond 90 deg of z)."""
-        b = R_level_cam @ self.camera.unproject(pixel)[0]
-        return b[:2] / b[2] if b[2] > 1e-6 else None
-
-    def _roi_prediction(self, time_s: float | None, R_level_cam: FloatArray) -> tuple[FloatArray, float]:
-        """How far (px) the pad's image has moved, and by what factor it has grown, since the last
-        frame that found it: its centre derotated by the attitude then, moved at the derotated
-        image velocity and scale rate of the last two frames that found it, and rotated back by
-        the attitude now. With frames far apart (a CPU budget, runtime.vision_cpu_budget) a
-        rocking or turning vehicle moves the pad's image by more than the ROI's margin, and a
-        missed ROI costs a full-frame search on top. No track, or a gap over
-        ``roi_predict_max_gap_s``: no prediction."""
-        none = (np.zeros(2), 1.0)
-        if time_s is None or self._track is None:
-            return none
-        t0, level0, centre0, _ = self._track
-        dt = time_s - t0
-        if not 0.0 < dt <= self.config.roi_predict_max_gap_s:
-            return none
-        level, growth = level0, 1.0
-        if self._motion is not None:
-            velocity, log_scale_rate = self._motion
-            level = level0 + velocity * dt
-            # bounded to [1/2, 2]: a wrong rate must not make the ROI vanish or swallow the frame
-            growth = float(np.clip(math.exp(log_scale_rate * dt), 0.5, 2.0))
-        centre = self.camera.project(R_level_cam.T @ np.array([level[0], level[1], 1.0]))[0]
-        if not np.all(np.isfinite(centre)):
-            return none
-        return centre - centre0, growth
-
-    def _update_track(
-        self, found: dict[str, FloatArray], px_per_m: float, time_s: float | None, R_level_cam: FloatArray
-    ) -> None:
-        """Keep the pad's derotated image motion from this frame and the last one that found it."""
-        # the pad's markers are concentric (see detect_markers): the centre does not jump when one
-        # of them comes into or out of view
-        centre = np.vstack(list(found.values())).mean(axis=0)
-        level = self._to_level(centre, R_level_cam)
-        prev, self._track, self._motion = self._track, None, None
-        if time_s is None or level is None:
-            return
-        if prev is not None:
-            dt = time_s - prev[0]
-            if 0.0 < dt <= self.config.roi_predict_max_gap_s:
-                self._motion = ((level - prev[1]) / dt, math.log(px_per_m / prev[3]) / dt)
-        self._track = (time_s, level, centre, px_per_m)
-
     def _search_roi(
         self, gray: NDArray[np.uint8], time_s: float | None, R_level_cam: FloatArray
     ) -> dict[str, FloatArray]:
@@ -662,7 +679,7 @@ class PadDetector:
         h, w = gray.shape
         lo = self._roi_corners.min(axis=0)
         hi = self._roi_corners.max(axis=0)
-        shift, growth = self._roi_prediction(time_s, R_level_cam)
+        shift, growth = self.roi_track.prediction(time_s, R_level_cam)
         centre, half = (lo + hi) / 2.0 + shift, growth * (hi - lo) / 2.0
         lo, hi = centre - half, centre + half
         size = float(max(hi - lo))
@@ -696,11 +713,11 @@ class PadDetector:
         """Marker corners (distorted pixels, ArUco order) by name, and the search used.
         ``time_s``: the frame's exposure time, and ``ref_cam`` a world-fixed unit direction near
         the optical axis in the camera frame (world down for a level pad), for the ROI to follow
-        the pad's image (:meth:`_roi_prediction`); without a time the ROI is searched where the
+        the pad's image (:meth:`RoiTrack.prediction`); without a time the ROI is searched where the
         pad was last seen, without a direction the camera's tilt is not taken out."""
         cfg = self.config
         use_roi = cfg.roi_enabled and self._roi_corners is not None and self._frames_since_full < cfg.full_search_every
-        R_level_cam = self._level_rotation(ref_cam)
+        R_level_cam = level_rotation(ref_cam)
         found: dict[str, FloatArray] = {}
         how = "full"
         if use_roi:
@@ -730,10 +747,10 @@ class PadDetector:
             expected = [px_per_m * self.layout.marker_size_m(m) for m in MARKERS]
             decodable = [s for s in expected if s >= self.config.min_marker_px]
             self._min_side_px = min(decodable) if decodable else max(expected)
-            self._update_track(found, px_per_m, time_s, R_level_cam)
+            self.roi_track.update(found, px_per_m, time_s, R_level_cam)
         else:
             self._roi_corners = None
-            self._track = self._motion = None
+            self.roi_track.clear()
         return found, how
 
     def detect(

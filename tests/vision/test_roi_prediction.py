@@ -1,4 +1,4 @@
-"""The detector's ROI follows the pad's image between frames far apart (PadDetector._roi_prediction):
+"""The detector's ROI follows the pad's image between frames far apart (RoiTrack.prediction):
 hand-computed shifts on a pinhole camera, and rendered flights where the ROI at the last place
 misses (a rocking hover, a pass over the pad) and the predicted one finds the pad."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from companion.geometry import Transform
 from companion.vision.camera import CameraModel, load_default_camera
-from companion.vision.detector import DetectorConfig, PadDetector, down_in_camera
+from companion.vision.detector import DetectorConfig, PadDetector, down_in_camera, level_rotation
 from companion.vision.pad import PadLayout
 from companion_sitl.camera import SimCameraConfig, SimulatedCamera
 
@@ -51,9 +51,9 @@ def test_a_level_camera_moves_the_roi_at_the_image_velocity_and_scale_rate() -> 
     10% up: 0.25 s after the second frame the centre is 25 px further and the scale 1.1^2.5."""
     det = PadDetector(PINHOLE, LAYOUT)
     eye = np.eye(3)
-    det._update_track(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
-    det._update_track(_corners_at((330.0, 240.0), 22.0), 110.0, 1.1, eye)
-    shift, growth = det._roi_prediction(1.35, eye)
+    det.roi_track.update(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
+    det.roi_track.update(_corners_at((330.0, 240.0), 22.0), 110.0, 1.1, eye)
+    shift, growth = det.roi_track.prediction(1.35, eye)
     np.testing.assert_allclose(shift, [25.0, 0.0], atol=1e-9)
     assert growth == pytest.approx(1.1**2.5, rel=1e-12)
 
@@ -62,9 +62,9 @@ def test_a_tilt_between_frames_moves_the_roi_by_f_tan_theta() -> None:
     """The pad seen at the image centre by a level camera; the camera then tilts by 0.1 rad about
     its x axis (world down now at (0, sin, cos) in the camera): the pad is at cy + f tan(0.1)."""
     det = PadDetector(PINHOLE, LAYOUT)
-    det._update_track(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, det._level_rotation([0.0, 0.0, 1.0]))
+    det.roi_track.update(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, level_rotation([0.0, 0.0, 1.0]))
     theta = 0.1
-    shift, growth = det._roi_prediction(1.2, det._level_rotation([0.0, math.sin(theta), math.cos(theta)]))
+    shift, growth = det.roi_track.prediction(1.2, level_rotation([0.0, math.sin(theta), math.cos(theta)]))
     np.testing.assert_allclose(shift, [0.0, 500.0 * math.tan(theta)], atol=1e-9)
     assert growth == 1.0  # one frame: no motion known yet
 
@@ -73,18 +73,18 @@ def test_no_prediction_past_the_gap_or_when_off() -> None:
     eye = np.eye(3)
     for cfg, t in ((DetectorConfig(), 1.1 + 0.51), (DetectorConfig(roi_predict_max_gap_s=0.0), 1.2)):
         det = PadDetector(PINHOLE, LAYOUT, cfg)
-        det._update_track(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
-        det._update_track(_corners_at((330.0, 240.0), 22.0), 110.0, 1.1, eye)
-        shift, growth = det._roi_prediction(t, eye)
+        det.roi_track.update(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
+        det.roi_track.update(_corners_at((330.0, 240.0), 22.0), 110.0, 1.1, eye)
+        shift, growth = det.roi_track.prediction(t, eye)
         assert shift.tolist() == [0.0, 0.0] and growth == 1.0
 
 
 def test_the_growth_is_bounded() -> None:
     det = PadDetector(PINHOLE, LAYOUT)
     eye = np.eye(3)
-    det._update_track(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
-    det._update_track(_corners_at((320.0, 240.0), 60.0), 300.0, 1.05, eye)  # x3 in 50 ms
-    assert det._roi_prediction(1.45, eye)[1] == 2.0
+    det.roi_track.update(_corners_at((320.0, 240.0), 20.0), 100.0, 1.0, eye)
+    det.roi_track.update(_corners_at((320.0, 240.0), 60.0), 300.0, 1.05, eye)  # x3 in 50 ms
+    assert det.roi_track.prediction(1.45, eye)[1] == 2.0
 
 
 @pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
