@@ -343,6 +343,12 @@ class SimulatedCamera:
         self._exposure = np.empty((h, w), np.float32)
         self.frames_rendered = 0
 
+    @property
+    def distortion_maps(self) -> tuple[NDArray, NDArray] | None:
+        """The remap tables from the undistorted canvas to the camera's pixels (read-only arrays,
+        shared by every camera of the same model; None without distortion)."""
+        return self._maps
+
     # ------------------------------------------------------------------ setup
     def _setup_distortion(self) -> None:
         self._offset, self._canvas_size, self._maps = _distortion_setup(self.camera)

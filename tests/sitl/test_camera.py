@@ -282,8 +282,9 @@ def test_distortion_maps_are_computed_once_per_camera_model_and_equal_a_fresh_co
     dart = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, kind="dart", k_ud=0.25)
     a = SimulatedCamera(CAM, LAYOUT, seed=1)
     b = SimulatedCamera(CAM, LAYOUT, seed=2)
-    assert a._maps is b._maps and a._maps is not None and not a._maps[0].flags.writeable
-    assert SimulatedCamera(dart, LAYOUT, seed=1)._maps is not a._maps  # another model, its own maps
+    maps = a.distortion_maps
+    assert maps is b.distortion_maps and maps is not None and not maps[0].flags.writeable
+    assert SimulatedCamera(dart, LAYOUT, seed=1).distortion_maps is not maps  # another model, its own maps
     cached = sim_camera._distortion_setup(CAM)
     sim_camera._DISTORTION_CACHE.clear()
     fresh = sim_camera._distortion_setup(CAM)
