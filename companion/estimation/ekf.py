@@ -842,6 +842,18 @@ class DeliveryEkf:
             self.P[:, b] = 0.0
             self.P[b, b] = np.eye(3) * sig * sig
 
+    @property
+    def input_noise_variances(self) -> np.ndarray:
+        """Q_u's diagonal (delivery eq 6; a copy): the input velocity's (m/s)^2 on N, E, D, then
+        the input rates' (rad/s)^2 on roll, pitch, yaw."""
+        return self._qu.copy()
+
+    @property
+    def process_noise_density(self) -> np.ndarray:
+        """Q_f's diagonal per second (a copy): position m^2/s, angles rad^2/s, GPS bias m^2/s,
+        gyro bias (rad/s)^2/s, three each."""
+        return self._qf_density.copy()
+
     def _condition(self) -> None:
         """Floor P's diagonal at ``min_variance`` (counted as a repair). P's symmetry needs no
         repair: every step keeps a symmetric P exactly symmetric (eq 6 mirrors its changed rows

@@ -228,7 +228,7 @@ def test_predict_on_floats_is_bit_for_bit_the_block_functions() -> None:
             x, P = x0.copy(), (P0 + P0.T) * 0.5
             for _ in range(n):
                 x, F3, G6 = propagation_blocks(x, u, h)
-                P = propagate_covariance(P, F3, G6, ekf._Qu.diagonal(), ekf._qf_density * h)
+                P = propagate_covariance(P, F3, G6, ekf.input_noise_variances, ekf.process_noise_density * h)
             x[3] = (x[3] + math.pi) % (2 * math.pi) - math.pi
             x[5] = (x[5] + math.pi) % (2 * math.pi) - math.pi
             np.testing.assert_array_equal(ekf.x, x)
