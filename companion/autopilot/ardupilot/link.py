@@ -323,6 +323,12 @@ class ArduPilotLink(abc.ABC):
         self._acks.clear()
 
     @property
+    def signing_timestamp(self) -> int | None:
+        """Our MAVLink signing timestamp now (10 us units since 2015-01-01; None without a link)."""
+        conn = self._conn
+        return None if conn is None else int(conn.mav.signing.timestamp)
+
+    @property
     def heartbeat_age_s(self) -> float | None:
         return time.monotonic() - self._last_hb if math.isfinite(self._last_hb) else None
 
