@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import math
+from types import SimpleNamespace
 
 import pytest
 
@@ -178,7 +179,8 @@ def _telemetry() -> TelemetryCache:
 
 async def test_the_desk_takes_one_order_at_a_time_and_logs_every_one(config, tmp_path) -> None:  # type: ignore[no-untyped-def]
     desk, events = _desk(config, tmp_path, _telemetry())
-    desk._loop = asyncio.get_running_loop()
+    # started on this loop with a session that takes the queryable and answers nothing
+    desk.start(SimpleNamespace(declare_queryable=lambda key, on_query: SimpleNamespace(undeclare=lambda: None)))
 
     def send(pad: OrderPad, oid: str) -> tuple[bool, str | None, str]:
         return desk.decide(sign_order("sitl1", pad, SECRET, order_id=oid))
