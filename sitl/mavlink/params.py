@@ -43,21 +43,26 @@ class ParameterServer(MavlinkLink):
 
     def _param_set(self, m: Any) -> None:
         pid = _param_id(m)
-        value = self._param_decode(pid, m.param_value)
+        value = self.param_decode(pid, m.param_value)
         if math.isfinite(value):
             self._params[pid] = value
         self._param_value(pid, list(self._params).index(pid) if pid in self._params else 65535)
 
     def _param_value(self, name: str, index: int) -> None:
+        self._send(self.param_value_message(name, index))
+
+    def param_value_message(self, name: str, index: int) -> Any:
+        """The PARAM_VALUE the vehicle answers with for ``name`` at ``index`` (PX4's integers
+        byte-wise in the float, ArduPilot's cast to it); built, not sent."""
         val = self._params.get(name, math.nan)
         ptype = mavlink.MAV_PARAM_TYPE_REAL32
         if name in self.INT_PARAMS and math.isfinite(val):
             ptype = mavlink.MAV_PARAM_TYPE_INT32
             if self.PARAM_BYTEWISE:  # the int32's bytes in the float field
                 val = struct.unpack("<f", struct.pack("<i", int(val)))[0]
-        self._send(self._enc.param_value_encode(name.encode()[:16], val, ptype, len(self._params), index))
+        return self._enc.param_value_encode(name.encode()[:16], val, ptype, len(self._params), index)
 
-    def _param_decode(self, name: str, value: float) -> float:
+    def param_decode(self, name: str, value: float) -> float:
         """A PARAM_SET value as the firmware reads it (byte-wise int32 for PX4's integers)."""
         if name in self.INT_PARAMS and self.PARAM_BYTEWISE:
             return float(struct.unpack("<i", struct.pack("<f", value))[0])

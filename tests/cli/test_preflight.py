@@ -197,14 +197,11 @@ def test_px4_sim_sends_integer_parameters_bytewise() -> None:
     ArduPilot casts them to a float."""
     for dialect, expect in (("px4", 1), ("ardupilot", None)):
         v = _Vehicle(dialect, {"COM_RC_OVERRIDE": 1.0, "FLTMODE_CH": 5.0})
-        sent: list[Any] = []
-        v.sim._send = sent.append  # type: ignore[method-assign]
         name = "COM_RC_OVERRIDE" if dialect == "px4" else "FLTMODE_CH"
-        v.sim._param_value(name, 0)
-        m = sent[0]
+        m = v.sim.param_value_message(name, 0)
         if expect is not None:
             assert m.param_type == mavlink.MAV_PARAM_TYPE_INT32
             assert struct.unpack("<i", struct.pack("<f", m.param_value))[0] == expect
-            assert v.sim._param_decode(name, m.param_value) == 1.0  # PARAM_SET reads it back the same way
+            assert v.sim.param_decode(name, m.param_value) == 1.0  # PARAM_SET reads it back the same way
         else:
             assert m.param_value == 5.0
