@@ -123,7 +123,7 @@ class CommandHandler(MessageStreams):
             if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
                 return self._set_interval(_i(p[0]), p[1] if math.isfinite(p[1]) else 0.0)
             if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
-                msg = self._build(_i(p[0]))
+                msg = self.build_message(_i(p[0]))
                 if msg is None:
                     return U
                 self._ack(cmd, A, m)
@@ -131,7 +131,7 @@ class CommandHandler(MessageStreams):
                 return None
             if cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 self._ack(cmd, A, m)
-                self._send(self._build(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
+                self._send(self.build_message(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
                 return None
         except SimCommandError as err:
             self._statustext(str(err), mavlink.MAV_SEVERITY_CRITICAL)

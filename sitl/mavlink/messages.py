@@ -1,4 +1,4 @@
-"""What the sim vehicle sends: the message builders (:meth:`MessageStreams._build`) and the streams
+"""What the sim vehicle sends: the message builders (:meth:`MessageStreams.build_message`) and the streams
 that schedule them (the dialect's defaults, SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM).
 
 Ground truth goes out as HIL_STATE_QUATERNION when requested.
@@ -103,7 +103,7 @@ class MessageStreams(RcInput):
         for mid, st in self._streams.items():
             if now >= st[1]:
                 st[1] = max(st[1] + st[0], now)
-                msg = self._build(mid)
+                msg = self.build_message(mid)
                 if msg is not None:
                     self._send(msg)
         v = self.vehicle
@@ -117,7 +117,7 @@ class MessageStreams(RcInput):
             wanted = self.HOME_ALWAYS or mavlink.MAVLINK_MSG_ID_HOME_POSITION in self._streams
             if key != self._home_sent and wanted:
                 self._home_sent = key
-                self._send(self._build(mavlink.MAVLINK_MSG_ID_HOME_POSITION))
+                self._send(self.build_message(mavlink.MAVLINK_MSG_ID_HOME_POSITION))
 
     # ------------------------------------------------------------------ message builders
     def _base_mode(self) -> int:
@@ -151,7 +151,7 @@ class MessageStreams(RcInput):
             return mavlink.MAV_LANDED_STATE_TAKEOFF
         return mavlink.MAV_LANDED_STATE_IN_AIR
 
-    def _build(self, mid: int) -> Any:
+    def build_message(self, mid: int) -> Any:
         """The message ``mid`` as the vehicle is now, or None when it has none to send (no
         builder, no fix, no home, no winch)."""
         build = _BUILDERS.get(mid)
@@ -429,7 +429,7 @@ class MessageStreams(RcInput):
             interval = max(interval_us * 1e-6, 0.002)
         if (
             mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT
-            and self._build(mid) is None
+            and self.build_message(mid) is None
             and mid
             not in (
                 mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
@@ -456,7 +456,7 @@ class MessageStreams(RcInput):
                     self._streams.pop(mid, None)
 
 
-# message id -> its builder (MessageStreams._build)
+# message id -> its builder (MessageStreams.build_message)
 _BUILDERS: dict[int, Callable[[MessageStreams], Any]] = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE: MessageStreams._msg_attitude,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: MessageStreams._msg_attitude_quaternion,

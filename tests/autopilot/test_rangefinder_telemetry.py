@@ -70,7 +70,7 @@ def test_the_cache_rejects_a_reading_that_is_not_finite() -> None:
 )
 def test_the_sim_vehicle_measures_the_true_height_along_its_tilted_axis(mav, dialect, params, lo, hi) -> None:  # type: ignore[no-untyped-def]
     cfg = mav.short_config(rangefinder={"enabled": True}).sim
-    assert mavlink_sim_vehicle(cfg, dialect)._build(DISTANCE_SENSOR_MSG_ID) is None  # none fitted: nothing sent
+    assert mavlink_sim_vehicle(cfg, dialect).build_message(DISTANCE_SENSOR_MSG_ID) is None  # none fitted: nothing sent
 
     def ranges(seed: int) -> list[float]:
         sim = mavlink_sim_vehicle(cfg.model_copy(update={"seed": seed}), dialect, params=params)
@@ -78,7 +78,7 @@ def test_the_sim_vehicle_measures_the_true_height_along_its_tilted_axis(mav, dia
         v.pd, v.roll, v.pitch = -2.0, math.radians(10.0), math.radians(-5.0)
         out = []
         for _ in range(50):
-            m = sim._build(DISTANCE_SENSOR_MSG_ID)
+            m = sim.build_message(DISTANCE_SENSOR_MSG_ID)
             assert (m.min_distance, m.max_distance, m.orientation) == (round(100 * lo), round(100 * hi), 25)
             out.append(m.current_distance / 100.0)
         return out
