@@ -97,14 +97,14 @@ async def test_backend_keeps_arm_status_and_refuses_to_arm() -> None:
         await ap.arm()
     assert err.value.kind is CommandResult.DENIED and err.value.permanent
     # from the transponder's own system id, before the vehicle's is known: kept all the same
-    ap._on_message(_arm_status_message(1, b"operator id missing"))
+    ap.handle_message(_arm_status_message(1, b"operator id missing"))
     await asyncio.sleep(0)
     assert ap.remote_id_arm_status is not None
     assert ap.remote_id_arm_status.status is ArmStatus.PRE_ARM_FAIL_GENERIC
     assert ap.remote_id_arm_status.src_component == mavlink.MAV_COMP_ID_ODID_TXRX_1
     with pytest.raises(CommandRejected, match="operator id missing"):
         await ap.arm()
-    ap._on_message(_arm_status_message(0, b""))
+    ap.handle_message(_arm_status_message(0, b""))
     await asyncio.sleep(0)
     assert ap.remote_id_gate().verdict is GateVerdict.GOOD
 

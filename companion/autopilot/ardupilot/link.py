@@ -445,6 +445,12 @@ class ArduPilotLink(abc.ABC):
                 self.counters.decode_errors += 1
                 log.exception("error decoding %s", m.get_type())
 
+    def handle_message(self, m: Any) -> None:
+        """Decode one received MAVLink message as the reader thread does, on the caller's thread
+        (what reaches the loop is posted to it; errors are raised, not counted): for tests and
+        tools that feed messages without a link. Not written to the .tlog, not counted as traffic."""
+        self._on_message(m)
+
     def _log_sent(self, msg: Any) -> None:
         tlog = self.tlog
         if tlog is not None:
