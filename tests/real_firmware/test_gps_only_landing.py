@@ -1,6 +1,6 @@
 """A GPS-only landing of the real-firmware campaign (`run_real_landing_campaign`, the short 12 m
 scenario) on PX4 SIH and ArduCopter SITL: it fuses nothing and lands where GPS leads, off a pad the
-draw moved (the fused landings: test_px4_campaign.py, test_arducopter_campaign.py)."""
+draw moved (the fused landings: test_campaign.py)."""
 
 from __future__ import annotations
 

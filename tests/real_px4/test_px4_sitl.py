@@ -194,7 +194,7 @@ async def test_delivery_with_release_and_return_lands_on_the_displaced_pad(px4_r
     assert rep.missing_seq == 0 and rep.streams["ekf.csv"].recorded_rows > 500
     # one flight of sitl_short's short, fast descent (8 m at 2 m/s, then 0.7 m/s) on PX4's drifting
     # velocity estimate (GPS alone: 1.5 m); measured 6.5, 19.0 and 15.3 cm (docs/performance.md): the
-    # bound is ~3x their mean. Landing accuracy is what test_px4_campaign.py measures
+    # bound is ~3x their mean. Landing accuracy is what tests/real_firmware/test_campaign.py measures
     assert r.pad_landing_error_m < 0.45, r
     # the delivery paper's path-tracking check, on the firmware against the embedded simulator on
     # the same path and tuning, scored on truth against the configured path or the path to the true pad on the
