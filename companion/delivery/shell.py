@@ -175,6 +175,12 @@ class DeliveryShell:
         self.sensing.fusion = fusion
 
     @property
+    def marker_tick_pending(self) -> bool:
+        """A camera observation fused while the fused estimate steers has asked guidance to tick
+        at once, and that tick has not run yet ([runtime] guidance_on_marker)."""
+        return self._marker_fused.is_set()
+
+    @property
     def vision_always(self) -> bool:
         """Detect from the fusion's start, whatever the phase (benches, tests)."""
         return self.sensing.vision_always

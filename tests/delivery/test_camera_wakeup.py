@@ -183,7 +183,7 @@ async def test_a_notified_frame_is_detected_at_once_not_at_the_next_poll_tick() 
         assert index == 1 and thread != "test-capture" and thread != threading.current_thread().name  # the executor
         # well before the first poll tick (4 s): the listener woke the camera task
         assert detected_at - cam.captured_at[1] < 1.0
-        assert shell._marker_fused.is_set()  # accepted while the fused estimate steers: guidance ticks early
+        assert shell.marker_tick_pending  # accepted while the fused estimate steers: guidance ticks early
         cam.capture_in_thread(2)
         await _until(lambda: len(shell.fusion.markers) == 2)
         assert [c[0] for c in det.calls] == [1, 2]
