@@ -157,7 +157,8 @@ class SimVehicle:
     winch: SimWinch | None = None
     parcel: ParcelOnLine | None = None
 
-    # the parts' state under its former names (dart_link.StickSimVehicle, tests)
+    # the parts' state under its former names (dart_link.StickSimVehicle, lab/gps_step_probe;
+    # tests read the parts themselves: estimator_error, gps_error, modes, dynamics)
     _wind = _Alias("wind_model", "now")
     _wind_mean = _Alias("wind_model", "mean")
     _gust = _Alias("wind_model", "gusts")
