@@ -26,6 +26,7 @@ from typing import Protocol
 
 from companion.flightlog.csv_file import BatchSink, CsvFile, cut_torn_line, open_csv_file
 from companion.flightlog.handover import FLUSH_PERIOD_S, HandedOverLog, SharedWriter, close_files
+from companion.flightlog.hooks import FLIGHT, LogHooks
 from companion.flightlog.logproc import LogProcess, client
 from companion.flightlog.losses import LossCause, cause_of, fault_of, note_lost
 from companion.flightlog.registry import CloseOrder, forget, register
@@ -51,11 +52,13 @@ class CsvLog(HandedOverLog):
         max_queue: int = 10000,
         flush_period_s: float = FLUSH_PERIOD_S,
         sink: BatchSink | RemoteSink | None = None,
+        hooks: LogHooks = FLIGHT,
     ):
         """``sink``: formats each batch (its CSV text plus messages of its own, e.g. the run's
         MCAP) and is handed the batch and its messages once the CSV text is written. A
         :class:`RemoteSink` lives in the logging process; a log with an in-process sink is
-        written in this process."""
+        written in this process. ``hooks``: a bench's instruments
+        (:class:`~companion.flightlog.hooks.LogHooks`: its batches timed, how they are handed over)."""
         if not columns or columns[0] != "time_s":
             raise ValueError(f"the first CSV column must be time_s, got {list(columns)[:1]}")
         self.path = Path(path)
@@ -79,7 +82,8 @@ class CsvLog(HandedOverLog):
             CsvFile(self.path, self.columns).close()  # the header, here: errors raise now
             key = sink.remote_key if sink is not None else None  # type: ignore[union-attr]
             self._id = self._proc.open_csv(self.path, self.columns, key)
-        self._shared = SharedWriter.attach(self, float(flush_period_s))
+            self._post = hooks.hand_over(self._proc)
+        self._shared = SharedWriter.attach(self, float(flush_period_s), hooks)
         register(self, CloseOrder.CSV)
 
     @property
@@ -179,6 +183,17 @@ class CsvLog(HandedOverLog):
 
     def close(self) -> None:
         close_logs([self])
+
+
+class NullCsvLog(CsvLog):
+    """A :class:`CsvLog` opened and closed as usual that takes no rows: :meth:`write` and
+    :meth:`put` do nothing (``companion bench log``: what opening and closing the logs cost)."""
+
+    def write(self, row: Sequence[object]) -> None:
+        pass
+
+    def put(self, row: tuple[object, ...]) -> None:
+        pass
 
 
 def close_logs(logs: Iterable[CsvLog]) -> None:

@@ -21,11 +21,12 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import ClassVar, Protocol, Self
 
+from companion.flightlog.hooks import FLIGHT, HAND_OVER, LogHooks, Post, batch_stage
 from companion.flightlog.logproc import LogProcess, flush_current
 
 log = logging.getLogger(__name__)
@@ -43,6 +44,8 @@ HANDOVER_ROWS = 256
 class Drainable(Protocol):
     """What the writer thread serves: a log that hands over (or writes) what it queued."""
 
+    path: Path
+
     def drain(self) -> None:
         """Hand over (or write) what was queued so far: the writer thread's round, public so a
         test can hand over mid-stream as that thread would."""
@@ -51,33 +54,39 @@ class Drainable(Protocol):
 class SharedWriter:
     """The one writer thread of every log with the same period
     (:class:`~companion.flightlog.csvlog.CsvLog`, :class:`~companion.flightlog.mcaplog.McapFlightLog`,
-    the ``.tlog``); after each round it hands what the logs posted to the logging process."""
+    the ``.tlog``); after each round it hands what the logs posted to the logging process.
+    Logs opened with :class:`~companion.flightlog.hooks.LogHooks` other than a flight's have a
+    writer of their own (one per period and hooks), whose batches and sends are timed with them."""
 
-    _writers: ClassVar[dict[float, SharedWriter]] = {}
+    _writers: ClassVar[dict[tuple[float, LogHooks], SharedWriter]] = {}
     _lock = threading.Lock()
 
-    def __init__(self, period_s: float) -> None:
+    def __init__(self, period_s: float, hooks: LogHooks = FLIGHT) -> None:
         self.period_s = period_s
-        self.logs: set[Drainable] = set()
+        self.hooks = hooks
+        self.logs: dict[Drainable, Callable[[], None]] = {}  # each log and its drain, as bound at attach
+        self._flush = hooks.timed(HAND_OVER, flush_current)
         self._cond = threading.Condition()
         self._thread: threading.Thread | None = None
 
     @classmethod
-    def attach(cls, lg: Drainable, period_s: float) -> SharedWriter:
+    def attach(cls, lg: Drainable, period_s: float, hooks: LogHooks = FLIGHT) -> SharedWriter:
+        """Serve ``lg`` from now on (its drain timed as ``"<file> batch"`` by ``hooks``)."""
         with cls._lock:
-            w = cls._writers.get(period_s)
+            w = cls._writers.get((period_s, hooks))
             if w is None:
-                w = cls._writers[period_s] = SharedWriter(period_s)
+                w = cls._writers[period_s, hooks] = SharedWriter(period_s, hooks)
             with w._cond:
-                w.logs.add(lg)
+                w.logs[lg] = hooks.timed(batch_stage(lg.path.name), lg.drain)
                 if w._thread is None:
                     w._thread = threading.Thread(target=w._run, name=f"csvlog-writer-{period_s:g}s", daemon=True)
                     w._thread.start()
         return w
 
-    def detach(self, lg: Drainable) -> None:
+    def detach(self, lg: Drainable) -> Callable[[], None]:
+        """Stop serving ``lg``; returns its drain as this writer called it (for its last batch)."""
         with self._cond:
-            self.logs.discard(lg)
+            return self.logs.pop(lg, lg.drain)
 
     @classmethod
     def _forget_after_fork(cls) -> None:
@@ -91,9 +100,12 @@ class SharedWriter:
         while True:
             with self._cond:
                 self._cond.wait(wait_s)
-                logs = list(self.logs)
+                logs = list(self.logs.items())
+            if not logs:  # nothing to hand over (another writer's logs' posts are its to send)
+                wait_s = period
+                continue
             now = time.monotonic()
-            queued = sum(len(getattr(lg, "_q", ())) for lg in logs)
+            queued = sum(len(getattr(lg, "_q", ())) for lg, _ in logs)
             # a round once the period is over, or earlier once enough rows wait (a fast simulation):
             # rows handed over young cost the flight less than rows kept for the whole period
             if now - last < period and queued < HANDOVER_ROWS:
@@ -102,9 +114,9 @@ class SharedWriter:
             # (a flight in real time keeps one wake-up a period)
             wait_s = min(period, WAKE_PERIOD_S) if queued * period >= HANDOVER_ROWS * (now - last) else period
             last = now
-            for lg in logs:
-                lg.drain()
-            flush_current()
+            for _, drain in logs:
+                drain()
+            self._flush()
 
 
 os.register_at_fork(after_in_child=SharedWriter._forget_after_fork)
@@ -125,6 +137,7 @@ class HandedOverLog(abc.ABC):
     _q: list[tuple[object, ...]]  # appended at the end by the producer, taken from the front by drain
     _io: threading.Lock  # the writer thread and close() take turns on the file
     _proc: LogProcess | None
+    _post: Post  # hands one batch to _proc: LogHooks.hand_over(_proc), bound once
     _id: int
     _shared: SharedWriter
 
@@ -177,7 +190,7 @@ class HandedOverLog(abc.ABC):
             del q[:n]
             if not self._is_local():
                 assert self._proc is not None
-                if self._proc.post((self._POST_OP, self._id, batch)):
+                if self._post((self._POST_OP, self._id, batch)):
                     self._posted(n)
                     return
                 self._go_local()
@@ -208,8 +221,7 @@ def close_files(logs: Sequence[HandedOverLog]) -> None:
     remote: dict[int, tuple[LogProcess, list[HandedOverLog]]] = {}
     for lg in logs:
         try:
-            lg._shared.detach(lg)
-            lg.drain()
+            lg._shared.detach(lg)()  # the last batch, as the writer took them
             if not lg._is_local():
                 assert lg._proc is not None
                 remote.setdefault(id(lg._proc), (lg._proc, []))[1].append(lg)

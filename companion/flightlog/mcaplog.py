@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from companion.flightlog.handover import FLUSH_PERIOD_S, SharedWriter
+from companion.flightlog.hooks import FLIGHT, HAND_OVER, LogHooks
 from companion.flightlog.logproc import client
 from companion.flightlog.mcap_file import McapFile, McapStreamSink, Op
 from companion.flightlog.registry import CloseOrder, forget, register
@@ -40,7 +41,9 @@ class McapFlightLog:
     (:class:`~companion.flightlog.mcap_file.McapFile`). If the logging process dies after it started
     the file, the MCAP ends there (counted in ``errors``, logged); the CSVs go on."""
 
-    def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]]):
+    def __init__(self, path: str | Path, streams: Mapping[str, Sequence[str]], hooks: LogHooks = FLIGHT):
+        """``hooks``: a bench's instruments (:class:`~companion.flightlog.hooks.LogHooks`: the
+        close's wait for the logging process timed as the hand-over)."""
         self.path = Path(path)
         self._columns = {name: tuple(cols) for name, cols in streams.items()}
         self.dropped_images = 0
@@ -59,7 +62,8 @@ class McapFlightLog:
         else:
             self.path.open("wb").close()  # errors raise here; the logging process writes it
             self._id = self._proc.open_mcap(self.path, self._columns)
-        self._shared = SharedWriter.attach(self, FLUSH_PERIOD_S)
+        self._request = hooks.timed(HAND_OVER, self._proc.request) if self._proc is not None else None
+        self._shared = SharedWriter.attach(self, FLUSH_PERIOD_S, hooks)
         register(self, CloseOrder.MCAP)
 
     @property
@@ -175,8 +179,8 @@ class McapFlightLog:
         with self._io:  # after any hand-over the writer thread is in the middle of
             self._hand_over()
             self._closed = True
-        if self._file is None and self._proc is not None and not self._lost:
-            reply = self._proc.request(("mclose", self._id))
+        if self._file is None and self._request is not None and not self._lost:
+            reply = self._request(("mclose", self._id))
             if reply is not None:
                 self._remote_counts = reply
             else:

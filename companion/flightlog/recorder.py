@@ -56,6 +56,7 @@ from typing import Any, ClassVar
 from companion.autopilot.types import TelemetrySample
 from companion.flightlog.atomic import Room, write_text_atomic
 from companion.flightlog.csvlog import CsvLog, close_logs
+from companion.flightlog.hooks import FLIGHT, SAMPLES, LogHooks
 from companion.flightlog.losses import forget as forget_losses
 from companion.flightlog.losses import logs_incomplete, losses
 from companion.flightlog.mcap_encoding import MCAP_FILE
@@ -177,13 +178,26 @@ class FlightRecorder:
     ``finally`` (or use it as a context manager): every stream is flushed and closed, and
     ``run.json`` records the row counts. Calls after :meth:`close` are ignored.
 
-    ``mcap``: also write ``flight.mcap`` (default :attr:`write_mcap`, True).
+    ``mcap``: also write ``flight.mcap`` (default :attr:`write_mcap`, True). ``hooks``: a
+    bench's instruments (:class:`~companion.flightlog.hooks.LogHooks`), given to every log of the
+    run folder: the streams, ``flight.mcap`` and the simulator's ``.tlog`` that shares the
+    samples (:meth:`share_samples`); the telemetry listener (:meth:`on_sample`) is timed as
+    :data:`~companion.flightlog.hooks.SAMPLES`. The other hooks are called by the shell's
+    observer, timed there (:class:`~companion.delivery.hooks.ShellHooks`, stage ``"logging"``).
     """
 
     write_mcap: ClassVar[bool] = True
 
-    def __init__(self, run_dir: str | Path, config: Any, max_queue: int = 200_000, mcap: bool | None = None):
+    def __init__(
+        self,
+        run_dir: str | Path,
+        config: Any,
+        max_queue: int = 200_000,
+        mcap: bool | None = None,
+        hooks: LogHooks = FLIGHT,
+    ):
         self.run_dir = Path(run_dir)
+        self.hooks = hooks
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self._room = Room(self.run_dir)  # for run.json's last version on a disk the logs filled
         forget_losses(self.run_dir)  # what an earlier run in this folder lost is not this one's
@@ -214,11 +228,11 @@ class FlightRecorder:
         self._planned_path: Any = None
         try:
             if self.write_mcap if mcap is None else mcap:
-                self.mcap = McapFlightLog(self.run_dir / MCAP_FILE, streams)
+                self.mcap = McapFlightLog(self.run_dir / MCAP_FILE, streams, hooks)
                 self.meta["mcap"] = MCAP_FILE
             for name, cols in streams.items():
                 sink = self.mcap.stream_sink(name) if self.mcap is not None else None
-                self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink)
+                self.logs[name] = CsvLog(self.run_dir / name, cols, max_queue=max_queue, sink=sink, hooks=hooks)
             # the two hooks at the telemetry / setpoint rate queue their rows with no further checks
             self._shared_tlog: Any = None  # share_samples()
             self._make_sample_writers()
@@ -239,7 +253,8 @@ class FlightRecorder:
         ``pad_sensors``: its landing kit carries a camera or a UWB (the pad lock the mission is
         handed is measured, not "no sensors"; None: not said, replay goes by the configuration)."""
         self._telemetry = telemetry
-        telemetry.add_listener(self.on_sample)
+        self._listener = self.hooks.timed(SAMPLES, self.on_sample)  # bound once: removed as added
+        telemetry.add_listener(self._listener)
         self.meta["landing"] = bool(landing)
         if pad_sensors is not None:
             self.meta["pad_sensors"] = bool(pad_sensors)
@@ -247,7 +262,7 @@ class FlightRecorder:
 
     def detach(self) -> None:
         if self._telemetry is not None:
-            self._telemetry.remove_listener(self.on_sample)
+            self._telemetry.remove_listener(self._listener)
             tlog, self._shared_tlog = self._shared_tlog, None
             if tlog is not None:  # the .tlog outlives this recorder: it listens for itself again
                 self._telemetry.add_listener(tlog.sample)
@@ -265,6 +280,8 @@ class FlightRecorder:
         cache."""
         if self._closed or self._telemetry is not telemetry or self._shared_tlog is not None:
             return False
+        if self.hooks != FLIGHT:
+            tlog.use_hooks(self.hooks)
         self._shared_tlog = tlog
         self._make_sample_writers()
         return True
@@ -494,3 +511,47 @@ class FlightRecorder:
 
     def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
         self.close()
+
+
+class NullRecorder(FlightRecorder):
+    """A :class:`FlightRecorder` that opens and closes the run folder as usual (the streams,
+    ``flight.mcap``, ``run.json``) and logs nothing: every hook does nothing, and the
+    simulator's ``.tlog`` that would share the samples takes no records either
+    (:meth:`TelemetryTlog.take_no_records
+    <companion.flightlog.telemetry_tlog.TelemetryTlog.take_no_records>`). ``companion bench log``:
+    what opening and closing the logs cost a flight."""
+
+    def share_samples(self, telemetry: Any, tlog: Any) -> bool:
+        if self.hooks != FLIGHT:
+            tlog.use_hooks(self.hooks)
+        tlog.take_no_records()
+        return False  # its own (no-op) sample hook listens
+
+    def on_sample(self, sample: TelemetrySample) -> None:
+        pass
+
+    def on_marker(self, now_s: float, obs: Any, image: Any = None) -> None:
+        pass
+
+    def on_uwb(self, now_s: float, fix: Any) -> None:
+        pass
+
+    def on_result(self, now_s: float, kind: str, result: Any) -> None:
+        pass
+
+    def on_abort(self, now_s: float, reason: str) -> None:
+        pass
+
+    def on_command(self, now_s: float, kind: str, sender: str, reply: str) -> None:
+        pass
+
+    def on_go_no_go(self, now_s: float, verdict: str, detail: str) -> None:
+        pass
+
+    def on_tick(
+        self, inp: Any, out: Any, setpoint: VelocitySetpoint | None, clamped: bool, mission: Any, fusion: Any
+    ) -> None:
+        pass
+
+    def on_setpoint(self, now_s: float, sp: VelocitySetpoint) -> None:
+        pass

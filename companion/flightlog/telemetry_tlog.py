@@ -15,6 +15,7 @@ from typing import Any
 
 from companion.autopilot.types import FlightMode, TelemetrySample
 from companion.flightlog.handover import FLUSH_PERIOD_S, HandedOverLog, SharedWriter
+from companion.flightlog.hooks import FLIGHT, LogHooks, row_stage
 from companion.flightlog.logproc import client
 from companion.flightlog.losses import LossCause, cause_of, fault_of, note_lost
 from companion.flightlog.registry import CloseOrder, forget, register
@@ -42,6 +43,10 @@ def _field_getter(cls: type) -> Callable[[Any], Any]:
         get = operator.attrgetter(*names)
         getter = _FIELD_GETTERS[cls] = get if len(names) > 1 else (lambda s: (get(s),))
     return getter
+
+
+def _nothing(*args: Any) -> None:
+    pass
 
 
 class TelemetryTlog(HandedOverLog):
@@ -96,10 +101,38 @@ class TelemetryTlog(HandedOverLog):
                 self.path.open("wb").close()  # errors raise here; the logging process writes it
                 self._id = self._proc.new_id()
                 self._proc.post(("tlog", self._id, str(self.path), self._params))
+                self._post = FLIGHT.hand_over(self._proc)
         except OSError as err:
             raise OSError(err.errno, f"cannot open MAVLink log {self.path}: {err.strerror}") from None
         self._shared = SharedWriter.attach(self, FLUSH_PERIOD_S)
         register(self, CloseOrder.TLOG)
+
+    def use_hooks(self, hooks: LogHooks) -> None:
+        """Instrument this log from now on, before its first record (a bench's
+        :class:`~companion.flightlog.hooks.LogHooks`): its hooks (:meth:`sample`,
+        :meth:`setpoint`, :meth:`command`, :meth:`command_ack`) bound once timed as
+        ``"flight.tlog row"``, its batches handed over by ``hooks.hand_over`` and served by
+        those hooks' writer thread (timed as ``"flight.tlog batch"``). The simulator opens its
+        ``.tlog`` itself: the run folder's :class:`~companion.flightlog.recorder.FlightRecorder`
+        hands it the hooks it was opened with (:meth:`FlightRecorder.share_samples
+        <companion.flightlog.recorder.FlightRecorder.share_samples>`)."""
+        if self._proc is not None:
+            self._post = hooks.hand_over(self._proc)
+        self._shared.detach(self)
+        self._shared = SharedWriter.attach(self, FLUSH_PERIOD_S, hooks)
+        if hooks.stage_timer is not None:
+            stage = row_stage(self.path.name)
+            self.sample = hooks.timed(stage, self.sample)  # type: ignore[method-assign]
+            self.setpoint = hooks.timed(stage, self.setpoint)  # type: ignore[method-assign]
+            self.command = hooks.timed(stage, self.command)  # type: ignore[method-assign]
+            self.command_ack = hooks.timed(stage, self.command_ack)  # type: ignore[method-assign]
+
+    def take_no_records(self) -> None:
+        """From now on (before its first record) every hook does nothing: the file is opened and
+        closed with no records (``companion bench log``'s run folder with nothing logged:
+        :class:`~companion.flightlog.recorder.NullRecorder`)."""
+        self.sample = self.setpoint = _nothing  # type: ignore[method-assign,assignment]
+        self.command = self.command_ack = _nothing  # type: ignore[method-assign,assignment]
 
     # ---- the hooks (the loop thread) ---------------------------------------------------------
     def sample(self, s: TelemetrySample) -> None:
