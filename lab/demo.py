@@ -21,6 +21,7 @@ from typing import Any, cast
 import numpy as np
 
 from companion.autopilot.interface import Autopilot
+from companion.delivery.hooks import ShellHooks
 from companion.delivery.mission import FailureKind, MissionOutput
 from companion.delivery.observers import FLIGHT_LOG_COLUMNS
 from companion.delivery.planning import pad_config_ned, pad_position_ned
@@ -29,6 +30,7 @@ from companion.delivery.signals import abort_on_signals
 from companion.events import Phase
 from companion.flightlog.atomic import write_text_atomic
 from companion.flightlog.csvlog import CsvLog
+from companion.flightlog.hooks import FLIGHT, LogHooks, row_stage
 from companion.flightlog.recorder import FlightRecorder
 from companion.geometry.earth import GeoPoint
 from companion_sitl.autopilot import SimAutopilot
@@ -100,17 +102,50 @@ class DemoResult:
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
 
+@dataclass(frozen=True)
+class DemoHooks:
+    """How a bench instruments a demo flight's run folder without changing the flight: every
+    field defaults to what a flight uses (``companion bench log``).
+
+    - ``logs``: given to every log of the run folder (``flight.csv``, ``truth.csv``, the
+      recorder's streams and ``flight.mcap``, and through the recorder the simulator's ``.tlog``):
+      :class:`~companion.flightlog.hooks.LogHooks`; ``truth.csv``'s rows are queued through its
+      ``write`` timed as ``"truth.csv row"``;
+    - ``shell``: the delivery shell's (:class:`~companion.delivery.hooks.ShellHooks`: its stage
+      ``"logging"`` wraps ``flight.csv``'s observer and the recorder's);
+    - ``recorder``: the run folder's recorder class
+      (:class:`~companion.flightlog.recorder.NullRecorder`: nothing logged);
+    - ``csv_log``: ``flight.csv``'s and ``truth.csv``'s class
+      (:class:`~companion.flightlog.csvlog.NullCsvLog`: no rows taken).
+    """
+
+    logs: LogHooks = FLIGHT
+    shell: ShellHooks | None = None
+    recorder: type[FlightRecorder] = FlightRecorder
+    csv_log: type[CsvLog] = CsvLog
+
+
+FLIGHT_HOOKS = DemoHooks()
+
+
 class _Scorer:
     """Samples truth at each guidance tick while the vector field is being followed, against the
     reference of companion_sitl.scoring (the way out may end at the pad as found)."""
 
     FOLLOW = (Phase.OUTBOUND, Phase.INBOUND)
 
-    def __init__(self, vehicle: SimVehicle, truth_log: CsvLog | None, true_pad_ne: tuple[float, float] | None = None):
+    def __init__(
+        self,
+        vehicle: SimVehicle,
+        truth_log: CsvLog | None,
+        true_pad_ne: tuple[float, float] | None = None,
+        hooks: LogHooks = FLIGHT,
+    ):
         self.vehicle = vehicle
         self.true_pad_ne = true_pad_ne  # truth frame; the reference path on the way out (path_scoring)
         self.path_scorer: PathScorer | None = None
         self.truth_log = truth_log
+        self._write_truth = hooks.timed(row_stage("truth.csv"), truth_log.write) if truth_log is not None else None
         self.truth_d: list[float] = []
         self.planned_d: list[float] = []
         self.est_d: list[float] = []
@@ -138,8 +173,8 @@ class _Scorer:
             self.planned_d.append(d_planned)
             if math.isfinite(out.lyapunov):
                 self.est_d.append(math.sqrt(2.0 * out.lyapunov))
-        if self.truth_log is not None:
-            self.truth_log.write(
+        if self._write_truth is not None:
+            self._write_truth(
                 (v.time_s, out.phase.value, v.pn, v.pe, v.pd, *map(float, p_i), d_truth, out.lyapunov, d_planned)
             )
 
@@ -239,17 +274,22 @@ def _vehicle_link(
 
 
 def _open_logs(
-    config: SimulatedConfig, run_dir: Path | None, sim_ap: SimAutopilot | None, mcap: bool = True
+    config: SimulatedConfig,
+    run_dir: Path | None,
+    sim_ap: SimAutopilot | None,
+    mcap: bool = True,
+    hooks: DemoHooks = FLIGHT_HOOKS,
 ) -> tuple[CsvLog | None, CsvLog | None, FlightRecorder | None]:
     """flight.csv, truth.csv and the per-stream recorder in ``run_dir`` (none without it); ``mcap``:
-    the recorder also writes flight.mcap (with the camera frames: most of a run folder's bytes)."""
+    the recorder also writes flight.mcap (with the camera frames: most of a run folder's bytes);
+    ``hooks``: a bench's (:class:`DemoHooks`)."""
     if run_dir is None:
         return None, None, None
     run_dir.mkdir(parents=True, exist_ok=True)
-    flight_log = CsvLog(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS)
-    truth_log = CsvLog(run_dir / "truth.csv", TRUTH_COLUMNS)
+    flight_log = hooks.csv_log(run_dir / "flight.csv", FLIGHT_LOG_COLUMNS, hooks=hooks.logs)
+    truth_log = hooks.csv_log(run_dir / "truth.csv", TRUTH_COLUMNS, hooks=hooks.logs)
     # per-stream logs (events.csv included, written as they happen) for replay and reports
-    recorder = FlightRecorder(run_dir, config, mcap=mcap)
+    recorder = hooks.recorder(run_dir, config, mcap=mcap, hooks=hooks.logs)
     if sim_ap is not None:
         sim_ap.sample_rows = recorder  # the .tlog's sample records from the recorder's rows
     return flight_log, truth_log, recorder
@@ -346,8 +386,14 @@ async def fly(
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
     mcap: bool = True,
+    tlog: bool = True,
+    hooks: DemoHooks = FLIGHT_HOOKS,
 ) -> DemoResult:
     """Fly one delivery on the simulator (on whatever loop is running) and score it.
+
+    With ``run_dir``: the run folder; ``mcap``: with ``flight.mcap``, ``tlog``: with the link's
+    ``flight.tlog``. ``hooks``: a bench's instruments of the run folder (:class:`DemoHooks`; the
+    default: a flight's).
 
     ``camera_playback``: the landing camera is a recorded file (see :class:`CameraPlayback`);
     ``record_camera``: record the simulated camera's frames that the flight reads into this
@@ -364,11 +410,12 @@ async def fly(
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)
-    tlog = run_dir / "flight.tlog" if run_dir is not None else None  # the link traffic (MAVExplorer, QGC)
-    ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog, mavlink)
+    # the link traffic (MAVExplorer, QGC)
+    tlog_path = run_dir / "flight.tlog" if run_dir is not None and tlog else None
+    ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog_path, mavlink)
     use_fusion = config.landing.fusion if fusion is None else fusion
-    flight_log, truth_log, recorder = _open_logs(config, run_dir, sim_ap, mcap)
-    scorer = _Scorer(vehicle, truth_log, true_pad_ned(config))
+    flight_log, truth_log, recorder = _open_logs(config, run_dir, sim_ap, mcap, hooks)
+    scorer = _Scorer(vehicle, truth_log, true_pad_ned(config), hooks.logs)
 
     def tick(shell: DeliveryShell, out: MissionOutput) -> None:
         scorer(shell, out)
@@ -383,7 +430,14 @@ async def fly(
         if mav_sim is not None:
             kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     shell = DeliveryShell(
-        config, ap, flight_log=flight_log, on_tick=tick, telemetry=telemetry, landing=kit, recorder=recorder
+        config,
+        ap,
+        flight_log=flight_log,
+        on_tick=tick,
+        telemetry=telemetry,
+        landing=kit,
+        recorder=recorder,
+        hooks=hooks.shell,
     )
     wall0 = time.perf_counter()
     try:
@@ -454,9 +508,12 @@ def run_demo(
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
     mcap: bool = True,
+    tlog: bool = True,
+    hooks: DemoHooks = FLIGHT_HOOKS,
 ) -> DemoResult:
     """Fly the demo: lock-step virtual time (default), or real time (``realtime``, or always
-    with ``mavlink``, whose simulator runs on the wall clock behind real sockets)."""
+    with ``mavlink``, whose simulator runs on the wall clock behind real sockets); the other
+    arguments: :func:`fly`'s."""
     coro = fly(
         config,
         run_dir,
@@ -467,6 +524,8 @@ def run_demo(
         camera_playback=camera_playback,
         record_camera=record_camera,
         mcap=mcap,
+        tlog=tlog,
+        hooks=hooks,
     )
     if realtime or mavlink:
         return asyncio.run(coro)
