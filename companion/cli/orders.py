@@ -19,9 +19,8 @@ import math
 import signal
 import sys
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from companion.cli.args import FLIGHT_LOGS_MIN_BYTES, made_run_folder
 from companion.config import CompanionConfig
 from companion.delivery.mission import FailureKind
 from companion.delivery.observers import TickCallback
+from companion.delivery.order_session import FlownOrder, OrderSession
 from companion.events import MissionEvent
 from companion.telemetry.session import SettingsError, ZenohSettings
 
@@ -191,28 +191,6 @@ def cmd_order(args: argparse.Namespace) -> int:
 
 
 # ---- the vehicle side --------------------------------------------------------------------------
-
-
-@dataclass
-class FlownOrder:
-    """One accepted order and how its flight ended."""
-
-    order_id: str
-    run_dir: Path
-    delivered: bool
-    returned: bool
-    failure: str
-    failure_kind: FailureKind = FailureKind.NONE
-
-
-@dataclass
-class OrderSession:
-    """What ``fly --orders`` did: the flights, and every order event (accepted, refused, flown)."""
-
-    flights: list[FlownOrder] = field(default_factory=list)
-    events: deque[MissionEvent] = field(default_factory=lambda: deque(maxlen=1000))  # the latest
-    accepted: int = 0
-    refused: int = 0
 
 
 def order_settings(config: CompanionConfig) -> Any:
@@ -400,6 +378,7 @@ async def serve_orders(
     landing_for: Callable[[CompanionConfig], Any] | None = None,
     before_flight_for: Callable[[CompanionConfig, Any], Any] | None = None,
     abort_reason: str = "operator abort",
+    record: OrderSession | None = None,
 ) -> OrderSession:
     """Take order after order until ``stop`` is set (SIGINT/SIGTERM set it): each accepted order
     is flown by a :class:`DeliveryShell` with its own configuration and its own run folder
@@ -407,7 +386,9 @@ async def serve_orders(
     covers the session). ``zenoh_settings``: the vehicle's session (default: ``[telemetry]``).
     ``landing_for(config)``: the flight's landing sensors, started (a shell stops them when its flight
     ends); ``before_flight_for(config, kit)``: the flight's pre-flight check. Either raising ends
-    that flight, not the session: it is reported as the order's failure."""
+    that flight, not the session: it is reported as the order's failure. ``record``: the session
+    to fill and return (a caller watching it as the orders are flown; default a new one); each
+    flight is in its ``flights`` before the desk's "flown" event."""
     from companion.delivery.orders import OrderDesk
     from companion.delivery.telemetry import zenoh_settings_from_config
     from companion.telemetry.schema import MissionMessage
@@ -416,7 +397,7 @@ async def serve_orders(
     zs = zenoh_settings or zenoh_settings_from_config(config)
     stop = stop or asyncio.Event()
     loop = asyncio.get_running_loop()
-    out = OrderSession()
+    out = record if record is not None else OrderSession()
     live = _Live()
 
     def event(ev: MissionEvent) -> None:

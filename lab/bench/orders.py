@@ -238,6 +238,7 @@ async def run_orders_bench(
     the vehicle side of ``fly --orders`` (:func:`companion.cli.orders.serve_orders`; the command
     line hands it over, the lab sits below it)."""
     from companion.autopilot.px4 import Px4Autopilot
+    from companion.delivery.order_session import OrderSession
     from companion.telemetry.ground import GroundStation
     from companion.telemetry.loopback import free_tcp_port, loopback_settings
     from companion_lab.bench.app import run_setpoint_stream
@@ -248,12 +249,11 @@ async def run_orders_bench(
     tmp.mkdir(parents=True, exist_ok=True)
     udp, zport = free_udp_port(), free_tcp_port()
     config = _config(tmp, udp)
-    events: list[Any] = []
+    record = OrderSession()  # filled by serve_orders: a flight is in it before its "flown" event
     ended: list[float] = []  # the wall time the flight ended (its telemetry stops with it)
 
     def on_event(ev: Any) -> None:
-        events.append(ev)
-        if ev.detail.startswith("order o-1 flown"):
+        if record.flights and not ended:
             ended.append(time.time())
 
     stop = asyncio.Event()
@@ -271,6 +271,7 @@ async def run_orders_bench(
                 flight_timeout_s=300.0,
                 stop=stop,
                 on_event=on_event,
+                record=record,
             )
         )
         tc = ap.telemetry
@@ -291,8 +292,8 @@ async def run_orders_bench(
         a_out, _ = await asyncio.to_thread(attack.communicate)
         t1 = time.time()
         hwm = _vm_kib("VmHWM")
-        flown = any(e.detail.startswith("order o-1 flown") for e in events)
-        await _until(lambda: any(e.detail.startswith("order o-1 flown") for e in events), 300.0, "the flight")
+        flown = bool(record.flights)
+        await _until(lambda: bool(record.flights), 300.0, "the flight")
     finally:
         stop.set()
         session = await asyncio.wait_for(task, 60.0) if "task" in locals() else None
