@@ -29,6 +29,17 @@ Two measurements of the GPS-only demo flight, in one run:
   Times in this process are CPU time of the thread doing the work (``time.thread_time``), so
   waiting for the GIL is not counted; reading that clock costs about a microsecond on some
   machines, so its cost per timed call, measured first, is subtracted.
+
+Everything is reached through what the demo offers (:class:`~companion_lab.demo.DemoHooks`),
+nothing is patched: the variants without ``flight.tlog`` or ``flight.mcap`` are
+:func:`~companion_lab.demo.run_demo`'s ``tlog`` and ``mcap``; the folder with nothing logged is
+flown with :class:`~companion.flightlog.recorder.NullRecorder` and
+:class:`~companion.flightlog.csvlog.NullCsvLog`; the rows not handed over with the hand-over
+that drops them (:func:`~companion.flightlog.hooks.drop_batches`); the timed flight with a stage
+timer in :class:`~companion.flightlog.hooks.LogHooks` (the recorder's telemetry listener, the
+logs' batches, the ``.tlog``'s hooks, ``truth.csv``'s queueing, the sends to the logging process)
+and in :class:`~companion.delivery.hooks.ShellHooks` (stage ``logging``: ``flight.csv``'s
+observer and the recorder's hooks as the shell's observer calls them).
 """
 
 from __future__ import annotations
@@ -38,30 +49,30 @@ import logging
 import tempfile
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from companion.config import DEFAULT_PARAMS, shipped_params_path
-from companion.delivery.observers import FlightLogObserver
+from companion.delivery.hooks import ShellHooks
+from companion.delivery.observers import FlightLogObserver, RecorderObserver
 from companion.flightlog import logproc
-from companion.flightlog.csvlog import CsvLog
-from companion.flightlog.handover import HandedOverLog
+from companion.flightlog.csvlog import NullCsvLog
+from companion.flightlog.hooks import HAND_OVER, SAMPLES, LogHooks, batch_stage, drop_batches, row_stage
 from companion.flightlog.mcap_encoding import MCAP_FILE
-from companion.flightlog.recorder import FlightRecorder
+from companion.flightlog.recorder import NullRecorder
 from companion.flightlog.streams import SAMPLE_FILES
-from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion_lab import demo
+from companion_lab.demo import DemoHooks
 from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
-_HANDOVER = "(hand-over)"  # the pickles sent to the logging process (and the closes' waits)
+_HANDOVER = "(hand-over)"  # the pickles sent to the logging process (and the MCAP close's wait)
 _TLOG = "flight.tlog"
-_TLOG_HOOKS = ("sample", "setpoint", "command", "command_ack")
 
-# recorder hooks and the stream each is charged to (on_sample: the sample's own file)
+# the recorder's hooks the shell's observer calls, and the stream each is charged to (its
+# telemetry listener: the sample's own file)
 _HOOK_STREAM = {
     "on_marker": "camera.csv",
     "on_uwb": "uwb.csv",
@@ -72,82 +83,14 @@ _HOOK_STREAM = {
     "on_setpoint": "setpoints.csv",
 }
 
-
-@contextmanager
-def _no_tlog() -> Iterator[None]:
-    """Fly the in-process simulator without its MAVLink .tlog."""
-    orig = demo.SimAutopilot
-
-    def make(cfg: Any, vehicle: Any, tlog_path: Any = None) -> Any:
-        return orig(cfg, vehicle, tlog_path=None)
-
-    demo.SimAutopilot = make  # type: ignore[assignment,misc]
-    try:
-        yield
-    finally:
-        demo.SimAutopilot = orig  # type: ignore[misc]
-
-
-@contextmanager
-def _no_mcap() -> Iterator[None]:
-    """Fly with the recorder's CSVs only."""
-    orig = FlightRecorder.write_mcap
-    FlightRecorder.write_mcap = False
-    try:
-        yield
-    finally:
-        FlightRecorder.write_mcap = orig
-
-
-@contextmanager
-def _patched() -> Iterator[Callable[[type, str, Callable[[Any], Any]], None]]:
-    """Replace class attributes for the block: ``patch(cls, name, make)`` sets ``make(original)``;
-    every original is put back afterwards, last first."""
-    saved: list[tuple[type, str, Any]] = []
-
-    def patch(cls: type, name: str, make: Callable[[Any], Any]) -> None:
-        orig = cls.__dict__[name]
-        saved.append((cls, name, orig))
-        setattr(cls, name, make(orig))
-
-    try:
-        yield patch
-    finally:
-        for cls, name, orig in reversed(saved):
-            setattr(cls, name, orig)
-
-
-@contextmanager
-def _no_rows() -> Iterator[None]:
-    """Fly with the whole run folder opened and closed but nothing logged: every hook of the
-    recorder, the simulator's ``.tlog`` and ``flight.csv``/``truth.csv`` does nothing (what
-    is left is opening, the logging process's start-up messages, and closing)."""
-
-    def nothing(orig: Any) -> Any:
-        return lambda self, *args: None
-
-    with _patched() as patch:
-        for name in ("on_sample", *_HOOK_STREAM):
-            patch(FlightRecorder, name, nothing)
-        patch(FlightRecorder, "share_samples", lambda orig: lambda self, telemetry, tlog: False)
-        for name in ("write", "put"):
-            patch(CsvLog, name, nothing)
-        for name in _TLOG_HOOKS:
-            patch(TelemetryTlog, name, nothing)
-        yield
-
-
-@contextmanager
-def _rows_not_handed_over() -> Iterator[None]:
-    """Fly with every row and ``.tlog`` record built and queued as usual, but the batches
-    dropped where they would be handed to the logging process (files opened and closed)."""
-
-    def post(orig: Any) -> Any:
-        return lambda self, op: True if op[0] in (CsvLog._POST_OP, TelemetryTlog._POST_OP) else orig(self, op)
-
-    with _patched() as patch:
-        patch(logproc.LogProcess, "post", post)
-        yield
+# the whole run folder opened and closed with nothing logged: every hook of the recorder, the
+# simulator's .tlog and flight.csv/truth.csv does nothing (what is left is opening, the logging
+# process's start-up messages, and closing)
+NO_ROWS = DemoHooks(recorder=NullRecorder, csv_log=NullCsvLog)
+# every row and .tlog record built and queued as usual, the batches dropped where they would be
+# handed to the logging process (files opened and closed); one object, so every round's logs
+# share one writer thread
+ROWS_NOT_HANDED_OVER = DemoHooks(logs=LogHooks(hand_over=drop_batches))
 
 
 def tlog_record_count(path: Path) -> int:
@@ -176,85 +119,58 @@ def clock_overhead_s(n: int = 20000, rounds: int = 5) -> float:
     return best
 
 
-@contextmanager
-def _timed_logs(hook_s: dict[str, float], write_s: dict[str, float], calls: dict[str, int]) -> Iterator[None]:
-    """Charge the recorder's hooks, the .tlog's and every log's queueing and batched writes to
-    streams (``calls``: timed calls per stream, each charged one clock reading too many)."""
+def timed_hooks(hook_s: dict[str, float], write_s: dict[str, float], calls: dict[str, int]) -> DemoHooks:
+    """The demo's hooks that charge the recorder's hooks, the .tlog's and every log's queueing
+    and batches to streams (``calls``: timed calls per stream, each charged one clock reading too
+    many): the logs' stage timer (:class:`~companion.flightlog.hooks.LogHooks`) and the shell's,
+    whose ``"logging"`` stage wraps ``flight.csv``'s observer and the recorder's."""
+    clock = time.thread_time
 
-    def hook(name: str, orig: Any) -> Any:
-        @functools.wraps(orig)
-        def timed(self: Any, *args: Any) -> None:
-            t0 = time.thread_time()
-            orig(self, *args)
-            stream = SAMPLE_FILES.get(type(args[0]), "") if name == "on_sample" else _HOOK_STREAM[name]
-            hook_s[stream] += time.thread_time() - t0
+    def charged(fn: Callable[..., Any], spent: dict[str, float], stream: str, records: str = "") -> Callable[..., Any]:
+        @functools.wraps(fn)
+        def timed(*args: Any) -> Any:
+            t0 = clock()
+            r = fn(*args)
+            spent[stream] += clock() - t0
             calls[stream] += 1
-
-        return timed
-
-    def record(orig: Any) -> Any:
-        @functools.wraps(orig)
-        def timed(self: Any, *args: Any) -> None:
-            t0 = time.thread_time()
-            orig(self, *args)
-            hook_s["flight.csv"] += time.thread_time() - t0
-            calls["flight.csv"] += 1
-
-        return timed
-
-    def write(orig: Any) -> Any:
-        def timed(self: CsvLog, row: Any) -> None:
-            if self.path.name == "truth.csv":  # no recorder hook builds these rows (flight.csv's: FlightLogObserver)
-                t0 = time.thread_time()
-                orig(self, row)
-                write_s[self.path.name] += time.thread_time() - t0
-                calls[self.path.name] += 1
-            else:
-                orig(self, row)
-
-        return timed
-
-    def drain(orig: Any) -> Any:
-        def timed(self: Any) -> None:
-            t0 = time.thread_time()
-            orig(self)
-            write_s[self.path.name] += time.thread_time() - t0
-            calls[self.path.name] += 1
-
-        return timed
-
-    def tlog_hook(orig: Any) -> Any:
-        @functools.wraps(orig)
-        def timed(self: TelemetryTlog, *args: Any) -> None:
-            t0 = time.thread_time()
-            orig(self, *args)
-            hook_s[_TLOG] += time.thread_time() - t0
-            calls[_TLOG] += 1
-            calls[_TLOG + " records"] += 1  # calls[_TLOG] also counts its batches taken (drain)
-
-        return timed
-
-    def handover(orig: Any) -> Any:
-        def timed(self: logproc.LogProcess, *args: Any) -> Any:
-            t0 = time.thread_time()
-            r = orig(self, *args)
-            write_s[_HANDOVER] += time.thread_time() - t0
-            calls[_HANDOVER] += 1
+            if records:
+                calls[records] += 1
             return r
 
         return timed
 
-    with _patched() as patch:
-        for name in ("on_sample", *_HOOK_STREAM):
-            patch(FlightRecorder, name, functools.partial(hook, name))
-        patch(CsvLog, "write", write)
-        patch(FlightLogObserver, "on_tick", record)  # flight.csv's row, built and written
-        patch(HandedOverLog, "drain", drain)  # every CSV log's and the .tlog's
-        for name in _TLOG_HOOKS:
-            patch(TelemetryTlog, name, tlog_hook)
-        patch(logproc.LogProcess, "flush", handover)
-        patch(logproc.LogProcess, "request", handover)
-        yield
+    def log_timer(stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        if stage == SAMPLES:  # the recorder's telemetry listener: charged to the sample's stream
+
+            @functools.wraps(fn)
+            def on_sample(sample: Any) -> None:
+                t0 = clock()
+                fn(sample)
+                stream = SAMPLE_FILES.get(type(sample), "")
+                hook_s[stream] += clock() - t0
+                calls[stream] += 1
+
+            return on_sample
+        if stage == HAND_OVER:
+            return charged(fn, write_s, _HANDOVER)
+        if stage == row_stage(_TLOG):  # calls[_TLOG] also counts its batches taken
+            return charged(fn, hook_s, _TLOG, _TLOG + " records")
+        if stage == row_stage("truth.csv"):  # no recorder hook builds these rows
+            return charged(fn, write_s, "truth.csv")
+        name = stage.removesuffix(" batch")
+        if stage == batch_stage(name) and name != MCAP_FILE:  # every CSV log's and the .tlog's
+            return charged(fn, write_s, name)
+        return fn
+
+    def shell_timer(stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        owner, name = getattr(fn, "__self__", None), getattr(fn, "__name__", "")
+        if stage == "logging" and name == "on_tick" and isinstance(owner, FlightLogObserver):
+            return charged(fn, hook_s, "flight.csv")  # flight.csv's row, built and queued
+        if stage == "logging" and name in _HOOK_STREAM and isinstance(owner, RecorderObserver):
+            return charged(fn, hook_s, _HOOK_STREAM[name])
+        return fn
+
+    return DemoHooks(logs=LogHooks(stage_timer=log_timer), shell=ShellHooks(stage_timer=shell_timer))
 
 
 def bench_log(seed: int = 1, config: SimulatedConfig | None = None, rounds: int = 2) -> dict[str, Any]:
@@ -271,11 +187,11 @@ def bench_log(seed: int = 1, config: SimulatedConfig | None = None, rounds: int 
         child_cpus: dict[str, list[float]] = defaultdict(list)  # the logging process's
         bare: Any = None
 
-        def fly(variant: str, run_dir: Path | None) -> Any:
+        def fly(variant: str, run_dir: Path | None, **options: Any) -> Any:
             proc = logproc.LogProcess._current
             c0 = proc.cpu_s() if proc is not None and run_dir is not None else None
             t0 = time.process_time()
-            r = demo.run_demo(cfg, fusion=False, run_dir=run_dir)
+            r = demo.run_demo(cfg, fusion=False, run_dir=run_dir, **options)
             cpus[variant].append(time.process_time() - t0)
             if c0 is not None and logproc.LogProcess._current is proc:
                 c1 = proc.cpu_s()  # type: ignore[union-attr]
@@ -286,16 +202,12 @@ def bench_log(seed: int = 1, config: SimulatedConfig | None = None, rounds: int 
 
         for k in range(rounds):
             bare = fly("bare", None)
-            with _no_tlog(), _no_mcap():
-                fly("csv", root / f"csv{k}")
-            with _no_tlog():
-                fly("mcap", root / f"mcap{k}")
+            fly("csv", root / f"csv{k}", tlog=False, mcap=False)
+            fly("mcap", root / f"mcap{k}", tlog=False)
             fly("full", root / f"full{k}")
             if logproc.client() is not None:  # the split of the whole folder's cost
-                with _no_rows():
-                    fly("fixed", root / f"fixed{k}")
-                with _rows_not_handed_over():
-                    fly("queued", root / f"queued{k}")
+                fly("fixed", root / f"fixed{k}", hooks=NO_ROWS)
+                fly("queued", root / f"queued{k}", hooks=ROWS_NOT_HANDED_OVER)
         mcap_bytes = (root / "mcap0" / MCAP_FILE).stat().st_size
         hook_s: dict[str, float] = defaultdict(float)
         write_s: dict[str, float] = defaultdict(float)
@@ -303,8 +215,7 @@ def bench_log(seed: int = 1, config: SimulatedConfig | None = None, rounds: int 
         overhead = clock_overhead_s()
         proc = logproc.client()
         cpu0 = proc.cpu_s() if proc is not None else None
-        with _timed_logs(hook_s, write_s, calls):
-            demo.run_demo(cfg, fusion=False, run_dir=root / "timed")
+        demo.run_demo(cfg, fusion=False, run_dir=root / "timed", hooks=timed_hooks(hook_s, write_s, calls))
         proc_after = logproc.client()
         cpu1 = proc_after.cpu_s() if proc_after is not None and proc_after is proc else None
         rows = {f.name: max(0, sum(1 for _ in f.open(encoding="utf-8")) - 1) for f in (root / "timed").glob("*.csv")}
