@@ -176,6 +176,11 @@ class HandedOverLog(abc.ABC):
         for op in returned:
             self._write_local(op[2])  # a file that could not be reopened counts them dropped
 
+    @property
+    def log_process(self) -> LogProcess | None:
+        """The logging process this log hands its batches to (None: written here from the start)."""
+        return self._proc
+
     def drain(self) -> None:
         """Hand over (or write, in process) what has been queued so far, as one batch."""
         with self._io:

@@ -71,6 +71,11 @@ class McapFlightLog:
         return self._errors + self._remote_counts[0] + (self._file.errors if self._file is not None else 0)
 
     @property
+    def in_process(self) -> bool:
+        """Written by this process (not, or no longer, by the logging process)."""
+        return self._file is not None
+
+    @property
     def messages(self) -> int:
         """Messages written (in the logging process: counted once the file is closed)."""
         return self._remote_counts[1] + (self._file.messages if self._file is not None else 0)

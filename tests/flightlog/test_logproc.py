@@ -77,10 +77,10 @@ def test_the_logging_process_writes_the_bytes_the_in_process_path_writes(tmp_pat
 
 def test_one_logging_process_for_every_log(tmp_path):
     logs = [CsvLog(tmp_path / f"{i}.csv", ("time_s",)) for i in range(5)]
-    procs = {id(lg._proc) for lg in logs}
+    procs = {id(lg.log_process) for lg in logs}
     for lg in logs:
         lg.close()
-    assert len(procs) == 1 and None not in {lg._proc for lg in logs}
+    assert len(procs) == 1 and None not in {lg.log_process for lg in logs}
 
 
 _CRASH = """
@@ -232,7 +232,7 @@ def test_the_in_process_switch(tmp_path, monkeypatch):
         for row in _rows(10):
             lg.write(row)
     m.close()
-    assert lg.in_process and m._file is not None
+    assert lg.in_process and m.in_process
     assert len(_messages(tmp_path / "flight.mcap")[stream_topic("a.csv")]) == 10 and m.messages > 10
 
 
