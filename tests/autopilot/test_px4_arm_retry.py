@@ -7,6 +7,7 @@ from mavsdk.plugins.action import ActionError, ActionResult
 from companion.autopilot.interface import CommandRejected
 from companion.autopilot.px4 import Px4Autopilot
 from companion.autopilot.px4 import autopilot as px4_autopilot
+from companion.autopilot.px4.autopilot import is_check_refusal
 from companion.autopilot.types import FlightMode
 
 HEALTH_DENIAL = "Arming denied: Resolve system health failures first"
@@ -78,18 +79,17 @@ def test_px4s_answer_is_kept_as_its_mav_result():
     from companion.autopilot.interface import LINK_DOWN, NO_ANSWER
     from companion.autopilot.px4.requests import MavResult, Px4CommandRejected
 
-    ap, _ = _autopilot([])
     denied = Px4CommandRejected("arm", MavResult.DENIED, HEALTH_DENIAL)
     assert denied.result == "DENIED" and denied.mav_result is MavResult.DENIED and denied.permanent
     assert str(denied) == f"arm: DENIED ({HEALTH_DENIAL})"
-    assert ap._check_refusal(denied)
-    assert ap._check_refusal(Px4CommandRejected("arm", MavResult.TEMPORARILY_REJECTED, HEALTH_DENIAL))
+    assert is_check_refusal(denied, healthy=True)
+    assert is_check_refusal(Px4CommandRejected("arm", MavResult.TEMPORARILY_REJECTED, HEALTH_DENIAL), healthy=True)
     for other in (MavResult.FAILED, MavResult.UNSUPPORTED, NO_ANSWER, LINK_DOWN):
         err = Px4CommandRejected("arm", other, HEALTH_DENIAL)
-        assert not ap._check_refusal(err), other
+        assert not is_check_refusal(err, healthy=True), other
         assert err.mav_result is (other if isinstance(other, MavResult) else None)
     # another backend's refusal carries no MAV_RESULT of PX4's: not a check to wait for
-    assert not ap._check_refusal(CommandRejected("arm", "DENIED", HEALTH_DENIAL))
+    assert not is_check_refusal(CommandRejected("arm", "DENIED", HEALTH_DENIAL), healthy=True)
 
 
 async def test_mavsdks_result_enum_becomes_the_mav_result():

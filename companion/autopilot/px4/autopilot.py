@@ -80,6 +80,15 @@ ARM_CHECK_TEXTS = ("resolve system health failures", "preflight fail")
 ARM_CHECK_RESULTS = frozenset({MavResult.DENIED, MavResult.TEMPORARILY_REJECTED})
 
 
+def is_check_refusal(err: CommandRejected, healthy: bool) -> bool:
+    """A refusal a waiting pilot would see clear: PX4's health or pre-flight checks failing
+    (said in its text, or ``healthy`` False: its health report at the time), not a mode or a
+    switch; another backend's refusal (no PX4 MAV_RESULT) never is."""
+    if not isinstance(err, Px4CommandRejected) or err.mav_result not in ARM_CHECK_RESULTS:
+        return False
+    return any(t in err.reason.lower() for t in ARM_CHECK_TEXTS) or not healthy
+
+
 class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests, Autopilot):
     def __init__(
         self,
@@ -215,11 +224,8 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests,
                 await asyncio.sleep(ARM_RETRY_S)
 
     def _check_refusal(self, err: CommandRejected) -> bool:
-        """A refusal a waiting pilot would see clear: PX4's health or pre-flight checks failing
-        (said in its text, or in its health report at the time), not a mode or a switch."""
-        if not isinstance(err, Px4CommandRejected) or err.mav_result not in ARM_CHECK_RESULTS:
-            return False
-        return any(t in err.reason.lower() for t in ARM_CHECK_TEXTS) or not self._healthy
+        """:func:`is_check_refusal` on the vehicle's health report now."""
+        return is_check_refusal(err, self._healthy)
 
     async def _arm_once(self) -> None:
         if not self._armed and self._mode is not FlightMode.HOLD:
