@@ -176,14 +176,18 @@ def cmd_ground(args: argparse.Namespace) -> int:
             bridge.stop()
         return 1
     where = ", ".join(settings.listen or ()) or "-"
-    console.print(
-        f"ground station: mode {settings.mode}, listen {where}, "
-        f"connect {', '.join(settings.all_connect_endpoints) or '-'}, "
-        f"recording to {args.out or '(not recording)'}"
-    )
-    if bridge is not None:
-        console.print(f"Foxglove: open ws://{args.foxglove_host}:{bridge.port} (Open connection -> Foxglove WebSocket)")
+    # from here on the session is open: a Ctrl-C anywhere (even while the banner prints) must still
+    # close it, or its threads keep the process alive after the interrupt
     try:
+        console.print(
+            f"ground station: mode {settings.mode}, listen {where}, "
+            f"connect {', '.join(settings.all_connect_endpoints) or '-'}, "
+            f"recording to {args.out or '(not recording)'}"
+        )
+        if bridge is not None:
+            console.print(
+                f"Foxglove: open ws://{args.foxglove_host}:{bridge.port} (Open connection -> Foxglove WebSocket)"
+            )
         interrupted = run_live(station, duration_s=args.duration, refresh_hz=args.refresh, console=console)
     except KeyboardInterrupt:  # before the live table was up
         interrupted = True
