@@ -27,7 +27,7 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -39,6 +39,7 @@ from companion.autopilot.ardupilot.modes import COPTER_MODES
 from companion.autopilot.interface import RcInput
 from companion.autopilot.types import LandedState
 from companion.dart.estimators import wall_marker
+from companion.dart.hooks import DartHooks
 from companion.dart.mission import DartPhase
 from companion.dart.params import DartFlightParams
 from companion.dart.shell import DART_STREAM_RATES_HZ, DartRunSummary, DartShell
@@ -268,6 +269,23 @@ async def fly_dart_arducopter_modes(
         rc.stop()
 
 
+def _recording_rc_overrides(sent: list[tuple[float, tuple[int, ...]]]) -> Callable[[str, Callable[..., Any]], Any]:
+    """A DartHooks stage timer that appends each RC override the shell hands the backend to
+    ``sent`` as (monotonic time, the four stick channels); every other stage is left as it is."""
+
+    def timer(stage: str, send: Callable[..., Any]) -> Callable[..., Any]:
+        if stage != "rc_override":
+            return send
+
+        def recording_send(channels: Sequence[int]) -> None:
+            send(channels)
+            sent.append((time.monotonic(), tuple(int(c) for c in list(channels)[:4])))
+
+        return recording_send
+
+    return timer
+
+
 async def _fly(
     ap: ArduPilotAutopilot,
     truth: MavlinkTruth,
@@ -307,6 +325,7 @@ async def _fly(
         rate_hz=rt.vision_hz,
         seed=seed,
     )
+    sent: list[tuple[float, tuple[int, ...]]] = []  # what the shell sends, for the read-back at the vehicle
     shell = DartShell(
         ap,
         camera,
@@ -315,16 +334,8 @@ async def _fly(
         camera_model=camera.camera_model,
         layout=p.sim.layout,
         log_path=log_dir / "dart.csv",
+        hooks=DartHooks(stage_timer=_recording_rc_overrides(sent)),
     )
-    # what the shell sends, for the read-back at the vehicle
-    sent: list[tuple[float, tuple[int, ...]]] = []
-    send = ap.send_rc_override
-
-    def recording_send(channels: Sequence[int]) -> None:
-        send(channels)
-        sent.append((time.monotonic(), tuple(int(c) for c in list(channels)[:4])))
-
-    ap.send_rc_override = recording_send  # type: ignore[method-assign]
     rc_log: list[tuple[float, tuple[int, ...]]] = []
 
     def on_rc(r: RcInput) -> None:
@@ -360,7 +371,6 @@ async def _fly(
             with contextlib.suppress(asyncio.CancelledError):
                 await task
         ap.telemetry.remove_rc_listener(on_rc)
-        ap.send_rc_override = send  # type: ignore[method-assign]
     for task in side:
         if not task.cancelled() and task.exception() is not None:
             raise cast(BaseException, task.exception())

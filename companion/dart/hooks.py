@@ -5,8 +5,8 @@
   call): ``"imu"`` (the autopilot's IMU samples queued, the estimator's IMU update),
   ``"detect"`` (the pad detector, on the vision thread), ``"vision"`` (the estimator's marker
   update), ``"control"`` (the control step), ``"commands"`` (a command built and mixed),
-  ``"link"`` (the RC override or attitude setpoint handed to the backend), ``"logging"`` (a CSV
-  row written). None (a flight): nothing is wrapped, nothing costs.
+  ``"rc_override"`` / ``"attitude"`` (the RC override or the attitude setpoint handed to the
+  backend), ``"logging"`` (a CSV row written). None (a flight): nothing is wrapped, nothing costs.
 - ``rate_loop``: how the shell builds its fixed-rate loops (IMU, control, commands, log).
 """
 
@@ -20,7 +20,7 @@ from companion.scheduling import RateLoop, RateLoopFactory, StageTimer, timed
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-DART_STAGES = ("imu", "detect", "vision", "control", "commands", "link", "logging")
+DART_STAGES = ("imu", "detect", "vision", "control", "commands", "rc_override", "attitude", "logging")
 
 
 @dataclass(frozen=True)

@@ -276,8 +276,8 @@ class DartShell:
         # the stages a bench times (DartHooks), bound once; a flight binds the functions themselves
         self._sample_listener = h.timed("imu", self._on_sample)
         self._command_step = h.timed("commands", self._send_command)
-        self._rc_out = h.timed("link", self._send_rc_override)
-        self._attitude_out = h.timed("link", self._set_attitude_target)
+        self._rc_out = h.timed("rc_override", self._send_rc_override)
+        self._attitude_out = h.timed("attitude", self._set_attitude_target)
 
     # ------------------------------------------------------------------ inputs
     def _on_sample(self, sample: TelemetrySample) -> None:

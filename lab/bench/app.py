@@ -837,7 +837,8 @@ DART_STAGE_TASKS = {
     "vision": "vision",
     "control": "control",
     "commands": "commands",
-    "link": "link",
+    "rc_override": "link",
+    "attitude": "link",
     "logging": "logging",
 }
 

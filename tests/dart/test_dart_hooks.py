@@ -68,14 +68,15 @@ async def test_every_stage_is_timed_and_every_rate_loop_built_through_the_hooks(
         finally:
             await ap.close()
     s = summary.stats
-    assert set(calls) == set(DART_STAGES), calls
-    # each stage bound once where the shell binds it; two functions each for the IMU (the samples
-    # queued, the estimator's update) and the link (RC overrides, attitude setpoints)
-    assert bound == {**dict.fromkeys(DART_STAGES, 1), "imu": 2, "link": 2}, bound
+    assert set(calls) == set(DART_STAGES) - {"attitude"}, calls  # RC overrides: no attitude setpoint sent
+    # each stage bound once where the shell binds it; the IMU's two functions (the samples queued,
+    # the estimator's update)
+    assert bound == {**dict.fromkeys(DART_STAGES, 1), "imu": 2}, bound
     # the counts are the shell's own: the hooks see every call and nothing else
     assert calls["control"] == s.control_steps
-    assert calls["link"] == s.overrides_sent + s.releases_sent
-    assert calls["detect"] == s.frames - s.vision_errors
+    assert calls["rc_override"] == s.overrides_sent + s.releases_sent
+    # a frame read as the run ends may be cancelled before the vision thread detects it
+    assert s.frames - 1 <= calls["detect"] <= s.frames, (calls["detect"], s.frames)
     assert calls["vision"] == s.detections
-    assert sorted(round(r.rate_hz) for r in loops) == [20, 22, 44, 200]
+    assert sorted(round(1.0 / r.period_s) for r in loops) == [20, 22, 44, 200]
     assert all(r.ticks > 0 for r in loops)
