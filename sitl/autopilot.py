@@ -244,7 +244,8 @@ class SimAutopilot(Autopilot):
                 tc.push_wind(Wind(t, *v.wind_ned()))  # the autopilot's wind estimate (no listener sees it)
                 if v.winch is not None:  # WINCH_STATUS (ArduCopter streams it with EXTRA3)
                     w = v.winch
-                    tc.push_winch(WinchStatus(t, w.length_m, w.rate_desired_m_s, w.flags()))
+                    tension = v.payload.line_tension_kg()
+                    tc.push_winch(WinchStatus(t, w.length_m, w.rate_desired_m_s, w.flags(), tension))
                 home = v.home()
                 if home is not None:
                     tc.push(home)

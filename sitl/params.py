@@ -97,6 +97,24 @@ class SimWinchConfig(_Section):
     parcel_drag_1_s: float = _f(
         0.3, "1/s", "the parcel's linear air drag per unit air-relative speed (pulls it downwind)", ge=0.0, le=5.0
     )
+    load_cell: bool = _f(
+        False,
+        "-",
+        "the winch weighs its line: WINCH_STATUS carries the tension (the parcel's mass while it hangs, 0 when the "
+        "line is slack); false: NaN, as ArduCopter's PWM winch sends it",
+    )
+    parcel_mass_kg: float = _f(0.5, "kg", "the parcel's mass (the load cell's reading while it hangs)", gt=0.0, le=20.0)
+    hook_fails: bool = _f(
+        False, "-", "the release moves its servo but the parcel stays on the hook (a failure: it comes up again)"
+    )
+    snag_height_m: float = _f(
+        0.0,
+        "m",
+        "on its way down the parcel catches on an obstacle this high above the ground and hangs there, the line "
+        "slack (a failure; 0: none)",
+        ge=0.0,
+        le=30.0,
+    )
 
 
 class SimCameraConditionsConfig(_Section):

@@ -26,10 +26,18 @@ class SimPayload:
         self.release_at: float | None = None
         self.winch: SimWinch | None = None
         self.parcel: ParcelOnLine | None = None
+        self.load_cell, self.parcel_mass_kg, self.hook_fails = wc.load_cell, wc.parcel_mass_kg, wc.hook_fails
         if wc.fitted:
             self.winch = SimWinch(wc.rate_max_m_s, wc.pos_p, stuck=wc.stuck)
-            self.parcel = ParcelOnLine(wc.parcel_drag_1_s)
+            self.parcel = ParcelOnLine(wc.parcel_drag_1_s, wc.snag_height_m)
             self.prev = position  # the vehicle's position at the last step (the line's top)
+
+    def line_tension_kg(self) -> float:
+        """What the winch's load cell reads (kg): the parcel's mass while the line holds it, else 0;
+        NaN without a load cell (AP_Winch_PWM sends NaN)."""
+        if not self.load_cell or self.parcel is None:
+            return math.nan
+        return self.parcel_mass_kg if self.parcel.taut else 0.0
 
     def command_release(self, t: float, delay_s: float, released: bool) -> None:
         """The release command at ``t``: it happens ``delay_s`` later (once)."""
@@ -50,7 +58,7 @@ class SimPayload:
         l0 = w.length_m
         w.step(dt)
         l1 = w.length_m
-        if released and not par.released:
+        if released and not par.released and not self.hook_fails:
             par.release()
         # the pendulum at >= 1 kHz: its numerical damping is then below 1 % of the swing per period
         n = max(1, math.ceil(dt * PARCEL_STEP_HZ - 1e-9))

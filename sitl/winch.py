@@ -10,6 +10,9 @@ wind) hanging from the vehicle on an inextensible line of the winch's length (a 
 pendulum whose suspension point moves with the vehicle; the line only pulls). The line's pull on
 the vehicle is not modelled (a parcel of a few hundred grams against a vehicle of a few kilograms).
 It touches down where it first reaches the ground (down = 0); that point is scored against the pad.
+``snag_height_m`` > 0: on its first way down it catches on an obstacle that high above the ground
+(a branch, a roof edge) and hangs there, the line slack, until the line lifts it off. ``taut``: the
+line held the parcel in the last step (what a load cell on the line weighs).
 """
 
 from __future__ import annotations
@@ -98,12 +101,16 @@ class ParcelOnLine:
     farther than the line from the suspension point is put back on the sphere and loses the
     velocity it had away from it beyond the line's payout rate (relative to the suspension point)."""
 
-    def __init__(self, drag_1_s: float = 0.3):
+    def __init__(self, drag_1_s: float = 0.3, snag_height_m: float = 0.0):
         self.drag_1_s = drag_1_s
+        self.snag_height_m = snag_height_m
         self.p = [0.0, 0.0, 0.0]
         self.v = [0.0, 0.0, 0.0]
         self.on_ground = False
         self.released = False
+        self.caught = False  # hanging on the obstacle at snag_height_m
+        self.taut = False
+        self._snag_done = snag_height_m <= 0.0  # caught once (or no obstacle): the way is clear
         self.touchdown: ParcelTouchdown | None = None
         self._attached = False  # follows the vehicle (stowed) until the line is out
         self._last_length_m = 0.0
@@ -124,6 +131,7 @@ class ParcelOnLine:
         """One step: ``a``/``va`` the suspension point's position and velocity, ``length_m`` the line."""
         line_rate = (length_m - self._last_length_m) / dt if dt > 0.0 else 0.0
         self._last_length_m = length_m
+        self.taut = False
         if self.released and self.on_ground:
             return
         if length_m < STOWED_M and not self.on_ground and not self.released:
@@ -133,10 +141,10 @@ class ParcelOnLine:
         p, v = self.p, self.v
         d = [p[i] - a[i] for i in range(3)]
         dist = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        if self.on_ground:
+        if self.on_ground or self.caught:
             if self.released or dist <= length_m:
-                return  # standing on the ground, the line slack (or cut loose)
-            self.on_ground = False  # the line lifts it again (reeled in before the release)
+                return  # standing on the ground (or the obstacle), the line slack (or cut loose)
+            self.on_ground = self.caught = False  # the line lifts it again (reeled in before the release)
         k = self.drag_1_s
         acc = [-k * (v[0] - wind[0]), -k * (v[1] - wind[1]), G_M_S2 - k * (v[2] - wind[2])]
         for i in range(3):
@@ -146,6 +154,7 @@ class ParcelOnLine:
             d = [p[i] - a[i] for i in range(3)]
             dist = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             if dist > length_m and dist > 0.0:
+                self.taut = True
                 u = [x / dist for x in d]
                 for i in range(3):
                     p[i] = a[i] + u[i] * length_m
@@ -154,7 +163,13 @@ class ParcelOnLine:
                 if vr > 0.0:
                     for i in range(3):
                         v[i] -= vr * u[i]
+        if not self._snag_done and not self.released and p[2] >= -self.snag_height_m:
+            p[2] = -self.snag_height_m
+            self.v = [0.0, 0.0, 0.0]
+            self.caught, self._snag_done, self.taut = True, True, False
+            return
         if p[2] >= 0.0:
+            self.taut = False
             if self.touchdown is None:
                 self.touchdown = ParcelTouchdown(t, p[0], p[1], math.hypot(v[0], v[1]), v[2])
             p[2] = 0.0

@@ -353,11 +353,13 @@ class MessageStreams(RcInput):
         v, e = self.vehicle, self._enc
         t_us = self._t_us()
         # AP_Winch_PWM::send_status: its own line estimate and rate, no tension, voltage, current
+        # (a load-cell winch, [sim.winch] load_cell, sends the tension)
         w = getattr(v, "winch", None)
         if w is None or self.dialect != "ardupilot":
             return None  # nothing sent without a winch backend
         nan = math.nan
-        return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, nan, nan, nan, 32767, w.flags())
+        tension = v.payload.line_tension_kg()
+        return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, tension, nan, nan, 32767, w.flags())
 
     def _rangefinder(self) -> tuple[float, float, int, float] | None:
         """The rangefinder the vehicle's parameters configure: (min m, max m, MAV_SENSOR_ORIENTATION,

@@ -96,3 +96,50 @@ def test_winch_control_laws_follow_ap_winch() -> None:
     w.command(WinchCommand(1, WinchAction.RATE_CONTROL, 0.0, -1.0))
     w.step(1.0)
     assert w.length_m == 0.0  # fully retracted
+
+
+def _lowered(par: ParcelOnLine, seconds: float, a: tuple[float, float, float] = (0.0, 0.0, -5.0)) -> list[bool]:
+    """Pay out 5.3 m at 0.5 m/s under a still vehicle 5 m up; ``taut`` at every 10th step."""
+    w = SimWinch(rate_max_m_s=0.5, pos_p=1.0)
+    w.command(WinchCommand(1, WinchAction.RELATIVE_LENGTH_CONTROL, 5.3, 0.5))
+    taut, t = [], 0.0
+    for k in range(round(seconds / DT)):
+        t += DT
+        w.step(DT)
+        par.step(t, DT, a, (0.0, 0.0, 0.0), w.length_m)
+        if k % 10 == 0:
+            taut.append(par.taut)
+    return taut
+
+
+def test_the_line_is_taut_while_the_parcel_hangs_and_slack_once_it_stands_on_the_ground() -> None:
+    par = ParcelOnLine(0.3)
+    taut = _lowered(par, 14.0)
+    assert par.on_ground and par.touchdown is not None
+    # stowed for the first ~0.04 s (under STOWED_M), then hanging all the way down, slack on the ground
+    assert not any(taut[:3]) and all(taut[30:900]) and not any(taut[-100:])
+
+
+def test_a_snag_holds_the_parcel_at_its_height_with_the_line_slack_until_the_line_lifts_it() -> None:
+    par = ParcelOnLine(0.3, snag_height_m=2.0)
+    taut = _lowered(par, 14.0)
+    assert par.caught and not par.on_ground and par.touchdown is None
+    assert par.p[2] == pytest.approx(-2.0) and not any(taut[-100:])
+    # reeled in above the snag: the line takes it up again and it does not catch a second time
+    for k in range(3000):
+        par.step(14.0 + k * DT, DT, (0.0, 0.0, -5.0), (0.0, 0.0, 0.0), 2.5)
+    assert not par.caught and par.taut and par.p[2] == pytest.approx(-2.5, abs=1e-3)
+
+
+def test_the_load_cell_weighs_the_parcel_only_while_the_line_holds_it() -> None:
+    from companion_sitl.params import SimWinchConfig
+    from companion_sitl.payload import SimPayload
+
+    plain = SimPayload(SimWinchConfig(fitted=True), (0.0, 0.0, -5.0))
+    assert math.isnan(plain.line_tension_kg())  # AP_Winch_PWM: no tension
+    cell = SimPayload(SimWinchConfig(fitted=True, load_cell=True, parcel_mass_kg=0.7), (0.0, 0.0, -5.0))
+    assert cell.parcel is not None
+    cell.parcel.taut = True
+    assert cell.line_tension_kg() == 0.7
+    cell.parcel.taut = False
+    assert cell.line_tension_kg() == 0.0
