@@ -504,6 +504,46 @@ class WinchConfig(_Section):
         gt=0.0,
         le=60.0,
     )
+    tension_sensing: bool = _f(
+        False,
+        "-",
+        "the winch reports the line's tension (WINCH_STATUS.tension: a winch with a load cell): the parcel counts "
+        "as down when the line goes slack, a line still taut at its full length is a parcel hanging short of the "
+        "ground (no release), and after the release the line must come up light (false: the line length alone, "
+        "as for ArduCopter's PWM winch, which reports no tension)",
+    )
+    slack_tension_kg: float = _f(
+        0.1,
+        "kg",
+        "with tension_sensing: the line counts as slack (nothing hangs on it) below this tension",
+        gt=0.0,
+        le=20.0,
+    )
+    snag_margin_m: float = _f(
+        1.0,
+        "m",
+        "with tension_sensing: a line going slack this much short of hover_height_m is a parcel caught on the way "
+        "down (a branch, a roof edge): no release, reel in, home with it",
+        gt=0.0,
+        le=30.0,
+    )
+    light_check_m: float = _f(
+        0.6,
+        "m",
+        "with tension_sensing: after the release the first this-much of line reeled in must stay slack, else the "
+        "parcel is still on the hook and comes home (more than slack_m: the slack is taken up first)",
+        gt=0.0,
+        le=10.0,
+    )
+
+    @model_validator(mode="after")
+    def _light_check_past_the_slack(self) -> WinchConfig:
+        if self.tension_sensing and self.light_check_m <= self.slack_m:
+            raise ValueError(
+                f"light_check_m ({self.light_check_m}) must be > slack_m ({self.slack_m}): until the slack is "
+                "reeled in, even a parcel still on the hook leaves the line slack"
+            )
+        return self
 
 
 class LimitsConfig(_Section):

@@ -47,13 +47,15 @@ class WinchCommand:
 
 @dataclass(frozen=True, slots=True)
 class WinchStatus:
-    """The winch's report (MAVLink WINCH_STATUS): line paid out (m), its speed (m/s, + paying out)
-    and the MAV_WINCH_STATUS_FLAG bits; ``time_s`` on the shell's clock at receipt."""
+    """The winch's report (MAVLink WINCH_STATUS): line paid out (m), its speed (m/s, + paying out),
+    the MAV_WINCH_STATUS_FLAG bits and the line's tension (kg; NaN: not reported, as AP_Winch_PWM
+    sends it: a winch without a load cell); ``time_s`` on the shell's clock at receipt."""
 
     time_s: float
     line_length_m: float
     speed_m_s: float
     flags: int = MAV_WINCH_STATUS_HEALTHY
+    tension_kg: float = math.nan
 
     @property
     def healthy(self) -> bool:

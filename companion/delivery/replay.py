@@ -47,7 +47,7 @@ from companion.flightlog.streams import (
     META_FILE,
     SAMPLE_FILES,
     STREAM_FILES,
-    WINCH_COLUMNS,
+    WINCH_COLUMNS_BEFORE_TENSION,
     WINCH_FILE,
     WIND_COLUMNS,
     WIND_FILE,
@@ -314,11 +314,13 @@ class _ReplayShell:
         if not (self.run_dir / WINCH_FILE).exists() and WINCH_FILE not in (self.meta.get("streams") or {}):
             self.notes.append(f"{WINCH_FILE} missing: the winch delivery is replayed without the winch's reports")
             return
-        t = open_table(self.run_dir, WINCH_FILE, WINCH_COLUMNS)
+        t = open_table(self.run_dir, WINCH_FILE, WINCH_COLUMNS_BEFORE_TENSION)
+        tension = "tension_kg" in t.index  # (a log from before it was recorded: none reported)
         for k in range(len(t)):
             w = (t.value(k, "winch_time_s"), t.value(k, "line_length_m"), t.value(k, "speed_m_s"))
             ok = math.isfinite(w[0])
-            self.winch_by_seq[_int(t, k, "seq")] = WinchStatus(*w, _int(t, k, "flags")) if ok else None
+            kg = t.value(k, "tension_kg") if tension else math.nan
+            self.winch_by_seq[_int(t, k, "seq")] = WinchStatus(*w, _int(t, k, "flags"), kg) if ok else None
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion

@@ -12,6 +12,13 @@ A payout the winch refuses, or a line that does not reach its length within payo
 release the autopilot refuses: the line is reeled in and the vehicle flies home with the parcel,
 the reason said once. A reel-in that is refused or does not finish within reel_timeout_s: home
 anyway, said (hovering on with a line out would not bring it in).
+
+With winch.tension_sensing (a winch whose WINCH_STATUS carries the line's tension) the line itself
+is read: once it has carried the parcel, the parcel is down when the line goes slack; slack far
+short of the hover height is a parcel caught on the way down, a line still taut at its full length
+a parcel hanging short of the ground, and a line that never carried anything a missing parcel: no
+release in each, reel in, home with it. After the release the first light_check_m reeled in must
+stay slack; a line that takes the load again is a parcel still on the hook, flown home.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
 from companion.config import WinchConfig
 
 LINE_MOVING_M_S = 0.05  # a winch reporting a faster payout is stopped before the reel-in
+SLACK_CONFIRM_S = 0.5  # tension sensing: the line reads slack this long (a swing slackens it for an instant)
 
 
 class WinchStep(enum.Enum):
@@ -89,6 +97,12 @@ class WinchSequence:
         self._say: list[str] = []
         self._halt = 0  # reel-in: 1 the stop before it is out, 2 answered (at _halt_t)
         self._halt_t = 0.0
+        self._loaded = False  # tension sensing: the line has carried the parcel in this payout
+        self._tension_read = False  # tension sensing: the payout was judged on the tension
+        self._light_from: float | None = None  # released at this length: the line must come up light
+        self._no_tension_said = False
+        self._slack_since: float | None = None
+        self._slack_at_m = math.nan  # the line's length when it went slack
 
     @property
     def target_m(self) -> float:
@@ -143,11 +157,15 @@ class WinchSequence:
                 )
                 self._say.append(f"over the pad: paying out {out:.2f} m at {self.cfg.payout_rate_m_s} m/s")
         elif st is WinchStep.PAYOUT and self._accepted:
-            if math.isfinite(length) and length >= self.target_m - self.cfg.length_tolerance_m:
+            tension = self._tension(status)
+            at_length = math.isfinite(length) and length >= self.target_m - self.cfg.length_tolerance_m
+            if tension is not None and math.isfinite(length):
+                self._payout_on_tension(now_s, length, tension, at_length)
+            elif at_length:
                 self._say.append(f"parcel down: line {length:.2f} m out after {now_s - self._t0:.1f} s")
                 self.step_now = WinchStep.RELEASE
                 self._begin(now_s)
-            elif now_s - self._t0 > self.cfg.payout_timeout_s:
+            if self.step_now is WinchStep.PAYOUT and now_s - self._t0 > self.cfg.payout_timeout_s:
                 seen = f"line {length:.2f} m" if math.isfinite(length) else "no WINCH_STATUS from the winch"
                 self._fail(
                     now_s,
@@ -158,12 +176,17 @@ class WinchSequence:
                 self._sent = True
                 release = True
             elif self._accepted and now_s - self._t0 >= self.release_time_s:
-                self.delivered = True
-                self._say.append("parcel released on the pad")
+                if self._tension_read and math.isfinite(length):
+                    self._light_from = length
+                    self._say.append("release done: checking that the line comes up light")
+                else:
+                    self.delivered = True
+                    self._say.append("parcel released on the pad")
                 self.step_now = WinchStep.REEL
                 self._begin(now_s)
         if self.step_now is WinchStep.REEL and command is None and not release:
             command = self._reel(now_s, status, idle)
+            self._check_light(status)
         tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE)
         self._say = []
         return tick
@@ -213,6 +236,67 @@ class WinchSequence:
         self._fail(now_s, reason)
         return True
 
+    # ------------------------------------------------------------------ the line's tension
+    def _tension(self, status: WinchStatus | None) -> float | None:
+        """The line's tension (kg) when the configuration reads it and the winch reports it."""
+        if not self.cfg.tension_sensing or status is None:
+            return None
+        if math.isfinite(status.tension_kg):
+            return status.tension_kg
+        if not self._no_tension_said:
+            self._no_tension_said = True
+            self._say.append("the winch reports no tension (winch.tension_sensing): judged on the line length")
+        return None
+
+    def _payout_on_tension(self, now_s: float, length: float, tension: float, at_length: bool) -> None:
+        c = self.cfg
+        self._tension_read = True
+        if tension >= c.slack_tension_kg:
+            self._loaded = True
+            self._slack_since = None
+            if at_length:
+                self._fail(
+                    now_s,
+                    f"the parcel hangs short of the ground: the line is out {length:.2f} m and still carries "
+                    f"{tension:.2f} kg",
+                )
+        elif self._loaded and self._slack_for(now_s, length) < SLACK_CONFIRM_S:
+            pass  # slack for an instant: wait for the next reports
+        elif self._loaded and self._slack_at_m < c.hover_height_m - c.snag_margin_m:
+            self._fail(
+                now_s,
+                f"the parcel caught on the way down: the line went slack at {self._slack_at_m:.2f} m, "
+                f"{c.hover_height_m - self._slack_at_m:.2f} m above the pad",
+            )
+        elif self._loaded:
+            self._say.append(
+                f"parcel down: the line went slack at {self._slack_at_m:.2f} m after {now_s - self._t0:.1f} s"
+            )
+            self.step_now = WinchStep.RELEASE
+            self._begin(now_s)
+        elif at_length:
+            self._fail(now_s, f"the line never carried the parcel (under {c.slack_tension_kg} kg to {length:.2f} m)")
+
+    def _slack_for(self, now_s: float, length: float) -> float:
+        """How long the line has read slack (its first slack report counts from now, at ``length``)."""
+        if self._slack_since is None:
+            self._slack_since, self._slack_at_m = now_s, length
+        return now_s - self._slack_since
+
+    def _check_light(self, status: WinchStatus | None) -> None:
+        """After the release: the parcel left on the pad once light_check_m came in slack."""
+        if self._light_from is None or status is None:
+            return
+        tension = status.tension_kg
+        if math.isfinite(tension) and tension >= self.cfg.slack_tension_kg:
+            self._light_from = None
+            self.failure = "parcel not released: the line took its load again after the release (still on the hook)"
+            self._say.append(f"{self.failure}, {tension:.2f} kg: reeling in, flying home with the parcel")
+        elif math.isfinite(status.line_length_m) and status.line_length_m <= self._light_from - self.cfg.light_check_m:
+            self._light_from = None
+            self.delivered = True
+            self._say.append(f"parcel released on the pad: the line came up light ({self.cfg.light_check_m} m in)")
+
     # ------------------------------------------------------------------ helpers
     def _begin(self, now_s: float) -> None:
         self._t0 = now_s
@@ -229,6 +313,10 @@ class WinchSequence:
 
     def _end(self, detail: str) -> None:
         self._say.append(detail)
+        if self._light_from is not None:  # released, the line not in far enough to read it light
+            self._light_from = None
+            self.delivered = True
+            self._say.append("parcel released on the pad (the line did not come in far enough to check it)")
         if not self.delivered and not self.failure:
             self.failure = detail
         self.step_now = WinchStep.DONE

@@ -393,7 +393,11 @@ class FlightRecorder:
         if WINCH_FILE in self.logs:
             ws = inp.winch
             nan = math.nan
-            report = (ws.time_s, ws.line_length_m, ws.speed_m_s, ws.flags) if ws is not None else (nan, nan, nan, 0)
+            report = (
+                (ws.time_s, ws.line_length_m, ws.speed_m_s, ws.flags, ws.tension_kg)
+                if ws is not None
+                else (nan, nan, nan, 0, nan)
+            )
             self._write(WINCH_FILE, (inp.time_s, seq, *report))
         for ev in out.events:
             self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))

@@ -239,7 +239,8 @@ WIND_COLUMNS = ("time_s", "seq", "wind_time_s", "north_m_s", "east_m_s")
 # by the tick's seq; written only for a winch delivery (mission.delivery = "winch"), which also
 # writes wind.csv (the hover's wind correction reads the wind). Like the wind, no listener sees it.
 WINCH_FILE = "winch.csv"
-WINCH_COLUMNS = ("time_s", "seq", "winch_time_s", "line_length_m", "speed_m_s", "flags")
+WINCH_COLUMNS = ("time_s", "seq", "winch_time_s", "line_length_m", "speed_m_s", "flags", "tension_kg")
+WINCH_COLUMNS_BEFORE_TENSION = WINCH_COLUMNS[:-1]  # a run folder from before the tension was logged
 
 STREAM_FILES: dict[str, tuple[str, ...]] = {
     **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},

@@ -229,7 +229,8 @@ class ArduPilotTelemetry(ArduPilotRequests):
         self._post(self.telemetry.push_rangefinder, reading)
 
     def _on_winch_status(self, m: Any, now: float) -> None:
-        self._post(self.telemetry.push_winch, WinchStatus(now, float(m.line_length), float(m.speed), int(m.status)))
+        status = WinchStatus(now, float(m.line_length), float(m.speed), int(m.status), float(m.tension))
+        self._post(self.telemetry.push_winch, status)
 
     def _on_mission(self, m: Any, now: float) -> None:
         """The fence transfer's messages (ardupilot.fence), when one is running."""
