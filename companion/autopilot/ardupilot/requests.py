@@ -35,6 +35,8 @@ from companion.autopilot.signing import (
 log = logging.getLogger(__name__)
 
 MAV_CMD_REQUEST_MESSAGE = 512
+# a refusal's reason may follow its COMMAND_ACK (ArduPilot queues STATUSTEXTs): this long for it
+REASON_WAIT_S = 0.2
 
 # message id -> rate requested on connect (ArduCopter streams nothing until asked)
 DEFAULT_STREAM_RATES_HZ: dict[int, float] = {
@@ -135,7 +137,11 @@ class ArduPilotRequests(ArduPilotLink):
                         ) from None
                 if result == mavlink.MAV_RESULT_ACCEPTED:
                     return
-                # ArduPilot sends the reason (e.g. "Arm: Need Position Estimate") just before the ack
+                # the reason (e.g. "Arm: Need Position Estimate") is a STATUSTEXT ArduPilot queues and
+                # sends from its main loop, so it may follow the ack, which goes out at once
+                deadline = self._loop.time() + REASON_WAIT_S
+                while self._texts_seen == texts_before and self._loop.time() < deadline:
+                    await asyncio.sleep(0.01)
                 reason = self._last_text if self._texts_seen != texts_before else ""
                 raise CommandRejected(name, result_name(result), reason)
             errors = self.link_errors - errors_before
