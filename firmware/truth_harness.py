@@ -180,13 +180,12 @@ class _TruthScore:
         if not self.touchdown and out.phase is Phase.LANDING_PAD and truth.age_s < 1.0:
             row = _landing_row(time.monotonic() - self.t_start, shell, out, truth, self.pad_ne, self.t_ground)
             self.landing_trace.append(row)
-        if (
-            not self.touchdown
-            and out.phase is Phase.LANDING_PAD
-            and st is not None
-            and st.landed is LandedState.ON_GROUND
-            and truth.age_s < 1.0
-        ):
+        # the autopilot's landed state on the descent, or the mission's own touchdown on the pad
+        # (with few status messages, as on a 115200 baud line, it can decide on the tick the
+        # landed state arrives and leave LANDING_PAD on it)
+        on_ground = out.phase is Phase.LANDING_PAD and st is not None and st.landed is LandedState.ON_GROUND
+        decided = shell.mission.summary.pad_touchdown_ned is not None
+        if not self.touchdown and (on_ground or decided) and truth.age_s < 1.0:
             self.touchdown.append((truth.pn, truth.pe))
             self.touchdown_yaw.append(truth.yaw)
             est, pad_cfg = shell.estimate, shell.mission.pad_ned
