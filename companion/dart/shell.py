@@ -214,6 +214,28 @@ def _choose_output(autopilot: Autopilot, output: Output | None, rt: DartRuntimeC
     return output
 
 
+def _log_row(shell: DartShell, time_s: float) -> tuple[Any, ...]:
+    """The shell's state as one row of LOG_COLUMNS (NaN where there is none yet)."""
+    e = shell.estimator.last
+    sp = shell._last_sp
+    c = shell.command
+    nan = math.nan
+    return (
+        time_s,
+        int(shell.engaged),
+        shell.mission.phase.value,
+        *((e.x_m, e.y_m, e.z_m, e.yaw_rad) if e is not None else (nan,) * 4),
+        *((sp.x_m, sp.y_m, sp.z_m) if sp is not None else (nan,) * 3),
+        c.roll_us,
+        c.pitch_us,
+        c.thrust_us,
+        c.yaw_rate_us,
+        *(nan if v is None else v for v in shell.last_output),
+        shell.stats.imu_samples,
+        shell.stats.estimates,
+    )
+
+
 class DartShell:
     """Runs the Dart cyber-pilot against ``autopilot`` with frames from ``camera`` (a
     ``companion.cameras`` plugin instance, frames stamped on this loop's clock)."""
@@ -523,26 +545,7 @@ class DartShell:
             t = await rate.tick()
             if write is None:
                 continue
-            e = self.estimator.last
-            sp = self._last_sp
-            c = self.command
-            nan = math.nan
-            write(
-                (
-                    t - self._t0,
-                    int(self.engaged),
-                    self.mission.phase.value,
-                    *((e.x_m, e.y_m, e.z_m, e.yaw_rad) if e is not None else (nan,) * 4),
-                    *((sp.x_m, sp.y_m, sp.z_m) if sp is not None else (nan,) * 3),
-                    c.roll_us,
-                    c.pitch_us,
-                    c.thrust_us,
-                    c.yaw_rate_us,
-                    *(nan if v is None else v for v in self.last_output),
-                    self.stats.imu_samples,
-                    self.stats.estimates,
-                )
-            )
+            write(_log_row(self, t - self._t0))
 
     # ------------------------------------------------------------------ run
     async def run(self, duration_s: float | None = None) -> DartRunSummary:
