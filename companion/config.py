@@ -1168,6 +1168,13 @@ class LandingConfig(_Section):
     )
     camera_rate_hz: float = _f(30.0, "Hz", "camera frame rate", ge=1.0, le=240.0)
     camera_latency_s: float = _f(0.05, "s", "exposure-to-delivery latency of a frame", ge=0.0, le=1.0)
+    camera_time: Literal["configured", "driver", "measured"] = _f(
+        "configured",
+        "-",
+        "a frame's exposure time for the fusion: its arrival minus camera_latency_s (configured); the driver's "
+        "capture stamp (driver); its arrival minus the latency measured from the driver's stamps (measured); "
+        "a frame without a driver stamp keeps camera_latency_s (docs/clock.md)",
+    )
     camera_offset_body_m: tuple[float, float, float] = _f(
         (0.05, 0.0, 0.08), "m", "camera position in the body frame (FRD)"
     )

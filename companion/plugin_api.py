@@ -7,7 +7,10 @@ fails to import, or declares another API version, is reported by name with the r
 others still load.
 
 Interface, version 1 (start / read or act / stop):
-- camera: ``start()``, ``read() -> Frame | None`` (newest frame, stamped at capture), ``stop()``
+- camera: ``start()``, ``read() -> Frame | None`` (newest frame, stamped at capture), ``stop()``;
+  a frame may also carry the driver's own capture stamp and its arrival time
+  (:class:`Frame`: ``capture_time_s``, ``arrival_time_s``; docs/clock.md), which
+  ``landing.camera_time`` then uses instead of the configured latency
 - uwb: ``start()``, ``read() -> list`` of readings since the last call, ``stop()``
 - payload: ``start()``, ``async release()``, ``stop()``
 
@@ -49,9 +52,18 @@ class PluginError(RuntimeError):
 
 @dataclass(frozen=True, slots=True)
 class Frame:
-    time_s: float  # exposure time on the shell's monotonic clock
+    """A camera frame. ``time_s``: its exposure time on the shell's monotonic clock as the plugin
+    knows it (a driver without a stamp of its own: the arrival minus ``landing.camera_latency_s``).
+    Optional, both on the shell's monotonic clock (docs/clock.md): ``capture_time_s``, the
+    driver's own capture stamp (a V4L2 buffer's ``CLOCK_MONOTONIC`` timestamp, a sensor's
+    start-of-exposure time mapped by the driver); ``arrival_time_s``, when the frame reached the
+    plugin. None: the plugin does not know it."""
+
+    time_s: float
     image: np.ndarray
     index: int
+    capture_time_s: float | None = None
+    arrival_time_s: float | None = None
 
 
 @runtime_checkable

@@ -19,6 +19,11 @@ from companion_sitl.camera_conditions import CONDITION_KEYS, condition_tables
 from companion_sitl.params import SimConfig, SimulatedConfig, load_simulated_config
 from companion_sitl.profiles import get_profile
 
+# the unknown camera latencies of the clock variants (docs/clock.md), and their landing.camera_time
+LATENCY_MS = (0, 30, 80)
+LATENCY_MODES = {"": "configured", "_driver": "driver", "_measured": "measured"}
+CLOCK_VARIANTS = tuple(f"latency_{ms}ms{tail}" for ms in LATENCY_MS for tail in LATENCY_MODES)
+
 # [landing] overrides of each variant. gps_only is the paper's baseline: it has no pad lock, so it
 # opts out of the no-release-off-the-pad policy explicitly (docs/delivery-policy.md) and is scored
 # where it lands, as before.
@@ -40,6 +45,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # each at params/camera_real.toml's level, and camera_real with all of them
     **{f"camera_{name}": {} for name in CONDITION_KEYS},
     "camera_real": {},
+    # one clock (docs/clock.md): frames LATENCY_MS later than landing.camera_latency_s says, the
+    # configured latency (before), the driver's capture stamp, the latency measured from it (after)
+    **{f"latency_{ms}ms{tail}": {"camera_time": mode} for ms in LATENCY_MS for tail, mode in LATENCY_MODES.items()},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -53,6 +61,11 @@ SIM_VARIANTS: dict[str, dict[str, Any]] = {
     "pad_missing_alternate": {"pad_at_alternate": True},
     **{f"camera_{name}": {"camera": table} for name, table in condition_tables().items() if name != "all"},
     "camera_real": {"camera": condition_tables()["all"]},
+    **{
+        f"latency_{ms}ms{tail}": {"camera": {"unknown_latency_s": ms / 1e3, "driver_stamp": mode != "configured"}}
+        for ms in LATENCY_MS
+        for tail, mode in LATENCY_MODES.items()
+    },
 }
 
 # [mission] overrides: the alternate pad, 25 m north of params/landing_campaign.toml's pad (beyond

@@ -90,7 +90,17 @@ class SimCameraSource:
         range_m: float = 0.0,
         hooks: SimSensorHooks | None = None,
         conditions: CameraConditions | None = None,
+        unknown_latency_s: float = 0.0,
+        driver_stamp: bool = False,
     ):
+        """``latency_s``: the latency the configuration knows (``landing.camera_latency_s``);
+        ``unknown_latency_s``: what the frames take on top of it, which the configuration does not
+        know (``[sim.camera] unknown_latency_s``): a frame is readable ``latency_s +
+        unknown_latency_s`` after its exposure, and stamped as a driver without a stamp of its own
+        stamps it (its arrival minus ``latency_s``); ``driver_stamp``: the frame also carries the
+        driver's honest capture stamp (the exposure) and its arrival (docs/clock.md)."""
+        if not (math.isfinite(unknown_latency_s) and 0.0 <= unknown_latency_s <= 1.0):
+            raise ValueError(f"unknown_latency_s = {unknown_latency_s!r}: expected finite, within [0, 1] s")
         self.vehicle = vehicle
         # a real camera's effects ([sim.camera]): None or inactive, the renderer's frames bit for bit
         self.conditions = conditions if conditions is not None and conditions.active else None
@@ -101,6 +111,10 @@ class SimCameraSource:
         self.camera = camera
         self.rate_hz = rate_hz
         self.latency_s = latency_s
+        self.unknown_latency_s = float(unknown_latency_s)
+        self.driver_stamp = driver_stamp
+        # exposure -> readable (x + 0.0 is x: without an unknown latency, the same floats as before)
+        self._delivery_s = latency_s + self.unknown_latency_s
         self._clock = LoopClock()
         # (exposure time, T_world_body, T_camera_pad when computed at the exposure, else None)
         self._poses: deque[tuple[float, Transform, Transform | None]] = deque(maxlen=64)
@@ -173,7 +187,7 @@ class SimCameraSource:
                 if late < 0:  # dropped by the driver: never readable
                     continue
             if self._listener.attached:
-                loop.call_at(t + self.latency_s + late, self._frame_ready, t)
+                loop.call_at(t + self._delivery_s + late, self._frame_ready, t)
 
     def _draw_fate(self, t: float, T_cp: Transform) -> float:
         """The exposure's fate under the conditions and its image velocity, kept for read(): the
@@ -202,7 +216,7 @@ class SimCameraSource:
         """The frame exposed at ``exposure_s`` is readable now: tell the listener."""
         if self._task is None:  # stopped meanwhile
             return
-        ready_s = exposure_s + self.latency_s + (self._late_s(exposure_s) if self.conditions is not None else 0.0)
+        ready_s = exposure_s + self._delivery_s + (self._late_s(exposure_s) if self.conditions is not None else 0.0)
         if self._clock.now() < ready_s:  # asyncio may run a timer up to its clock resolution early
             asyncio.get_running_loop().call_at(ready_s, self._frame_ready, exposure_s)
             return
@@ -244,7 +258,7 @@ class SimCameraSource:
                 continue
             if pose is not None:
                 unread += 1
-            elif p[0] + self.latency_s + late <= now:
+            elif p[0] + self._delivery_s + late <= now:
                 pose = p
         if pose is None:
             return None
@@ -267,7 +281,18 @@ class SimCameraSource:
             image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
         self.rendered += 1
         self._index += 1
-        return Frame(t, image, self._index)
+        if not self.driver_stamp and self.unknown_latency_s == 0.0:
+            return Frame(t, image, self._index)
+        # a driver without a stamp of its own stamps the arrival minus the configured latency (the
+        # extra latency of [sim.camera] late_s, the driver's own, is known to it as before)
+        late = self._late_s(t) if self.conditions is not None else 0.0
+        return Frame(
+            t + self.unknown_latency_s,
+            image,
+            self._index,
+            capture_time_s=t if self.driver_stamp else None,
+            arrival_time_s=t + self._delivery_s + late if self.driver_stamp else None,
+        )
 
     def _with_conditions(self, t: float, T_cp: Transform, ahead: Future[U8Image] | None) -> U8Image:
         """The frame as the real camera gives it: motion on the optics, exposure, then the rest."""
@@ -434,6 +459,8 @@ def sim_landing_kit(
             range_m=config.sim.camera_range_m,
             hooks=hooks,
             conditions=CameraConditions(config.sim.camera, seed),
+            unknown_latency_s=config.sim.camera.unknown_latency_s,
+            driver_stamp=config.sim.camera.driver_stamp,
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera

@@ -150,6 +150,20 @@ class SimCameraConditionsConfig(_Section):
     jpeg_quality: int = _f(0, "-", "JPEG quality of an MJPG camera's frames, 1-100 (0: raw frames)", ge=0, le=100)
     drop_fraction: float = _f(0.0, "-", "share of the frames the driver drops", ge=0.0, le=0.5)
     late_s: float = _f(0.0, "s", "extra latency of a frame, drawn uniformly up to this (0: none)", ge=0.0, le=0.5)
+    unknown_latency_s: float = _f(
+        0.0,
+        "s",
+        "the frames reach the companion this much later than landing.camera_latency_s says, a latency the "
+        "configuration does not know about (docs/clock.md; 0: none)",
+        ge=0.0,
+        le=0.5,
+    )
+    driver_stamp: bool = _f(
+        False,
+        "-",
+        "the frames carry the driver's honest capture stamp and their arrival time (landing.camera_time = "
+        "driver / measured use them; docs/clock.md)",
+    )
 
 
 class SimConfig(_Section):

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 from companion.autopilot.interface import Autopilot, AutopilotError
 from companion.autopilot.landing_target import LandingTargetBuilder, LandingTargetError
 from companion.config import CompanionConfig
+from companion.delivery.capture_latency import CaptureLatency
 from companion.delivery.detection_pacer import DetectionPacer
 from companion.delivery.detector_thread import cpu_timed
 
@@ -114,6 +115,8 @@ class LandingSensing:
 
             self._landing_target_size_m = getattr(kit.detector, "layout", PadLayout()).outer_size_m
         self.landing_targets_sent = 0
+        # each frame's exposure time for the fusion (landing.camera_time; configured: Frame.time_s)
+        self.frame_time = CaptureLatency(config.landing.camera_time, config.landing.camera_latency_s)
 
     def apply_opencv_threads(self) -> None:
         """``[runtime] opencv_threads``, process-wide, before the camera starts (with a camera or
@@ -177,6 +180,8 @@ class LandingSensing:
         """The sensors' tasks, then the devices (a device that fails to stop is said; the rest are
         still stopped). A dead task's error is raised before the devices are stopped."""
         await self.sensors.stop()
+        if self.frame_time.mode.value != "configured":
+            log.info("camera capture latency at the end of the flight: %s", self.frame_time.summary())
         if self.kit is not None:
             for dev in (self.kit.camera, self.kit.uwb):
                 if dev is not None:
@@ -231,10 +236,11 @@ class LandingSensing:
             nice=runtime.vision_thread_nice if kit.vision_in_thread else 0,
             realtime=runtime.realtime_priority if kit.vision_in_thread else 0,
         )
+        exposure_s = self.frame_time.exposure_time_s(frame, start_s)
         if kit.vision_in_thread:
-            obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, frame.time_s)
+            obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, exposure_s)
         else:
-            obs, cpu_s = detect(frame.image, frame.time_s)
+            obs, cpu_s = detect(frame.image, exposure_s)
         if pacer is not None:
             pacer.done(start_s, cpu_s)
         if obs is None:
