@@ -798,6 +798,15 @@ class RuntimeConfig(_Section):
         ge=2.0,
         le=100.0,
     )
+    autopilot_timesync_hz: float = _f(
+        0.0,
+        "Hz",
+        "TIMESYNC requests per second to the autopilot, for the offset of its boot clock to the companion's, its "
+        "jitter and round trip (ArduPilot; PX4 through MAVSDK: MAVSDK runs its own timesync, not exposed; "
+        "docs/clock.md); 0: off",
+        ge=0.0,
+        le=50.0,
+    )
 
 
 class TelemetryCommandsConfig(_Section):

@@ -18,6 +18,7 @@ from companion.autopilot.component import ComponentCommand
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.liveness import INERT_LIVENESS, LoopLiveness
 from companion.autopilot.mission_plan import PlanItem
+from companion.autopilot.timesync import ClockOffset
 from companion.autopilot.types import (
     Attitude,
     GlobalPosition,
@@ -354,6 +355,14 @@ class Autopilot(abc.ABC):
     @abc.abstractmethod
     def link_ok(self) -> bool:
         """A heartbeat arrived within the link timeout."""
+
+    @property
+    def clock_offset(self) -> ClockOffset | None:
+        """The autopilot's boot clock against the companion's monotonic clock (offset, jitter,
+        round trips; :mod:`companion.autopilot.timesync`, docs/clock.md), None when this backend
+        does not estimate it (TIMESYNC off, or no exchange answered yet; PX4 through MAVSDK, whose
+        timesync is internal to it)."""
+        return None
 
     @property
     def heartbeat_age_s(self) -> float | None:

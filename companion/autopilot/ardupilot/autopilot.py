@@ -50,6 +50,7 @@ from companion.autopilot.signing import (
     read_key_file,
     read_timestamp_file,
 )
+from companion.autopilot.timesync import ClockOffset, ClockOffsetEstimator
 from companion.autopilot.types import (
     LandedState,
     LandingTarget,
@@ -94,7 +95,13 @@ class ArduPilotAutopilot(
         tlog: OpenPacketSink | None = None,
         signing: SigningSetup | None = None,
         remote_id: RemoteIdConfig | None = None,
+        timesync_period_s: float = 0.0,
     ):
+        """``timesync_period_s`` > 0: a TIMESYNC request that often, the answers to
+        :attr:`clock_offset` (:mod:`companion.autopilot.timesync`; 0: none sent)."""
+        if not (math.isfinite(timesync_period_s) and timesync_period_s >= 0.0):
+            raise AutopilotError(f"timesync_period_s = {timesync_period_s!r}: expected finite and >= 0 (0: off)")
+        self.timesync_period_s = float(timesync_period_s)
         self.connection = connection
         self.remote_id = remote_id  # [remote_id]: sent and gated on when enabled (.remote_id)
         self.signing = signing
@@ -143,6 +150,19 @@ class ArduPilotAutopilot(
         self._stream_rerequests: dict[int, int] = {}
         self._stream_window: tuple[float, dict[int, int]] | None = None
         self._t_boot = time.monotonic()
+        # TIMESYNC (docs/clock.md): the estimator is fed and read on the reader thread, read from the
+        # loop through clock_offset; the lock keeps the two apart
+        self.timesync = ClockOffsetEstimator() if self.timesync_period_s > 0.0 else None
+        self._timesync_lock = threading.Lock()
+        self._next_timesync_s = 0.0
+        self._timesync_logged = -1  # accepted exchanges when the estimate was last logged
+
+    @property
+    def clock_offset(self) -> ClockOffset | None:
+        if self.timesync is None:
+            return None
+        with self._timesync_lock:
+            return self.timesync.estimate
 
     def _init_vehicle_state(self) -> None:
         """The vehicle's state as received (the reader thread writes, the event loop reads)."""
@@ -221,6 +241,8 @@ class ArduPilotAutopilot(
                 sc.link_id,
                 "unsigned accepted" if sc.allow_unsigned else "unsigned refused",
             )
+        if rt.autopilot_timesync_hz > 0.0:
+            kwargs.setdefault("timesync_period_s", 1.0 / rt.autopilot_timesync_hz)
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:

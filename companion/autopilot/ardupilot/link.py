@@ -49,6 +49,7 @@ from companion.autopilot.signing import (
     apply_to_mavlink,
     write_timestamp_file,
 )
+from companion.autopilot.timesync import ClockOffsetEstimator
 from companion.autopilot.types import (
     LandedState,
 )
@@ -231,6 +232,11 @@ class ArduPilotLink(abc.ABC):
     _vehicle_signs: bool
     liveness: LoopLiveness
     foreign_heartbeats: int
+    timesync: ClockOffsetEstimator | None
+    timesync_period_s: float
+    _timesync_lock: threading.Lock
+    _next_timesync_s: float
+    _timesync_logged: int
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._conn is not None:
@@ -425,6 +431,9 @@ class ArduPilotLink(abc.ABC):
                     )
                 )
                 self._component_heartbeat()
+            if self.timesync is not None and now >= self._next_timesync_s and self.target_system is not None:
+                self._next_timesync_s = now + self.timesync_period_s
+                self._send_timesync_request()
             try:
                 m = conn.recv_match(blocking=True, timeout=0.1)
             except Exception as err:  # a read error (bad bytes, serial hiccup) must not kill the reader
@@ -450,6 +459,14 @@ class ArduPilotLink(abc.ABC):
         (what reaches the loop is posted to it; errors are raised, not counted): for tests and
         tools that feed messages without a link. Not written to the .tlog, not counted as traffic."""
         self._on_message(m)
+
+    def _send_timesync_request(self) -> None:
+        """TIMESYNC(tc1 = 0, ts1 = our monotonic clock, ns): the autopilot answers with its boot
+        time (docs/clock.md); on the reader thread, which also takes the answers."""
+        assert self.timesync is not None
+        with self._timesync_lock:
+            _, ts1 = self.timesync.request(time.monotonic_ns())
+        self._send(lambda mav: mav.timesync_send(0, ts1))
 
     def _log_sent(self, msg: Any) -> None:
         tlog = self.tlog

@@ -18,6 +18,7 @@ from companion.autopilot.ardupilot.requests import ArduPilotRequests
 from companion.autopilot.interface import (
     RcInput,
 )
+from companion.autopilot.timesync import TimesyncRejection
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -255,6 +256,34 @@ class ArduPilotTelemetry(ArduPilotRequests):
         self._system_time = (int(m.time_unix_usec), time.time())
         self._post(self._resolve_system_time, self._system_time)
 
+    def _on_timesync(self, m: Any, now: float) -> None:
+        """An autopilot's TIMESYNC answer to ours (docs/clock.md), stamped at receipt in ns; its own
+        requests (tc1 = 0) and other components' answers are not ours to take."""
+        est = self.timesync
+        if est is None or m.get_srcComponent() != self.target_component or int(m.tc1) == 0:
+            return
+        with self._timesync_lock:
+            outcome = est.on_timesync(int(m.tc1), int(m.ts1), time.monotonic_ns())
+            offset = est.estimate
+            accepted = est.accepted
+        if isinstance(outcome, TimesyncRejection):
+            n = est.rejected[outcome]
+            if n in (1, 10) or n % 100 == 0:
+                log.warning("TIMESYNC answer tc1=%d ts1=%d rejected: %s (%d so far)", m.tc1, m.ts1, outcome.value, n)
+            return
+        if offset is not None and (self._timesync_logged < 0 or accepted - self._timesync_logged >= 60):
+            self._timesync_logged = accepted
+            log.info(
+                "autopilot clock: offset %.6f s (autopilot boot - companion monotonic), jitter %.3f ms, RTT min %.3f "
+                "ms, median %.3f ms, over %d exchanges, %d jumps",
+                offset.offset_s,
+                1e3 * offset.jitter_s,
+                1e3 * offset.rtt_min_s,
+                1e3 * offset.rtt_median_s,
+                offset.samples,
+                offset.jumps,
+            )
+
     def _on_rc_channels(self, m: Any, now: float) -> None:
         self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))
         self._post(self.telemetry.push_rc, RcInput(now, self.rc_channels))
@@ -282,4 +311,5 @@ _VEHICLE_HANDLERS: dict[str, Callable[[ArduPilotTelemetry, Any, float], None]] =
     "PARAM_VALUE": ArduPilotTelemetry._on_param_value,
     "SYSTEM_TIME": ArduPilotTelemetry._on_system_time,
     "RC_CHANNELS": ArduPilotTelemetry._on_rc_channels,
+    "TIMESYNC": ArduPilotTelemetry._on_timesync,
 }

@@ -1,0 +1,38 @@
+"""TIMESYNC over the ArduPilot backend against the MAVLink sim vehicle (real time, loopback): the
+vehicle answers as the firmware does, the backend estimates its boot clock's offset."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from companion.autopilot.ardupilot import ArduPilotAutopilot
+
+
+async def test_ardupilot_backend_estimates_the_sim_vehicles_boot_clock(mav, udp_port):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", timesync_period_s=0.05)
+        assert ap.clock_offset is None
+        await ap.connect(timeout_s=3.0)
+        await mav.wait_for(lambda: ap.clock_offset is not None and ap.clock_offset.samples >= 8, 5.0, "offset")
+        off = ap.clock_offset
+        assert off is not None
+        truth_s = sim.now - time.monotonic()  # the vehicle's boot clock minus ours
+        assert abs(off.offset_s - truth_s) < 0.005
+        assert 0.0 < off.rtt_min_s <= off.rtt_median_s < 0.1
+        assert off.jumps == 0 and off.jitter_s < 0.005
+        assert abs(off.to_companion_s(sim.now) - time.monotonic()) < 0.005
+        assert ap.timesync is not None and sum(ap.timesync.rejected.values()) == 0
+        await ap.close()
+
+
+async def test_timesync_off_by_default_sends_none(mav, udp_port):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}")
+        await ap.connect(timeout_s=3.0)
+        await asyncio.sleep(0.3)
+        assert ap.clock_offset is None and ap.timesync is None
+        assert sim.stats.by_type_in.get("TIMESYNC", 0) == 0
+        await ap.close()
