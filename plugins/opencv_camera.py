@@ -2,6 +2,9 @@
 
 A capture thread keeps only the newest frame (bounded, keep-newest), stamped at capture on the
 monotonic clock minus the configured exposure latency; ``read()`` never blocks the event loop.
+``driver_stamp=True`` (a V4L2 device; ``landing.camera_time`` = driver / measured, docs/clock.md):
+each frame also carries the V4L2 buffer's timestamp (``CAP_PROP_POS_MSEC``, ``CLOCK_MONOTONIC``,
+the clock ``time.monotonic`` reads) as its capture stamp, and its arrival.
 It offers the frame-listener capability (version 1, see :mod:`companion.plugin_api`): the capture
 thread calls the listener after each new frame, so the app reads it at once instead of on its
 next poll.
@@ -53,6 +56,11 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+def _is_v4l2_device(source: str | int) -> bool:
+    """A V4L2 device: an index, or a /dev/video* path."""
+    return isinstance(source, int) or source.isdigit() or source.startswith("/dev/video")
+
+
 def load_frame_times(path: str | Path) -> list[float]:
     """:func:`companion.flightlog.camera_file.load_frame_times`, its errors as :class:`PluginError`."""
     try:
@@ -76,7 +84,15 @@ class OpenCvCamera:
         playback: bool = False,
         frame_times: str | Path | Sequence[float] | None = None,
         time_offset_s: float = 0.0,
+        driver_stamp: bool = False,
     ):
+        if driver_stamp and (playback or clock is not time.monotonic or not _is_v4l2_device(source)):
+            raise PluginError(
+                f"camera {source!r}: driver_stamp needs a live V4L2 device (an index or /dev/video*) on the "
+                "monotonic clock: its buffer timestamps are CLOCK_MONOTONIC; a file or pipeline has none"
+            )
+        self.driver_stamp = driver_stamp
+        self.stamps_missing = 0  # driver_stamp: frames whose buffer had no timestamp (0 ms)
         self.source = source
         self.width_px, self.height_px, self.fps = width_px, height_px, fps
         self.latency_s = latency_s
@@ -156,7 +172,8 @@ class OpenCvCamera:
         assert self._cap is not None
         while not self._stop.is_set():
             ok, img = self._cap.read()
-            t = self._clock() - self.latency_s
+            arrival_s = self._clock()
+            t = arrival_s - self.latency_s
             if not ok or img is None:
                 if self.loop_file and self.frames > 0:
                     self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
@@ -169,8 +186,15 @@ class OpenCvCamera:
                     break  # end of file
                 time.sleep(0.01)
                 continue
+            frame = Frame(t, img, self.frames)
+            if self.driver_stamp:
+                stamp_ms = float(self._cap.get(cv2.CAP_PROP_POS_MSEC))  # V4L2 buffer timestamp
+                if stamp_ms > 0.0:
+                    frame = Frame(t, img, self.frames, capture_time_s=stamp_ms / 1e3, arrival_time_s=arrival_s)
+                else:
+                    self.stamps_missing += 1
             with self._lock:
-                self._latest = Frame(t, img, self.frames)
+                self._latest = frame
             self.frames += 1
             self._listener.notify()  # never raises
 

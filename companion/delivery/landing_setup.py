@@ -79,6 +79,9 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
                 height_px=model.height_px,
                 fps=lc.camera_rate_hz,
                 latency_s=lc.camera_latency_s,
+                # the driver's capture stamps, asked for only when used (docs/clock.md): a plugin
+                # without the option is told here, before take-off
+                **({"driver_stamp": True} if lc.camera_time != "configured" else {}),
             )
         except (PluginError, TypeError) as err:
             raise LandingSetupError(
