@@ -802,8 +802,8 @@ class RuntimeConfig(_Section):
         0.0,
         "Hz",
         "TIMESYNC requests per second to the autopilot, for the offset of its boot clock to the companion's, its "
-        "jitter and round trip (ArduPilot; PX4 through MAVSDK: MAVSDK runs its own timesync, not exposed; "
-        "docs/clock.md); 0: off",
+        "jitter and round trip (ArduPilot: pymavlink; PX4: MavlinkDirect, MAVSDK's own timesync being internal "
+        "to it; docs/clock.md); 0: off",
         ge=0.0,
         le=50.0,
     )

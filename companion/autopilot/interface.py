@@ -360,8 +360,8 @@ class Autopilot(abc.ABC):
     def clock_offset(self) -> ClockOffset | None:
         """The autopilot's boot clock against the companion's monotonic clock (offset, jitter,
         round trips; :mod:`companion.autopilot.timesync`, docs/clock.md), None when this backend
-        does not estimate it (TIMESYNC off, or no exchange answered yet; PX4 through MAVSDK, whose
-        timesync is internal to it)."""
+        does not estimate it (``runtime.autopilot_timesync_hz = 0``, or too few exchanges answered
+        yet). PX4: our own exchanges through MavlinkDirect (MAVSDK's timesync is internal to it)."""
         return None
 
     @property

@@ -36,3 +36,22 @@ async def test_timesync_off_by_default_sends_none(mav, udp_port):
         assert ap.clock_offset is None and ap.timesync is None
         assert sim.stats.by_type_in.get("TIMESYNC", 0) == 0
         await ap.close()
+
+
+async def test_px4_backend_estimates_it_through_mavlink_direct(mav, udp_port):
+    from companion.autopilot.px4 import Px4Autopilot
+
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "px4", udp_port) as sim:
+        ap = Px4Autopilot(f"udpin://127.0.0.1:{udp_port}", timesync_period_s=0.05)
+        await ap.connect(timeout_s=10.0)
+        try:
+            await mav.wait_for(lambda: ap.clock_offset is not None and ap.clock_offset.samples >= 8, 8.0, "offset")
+            off = ap.clock_offset
+            assert off is not None
+            truth_s = sim.now - time.monotonic()
+            # MAVSDK's hop (mavsdk_server, gRPC) is in the RTT; the midpoint stays within RTT / 2
+            assert abs(off.offset_s - truth_s) < max(0.005, off.rtt_min_s / 2 + 0.001)
+            assert 0.0 < off.rtt_min_s < 0.1 and off.jumps == 0
+        finally:
+            await ap.close()

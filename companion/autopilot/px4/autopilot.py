@@ -49,6 +49,7 @@ from companion.autopilot.px4.mission import Px4Mission
 from companion.autopilot.px4.remote_id import Px4RemoteId
 from companion.autopilot.px4.requests import MavResult, Px4CommandRejected, Px4Requests
 from companion.autopilot.px4.telemetry import MAV_MODE_FLAG_SAFETY_ARMED
+from companion.autopilot.timesync import ClockOffset, ClockOffsetEstimator
 from companion.autopilot.types import (
     FlightMode,
     LandedState,
@@ -109,7 +110,13 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests,
         tlog: OpenPacketSink | None = None,
         component_id: int = 191,
         component_system_id: int = 1,
+        timesync_period_s: float = 0.0,
     ):
+        """``timesync_period_s`` > 0: TIMESYNC requests of our own through MavlinkDirect that often
+        (MAVSDK's timesync is internal to it), the answers to :attr:`clock_offset` (docs/clock.md)."""
+        if not (math.isfinite(timesync_period_s) and timesync_period_s >= 0.0):
+            raise AutopilotError(f"timesync_period_s = {timesync_period_s!r}: expected finite and >= 0 (0: off)")
+        self.timesync_period_s = float(timesync_period_s)
         self.connection = connection
         # MAVSDK's own identity, which is the companion's component (companion.autopilot.px4.component):
         # MAV_COMP_ID_ONBOARD_COMPUTER rather than MAVSDK's default 195 (MAV_COMP_ID_PATHPLANNER)
@@ -165,6 +172,13 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests,
         self._last_sp_call = -math.inf
         self._plugin_streaming = False
         self._t_boot = time.monotonic()
+        # TIMESYNC (docs/clock.md): fed and read on the event loop (MavlinkDirect's stream)
+        self.timesync = ClockOffsetEstimator() if self.timesync_period_s > 0.0 else None
+        self._timesync_logged = -1
+
+    @property
+    def clock_offset(self) -> ClockOffset | None:
+        return None if self.timesync is None else self.timesync.estimate
 
     def _init_vehicle_state(self) -> None:
         """The vehicle's status as composed from MAVSDK's streams."""
@@ -196,6 +210,8 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests,
         if gcs is not None and gcs.enabled:
             kwargs.setdefault("component_id", gcs.component_id)
             kwargs.setdefault("component_system_id", gcs.system_id or 1)
+        if config.runtime.autopilot_timesync_hz > 0.0:
+            kwargs.setdefault("timesync_period_s", 1.0 / config.runtime.autopilot_timesync_hz)
         ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
         gng = getattr(config, "go_no_go", None)
         ap.want_wind = gng is not None and gng.wind_limit_m_s > 0  # the wind check's input (WIND_COV)

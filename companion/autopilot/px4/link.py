@@ -47,6 +47,7 @@ from companion.autopilot.px4.mavsdk_core import (
     message_logger,
     route_mavsdk_log,
 )
+from companion.autopilot.timesync import ClockOffsetEstimator
 from companion.autopilot.types import (
     FlightMode,
     LandedState,
@@ -91,6 +92,9 @@ class Px4Link(abc.ABC):
     _param: Any
     _offboard_sync: Any
     _tasks: list[asyncio.Task[None]]
+    timesync: ClockOffsetEstimator | None
+    timesync_period_s: float
+    _timesync_logged: int
     _leaked: list[Any]
     _connected: bool
     _last_rx: float

@@ -18,6 +18,7 @@ from companion.autopilot.interface import (
     RcInput,
 )
 from companion.autopilot.px4.link import Px4Link
+from companion.autopilot.timesync import TimesyncRejection
 from companion.autopilot.types import (
     MAV_SENSOR_ROTATION_PITCH_270,
     Attitude,
@@ -162,6 +163,10 @@ class Px4Telemetry(Px4Link):
         for message, fn in self._direct_streams(now):
             self._tasks.append(loop.create_task(self._consume(self._direct_subscription(message), fn)))
         self._tasks.append(loop.create_task(self._watch_connection(), name="px4-connection"))
+        if self.timesync is not None:  # docs/clock.md
+            on_ts = self._on_timesync
+            self._tasks.append(loop.create_task(self._consume(self._direct_subscription("TIMESYNC"), on_ts)))
+            self._tasks.append(loop.create_task(self._timesync_requests(), name="px4-timesync"))
         if self.attitude_rate_hz is not None or self.position_rate_hz is not None:
             self._tasks.append(loop.create_task(self._set_stream_rates(), name="px4-stream-rates"))
         if self.setpoint_transport == "offboard":
@@ -187,6 +192,53 @@ class Px4Telemetry(Px4Link):
             await self._tel.set_rate_distance_sensor(RANGEFINDER_RATE_HZ)
         except Exception as err:  # MAVSDK's TelemetryError, or the link gone meanwhile
             log.warning("PX4 did not take DISTANCE_SENSOR at %g Hz (%s)", RANGEFINDER_RATE_HZ, err)
+
+    async def _timesync_requests(self) -> None:
+        """TIMESYNC(tc1 = 0, ts1 = our monotonic clock, ns) through MavlinkDirect every
+        ``timesync_period_s``: PX4 answers with its boot time (docs/clock.md)."""
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        assert self.timesync is not None
+        while True:
+            _, ts1 = self.timesync.request(time.monotonic_ns())
+            fields = f'{{"tc1":0,"ts1":{ts1},"target_system":{self.system_id},"target_component":1}}'
+            try:
+                self._direct_sync.send_message(MavlinkMessage("TIMESYNC", 0, 0, self.system_id, 1, fields))
+            except Exception as err:  # a link down: the next request goes out on time
+                log.debug("TIMESYNC request not sent: %s", err)
+            await asyncio.sleep(self.timesync_period_s)
+
+    def _on_timesync(self, m: Any) -> None:
+        """PX4's TIMESYNC, stamped as MavlinkDirect hands it over (after MAVSDK's own hop: the RTT,
+        and the offset's error bound RTT / 2, include it). MAVSDK's own exchanges with PX4 come
+        through too: their ts1 are not ours (rejected as unknown, not said)."""
+        est = self.timesync
+        if est is None or m.system_id != self.system_id or m.component_id != 1:
+            return
+        now_ns = time.monotonic_ns()
+        f = json.loads(m.fields_json)
+        tc1, ts1 = int(f["tc1"]), int(f["ts1"])
+        if tc1 == 0:
+            return  # a request (PX4's own, which MAVSDK answers)
+        outcome = est.on_timesync(tc1, ts1, now_ns)
+        if isinstance(outcome, TimesyncRejection):
+            n = est.rejected[outcome]
+            if outcome is not TimesyncRejection.UNKNOWN_REQUEST and (n in (1, 10) or n % 100 == 0):
+                log.warning("TIMESYNC answer tc1=%d ts1=%d rejected: %s (%d so far)", tc1, ts1, outcome.value, n)
+            return
+        offset = est.estimate
+        if offset is not None and (self._timesync_logged < 0 or est.accepted - self._timesync_logged >= 60):
+            self._timesync_logged = est.accepted
+            log.info(
+                "autopilot clock: offset %.6f s (autopilot boot - companion monotonic), jitter %.3f ms, RTT min %.3f "
+                "ms, median %.3f ms, over %d exchanges, %d jumps",
+                offset.offset_s,
+                1e3 * offset.jitter_s,
+                1e3 * offset.rtt_min_s,
+                1e3 * offset.rtt_median_s,
+                offset.samples,
+                offset.jumps,
+            )
 
     def _direct_subscription(self, message: str) -> Callable[[], AsyncIterator[Any]]:
         """MavlinkDirect's stream of one message by name, subscribed anew at each call."""
