@@ -38,6 +38,7 @@ KIND_OF = {
     "delivery_paper.toml": "vehicle",
     "landing_campaign.toml": "vehicle",
     "landing_campaign_short.toml": "vehicle",
+    "landing_campaign_camera_only.toml": "vehicle",  # docs/clock.md
     "px4_sih_quad.toml": "vehicle",
     "sitl_short.toml": "vehicle",
     "slow_board.toml": "vehicle",  # an overlay: validates on the defaults alone
