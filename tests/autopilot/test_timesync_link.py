@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import time
 
+import pytest
+
 from companion.autopilot.ardupilot import ArduPilotAutopilot
 
 
@@ -53,5 +55,26 @@ async def test_px4_backend_estimates_it_through_mavlink_direct(mav, udp_port):
             # MAVSDK's hop (mavsdk_server, gRPC) is in the RTT; the midpoint stays within RTT / 2
             assert abs(off.offset_s - truth_s) < max(0.005, off.rtt_min_s / 2 + 0.001)
             assert 0.0 < off.rtt_min_s < 0.1 and off.jumps == 0
+        finally:
+            await ap.close()
+
+
+async def test_a_step_of_the_vehicles_clock_is_one_jump(mav, udp_port, caplog):
+    config = mav.short_config()
+    with mav.sim_vehicle(config, "ardupilot", udp_port) as sim:
+        ap = ArduPilotAutopilot(f"udpin:127.0.0.1:{udp_port}", timesync_period_s=0.05)
+        await ap.connect(timeout_s=3.0)
+        try:
+            await mav.wait_for(lambda: ap.clock_offset is not None and ap.clock_offset.samples >= 8, 5.0, "offset")
+            before = ap.clock_offset
+            assert before is not None
+            with caplog.at_level("WARNING", logger="companion.autopilot.timesync"):
+                with sim.lock:
+                    sim._t0 -= 30.0  # the vehicle's boot clock steps 30 s ahead (its physics follow)
+                await mav.wait_for(lambda: (o := ap.clock_offset) is not None and o.jumps == 1, 5.0, "the jump")
+            after = ap.clock_offset
+            assert after is not None and after.jumps == 1
+            assert after.offset_s - before.offset_s == pytest.approx(30.0, abs=0.01)
+            assert "autopilot clock jump" in caplog.text
         finally:
             await ap.close()
