@@ -807,6 +807,13 @@ class RuntimeConfig(_Section):
         ge=0.0,
         le=50.0,
     )
+    autopilot_sample_time: Literal["receipt", "autopilot"] = _f(
+        "receipt",
+        "-",
+        "the time of the autopilot's attitude and position samples: their receipt on the companion's clock, or "
+        "(ArduPilot, with autopilot_timesync_hz > 0) their time_boot_ms mapped onto it through the TIMESYNC "
+        "offset, the link's delay taken out (docs/clock.md)",
+    )
 
 
 class TelemetryCommandsConfig(_Section):

@@ -12,6 +12,7 @@ send. The link, the requests and the telemetry decoding are its base classes
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
 import math
 import threading
@@ -96,12 +97,24 @@ class ArduPilotAutopilot(
         signing: SigningSetup | None = None,
         remote_id: RemoteIdConfig | None = None,
         timesync_period_s: float = 0.0,
+        sample_time: Literal["receipt", "autopilot"] = "receipt",
     ):
         """``timesync_period_s`` > 0: a TIMESYNC request that often, the answers to
-        :attr:`clock_offset` (:mod:`companion.autopilot.timesync`; 0: none sent)."""
+        :attr:`clock_offset` (:mod:`companion.autopilot.timesync`; 0: none sent).
+        ``sample_time = "autopilot"``: attitude and position samples are stamped at their
+        ``time_boot_ms`` mapped onto our clock through that offset, not at their receipt (needs
+        TIMESYNC; docs/clock.md)."""
         if not (math.isfinite(timesync_period_s) and timesync_period_s >= 0.0):
             raise AutopilotError(f"timesync_period_s = {timesync_period_s!r}: expected finite and >= 0 (0: off)")
+        if sample_time not in ("receipt", "autopilot"):
+            raise AutopilotError(f"sample_time = {sample_time!r}: expected 'receipt' or 'autopilot'")
+        if sample_time == "autopilot" and timesync_period_s <= 0.0:
+            raise AutopilotError(
+                "sample_time = 'autopilot' maps the samples' time_boot_ms through the TIMESYNC offset: "
+                "set runtime.autopilot_timesync_hz > 0 (e.g. 2)"
+            )
         self.timesync_period_s = float(timesync_period_s)
+        self.sample_time = sample_time
         self.connection = connection
         self.remote_id = remote_id  # [remote_id]: sent and gated on when enabled (.remote_id)
         self.signing = signing
@@ -156,6 +169,9 @@ class ArduPilotAutopilot(
         self._timesync_lock = threading.Lock()
         self._next_timesync_s = 0.0
         self._timesync_logged = -1  # accepted exchanges when the estimate was last logged
+        self._sample_offset: ClockOffset | None = None  # the reader thread's copy, for the samples
+        self._sample_ages_s: collections.deque[float] = collections.deque(maxlen=500)  # receipt - sample time
+        self.sample_times_refused = 0  # samples whose mapped time_boot_ms was implausible (stamped at receipt)
 
     @property
     def clock_offset(self) -> ClockOffset | None:
@@ -243,6 +259,7 @@ class ArduPilotAutopilot(
             )
         if rt.autopilot_timesync_hz > 0.0:
             kwargs.setdefault("timesync_period_s", 1.0 / rt.autopilot_timesync_hz)
+        kwargs.setdefault("sample_time", rt.autopilot_sample_time)
         return cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
 
     def set_velocity_ned(self, setpoint: VelocitySetpoint) -> None:

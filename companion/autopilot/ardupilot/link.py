@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from companion.autopilot.ardupilot.dialect import mavlink, mavutil
 from companion.autopilot.interface import (
@@ -49,7 +49,7 @@ from companion.autopilot.signing import (
     apply_to_mavlink,
     write_timestamp_file,
 )
-from companion.autopilot.timesync import ClockOffsetEstimator
+from companion.autopilot.timesync import ClockOffset, ClockOffsetEstimator
 from companion.autopilot.types import (
     LandedState,
 )
@@ -237,6 +237,10 @@ class ArduPilotLink(abc.ABC):
     _timesync_lock: threading.Lock
     _next_timesync_s: float
     _timesync_logged: int
+    sample_time: Literal["receipt", "autopilot"]
+    _sample_offset: ClockOffset | None
+    _sample_ages_s: collections.deque[float]
+    sample_times_refused: int
 
     async def connect(self, timeout_s: float = 10.0) -> None:
         if self._conn is not None:

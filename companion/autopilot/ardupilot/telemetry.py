@@ -155,9 +155,36 @@ class ArduPilotTelemetry(ArduPilotRequests):
             self._check_streams(now)
 
     # ------------------------------------------------------------------ the vehicle's messages
+    def _sample_time_s(self, m: Any, now: float) -> float:
+        """A sample's time: its receipt (``now``), or with ``sample_time = "autopilot"`` its
+        ``time_boot_ms`` on our clock through the TIMESYNC offset (docs/clock.md) -- the receipt
+        again before the offset is known, or when the mapped time is not within (receipt - 1 s,
+        receipt + the best RTT] (a wrapped or bogus stamp, a clock jump not yet confirmed)."""
+        offset = self._sample_offset
+        if offset is None:
+            return now
+        t = offset.to_companion_s(int(m.time_boot_ms) / 1e3)
+        age_s = now - t
+        if not -offset.rtt_min_s <= age_s < 1.0:
+            self.sample_times_refused += 1
+            return now
+        self._sample_ages_s.append(age_s)
+        if len(self._sample_ages_s) == self._sample_ages_s.maxlen:
+            ages = sorted(self._sample_ages_s)
+            self._sample_ages_s.clear()
+            log.info(
+                "autopilot samples arrive %.1f ms after their time_boot_ms (median of %d; 10-90 %%: %.1f-%.1f ms)",
+                1e3 * ages[len(ages) // 2],
+                len(ages),
+                1e3 * ages[len(ages) // 10],
+                1e3 * ages[(9 * len(ages)) // 10],
+            )
+        return min(t, now)
+
     def _on_attitude(self, m: Any, now: float) -> None:
         self._last_attitude = now
-        self._push(Attitude(now, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))
+        t = self._sample_time_s(m, now) if self.sample_time == "autopilot" else now
+        self._push(Attitude(t, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))
 
     def _on_highres_imu(self, m: Any, now: float) -> None:
         self._have_highres = True
@@ -170,10 +197,12 @@ class ArduPilotTelemetry(ArduPilotRequests):
         self._push(Imu(now, m.xacc * a, m.yacc * a, m.zacc * a, m.xgyro / 1e3, m.ygyro / 1e3, m.zgyro / 1e3))
 
     def _on_local_position(self, m: Any, now: float) -> None:
-        self._push(PositionNed(now, m.x, m.y, m.z, m.vx, m.vy, m.vz))
+        t = self._sample_time_s(m, now) if self.sample_time == "autopilot" else now
+        self._push(PositionNed(t, m.x, m.y, m.z, m.vx, m.vy, m.vz))
 
     def _on_global_position(self, m: Any, now: float) -> None:
-        self._push(GlobalPosition(now, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.relative_alt / 1000.0))
+        t = self._sample_time_s(m, now) if self.sample_time == "autopilot" else now
+        self._push(GlobalPosition(t, m.lat / 1e7, m.lon / 1e7, m.alt / 1000.0, m.relative_alt / 1000.0))
 
     def _on_gps_raw(self, m: Any, now: float) -> None:
         self._gps_fix = m.fix_type
@@ -266,6 +295,7 @@ class ArduPilotTelemetry(ArduPilotRequests):
             outcome = est.on_timesync(int(m.tc1), int(m.ts1), time.monotonic_ns())
             offset = est.estimate
             accepted = est.accepted
+        self._sample_offset = offset  # the samples' mapping (sample_time = "autopilot"), same thread
         if isinstance(outcome, TimesyncRejection):
             n = est.rejected[outcome]
             if n in (1, 10) or n % 100 == 0:

@@ -210,6 +210,11 @@ class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests,
         if gcs is not None and gcs.enabled:
             kwargs.setdefault("component_id", gcs.component_id)
             kwargs.setdefault("component_system_id", gcs.system_id or 1)
+        if config.runtime.autopilot_sample_time != "receipt":
+            raise AutopilotError(
+                "runtime.autopilot_sample_time = 'autopilot' is ArduPilot's: MAVSDK's telemetry carries no "
+                "autopilot time stamps to map (set it to 'receipt' on PX4)"
+            )
         if config.runtime.autopilot_timesync_hz > 0.0:
             kwargs.setdefault("timesync_period_s", 1.0 / config.runtime.autopilot_timesync_hz)
         ap = cls(config.connection, link_timeout_s=config.runtime.link_timeout_s, **kwargs)
