@@ -159,13 +159,14 @@ class ArduPilotTelemetry(ArduPilotRequests):
         """A sample's time: its receipt (``now``), or with ``sample_time = "autopilot"`` its
         ``time_boot_ms`` on our clock through the TIMESYNC offset (docs/clock.md) -- the receipt
         again before the offset is known, or when the mapped time is not within (receipt - 1 s,
-        receipt + the best RTT] (a wrapped or bogus stamp, a clock jump not yet confirmed)."""
+        receipt + the offset's uncertainty, best RTT + 3 jitters] (a wrapped or bogus stamp, a clock
+        jump not yet confirmed); a mapped time after the receipt is the receipt."""
         offset = self._sample_offset
         if offset is None:
             return now
         t = offset.to_companion_s(int(m.time_boot_ms) / 1e3)
         age_s = now - t
-        if not -offset.rtt_min_s <= age_s < 1.0:
+        if not -(offset.rtt_min_s + 3.0 * offset.jitter_s) <= age_s < 1.0:
             self.sample_times_refused += 1
             return now
         self._sample_ages_s.append(age_s)
