@@ -1505,10 +1505,11 @@ class CompanionConfig(_Section):
                 "external_nav.enabled = true needs landing.fusion = true with the camera or UWB: the pose sent to the "
                 "autopilot is the fused one, which holds the pad only while they see it"
             )
-        if self.external_nav.enabled and self.autopilot != "ardupilot":
+        if self.external_nav.enabled and self.autopilot == "px4":
             raise ValueError(
-                f"external_nav.enabled = true with autopilot = {self.autopilot!r}: the external-navigation feed is "
-                "built for ArduPilot (VISION_POSITION_ESTIMATE, EK3 source sets); PX4 (EKF2_EV_CTRL) is not yet"
+                "external_nav.enabled = true with autopilot = 'px4': the external-navigation feed is built for "
+                "ArduPilot (VISION_POSITION_ESTIMATE, EK3 source sets; the embedded simulator's ArduCopter profile "
+                "models it); PX4 (EKF2_EV_CTRL) is not yet"
             )
         if lc.controller == "autopilot" and (lc.landing_target_output == "off" or not lc.use_camera):
             raise ValueError(

@@ -144,6 +144,11 @@ class ExternalNavFeed:
             self.stats.poses_refused += 1
             log.warning("external-navigation pose not sent: %s", err)
             return
+        except AutopilotError as err:  # the autopilot cannot take one: said once, never sent again
+            self.stats.switch_failed = str(err)
+            self._next_send_s = math.inf
+            log.error("external navigation off: %s", err)
+            return
         self._next_send_s = max(self._next_send_s + self.period_s, now)
         self._last_pose = pose
         self._last_sent_s = now
