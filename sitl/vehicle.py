@@ -231,6 +231,7 @@ class SimVehicle:
         self.land_detector = LandDetector(self.profile.land_detect_s)
         self.landing_targets_received = 0
         self.gnss = SimGnss(self.profile.name)  # GNSS lost and external navigation (gnss_loss.py)
+        self._gnss_was_above = False  # above [sim] gnss_lost_below_m once
         self._armed_s = 0.0  # when it was last armed (height_estimate_drift_m_s)
         self._rates = (0.0, 0.0, 0.0)
         self._truth_next = 0.0
@@ -305,6 +306,8 @@ class SimVehicle:
         self.wind_model.step(dt, self.pd)
         self.gps_error.step(t, dt, self.cfg.gps_noise_m)
         self.estimator_error.step(t, dt, self.pd)
+        if self.cfg.gnss_lost_below_m > 0.0 and not self.gnss.lost:
+            self._lose_gnss_when_low()
         if self.gnss.step(t):
             self._ekf_failsafe()
         if self.payload.release_due(t):
@@ -364,6 +367,18 @@ class SimVehicle:
         est = self._estimate_with_gnss()
         self.gnss.lose(self.time_s, (est[0] - self.pn, est[1] - self.pe))
         self._text("GPS 1: lost")
+
+    def _lose_gnss_when_low(self) -> None:
+        """[sim] gnss_lost_below_m: the GPS off coming down through it near the true pad."""
+        h, below = -self.pd, self.cfg.gnss_lost_below_m
+        self._gnss_was_above = getattr(self, "_gnss_was_above", False) or h > below + 0.5
+        pn, pe = self.pad_true_ned
+        if (
+            self._gnss_was_above
+            and h <= below
+            and math.hypot(self.pn - pn, self.pe - pe) <= self.cfg.gnss_lost_within_m
+        ):
+            self.lose_gnss()
 
     def _ekf_failsafe(self) -> None:
         """ArduCopter's EKF failsafe with FS_EKF_ACTION = 1: LAND where it is (its texts)."""
