@@ -1505,6 +1505,11 @@ class CompanionConfig(_Section):
                 "external_nav.enabled = true needs landing.fusion = true with the camera or UWB: the pose sent to the "
                 "autopilot is the fused one, which holds the pad only while they see it"
             )
+        if self.external_nav.enabled and self.external_nav.rate_hz > self.runtime.guidance_rate_hz:
+            raise ValueError(
+                f"external_nav.rate_hz ({self.external_nav.rate_hz}) must be <= runtime.guidance_rate_hz "
+                f"({self.runtime.guidance_rate_hz}): the pose is sent from the guidance tick, at most one per tick"
+            )
         if self.external_nav.enabled and self.autopilot == "px4":
             raise ValueError(
                 "external_nav.enabled = true with autopilot = 'px4': the external-navigation feed is built for "

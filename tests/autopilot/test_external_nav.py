@@ -110,3 +110,24 @@ def test_source_set_three_reads_its_own_params_and_an_unread_one_is_unknown() ->
     rows = {r.name: r for r in check_ardupilot_external_nav(req, params)}  # type: ignore[arg-type]
     assert rows["EK3_SRC3_POSXY"].status is Status.UNKNOWN
     assert rows["EK3_SRC3_VELXY"].status is Status.OK
+
+
+@pytest.mark.parametrize(
+    ("overrides", "words"),
+    [
+        ({"autopilot": "px4"}, "PX4 \\(EKF2_EV_CTRL\\) is not yet"),
+        ({"landing": {"fusion": False}}, "needs landing.fusion = true"),
+        ({"landing": {"use_camera": False, "use_uwb": False}}, "needs landing.fusion = true"),
+        ({"external_nav": {"enabled": True, "rate_hz": 30.0}}, "must be <= runtime.guidance_rate_hz"),
+    ],
+)
+def test_the_configuration_refuses_what_external_nav_cannot_do(overrides: dict[str, object], words: str) -> None:
+    from companion.config import CompanionConfig
+
+    data: dict[str, object] = {"autopilot": "ardupilot", "external_nav": {"enabled": True}}
+    data.update(overrides)
+    if "external_nav" in overrides:
+        data["external_nav"] = {"enabled": True, **overrides["external_nav"]}  # type: ignore[dict-item]
+    with pytest.raises(ValueError, match=words):
+        CompanionConfig.model_validate(data)
+    assert not CompanionConfig().external_nav.enabled  # off by default
