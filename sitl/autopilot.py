@@ -226,6 +226,12 @@ class SimAutopilot(Autopilot):
         except GnssLossError as err:
             raise AutopilotError(str(err)) from None
 
+    async def use_gnss(self) -> None:
+        try:
+            await self._command("EKF source set", self.vehicle.gnss.use_source_set, 1)
+        except GnssLossError as err:
+            raise AutopilotError(str(err)) from None
+
     def pilot_set_mode(self, mode: FlightMode) -> None:
         self.vehicle.pilot_set_mode(mode)
 

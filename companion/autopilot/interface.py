@@ -435,6 +435,10 @@ class Autopilot(abc.ABC):
         ``source_set``); raises :class:`AutopilotError` when refused or not possible."""
         raise AutopilotError(f"{type(self).__name__} cannot switch its position source to external navigation")
 
+    async def use_gnss(self) -> None:
+        """Switch the autopilot's position source back to GNSS (ArduPilot: EKF source set 1)."""
+        raise AutopilotError(f"{type(self).__name__} cannot switch its position source back to GNSS")
+
     # The autopilot's own fence (companion.autopilot.fence; MAVLink fence protocol).
     async def upload_fence(self, fence: AutopilotFence) -> None:
         """Replace the autopilot's fence with ``fence`` (raises :class:`AutopilotError`)."""

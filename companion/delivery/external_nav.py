@@ -14,6 +14,8 @@ lost:
 - near the pad (the pose is being sent): the autopilot's position source is switched to it
   (:meth:`Autopilot.use_external_nav`, ArduPilot's EKF source set ``source_set``), once; the
   mission flies on (it steers on the fused estimate there, and releases only on a locked pad);
+- GNSS good again for GNSS_BACK_S (2 s): the autopilot goes back to it (EKF source set 1), so the
+  way home, out of camera and UWB range, does not fly on a source that no longer comes;
 - anywhere else (outbound, homebound, out of camera and UWB range): nothing is switched; the
   autopilot's own failsafe acts (ArduCopter: the EKF failsafe, FS_EKF_ACTION), which takes the
   vehicle out of GUIDED, which ends the companion's autonomy (a mode it did not ask for: the
@@ -39,6 +41,9 @@ from companion.config import ExternalNavConfig
 from companion.events import EventKind, MissionEvent, Phase
 
 log = logging.getLogger(__name__)
+
+#: GNSS good this long after a loss counts as back (the switch back to it), s
+GNSS_BACK_S = 2.0
 
 
 @dataclass
@@ -110,6 +115,9 @@ class ExternalNavFeed:
         self._send_when_due(now, fusion)
         self._measure_jump()
         lost = self.watch.update(now, self.autopilot.telemetry.gps)
+        if self._gnss_lost and not self.watch.reason:
+            return self._gnss_back(now, phase)
+        self._good_since_s = math.inf
         if not lost or self._gnss_lost:
             return ()
         self._gnss_lost = True
@@ -129,6 +137,33 @@ class ExternalNavFeed:
             )
         log.warning("t=%.2f %s", now, detail)
         return (MissionEvent(now, EventKind.WARNING, phase, detail),)
+
+    _good_since_s = math.inf
+
+    def _gnss_back(self, now: float, phase: Phase) -> tuple[MissionEvent, ...]:
+        """GNSS good again for GNSS_BACK_S after a loss: the autopilot back on it (when it was
+        switched), and a later loss is a new one."""
+        if not math.isfinite(self._good_since_s):
+            self._good_since_s = now
+        if now - self._good_since_s < GNSS_BACK_S:
+            return ()
+        self._gnss_lost = False
+        self._good_since_s = math.inf
+        detail = "GNSS back"
+        if self.switched or (self._switch is not None and not self._switch.done()):
+            if self._switch is not None and not self._switch.done():
+                self._switch.cancel()
+            self.switched = False
+            self._switch = asyncio.get_running_loop().create_task(self._use_gnss())
+            detail = "GNSS back: the autopilot navigates on it again (EKF source set 1)"
+        log.warning("t=%.2f %s", now, detail)
+        return (MissionEvent(now, EventKind.WARNING, phase, detail),)
+
+    async def _use_gnss(self) -> None:
+        try:
+            await self.autopilot.use_gnss()
+        except AutopilotError as err:
+            log.error("the autopilot refused to go back to GNSS: %s", err)
 
     def _send_when_due(self, now: float, fusion: Any) -> None:
         if fusion is None or not fusion.pad_locked or now < self._next_send_s:

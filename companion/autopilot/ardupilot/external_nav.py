@@ -60,6 +60,10 @@ class ArduPilotExternalNav(ArduPilotRequests):
         await self._command(MAV_CMD_SET_EKF_SOURCE_SET, source_set, what=f"EKF source set {source_set}")
         log.info("EKF3 source set %d accepted in %.0f ms", source_set, (time.monotonic() - t0) * 1e3)
 
+    async def use_gnss(self) -> None:
+        """EKF3 back on source set 1 (GNSS, copter.parm's EK3_SRC1_*)."""
+        await self._command(MAV_CMD_SET_EKF_SOURCE_SET, 1, what="EKF source set 1")
+
 
 # the dialect knows the command by name from ArduPilot's common.xml of 2023 on
 assert getattr(mavlink, "MAV_CMD_SET_EKF_SOURCE_SET", MAV_CMD_SET_EKF_SOURCE_SET) == MAV_CMD_SET_EKF_SOURCE_SET
