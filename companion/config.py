@@ -1391,6 +1391,57 @@ class RemoteIdConfig(_Section):
         return self
 
 
+class ExternalNavConfig(_Section):
+    """External navigation (docs/external-nav.md): the fused pose streamed to the autopilot once the
+    pad is locked (ArduPilot VISION_POSITION_ESTIMATE, VISO_TYPE = 1), and the autopilot's position
+    source switched to it when GNSS is lost near the pad (ArduPilot MAV_CMD_SET_EKF_SOURCE_SET to
+    ``source_set``, whose EK3_SRCn_POSXY = 6). Off by default: nothing sent, nothing switched."""
+
+    enabled: bool = _f(
+        False,
+        "-",
+        "stream the fused pose to the autopilot once the pad is locked and switch its position source to it "
+        "when GNSS is lost (false: nothing sent, the autopilot's own GNSS failsafe acts)",
+    )
+    rate_hz: float = _f(
+        20.0, "Hz", "VISION_POSITION_ESTIMATE rate (at most the guidance rate: one per tick)", ge=5.0, le=50.0
+    )
+    source_set: int = _f(
+        2,
+        "-",
+        "the autopilot's EKF source set that navigates on the external pose (ArduPilot EK3_SRC<n>_*, 2 or 3; "
+        "set 1 is GNSS)",
+        ge=2,
+        le=3,
+    )
+    gnss_min_fix_type: int = _f(3, "-", "GPS_RAW_INT fix type below this counts as GNSS lost (3: 3D)", ge=2, le=6)
+    gnss_min_satellites: int = _f(
+        5, "-", "fewer satellites than this count as GNSS lost (a collapsing constellation)", ge=0, le=30
+    )
+    gnss_lost_after_s: float = _f(
+        0.5,
+        "s",
+        "GNSS must stay lost (or GPS_RAW_INT silent) this long before the source is switched",
+        ge=0.0,
+        le=10.0,
+    )
+    pad_data_max_age_s: float = _f(
+        1.0,
+        "s",
+        "the pose is sent, and the source switched, only while the camera or UWB was fused within this: "
+        "out of their range the pose is the autopilot's own velocity integrated, worth nothing to it",
+        gt=0.0,
+        le=5.0,
+    )
+    position_sigma_min_m: float = _f(
+        0.05,
+        "m",
+        "floor of the position standard deviation sent with the pose (the EKF's own covariance above it)",
+        gt=0.0,
+        le=5.0,
+    )
+
+
 class CompanionConfig(_Section):
     vehicle_id: str = _f(
         "drone1",
@@ -1420,6 +1471,7 @@ class CompanionConfig(_Section):
     go_no_go: GoNoGoConfig = Field(default_factory=GoNoGoConfig)
     winch: WinchConfig = Field(default_factory=WinchConfig)
     remote_id: RemoteIdConfig = Field(default_factory=RemoteIdConfig)
+    external_nav: ExternalNavConfig = Field(default_factory=ExternalNavConfig)
 
     def _fenced_points(self) -> list[tuple[float, float, str]]:
         """(lat, lon, key) of every point the fence must hold at load: the pads given in lat/lon (a
@@ -1471,6 +1523,22 @@ class CompanionConfig(_Section):
                 "Python API and libcmavsdk have no MAVLink signing call); sign with autopilot = 'ardupilot'"
             )
         lc = self.landing
+        if self.external_nav.enabled and not (lc.fusion and (lc.use_camera or lc.use_uwb)):
+            raise ValueError(
+                "external_nav.enabled = true needs landing.fusion = true with the camera or UWB: the pose sent to the "
+                "autopilot is the fused one, which holds the pad only while they see it"
+            )
+        if self.external_nav.enabled and self.external_nav.rate_hz > self.runtime.guidance_rate_hz:
+            raise ValueError(
+                f"external_nav.rate_hz ({self.external_nav.rate_hz}) must be <= runtime.guidance_rate_hz "
+                f"({self.runtime.guidance_rate_hz}): the pose is sent from the guidance tick, at most one per tick"
+            )
+        if self.external_nav.enabled and self.autopilot == "px4":
+            raise ValueError(
+                "external_nav.enabled = true with autopilot = 'px4': the external-navigation feed is built for "
+                "ArduPilot (VISION_POSITION_ESTIMATE, EK3 source sets; the embedded simulator's ArduCopter profile "
+                "models it); PX4 (EKF2_EV_CTRL) is not yet"
+            )
         if lc.controller == "autopilot" and (lc.landing_target_output == "off" or not lc.use_camera):
             raise ValueError(
                 f"landing.controller = 'autopilot' needs landing.landing_target_output 'local_ned' or 'body_angles' "

@@ -79,7 +79,7 @@ def write_parm_file(path: Path, params: dict[str, float]) -> Path:
             raise ValueError(f"parameter name {name!r}: expected at most 16 letters, digits and underscores")
         if not math.isfinite(float(value)):
             raise ValueError(f"parameter {name} = {value!r} is not finite")
-        lines.append(f"{name.upper()} {float(value):g}\n")
+        lines.append(f"{name.upper()} {float(value):.10g}\n")  # :g would round a bitmask >= 1e6
     path.write_text("".join(lines))
     return path
 

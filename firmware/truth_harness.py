@@ -248,11 +248,13 @@ async def fly_on_truth(
     timeout_s: float = 300.0,
     recorder: Any | None = None,
     pad_ne: tuple[float, float] | None = None,
+    on_shell: Any | None = None,
 ) -> HarnessResult:
     """One delivery (with the landing sensors rendered from ``truth`` when ``landing.fusion``);
     ``truth`` must be started (and is not stopped here). ``pad_ne``
     gives the true pad in the truth frame directly (a vehicle that does not start at the truth
-    origin); otherwise it is the configured pad from ``origin`` plus ``pad_offset_m``."""
+    origin); otherwise it is the configured pad from ``origin`` plus ``pad_offset_m``. ``on_shell``
+    (a function of the shell) is called with the shell before it runs (a lab script's instruments)."""
     if pad_ne is None:
         pad_ne = true_pad_ne(config, origin, pad_offset_m)
     kit = None
@@ -261,6 +263,8 @@ async def fly_on_truth(
         kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     score = _TruthScore(truth, pad_ne)
     shell = DeliveryShell(config, autopilot, on_tick=score, landing=kit, recorder=recorder)
+    if on_shell is not None:
+        on_shell(shell)
     summary = await shell.run(timeout_s=timeout_s)
     return _harness_result(config, summary, shell, score)
 

@@ -48,6 +48,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # one clock (docs/clock.md): frames LATENCY_MS later than landing.camera_latency_s says, the
     # configured latency (before), the driver's capture stamp, the latency measured from it (after)
     **{f"latency_{ms}ms{tail}": {"camera_time": mode} for ms in LATENCY_MS for tail, mode in LATENCY_MODES.items()},
+    # GNSS lost near the pad (docs/external-nav.md; the arducopter-sitl profile): with external
+    # navigation, and GPS-only beside it on the same draws
+    **{f"gnss_lost_{h}m": {} for h in (10, 3)},
+    **{f"gnss_lost_{h}m_gps_only": {"fusion": False, "policy": {"require_pad_lock": False}} for h in (10, 3)},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -66,7 +70,10 @@ SIM_VARIANTS: dict[str, dict[str, Any]] = {
         for ms in LATENCY_MS
         for tail, mode in LATENCY_MODES.items()
     },
+    **{f"gnss_lost_{h}m{k}": {"gnss_lost_below_m": float(h)} for h in (10, 3) for k in ("", "_gps_only")},
 }
+# the variants that fly with [external_nav] on (docs/external-nav.md)
+EXTERNAL_NAV_VARIANTS = ("gnss_lost_10m", "gnss_lost_3m")
 
 # [mission] overrides: the alternate pad, 25 m north of params/landing_campaign.toml's pad (beyond
 # what the search around the first pad sees: 6 m radius, the camera's view from 8 m, UWB's 10 m)
@@ -173,6 +180,8 @@ def scenario_config(
     # a variant's change to it would carry over into the next landing's configuration
     mission = {**tuning.get("mission", {}), **MISSION_VARIANTS.get(variant, {})}
     overrides = {**tuning, "sim": sim, "landing": landing, "mission": mission}
+    if variant in EXTERNAL_NAV_VARIANTS:
+        overrides["external_nav"] = {"enabled": True}
     if variant in WINCH_VARIANTS:
         mission["delivery"] = "winch"
         sim["winch"] = {"fitted": True}

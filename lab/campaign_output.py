@@ -36,7 +36,8 @@ COLOURS = {
 # (their tab10 colours) nor with each other
 SPARE_COLOURS = (
     "tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo",
-    "maroon", "darkgreen", "magenta", "sienna", "steelblue", "khaki", "crimson",
+    "maroon", "darkgreen", "magenta", "sienna", "steelblue", "khaki", "crimson", "orchid", "chocolate",
+    "slategray", "deepskyblue",
 )  # fmt: skip
 
 

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from companion.autopilot.external_nav import ExternalNavPose
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.interface import Autopilot, AutopilotError, TelemetryCache
 from companion.autopilot.mission_plan import PlanItem
@@ -32,6 +33,7 @@ from companion.flightlog.telemetry_tlog import TelemetryTlog
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.scheduling import LoopClock, RateLoop
 from companion_sitl.clock import VirtualTimeEventLoop
+from companion_sitl.gnss_loss import GnssLossError
 from companion_sitl.params import SimConfig
 from companion_sitl.vehicle import SimCommandError, SimVehicle
 
@@ -207,6 +209,28 @@ class SimAutopilot(Autopilot):
         self.vehicle.step_to(self._clock.now())
         if target.position_valid:
             self.vehicle.set_landing_target(target.north_m, target.east_m)
+
+    def send_external_nav(self, pose: ExternalNavPose) -> None:
+        """The pose as the vehicle's external navigation (sitl/gnss_loss.py; ArduCopter profile only)."""
+        pose.validate()
+        if not self._link_up:
+            return
+        try:
+            self.vehicle.gnss.on_pose(self.vehicle.time_s, pose.north_m, pose.east_m, pose.down_m)
+        except GnssLossError as err:
+            raise AutopilotError(str(err)) from None
+
+    async def use_external_nav(self, source_set: int) -> None:
+        try:
+            await self._command("EKF source set", self.vehicle.gnss.use_source_set, source_set)
+        except GnssLossError as err:
+            raise AutopilotError(str(err)) from None
+
+    async def use_gnss(self) -> None:
+        try:
+            await self._command("EKF source set", self.vehicle.gnss.use_source_set, 1)
+        except GnssLossError as err:
+            raise AutopilotError(str(err)) from None
 
     def pilot_set_mode(self, mode: FlightMode) -> None:
         self.vehicle.pilot_set_mode(mode)

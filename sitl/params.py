@@ -226,6 +226,17 @@ class SimConfig(_Section):
         ge=-180.0,
         le=180.0,
     )
+    gnss_lost_below_m: float = _f(
+        0.0,
+        "m",
+        "> 0: the GPS goes off (sitl/gnss_loss.py, ArduCopter profile) the first time the true vehicle comes "
+        "down through this height above the ground within gnss_lost_within_m of the true pad; 0 = never",
+        ge=0.0,
+        le=1000.0,
+    )
+    gnss_lost_within_m: float = _f(
+        6.0, "m", "how near the true pad the GPS goes off (gnss_lost_below_m)", gt=0.0, le=10000.0
+    )
     camera_fails_below_m: float = _f(
         0.0,
         "m",

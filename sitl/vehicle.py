@@ -59,6 +59,7 @@ from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.dynamics import TranslationalDynamics
 from companion_sitl.estimator_error import EstimatorError
 from companion_sitl.gauss_markov import GaussMarkov
+from companion_sitl.gnss_loss import LOST_FIX_TYPE, LOST_SATELLITES, SimGnss
 from companion_sitl.gps_error import GPS_FIX_PERIOD_S, GpsError
 from companion_sitl.land_detector import AUTO_DISARM_AFTER_LAND_S, LandDetector, Touchdown
 from companion_sitl.modes import (
@@ -229,6 +230,8 @@ class SimVehicle:
         self.dynamics = TranslationalDynamics()
         self.land_detector = LandDetector(self.profile.land_detect_s)
         self.landing_targets_received = 0
+        self.gnss = SimGnss(self.profile.name)  # GNSS lost and external navigation (gnss_loss.py)
+        self._gnss_was_above = False  # above [sim] gnss_lost_below_m once
         self._armed_s = 0.0  # when it was last armed (height_estimate_drift_m_s)
         self._rates = (0.0, 0.0, 0.0)
         self._truth_next = 0.0
@@ -303,6 +306,10 @@ class SimVehicle:
         self.wind_model.step(dt, self.pd)
         self.gps_error.step(t, dt, self.cfg.gps_noise_m)
         self.estimator_error.step(t, dt, self.pd)
+        if self.cfg.gnss_lost_below_m > 0.0 and not self.gnss.lost:
+            self._lose_gnss_when_low()
+        if self.gnss.step(t):
+            self._ekf_failsafe()
         if self.payload.release_due(t):
             self.payload_released = True
             self._text("payload released")
@@ -339,7 +346,48 @@ class SimVehicle:
     def _estimate(self) -> tuple[float, float, float]:
         """The autopilot's own local position estimate (truth + GPS wander, or the part of it the
         estimate has taken where the profile moves the vehicle with it; the height off by the
-        profile's scale error, ``height_estimate_scale_error``)."""
+        profile's scale error, ``height_estimate_scale_error``). GNSS lost (gnss_loss.py): the
+        external pose it navigates on, else the error it had when the GPS went."""
+        if self.gnss.lost:
+            return self._estimate_without_gnss()
+        return self._estimate_with_gnss()
+
+    def _estimate_without_gnss(self) -> tuple[float, float, float]:
+        gn = self.gnss
+        d = self._estimate_with_gnss()[2]  # the barometer's height
+        pose = gn.pose_local
+        if gn.external_fresh(self.time_s) and pose is not None:
+            off = self._home_offset
+            return (pose[1] + off[0], pose[2] + off[1], d)
+        err = gn.error_at_loss or (0.0, 0.0)
+        return (self.pn + err[0], self.pe + err[1], d)
+
+    def lose_gnss(self) -> None:
+        """The GPS goes off now (ArduCopter's SIM_GPS1_ENABLE = 0): see gnss_loss.py."""
+        est = self._estimate_with_gnss()
+        self.gnss.lose(self.time_s, (est[0] - self.pn, est[1] - self.pe))
+        self._text("GPS 1: lost")
+
+    def _lose_gnss_when_low(self) -> None:
+        """[sim] gnss_lost_below_m: the GPS off coming down through it near the true pad."""
+        h, below = -self.pd, self.cfg.gnss_lost_below_m
+        self._gnss_was_above = getattr(self, "_gnss_was_above", False) or h > below + 0.5
+        pn, pe = self.pad_true_ned
+        if (
+            self._gnss_was_above
+            and h <= below
+            and math.hypot(self.pn - pn, self.pe - pe) <= self.cfg.gnss_lost_within_m
+        ):
+            self.lose_gnss()
+
+    def _ekf_failsafe(self) -> None:
+        """ArduCopter's EKF failsafe with FS_EKF_ACTION = 1: LAND where it is (its texts)."""
+        self._text("EKF variance")
+        if self.armed and self.mode is not FlightMode.LAND:
+            self.modes.land()
+            self._text("EKF Failsafe: changed to LAND Mode")
+
+    def _estimate_with_gnss(self) -> tuple[float, float, float]:
         g = self.gps_error
         w = g.walk
         d = self.pd * (1.0 + self.cfg.height_estimate_scale_error) + w[2].x
@@ -468,6 +516,8 @@ class SimVehicle:
         b = self.gps_error.bias
         r = [x * self.cfg.gps_noise_m for x in self._rng_gps.standard_normal(3).tolist()]
         g = self._ltp.to_geo(est[0] + b[0] + r[0], est[1] + b[1] + r[1], est[2] + b[2] + r[2])
+        if self.gnss.lost:
+            return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, LOST_FIX_TYPE, LOST_SATELLITES, 0.8)
         return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, 3 if self.healthy else 1, 14, 0.8)
 
     def attitude(self) -> Attitude:

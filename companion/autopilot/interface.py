@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from companion.autopilot.component import ComponentCommand
+from companion.autopilot.external_nav import ExternalNavPose
 from companion.autopilot.fence import AutopilotFence
 from companion.autopilot.liveness import INERT_LIVENESS, LoopLiveness
 from companion.autopilot.mission_plan import PlanItem
@@ -432,6 +433,20 @@ class Autopilot(abc.ABC):
         """Hand the descent to the autopilot's own precision landing (PX4 AUTO.PRECLAND,
         ArduPilot LAND with PLND enabled). Backends without one fall back to plain LAND."""
         await self.land()
+
+    # Optional: external navigation (companion.autopilot.external_nav, docs/external-nav.md).
+    def send_external_nav(self, pose: ExternalNavPose) -> None:
+        """One external-navigation pose now (ArduPilot: VISION_POSITION_ESTIMATE); non-blocking."""
+        raise AutopilotError(f"{type(self).__name__} cannot take an external-navigation pose")
+
+    async def use_external_nav(self, source_set: int) -> None:
+        """Switch the autopilot's position source to the external pose (ArduPilot: EKF source set
+        ``source_set``); raises :class:`AutopilotError` when refused or not possible."""
+        raise AutopilotError(f"{type(self).__name__} cannot switch its position source to external navigation")
+
+    async def use_gnss(self) -> None:
+        """Switch the autopilot's position source back to GNSS (ArduPilot: EKF source set 1)."""
+        raise AutopilotError(f"{type(self).__name__} cannot switch its position source back to GNSS")
 
     # The autopilot's own fence (companion.autopilot.fence; MAVLink fence protocol).
     async def upload_fence(self, fence: AutopilotFence) -> None:

@@ -28,6 +28,7 @@ from typing import Any
 
 from companion.autopilot.interface import Autopilot
 from companion.config import CompanionConfig
+from companion.delivery.external_nav import ExternalNavFeed
 from companion.delivery.hooks import ShellHooks, TimedObserver
 from companion.delivery.landing_sensing import LandingKit, LandingSensing
 from companion.delivery.mission import (
@@ -160,6 +161,8 @@ class DeliveryShell:
         self.sensors = self.sensing.sensors  # the landing sensors' tasks (sensor_tasks.SensorTasks)
         self.stream = SetpointStream(self, autopilot, self._clock, self.stats, hooks, watching)
         self.requests = RequestRunner(self, autopilot, self._clock, self.stats, watching)
+        # [external_nav]: the fused pose to the autopilot, its source switched when GNSS is lost
+        self.external_nav = ExternalNavFeed(config.external_nav, autopilot) if config.external_nav.enabled else None
         self.telemetry: Any = None  # companion.delivery.telemetry.ShellTelemetry when publishing
         self.ground_commands: list[tuple[str, str]] = []
         self.gcs: Any = None  # delivery.gcs.GcsComponent while speaking to the operator's GCS
@@ -300,6 +303,8 @@ class DeliveryShell:
                 with contextlib.suppress(asyncio.CancelledError):
                     await stream
             await self.sensing.stop()
+            if self.external_nav is not None:
+                await self.external_nav.stop()
             await self.requests.cancel()
             for ob in self._closing_order():
                 await ob.close(self)
@@ -440,12 +445,15 @@ class DeliveryShell:
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             )
             out = step(inp)
-            for ev in out.events:
+            events = out.events
+            if self.external_nav is not None:
+                events = events + self.external_nav.step(now, fusion, mission.phase)
+            for ev in events:
                 self.events.append(ev)
                 level = logging.WARNING if ev.kind in WARNING_EVENTS else logging.INFO
                 log.log(level, "t=%.2f %s %s %s", ev.time_s, ev.phase.value, ev.kind.value, ev.detail)
             for ob in self._watching():
-                ob.on_events(now, out.events)
+                ob.on_events(now, events)
             if out.phase is Phase.PREFLIGHT:
                 self.preflight.say_not_ready(now, tc.status)
             clamped = False

@@ -175,3 +175,19 @@ def test_landing_diagnostics_names_the_machine_and_splits_each_error():
         "overruns 2/0, markers 300, uwb 200"
     )
     assert second.startswith("seed 8: nan m") and "believed nan m" in second
+
+
+def test_gnss_lost_variants_fly_external_nav_beside_gps_only_on_the_same_draws():
+    from companion_lab.real_campaign import real_config
+
+    base = shipped_params_path("landing_campaign_short.toml")
+    d = draw_scenarios(1, seed=1)[0]
+    ext = scenario_config(base, d, "gnss_lost_10m", "arducopter-sitl")
+    gps = scenario_config(base, d, "gnss_lost_10m_gps_only", "arducopter-sitl")
+    three = scenario_config(base, d, "gnss_lost_3m", "arducopter-sitl")
+    assert ext.external_nav.enabled and ext.landing.fusion and ext.sim.gnss_lost_below_m == 10.0
+    assert not gps.external_nav.enabled and not gps.landing.fusion and gps.sim.gnss_lost_below_m == 10.0
+    assert three.sim.gnss_lost_below_m == 3.0
+    assert ext.sim.pad_offset_m == gps.sim.pad_offset_m and ext.sim.seed == gps.sim.seed  # the same draw
+    with pytest.raises(ValueError, match=r"lab/gnss_loss\.py"):
+        real_config(base, "ardupilot", "gnss_lost_3m")

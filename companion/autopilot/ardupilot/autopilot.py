@@ -23,6 +23,7 @@ from typing import Any, Literal
 
 from companion.autopilot.ardupilot.component import ArduPilotComponent
 from companion.autopilot.ardupilot.dialect import mavlink
+from companion.autopilot.ardupilot.external_nav import ArduPilotExternalNav
 from companion.autopilot.ardupilot.fence import ArduPilotFence
 from companion.autopilot.ardupilot.link import LinkCounters, LoopPoster
 from companion.autopilot.ardupilot.mission import ArduPilotMission
@@ -73,7 +74,13 @@ ARM_RETRY_RESULTS = frozenset(
 
 
 class ArduPilotAutopilot(
-    ArduPilotMission, ArduPilotFence, ArduPilotComponent, ArduPilotRemoteId, ArduPilotTelemetry, Autopilot
+    ArduPilotMission,
+    ArduPilotFence,
+    ArduPilotComponent,
+    ArduPilotRemoteId,
+    ArduPilotExternalNav,
+    ArduPilotTelemetry,
+    Autopilot,
 ):
     def __init__(
         self,

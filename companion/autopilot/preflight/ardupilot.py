@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+from companion.autopilot.preflight.external_nav import check_ardupilot_external_nav, external_nav_param_names
 from companion.autopilot.preflight.report import (
     CheckResult,
     ParamUnavailable,
@@ -59,7 +60,7 @@ def ardupilot_param_names(req: Requirements) -> list[str]:
         names += ["FS_OPTIONS", "GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
     elif req.release == "servo":
         names.append(f"SERVO{req.servo_channel}_FUNCTION")
-    return names + ardupilot_safety_param_names(req)
+    return names + ardupilot_safety_param_names(req) + external_nav_param_names(req)
 
 
 def check_ardupilot_guided_timeout(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
@@ -292,4 +293,5 @@ def check_ardupilot(req: Requirements, params: Mapping[str, ParamValue]) -> list
         *check_ardupilot_release(req, params),
         *check_ardupilot_failsafe_release(req, params),
         *check_ardupilot_safety(req, params),
+        *check_ardupilot_external_nav(req, params),
     ]

@@ -117,6 +117,8 @@ class Requirements:
     battery_check: bool = False
     battery_reserve_pct: float = 20.0
     remote_id_required: bool = False
+    # [external_nav] enabled: the EKF source set that navigates on the companion's pose (else None)
+    external_nav_source_set: int | None = None
 
 
 @dataclass(frozen=True)
@@ -172,4 +174,5 @@ def requirements_from_config(config: Any) -> Requirements:
         battery_check=config.go_no_go.battery_check,
         battery_reserve_pct=config.go_no_go.battery_reserve_pct,
         remote_id_required=config.go_no_go.remote_id_required,
+        external_nav_source_set=config.external_nav.source_set if config.external_nav.enabled else None,
     )
