@@ -271,7 +271,8 @@ def test_driver_end_to_end_over_a_pty() -> None:
         assert all(math.isfinite(r.time_s) for r in readings)
         assert [r.time_s for r in readings] == sorted(r.time_s for r in readings)
         s = drv.stats
-        assert s.readings == 10
+        # the fake streams on: the driver may have parsed more than the ten read by now
+        assert s.readings >= 10
         assert s.partial >= 4 and s.binary >= 4 and s.malformed >= 4
         assert drv.is_open
         drv.stop()
