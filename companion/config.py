@@ -1175,6 +1175,14 @@ class DropZoneConfig(_Section):
         gt=0.0,
         le=0.5,
     )
+    raised_black_ratio: float = _f(
+        0.3,
+        "-",
+        "a window unlike the print is an object only where its black is raised above this share of its "
+        "contrast (a shadow scales black and white alike; an object covers the black with its own grey)",
+        ge=0.0,
+        le=10.0,
+    )
     differing_area_m2: float = _f(
         0.008, "m^2", "a pad area this large unlike the printed pad is an object on it", gt=0.0, le=1.0
     )

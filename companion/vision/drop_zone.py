@@ -10,7 +10,9 @@ fusion when the pad is not detected) and the markers the detector found:
     over the pad and its margin, through the pose and the lens model) and compared with the pad as
     printed (:func:`companion.vision.pad.render_pad_px`) by zero-mean normalised cross-correlation
     in ``window_m`` windows: a gain and an offset per window, so a shadow or an exposure change
-    is not an object; a window correlating below ``zncc_min`` differs. The warp is first
+    is not an object; a window correlating below ``zncc_min`` differs when its fit's offset (the
+    print's black) is raised above ``raised_black_ratio`` of its gain: a shadow's edge across a
+    window lowers the correlation too, but a shadow only scales, and the black stays black. The warp is first
     registered on the printed pad (a search of ``max_shift_m``), which absorbs a predicted pose's
     error;
 (c) **motion in the margin**: the margin's warps ``motion_baseline_s`` apart are differenced (the
@@ -57,6 +59,8 @@ MARGIN_GUARD_M = 0.06
 MOTION_TOLERANCE_CELLS = 2
 #: two frames' warps whose alignment moves them more than this many cells are not compared
 MOTION_MAX_SHIFT_CELLS = 4
+#: the differing cells are opened by a square this many cells wide (thin bands are not objects)
+DIFFERING_OPEN_CELLS = 5
 #: the printed pad is rendered this many pixels per grid cell, then area-averaged
 REFERENCE_SUPERSAMPLE = 8
 
@@ -144,6 +148,10 @@ class DropZoneCheck:
         # a window is compared where the printed pad has contrast and lies (mostly) on the pad
         self._textured = self._pad_mask & (cnt >= 0.8 * w * w) & (np.sqrt(np.maximum(var, 0.0)) >= cfg.min_texture)
         self._max_shift = round(cfg.max_shift_m / cell)
+        w_px, h_px = camera.size
+        frame = np.array([[0, 0], [w_px - 1, 0], [0, h_px - 1], [w_px - 1, h_px - 1], [w_px / 2, 0], [0, h_px / 2]])
+        corners_n = camera.undistort_normalized(camera.pixels_to_normalized(frame))
+        self._fov_radius = 1.02 * float(np.max(np.hypot(corners_n[:, 0], corners_n[:, 1])))
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -184,7 +192,11 @@ class DropZoneCheck:
         bad = [m for m in found if m not in MARKERS]
         if bad:
             raise ValueError(f"detected = {found!r}: markers are {MARKERS}")
+        # the inner marker alone (25 px at 2 m) pins no perspective across a 3 m grid: its
+        # homography, extrapolated, folds the warp; then the pose serves
         H = self._homography(corners_px) if corners_px else None
+        if corners_px is not None and "outer" not in corners_px:
+            H = None
         ev = self._evidence(img, t, T_camera_pad, found, H)
         self._seen.update(found)
         return self._vote(ev)
@@ -240,9 +252,17 @@ class DropZoneCheck:
             with np.errstate(divide="ignore", invalid="ignore"):
                 ideal = q[:, :2] / q[:, 2:3]
             ideal[q[:, 2] <= 0] = np.nan
-            uv = self.camera.distort_pixels(ideal)
+            xy = self.camera.pixels_to_normalized(ideal)
         else:
-            uv = self.camera.project(self._plane @ R.T + tv)
+            p = self._plane @ R.T + tv
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xy = p[:, :2] / p[:, 2:3]
+            xy[p[:, 2] <= 0] = np.nan
+        # beyond the frame's field of view the lens model folds back into the image: such points
+        # are out of the frame, whatever pixel the model gives them
+        with np.errstate(invalid="ignore"):
+            xy[np.hypot(xy[:, 0], xy[:, 1]) > self._fov_radius] = np.nan
+        uv = self.camera.normalized_to_pixels(self.camera.distort_normalized(xy))
         scale = 2.0**-level
         n = self._n
         mx = ((uv[:, 0] + 0.5) * scale - 0.5).reshape(n, n).astype(np.float32)
@@ -325,9 +345,18 @@ class DropZoneCheck:
             vr = bf(Rf * Rf) / cnt - mr * mr
             cov = bf(I * Rf) / cnt - mi * mr
             zncc = cov / np.sqrt(np.maximum(vi, 1e-6) * np.maximum(vr, 1e-9))
+            # the window as gain x print + offset: a shadow scales the whole print (the offset,
+            # the print's black, stays near 0); an object lays its own grey over the black cells
+            gain = cov / np.maximum(vr, 1e-9)
+            black = mi - gain * mr
         full = cnt >= 0.8 * box[0] * box[1]
         judged = self._textured & full & inside
-        differs = judged & (zncc < self.config.zncc_min)
+        raised = (gain <= 0) | (black > self.config.raised_black_ratio * gain)
+        differs = judged & (zncc < self.config.zncc_min) & raised
+        # an object is a blob; a shadow's edge leaves thin bands along it: opened away
+        k = DIFFERING_OPEN_CELLS
+        differs = cv2.morphologyEx(differs.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0
+        self.last_differing = differs  # the cells judged unlike the print (for inspection)
         return float(np.count_nonzero(differs)) * self._cell_m**2
 
     def _moving_area_m2(self, t: float, warp: F32, inside: NDArray[np.bool_]) -> float:
