@@ -1166,7 +1166,7 @@ class DropZoneConfig(_Section):
     grid_m: float = _f(0.02, "m", "cell of the pad-plane warp the check compares", ge=0.005, le=0.1)
     window_m: float = _f(0.2, "m", "side of the windows compared with the printed pad (ZNCC)", ge=0.04, le=0.5)
     zncc_min: float = _f(
-        0.4, "-", "a window correlating less than this with the printed pad differs from it", gt=-1.0, lt=1.0
+        0.45, "-", "a window correlating less than this with the printed pad differs from it", gt=-1.0, lt=1.0
     )
     min_texture: float = _f(
         0.2,

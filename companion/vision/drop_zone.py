@@ -60,7 +60,7 @@ MOTION_TOLERANCE_CELLS = 2
 #: two frames' warps whose alignment moves them more than this many cells are not compared
 MOTION_MAX_SHIFT_CELLS = 4
 #: the differing cells are opened by a square this many cells wide (thin bands are not objects)
-DIFFERING_OPEN_CELLS = 7
+DIFFERING_OPEN_CELLS = 6
 #: the printed pad is rendered this many pixels per grid cell, then area-averaged
 REFERENCE_SUPERSAMPLE = 8
 

