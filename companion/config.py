@@ -1170,6 +1170,102 @@ class MultilaterationConfig(_Section):
     seed: int = _f(0, "-", "seed of the subset sampling (deterministic)", ge=0, le=2**63 - 1)
 
 
+class DropZoneConfig(_Section):
+    """Is the drop zone clear (companion.vision.drop_zone, docs/drop-zone.md): ``[landing.drop_zone]``.
+
+    Off by default: on, the downward camera's frames are also checked for an object on the pad
+    (markers hidden, the pad-plane image unlike the printed pad) and motion in a margin around it,
+    and an occupied pad stops the descent (the mission's drop-zone policy)."""
+
+    enabled: bool = _f(False, "-", "check the pad and its margin for objects and motion before and during the descent")
+    margin_m: float = _f(1.0, "m", "width of the margin around the pad watched for motion", gt=0.0, le=5.0)
+    grid_m: float = _f(0.02, "m", "cell of the pad-plane warp the check compares", ge=0.005, le=0.1)
+    window_m: float = _f(0.2, "m", "side of the windows compared with the printed pad (ZNCC)", ge=0.04, le=0.5)
+    zncc_min: float = _f(
+        0.45, "-", "a window correlating less than this with the printed pad differs from it", gt=-1.0, lt=1.0
+    )
+    min_texture: float = _f(
+        0.2,
+        "-",
+        "windows of the printed pad with less contrast than this (std, white = 1) are not compared",
+        gt=0.0,
+        le=0.5,
+    )
+    raised_black_ratio: float = _f(
+        0.3,
+        "-",
+        "a window unlike the print is an object only where its black is raised above this share of its "
+        "contrast (a shadow scales black and white alike; an object covers the black with its own grey)",
+        ge=0.0,
+        le=10.0,
+    )
+    differing_area_m2: float = _f(
+        0.008, "m^2", "a pad area this large unlike the printed pad is an object on it", gt=0.0, le=1.0
+    )
+    corroborated_area_m2: float = _f(
+        0.003,
+        "m^2",
+        "with a marker hidden that had been seen and should be seen now, a differing area this large is an object",
+        gt=0.0,
+        le=1.0,
+    )
+    hidden_min_side_px: float = _f(
+        30.0,
+        "px",
+        "a marker whose predicted side is at least this and which is not found counts as hidden",
+        gt=0.0,
+        le=10000.0,
+    )
+    min_px_per_cell: float = _f(
+        0.5,
+        "px",
+        "below this many image pixels per grid cell at the pad (too high) the check abstains",
+        gt=0.0,
+        le=100.0,
+    )
+    min_visible_fraction: float = _f(
+        0.6, "-", "the check abstains when less of the pad than this is in the frame", gt=0.0, le=1.0
+    )
+    max_shift_m: float = _f(
+        0.16, "m", "registration search around the pose's pad position (a predicted pose's error)", ge=0.0, le=1.0
+    )
+    motion_baseline_s: float = _f(
+        0.3, "s", "frames this far apart are differenced for motion in the margin", gt=0.0, le=5.0
+    )
+    motion_threshold: float = _f(
+        30.0,
+        "grey levels",
+        "a margin cell changing by more than this (mean grey scaled to 128) moved",
+        gt=0.0,
+        le=255.0,
+    )
+    motion_area_m2: float = _f(0.025, "m^2", "a moving region this large in the margin is motion", gt=0.0, le=10.0)
+    votes: int = _f(5, "-", "frames of evidence the verdict looks back over (hysteresis)", ge=1, le=100)
+    enter_votes: int = _f(
+        3,
+        "-",
+        "of the last `votes` frames, this many occupied (or moving) set the verdict; all clear clear it",
+        ge=1,
+        le=100,
+    )
+    stale_s: float = _f(1.0, "s", "no frame judged for this long: the verdict is unknown", gt=0.0, le=60.0)
+    hold_s: float = _f(
+        10.0,
+        "s",
+        "an occupied pad: hold this long for it to clear, then divert or fly home with the parcel",
+        ge=0.0,
+        le=600.0,
+    )
+
+    @model_validator(mode="after")
+    def _votes(self) -> DropZoneConfig:
+        if self.enter_votes > self.votes:
+            raise ValueError(f"enter_votes = {self.enter_votes} must be <= votes = {self.votes}")
+        if self.window_m < 2 * self.grid_m:
+            raise ValueError(f"window_m = {self.window_m} must be at least 2 x grid_m = {2 * self.grid_m}")
+        return self
+
+
 class LandingConfig(_Section):
     """Precision landing (delivery 4.2): fuse the camera and UWB with the GPS pose in the EKF."""
 
@@ -1242,6 +1338,7 @@ class LandingConfig(_Section):
     policy: PadLockPolicyConfig = Field(default_factory=PadLockPolicyConfig)
     ekf: EkfConfig = Field(default_factory=EkfConfig)
     detector: DetectorConfig = Field(default_factory=DetectorConfig)
+    drop_zone: DropZoneConfig = Field(default_factory=DropZoneConfig)
     multilateration: MultilaterationConfig = Field(default_factory=MultilaterationConfig)
 
     @model_validator(mode="before")

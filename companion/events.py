@@ -17,6 +17,7 @@ class Phase(enum.Enum):
     PAD_HOLD = "pad_hold"  # no pad lock: hold at the approach height (or fly onto the pad once locked)
     PAD_SEARCH = "pad_search"  # no pad lock: the search pattern around the configured pad
     DIVERT = "divert"  # no pad lock after the tries: vector field, s = +1, to the alternate pad
+    DROP_ZONE_HOLD = "drop_zone_hold"  # the pad or its margin is not clear: hold, then divert or home
     WINCH = "winch"  # winch delivery: hover over the locked pad, lower the parcel, release, reel in
     TAKEOFF_RETURN = "takeoff_return"
     INBOUND = "inbound"  # vector field, s = -1, back along the path
@@ -50,6 +51,7 @@ class EventKind(enum.Enum):
     GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
     WINCH = "winch"  # a step of the winch delivery (payout, parcel down, reeled in) or why it failed
     ORDER = "order"  # a delivery order from the ground: received, accepted or refused (with the reason), flown
+    DROP_ZONE = "drop_zone"  # the drop-zone check stopped the descent, the pad cleared, or the hold ended
 
 
 class CommandKind(enum.Enum):

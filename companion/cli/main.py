@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from companion import __version__
-from companion.cli import bench, campaign, demo, exits, params, plugins
+from companion.cli import bench, bench_dropzone, campaign, demo, exits, params, plugins
 from companion.cli.exits import StartupError
 from companion.cli.helptext import show_defaults
 from companion.config import ConfigError
@@ -58,6 +58,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     bench.register_bench_micro(bsub)
     bench.register_bench_app(bsub)
     bench.register_bench_check(bsub)
+    bench_dropzone.register_bench_dropzone(bsub)
     params.register(sub)
     plugins.register(sub)
 

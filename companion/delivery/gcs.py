@@ -56,7 +56,14 @@ MAV_RESULT_DENIED = 2
 MAV_RESULT_UNSUPPORTED = 3
 
 _WARNING_EVENTS = frozenset(
-    {EventKind.ABORT, EventKind.PILOT_TAKEOVER, EventKind.LINK_LOST, EventKind.REQUEST_FAILED, EventKind.WARNING}
+    {
+        EventKind.ABORT,
+        EventKind.PILOT_TAKEOVER,
+        EventKind.LINK_LOST,
+        EventKind.REQUEST_FAILED,
+        EventKind.WARNING,
+        EventKind.DROP_ZONE,
+    }
 )
 _NOTICE_EVENTS = frozenset(
     {

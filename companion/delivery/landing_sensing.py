@@ -206,7 +206,7 @@ class LandingSensing:
         m = self.owner.mission
         return (
             self.vision_always
-            or m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH)
+            or m.phase in (Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.WINCH, Phase.DROP_ZONE_HOLD)
             or (m.phase in (Phase.OUTBOUND, Phase.DIVERT) and m.sector >= 5)
         )
 

@@ -83,6 +83,7 @@ def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
         go_no_go=config.go_no_go,
         winch=config.winch,
         stall_s=config.runtime.loop_stall_s,
+        drop_zone=config.landing.drop_zone,
     )
 
 

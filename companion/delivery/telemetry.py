@@ -204,6 +204,7 @@ TOWARDS_PAD = (
     Phase.PAD_SEARCH,
     Phase.DIVERT,
     Phase.WINCH,
+    Phase.DROP_ZONE_HOLD,
 )
 
 

@@ -63,9 +63,15 @@ FOLLOW_PHASES = (
     Phase.PAD_SEARCH,
     Phase.DIVERT,
     Phase.WINCH,
+    Phase.DROP_ZONE_HOLD,
 )
 ON_GROUND_PHASES = (Phase.PREFLIGHT, Phase.ARMING, Phase.RELEASE)
-DELIVERY_LEG_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.DIVERT)  # with the parcel, towards a pad
+DELIVERY_LEG_PHASES = (
+    Phase.OUTBOUND,
+    Phase.LANDING_PAD,
+    Phase.DIVERT,
+    Phase.DROP_ZONE_HOLD,
+)  # with the parcel, towards a pad
 
 S = TypeVar("S", bound=PhaseState)
 
@@ -98,11 +104,24 @@ class Pads(Protocol):
     def plan_divert(self, est: StateEstimate, reason: str) -> bool: ...
     def hold(self, inp: MissionInputs) -> Step: ...
     def search(self, inp: MissionInputs) -> Step: ...
+    def fallback(self, reason: str, est: StateEstimate | None) -> None: ...
+    def setpoint_to(
+        self, est: StateEstimate, north_m: float, east_m: float, down_m: float, speed_m_s: float
+    ) -> VelocitySetpoint: ...
+
+
+class DropZones(Protocol):
+    """Never release onto an occupied pad (dropzone.DropZonePolicy)."""
+
+    def blocked(self, inp: MissionInputs) -> bool: ...
+    def stop(self, inp: MissionInputs, where: str) -> None: ...
+    def hold(self, inp: MissionInputs) -> Step: ...
 
 
 class MissionBase:
     routes: Routes
     pads: Pads
+    drop_zones: DropZones
 
     def __init__(
         self,

@@ -14,7 +14,14 @@ from companion.events import CommandKind, EventKind, Phase
 if TYPE_CHECKING:
     from companion.delivery.mission.base import MissionBase
 
-RETURNABLE_PHASES = (Phase.OUTBOUND, Phase.LANDING_PAD, Phase.PAD_HOLD, Phase.PAD_SEARCH, Phase.DIVERT)
+RETURNABLE_PHASES = (
+    Phase.OUTBOUND,
+    Phase.LANDING_PAD,
+    Phase.PAD_HOLD,
+    Phase.PAD_SEARCH,
+    Phase.DIVERT,
+    Phase.DROP_ZONE_HOLD,
+)
 
 
 class CommandOutcome(enum.Enum):

@@ -19,6 +19,7 @@ import numpy as np
 
 from companion.autopilot.types import FlightMode, LandedState
 from companion.config import (
+    DropZoneConfig,
     FenceConfig,
     GoNoGoConfig,
     LimitsConfig,
@@ -29,6 +30,7 @@ from companion.config import (
 from companion.delivery.gonogo import time_home_s, way_home
 from companion.delivery.mission.base import DELIVERY_LEG_PHASES, FOLLOW_PHASES, MissionBase
 from companion.delivery.mission.commands import CommandReply, ground_command
+from companion.delivery.mission.dropzone import DropZonePolicy
 from companion.delivery.mission.linkwatch import LinkCheck
 from companion.delivery.mission.padpolicy import PadPolicy
 from companion.delivery.mission.phases import HANDLERS
@@ -68,16 +70,19 @@ class DeliveryMission(MissionBase):
         go_no_go: GoNoGoConfig | None = None,
         winch: WinchConfig | None = None,
         stall_s: float = math.inf,
+        drop_zone: DropZoneConfig | None = None,
     ):
         """The parts of the mission (MissionBase has the rest). ``stall_s``: a gap between two
         steps longer than this is a stall of the companion (runtime.loop_stall_s: its watchdog
-        stopped the heartbeats and setpoints, so the autopilot's failsafe may have acted)."""
+        stopped the heartbeats and setpoints, so the autopilot's failsafe may have acted).
+        ``drop_zone`` (enabled): never release onto an occupied pad (dropzone.DropZonePolicy)."""
         super().__init__(cfg, landing_controller, pad_policy, fence, limits, go_no_go, winch)
         self.stall_s = stall_s
         self._last_step_s: float | None = None
         self._regaining_s: float | None = None  # flying in OFFBOARD since, after a loss of control
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
+        self.drop_zones = DropZonePolicy(self, drop_zone)
 
     def command(self, time_s: float, kind: CommandKind, sender: str = "ground") -> CommandReply:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract

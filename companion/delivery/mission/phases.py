@@ -38,6 +38,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 # an autopilot's land detector after contact (PX4 SIH: ON_GROUND 3-7 s after it; ArduCopter ~2 s):
+# without a pad-lock policy (require_pad_lock = false), the drop zone stops a descent above this (m)
+DROP_ZONE_COMMIT_M = 1.0
 # what the final descent's hold leaves before the touchdown timeout, besides the descent itself
 TOUCHDOWN_REPORT_MARGIN_S = 5.0
 WINCH_APPROACH_LEAD_S = 0.5  # winch: the hover takes over this long of the S5 descent before its height
@@ -189,6 +191,9 @@ def _follow(m: MissionBase, inp: MissionInputs, leg: Leg, landing: Phase) -> Ste
             ok, why = m.pads.judge(inp.pad_lock)
             if not ok:
                 return Step(m.pads.try_failed(inp, f"no pad lock at the approach height: {why}"), None, lyap)
+        if leg is Leg.OUT and m.drop_zones.blocked(inp):
+            m.drop_zones.stop(inp, "at the approach height")
+            return Step(sp, None, lyap)
         m.goto(landing)
     return Step(sp, None, lyap)
 
@@ -231,6 +236,13 @@ def _landing(m: MissionBase, inp: MissionInputs, leg: Leg) -> Step:
             st.lock_reopened_at = None
         elif h > m.pad_policy.commit_height_m and not m.pads.lock_reopening(st, inp.pad_lock, inp.time_s):
             return Step(m.pads.try_failed(inp, f"pad lock lost in the descent at {h:.1f} m: {why}"))
+    if leg is Leg.OUT and m.drop_zones.blocked(inp):
+        h = m.height_above_ground(est)
+        commit_m = m.pad_policy.commit_height_m if m.pad_policy is not None else DROP_ZONE_COMMIT_M
+        if h > commit_m:
+            m.drop_zones.stop(inp, f"in the descent at {h:.1f} m")
+            return NOTHING
+        st.drop_zone_blocked = inp.drop_zone.value if inp.drop_zone is not None else ""  # judged at touchdown
     in_sight = leg is Leg.OUT and pad_in_sight(inp.pad_lock)
     return Step(precision_descent(m, est, leg, inp.time_s, in_sight, inp.rangefinder))
 
@@ -245,6 +257,10 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
         )
         if leg is Leg.OUT and m.pad_policy is not None:
             st.touchdown_lock = m.pads.judge(inp.pad_lock)
+        if leg is Leg.OUT and m.drop_zones.blocked(inp) and inp.drop_zone is not None:
+            st.touchdown_drop_zone = inp.drop_zone.value
+        elif leg is Leg.OUT and st.drop_zone_blocked:
+            st.touchdown_drop_zone = st.drop_zone_blocked
         if est is not None:
             if leg is Leg.OUT:
                 m.summary.pad_touchdown_ned = est.position_ned
@@ -268,6 +284,9 @@ def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingStat
     if not status.armed:
         if leg is Leg.OUT and not st.touchdown_lock[0]:
             return Step(request=m.pads.home_with_parcel(f"no pad lock at touchdown: {st.touchdown_lock[1]}"))
+        if leg is Leg.OUT and st.touchdown_drop_zone:
+            why = f"drop zone {st.touchdown_drop_zone} at touchdown"
+            return Step(request=m.pads.home_with_parcel(why))
         if leg is Leg.OUT and st.touchdown_off_pad_m > 0.0:
             off = st.touchdown_off_pad_m
             return Step(request=m.pads.home_with_parcel(f"touched down {off:.2f} m outside the pad (by the estimate)"))
@@ -358,6 +377,10 @@ def pad_hold(m: MissionBase, inp: MissionInputs) -> Step:
 
 def pad_search(m: MissionBase, inp: MissionInputs) -> Step:
     return m.pads.search(inp)
+
+
+def drop_zone_hold(m: MissionBase, inp: MissionInputs) -> Step:
+    return m.drop_zones.hold(inp)
 
 
 # ------------------------------------------------------------------ the release on the pad
@@ -452,6 +475,7 @@ HANDLERS: dict[Phase, Callable[[MissionBase, MissionInputs], Step]] = {
     Phase.RELEASE: release,
     Phase.PAD_HOLD: pad_hold,
     Phase.PAD_SEARCH: pad_search,
+    Phase.DROP_ZONE_HOLD: drop_zone_hold,
     Phase.DIVERT: divert,
     Phase.WINCH: winch,
     Phase.TAKEOFF_RETURN: takeoff_return,

@@ -51,12 +51,20 @@ class LandingState(PhaseState):
     touchdown_land_requested: bool = False  # the last metres handed to the autopilot's LAND
     disarm_not_before: float = -math.inf
     lock_reopened_at: float | None = None  # since when the descent's lock is lost to sigma alone
+    drop_zone_blocked: str = ""  # the verdict when the drop zone was judged not clear below the commit height
+    touchdown_drop_zone: str = ""  # the drop zone's verdict at touchdown when it was not clear
 
 
 @dataclass
 class PadSearchState(PhaseState):
     corners: list[tuple[float, float]] = field(default_factory=list)  # left to fly (NED north, east)
     corner_t0: float | None = None  # when the current corner was reached
+
+
+@dataclass
+class DropZoneHoldState(PhaseState):
+    hold_ned: tuple[float, float, float] | None = None  # where the hold began (held there)
+    why: str = ""  # the verdict that stopped the descent
 
 
 @dataclass
@@ -87,6 +95,8 @@ def state_for(phase: Phase, t0: float, cfg: MissionConfig) -> PhaseState:
         return PadSearchState(t0)
     if phase is Phase.RELEASE:
         return ReleaseState(t0)
+    if phase is Phase.DROP_ZONE_HOLD:
+        return DropZoneHoldState(t0)
     if phase is Phase.ABORT_HOLD:
         return AbortHoldState(t0)
     if phase is Phase.ABORT_LAND:

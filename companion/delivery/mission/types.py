@@ -13,6 +13,7 @@ from companion.delivery.padlock import PadLock
 from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.guidance.setpoint import VelocitySetpoint
+from companion.vision.drop_zone import DropZoneVerdict
 
 
 class RequestKind(enum.Enum):
@@ -93,6 +94,8 @@ class MissionInputs:
     autopilot_yaw_rad: float | None = None  # the autopilot's own yaw (ATTITUDE); None: not known
     winch: WinchStatus | None = None  # the winch's newest report (mission.delivery = "winch")
     rangefinder: RangefinderReading | None = None  # the newest downward DISTANCE_SENSOR ([mission.rangefinder])
+    # the drop-zone check's verdict on the pad and its margin ([landing.drop_zone]); None: no check
+    drop_zone: DropZoneVerdict | None = None
 
 
 @dataclass(frozen=True, slots=True)
