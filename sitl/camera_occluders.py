@@ -1,5 +1,5 @@
-"""Things on and around the pad in the simulated camera's frames (issue 58 item 1,
-docs/drop-zone.md): a box on the pad, a person walking into the margin at a drawn moment, and a
+"""Things on and around the pad in the simulated camera's frames
+(docs/drop-zone.md): a box on the pad, a person walking into the margin at a drawn moment, and a
 shadow across the pad that is not an object.
 
 Each is drawn from a seeded generator (:func:`draw_occluder`) and painted into the frame before

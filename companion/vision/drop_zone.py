@@ -1,5 +1,5 @@
 """Is the drop zone clear? The downward camera's check of the pad and a margin around it
-(issue 58 item 1, docs/drop-zone.md).
+(docs/drop-zone.md).
 
 Per frame, given the pad's pose in the camera (the detector's, or one predicted from the landing
 fusion when the pad is not detected) and the markers the detector found:

@@ -1,4 +1,4 @@
-"""Never release onto an occupied pad (issue 58 item 1, docs/drop-zone.md): the drop-zone check's
+"""Never release onto an occupied pad (docs/drop-zone.md): the drop-zone check's
 verdict (companion.vision.drop_zone, ``MissionInputs.drop_zone``) judged at the approach height,
 in the final descent above the commit height and at touchdown. An object on the pad or motion in
 its margin stops the descent: the vehicle holds where it is (phase ``drop_zone_hold``) for
