@@ -37,7 +37,8 @@ COLOURS = {
 SPARE_COLOURS = (
     "tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo",
     "maroon", "darkgreen", "magenta", "sienna", "steelblue", "khaki", "crimson", "orchid", "chocolate",
-    "slategray", "deepskyblue",
+    "slategray", "deepskyblue", "darkorange", "mediumpurple", "yellowgreen", "rosybrown", "darkcyan",
+    "peru", "hotpink", "darkkhaki", "lightcoral",
 )  # fmt: skip
 
 
