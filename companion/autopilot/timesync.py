@@ -239,6 +239,20 @@ class ClockOffsetEstimator:
         )
 
 
+def log_clock_offset(logger: logging.Logger, offset: ClockOffset) -> None:
+    """The estimate, as both backends log it (at their first exchange and every 60th after)."""
+    logger.info(
+        "autopilot clock: offset %.6f s (autopilot boot - companion monotonic), jitter %.3f ms, RTT min %.3f "
+        "ms, median %.3f ms, over %d exchanges, %d jumps",
+        offset.offset_s,
+        1e3 * offset.jitter_s,
+        1e3 * offset.rtt_min_s,
+        1e3 * offset.rtt_median_s,
+        offset.samples,
+        offset.jumps,
+    )
+
+
 def answer_timesync(tc1: int, ts1: int, boot_ns: int) -> tuple[int, int] | None:
     """What the firmware sends back for a received TIMESYNC (ArduPilot's handle_timesync, PX4's):
     ``(tc1 = boot_ns, ts1)`` for a request (``tc1 == 0``); None for an answer (never answered)."""

@@ -18,7 +18,7 @@ from companion.autopilot.ardupilot.requests import ArduPilotRequests
 from companion.autopilot.interface import (
     RcInput,
 )
-from companion.autopilot.timesync import TimesyncRejection
+from companion.autopilot.timesync import TimesyncRejection, log_clock_offset
 from companion.autopilot.types import (
     Attitude,
     FlightMode,
@@ -304,16 +304,7 @@ class ArduPilotTelemetry(ArduPilotRequests):
             return
         if offset is not None and (self._timesync_logged < 0 or accepted - self._timesync_logged >= 60):
             self._timesync_logged = accepted
-            log.info(
-                "autopilot clock: offset %.6f s (autopilot boot - companion monotonic), jitter %.3f ms, RTT min %.3f "
-                "ms, median %.3f ms, over %d exchanges, %d jumps",
-                offset.offset_s,
-                1e3 * offset.jitter_s,
-                1e3 * offset.rtt_min_s,
-                1e3 * offset.rtt_median_s,
-                offset.samples,
-                offset.jumps,
-            )
+            log_clock_offset(log, offset)
 
     def _on_rc_channels(self, m: Any, now: float) -> None:
         self.rc_channels = tuple(getattr(m, f"chan{i}_raw") for i in range(1, m.chancount + 1))

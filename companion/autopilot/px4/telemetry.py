@@ -18,7 +18,7 @@ from companion.autopilot.interface import (
     RcInput,
 )
 from companion.autopilot.px4.link import Px4Link
-from companion.autopilot.timesync import TimesyncRejection
+from companion.autopilot.timesync import TimesyncRejection, log_clock_offset
 from companion.autopilot.types import (
     MAV_SENSOR_ROTATION_PITCH_270,
     Attitude,
@@ -229,16 +229,7 @@ class Px4Telemetry(Px4Link):
         offset = est.estimate
         if offset is not None and (self._timesync_logged < 0 or est.accepted - self._timesync_logged >= 60):
             self._timesync_logged = est.accepted
-            log.info(
-                "autopilot clock: offset %.6f s (autopilot boot - companion monotonic), jitter %.3f ms, RTT min %.3f "
-                "ms, median %.3f ms, over %d exchanges, %d jumps",
-                offset.offset_s,
-                1e3 * offset.jitter_s,
-                1e3 * offset.rtt_min_s,
-                1e3 * offset.rtt_median_s,
-                offset.samples,
-                offset.jumps,
-            )
+            log_clock_offset(log, offset)
 
     def _direct_subscription(self, message: str) -> Callable[[], AsyncIterator[Any]]:
         """MavlinkDirect's stream of one message by name, subscribed anew at each call."""
