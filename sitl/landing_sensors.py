@@ -34,7 +34,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -46,9 +46,13 @@ from companion.scheduling import LoopClock, RateLoop
 from companion.uwb.measurements import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.camera_conditions import CameraConditions, FrameFate, pad_velocity_px_s
-from companion_sitl.params import SimulatedConfig
+from companion_sitl.camera_occluders import OCCLUDER_STREAM, Occluder, draw_occluder
+from companion_sitl.params import SimOccluderConfig, SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
+
+if TYPE_CHECKING:
+    from companion.vision.pad import PadLayout
 
 log = logging.getLogger(__name__)
 
@@ -92,13 +96,18 @@ class SimCameraSource:
         conditions: CameraConditions | None = None,
         unknown_latency_s: float = 0.0,
         driver_stamp: bool = False,
+        occluder: Occluder | None = None,
+        occluder_from_height_m: float = 0.0,
     ):
         """``latency_s``: the latency the configuration knows (``landing.camera_latency_s``);
         ``unknown_latency_s``: what the frames take on top of it, which the configuration does not
         know (``[sim.camera] unknown_latency_s``): a frame is readable ``latency_s +
         unknown_latency_s`` after its exposure, and stamped as a driver without a stamp of its own
         stamps it (its arrival minus ``latency_s``); ``driver_stamp``: the frame also carries the
-        driver's honest capture stamp (the exposure) and its arrival (docs/clock.md)."""
+        driver's honest capture stamp (the exposure) and its arrival (docs/clock.md); ``occluder``:
+        painted into each frame before the exposure, its clock starting at the first frame read with
+        the pad in view and the vehicle below ``occluder_from_height_m`` (0: any height;
+        ``[sim.camera.occluder]``, docs/drop-zone.md)."""
         if not (math.isfinite(unknown_latency_s) and 0.0 <= unknown_latency_s <= 1.0):
             raise ValueError(f"unknown_latency_s = {unknown_latency_s!r}: expected finite, within [0, 1] s")
         self.vehicle = vehicle
@@ -113,6 +122,9 @@ class SimCameraSource:
         self.latency_s = latency_s
         self.unknown_latency_s = float(unknown_latency_s)
         self.driver_stamp = driver_stamp
+        self.occluder = occluder if occluder is not None and occluder.kind != "none" else None
+        self._occluder_t0: float | None = None  # the first frame read with the pad in view
+        self._occluder_from_height_m = float(occluder_from_height_m)
         # exposure -> readable (x + 0.0 is x: without an unknown latency, the same floats as before)
         self._delivery_s = latency_s + self.unknown_latency_s
         self._clock = LoopClock()
@@ -275,7 +287,7 @@ class SimCameraSource:
             return None
         if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
             ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
-        if self.conditions is not None:
+        if self.conditions is not None or self.occluder is not None:
             image = self._with_conditions(t, T_cp, ahead)
         else:  # not started (no renderer): rendered here, as capture() does
             image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
@@ -296,8 +308,17 @@ class SimCameraSource:
 
     def _with_conditions(self, t: float, T_cp: Transform, ahead: Future[U8Image] | None) -> U8Image:
         """The frame as the real camera gives it: motion on the optics, exposure, then the rest."""
-        assert self.conditions is not None
         optics = ahead.result() if ahead is not None else self.camera.render_optics(T_cp, fresh=True)
+        if self.occluder is not None:
+            if self._occluder_t0 is None and (
+                self._occluder_from_height_m <= 0.0 or -self.vehicle.pd < self._occluder_from_height_m
+            ):
+                self._occluder_t0 = t
+                log.info("simulated camera: the %s's clock starts at t=%.2f s", self.occluder.kind, t)
+            if self._occluder_t0 is not None:
+                optics = self.occluder.paint(optics, self.camera.camera, T_cp, t - self._occluder_t0)
+        if self.conditions is None:
+            return self._expose(optics)
         got = self._fates.get(t)
         velocity = got[1] if got is not None else (0.0, 0.0)
         return self.conditions.photometric(self._expose(self.conditions.motion(optics, velocity)), t)
@@ -384,6 +405,16 @@ class CameraPlayback:
     calibration: str | None = None
 
 
+def sim_occluder(config: SimOccluderConfig, layout: PadLayout, margin_m: float, seed: int) -> Occluder | None:
+    """``[sim.camera.occluder]``'s occluder, drawn from the scenario's seed (None: none)."""
+    if config.kind == "none":
+        return None
+    rng = np.random.default_rng([seed, OCCLUDER_STREAM])
+    occ = draw_occluder(config.kind, rng, pad_size_m=layout.pad_size_m, margin_m=margin_m, duration_s=config.window_s)
+    log.info("simulated camera: a %s in the frames (%s)", occ.kind, occ)
+    return occ
+
+
 def sim_landing_kit(
     config: SimulatedConfig,
     vehicle: SimVehicle,
@@ -461,6 +492,8 @@ def sim_landing_kit(
             conditions=CameraConditions(config.sim.camera, seed),
             unknown_latency_s=config.sim.camera.unknown_latency_s,
             driver_stamp=config.sim.camera.driver_stamp,
+            occluder=sim_occluder(config.sim.camera.occluder, layout, lc.drop_zone.margin_m, seed),
+            occluder_from_height_m=config.sim.camera.occluder.from_height_m,
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera

@@ -117,6 +117,33 @@ class SimWinchConfig(_Section):
     )
 
 
+class SimOccluderConfig(_Section):
+    """Something on or around the pad in the simulated camera's frames (companion_sitl.camera_occluders,
+    docs/drop-zone.md): drawn from the scenario's seed; off by default."""
+
+    kind: Literal["none", "box", "person", "shadow"] = _f(
+        "none",
+        "-",
+        "a box lying on the pad, a person walking into its margin, or a shadow band across it (not an object)",
+    )
+    window_s: float = _f(
+        8.0,
+        "s",
+        "the person enters the margin at a moment drawn in the first 60 % of this window, timed from the first "
+        "frame with the pad in view (below from_height_m)",
+        gt=0.0,
+        le=600.0,
+    )
+    from_height_m: float = _f(
+        0.0,
+        "m",
+        "the occluder's clock starts at the first frame with the pad in view and the vehicle truly below this "
+        "height (a person walking in during the final descent; 0: at any height)",
+        ge=0.0,
+        le=500.0,
+    )
+
+
 class SimCameraConditionsConfig(_Section):
     """What a real board camera adds to the simulated frames (companion_sitl.camera_conditions,
     docs/vision.md#a-real-cameras-images); every key off by default."""
@@ -164,6 +191,7 @@ class SimCameraConditionsConfig(_Section):
         "the frames carry the driver's honest capture stamp and their arrival time (landing.camera_time = "
         "driver / measured use them; docs/clock.md)",
     )
+    occluder: SimOccluderConfig = Field(default_factory=SimOccluderConfig)
 
 
 class SimConfig(_Section):

@@ -117,6 +117,14 @@ class LandingSensing:
         self.landing_targets_sent = 0
         # each frame's exposure time for the fusion (landing.camera_time; configured: Frame.time_s)
         self.frame_time = CaptureLatency(config.landing.camera_time, config.landing.camera_latency_s)
+        # [landing.drop_zone]: each detected frame also judged for an object on the pad or motion
+        # around it (built before take-off: the check renders the printed pad once)
+        self.drop_zone: Any = None  # delivery.drop_zone_watch.DropZoneWatch
+        dz = config.landing.drop_zone
+        if dz.enabled and kit is not None and kit.camera is not None and kit.detector is not None:
+            from companion.delivery.drop_zone_watch import DropZoneWatch
+
+            self.drop_zone = DropZoneWatch(kit.detector.camera, kit.detector.layout, dz)
 
     def apply_opencv_threads(self) -> None:
         """``[runtime] opencv_threads``, process-wide, before the camera starts (with a camera or
@@ -159,6 +167,8 @@ class LandingSensing:
             level_pad=config.landing.ekf_level_pad,
         )
         self.fusion = self.hooks.fusion(setup, now)
+        if self.drop_zone is not None:
+            self.drop_zone.reset()  # a new pad: the markers seen and the votes were the other's
         if self._landing_target_size_m is not None:
             self._landing_target = LandingTargetBuilder(
                 config.landing.landing_target_output,
@@ -237,6 +247,9 @@ class LandingSensing:
             realtime=runtime.realtime_priority if kit.vision_in_thread else 0,
         )
         exposure_s = self.frame_time.exposure_time_s(frame, start_s)
+        m = self.owner.mission
+        if self.drop_zone is not None and not m.summary.delivered and not m.returning:  # judged with the parcel aboard
+            detect = functools.partial(self._detect_and_judge, detect, self._predicted_camera_pad())
         if kit.vision_in_thread:
             obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, exposure_s)
         else:
@@ -256,6 +269,27 @@ class LandingSensing:
             self.marker_fused.set()
         if self._landing_target is not None:
             self.send_landing_target(obs)
+
+    def _predicted_camera_pad(self) -> Any:
+        from companion.delivery.drop_zone_watch import predicted_camera_pad
+
+        assert self.kit is not None
+        return predicted_camera_pad(self.fusion, self.kit.T_body_camera)
+
+    def _detect_and_judge(
+        self, detect: Callable[..., tuple[Any, float]], T_predicted: Any, image: Any, exposure_s: float
+    ) -> tuple[Any, float]:
+        """The detector, then the drop-zone check of the same frame (on the detector's thread in
+        flight); the CPU time is both's, for the pacer."""
+        obs, cpu_s = detect(image, exposure_s)
+        if self.drop_zone is not None:
+            _, check_s = cpu_timed(self.drop_zone.judge, image, exposure_s, obs, T_predicted)
+            cpu_s += check_s
+        return obs, cpu_s
+
+    def drop_zone_verdict(self, now: float) -> Any:
+        """The drop-zone verdict for the mission (None: no check configured)."""
+        return self.drop_zone.verdict(now) if self.drop_zone is not None else None
 
     def uwb_step(self) -> None:
         """The UWB readings since the last call, multilaterated, to the recorder and the fusion."""

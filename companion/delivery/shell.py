@@ -444,6 +444,7 @@ class DeliveryShell:
                 pad_heading_rad=landing_heading_rad(self.config.mission, mission.pad_index, heading),
                 pad_heading_age_s=heading_observation_age_s(heading, now),
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
+                drop_zone=sensing.drop_zone_verdict(now),
             )
             out = step(inp)
             events = out.events
