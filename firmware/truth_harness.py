@@ -58,6 +58,7 @@ class HarnessResult:
     pad_tries: int = 0
     releases: int = 0
     pad_lock_events: tuple[str, ...] = ()
+    drop_zone_events: tuple[str, ...] = ()
     # distance of the true vehicle to the planned path while the vector field is followed
     path_rms_truth_m: float = math.nan
     path_max_truth_m: float = math.nan
@@ -231,6 +232,7 @@ def _harness_result(config: SimulatedConfig, summary: Any, shell: DeliveryShell,
         pad_tries=summary.pad_tries,
         releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
         pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
+        drop_zone_events=tuple(e.detail for e in summary.events if e.kind is EventKind.DROP_ZONE),
         pad_heading_error_deg=(
             heading_error_deg(sc.touchdown_yaw[0], true_pad_heading_rad(config))
             if sc.touchdown_yaw and simulated_pad(config).heading_deg is not None

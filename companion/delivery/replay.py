@@ -41,6 +41,8 @@ from companion.flightlog.csvlog import CsvLog
 from companion.flightlog.losses import LossCause
 from companion.flightlog.reader import LogFormatError, Table, open_table, read_meta
 from companion.flightlog.streams import (
+    DROP_ZONE_COLUMNS,
+    DROP_ZONE_FILE,
     EKF_COLUMNS,
     EVENT_COLUMNS,
     GUIDANCE_COLUMNS,
@@ -293,6 +295,10 @@ class _ReplayShell:
         self.winch_by_seq: dict[int, Any] = {}
         if self.mission.winch_cfg is not None:
             self._read_winch()
+        # the drop-zone verdict each tick handed the mission (drop_zone.csv), with the check on
+        self.drop_zone_by_seq: dict[int, Any] = {}
+        if self.config.landing.drop_zone.enabled:
+            self._read_drop_zone()
 
     def _read_wind(self) -> None:
         from companion.autopilot.types import Wind
@@ -321,6 +327,22 @@ class _ReplayShell:
             ok = math.isfinite(w[0])
             kg = t.value(k, "tension_kg") if tension else math.nan
             self.winch_by_seq[_int(t, k, "seq")] = WinchStatus(*w, _int(t, k, "flags"), kg) if ok else None
+
+    def _read_drop_zone(self) -> None:
+        from companion.vision.drop_zone import DropZoneVerdict
+
+        if not (self.run_dir / DROP_ZONE_FILE).exists() and DROP_ZONE_FILE not in (self.meta.get("streams") or {}):
+            self.notes.append(f"{DROP_ZONE_FILE} missing: the flight is replayed without the drop-zone verdicts")
+            return
+        t = open_table(self.run_dir, DROP_ZONE_FILE, DROP_ZONE_COLUMNS)
+        known = {v.value: v for v in DropZoneVerdict}
+        for k in range(len(t)):
+            text = t.text(k, "verdict")
+            if text and text not in known:
+                raise LogFormatError(
+                    f"{self.run_dir / DROP_ZONE_FILE} row {k + 2}: verdict {text!r} is not one of {sorted(known)}"
+                )
+            self.drop_zone_by_seq[_int(t, k, "seq")] = known[text] if text else None
 
     def _start_fusion(self, now: float) -> None:
         from companion.delivery.fusion import FusionSetup, LandingFusion
@@ -399,7 +421,13 @@ class _ReplayShell:
                 )
         elif k is InputKind.TICK:
             now, link_ok = inp.payload
-            return self.tick(now, link_ok, wind=self.wind_by_seq.get(inp.seq), winch=self.winch_by_seq.get(inp.seq))
+            return self.tick(
+                now,
+                link_ok,
+                wind=self.wind_by_seq.get(inp.seq),
+                winch=self.winch_by_seq.get(inp.seq),
+                drop_zone=self.drop_zone_by_seq.get(inp.seq),
+            )
         return None
 
     def _pad_lock(self, now: float) -> Any:
@@ -417,7 +445,9 @@ class _ReplayShell:
             return PadLock(now, math.inf, math.inf)
         return measure_pad_lock(self.fusion, now)
 
-    def tick(self, now: float, link_ok: bool, wind: Any = None, winch: Any = None) -> tuple[Any, Any, Any, bool]:
+    def tick(
+        self, now: float, link_ok: bool, wind: Any = None, winch: Any = None, drop_zone: Any = None
+    ) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
         from companion.delivery.pad_heading import heading_observation_age_s, landing_heading_rad
@@ -446,6 +476,7 @@ class _ReplayShell:
             pad_heading_age_s=heading_observation_age_s(heading_est, now),
             autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             winch=winch,
+            drop_zone=drop_zone,
         )
         out = mission.step(inp)
         setpoint, clamped = None, False

@@ -27,6 +27,8 @@ headers), so PlotJuggler opens every file as is:
 ``wind.csv``           the autopilot's wind estimate each tick handed the mission (only with the
                        wind go/no-go on, ``go_no_go.wind_limit_m_s`` > 0, or a winch delivery)
 ``winch.csv``          the winch's report each tick handed the mission (only for a winch delivery)
+``drop_zone.csv``      the drop-zone verdict each tick handed the mission (only with
+                       ``[landing.drop_zone]`` on)
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
 ``flight.mcap``        every stream above, plus the camera frames the pad was detected in (JPEG)
                        with the marker corners, the EKF pose and its 1-sigma, and the planned
@@ -62,6 +64,8 @@ from companion.flightlog.losses import logs_incomplete, losses
 from companion.flightlog.mcap_encoding import MCAP_FILE
 from companion.flightlog.mcaplog import McapFlightLog
 from companion.flightlog.streams import (
+    DROP_ZONE_COLUMNS,
+    DROP_ZONE_FILE,
     FORMAT,
     META_FILE,
     SAMPLE_ENCODERS,
@@ -214,6 +218,9 @@ class FlightRecorder:
             streams[WIND_FILE] = WIND_COLUMNS
         if winch:  # the mission reads the winch's line length
             streams[WINCH_FILE] = WINCH_COLUMNS
+        landing = getattr(config, "landing", None)
+        if landing is not None and landing.drop_zone.enabled:  # the mission reads the drop-zone verdict
+            streams[DROP_ZONE_FILE] = DROP_ZONE_COLUMNS
         self.meta: dict[str, Any] = {
             "format": FORMAT,
             "config": config.model_dump(mode="json"),
@@ -399,6 +406,8 @@ class FlightRecorder:
                 else (nan, nan, nan, 0, nan)
             )
             self._write(WINCH_FILE, (inp.time_s, seq, *report))
+        if DROP_ZONE_FILE in self.logs:
+            self._write(DROP_ZONE_FILE, (inp.time_s, seq, inp.drop_zone.value if inp.drop_zone is not None else ""))
         for ev in out.events:
             self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))
         if fusion is not None:

@@ -242,6 +242,13 @@ WINCH_FILE = "winch.csv"
 WINCH_COLUMNS = ("time_s", "seq", "winch_time_s", "line_length_m", "speed_m_s", "flags", "tension_kg")
 WINCH_COLUMNS_BEFORE_TENSION = WINCH_COLUMNS[:-1]  # a run folder from before the tension was logged
 
+# The drop-zone verdict each guidance tick handed the mission (MissionInputs.drop_zone: "clear",
+# "occupied", "motion_in_margin", "unknown"; "" none), keyed by the tick's seq; written only with
+# [landing.drop_zone] on. The check judges the frames, which the run folder does not keep, so
+# without this replay cannot know what the mission saw.
+DROP_ZONE_FILE = "drop_zone.csv"
+DROP_ZONE_COLUMNS = ("time_s", "seq", "verdict")
+
 STREAM_FILES: dict[str, tuple[str, ...]] = {
     **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},
     "camera.csv": CAMERA_COLUMNS,

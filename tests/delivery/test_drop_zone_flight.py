@@ -2,16 +2,21 @@
 detector sees in the approach and the descent is also judged, and the verdict reaches the mission.
 A box on the pad stops the descent and the parcel flies home; a person walking into the margin
 during the descent stops it until the person has gone, then the parcel is released on the pad; a
-clear pad with the check on lands as without it."""
+clear pad with the check on lands as without it. The verdicts are in the run folder
+(drop_zone.csv): the replay of the held flight is identical bit for bit."""
 
 from __future__ import annotations
 
 import math
+import shutil
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from companion.config import shipped_params_path
+from companion.delivery.replay import replay_run
+from companion.flightlog.reader import LogFormatError
 from companion_lab.campaign_landing import draw_scenarios, scenario_config
 from companion_lab.demo import run_demo
 
@@ -30,9 +35,9 @@ def _drop_zone_events(r) -> list[tuple[str, str]]:  # type: ignore[no-untyped-de
     return [(phase, detail) for _, kind, phase, detail in r.events if kind == "drop_zone"]
 
 
-def test_a_box_on_the_pad_stops_the_descent_and_the_parcel_flies_home() -> None:
+def test_a_box_on_the_pad_stops_the_descent_and_the_parcel_flies_home(tmp_path: Path) -> None:
     cfg = _config(1, "box")
-    r = run_demo(cfg)
+    r = run_demo(cfg, run_dir=tmp_path / "run")
     assert not r.delivered and r.home_with_parcel, r.failure
     assert not any(kind == "released" for _, kind, _, _ in r.events)
     dz = _drop_zone_events(r)
@@ -42,6 +47,17 @@ def test_a_box_on_the_pad_stops_the_descent_and_the_parcel_flies_home() -> None:
     held = next(t for t, kind, _, d in r.events if kind == "phase" and d == "drop_zone_hold")
     assert not any(kind == "touchdown" and d == "pad" for t, kind, _, d in r.events if t > held)
     assert r.home_landing_error_m < 3.0
+    verdicts = (tmp_path / "run" / "drop_zone.csv").read_text().splitlines()
+    assert verdicts[0] == "time_s,seq,verdict" and any(row.endswith(",occupied") for row in verdicts)
+    rep = replay_run(tmp_path / "run", tmp_path / "replayed")
+    assert rep.identical, "\n".join(rep.lines())
+    # a verdict the log cannot hold is an error naming the file, the row and what is expected
+    bad = tmp_path / "bad"
+    shutil.copytree(tmp_path / "run", bad)
+    verdicts[1] = verdicts[1].rsplit(",", 1)[0] + ",ocupied"
+    (bad / "drop_zone.csv").write_text("\n".join(verdicts) + "\n")
+    with pytest.raises(LogFormatError, match=r"drop_zone.csv row 2: verdict 'ocupied' is not one of \['clear'"):
+        replay_run(bad, tmp_path / "replayed_bad")
 
 
 def test_a_person_walking_into_the_margin_holds_the_descent_until_gone() -> None:
