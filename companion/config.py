@@ -1665,6 +1665,12 @@ class CompanionConfig(_Section):
                 f"landing.policy.search_height_m ({pol.search_height_m}) must be above mission.final_descent_alt_m "
                 f"({self.mission.final_descent_alt_m}), the approach height: the search climbs to see more ground"
             )
+        if lc.drop_zone.enabled and not (lc.fusion and lc.use_camera):
+            raise ValueError(
+                f"landing.drop_zone.enabled = true needs landing.fusion = true and landing.use_camera = true (got "
+                f"{lc.fusion} and {lc.use_camera}): the downward camera judges the drop zone, and the descent starts "
+                "only once it has seen it clear"
+            )
         return self
 
 

@@ -302,3 +302,13 @@ def test_the_old_mission_landing_keys_still_load_into_mission_descent(tmp_path):
     bad.write_text("[mission]\nlanding_xy_gain_1_s = 0.0\n")
     with pytest.raises(ConfigError, match=r"mission\.descent\.xy_gain_1_s = 0\.0: Input should be greater than 0"):
         load_config(bad)
+
+
+@pytest.mark.parametrize("landing", [{"use_camera": False}, {"fusion": False}])
+def test_the_drop_zone_check_needs_the_camera(landing):
+    with pytest.raises(ConfigError) as ei:
+        config_from_dict({"landing": {**landing, "drop_zone": {"enabled": True}}}, "test.toml")
+    assert any(
+        "landing.drop_zone.enabled = true needs landing.fusion = true and landing.use_camera" in p
+        for p in ei.value.problems
+    ), ei.value.problems

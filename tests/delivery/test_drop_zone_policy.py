@@ -136,3 +136,34 @@ def test_without_a_pad_lock_policy_the_check_still_stops_and_resumes():
     assert m.phase is Phase.DROP_ZONE_HOLD
     _fly(m, t + 0.5, CLEAR, *PAD, -2.5)
     assert m.phase is Phase.LANDING_PAD
+
+
+@pytest.mark.parametrize("verdict", [DropZoneVerdict.UNKNOWN, None])
+def test_the_descent_starts_only_on_a_pad_seen_clear(verdict):
+    """Unknown (the camera has not judged the pad, or no verdict at all): no evidence that nothing
+    is there. The vehicle holds at the approach height; seen clear, it descends; never seen
+    clear within hold_s, the parcel flies home."""
+    m, t = _at_approach()
+    t += 0.05
+    _fly(m, t, verdict, *PAD, -2.5)
+    assert m.phase is Phase.DROP_ZONE_HOLD
+    assert _dz_events(m)[0].startswith("the drop zone not judged clear yet at the approach height: descent stopped")
+    _fly(m, t + 0.5, CLEAR, *PAD, -2.5)
+    assert m.phase is Phase.PAD_HOLD
+    _fly(m, t + 0.55, CLEAR, *PAD, -3.0)
+    assert m.phase is Phase.LANDING_PAD
+    # never judged clear
+    m, t = _at_approach()
+    t += 0.05
+    t0 = t
+    while t < t0 + 10 and m.phase in (Phase.OUTBOUND, Phase.DROP_ZONE_HOLD):
+        _fly(m, t, verdict, *PAD, -2.5)
+        t += 0.05
+    assert m.phase is Phase.INBOUND
+    assert "drop zone not clear after holding 3 s" in _dz_events(m)[-1]
+    assert all(e.kind is not EventKind.RELEASED for e in m.summary.events)
+    # once below the approach height an unknown verdict goes on (the camera abstains near the pad)
+    m, t = _at_approach()
+    _fly(m, t + 0.05, CLEAR, *PAD, -2.5)
+    _fly(m, t + 0.1, verdict, *PAD, -2.0)
+    assert m.phase is Phase.LANDING_PAD

@@ -1,11 +1,11 @@
 """Never release onto an occupied pad (docs/drop-zone.md): the drop-zone check's
 verdict (companion.vision.drop_zone, ``MissionInputs.drop_zone``) judged at the approach height,
-in the final descent above the commit height and at touchdown. An object on the pad or motion in
-its margin stops the descent: the vehicle holds where it is (phase ``drop_zone_hold``) for
-``landing.drop_zone.hold_s``; the pad cleared, it flies the pad-lock policy's hold onto the pad
-and descends again; still not clear, it diverts to the alternate pad if configured, else flies
-home with the parcel (``PadPolicy.fallback``). A touchdown on a pad judged occupied releases
-nothing (``PadPolicy.home_with_parcel``)."""
+in the final descent above the commit height and at touchdown. The final descent starts only on a
+pad judged clear; an object on the pad or motion in its margin stops it: the vehicle holds where
+it is (phase ``drop_zone_hold``) for ``landing.drop_zone.hold_s``; the pad cleared, it flies the
+pad-lock policy's hold onto the pad and descends again; still not clear, it diverts to the
+alternate pad if configured, else flies home with the parcel (``PadPolicy.fallback``). A
+touchdown on a pad judged occupied releases nothing (``PadPolicy.home_with_parcel``)."""
 
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ HOLD_SPEED_M_S = 1.0
 WHAT = {
     DropZoneVerdict.OCCUPIED: "an object on the pad",
     DropZoneVerdict.MOTION_IN_MARGIN: "motion in the pad's margin",
+    DropZoneVerdict.UNKNOWN: "the drop zone not judged clear yet",
 }
 
 
@@ -43,17 +44,23 @@ class DropZonePolicy:
         """The verdict forbids descending or releasing now."""
         return self.config is not None and inp.drop_zone in BLOCKING
 
+    def may_start_descent(self, inp: MissionInputs) -> bool:
+        """The final descent starts on a pad seen clear (an unknown verdict: the camera has not
+        judged it, which is no evidence that nothing is there)."""
+        return self.config is None or inp.drop_zone is DropZoneVerdict.CLEAR
+
     def stop(self, inp: MissionInputs, where: str) -> None:
         """Stop the descent ``where`` it is and hold (phase drop_zone_hold)."""
         m, cfg = self.m, self.config
-        assert cfg is not None and inp.drop_zone is not None
+        assert cfg is not None
+        verdict = inp.drop_zone if inp.drop_zone is not None else DropZoneVerdict.UNKNOWN
         m.emit(
             EventKind.DROP_ZONE,
-            f"{WHAT[inp.drop_zone]} {where}: descent stopped, holding for up to {cfg.hold_s:g} s",
+            f"{WHAT[verdict]} {where}: descent stopped, holding for up to {cfg.hold_s:g} s",
         )
         m.goto(Phase.DROP_ZONE_HOLD)
         st = m.state_as(DropZoneHoldState)
-        st.why = inp.drop_zone.value
+        st.why = verdict.value
         if inp.estimate is not None:
             st.hold_ned = inp.estimate.position_ned
 

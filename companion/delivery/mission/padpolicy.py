@@ -162,6 +162,9 @@ class PadPolicy:
         if ok:
             off = math.hypot(est.north_m - float(pad[0]), est.east_m - float(pad[1]))
             if off < pol.approach_tolerance_m and abs(est.down_m - down) < PAD_HEIGHT_TOLERANCE_M:
+                if not m.drop_zones.may_start_descent(inp):
+                    m.drop_zones.stop(inp, "at the approach height")
+                    return Step(sp)
                 try_n = m.summary.pad_tries - self.tries_before_pad + 1
                 m.emit(
                     EventKind.PAD_LOCK,

@@ -191,7 +191,7 @@ def _follow(m: MissionBase, inp: MissionInputs, leg: Leg, landing: Phase) -> Ste
             ok, why = m.pads.judge(inp.pad_lock)
             if not ok:
                 return Step(m.pads.try_failed(inp, f"no pad lock at the approach height: {why}"), None, lyap)
-        if leg is Leg.OUT and m.drop_zones.blocked(inp):
+        if leg is Leg.OUT and not m.drop_zones.may_start_descent(inp):
             m.drop_zones.stop(inp, "at the approach height")
             return Step(sp, None, lyap)
         m.goto(landing)
