@@ -258,6 +258,11 @@ class WinchSequence:
         self._check = (status.time_s, status.line_length_m)
         return ""
 
+    @property
+    def tries(self) -> str:
+        """The reel-in tries seen jammed, said: "1 try", "2 tries"."""
+        return f"{self.jams} {'try' if self.jams == 1 else 'tries'}"
+
     def _on_jam(self, length: float, why: str) -> None:
         c = self.cfg
         self.jams += 1
@@ -271,7 +276,7 @@ class WinchSequence:
             return
         self.jammed = True
         self._critical.append(
-            f"the line will not reel in after {self.jams} tries ({why}; {length:.2f} m out): landing where the "
+            f"the line will not reel in after {self.tries} ({why}; {length:.2f} m out): landing where the "
             "vehicle is, the line first"
         )
         self._end("the line will not reel in: landing where the vehicle is")

@@ -66,7 +66,7 @@ def winch(m: MissionBase, inp: MissionInputs) -> Step:
     if tick.done and seq.jammed:
         # the line out and not coming in: flying it home at cruise height would drag it across
         # whatever lies on the way; the autopilot lands where the vehicle hovers, the line first
-        m.set_abort_reason(f"the line will not reel in after {seq.jams} tries")
+        m.set_abort_reason(f"the line will not reel in after {seq.tries}")
         m.goto(Phase.ABORT_LAND)
         m.state_as(AbortLandState).requested = False
         return Step(sp, None)
