@@ -496,6 +496,19 @@ class WinchConfig(_Section):
     xy_tolerance_m: float = _f(
         0.2, "m", "the payout starts only this close to the locked pad's centre (horizontally)", gt=0.0, le=5.0
     )
+    reel_check_s: float = _f(
+        0.0,
+        "s",
+        "watch the reel-in: over each this long the line (WINCH_STATUS) must come in by half of reel_rate_m_s x "
+        "this (or to reeled_in_m) and the winch must report itself healthy, else the line is jammed: a CRITICAL "
+        "event, reel_retries more tries, then the vehicle lands where it is (0: off; the reel-in gets "
+        "reel_timeout_s, then home as it is)",
+        ge=0.0,
+        le=60.0,
+    )
+    reel_retries: int = _f(
+        1, "-", "with reel_check_s: reel-in tries after a jam before the vehicle lands where it is", ge=0, le=5
+    )
     status_timeout_s: float = _f(
         3.0,
         "s",

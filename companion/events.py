@@ -50,6 +50,7 @@ class EventKind(enum.Enum):
     PAD_LOCK = "pad_lock"  # a step of the no-release-off-the-pad policy, with its reason
     GO_NO_GO = "go_no_go"  # a go/no-go check decided (fence, battery, wind): refused, verified, returning
     WINCH = "winch"  # a step of the winch delivery (payout, parcel down, reeled in) or why it failed
+    WINCH_JAM = "winch_jam"  # the line will not reel in: the GCS hears it CRITICAL, the vehicle lands where it is
     ORDER = "order"  # a delivery order from the ground: received, accepted or refused (with the reason), flown
     DROP_ZONE = "drop_zone"  # the drop-zone check stopped the descent, the pad cleared, or the hold ended
 

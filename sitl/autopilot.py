@@ -269,7 +269,7 @@ class SimAutopilot(Autopilot):
                 if v.winch is not None:  # WINCH_STATUS (ArduCopter streams it with EXTRA3)
                     w = v.winch
                     tension = v.payload.line_tension_kg()
-                    tc.push_winch(WinchStatus(t, w.length_m, w.rate_desired_m_s, w.flags(), tension))
+                    tc.push_winch(WinchStatus(t, w.length_m, w.speed_m_s, w.flags(), tension))
                 home = v.home()
                 if home is not None:
                     tc.push(home)

@@ -94,6 +94,12 @@ class SimWinchConfig(_Section):
     stuck: bool = _f(
         False, "-", "the drum does not turn: the line never pays out (a failure; an encoder reports it as it is)"
     )
+    reel_in_jams: bool = _f(
+        False,
+        "-",
+        "the drum pays out but does not turn to reel in (a failure: a jammed level-wind, a line off its drum); an "
+        "encoder winch reports the line as it is",
+    )
     parcel_drag_1_s: float = _f(
         0.3, "1/s", "the parcel's linear air drag per unit air-relative speed (pulls it downwind)", ge=0.0, le=5.0
     )

@@ -28,7 +28,7 @@ class SimPayload:
         self.parcel: ParcelOnLine | None = None
         self.load_cell, self.parcel_mass_kg, self.hook_fails = wc.load_cell, wc.parcel_mass_kg, wc.hook_fails
         if wc.fitted:
-            self.winch = SimWinch(wc.rate_max_m_s, wc.pos_p, stuck=wc.stuck)
+            self.winch = SimWinch(wc.rate_max_m_s, wc.pos_p, stuck=wc.stuck, reel_in_jams=wc.reel_in_jams)
             self.parcel = ParcelOnLine(wc.parcel_drag_1_s, wc.snag_height_m)
             self.prev = position  # the vehicle's position at the last step (the line's top)
 

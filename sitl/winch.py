@@ -49,12 +49,14 @@ class ParcelTouchdown:
 
 class SimWinch:
     """The drum: line length under AP_Winch's control laws. ``stuck``: the drum does not turn (an
-    encoder-fitted winch then reports the line as it is)."""
+    encoder-fitted winch then reports the line as it is); ``reel_in_jams``: it pays out but does not
+    turn inwards (reported as an encoder would: the line as it is, at speed 0)."""
 
-    def __init__(self, rate_max_m_s: float = 1.0, pos_p: float = 1.0, stuck: bool = False):
+    def __init__(self, rate_max_m_s: float = 1.0, pos_p: float = 1.0, stuck: bool = False, reel_in_jams: bool = False):
         self.rate_max_m_s = rate_max_m_s
         self.pos_p = pos_p
         self.stuck = stuck
+        self.reel_in_jams = reel_in_jams
         self.mode = WinchAction.RATE_CONTROL  # AP_Winch::init without "spin freely": rate 0
         self.length_m = 0.0
         self.length_desired_m = 0.0
@@ -82,15 +84,23 @@ class SimWinch:
         if self.mode is WinchAction.RELATIVE_LENGTH_CONTROL:
             err = self.length_desired_m - self.length_m
             self.rate_desired_m_s = max(-self.rate_max_m_s, min(self.rate_max_m_s, err * self.pos_p))
-        if not self.stuck:
+        if not self.stuck and not self._jammed():
             # the drum stops at fully retracted (AP's PWM estimate would run on below zero)
             self.length_m = max(0.0, self.length_m + self.rate_desired_m_s * dt)
+
+    def _jammed(self) -> bool:
+        return self.reel_in_jams and self.rate_desired_m_s < 0.0
+
+    @property
+    def speed_m_s(self) -> float:
+        """The line's speed WINCH_STATUS reports: the commanded rate (AP_Winch_PWM), 0 while jammed."""
+        return 0.0 if self._jammed() else self.rate_desired_m_s
 
     def flags(self) -> int:
         f = MAV_WINCH_STATUS_HEALTHY
         if self.length_m <= 0.0:
             f |= MAV_WINCH_STATUS_FULLY_RETRACTED
-        if self.rate_desired_m_s != 0.0 and not self.stuck:
+        if self.rate_desired_m_s != 0.0 and not self.stuck and not self._jammed():
             f |= MAV_WINCH_STATUS_MOVING
         return f
 

@@ -85,6 +85,8 @@ def event_severity(ev: MissionEvent) -> int:
         if ev.phase is Phase.FAILED:
             return SEVERITY_CRITICAL
         return SEVERITY_WARNING if ev.phase in _WARNING_PHASES else SEVERITY_INFO
+    if ev.kind is EventKind.WINCH_JAM:
+        return SEVERITY_CRITICAL
     if ev.kind in _WARNING_EVENTS:
         return SEVERITY_WARNING
     return SEVERITY_NOTICE if ev.kind in _NOTICE_EVENTS else SEVERITY_INFO

@@ -19,6 +19,11 @@ short of the hover height is a parcel caught on the way down, a line still taut 
 a parcel hanging short of the ground, and a line that never carried anything a missing parcel: no
 release in each, reel in, home with it. After the release the first light_check_m reeled in must
 stay slack; a line that takes the load again is a parcel still on the hook, flown home.
+
+With winch.reel_check_s the reel-in is watched: a line that does not come in at half the asked
+rate, or a winch reporting itself unhealthy, is a jam, said CRITICAL (``WinchTick.critical``); the
+hover holds (no climb with the line out) while the reel-in is tried reel_retries more times, then
+the sequence ends ``jammed``: the mission lands where the vehicle is, the line first.
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ class WinchTick:
     release: bool = False
     say: tuple[str, ...] = ()
     done: bool = False
+    critical: tuple[str, ...] = ()  # the line will not reel in (EventKind.WINCH_JAM), said before ``say``
 
 
 class WindCorrection:
@@ -103,6 +109,10 @@ class WinchSequence:
         self._no_tension_said = False
         self._slack_since: float | None = None
         self._slack_at_m = math.nan  # the line's length when it went slack
+        self.jams = 0  # reel_check_s: reel-in tries seen jammed
+        self.jammed = False  # ended with the line out and not coming in: land where the vehicle is
+        self._critical: list[str] = []
+        self._check: tuple[float, float] | None = None  # reel_check_s: (report time, length) of the window
 
     @property
     def target_m(self) -> float:
@@ -122,6 +132,7 @@ class WinchSequence:
         if ok:
             self._accepted = True
             self._t0 = now_s
+            self._check = None
             if st is WinchStep.PAYOUT:
                 self.paid_out = True
                 self._say.append(f"payout accepted: lowering the parcel {self.target_m:.2f} m")
@@ -187,8 +198,8 @@ class WinchSequence:
         if self.step_now is WinchStep.REEL and command is None and not release:
             command = self._reel(now_s, status, idle)
             self._check_light(status)
-        tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE)
-        self._say = []
+        tick = WinchTick(command, release, tuple(self._say), self.step_now is WinchStep.DONE, tuple(self._critical))
+        self._say, self._critical = [], []
         return tick
 
     def _reel(self, now_s: float, status: WinchStatus | None, idle: bool) -> WinchCommand | None:
@@ -218,10 +229,57 @@ class WinchSequence:
             return None
         if math.isfinite(length) and length <= self.cfg.reeled_in_m and self._accepted:
             self._end(f"line reeled in ({length:.2f} m)")
+        elif self._accepted and self.cfg.reel_check_s > 0.0 and (why := self._jam(status)):
+            self._on_jam(length, why)
         elif now_s - self._t0 > self.cfg.reel_timeout_s:
             seen = f"{length:.2f} m still out" if math.isfinite(length) else "no WINCH_STATUS from the winch"
             self._end(f"the line is not back in after {self.cfg.reel_timeout_s} s ({seen}): flying home as it is")
         return None
+
+    # ------------------------------------------------------------------ the jammed line
+    def _jam(self, status: WinchStatus | None) -> str:
+        """Why the reel-in counts as jammed ("" while it comes in): judged on the winch's reports from
+        after the command's acceptance, over windows of reel_check_s of their own time."""
+        c = self.cfg
+        if status is None or status.time_s < self._t0:
+            return ""
+        if not status.healthy:
+            return "the winch reports itself unhealthy"
+        if self._check is None:
+            self._check = (status.time_s, status.line_length_m)
+            return ""
+        t, was = self._check
+        if status.time_s - t < c.reel_check_s:
+            return ""
+        came = was - status.line_length_m
+        need = min(0.5 * c.reel_rate_m_s * c.reel_check_s, was - c.reeled_in_m)
+        if came < need:
+            return f"{came:.2f} m in over {status.time_s - t:.1f} s, {need:.2f} m expected"
+        self._check = (status.time_s, status.line_length_m)
+        return ""
+
+    @property
+    def tries(self) -> str:
+        """The reel-in tries seen jammed, said: "1 try", "2 tries"."""
+        return f"{self.jams} {'try' if self.jams == 1 else 'tries'}"
+
+    def _on_jam(self, length: float, why: str) -> None:
+        c = self.cfg
+        self.jams += 1
+        if self.jams <= c.reel_retries:
+            self._critical.append(
+                f"the line will not reel in ({why}; {length:.2f} m out): holding, reel-in try "
+                f"{self.jams + 1} of {c.reel_retries + 1}"
+            )
+            self._sent = self._accepted = False  # the next idle tick asks again, from the reported length
+            self._halt, self._check = 0, None
+            return
+        self.jammed = True
+        self._critical.append(
+            f"the line will not reel in after {self.tries} ({why}; {length:.2f} m out): landing where the "
+            "vehicle is, the line first"
+        )
+        self._end("the line will not reel in: landing where the vehicle is")
 
     def stop(self, now_s: float, reason: str) -> bool:
         """Give the delivery up (a ground command to return): reel in from wherever the line is,
@@ -303,6 +361,7 @@ class WinchSequence:
         self._halt = 0
         self._sent = self.step_now is WinchStep.PAYOUT  # the payout command goes out with this tick
         self._accepted = False
+        self._check = None
 
     def _fail(self, now_s: float, reason: str) -> None:
         """The parcel stays aboard: reel the line in, then home with it."""

@@ -359,7 +359,7 @@ class MessageStreams(RcInput):
             return None  # nothing sent without a winch backend
         nan = math.nan
         tension = v.payload.line_tension_kg()
-        return e.winch_status_encode(t_us, w.length_m, w.rate_desired_m_s, tension, nan, nan, 32767, w.flags())
+        return e.winch_status_encode(t_us, w.length_m, w.speed_m_s, tension, nan, nan, 32767, w.flags())
 
     def _rangefinder(self) -> tuple[float, float, int, float] | None:
         """The rangefinder the vehicle's parameters configure: (min m, max m, MAV_SENSOR_ORIENTATION,

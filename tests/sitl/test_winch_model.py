@@ -7,7 +7,12 @@ import math
 
 import pytest
 
-from companion.autopilot.winch import WinchAction, WinchCommand
+from companion.autopilot.winch import (
+    MAV_WINCH_STATUS_HEALTHY,
+    MAV_WINCH_STATUS_MOVING,
+    WinchAction,
+    WinchCommand,
+)
 from companion_sitl.winch import G_M_S2, ParcelOnLine, SimWinch
 
 DT = 1e-3  # the vehicle steps the pendulum at >= 1 kHz (PARCEL_STEP_HZ)
@@ -143,3 +148,17 @@ def test_the_load_cell_weighs_the_parcel_only_while_the_line_holds_it() -> None:
     assert cell.line_tension_kg() == 0.7
     cell.parcel.taut = False
     assert cell.line_tension_kg() == 0.0
+
+
+def test_a_drum_that_jams_inwards_pays_out_and_then_holds_its_line() -> None:
+    w = SimWinch(rate_max_m_s=0.5, pos_p=1.0, reel_in_jams=True)
+    w.command(WinchCommand(1, WinchAction.RATE_CONTROL, 0.0, 0.5))
+    for _ in range(40):
+        w.step(0.1)
+    assert w.length_m == pytest.approx(2.0) and w.speed_m_s == 0.5 and w.flags() & MAV_WINCH_STATUS_MOVING
+    w.command(WinchCommand(1, WinchAction.RELATIVE_LENGTH_CONTROL, -2.0))
+    for _ in range(40):
+        w.step(0.1)
+    # the line as it is, at speed 0, not moving: what an encoder winch reports of a jammed drum
+    assert w.length_m == pytest.approx(2.0) and w.speed_m_s == 0.0 and not w.flags() & MAV_WINCH_STATUS_MOVING
+    assert w.flags() & MAV_WINCH_STATUS_HEALTHY

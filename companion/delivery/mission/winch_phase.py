@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from companion.config import WinchConfig
 from companion.delivery.mission.offboard import offboard_reentry
 from companion.delivery.mission.padpolicy import PAD_HEIGHT_TOLERANCE_M, PAD_POSITION_GAIN_1_S
+from companion.delivery.mission.states import AbortLandState
 from companion.delivery.mission.types import NOTHING, FailureKind, MissionInputs, RequestKind, Step
 from companion.events import EventKind, Phase
 from companion.guidance.setpoint import VelocitySetpoint
@@ -46,6 +47,8 @@ def winch(m: MissionBase, inp: MissionInputs) -> Step:
         and math.hypot(est.north_m_s, est.east_m_s) < PAD_HOVER_SPEED_M_S
     )
     tick = seq.step(inp.time_s, ready, inp.winch, m.idle())
+    for detail in tick.critical:  # first: the GCS hears the jam before anything the vehicle does about it
+        m.emit(EventKind.WINCH_JAM, detail)
     for detail in tick.say:
         m.emit(EventKind.WINCH, detail)
     if tick.command is not None:
@@ -60,6 +63,13 @@ def winch(m: MissionBase, inp: MissionInputs) -> Step:
             if m.pad_index
             else "parcel lowered and released on the pad",
         )
+    if tick.done and seq.jammed:
+        # the line out and not coming in: flying it home at cruise height would drag it across
+        # whatever lies on the way; the autopilot lands where the vehicle hovers, the line first
+        m.set_abort_reason(f"the line will not reel in after {seq.tries}")
+        m.goto(Phase.ABORT_LAND)
+        m.state_as(AbortLandState).requested = False
+        return Step(sp, None)
     if tick.done:
         m.left_pad = True
         if seq.failure and not seq.delivered:
