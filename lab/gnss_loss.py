@@ -64,6 +64,8 @@ class GnssLossFlight:
     poses_sent: int
     flight_wall_s: float
     events: tuple[str, ...]
+    # the autopilot's mode changes after the loss, "<s after it> <mode>" (PX4: from its heartbeats)
+    autopilot_modes: tuple[str, ...] = ()
 
 
 def gnss_loss_config(
