@@ -52,7 +52,7 @@ def test_odometry_refuses_a_pose_that_is_not_finite() -> None:
     [
         (1.0, Status.OK, "horizontal position only"),
         (0.0, Status.WRONG, "set EKF2_EV_CTRL = 1"),
-        (15.0, Status.WRONG, "velocity (bit 2)"),  # PX4's default: position, height, velocity and yaw
+        (15.0, Status.WRONG, "velocity (bit 2)"),  # everything on: position, height, velocity and yaw
         (9.0, Status.WRONG, "yaw (bit 3)"),
         (3.0, Status.WRONG, "vertical position (bit 1)"),
         (4.0, Status.WRONG, "horizontal position (bit 0)"),
@@ -60,12 +60,29 @@ def test_odometry_refuses_a_pose_that_is_not_finite() -> None:
     ],
 )
 def test_ekf2_ev_ctrl_says_what_to_set(value: float, status: Status, words: str) -> None:
-    (row,) = check_px4_external_nav(PX4_EXT, {"EKF2_EV_CTRL": value})
-    assert row.name == "EKF2_EV_CTRL" and row.status is status and words in row.detail, row
+    rows = {r.name: r for r in check_px4_external_nav(PX4_EXT, {"EKF2_EV_CTRL": value, "COM_POSCTL_NAVL": 1.0})}
+    row = rows["EKF2_EV_CTRL"]
+    assert row.status is status and words in row.detail, row
+    assert rows["COM_POSCTL_NAVL"].status is Status.OK
+
+
+@pytest.mark.parametrize(
+    ("value", "status", "words"),
+    [
+        (1.0, Status.OK, "lands where it is"),
+        (0.0, Status.WARN, "Altitude mode"),  # PX4's default
+        (3.0, Status.WRONG, "set COM_POSCTL_NAVL = 1"),
+    ],
+)
+def test_com_posctl_navl_says_what_px4_does_with_gnss_lost_far_out(value: float, status: Status, words: str) -> None:
+    rows = {r.name: r for r in check_px4_external_nav(PX4_EXT, {"EKF2_EV_CTRL": 1.0, "COM_POSCTL_NAVL": value})}
+    row = rows["COM_POSCTL_NAVL"]
+    assert row.status is status and words in row.detail, row
 
 
 def test_the_rule_is_read_only_with_external_nav_on() -> None:
-    assert "EKF2_EV_CTRL" in px4_param_types(PX4_EXT) and "EKF2_EV_CTRL" not in px4_param_types(PX4)
+    assert {"EKF2_EV_CTRL", "COM_POSCTL_NAVL"} <= set(px4_param_types(PX4_EXT))
+    assert "EKF2_EV_CTRL" not in px4_param_types(PX4) and "COM_POSCTL_NAVL" not in px4_param_types(PX4)
     assert check_px4_external_nav(PX4, {}) == []
     rows = {r.name: r for r in check_px4(PX4_EXT, {"EKF2_EV_CTRL": ParamUnavailable("no answer")})}
     assert rows["EKF2_EV_CTRL"].status is Status.UNKNOWN

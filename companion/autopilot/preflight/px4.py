@@ -6,7 +6,8 @@ default 0), COM_RC_OVERRIDE (int32 bitmask, bit 0 auto modes, bit 1 offboard, bi
 throttle; default 1), EKF2_GPS_CTRL (int32 bitmask, bit 0 horizontal position; default 7),
 EKF2_HGT_REF (int32, 0 baro, 1 GNSS, 2 range, 3 vision; default 1), PLD_BTOUT (float, s,
 default 5), PLD_HACC_RAD (float, m, default 0.2), EKF2_EV_CTRL (int32 bitmask, bit 0 horizontal
-position, 1 vertical, 2 velocity, 3 yaw; default 15). PX4 sends int32 parameters byte-wise; MAVSDK's
+position, 1 vertical, 2 velocity, 3 yaw; 0 on the SIH build), COM_POSCTL_NAVL (int32, 0 Altitude/Manual,
+1 Land/Descend; default 0). PX4 sends int32 parameters byte-wise; MAVSDK's
 Param plugin decodes them.
 """
 
