@@ -1503,9 +1503,10 @@ class RemoteIdConfig(_Section):
 
 class ExternalNavConfig(_Section):
     """External navigation (docs/external-nav.md): the fused pose streamed to the autopilot once the
-    pad is locked (ArduPilot VISION_POSITION_ESTIMATE, VISO_TYPE = 1), and the autopilot's position
-    source switched to it when GNSS is lost near the pad (ArduPilot MAV_CMD_SET_EKF_SOURCE_SET to
-    ``source_set``, whose EK3_SRCn_POSXY = 6). Off by default: nothing sent, nothing switched."""
+    pad is locked (ArduPilot VISION_POSITION_ESTIMATE, VISO_TYPE = 1; PX4 ODOMETRY, EKF2_EV_CTRL = 1),
+    and on ArduPilot the position source switched to it when GNSS is lost near the pad
+    (MAV_CMD_SET_EKF_SOURCE_SET to ``source_set``, whose EK3_SRCn_POSXY = 6; PX4's EKF2 fuses it
+    beside GNSS and goes on with it alone). Off by default: nothing sent, nothing switched."""
 
     enabled: bool = _f(
         False,
@@ -1642,12 +1643,6 @@ class CompanionConfig(_Section):
             raise ValueError(
                 f"external_nav.rate_hz ({self.external_nav.rate_hz}) must be <= runtime.guidance_rate_hz "
                 f"({self.runtime.guidance_rate_hz}): the pose is sent from the guidance tick, at most one per tick"
-            )
-        if self.external_nav.enabled and self.autopilot == "px4":
-            raise ValueError(
-                "external_nav.enabled = true with autopilot = 'px4': the external-navigation feed is built for "
-                "ArduPilot (VISION_POSITION_ESTIMATE, EK3 source sets; the embedded simulator's ArduCopter profile "
-                "models it); PX4 (EKF2_EV_CTRL) is not yet"
             )
         if lc.controller == "autopilot" and (lc.landing_target_output == "off" or not lc.use_camera):
             raise ValueError(

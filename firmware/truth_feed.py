@@ -49,6 +49,9 @@ MSG_ID_HIL_STATE_QUATERNION = 115
 MSG_ID_SIM_STATE = 108
 TRUTH_MESSAGES = {"HIL_STATE_QUATERNION": MSG_ID_HIL_STATE_QUATERNION, "SIM_STATE": MSG_ID_SIM_STATE}
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+SERIAL_CONTROL_DEV_SHELL = 10
+SERIAL_CONTROL_FLAG_RESPOND = 2
+SERIAL_CONTROL_FLAG_EXCLUSIVE = 4
 
 
 DEG_E7_PER_RAD = 1e7 * 180.0 / math.pi
@@ -133,6 +136,7 @@ class MavlinkTruth:
         self._last_fix: tuple[float, float, float] | None = None  # sample time s, vn, ve (m/s)
         self.params: dict[str, float] = {}  # PARAM_VALUE answers seen on this link
         self.acks: dict[int, int] = {}  # command id -> MAV_RESULT of its last COMMAND_ACK
+        self.shell_out = bytearray()  # PX4's shell output over SERIAL_CONTROL (:meth:`shell`)
         # the autopilot's (component 1) messages of the ``watch`` types, kept with their arrival
         # time (monotonic s): HEARTBEAT, EXTENDED_SYS_STATE, SERVO_OUTPUT_RAW for a test to follow
         self.watch = frozenset(watch)
@@ -200,6 +204,8 @@ class MavlinkTruth:
                 self.params[str(msg.param_id)] = float(msg.param_value)
             elif kind == "COMMAND_ACK":
                 self.acks[int(msg.command)] = int(msg.result)
+            elif kind == "SERIAL_CONTROL" and msg.device == SERIAL_CONTROL_DEV_SHELL:
+                self.shell_out += bytes(msg.data[: msg.count])
             elif kind == "HIL_STATE_QUATERNION" == self.message:
                 self._on_truth(msg)
             elif kind == "SIM_STATE" == self.message:
@@ -271,6 +277,32 @@ class MavlinkTruth:
             timeout_s,
         )
         return result
+
+    def shell(self, command: str, timeout_s: float = 3.0) -> str:
+        """One line to PX4's shell over SERIAL_CONTROL (a SITL-only harness action, e.g.
+        ``sensor_gps_sim stop``: SIH v1.16 ignores MAV_CMD_INJECT_FAILURE for GPS); the output up
+        to the next prompt, or TimeoutError."""
+        line = (command.rstrip("\n") + "\n").encode()
+        if len(line) > 70:
+            raise ValueError(f"shell command of {len(line)} bytes: SERIAL_CONTROL carries 70")
+        self.shell_out.clear()
+        data = list(line.ljust(70, b"\0"))
+        flags = SERIAL_CONTROL_FLAG_RESPOND | SERIAL_CONTROL_FLAG_EXCLUSIVE
+        prompt = b"pxh> "
+
+        def answered() -> str | None:
+            out = bytes(self.shell_out)
+            return out.decode(errors="replace") if out.count(prompt) and out.rstrip().endswith(b">") else None
+
+        sent: list[bool] = []
+
+        def send(mav: Any) -> None:
+            if not sent:  # once: a shell line resent would run twice
+                mav.serial_control_send(SERIAL_CONTROL_DEV_SHELL, flags, 0, 0, len(line), data)
+                sent.append(True)
+
+        answer: str = self._until_answered(f"shell {command!r}", send, answered, timeout_s)
+        return answer
 
     def watched_messages(self, kind: str, since: float = -math.inf) -> list[tuple[float, Any]]:
         """The watched messages of type ``kind`` that arrived at or after ``since`` (monotonic s)."""

@@ -48,7 +48,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # one clock (docs/clock.md): frames LATENCY_MS later than landing.camera_latency_s says, the
     # configured latency (before), the driver's capture stamp, the latency measured from it (after)
     **{f"latency_{ms}ms{tail}": {"camera_time": mode} for ms in LATENCY_MS for tail, mode in LATENCY_MODES.items()},
-    # GNSS lost near the pad (docs/external-nav.md; the arducopter-sitl profile): with external
+    # GNSS lost near the pad (docs/external-nav.md; the arducopter-sitl and px4-sih profiles): with external
     # navigation, and GPS-only beside it on the same draws
     **{f"gnss_lost_{h}m": {} for h in (10, 3)},
     **{f"gnss_lost_{h}m_gps_only": {"fusion": False, "policy": {"require_pad_lock": False}} for h in (10, 3)},

@@ -64,6 +64,8 @@ class GnssLossFlight:
     poses_sent: int
     flight_wall_s: float
     events: tuple[str, ...]
+    # the autopilot's mode changes after the loss, "<s after it> <mode>" (PX4: from its heartbeats)
+    autopilot_modes: tuple[str, ...] = ()
 
 
 def gnss_loss_config(
@@ -84,14 +86,17 @@ def gnss_loss_config(
     )
 
 
-async def _cut_gps_when_low(
+async def cut_gps_when_low(
     truth: MavlinkTruth,
     pad_ne: tuple[float, float],
     loss_height_m: float,
     loss_radius_m: float,
     out: dict[str, float],
     clock: Any,
+    cut: Any,
 ) -> None:
+    """``cut()`` (blocking, run in a thread) once the true vehicle comes down through
+    ``loss_height_m`` within ``loss_radius_m`` of the pad; the height and time into ``out``."""
     ground = truth.pd
     been_above = False
     while True:
@@ -103,7 +108,7 @@ async def _cut_gps_when_low(
         near = math.hypot(truth.pn - pad_ne[0], truth.pe - pad_ne[1]) <= loss_radius_m
         if been_above and near and h <= loss_height_m:
             out["height_m"], out["time_s"] = h, clock()
-            await asyncio.to_thread(truth.set_param, GPS_ENABLE_PARAM, 0.0)
+            await asyncio.to_thread(cut)
             log.warning(
                 "SITL GPS off at %.2f m above the ground, %.2f m from the pad",
                 h,
@@ -143,7 +148,8 @@ async def fly_gnss_loss(
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
         rec = FlightRecorder(work / "run", config)
         loop = asyncio.get_running_loop()
-        cutter = loop.create_task(_cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, loop.time))
+        cut = lambda: truth.set_param(GPS_ENABLE_PARAM, 0.0)  # noqa: E731
+        cutter = loop.create_task(cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, loop.time, cut))
         t0 = time.monotonic()
         try:
             r = await fly_on_truth(
@@ -156,7 +162,13 @@ async def fly_gnss_loss(
                 await cutter
             rec.close()
             await ap.close()
-    shell = shells[0]
+    return loss_flight(r, shells[0], loss, wall, t0)
+
+
+def loss_flight(
+    r: HarnessResult, shell: DeliveryShell, loss: dict[str, float], wall: float, t0: float
+) -> GnssLossFlight:
+    """The flight's figures from its shell's external-navigation feed and the cut's record."""
     feed_ = shell.external_nav
     lost_seen = switch = jump = math.nan
     sent = 0

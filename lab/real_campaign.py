@@ -107,8 +107,9 @@ def real_config(base: Path, autopilot: str, variant: str) -> SimulatedConfig:
     if variant.startswith("gnss_lost_"):
         raise ValueError(
             f"variant {variant!r} cuts the GPS in the descent, which the real campaign does not drive yet: "
-            "lab/gnss_loss.py (fly_gnss_loss) flies it on the real ArduCopter SITL one landing at a time, "
-            "tests/real_ardupilot/test_arducopter_gnss_lost.py asserts it (docs/external-nav.md)"
+            "lab/gnss_loss.py (fly_gnss_loss) and lab/gnss_loss_px4.py (fly_px4_gnss_loss) fly it on the real "
+            "ArduCopter SITL and PX4 SIH one landing at a time, tests/real_ardupilot/test_arducopter_gnss_lost.py "
+            "and tests/real_px4/test_px4_gnss_lost.py assert it (docs/external-nav.md)"
         )
     if variant in WINCH_VARIANTS:
         raise ValueError(

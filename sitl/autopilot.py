@@ -211,7 +211,8 @@ class SimAutopilot(Autopilot):
             self.vehicle.set_landing_target(target.north_m, target.east_m)
 
     def send_external_nav(self, pose: ExternalNavPose) -> None:
-        """The pose as the vehicle's external navigation (sitl/gnss_loss.py; ArduCopter profile only)."""
+        """The pose as the vehicle's external navigation (sitl/gnss_loss.py; the ArduCopter and PX4 SIH
+        profiles)."""
         pose.validate()
         if not self._link_up:
             return
@@ -219,6 +220,12 @@ class SimAutopilot(Autopilot):
             self.vehicle.gnss.on_pose(self.vehicle.time_s, pose.north_m, pose.east_m, pose.down_m)
         except GnssLossError as err:
             raise AutopilotError(str(err)) from None
+
+    def external_nav_source_name(self, source_set: int) -> str:
+        m = self.vehicle.gnss.model
+        if m is not None and not m.needs_source_set:  # PX4: the backend's own words
+            return "EKF2 external vision (EKF2_EV_CTRL), fused beside GNSS until it went"
+        return super().external_nav_source_name(source_set)
 
     async def use_external_nav(self, source_set: int) -> None:
         try:

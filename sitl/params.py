@@ -263,8 +263,8 @@ class SimConfig(_Section):
     gnss_lost_below_m: float = _f(
         0.0,
         "m",
-        "> 0: the GPS goes off (sitl/gnss_loss.py, ArduCopter profile) the first time the true vehicle comes "
-        "down through this height above the ground within gnss_lost_within_m of the true pad; 0 = never",
+        "> 0: the GPS goes off (sitl/gnss_loss.py: ArduCopter and PX4 SIH profiles) the first time the true "
+        "vehicle comes down through this height above the ground within gnss_lost_within_m of the true pad; 0 = never",
         ge=0.0,
         le=1000.0,
     )

@@ -59,7 +59,7 @@ from companion.guidance.setpoint import VelocitySetpoint
 from companion_sitl.dynamics import TranslationalDynamics
 from companion_sitl.estimator_error import EstimatorError
 from companion_sitl.gauss_markov import GaussMarkov
-from companion_sitl.gnss_loss import LOST_FIX_TYPE, LOST_SATELLITES, SimGnss
+from companion_sitl.gnss_loss import SimGnss
 from companion_sitl.gps_error import GPS_FIX_PERIOD_S, GpsError
 from companion_sitl.land_detector import AUTO_DISARM_AFTER_LAND_S, LandDetector, Touchdown
 from companion_sitl.modes import (
@@ -381,11 +381,20 @@ class SimVehicle:
             self.lose_gnss()
 
     def _ekf_failsafe(self) -> None:
-        """ArduCopter's EKF failsafe with FS_EKF_ACTION = 1: LAND where it is (its texts)."""
-        self._text("EKF variance")
-        if self.armed and self.mode is not FlightMode.LAND:
-            self.modes.land()
-            self._text("EKF Failsafe: changed to LAND Mode")
+        """The failsafe without a position source, with the firmware's texts: ArduCopter's EKF
+        failsafe with FS_EKF_ACTION = 1 lands where it is; PX4 out of OFFBOARD goes to ALTCTL (the
+        height held: MANUAL here, zero velocity) and from other modes lands (gnss_loss.py)."""
+        m = self.gnss.model
+        texts = m.failsafe_texts if m is not None else ("EKF variance",)
+        self._text(texts[0])
+        if not self.armed or self.mode is FlightMode.LAND:
+            return
+        if m is not None and not m.failsafe_lands and self.mode is FlightMode.OFFBOARD:
+            self.mode = FlightMode.MANUAL
+            return
+        self.modes.land()
+        for text in texts[1:]:
+            self._text(text)
 
     def _estimate_with_gnss(self) -> tuple[float, float, float]:
         g = self.gps_error
@@ -516,8 +525,9 @@ class SimVehicle:
         b = self.gps_error.bias
         r = [x * self.cfg.gps_noise_m for x in self._rng_gps.standard_normal(3).tolist()]
         g = self._ltp.to_geo(est[0] + b[0] + r[0], est[1] + b[1] + r[1], est[2] + b[2] + r[2])
-        if self.gnss.lost:
-            return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, LOST_FIX_TYPE, LOST_SATELLITES, 0.8)
+        m = self.gnss.model
+        if self.gnss.lost and m is not None:
+            return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, m.lost_fix_type, m.lost_satellites, 0.8)
         return GpsRaw(self.time_s, g.lat_deg, g.lon_deg, g.alt_amsl_m, 3 if self.healthy else 1, 14, 0.8)
 
     def attitude(self) -> Attitude:

@@ -444,6 +444,10 @@ class Autopilot(abc.ABC):
         ``source_set``); raises :class:`AutopilotError` when refused or not possible."""
         raise AutopilotError(f"{type(self).__name__} cannot switch its position source to external navigation")
 
+    def external_nav_source_name(self, source_set: int) -> str:
+        """What navigates on the external pose once GNSS is lost, for the operator's events."""
+        return f"EKF source set {source_set}"
+
     async def use_gnss(self) -> None:
         """Switch the autopilot's position source back to GNSS (ArduPilot: EKF source set 1)."""
         raise AutopilotError(f"{type(self).__name__} cannot switch its position source back to GNSS")

@@ -128,7 +128,7 @@ class ExternalNavFeed:
             self._switch = asyncio.get_running_loop().create_task(self._use_external_nav())
             detail = (
                 f"GNSS lost ({self.watch.reason}): the autopilot navigates on the fused pose "
-                f"(EKF source set {self.config.source_set})"
+                f"({self.autopilot.external_nav_source_name(self.config.source_set)})"
             )
         else:
             detail = (
@@ -211,7 +211,8 @@ class ExternalNavFeed:
             return
         self.switched = True
         self.stats.switch_accepted_at_s = asyncio.get_running_loop().time()
-        log.warning("the autopilot navigates on the fused pose (EKF source set %d)", self.config.source_set)
+        source = self.autopilot.external_nav_source_name(self.config.source_set)
+        log.warning("the autopilot navigates on the fused pose (%s)", source)
 
     async def stop(self) -> None:
         task = self._switch

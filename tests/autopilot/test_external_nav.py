@@ -115,7 +115,6 @@ def test_source_set_three_reads_its_own_params_and_an_unread_one_is_unknown() ->
 @pytest.mark.parametrize(
     ("overrides", "words"),
     [
-        ({"autopilot": "px4"}, "PX4 \\(EKF2_EV_CTRL\\) is not yet"),
         ({"landing": {"fusion": False}}, "needs landing.fusion = true"),
         ({"landing": {"use_camera": False, "use_uwb": False}}, "needs landing.fusion = true"),
         ({"external_nav": {"enabled": True, "rate_hz": 30.0}}, "must be <= runtime.guidance_rate_hz"),

@@ -28,6 +28,9 @@ class FakeAutopilot:
     async def use_external_nav(self, source_set: int) -> None:
         self.calls.append(f"set {source_set}")
 
+    def external_nav_source_name(self, source_set: int) -> str:
+        return f"EKF source set {source_set}"  # ArduPilot's words (the interface's default)
+
     async def use_gnss(self) -> None:
         self.calls.append("gnss")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from companion_sitl.gnss_loss import EKF_FAILSAFE_AFTER_S, GnssLossError, SimGnss
+from companion_sitl.gnss_loss import EKF_FAILSAFE_AFTER_S, PX4_FAILSAFE_AFTER_S, GnssLossError, SimGnss
 
 
 def test_without_a_position_source_the_failsafe_fires_once_after_the_measured_delay() -> None:
@@ -37,9 +37,20 @@ def test_poses_on_source_set_one_are_not_navigated_on() -> None:
     assert not g.external_fresh(0.0)
 
 
-@pytest.mark.parametrize("profile", ["px4-sih", "ideal"])
-def test_profiles_that_do_not_model_it_refuse_with_the_reason(profile: str) -> None:
-    g = SimGnss(profile)
+def test_px4_sih_fuses_poses_without_a_switch_and_blind_lands_after_its_delay() -> None:
+    g = SimGnss("px4-sih")
+    assert g.model is not None and (g.model.lost_fix_type, g.model.lost_satellites) == (0, 255)
+    g.lose(0.0, (0.0, 0.0))
+    g.on_pose(0.0, 1.0, 2.0, -3.0)
+    assert g.external_fresh(0.0)  # source set 1 still: EKF2 has no sets
+    assert not g.step(0.0) and not g.external_fresh(0.6)
+    assert not g.step(0.6)  # the poses stopped at 0: unaided from here
+    assert not g.step(0.6 + PX4_FAILSAFE_AFTER_S - 0.01)
+    assert g.step(0.6 + PX4_FAILSAFE_AFTER_S)
+
+
+def test_profiles_that_do_not_model_it_refuse_with_the_reason() -> None:
+    g = SimGnss("ideal")
     with pytest.raises(GnssLossError, match="does not model it"):
         g.lose(0.0, (0.0, 0.0))
     with pytest.raises(GnssLossError, match="does not model it"):

@@ -1,4 +1,4 @@
-"""The pre-flight rules of ``[external_nav]`` on ArduCopter 4.x (docs/external-nav.md).
+"""The pre-flight rules of ``[external_nav]`` on ArduCopter 4.x and on PX4 v1.16 (at the end; docs/external-nav.md).
 
 The companion streams VISION_POSITION_ESTIMATE (AP_VisualOdom, VISO_TYPE = 1: MAVLink) and, when
 GNSS is lost near the pad, switches EKF3 to source set n = ``external_nav.source_set``, which must
@@ -141,3 +141,65 @@ def _check_arming_checks(params: Mapping[str, ParamValue]) -> CheckResult:
     if mask == 0:
         return CheckResult("ARMING_CHECK", Status.WARN, fmt(v), "every pre-arm check is off, not only the vision one")
     return CheckResult("ARMING_CHECK", Status.OK, fmt(v), "the visual-odometry pre-arm check is off (bit 18)")
+
+
+# PX4 v1.16 EKF2_EV_CTRL (int32 bitmask): bit 0 horizontal position, 1 vertical position, 2 velocity, 3 yaw
+EV_CTRL_HPOS, EV_CTRL_VPOS, EV_CTRL_VEL, EV_CTRL_YAW = 1, 2, 4, 8
+_EV_CTRL_OFF = (
+    (EV_CTRL_VPOS, "vertical position (bit 1): the height stays EKF2's own (EKF2_HGT_REF), as the fused one is"),
+    (EV_CTRL_VEL, "velocity (bit 2): the ODOMETRY's velocity is a zero placeholder, the fused one is PX4's own"),
+    (EV_CTRL_YAW, "yaw (bit 3): the pose's yaw is PX4's own"),
+)
+
+
+# PX4 v1.16 COM_POSCTL_NAVL (int32): what the failsafe does without a position estimate, from a
+# mode that needs one: 0 Altitude/Manual (PX4's default), 1 Land/Descend
+POSCTL_NAVL = {0: "Altitude/Manual", 1: "Land/Descend"}
+
+
+def px4_external_nav_param_types(req: Requirements) -> dict[str, str]:
+    return {"EKF2_EV_CTRL": "int", "COM_POSCTL_NAVL": "int"} if req.external_nav_source_set is not None else {}
+
+
+def check_px4_external_nav(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    """EKF2_EV_CTRL = 1 (horizontal position only) with ``[external_nav] enabled`` (the companion's
+    ODOMETRY, companion/autopilot/px4/external_nav.py), and what PX4 does with GNSS lost out of
+    camera and UWB range (COM_POSCTL_NAVL)."""
+    if req.external_nav_source_set is None:
+        return []
+    return [_check_ev_ctrl(params), _check_posctl_navl(params)]
+
+
+def _check_posctl_navl(params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "COM_POSCTL_NAVL")
+    if isinstance(v, CheckResult):
+        return v
+    if v == 1:
+        return CheckResult("COM_POSCTL_NAVL", Status.OK, fmt(v), "GNSS lost out of range: PX4 lands where it is")
+    if v == 0:
+        why = (
+            "GNSS lost out of camera and UWB range: PX4 leaves OFFBOARD for Altitude mode (measured on SIH) and "
+            "drifts with the wind until a pilot acts; COM_POSCTL_NAVL = 1 lands where it is"
+        )
+        return CheckResult("COM_POSCTL_NAVL", Status.WARN, fmt(v), why)
+    return CheckResult("COM_POSCTL_NAVL", Status.WRONG, fmt(v), "not a PX4 v1.16 value (0, 1): set COM_POSCTL_NAVL = 1")
+
+
+def _check_ev_ctrl(params: Mapping[str, ParamValue]) -> CheckResult:
+    v = param_or_unknown(params, "EKF2_EV_CTRL")
+    if isinstance(v, CheckResult):
+        return v
+    if v != int(v) or v < 0:
+        return CheckResult("EKF2_EV_CTRL", Status.WRONG, fmt(v), "not a bitmask: set EKF2_EV_CTRL = 1")
+    mask = int(v)
+    if not mask & EV_CTRL_HPOS:
+        why = (
+            "external_nav.enabled: EKF2 must fuse the companion's pose as horizontal position (bit 0), or GNSS lost "
+            "near the pad ends the delivery: set EKF2_EV_CTRL = 1"
+        )
+        return CheckResult("EKF2_EV_CTRL", Status.WRONG, fmt(v), why)
+    wrong = [why for bit, why in _EV_CTRL_OFF if mask & bit]
+    if wrong:
+        why = "external_nav.enabled: set EKF2_EV_CTRL = 1 (horizontal position only); off: " + "; ".join(wrong)
+        return CheckResult("EKF2_EV_CTRL", Status.WRONG, fmt(v), why)
+    return CheckResult("EKF2_EV_CTRL", Status.OK, fmt(v), "the companion's pose fused as horizontal position only")

@@ -5,7 +5,9 @@ Parameters (names, meanings and defaults): COM_OF_LOSS_T (float, s, default 1.0)
 default 0), COM_RC_OVERRIDE (int32 bitmask, bit 0 auto modes, bit 1 offboard, bit 2 ignore
 throttle; default 1), EKF2_GPS_CTRL (int32 bitmask, bit 0 horizontal position; default 7),
 EKF2_HGT_REF (int32, 0 baro, 1 GNSS, 2 range, 3 vision; default 1), PLD_BTOUT (float, s,
-default 5), PLD_HACC_RAD (float, m, default 0.2). PX4 sends int32 parameters byte-wise; MAVSDK's
+default 5), PLD_HACC_RAD (float, m, default 0.2), EKF2_EV_CTRL (int32 bitmask, bit 0 horizontal
+position, 1 vertical, 2 velocity, 3 yaw; 0 on the SIH build), COM_POSCTL_NAVL (int32, 0 Altitude/Manual,
+1 Land/Descend; default 0). PX4 sends int32 parameters byte-wise; MAVSDK's
 Param plugin decodes them.
 """
 
@@ -14,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Literal
 
+from companion.autopilot.preflight.external_nav import check_px4_external_nav, px4_external_nav_param_types
 from companion.autopilot.preflight.report import (
     CheckResult,
     ParamValue,
@@ -56,6 +59,7 @@ def px4_param_types(req: Requirements) -> dict[str, Literal["int", "float"]]:
     if req.landing_controller == "autopilot":
         names.update({"PLD_BTOUT": "float", "PLD_HACC_RAD": "float"})
     names.update(px4_safety_param_types(req))
+    names.update({k: "int" for k in px4_external_nav_param_types(req)})
     return names
 
 
@@ -202,4 +206,5 @@ def check_px4(req: Requirements, params: Mapping[str, ParamValue]) -> list[Check
         check_px4_ekf_height(req, params),
         *check_px4_precland(req, params),
         *check_px4_safety(req, params),
+        *check_px4_external_nav(req, params),
     ]

@@ -43,6 +43,7 @@ from companion.autopilot.interface import (
 from companion.autopilot.liveness import LoopLiveness
 from companion.autopilot.mavlink_messages import VELOCITY_ACCEL_YAW_MASK, VELOCITY_YAW_MASK
 from companion.autopilot.px4.component import Px4Component
+from companion.autopilot.px4.external_nav import Px4ExternalNav
 from companion.autopilot.px4.fence import Px4Fence
 from companion.autopilot.px4.mavsdk_core import InterceptCounters
 from companion.autopilot.px4.mission import Px4Mission
@@ -90,7 +91,7 @@ def is_check_refusal(err: CommandRejected, healthy: bool) -> bool:
     return any(t in err.reason.lower() for t in ARM_CHECK_TEXTS) or not healthy
 
 
-class Px4Autopilot(Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests, Autopilot):
+class Px4Autopilot(Px4ExternalNav, Px4Mission, Px4Fence, Px4Component, Px4RemoteId, Px4Requests, Autopilot):
     def __init__(
         self,
         connection: str = "udpin://0.0.0.0:14540",

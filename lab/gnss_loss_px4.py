@@ -1,0 +1,127 @@
+"""GNSS lost near the pad on the real PX4 v1.16 SIH (docs/external-nav.md, the PX4 section): the
+sitl_short delivery with camera and UWB rendered from SIH's truth, its GPS stopped when the true
+vehicle comes down through ``loss_height_m`` within ``loss_radius_m`` of the pad.
+
+How the GPS is stopped: SIH v1.16 ignores MAV_CMD_INJECT_FAILURE for GPS (only the gazebo bridge,
+simulator_mavlink, handles it: measured, no COMMAND_ACK, GPS_RAW_INT unchanged), so the harness
+stops the simulated receiver in PX4's shell over MAVLink (``sensor_gps_sim stop``): GPS_RAW_INT
+then says fix type 0 with 255 satellites at 1 Hz, as a receiver that lost the sky.
+
+With ``external_nav`` PX4 is booted with EKF2_EV_CTRL = 1 and the companion streams ODOMETRY once
+the pad is locked; EKF2 fuses it beside GNSS and goes on with it alone. Without it PX4's own
+failsafe acts (no position: "blind land" where it is).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+from companion.config import shipped_params_path
+from companion.delivery.shell import DeliveryShell
+from companion.flightlog.recorder import FlightRecorder
+from companion_firmware.px4_sitl import Px4Sitl
+from companion_firmware.real_vehicle import PX4_GCS_URL, PX4_OFFBOARD_URL
+from companion_firmware.truth_feed import MavlinkTruth
+from companion_firmware.truth_harness import fly_on_truth, true_pad_ne
+from companion_lab.gnss_loss import POLICY, GnssLossFlight, cut_gps_when_low, loss_flight
+from companion_lab.real_campaign import firmware_tuning
+from companion_sitl.params import SimulatedConfig, load_simulated_config
+
+#: PX4's parameters for external navigation (companion.autopilot.preflight.external_nav), from boot
+EXTERNAL_NAV_PARAMS = {"EKF2_EV_CTRL": 1}
+#: the shell line that stops SIH's simulated GPS receiver (see the module doc)
+GPS_STOP = "sensor_gps_sim stop"
+#: PX4's custom main modes and AUTO's sub modes (px4_custom_mode.h), for the flight's record
+PX4_MAIN = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED"}
+PX4_AUTO = {2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND", 9: "PRECLAND"}
+
+
+def px4_mode_name(custom_mode: int) -> str:
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    name = PX4_MAIN.get(main, f"main {main}")
+    return f"{name}.{PX4_AUTO.get(sub, f'sub {sub}')}" if main == 4 else name
+
+
+def modes_after(truth: MavlinkTruth, since_monotonic: float) -> tuple[str, ...]:
+    """PX4's mode changes from its heartbeats on the truth link since ``since_monotonic``."""
+    out: list[str] = []
+    last = None
+    for t, m in truth.watched_messages("HEARTBEAT"):
+        name = px4_mode_name(int(m.custom_mode)) + ("" if m.base_mode & 128 else " (disarmed)")
+        if name != last and t >= since_monotonic:
+            out.append(f"{t - since_monotonic:+.1f} s {name}")
+        last = name
+    return tuple(out)
+
+
+def px4_gnss_loss_config(
+    external_nav: bool, fusion: bool = True, height_m: float = 8.0, pad_m: tuple[float, float] | None = None
+) -> SimulatedConfig:
+    """sitl_short on PX4 SIH with PX4's landing tuning, no return home, the no-release-off-the-pad
+    policy on (with fusion); ``pad_m``: the configured pad north/east of home (None: sitl_short's)."""
+    tuning = firmware_tuning("px4")
+    mission = {**tuning["mission"], "ready_timeout_s": 60.0, "return_home": False, "height_m": height_m}
+    if pad_m is not None:
+        mission["pad"] = {"north_m": pad_m[0], "east_m": pad_m[1]}
+    return load_simulated_config(
+        shipped_params_path("sitl_short.toml"),
+        overrides={
+            "autopilot": "px4",
+            "connection": PX4_OFFBOARD_URL,
+            "mission": mission,
+            "landing": {**tuning["landing"], "fusion": fusion, "policy": POLICY if fusion else {}},
+            "external_nav": {"enabled": external_nav},
+        },
+    )
+
+
+async def fly_px4_gnss_loss(
+    root: Path,
+    work: Path,
+    loss_height_m: float,
+    external_nav: bool = True,
+    fusion: bool = True,
+    pad_offset_m: tuple[float, float] = (0.5, -0.4),
+    loss_radius_m: float = 6.0,
+    height_m: float = 8.0,
+    pad_m: tuple[float, float] | None = None,
+    timeout_s: float = 120.0,
+) -> GnssLossFlight:
+    """One delivery on a fresh PX4 SIH (instance 0, clean parameters) with the GPS stopped at
+    ``loss_height_m``."""
+    from companion.autopilot.px4 import Px4Autopilot
+
+    params = dict(EXTERNAL_NAV_PARAMS) if external_nav else {}
+    sitl = Px4Sitl(root, params={k: float(v) for k, v in params.items()}, log_path=work / "px4.log")
+    shells: list[DeliveryShell] = []
+    loss: dict[str, float] = {}
+    with sitl, MavlinkTruth(PX4_GCS_URL, watch=("HEARTBEAT",)) as truth:
+        await asyncio.to_thread(truth.wait, 30.0)
+        config = px4_gnss_loss_config(external_nav, fusion, height_m, pad_m)
+        assert truth.origin is not None
+        pad_ne = true_pad_ne(config, truth.origin, pad_offset_m)
+        ap = Px4Autopilot.from_config(config)
+        rec = FlightRecorder(work / "run", config)
+        loop = asyncio.get_running_loop()
+        cut = lambda: truth.shell(GPS_STOP)  # noqa: E731
+        clock = time.monotonic  # the cut's time on the heartbeats' clock
+        cutter = loop.create_task(cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, clock, cut))
+        t0 = time.monotonic()
+        try:
+            r = await fly_on_truth(
+                config, ap, truth, truth.origin, pad_offset_m, timeout_s=timeout_s, recorder=rec, on_shell=shells.append
+            )
+        finally:
+            wall = time.monotonic() - t0
+            cutter.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await cutter
+            rec.close()
+            await ap.close()
+        modes = modes_after(truth, loss.get("time_s", math.inf))
+    return dataclasses.replace(loss_flight(r, shells[0], loss, wall, t0), autopilot_modes=modes)
