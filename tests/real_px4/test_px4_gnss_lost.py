@@ -30,8 +30,12 @@ async def test_px4_gnss_lost_at_3_m_lands_and_releases_on_the_pad(px4_root, tmp_
     assert 2.0 <= f.loss_height_m <= 3.0, f.loss_height_m  # the GPS went off in the descent
     assert math.isfinite(f.gnss_lost_seen_s) and f.gnss_lost_seen_s < 3.0, f.events  # GPS_RAW_INT: fix type 0
     assert any("EKF2 external vision" in e for e in f.events), f.events
-    # no PX4 failsafe took the vehicle: OFFBOARD to the end (disarmed on the ground)
-    assert all("OFFBOARD" in m for m in f.autopilot_modes), f.autopilot_modes
+    # no PX4 failsafe took the vehicle: OFFBOARD to the end, or PX4's LAND the companion asked for
+    # when the descent outlasted its touchdown timeout (a loaded machine: CI, 2026-12-03); a mode
+    # the companion did not ask for would have ended the delivery ("pilot took over")
+    handed_over = any("handing the last metres to the autopilot's LAND" in e for e in f.events)
+    others = [m for m in f.autopilot_modes if "OFFBOARD" not in m]
+    assert all("AUTO.LAND" in m for m in others) and (handed_over or not others), (f.autopilot_modes, f.events)
     assert r.delivered and r.releases == 1, r.failure
     assert r.pad_landing_error_m <= GOAL_M, r.pad_landing_error_m
     assert r.markers_used > 0 and f.poses_sent > 0
