@@ -16,6 +16,7 @@ import contextlib
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -137,31 +138,53 @@ async def fly_gnss_loss(
         root, extra_params=params, serials={1: f"udpclient:127.0.0.1:{port}"}, log_path=work / "arducopter.log"
     )
     feed = MavlinkTruth(f"udpin:127.0.0.1:{port}", message="SIM_STATE")
-    shells: list[DeliveryShell] = []
-    loss: dict[str, float] = {}
     with sitl, feed as truth:
         truth.wait(15.0)
         await asyncio.to_thread(truth.get_param, GPS_ENABLE_PARAM)  # exists on this build, or TimeoutError
         config = gnss_loss_config(sitl.connection, external_nav, fusion, height_m)
-        assert truth.origin is not None
-        pad_ne = true_pad_ne(config, truth.origin, pad_offset_m)
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
-        rec = FlightRecorder(work / "run", config)
-        loop = asyncio.get_running_loop()
         cut = lambda: truth.set_param(GPS_ENABLE_PARAM, 0.0)  # noqa: E731
-        cutter = loop.create_task(cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, loop.time, cut))
-        t0 = time.monotonic()
-        try:
-            r = await fly_on_truth(
-                config, ap, truth, truth.origin, pad_offset_m, timeout_s=timeout_s, recorder=rec, on_shell=shells.append
-            )
-        finally:
-            wall = time.monotonic() - t0
-            cutter.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await cutter
-            rec.close()
-            await ap.close()
+        clock = asyncio.get_running_loop().time
+        return await fly_with_gps_cut(
+            config, ap, truth, work, pad_offset_m, loss_height_m, loss_radius_m, clock, cut, timeout_s
+        )
+
+
+async def fly_with_gps_cut(
+    config: SimulatedConfig,
+    ap: Any,
+    truth: MavlinkTruth,
+    work: Path,
+    pad_offset_m: tuple[float, float],
+    loss_height_m: float,
+    loss_radius_m: float,
+    clock: Callable[[], float],
+    cut: Callable[[], Any],
+    timeout_s: float,
+) -> GnssLossFlight:
+    """The delivery on the real SITL ``truth`` watches, recorded in ``work/run``, with ``cut()``
+    called once the true vehicle comes down through ``loss_height_m`` within ``loss_radius_m`` of
+    the pad (its time on ``clock``); the autopilot ``ap`` is closed at the end."""
+    assert truth.origin is not None
+    pad_ne = true_pad_ne(config, truth.origin, pad_offset_m)
+    shells: list[DeliveryShell] = []
+    loss: dict[str, float] = {}
+    rec = FlightRecorder(work / "run", config)
+    cutter = asyncio.get_running_loop().create_task(
+        cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, clock, cut)
+    )
+    t0 = time.monotonic()
+    try:
+        r = await fly_on_truth(
+            config, ap, truth, truth.origin, pad_offset_m, timeout_s=timeout_s, recorder=rec, on_shell=shells.append
+        )
+    finally:
+        wall = time.monotonic() - t0
+        cutter.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await cutter
+        rec.close()
+        await ap.close()
     return loss_flight(r, shells[0], loss, wall, t0)
 
 

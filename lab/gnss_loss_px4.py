@@ -15,20 +15,15 @@ failsafe acts (no position: "blind land" where it is).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
-import math
 import time
 from pathlib import Path
 
 from companion.config import shipped_params_path
-from companion.delivery.shell import DeliveryShell
-from companion.flightlog.recorder import FlightRecorder
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.real_vehicle import PX4_GCS_URL, PX4_OFFBOARD_URL
 from companion_firmware.truth_feed import MavlinkTruth
-from companion_firmware.truth_harness import fly_on_truth, true_pad_ne
-from companion_lab.gnss_loss import POLICY, GnssLossFlight, cut_gps_when_low, loss_flight
+from companion_lab.gnss_loss import POLICY, GnssLossFlight, fly_with_gps_cut
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.params import SimulatedConfig, load_simulated_config
 
@@ -98,30 +93,14 @@ async def fly_px4_gnss_loss(
 
     params = dict(EXTERNAL_NAV_PARAMS) if external_nav else {}
     sitl = Px4Sitl(root, params={k: float(v) for k, v in params.items()}, log_path=work / "px4.log")
-    shells: list[DeliveryShell] = []
-    loss: dict[str, float] = {}
     with sitl, MavlinkTruth(PX4_GCS_URL, watch=("HEARTBEAT",)) as truth:
         await asyncio.to_thread(truth.wait, 30.0)
         config = px4_gnss_loss_config(external_nav, fusion, height_m, pad_m)
-        assert truth.origin is not None
-        pad_ne = true_pad_ne(config, truth.origin, pad_offset_m)
         ap = Px4Autopilot.from_config(config)
-        rec = FlightRecorder(work / "run", config)
-        loop = asyncio.get_running_loop()
         cut = lambda: truth.shell(GPS_STOP)  # noqa: E731
         clock = time.monotonic  # the cut's time on the heartbeats' clock
-        cutter = loop.create_task(cut_gps_when_low(truth, pad_ne, loss_height_m, loss_radius_m, loss, clock, cut))
-        t0 = time.monotonic()
-        try:
-            r = await fly_on_truth(
-                config, ap, truth, truth.origin, pad_offset_m, timeout_s=timeout_s, recorder=rec, on_shell=shells.append
-            )
-        finally:
-            wall = time.monotonic() - t0
-            cutter.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await cutter
-            rec.close()
-            await ap.close()
-        modes = modes_after(truth, loss.get("time_s", math.inf))
-    return dataclasses.replace(loss_flight(r, shells[0], loss, wall, t0), autopilot_modes=modes)
+        f = await fly_with_gps_cut(
+            config, ap, truth, work, pad_offset_m, loss_height_m, loss_radius_m, clock, cut, timeout_s
+        )
+        modes = modes_after(truth, f.loss_time_s)
+    return dataclasses.replace(f, autopilot_modes=modes)

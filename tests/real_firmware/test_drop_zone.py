@@ -11,26 +11,23 @@ from companion_firmware.truth_harness import flight_story, fly_on_truth
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.params import load_simulated_config
 
-from .vehicles import GRIPPER_SERVO9, autopilot, sitl_with_truth
+from .vehicles import AUTOPILOT_OVERRIDES, DELIVERY_BOOT_PARAMS, READY_MISSION, autopilot, sitl_with_truth
 
 pytestmark = pytest.mark.firmware
 
-EXTRA_PARAMS = {"px4": {}, "ardupilot": GRIPPER_SERVO9}
-OVERRIDES = {"px4": {}, "ardupilot": {"autopilot": "ardupilot"}}
-MISSION = {"px4": {}, "ardupilot": {"ready_timeout_s": 120.0}}
 TIMEOUT_S = {"px4": 240.0, "ardupilot": 300.0}
 
 
 async def test_a_box_on_the_pad_holds_and_the_parcel_flies_home(firmware, tmp_path):
     name, root = firmware
     tuning = firmware_tuning(name)
-    with sitl_with_truth(name, root, tmp_path, extra_params=EXTRA_PARAMS[name]) as (connection, truth, log):
+    with sitl_with_truth(name, root, tmp_path, extra_params=DELIVERY_BOOT_PARAMS[name]) as (connection, truth, log):
         config = load_simulated_config(
             shipped_params_path("sitl_short.toml"),
             overrides={
-                **OVERRIDES[name],
+                **AUTOPILOT_OVERRIDES[name],
                 "connection": connection,
-                "mission": {**tuning["mission"], **MISSION[name], "return_home": True},
+                "mission": {**tuning["mission"], **READY_MISSION[name], "return_home": True},
                 "landing": {**tuning["landing"], "fusion": True, "drop_zone": {"enabled": True, "hold_s": 2.0}},
                 "sim": {"camera": {"occluder": {"kind": "box"}}},
             },

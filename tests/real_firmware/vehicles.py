@@ -16,6 +16,13 @@ from companion_sitl.mavlink.link import free_udp_port
 # gripper on output 9 (tests/real_ardupilot/conftest.py's GRIPPER_SERVO9)
 GRIPPER_SERVO9 = ARDUCOPTER_GRIPPER_SERVO9
 
+# what a delivery test adds per firmware: boot parameters (ArduCopter: the gripper from boot), the
+# configuration's autopilot, and the mission's wait for ArduCopter's EKF3 to use GPS (~41 s after
+# boot, the ready timeout)
+DELIVERY_BOOT_PARAMS: dict[str, dict[str, float]] = {"px4": {}, "ardupilot": GRIPPER_SERVO9}
+AUTOPILOT_OVERRIDES: dict[str, dict[str, Any]] = {"px4": {}, "ardupilot": {"autopilot": "ardupilot"}}
+READY_MISSION: dict[str, dict[str, Any]] = {"px4": {}, "ardupilot": {"ready_timeout_s": 120.0}}
+
 # the companion's link to the started SITL: PX4 SIH's offboard port, ArduCopter's from the SITL
 PX4_CONNECTION = "udpin://127.0.0.1:14540"
 # seconds the truth feed is given for its first sample (what tests/real_px4/ and
