@@ -82,7 +82,10 @@ class PrecisionDescent:
         zeroed = height_m < c.touchdown_height_m or self.contact
         vx, vy = -c.xy_gain_1_s * ex, -c.xy_gain_1_s * ey
         if c.xy_integral_gain_1_s2 > 0.0:
-            ix, iy = self._integral(ex, ey, time_s, frozen=zeroed, p_cmd=(vx, vy))
+            # not summed while the sinking has stopped either: on the ground the estimate of a
+            # vehicle that cannot move drifts under the sideways command, and the sum chases it
+            frozen = zeroed or self.sinking_stopped
+            ix, iy = self._integral(ex, ey, time_s, frozen=frozen, p_cmd=(vx, vy))
             vx -= ix
             vy -= iy
         vh = math.hypot(vx, vy)
@@ -102,6 +105,12 @@ class PrecisionDescent:
             ay = -k * (c.xy_gain_1_s * v_y + c.xy_integral_gain_1_s2 * ey)
             acc = (ax, ay)
         return DescentCommand(vx, vy, vz, acc)
+
+    @property
+    def sinking_stopped(self) -> bool:
+        """Near the ground, a descent that sank has stopped sinking (descent.contact_time_s): the
+        contact is confirmed once this has lasted contact_time_s."""
+        return self._stopped_since is not None and not self.contact
 
     def _slow(self, e: float, height_m: float, time_s: float, may_hold: bool) -> float:
         """The descent's speed factor: slower while off-centre (by e, m) and held at twice the

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from companion.autopilot.types import FlightMode, HomePosition, LandedState, VehicleStatus
-from companion.config import MissionConfig, PadConfig
+from companion.config import DescentConfig, MissionConfig, PadConfig
 from companion.delivery.mission import DeliveryMission, FailureKind, Leg, MissionInputs, RequestKind, RequestResult
 from companion.delivery.mission.phases import precision_descent
 from companion.estimation.types import StateEstimate
@@ -592,3 +592,31 @@ def test_a_touchdown_outside_the_pad_by_the_estimate_releases_nothing():
         else:
             assert out.request is not None and out.request.kind is RequestKind.ARM and m.phase is Phase.ARMING
             assert m.summary.failure_kind is FailureKind.NOT_DELIVERED and "outside the pad" in m.summary.failure
+
+
+def test_a_touchdown_is_judged_where_the_sinking_stopped_not_where_the_estimate_drifted_after():
+    """descent.contact_time_s = 0.3: the vehicle sinks onto the pad's centre and stops there; while
+    the contact is being confirmed its estimate (on the ground, under the sideways command) drifts
+    1.2 m off, and the autopilot reports it disarmed there. The touchdown is judged where the
+    sinking stopped: released. Without the stop (the vehicle slid in the air to 1.2 m off and came
+    down there) the same last estimate keeps the parcel aboard."""
+    for drift_on_the_ground, released in ((True, True), (False, False)):
+        c = cfg(descent=DescentConfig(touchdown_height_m=-1.0, contact_time_s=0.3), land_speed_m_s=0.7)
+        m = DeliveryMission(c)
+        arm = m.step(MissionInputs(0.0, est(0.0), status(0.0), HOME)).request
+        m.on_result(RequestResult(arm.id, True))
+        m.enter(Phase.LANDING_PAD)
+        pn, pe = float(m.pad_ned[0]), float(m.pad_ned[1])
+        air = status(0.0, armed=True, mode=FlightMode.OFFBOARD, landed=LandedState.IN_AIR)
+        t, d = 0.05, -1.0
+        off = 0.0 if drift_on_the_ground else 1.2
+        while d < 0.0:  # sinking at 0.7 m/s onto the ground
+            m.step(MissionInputs(t, StateEstimate(t, pn + off, pe, d, 0, 0, 0.7, 0, 0, 0), air, HOME))
+            t, d = t + 0.05, d + 0.035
+        for i in range(12):  # stopped: the estimate drifts 0.1 m a tick (only on the ground)
+            n = pn + (0.1 * (i + 1) if drift_on_the_ground else off)
+            m.step(MissionInputs(t, StateEstimate(t, n, pe, 0.0, 0, 0, 0.0, 0, 0, 0), air, HOME))
+            t += 0.05
+        ground = status(t, armed=False, mode=FlightMode.OFFBOARD)
+        m.step(MissionInputs(t, StateEstimate(t, pn + 1.2, pe, 0.0, 0, 0, 0.0, 0, 0, 0), ground, HOME))
+        assert (m.phase is Phase.RELEASE) is released, (drift_on_the_ground, m.summary.failure)

@@ -51,6 +51,20 @@ def test_a_vehicle_that_stops_sinking_near_the_ground_is_in_contact_and_only_des
     assert d.contact and d.integral_m_s == integral
 
 
+def test_the_integral_stops_summing_once_the_sinking_stops_and_goes_on_if_it_was_no_contact():
+    """On the ground the estimate drifts under the sideways command: while the sinking has
+    stopped (before contact_time_s confirms it) the integral holds; a short stop that was no
+    contact lets it sum again."""
+    cfg = DescentConfig(touchdown_height_m=-1.0, contact_time_s=0.3, xy_integral_gain_1_s2=2.5, xy_gain_1_s=1.0)
+    d = PrecisionDescent(cfg, land_speed_m_s=0.7)
+    _fly(d, [(0.7, 0.4)])
+    before = d.integral_m_s
+    _fly(d, [(0.05, 0.2)], t=0.4)
+    assert d.sinking_stopped and not d.contact and d.integral_m_s == before
+    _fly(d, [(0.7, 0.2)], t=0.6)
+    assert not d.sinking_stopped and d.integral_m_s[0] > before[0]
+
+
 @pytest.mark.parametrize(
     "sinks, height_m, why",
     [

@@ -101,7 +101,8 @@ async def test_delivery_after_delivery_and_a_return_from_the_gcs(firmware, tmp_p
                 assert gcs.upload_mission(1, plan, home_item=HOME_ITEM[name]) == 0  # MAV_MISSION_ACCEPTED
             shell = await _fly(name, *((config, None) if flight == 1 else (_gcs_plan(config), where)))
             s = shell.mission.summary
-            assert s.delivered and s.returned and not s.failure, (flight, s.failure, shell.made_ready)
+            landing = [(e.phase.value, e.kind.value, e.detail) for e in s.events][-12:]  # why, if it failed
+            assert s.delivered and s.returned and not s.failure, (flight, s.failure, shell.made_ready, landing)
             # each leaves PX4 in HOLD, where the next one arms: PX4 disarms in OFFBOARD, arms in HOLD;
             # ArduCopter's next arming needs no mode made ready (made_ready stays empty)
             if name == "px4":

@@ -339,8 +339,14 @@ def precision_descent(
 
     cmd = st.descent.command(ex, ey, height, time_s, in_sight and in_time, velocity_xy, est.down_m_s)
     if st.descent.contact and st.contact_ned is None:
-        st.contact_ned = est.position_ned
+        # where the sinking stopped: by the confirmation the estimate has drifted under the
+        # sideways command (real PX4 SIH under load: 0.2 m in 1.2 s)
+        st.contact_ned = st.sink_stop_ned or est.position_ned
         log.info("ground contact at %.2f m height: only the descent from here", height)
+    elif st.descent.sinking_stopped:
+        st.sink_stop_ned = st.sink_stop_ned or est.position_ned
+    else:
+        st.sink_stop_ned = None
     v_ned = frame.vector_to_ned((cmd.x_m_s, cmd.y_m_s, cmd.z_m_s))
     acc = None
     if cmd.accel_xy_m_s2 is not None:

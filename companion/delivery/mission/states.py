@@ -47,6 +47,7 @@ class LandingState(PhaseState):
     touchdown_ours: bool = True
     touchdown_off_pad_m: float = 0.0  # how far outside the pad the estimate put the touchdown (0: on it)
     contact_ned: tuple[float, float, float] | None = None  # the estimate at the ground contact (descent.contact_time_s)
+    sink_stop_ned: tuple[float, float, float] | None = None  # the estimate where the sinking last stopped
     precland_requested: bool = False
     touchdown_land_requested: bool = False  # the last metres handed to the autopilot's LAND
     disarm_not_before: float = -math.inf
