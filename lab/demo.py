@@ -425,6 +425,7 @@ async def fly(
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)
+    vehicle.set_pad_track(true_pad_track(config))
     # the link traffic (MAVExplorer, QGC)
     tlog_path = run_dir / "flight.tlog" if run_dir is not None and tlog else None
     ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog_path, mavlink)

@@ -225,6 +225,14 @@ class SimPadMotionConfig(_Section):
     start_s: float = _f(
         0.0, "s", "simulated time the pad starts moving (before it stands at its place)", ge=0.0, le=36000.0
     )
+    deck_size_m: float = _f(
+        2.0,
+        "m",
+        "side of the moving vehicle's deck, a square centred on the pad and turned with it: a vehicle resting on "
+        "it rides along (as on a van's roof); off it, on the ground",
+        gt=0.0,
+        le=50.0,
+    )
 
 
 class SimConfig(_Section):

@@ -479,6 +479,7 @@ class _ReplayShell:
             autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             winch=winch,
             drop_zone=drop_zone,
+            pad_velocity_ne=self.fusion.pad_velocity_ne if self.fusion is not None else None,
         )
         out = mission.step(inp)
         setpoint, clamped = None, False

@@ -156,3 +156,24 @@ def test_the_uwb_anchors_move_with_the_pad() -> None:
             worst_standing = max(worst_standing, abs(r - standing[k]))
     assert worst_moving < 0.5  # the ranging noise (and an occasional NLOS path)
     assert worst_standing > 2.0  # the pad drove off (about 6 m in 4 s)
+
+
+@pytest.mark.parametrize(("pad_north_m", "rides"), [(0.3, True), (5.0, False)])
+def test_a_vehicle_resting_on_the_deck_rides_along_and_one_beside_it_does_not(pad_north_m: float, rides: bool) -> None:
+    from companion_sitl.params import SimConfig
+    from companion_sitl.vehicle import SimVehicle
+
+    v = SimVehicle(SimConfig())  # on the ground at the origin, disarmed
+    tr = PadTrack(_cfg(speed_m_s=1.0, course_deg=90.0, turn_rate_deg_s=10.0, accel_m_s2=1.0), pad_north_m, 0.0)
+    v.set_pad_track(tr)
+    yaw0 = v.yaw
+    v.step_to(6.0)
+    if rides:  # its offset from the pad kept in the pad's (turning) frame, its heading turned with it
+        n, e, yaw, vn, ve = tr.state(v.time_s)
+        dy = yaw - 0.0
+        off = (-pad_north_m * math.cos(dy), -pad_north_m * math.sin(dy))
+        assert (v.pn, v.pe) == pytest.approx((n + off[0], e + off[1]), abs=1e-6)
+        assert math.remainder(v.yaw - yaw0 - dy, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+        assert (v.vn, v.ve) == pytest.approx((vn, ve), abs=1e-12)
+    else:
+        assert (v.pn, v.pe) == (0.0, 0.0)
