@@ -1300,7 +1300,7 @@ class MovingPadConfig(_Section):
         2.0, "m/s", "prior 1-sigma of each horizontal component of the pad's velocity (mean 0)", gt=0.0, le=20.0
     )
     max_speed_m_s: float = _f(
-        3.0,
+        3.5,
         "m/s",
         "the fastest pad the vehicle lands on: an estimated pad speed above it stops the descent and the "
         "release (docs/moving-pad.md, the stated limits)",

@@ -53,7 +53,7 @@ def test_without_the_moving_pad_model_the_pad_is_never_locked_and_nothing_is_rel
 def test_a_pad_faster_than_the_limit_is_not_landed_on_and_the_parcel_flies_home() -> None:
     r = run_demo(_moving(4.0))
     assert not r.delivered and r.home_with_parcel
-    assert "faster than landing.moving_pad.max_speed_m_s = 3 m/s" in r.failure
+    assert "faster than landing.moving_pad.max_speed_m_s = 3.5 m/s" in r.failure
     events = [e for e in r.events if e[1] == "pad_lock" and "not landing on the pad" in e[3]]
     assert len(events) == 1
     assert not any(e[1] in ("touchdown",) and e[3] == "pad" for e in r.events)  # never touched down there
