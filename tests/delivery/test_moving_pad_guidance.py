@@ -31,5 +31,5 @@ def test_a_pad_faster_than_the_limit_is_named_with_its_speed_and_the_key() -> No
     assert too_fast(None, 3.0) is None
     assert too_fast((3.0, 0.0), 3.0) is None  # at the limit: landed on
     why = too_fast((3.0, 1.0), 3.0)
-    assert why is not None and f"{math.hypot(3.0, 1.0):.1f} m/s" in why
+    assert why is not None and f"{math.hypot(3.0, 1.0):.2f} m/s" in why
     assert "landing.moving_pad.max_speed_m_s = 3 m/s" in why

@@ -40,6 +40,6 @@ def too_fast(pad_velocity_ne: tuple[float, float] | None, max_speed_m_s: float) 
     if speed <= max_speed_m_s:
         return None
     return (
-        f"the pad moves at {speed:.1f} m/s, faster than landing.moving_pad.max_speed_m_s = {max_speed_m_s:g} m/s "
+        f"the pad moves at {speed:.2f} m/s, faster than landing.moving_pad.max_speed_m_s = {max_speed_m_s:g} m/s "
         "(docs/moving-pad.md)"
     )
