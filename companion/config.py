@@ -1279,6 +1279,36 @@ class DropZoneConfig(_Section):
         return self
 
 
+class MovingPadConfig(_Section):
+    """A pad on a moving vehicle (a van, a boat; companion.estimation.moving_pad, docs/moving-pad.md):
+    ``[landing.moving_pad]``. Off by default: the pad stands where it is configured (delivery 5.2)."""
+
+    enabled: bool = _f(
+        False,
+        "-",
+        "the pad may move: the EKF also estimates its horizontal velocity (14 states; needs landing.fusion "
+        "and landing.use_camera)",
+    )
+    accel_sigma_m_s2: float = _f(
+        0.3,
+        "m/s^2",
+        "the pad's acceleration as white noise (1-sigma per horizontal axis): the process noise of its velocity",
+        gt=0.0,
+        le=10.0,
+    )
+    initial_speed_sigma_m_s: float = _f(
+        2.0, "m/s", "prior 1-sigma of each horizontal component of the pad's velocity (mean 0)", gt=0.0, le=20.0
+    )
+    max_speed_m_s: float = _f(
+        3.5,
+        "m/s",
+        "the fastest pad the vehicle lands on: an estimated pad speed above it stops the descent and the "
+        "release (docs/moving-pad.md, the stated limits)",
+        gt=0.0,
+        le=10.0,
+    )
+
+
 class LandingConfig(_Section):
     """Precision landing (delivery 4.2): fuse the camera and UWB with the GPS pose in the EKF."""
 
@@ -1353,11 +1383,24 @@ class LandingConfig(_Section):
     detector: DetectorConfig = Field(default_factory=DetectorConfig)
     drop_zone: DropZoneConfig = Field(default_factory=DropZoneConfig)
     multilateration: MultilaterationConfig = Field(default_factory=MultilaterationConfig)
+    moving_pad: MovingPadConfig = Field(default_factory=MovingPadConfig)
 
     @model_validator(mode="before")
     @classmethod
     def _old_ekf_keys(cls, data: Any) -> Any:
         return read_moved_keys(data, LANDING_OLD_EKF_KEYS, "landing", "ekf")
+
+    @model_validator(mode="after")
+    def _moving_pad_needs_the_camera(self) -> LandingConfig:
+        """A moving pad's velocity is observed only through pad-local data fused in the EKF, and the
+        descent onto it needs the camera's sightings (UWB alone lags a moving pad by its fix rate)."""
+        if self.moving_pad.enabled and not (self.fusion and self.use_camera):
+            raise ValueError(
+                f"moving_pad.enabled = true needs fusion = true and use_camera = true (got fusion = "
+                f"{str(self.fusion).lower()}, use_camera = {str(self.use_camera).lower()}): the pad's "
+                "velocity is estimated from the camera's sightings in the EKF"
+            )
+        return self
 
 
 #: ``[landing]`` keys of older files -> their key in ``[landing.ekf]``

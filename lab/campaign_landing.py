@@ -52,6 +52,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # navigation, and GPS-only beside it on the same draws
     **{f"gnss_lost_{h}m": {} for h in (10, 3)},
     **{f"gnss_lost_{h}m_gps_only": {"fusion": False, "policy": {"require_pad_lock": False}} for h in (10, 3)},
+    # a pad on a moving vehicle (docs/moving-pad.md): the EKF's pad-velocity states on
+    **{f"moving_pad_{v}ms": {"moving_pad": {"enabled": True}} for v in (1, 2, 3)},
 }
 
 # [sim] overrides (failures of the sensors fitted and configured, in flight)
@@ -80,6 +82,18 @@ EXTERNAL_NAV_VARIANTS = ("gnss_lost_10m", "gnss_lost_3m")
 MISSION_VARIANTS: dict[str, dict[str, Any]] = {
     "pad_missing_alternate": {"alternate_pad": {"lat_deg": -19.868667, "lon_deg": -43.9637141, "alt_amsl_m": 850.0}},
 }
+
+# moving_pad_<v>ms: the pad drives off at v m/s from MOVING_PAD_START_S (the approach: the landing
+# starts at ~39 s on params/landing_campaign.toml's path), straight, on a course drawn per draw
+MOVING_PAD_START_S = 34.0
+MOVING_PAD_VARIANTS = {f"moving_pad_{v}ms": float(v) for v in (1, 2, 3)}
+
+
+def moving_pad_course_deg(seed: int) -> float:
+    """The moving_pad variants' course for a draw's seed (its own generator: the other draws
+    of the campaign are unchanged)."""
+    return float(np.random.default_rng([seed, 41]).uniform(0.0, 360.0))
+
 
 # pad_heading: a dock with a heading drawn per draw (uniform over the circle), placed up to
 # PAD_HEADING_PLACED_DEG off its configured heading (the camera's measured heading must win)
@@ -186,6 +200,12 @@ def scenario_config(
         mission["delivery"] = "winch"
         sim["winch"] = {"fitted": True}
         overrides["winch"] = {**tuning.get("winch", {}), "wind_drift_s_m": WINCH_DRIFT_S_M}
+    if variant in MOVING_PAD_VARIANTS:
+        sim["pad_motion"] = {
+            "speed_m_s": MOVING_PAD_VARIANTS[variant],
+            "course_deg": moving_pad_course_deg(d.seed),
+            "start_s": MOVING_PAD_START_S,
+        }
     if variant in HEADING_VARIANTS:
         heading_deg, placed_deg = pad_heading_draw(d.seed)
         mission["pad"] = {**mission.get("pad", {}), "heading_deg": heading_deg}

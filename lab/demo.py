@@ -37,6 +37,7 @@ from companion_sitl.autopilot import SimAutopilot
 from companion_sitl.clock import run_virtual
 from companion_sitl.landing_sensors import CameraPlayback, sim_landing_kit
 from companion_sitl.mavlink.link import free_udp_port
+from companion_sitl.pad_motion import PadTrack, pad_track
 from companion_sitl.params import SimulatedConfig
 from companion_sitl.scoring import REFERENCE, PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
@@ -221,6 +222,12 @@ def true_pad_ned(config: SimulatedConfig) -> tuple[float, float]:
     return float(pad[0]) + config.sim.pad_offset_m[0], float(pad[1]) + config.sim.pad_offset_m[1]
 
 
+def true_pad_track(config: SimulatedConfig) -> PadTrack | None:
+    """The true pad's motion over time (``[sim.pad_motion]``), None when it stands still."""
+    n, e = true_pad_ned(config)
+    return pad_track(config.sim.pad_motion, n, e, true_pad_heading_rad(config))
+
+
 def loopback_autopilot(config: SimulatedConfig, backend: str, port: int, tlog: Any = None) -> Autopilot:
     """The ``backend``'s autopilot ("px4": MAVSDK, else pymavlink) listening on loopback UDP
     ``port`` for a MAVLink sim vehicle, with the configured link timeout and stream rates."""
@@ -306,14 +313,22 @@ def _demo_result(
 ) -> DemoResult:
     """The flight scored on truth: touchdowns at the pad and at home, the path, the shell's figures."""
     pad_n, pad_e = true_pad_ned(config)
+    track = true_pad_track(config)
+
+    def pad_at(t_s: float) -> tuple[float, float]:  # a moving pad: where it is at that instant
+        return (pad_n, pad_e) if track is None else track.ne(t_s)
 
     # a touchdown belongs to the site it is nearest to (a mission may return without delivering)
     def near_pad(t: Any) -> bool:
-        return math.hypot(t.north_m - pad_n, t.east_m - pad_e) < math.hypot(t.north_m, t.east_m)
+        pn, pe = pad_at(t.time_s)
+        return math.hypot(t.north_m - pn, t.east_m - pe) < math.hypot(t.north_m, t.east_m)
 
     pad_td = [t for t in vehicle.touchdowns if near_pad(t)]
     home_td = [t for t in vehicle.touchdowns if not near_pad(t)]
-    pad_err_ne = (pad_td[0].north_m - pad_n, pad_td[0].east_m - pad_e) if pad_td else (math.nan, math.nan)
+    pad_err_ne = (math.nan, math.nan)
+    if pad_td:
+        td_n, td_e = pad_at(pad_td[0].time_s)
+        pad_err_ne = (pad_td[0].north_m - td_n, pad_td[0].east_m - td_e)
     home_err = math.hypot(home_td[-1].north_m, home_td[-1].east_m) if home_td else math.nan
     flight_time = (
         summary.end_time_s - summary.takeoff_time_s
@@ -410,6 +425,7 @@ async def fly(
     vehicle = SimVehicle(config.sim)
     pad_n, pad_e = true_pad_ned(config)
     vehicle.set_pad_truth(pad_n, pad_e)
+    vehicle.set_pad_track(true_pad_track(config))
     # the link traffic (MAVExplorer, QGC)
     tlog_path = run_dir / "flight.tlog" if run_dir is not None and tlog else None
     ap, sim_ap, mav_sim = _vehicle_link(config, vehicle, tlog_path, mavlink)

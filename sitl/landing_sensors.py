@@ -47,6 +47,7 @@ from companion.uwb.measurements import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.camera_conditions import CameraConditions, FrameFate, pad_velocity_px_s
 from companion_sitl.camera_occluders import OCCLUDER_STREAM, Occluder, draw_occluder
+from companion_sitl.pad_motion import PadTrack, pad_track
 from companion_sitl.params import SimOccluderConfig, SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
@@ -98,6 +99,7 @@ class SimCameraSource:
         driver_stamp: bool = False,
         occluder: Occluder | None = None,
         occluder_from_height_m: float = 0.0,
+        pad_track: PadTrack | None = None,
     ):
         """``latency_s``: the latency the configuration knows (``landing.camera_latency_s``);
         ``unknown_latency_s``: what the frames take on top of it, which the configuration does not
@@ -107,10 +109,12 @@ class SimCameraSource:
         driver's honest capture stamp (the exposure) and its arrival (docs/clock.md); ``occluder``:
         painted into each frame before the exposure, its clock starting at the first frame read with
         the pad in view and the vehicle below ``occluder_from_height_m`` (0: any height;
-        ``[sim.camera.occluder]``, docs/drop-zone.md)."""
+        ``[sim.camera.occluder]``, docs/drop-zone.md); ``pad_track``: the pad moves
+        (``[sim.pad_motion]``): each exposure sees it where it is at that instant."""
         if not (math.isfinite(unknown_latency_s) and 0.0 <= unknown_latency_s <= 1.0):
             raise ValueError(f"unknown_latency_s = {unknown_latency_s!r}: expected finite, within [0, 1] s")
         self.vehicle = vehicle
+        self.pad_track = pad_track
         # a real camera's effects ([sim.camera]): None or inactive, the renderer's frames bit for bit
         self.conditions = conditions if conditions is not None and conditions.active else None
         self._fates: dict[float, tuple[FrameFate, tuple[float, float]]] = {}  # exposure -> fate, image velocity
@@ -155,6 +159,7 @@ class SimCameraSource:
         self._in_view = timed("sim_sensors", self._above_pad if h.every_exposure else self._pad_in_view)
         self._expose = timed("sim_render", camera.expose)
         self._capture = timed("sim_render", camera.capture)
+        self._render = timed("sim_render", camera.render)
 
     @property
     def pending_renders(self) -> int:
@@ -186,8 +191,12 @@ class SimCameraSource:
             # told): an unpolled camera's exposures (vision not wanted yet) would render unread
             polled, self._polled = self._polled, False
             T_cp = None
+            if self.pad_track is not None:  # the pad where it is now; T_cp kept with the pose for read()
+                self.camera.T_world_pad = self.pad_track.pose(t)
+                T_cp = self._camera_pad(T)
             if self._renderer is not None and (polled or self._listener.attached):
-                T_cp = self._camera_pad(T)  # kept with the pose: read() needs it again
+                if T_cp is None:
+                    T_cp = self._camera_pad(T)  # kept with the pose: read() needs it again
                 if self._in_view(T_cp):
                     self._renders[t] = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
                     if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
@@ -290,7 +299,13 @@ class SimCameraSource:
         if self.conditions is not None or self.occluder is not None:
             image = self._with_conditions(t, T_cp, ahead)
         else:  # not started (no renderer): rendered here, as capture() does
-            image = self._expose(ahead.result()) if ahead is not None else self._capture(T, t).image
+            image = (
+                self._expose(ahead.result())
+                if ahead is not None
+                else self._capture(T, t).image
+                if self.pad_track is None
+                else self._render(T_cp)
+            )
         self.rendered += 1
         self._index += 1
         if not self.driver_stamp and self.unknown_latency_s == 0.0:
@@ -344,8 +359,12 @@ class SimUwbSource:
         rate_hz: float = 10.0,
         fails_below_m: float = 0.0,
         hooks: SimSensorHooks | None = None,
+        pad_track: PadTrack | None = None,
     ):
+        """``pad_track``: the pad moves (``[sim.pad_motion]``) and the anchors with it, fixed on it
+        as ``T_world_anchors_true`` places them on the standing pad."""
         self.vehicle = vehicle
+        self.pad_track = pad_track
         self.fails_below_m = fails_below_m  # a failed UWB: no ranging below this true height (0: never)
         self.uwb = uwb
         h = hooks or SimSensorHooks()
@@ -353,6 +372,8 @@ class SimUwbSource:
         self._rate_loop = h.rate_loop
         self.rate_loop: RateLoop | None = None  # the ranging loop, once started
         self.T_anchors_world = T_world_anchors_true.inverse()
+        if pad_track is not None:  # the anchors in the standing pad's frame: T_pad_anchors
+            self._T_pad_anchors = pad_track.standing_pose().inverse() @ T_world_anchors_true
         self.rate_hz = rate_hz
         self._clock = LoopClock()
         self._out: list[TwrMeasurement] = []
@@ -369,6 +390,8 @@ class SimUwbSource:
             self.vehicle.step_to(t)
             if self.fails_below_m > 0.0 and -self.vehicle.pd < self.fails_below_m:
                 continue
+            if self.pad_track is not None:
+                self.T_anchors_world = (self.pad_track.pose(t) @ self._T_pad_anchors).inverse()
             tag = self.T_anchors_world.apply(np.array([self.vehicle.pn, self.vehicle.pe, self.vehicle.pd]))
             m = self._twr(t, tag)
             if len(m.anchor_ids) > 0:
@@ -447,6 +470,7 @@ def sim_landing_kit(
     lc = config.landing
     seed = config.sim.seed
     T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0, yaw_rad=true_pad_heading_rad(config))
+    track = pad_track(config.sim.pad_motion, true_pad_ne[0], true_pad_ne[1], true_pad_heading_rad(config))
     mount = downward_mount(lc.camera_offset_body_m)
     cam_model = load_default_camera()
     layout = PadLayout()
@@ -494,6 +518,7 @@ def sim_landing_kit(
             driver_stamp=config.sim.camera.driver_stamp,
             occluder=sim_occluder(config.sim.camera.occluder, layout, lc.drop_zone.margin_m, seed),
             occluder_from_height_m=config.sim.camera.occluder.from_height_m,
+            pad_track=track,
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera
@@ -514,6 +539,7 @@ def sim_landing_kit(
             lc.uwb_rate_hz,
             fails_below_m=config.sim.uwb_fails_below_m,
             hooks=hooks,
+            pad_track=track,
         )
         multi = Multilaterator(anchors, lc.multilateration)
     from companion.geometry.se3 import Transform

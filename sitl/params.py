@@ -200,6 +200,41 @@ class SimCameraConditionsConfig(_Section):
     occluder: SimOccluderConfig = Field(default_factory=SimOccluderConfig)
 
 
+class SimPadMotionConfig(_Section):
+    """The simulated pad on a moving vehicle (a van, a boat; companion_sitl.pad_motion, docs/moving-pad.md):
+    it stands at its place until ``start_s``, speeds up along ``course_deg`` at ``accel_m_s2`` to
+    ``speed_m_s``, then drives on at that speed turning at ``turn_rate_deg_s``; the camera's target, the
+    UWB anchors and the truth scoring follow it. Off by default (speed 0)."""
+
+    speed_m_s: float = _f(
+        0.0, "m/s", "the pad's ground speed once up to speed (0: the pad stands still)", ge=0.0, le=10.0
+    )
+    course_deg: float = _f(
+        0.0, "deg", "the direction the pad starts moving in (0 = north, 90 = east)", ge=0.0, lt=360.0
+    )
+    turn_rate_deg_s: float = _f(
+        0.0,
+        "deg/s",
+        "the pad's course (and heading) turns at this rate once up to speed (> 0: to the right; 0: straight)",
+        ge=-30.0,
+        le=30.0,
+    )
+    accel_m_s2: float = _f(
+        0.5, "m/s^2", "the pad's acceleration from standing to speed_m_s (straight)", gt=0.0, le=10.0
+    )
+    start_s: float = _f(
+        0.0, "s", "simulated time the pad starts moving (before it stands at its place)", ge=0.0, le=36000.0
+    )
+    deck_size_m: float = _f(
+        2.0,
+        "m",
+        "side of the moving vehicle's deck, a square centred on the pad and turned with it: a vehicle resting on "
+        "it rides along (as on a van's roof); off it, on the ground",
+        gt=0.0,
+        le=50.0,
+    )
+
+
 class SimConfig(_Section):
     """A simulated scenario: seed, home, wind, sensors."""
 
@@ -304,6 +339,7 @@ class SimConfig(_Section):
     vehicle: VehicleSimConfig = Field(default_factory=VehicleSimConfig)
     winch: SimWinchConfig = Field(default_factory=SimWinchConfig)
     camera: SimCameraConditionsConfig = Field(default_factory=SimCameraConditionsConfig)
+    pad_motion: SimPadMotionConfig = Field(default_factory=SimPadMotionConfig)
 
     @model_validator(mode="after")
     def _finite(self) -> SimConfig:
@@ -377,6 +413,7 @@ def load_simulated_config(*paths: str | Path, overrides: dict[str, Any] | None =
 
 __all__ = [
     "SimConfig",
+    "SimPadMotionConfig",
     "SimWinchConfig",
     "SimulatedConfig",
     "VehicleSimConfig",

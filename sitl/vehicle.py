@@ -72,6 +72,7 @@ from companion_sitl.modes import (
     SimCommandError,
 )
 from companion_sitl.modes import sqrt_controller_2d as _sqrt_controller_2d
+from companion_sitl.pad_motion import PadTrack
 from companion_sitl.params import SimConfig
 from companion_sitl.payload import PARCEL_STEP_HZ, SimPayload
 from companion_sitl.profiles import EstimatorState, apply_profile, get_profile
@@ -183,6 +184,7 @@ class SimVehicle:
     _accel = _Alias("dynamics", "accel")
 
     def __post_init__(self) -> None:
+        self._pad_track: PadTrack | None = None  # [sim.pad_motion]: the deck it may rest on
         self._init_profile()
         ss, rng_wind = self._init_generators()
         # the estimator errors first, the GPS's after: the order the draws have always had
@@ -327,6 +329,8 @@ class SimVehicle:
             vc, att, a_sp, self.estimated_yaw(), bias, yaw_sp, dt
         )
         self.dynamics.step(self, thrust, thrust_on, on_ground, dt)
+        if self._pad_track is not None:
+            self._ride_on_the_deck(t, dt)
         self.land_detector.update(self, t)
         if self.armed and not on_ground:
             self.battery_pct = max(0.0, self.battery_pct - 100.0 * dt / vc.battery_endurance_s)
@@ -592,3 +596,27 @@ class SimVehicle:
 
     def set_pad_truth(self, north_m: float, east_m: float) -> None:
         self._pad_true = (north_m, east_m)
+
+    def set_pad_track(self, track: PadTrack | None) -> None:
+        """The pad moves ([sim.pad_motion]): resting on its deck the vehicle rides along."""
+        self._pad_track = track
+
+    def _ride_on_the_deck(self, t: float, dt: float) -> None:
+        """Resting on the moving pad's deck (``deck_size_m``, a square turned with the pad), the
+        vehicle is carried by it: its offset from the pad kept in the pad's frame, its heading
+        turned with it, its velocity the deck's (the GPS reports the van's speed)."""
+        track = self._pad_track
+        assert track is not None
+        if self.pd < -1e-6 or self.vd < 0.0:
+            return
+        n0, e0, yaw0, _, _ = track.state(t - dt)
+        dn, de = self.pn - n0, self.pe - e0
+        c, s = math.cos(yaw0), math.sin(yaw0)  # the offset in the pad's axes (its up edge along yaw)
+        if max(abs(c * dn + s * de), abs(-s * dn + c * de)) > 0.5 * track.config.deck_size_m:
+            return  # on the ground beside the deck
+        n1, e1, yaw1, vn, ve = track.state(t)
+        dy = yaw1 - yaw0
+        cd, sd = math.cos(dy), math.sin(dy)
+        self.pn, self.pe = n1 + cd * dn - sd * de, e1 + sd * dn + cd * de
+        self.yaw = wrap_angle(self.yaw + dy)
+        self.vn, self.ve = vn, ve

@@ -19,12 +19,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.autopilot.types import Attitude, PositionNed, TelemetrySample
+from companion.config import MovingPadConfig
 from companion.delivery.attitude_history import AttitudeHistory
 from companion.delivery.pad_heading import PadHeadingEstimator
 from companion.delivery.pad_tilt import PadTiltEstimator
 from companion.delivery.padlock import PAD_DATA_FRESH_S
 from companion.estimation.delayed import DelayedMeasurementBuffer
 from companion.estimation.ekf import DeliveryEkf, EkfConfig, EkfSensor, UpdateOutcome
+from companion.estimation.moving_pad import MovingPadEkf
 from companion.estimation.types import StateEstimate
 from companion.geometry.heading import pad_heading_rad
 from companion.geometry.mounts import pad_pose_ned
@@ -54,6 +56,9 @@ class FusionSetup:
     # the pad lies level: its tilt as the camera sees it is taken out of the autopilot's attitude
     # before the EKF fuses it (delivery.pad_tilt)
     level_pad: bool = False
+    # the pad may move ([landing.moving_pad]): the EKF also estimates its horizontal velocity
+    # (estimation.moving_pad, 14 states); None: the paper's 12-state filter
+    moving_pad: MovingPadConfig | None = None
 
 
 @dataclass
@@ -90,7 +95,12 @@ class PadSighting:
 class LandingFusion:
     def __init__(self, setup: FusionSetup, start_time_s: float):
         self.setup = setup
-        self.ekf = DeliveryEkf(setup.ekf, T_body_camera=setup.T_body_camera, pad_down_m=float(setup.T_world_pad.t[2]))
+        pad_down_m = float(setup.T_world_pad.t[2])
+        self.ekf: DeliveryEkf = (
+            DeliveryEkf(setup.ekf, T_body_camera=setup.T_body_camera, pad_down_m=pad_down_m)
+            if setup.moving_pad is None
+            else MovingPadEkf(setup.ekf, setup.moving_pad, T_body_camera=setup.T_body_camera, pad_down_m=pad_down_m)
+        )
         self.buffer = DelayedMeasurementBuffer(self.ekf, start_time_s, history_s=setup.history_s)
         self.T_world_pad = setup.T_world_pad  # its rotation follows the measured pad heading
         self.T_world_anchors = setup.T_world_pad @ setup.T_pad_anchors
@@ -205,6 +215,14 @@ class LandingFusion:
     def velocity_bias_correction(self) -> VelocityBiasCorrection | None:
         """The correction of a biased autopilot velocity (None when ekf_velocity_bias_tau_s is 0)."""
         return self._vel_bias
+
+    @property
+    def pad_velocity_ne(self) -> tuple[float, float] | None:
+        """The pad's estimated velocity (north, east; m/s) once pad-local data is fused, with
+        [landing.moving_pad] on (None otherwise: the pad stands, or nothing observed it yet)."""
+        if not isinstance(self.ekf, MovingPadEkf) or not self.ekf.xi:
+            return None
+        return self.ekf.pad_velocity_ne
 
     @property
     def pad_locked(self) -> bool:

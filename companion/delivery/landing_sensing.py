@@ -165,6 +165,7 @@ class LandingSensing:
             velocity_bias_max_m_s=config.mission.velocity_bias_max_m_s,
             velocity_bias_source=config.mission.velocity_bias_source,
             level_pad=config.landing.ekf_level_pad,
+            moving_pad=config.landing.moving_pad if config.landing.moving_pad.enabled else None,
         )
         self.fusion = self.hooks.fusion(setup, now)
         if self.drop_zone is not None:

@@ -345,6 +345,7 @@ class _ReplayShell:
             self.drop_zone_by_seq[_int(t, k, "seq")] = known[text] if text else None
 
     def _start_fusion(self, now: float) -> None:
+        from companion.config import MovingPadConfig
         from companion.delivery.fusion import FusionSetup, LandingFusion
         from companion.delivery.pad_heading import pad_yaw_and_tolerance_rad
         from companion.estimation.ekf import EkfConfig
@@ -372,6 +373,7 @@ class _ReplayShell:
                 velocity_bias_max_m_s=float(rec.get("velocity_bias_max_m_s", 1.0)),
                 velocity_bias_source=str(rec.get("velocity_bias_source", "autopilot")),
                 level_pad=bool(rec.get("level_pad", False)),
+                moving_pad=MovingPadConfig(**rec["moving_pad"]) if "moving_pad" in rec else None,
             )
         except (KeyError, TypeError, ValueError) as err:
             raise LogFormatError(f"{self.run_dir / META_FILE}: key 'fusion': {type(err).__name__}: {err}") from None
@@ -477,6 +479,7 @@ class _ReplayShell:
             autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
             winch=winch,
             drop_zone=drop_zone,
+            pad_velocity_ne=self.fusion.pad_velocity_ne if self.fusion is not None else None,
         )
         out = mission.step(inp)
         setpoint, clamped = None, False

@@ -84,6 +84,7 @@ def _delivery_mission(config: CompanionConfig) -> DeliveryMission:
         winch=config.winch,
         stall_s=config.runtime.loop_stall_s,
         drop_zone=config.landing.drop_zone,
+        moving_pad=config.landing.moving_pad,
     )
 
 
@@ -445,6 +446,7 @@ class DeliveryShell:
                 pad_heading_age_s=heading_observation_age_s(heading, now),
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
                 drop_zone=sensing.drop_zone_verdict(now),
+                pad_velocity_ne=fusion.pad_velocity_ne if fusion is not None else None,
             )
             out = step(inp)
             events = out.events

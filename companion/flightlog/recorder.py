@@ -463,6 +463,7 @@ class FlightRecorder:
                 else {}
             ),
             **({"level_pad": True} if s.level_pad else {}),
+            **({"moving_pad": s.moving_pad.model_dump()} if s.moving_pad is not None else {}),
         }
         self._write_meta()
 

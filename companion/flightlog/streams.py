@@ -318,8 +318,10 @@ def ekf_row(seq: int, tick_s: float, fusion: Any) -> tuple[object, ...] | None:
     ekf = fusion.ekf
     if not ekf.initialized:
         return None
-    x = ekf.x
-    d = np.diag(ekf.P)
+    # the paper's twelve states (a moving pad's filter has two more, the pad's velocity: not in
+    # this file's columns, which every log keeps)
+    x = ekf.x[0:12]
+    d = np.diag(ekf.P)[0:12]
     return (
         float(fusion.buffer.now_s),
         seq,

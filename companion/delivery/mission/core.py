@@ -12,6 +12,7 @@ legs planned in flight), ``winch_phase`` and ``yaw``; the final descent's contro
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 
@@ -24,6 +25,7 @@ from companion.config import (
     GoNoGoConfig,
     LimitsConfig,
     MissionConfig,
+    MovingPadConfig,
     PadLockPolicyConfig,
     WinchConfig,
 )
@@ -32,6 +34,7 @@ from companion.delivery.mission.base import DELIVERY_LEG_PHASES, FOLLOW_PHASES, 
 from companion.delivery.mission.commands import CommandReply, ground_command
 from companion.delivery.mission.dropzone import DropZonePolicy
 from companion.delivery.mission.linkwatch import LinkCheck
+from companion.delivery.mission.moving_pad import TRACKED_PHASES, too_fast, with_pad_velocity
 from companion.delivery.mission.padpolicy import PadPolicy
 from companion.delivery.mission.phases import HANDLERS
 from companion.delivery.mission.requests import MAX_REQUEST_TRIES
@@ -71,11 +74,14 @@ class DeliveryMission(MissionBase):
         winch: WinchConfig | None = None,
         stall_s: float = math.inf,
         drop_zone: DropZoneConfig | None = None,
+        moving_pad: MovingPadConfig | None = None,
     ):
         """The parts of the mission (MissionBase has the rest). ``stall_s``: a gap between two
         steps longer than this is a stall of the companion (runtime.loop_stall_s: its watchdog
         stopped the heartbeats and setpoints, so the autopilot's failsafe may have acted).
-        ``drop_zone`` (enabled): never release onto an occupied pad (dropzone.DropZonePolicy)."""
+        ``drop_zone`` (enabled): never release onto an occupied pad (dropzone.DropZonePolicy).
+        ``moving_pad`` (enabled): the setpoints relative to the pad carry its estimated velocity,
+        and a pad faster than its max_speed_m_s is not landed on (mission.moving_pad)."""
         super().__init__(cfg, landing_controller, pad_policy, fence, limits, go_no_go, winch)
         self.stall_s = stall_s
         self._last_step_s: float | None = None
@@ -83,6 +89,7 @@ class DeliveryMission(MissionBase):
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
         self.drop_zones = DropZonePolicy(self, drop_zone)
+        self.moving_pad = moving_pad if moving_pad is not None and moving_pad.enabled else None
 
     def command(self, time_s: float, kind: CommandKind, sender: str = "ground") -> CommandReply:
         """A ground command (hold, return, land, abort). The mission decides; the safety contract
@@ -170,8 +177,16 @@ class DeliveryMission(MissionBase):
                 self.summary.fail(FailureKind.RETURNED_GO_NO_GO, f"returned without delivering: {why}")
                 self.goto(Phase.INBOUND)
 
+        if self.moving_pad is not None and self.phase in TRACKED_PHASES:
+            why = too_fast(inp.pad_velocity_ne, self.moving_pad.max_speed_m_s)
+            if why:  # nothing is released on it: the parcel goes home
+                self.emit(EventKind.PAD_LOCK, f"not landing on the pad, flying home with the parcel: {why}")
+                self.summary.fail(FailureKind.NOT_DELIVERED, f"parcel not delivered: {why}")
+                self.goto(Phase.INBOUND)
         handler = HANDLERS.get(self.phase)
         step = handler(self, inp) if handler is not None else Step()
+        if self.moving_pad is not None:
+            step = dataclasses.replace(step, setpoint=with_pad_velocity(self.phase, step.setpoint, inp.pad_velocity_ne))
         setpoint = self.yaw.apply(self.phase, inp, step.setpoint, lambda: self.height_above_ground(inp.estimate))
         request = step.request
         if request is None:

@@ -244,7 +244,8 @@ def _landing(m: MissionBase, inp: MissionInputs, leg: Leg) -> Step:
             return NOTHING
         st.drop_zone_blocked = inp.drop_zone.value if inp.drop_zone is not None else ""  # judged at touchdown
     in_sight = leg is Leg.OUT and pad_in_sight(inp.pad_lock)
-    return Step(precision_descent(m, est, leg, inp.time_s, in_sight, inp.rangefinder))
+    pad_v = inp.pad_velocity_ne if leg is Leg.OUT else None
+    return Step(precision_descent(m, est, leg, inp.time_s, in_sight, inp.rangefinder, pad_v))
 
 
 def _on_the_ground(m: MissionBase, inp: MissionInputs, leg: Leg, st: LandingState) -> Step:
@@ -313,6 +314,7 @@ def precision_descent(
     time_s: float,
     in_sight: bool,
     rangefinder: RangefinderReading | None = None,
+    pad_velocity_ne: tuple[float, float] | None = None,
 ) -> VelocitySetpoint:
     """The final descent onto the target (the pad for Leg.OUT, home for Leg.HOME) by the
     landing phase's controller (guidance.descent), in F_I. It holds and waits only while the
@@ -322,7 +324,9 @@ def precision_descent(
     only, at home, or the pad lost) it does not hold: holding cannot improve the estimate, and on
     an autopilot's estimate drifting near the ground it can sit on the ground until the touchdown
     timeout (docs/firmware-px4.md). The height above the ground is the rangefinder's where
-    [mission.rangefinder] is on and its gate passes (MissionBase.descent_height)."""
+    [mission.rangefinder] is on and its gate passes (MissionBase.descent_height). ``pad_velocity_ne``:
+    a moving pad's estimated velocity ([landing.moving_pad]): the controller's damping takes the
+    velocity relative to the pad (the mission adds the pad's velocity to the setpoint)."""
     assert m.frame is not None and m.path is not None
     frame, c, st = m.frame, m.cfg, m.state_as(LandingState)
     assert st.descent is not None
@@ -334,7 +338,8 @@ def precision_descent(
     in_time = time_left_s > max(height, 0.0) / c.land_speed_m_s + TOUCHDOWN_REPORT_MARGIN_S
 
     def velocity_xy() -> tuple[float, float]:
-        v_i = frame.vector_from_ned((est.north_m_s, est.east_m_s, est.down_m_s))
+        vn, ve = pad_velocity_ne if pad_velocity_ne is not None else (0.0, 0.0)
+        v_i = frame.vector_from_ned((est.north_m_s - vn, est.east_m_s - ve, est.down_m_s))
         return float(v_i[0]), float(v_i[1])
 
     cmd = st.descent.command(ex, ey, height, time_s, in_sight and in_time, velocity_xy, est.down_m_s)

@@ -96,6 +96,9 @@ class MissionInputs:
     rangefinder: RangefinderReading | None = None  # the newest downward DISTANCE_SENSOR ([mission.rangefinder])
     # the drop-zone check's verdict on the pad and its margin ([landing.drop_zone]); None: no check
     drop_zone: DropZoneVerdict | None = None
+    # the pad's estimated velocity (north, east; m/s) with [landing.moving_pad] on and the pad
+    # locked (delivery.fusion.LandingFusion.pad_velocity_ne); None: the pad stands
+    pad_velocity_ne: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
