@@ -87,6 +87,18 @@ def gnss_loss_config(
     )
 
 
+def sitl_gps_cut(autopilot: str, truth: MavlinkTruth) -> Callable[[], Any]:
+    """The blocking call that switches the SITL's GPS off over ``truth``'s link: ArduCopter's
+    GPS_ENABLE_PARAM to 0, PX4 SIH's receiver stopped in its shell (lab/gnss_loss_px4.py's GPS_STOP)."""
+    if autopilot == "ardupilot":
+        return lambda: truth.set_param(GPS_ENABLE_PARAM, 0.0)
+    if autopilot == "px4":
+        from companion_lab.gnss_loss_px4 import GPS_STOP
+
+        return lambda: truth.shell(GPS_STOP)
+    raise ValueError(f"autopilot {autopilot!r}: the GPS cut is built for 'ardupilot' and 'px4'")
+
+
 async def cut_gps_when_low(
     truth: MavlinkTruth,
     pad_ne: tuple[float, float],
@@ -143,8 +155,8 @@ async def fly_gnss_loss(
         await asyncio.to_thread(truth.get_param, GPS_ENABLE_PARAM)  # exists on this build, or TimeoutError
         config = gnss_loss_config(sitl.connection, external_nav, fusion, height_m)
         ap = ArduPilotAutopilot.from_config(config, arm_timeout_s=30.0)
-        cut = lambda: truth.set_param(GPS_ENABLE_PARAM, 0.0)  # noqa: E731
         clock = asyncio.get_running_loop().time
+        cut = sitl_gps_cut("ardupilot", truth)
         return await fly_with_gps_cut(
             config, ap, truth, work, pad_offset_m, loss_height_m, loss_radius_m, clock, cut, timeout_s
         )

@@ -23,7 +23,7 @@ from companion.config import shipped_params_path
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.real_vehicle import PX4_GCS_URL, PX4_OFFBOARD_URL
 from companion_firmware.truth_feed import MavlinkTruth
-from companion_lab.gnss_loss import POLICY, GnssLossFlight, fly_with_gps_cut
+from companion_lab.gnss_loss import POLICY, GnssLossFlight, fly_with_gps_cut, sitl_gps_cut
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.params import SimulatedConfig, load_simulated_config
 
@@ -97,7 +97,7 @@ async def fly_px4_gnss_loss(
         await asyncio.to_thread(truth.wait, 30.0)
         config = px4_gnss_loss_config(external_nav, fusion, height_m, pad_m)
         ap = Px4Autopilot.from_config(config)
-        cut = lambda: truth.shell(GPS_STOP)  # noqa: E731
+        cut = sitl_gps_cut("px4", truth)
         clock = time.monotonic  # the cut's time on the heartbeats' clock
         f = await fly_with_gps_cut(
             config, ap, truth, work, pad_offset_m, loss_height_m, loss_radius_m, clock, cut, timeout_s
