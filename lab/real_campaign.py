@@ -18,7 +18,7 @@ Landings are scored on the firmware's truth (HIL_STATE_QUATERNION / SIM_STATE) a
 ON_GROUND of the landing phase, as the embedded campaign scores its truth.
 
 The GNSS-lost variants (GNSS_VARIANTS, docs/external-nav.md) fly each landing on a fresh SITL
-booted with the firmware's external-navigation parameters, and cut its GPS (lab/gnss_loss.py:
+booted with the firmware's external-navigation parameters, and cut its GPS (lab/gnss_cut.py:
 SIM_GPS1_ENABLE = 0 on ArduCopter, ``sensor_gps_sim stop`` on PX4 SIH) when the true vehicle first
 comes down through the variant's [sim] gnss_lost_below_m within gnss_lost_within_m of the true pad.
 Their ``*_gps_only`` twins fly the same draw and cut GPS-only with the no-release-off-the-pad policy
@@ -62,6 +62,14 @@ from companion_lab.campaign_landing import (
     on_pad,
     pad_heading_draw,
     with_pad_heading,
+)
+from companion_lab.gnss_cut import (
+    GPS_ENABLE_PARAM,
+    cut_gps_when_low,
+    gnss_loss_boot_params,
+    loss_flight,
+    modes_after,
+    sitl_gps_cut,
 )
 from companion_lab.landing_campaign import run_landing_campaign, summarize
 from companion_lab.real_weather import FirmwareWeather, WeatherDriver, WeatherError, WeatherProcess, static_params
@@ -290,7 +298,7 @@ async def _one_landing(
 
 
 class GpsCut:
-    """One landing's GPS cut (lab/gnss_loss.py's cut_gps_when_low on the firmware's cut, sitl_gps_cut)
+    """One landing's GPS cut (lab/gnss_cut.py's cut_gps_when_low on the firmware's cut, sitl_gps_cut)
     at [sim] gnss_lost_below_m within gnss_lost_within_m of the true pad, and its record."""
 
     def __init__(self, rv: RealVehicle, config: SimulatedConfig, pad_ne: tuple[float, float]):
@@ -301,8 +309,6 @@ class GpsCut:
         self.t0 = time.monotonic()
 
     def start(self) -> None:
-        from companion_lab.gnss_loss import cut_gps_when_low, sitl_gps_cut
-
         sim = self.config.sim
         cut = sitl_gps_cut(self.rv.autopilot_name, self.rv.truth)
         self.t0 = time.monotonic()
@@ -321,9 +327,6 @@ class GpsCut:
         """The landing's ``gnss_cut`` (times in s from the landing's start; ``seen_after_s``: when the
         companion's GnssWatch found the fix gone, nan without external navigation), its releases and
         whether the parcel came home."""
-        from companion_lab.gnss_loss import loss_flight
-        from companion_lab.gnss_loss_px4 import modes_after
-
         await self.stop()
         f = loss_flight(r, self.shells[0], self.loss, time.monotonic() - self.t0, self.t0)
         t_cut = f.loss_time_s
@@ -426,24 +429,8 @@ async def run_real_landing_campaign_async(
     }
 
 
-def gnss_loss_boot_params(autopilot: str) -> dict[str, float]:
-    """The firmware's external-navigation parameters, set from boot for the GNSS-lost variants (the
-    same vehicle with and without the companion's pose): lab/gnss_loss.py, lab/gnss_loss_px4.py."""
-    if autopilot == "ardupilot":
-        from companion_lab.gnss_loss import EXTERNAL_NAV_PARAMS
-
-        return {k: float(v) for k, v in EXTERNAL_NAV_PARAMS.items()}
-    if autopilot == "px4":
-        from companion_lab.gnss_loss_px4 import EXTERNAL_NAV_PARAMS as PX4_PARAMS
-
-        return {k: float(v) for k, v in PX4_PARAMS.items()}
-    raise ValueError(f"autopilot {autopilot!r}: expected one of {REAL_AUTOPILOTS}")
-
-
 async def require_gps_cut(rv: RealVehicle) -> None:
     """ArduCopter: the SITL build has the parameter the cut sets (GPS_ENABLE_PARAM), else RuntimeError."""
-    from companion_lab.gnss_loss import GPS_ENABLE_PARAM
-
     try:
         await asyncio.to_thread(rv.truth.get_param, GPS_ENABLE_PARAM)
     except TimeoutError:

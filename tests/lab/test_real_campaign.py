@@ -19,7 +19,6 @@ from companion_lab.landing_campaign import run_landing_campaign
 from companion_lab.real_campaign import (
     compare,
     firmware_tuning,
-    gnss_loss_boot_params,
     landing_config,
     landing_diagnostics,
     parity_figure,
@@ -180,7 +179,6 @@ def test_landing_diagnostics_names_the_machine_and_splits_each_error():
 
 
 def test_gnss_lost_variants_fly_external_nav_beside_gps_only_on_the_same_draws():
-
     base = shipped_params_path("landing_campaign_short.toml")
     d = draw_scenarios(1, seed=1)[0]
     ext = scenario_config(base, d, "gnss_lost_10m", "arducopter-sitl")
@@ -210,14 +208,6 @@ def test_the_real_gnss_lost_variants_cut_at_their_height_and_gps_only_never_rele
     assert not real_config(base, autopilot, "gps_only").external_nav.enabled
     d = draw_scenarios(1, seed=300000)[0]
     assert landing_config(ext, "gnss_lost_10m", d).sim.gnss_lost_below_m == 10.0
-
-
-def test_gnss_loss_boot_params_are_each_firmwares_external_nav_parameters():
-    assert gnss_loss_boot_params("px4") == {"EKF2_EV_CTRL": 1.0}
-    ap = gnss_loss_boot_params("ardupilot")
-    assert ap["VISO_TYPE"] == 1.0 and ap["EK3_SRC2_POSXY"] == 6.0 and ap["FS_EKF_ACTION"] == 1.0
-    with pytest.raises(ValueError, match=r"autopilot 'sim': expected one of"):
-        gnss_loss_boot_params("sim")
 
 
 def test_bad_real_gnss_lost_campaigns_are_refused_before_any_sitl_starts():

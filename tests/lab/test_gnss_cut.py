@@ -1,5 +1,5 @@
-"""The GPS cut of the real-firmware GNSS-lost flights and campaign variants (lab/gnss_loss.py), on a
-scripted truth: when it cuts, and which call cuts on each firmware."""
+"""The GPS cut of the real-firmware GNSS-lost flights and campaign variants (lab/gnss_cut.py): when
+it cuts (on a scripted truth), which call cuts on each firmware, the parameters each boots with."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ import asyncio
 
 import pytest
 
-from companion_lab.gnss_loss import GPS_ENABLE_PARAM, cut_gps_when_low, sitl_gps_cut
-from companion_lab.gnss_loss_px4 import GPS_STOP
+from companion_lab.gnss_cut import GPS_ENABLE_PARAM, GPS_STOP, cut_gps_when_low, gnss_loss_boot_params, sitl_gps_cut
 
 
 class DescendingTruth:
@@ -61,3 +60,11 @@ async def test_px4_stops_its_simulated_receiver_in_the_shell():
     assert truth.calls == [("shell", GPS_STOP)] and GPS_STOP == "sensor_gps_sim stop"
     with pytest.raises(ValueError, match=r"autopilot 'sim': the GPS cut is built for 'ardupilot' and 'px4'"):
         sitl_gps_cut("sim", truth)
+
+
+def test_gnss_loss_boot_params_are_each_firmwares_external_nav_parameters():
+    assert gnss_loss_boot_params("px4") == {"EKF2_EV_CTRL": 1.0}
+    ap = gnss_loss_boot_params("ardupilot")
+    assert ap["VISO_TYPE"] == 1.0 and ap["EK3_SRC2_POSXY"] == 6.0 and ap["FS_EKF_ACTION"] == 1.0
+    with pytest.raises(ValueError, match=r"autopilot 'sim': expected one of"):
+        gnss_loss_boot_params("sim")
