@@ -12,7 +12,7 @@ from companion_lab.gnss_cut import GPS_ENABLE_PARAM, GPS_STOP, cut_gps_when_low,
 
 class DescendingTruth:
     """A truth feed (MavlinkTruth's pn, pe, pd, age_s) that climbs to 12 m, moves over the pad and
-    comes down at 2 m/s, on the loop's clock; it records the link calls a cut makes."""
+    comes down at 5 m/s, on the loop's clock; it records the link calls a cut makes."""
 
     def __init__(self) -> None:
         self.t0 = asyncio.get_running_loop().time()
@@ -23,9 +23,9 @@ class DescendingTruth:
         return asyncio.get_running_loop().time() - self.t0
 
     @property
-    def pd(self) -> float:  # up to -12 m by 0.3 s, then down at 20 m/s (a fast test)
+    def pd(self) -> float:  # up to -12 m by 0.3 s, then down at 5 m/s
         t = self._t()
-        return -min(12.0, 40.0 * t) if t < 0.3 else -max(0.0, 12.0 - 20.0 * (t - 0.3))
+        return -min(12.0, 40.0 * t) if t < 0.3 else -max(0.0, 12.0 - 5.0 * (t - 0.3))
 
     @property
     def pn(self) -> float:
@@ -50,8 +50,8 @@ async def test_the_cut_comes_once_coming_down_through_the_height_near_the_pad():
     )
     assert truth.calls == [("set_param", GPS_ENABLE_PARAM, "0.0")]
     assert 2.0 <= out["height_m"] <= 3.0 and out["height_m"] > ground  # on the way down, just below 3 m
-    # at 20 m/s from 12 m over the pad since 0.3 s: 3 m is reached at 0.75 s
-    assert 0.7 <= out["time_s"] - truth.t0 <= 0.9
+    # the cut's time is when that height was read: 5 m/s down from 12 m since 0.3 s
+    assert out["time_s"] - truth.t0 == pytest.approx(0.3 + (12.0 - out["height_m"]) / 5.0, abs=0.05)
 
 
 async def test_px4_stops_its_simulated_receiver_in_the_shell():
