@@ -54,14 +54,19 @@ class RealVehicle:
 
 @contextlib.asynccontextmanager
 async def real_vehicle(
-    autopilot: str, log_dir: Path, extra_params: dict[str, float] | None = None, root: Path | None = None
+    autopilot: str,
+    log_dir: Path,
+    extra_params: dict[str, float] | None = None,
+    root: Path | None = None,
+    watch: tuple[str, ...] = (),
 ) -> AsyncIterator[RealVehicle]:
-    """Start the SITL and its truth feed; stop both on exit. Raises ``Px4NotFound`` /
-    ``ArduPilotNotFound`` (saying where it looked) without a build."""
+    """Start the SITL (with ``extra_params`` from boot) and its truth feed (keeping the ``watch``
+    messages, MavlinkTruth); stop both on exit. Raises ``Px4NotFound`` / ``ArduPilotNotFound``
+    (saying where it looked) without a build."""
     log_dir.mkdir(parents=True, exist_ok=True)
     if autopilot == "px4":
-        px4 = Px4Sitl(root or find_px4(), log_path=log_dir / "px4.log")
-        with px4, MavlinkTruth(PX4_GCS_URL) as truth:
+        px4 = Px4Sitl(root or find_px4(), params=dict(extra_params or {}), log_path=log_dir / "px4.log")
+        with px4, MavlinkTruth(PX4_GCS_URL, watch=watch) as truth:
             await asyncio.to_thread(truth.wait, 30.0)
             yield RealVehicle("px4", px4, truth, PX4_OFFBOARD_URL)
         return
@@ -74,7 +79,7 @@ async def real_vehicle(
             serials={1: f"udpclient:127.0.0.1:{port}"},
             log_path=log_dir / "arducopter.log",
         )
-        with ac, MavlinkTruth(f"udpin:127.0.0.1:{port}", message="SIM_STATE") as truth:
+        with ac, MavlinkTruth(f"udpin:127.0.0.1:{port}", message="SIM_STATE", watch=watch) as truth:
             await asyncio.to_thread(truth.wait, 15.0)
             yield RealVehicle("ardupilot", ac, truth, ac.connection)
         return

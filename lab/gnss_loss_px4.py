@@ -2,10 +2,7 @@
 sitl_short delivery with camera and UWB rendered from SIH's truth, its GPS stopped when the true
 vehicle comes down through ``loss_height_m`` within ``loss_radius_m`` of the pad.
 
-How the GPS is stopped: SIH v1.16 ignores MAV_CMD_INJECT_FAILURE for GPS (only the gazebo bridge,
-simulator_mavlink, handles it: measured, no COMMAND_ACK, GPS_RAW_INT unchanged), so the harness
-stops the simulated receiver in PX4's shell over MAVLink (``sensor_gps_sim stop``): GPS_RAW_INT
-then says fix type 0 with 255 satellites at 1 Hz, as a receiver that lost the sky.
+How the GPS is stopped: lab/gnss_cut.py (``sensor_gps_sim stop`` in PX4's shell).
 
 With ``external_nav`` PX4 is booted with EKF2_EV_CTRL = 1 and the companion streams ODOMETRY once
 the pad is locked; EKF2 fuses it beside GNSS and goes on with it alone. Without it PX4's own
@@ -23,35 +20,10 @@ from companion.config import shipped_params_path
 from companion_firmware.px4_sitl import Px4Sitl
 from companion_firmware.real_vehicle import PX4_GCS_URL, PX4_OFFBOARD_URL
 from companion_firmware.truth_feed import MavlinkTruth
-from companion_lab.gnss_loss import POLICY, GnssLossFlight, fly_with_gps_cut
+from companion_lab.gnss_cut import PX4_EXTERNAL_NAV_PARAMS, GnssLossFlight, modes_after, sitl_gps_cut
+from companion_lab.gnss_loss import POLICY, fly_with_gps_cut
 from companion_lab.real_campaign import firmware_tuning
 from companion_sitl.params import SimulatedConfig, load_simulated_config
-
-#: PX4's parameters for external navigation (companion.autopilot.preflight.external_nav), from boot
-EXTERNAL_NAV_PARAMS = {"EKF2_EV_CTRL": 1}
-#: the shell line that stops SIH's simulated GPS receiver (see the module doc)
-GPS_STOP = "sensor_gps_sim stop"
-#: PX4's custom main modes and AUTO's sub modes (px4_custom_mode.h), for the flight's record
-PX4_MAIN = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED"}
-PX4_AUTO = {2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND", 9: "PRECLAND"}
-
-
-def px4_mode_name(custom_mode: int) -> str:
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    name = PX4_MAIN.get(main, f"main {main}")
-    return f"{name}.{PX4_AUTO.get(sub, f'sub {sub}')}" if main == 4 else name
-
-
-def modes_after(truth: MavlinkTruth, since_monotonic: float) -> tuple[str, ...]:
-    """PX4's mode changes from its heartbeats on the truth link since ``since_monotonic``."""
-    out: list[str] = []
-    last = None
-    for t, m in truth.watched_messages("HEARTBEAT"):
-        name = px4_mode_name(int(m.custom_mode)) + ("" if m.base_mode & 128 else " (disarmed)")
-        if name != last and t >= since_monotonic:
-            out.append(f"{t - since_monotonic:+.1f} s {name}")
-        last = name
-    return tuple(out)
 
 
 def px4_gnss_loss_config(
@@ -91,13 +63,13 @@ async def fly_px4_gnss_loss(
     ``loss_height_m``."""
     from companion.autopilot.px4 import Px4Autopilot
 
-    params = dict(EXTERNAL_NAV_PARAMS) if external_nav else {}
+    params = dict(PX4_EXTERNAL_NAV_PARAMS) if external_nav else {}
     sitl = Px4Sitl(root, params={k: float(v) for k, v in params.items()}, log_path=work / "px4.log")
     with sitl, MavlinkTruth(PX4_GCS_URL, watch=("HEARTBEAT",)) as truth:
         await asyncio.to_thread(truth.wait, 30.0)
         config = px4_gnss_loss_config(external_nav, fusion, height_m, pad_m)
         ap = Px4Autopilot.from_config(config)
-        cut = lambda: truth.shell(GPS_STOP)  # noqa: E731
+        cut = sitl_gps_cut("px4", truth)
         clock = time.monotonic  # the cut's time on the heartbeats' clock
         f = await fly_with_gps_cut(
             config, ap, truth, work, pad_offset_m, loss_height_m, loss_radius_m, clock, cut, timeout_s

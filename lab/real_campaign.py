@@ -16,11 +16,20 @@ has no wind model, so its landings fly in still air (the ``px4-sih`` profile dro
 
 Landings are scored on the firmware's truth (HIL_STATE_QUATERNION / SIM_STATE) at the first
 ON_GROUND of the landing phase, as the embedded campaign scores its truth.
+
+The GNSS-lost variants (GNSS_VARIANTS, docs/external-nav.md) fly each landing on a fresh SITL
+booted with the firmware's external-navigation parameters, and cut its GPS (lab/gnss_cut.py:
+SIM_GPS1_ENABLE = 0 on ArduCopter, ``sensor_gps_sim stop`` on PX4 SIH) when the true vehicle first
+comes down through the variant's [sim] gnss_lost_below_m within gnss_lost_within_m of the true pad.
+Their ``*_gps_only`` twins fly the same draw and cut GPS-only with the no-release-off-the-pad policy
+on: the autopilot's own failsafe answers the loss and the companion never releases (no pad lock
+is possible without pad sensors), where the embedded campaign scores the paper's opt-out baseline.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import json
 import logging
@@ -43,7 +52,9 @@ from companion.units import format_cm
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, RealVehicle, real_vehicle
 from companion_firmware.truth_harness import LANDING_TRACE_FIELDS, fly_on_truth
 from companion_lab.campaign_landing import (
+    EXTERNAL_NAV_VARIANTS,
     HEADING_VARIANTS,
+    SIM_VARIANTS,
     VARIANTS,
     WINCH_VARIANTS,
     Draw,
@@ -51,6 +62,14 @@ from companion_lab.campaign_landing import (
     on_pad,
     pad_heading_draw,
     with_pad_heading,
+)
+from companion_lab.gnss_cut import (
+    GPS_ENABLE_PARAM,
+    cut_gps_when_low,
+    gnss_loss_boot_params,
+    loss_flight,
+    modes_after,
+    sitl_gps_cut,
 )
 from companion_lab.landing_campaign import run_landing_campaign, summarize
 from companion_lab.real_weather import FirmwareWeather, WeatherDriver, WeatherError, WeatherProcess, static_params
@@ -80,6 +99,8 @@ FIRMWARE_TUNING_KEYS = {
 }
 LANDING_TIMEOUT_S = 300.0
 MAV_CMD_DO_SET_HOME = 179
+# the variants that cut the GPS in the descent ([sim] gnss_lost_below_m), flown one SITL each
+GNSS_VARIANTS = tuple(v for v in VARIANTS if SIM_VARIANTS.get(v, {}).get("gnss_lost_below_m", 0.0) > 0.0)
 
 
 def firmware_tuning(autopilot: str) -> dict[str, dict[str, Any]]:
@@ -104,22 +125,22 @@ def real_config(base: Path, autopilot: str, variant: str) -> SimulatedConfig:
     lies from ``[sim.home]`` in ``base``), the firmware's landing tuning, the variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
-    if variant.startswith("gnss_lost_"):
-        raise ValueError(
-            f"variant {variant!r} cuts the GPS in the descent, which the real campaign does not drive yet: "
-            "lab/gnss_loss.py (fly_gnss_loss) and lab/gnss_loss_px4.py (fly_px4_gnss_loss) fly it on the real "
-            "ArduCopter SITL and PX4 SIH one landing at a time, tests/real_ardupilot/test_arducopter_gnss_lost.py "
-            "and tests/real_px4/test_px4_gnss_lost.py assert it (docs/external-nav.md)"
-        )
+    if autopilot not in REAL_AUTOPILOTS:
+        raise ValueError(f"autopilot {autopilot!r}: expected one of {REAL_AUTOPILOTS}")
     if variant in WINCH_VARIANTS:
         raise ValueError(
             "variant 'winch' scores the parcel on the embedded simulator's line model; on real firmware the "
             "winch delivery is tested by tests/real_ardupilot/test_arducopter_winch.py (docs/winch.md)"
         )
     tuning = firmware_tuning(autopilot)
-    cfg = load_simulated_config(
-        base, overrides={"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
-    )
+    overrides: dict[str, Any] = {"mission": tuning["mission"], "landing": {**tuning["landing"], **VARIANTS[variant]}}
+    if variant in GNSS_VARIANTS:
+        g = SIM_VARIANTS[variant]
+        overrides["sim"] = {k: g[k] for k in ("gnss_lost_below_m", "gnss_lost_within_m") if k in g}
+        overrides["external_nav"] = {"enabled": variant in EXTERNAL_NAV_VARIANTS}
+        if not overrides["landing"].get("fusion", True):  # GPS-only: never released (module doc)
+            overrides["landing"]["policy"] = {"require_pad_lock": True}
+    cfg = load_simulated_config(base, overrides=overrides)
     h = cfg.sim.home
     pn, pe, _ = pad_position_ned(cfg.mission, GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m))
     pad = PadConfig(north_m=float(pn), east_m=float(pe), size_m=cfg.mission.pad.size_m)
@@ -188,11 +209,25 @@ async def _one_landing(
     ap = rv.backend(config)
     failure = ""
     rec = FlightRecorder(flight_log, config) if flight_log is not None else None
+    cut = GpsCut(rv, config, pad_ne) if config.sim.gnss_lost_below_m > 0.0 else None
+    gnss: dict[str, Any] = {}
     try:
         await ap.connect(timeout_s=20.0)
+        if cut is not None:
+            cut.start()
         r = await fly_on_truth(
-            config, ap, truth, truth.origin, (0.0, 0.0), timeout_s=LANDING_TIMEOUT_S, pad_ne=pad_ne, recorder=rec
+            config,
+            ap,
+            truth,
+            truth.origin,
+            (0.0, 0.0),
+            timeout_s=LANDING_TIMEOUT_S,
+            pad_ne=pad_ne,
+            recorder=rec,
+            on_shell=cut.shells.append if cut is not None else None,
         )
+        if cut is not None:
+            gnss = await cut.record(r)
         err, td, delivered, failure = r.pad_landing_error_m, r.touchdown_truth_ne_m, r.delivered, r.failure
         heading_err = r.pad_heading_error_deg
         used = {
@@ -218,12 +253,17 @@ async def _one_landing(
             "setpoint_overruns": 0,
         }
     finally:
+        if cut is not None:
+            await cut.stop()
         if rec is not None:
             rec.close()
         await ap.close()
         rv.landings_flown += 1
         if driver is not None:
             await asyncio.to_thread(driver.stop)
+    if cut is not None and not gnss:  # a landing that could not be flown: the cut, if it came
+        h, t = cut.loss.get("height_m", math.nan), cut.loss.get("time_s", math.nan)
+        gnss = {"gnss_cut": {"below_m": config.sim.gnss_lost_below_m, "height_m": h, "time_s": t - cut.t0}}
     dn, de = td[0] - pad_ne[0], td[1] - pad_ne[1]
     return (
         {
@@ -253,7 +293,59 @@ async def _one_landing(
             else {}
         )
         | ({"heading_error_deg": heading_err} if config.mission.pad.heading_deg is not None else {})
+        | gnss
     )
+
+
+class GpsCut:
+    """One landing's GPS cut (lab/gnss_cut.py's cut_gps_when_low on the firmware's cut, sitl_gps_cut)
+    at [sim] gnss_lost_below_m within gnss_lost_within_m of the true pad, and its record."""
+
+    def __init__(self, rv: RealVehicle, config: SimulatedConfig, pad_ne: tuple[float, float]):
+        self.rv, self.config, self.pad_ne = rv, config, pad_ne
+        self.shells: list[Any] = []  # the landing's DeliveryShell (fly_on_truth's on_shell)
+        self.loss: dict[str, float] = {}
+        self.task: asyncio.Task[None] | None = None
+        self.t0 = time.monotonic()
+
+    def start(self) -> None:
+        sim = self.config.sim
+        cut = sitl_gps_cut(self.rv.autopilot_name, self.rv.truth)
+        self.t0 = time.monotonic()
+        below, within = sim.gnss_lost_below_m, sim.gnss_lost_within_m
+        self.task = asyncio.get_running_loop().create_task(
+            cut_gps_when_low(self.rv.truth, self.pad_ne, below, within, self.loss, time.monotonic, cut)
+        )
+
+    async def stop(self) -> None:
+        if self.task is not None:
+            self.task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self.task
+
+    async def record(self, r: Any) -> dict[str, Any]:
+        """The landing's ``gnss_cut`` (times in s from the landing's start; ``seen_after_s``: when the
+        companion's GnssWatch found the fix gone, nan without external navigation), its releases and
+        whether the parcel came home."""
+        await self.stop()
+        f = loss_flight(r, self.shells[0], self.loss, time.monotonic() - self.t0, self.t0)
+        t_cut = f.loss_time_s
+        modes = modes_after(self.rv.truth, t_cut) if self.rv.autopilot_name == "px4" and math.isfinite(t_cut) else ()
+        return {
+            "releases": r.releases,
+            "home_with_parcel": r.home_with_parcel,
+            "gnss_cut": {
+                "below_m": self.config.sim.gnss_lost_below_m,
+                "height_m": f.loss_height_m,
+                "time_s": t_cut - self.t0,
+                "seen_after_s": f.gnss_lost_seen_s,
+                "switch_accepted_after_s": f.switch_accepted_s,
+                "switch_jump_m": f.switch_jump_m,
+                "poses_sent": f.poses_sent,
+                "autopilot_modes": list(modes),
+                "events": [e for e in f.events if float(e.split(" ", 1)[0]) >= t_cut - self.t0 - 0.05],
+            },
+        }
 
 
 async def run_real_landing_campaign_async(
@@ -270,6 +362,13 @@ async def run_real_landing_campaign_async(
         raise ValueError(f"autopilot {autopilot!r}: expected one of {REAL_AUTOPILOTS}")
     if weather and autopilot != "ardupilot":
         raise ValueError(f"weather on {autopilot}: only ArduCopter's SITL has wind and noise parameters to drive")
+    gnss_variants = [v for v in variants if v in GNSS_VARIANTS]
+    if weather and gnss_variants:
+        raise ValueError(
+            f"variants {gnss_variants} with weather: the GNSS-lost landings fly in the draw's wind only (a fresh "
+            "SITL each, the drawn GPS error would be driven on a receiver the landing switches off); drop weather "
+            "or fly them apart"
+        )
     base = Path(params) if params else shipped_params_path("landing_campaign.toml")
     draws = draw_scenarios(n, seed)
     configs = {v: real_config(base, autopilot, v) for v in variants}
@@ -296,14 +395,27 @@ async def run_real_landing_campaign_async(
                 progress(v, done, total)
 
     jobs = [(d, v) for d in draws for v in variants]
+    boot = gnss_loss_boot_params(autopilot) if gnss_variants else {}
     if autopilot == "ardupilot":  # one SITL for the campaign (41 s of simulated time to become armable)
-        async with real_vehicle("ardupilot", logs) as rv:
-            await fly_all(rv, jobs)
+        shared = [j for j in jobs if j[1] not in GNSS_VARIANTS]
+        if shared:
+            async with real_vehicle("ardupilot", logs) as rv:
+                await fly_all(rv, shared)
+        # a GPS cut leaves EKF3 on its dead reckoning or source set 2: a fresh SITL for each
+        for k, job in enumerate(j for j in jobs if j[1] in GNSS_VARIANTS):
+            async with real_vehicle("ardupilot", logs / f"gnss-{k:03d}", boot, watch=("HEARTBEAT",)) as rv:
+                await require_gps_cut(rv)
+                await fly_all(rv, [job])
     else:  # PX4 SIH: a clean start for each landing
         for k, job in enumerate(jobs):
-            async with real_vehicle("px4", logs / f"{k:03d}") as rv:
+            gnss_job = job[1] in GNSS_VARIANTS
+            async with real_vehicle(
+                "px4", logs / f"{k:03d}", boot if gnss_job else None, watch=("HEARTBEAT",) if gnss_job else ()
+            ) as rv:
                 await fly_all(rv, [job])
     summary = {v: summarize(ls) for v, ls in landings.items()}
+    for v in gnss_variants:  # the policy's figure: releases off the pad (issue 57: none)
+        summary[v]["released_off_pad"] = sum(bool(x["delivered"]) and not x["on_pad"] for x in landings[v])
     return {
         "n": n,
         "seed": seed,
@@ -315,6 +427,17 @@ async def run_real_landing_campaign_async(
         "summary": summary,
         "landings": landings,
     }
+
+
+async def require_gps_cut(rv: RealVehicle) -> None:
+    """ArduCopter: the SITL build has the parameter the cut sets (GPS_ENABLE_PARAM), else RuntimeError."""
+    try:
+        await asyncio.to_thread(rv.truth.get_param, GPS_ENABLE_PARAM)
+    except TimeoutError:
+        raise RuntimeError(
+            f"the ArduCopter SITL has no parameter {GPS_ENABLE_PARAM}: it cannot cut its GPS for the GNSS-lost "
+            "variants (ArduCopter 4.5+ SITL expected; SIM_GPS_DISABLE before the 2024 rename)"
+        ) from None
 
 
 def _write_trace(path: Path, rows: tuple[tuple[float, ...], ...]) -> None:

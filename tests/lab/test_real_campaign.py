@@ -24,6 +24,7 @@ from companion_lab.real_campaign import (
     parity_figure,
     real_config,
     real_pad_displacement,
+    run_real_landing_campaign,
 )
 from companion_sitl.params import load_simulated_config
 
@@ -178,8 +179,6 @@ def test_landing_diagnostics_names_the_machine_and_splits_each_error():
 
 
 def test_gnss_lost_variants_fly_external_nav_beside_gps_only_on_the_same_draws():
-    from companion_lab.real_campaign import real_config
-
     base = shipped_params_path("landing_campaign_short.toml")
     d = draw_scenarios(1, seed=1)[0]
     ext = scenario_config(base, d, "gnss_lost_10m", "arducopter-sitl")
@@ -189,5 +188,33 @@ def test_gnss_lost_variants_fly_external_nav_beside_gps_only_on_the_same_draws()
     assert not gps.external_nav.enabled and not gps.landing.fusion and gps.sim.gnss_lost_below_m == 10.0
     assert three.sim.gnss_lost_below_m == 3.0
     assert ext.sim.pad_offset_m == gps.sim.pad_offset_m and ext.sim.seed == gps.sim.seed  # the same draw
-    with pytest.raises(ValueError, match=r"lab/gnss_loss\.py"):
-        real_config(base, "ardupilot", "gnss_lost_3m")
+
+
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
+def test_the_real_gnss_lost_variants_cut_at_their_height_and_gps_only_never_releases(autopilot):
+    base = shipped_params_path("landing_campaign.toml")
+    ext = real_config(base, autopilot, "gnss_lost_10m")
+    gps = real_config(base, autopilot, "gnss_lost_10m_gps_only")
+    three = real_config(base, autopilot, "gnss_lost_3m")
+    assert ext.sim.gnss_lost_below_m == 10.0 and three.sim.gnss_lost_below_m == 3.0
+    assert ext.sim.gnss_lost_within_m == gps.sim.gnss_lost_within_m == 6.0
+    assert ext.external_nav.enabled and ext.landing.fusion and ext.landing.policy.require_pad_lock
+    # GPS-only with the same cut: no pose for the autopilot, and no release (no lock without pad sensors)
+    assert gps.sim.gnss_lost_below_m == 10.0 and not gps.external_nav.enabled and not gps.landing.fusion
+    assert gps.landing.policy.require_pad_lock
+    assert ext.mission.pad == gps.mission.pad == three.mission.pad  # the same pad, the same draws
+    # the other variants cut nothing
+    assert real_config(base, autopilot, "fusion").sim.gnss_lost_below_m == 0.0
+    assert not real_config(base, autopilot, "gps_only").external_nav.enabled
+    d = draw_scenarios(1, seed=300000)[0]
+    assert landing_config(ext, "gnss_lost_10m", d).sim.gnss_lost_below_m == 10.0
+
+
+def test_bad_real_gnss_lost_campaigns_are_refused_before_any_sitl_starts():
+    base = shipped_params_path("landing_campaign.toml")
+    with pytest.raises(ValueError, match=r"autopilot 'sim': expected one of"):
+        real_config(base, "sim", "gnss_lost_3m")
+    with pytest.raises(ValueError, match=r"variants \['gnss_lost_3m'\] with weather"):
+        run_real_landing_campaign("ardupilot", 1, 300000, ("fusion", "gnss_lost_3m"), weather=True)
+    with pytest.raises(ValueError, match=r"weather on px4"):
+        run_real_landing_campaign("px4", 1, 300000, ("gnss_lost_3m",), weather=True)
