@@ -657,6 +657,23 @@ class DeliveryEkf:
         self._condition()
         return True
 
+    def _dense_steps(self, u: ArrayLike, dt_s: float) -> tuple[np.ndarray, int, float] | None:
+        """For a dense prediction (ekf_reference, moving_pad): the input (a non-finite one counted
+        and replaced by the last finite one), the number of sub-steps and their length; None for a
+        non-positive or non-finite dt (counted unless 0)."""
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            if dt_s != 0.0:
+                self.counters["predict.bad_dt"] += 1
+            return None
+        uu = np.asarray(u, dtype=float).reshape(6)
+        if not np.all(np.isfinite(uu)):
+            self.counters["input.nonfinite"] += 1
+            uu = self.last_input
+        else:
+            self.last_input = uu.copy()
+        n = max(1, math.ceil(dt_s / self.config.max_step_s - 1e-9))
+        return uu, n, dt_s / n
+
     # ---- corrections (eqs 7, 9 + Joseph form) --------------------------------------------
 
     def update_sdk(self, position_ned_m: ArrayLike, euler_rad: ArrayLike | None = None) -> UpdateOutcome:

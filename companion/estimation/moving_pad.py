@@ -114,18 +114,10 @@ class MovingPadEkf(DeliveryEkf):
 
     def predict(self, u: ArrayLike, dt_s: float) -> bool:
         """Eqs 5, 6 with the extended eq 11 (module doc), dense."""
-        if not (math.isfinite(dt_s) and dt_s > 0.0):
-            if dt_s != 0.0:
-                self.counters["predict.bad_dt"] += 1
+        steps = self._dense_steps(u, dt_s)
+        if steps is None:
             return False
-        uu = np.asarray(u, dtype=float).reshape(6)
-        if not np.all(np.isfinite(uu)):
-            self.counters["input.nonfinite"] += 1
-            uu = self.last_input
-        else:
-            self.last_input = uu.copy()
-        n = max(1, math.ceil(dt_s / self.config.max_step_s - 1e-9))
-        h = dt_s / n
+        uu, n, h = steps
         Qf = np.diag(self._qf14 * h)
         xi = 1.0 if self.xi else 0.0
         for _ in range(n):
