@@ -38,7 +38,8 @@ SPARE_COLOURS = (
     "tab:pink", "tab:olive", "tab:cyan", "black", "gold", "navy", "lime", "teal", "salmon", "indigo",
     "maroon", "darkgreen", "magenta", "sienna", "steelblue", "khaki", "crimson", "orchid", "chocolate",
     "slategray", "deepskyblue", "darkorange", "mediumpurple", "yellowgreen", "rosybrown", "darkcyan",
-    "peru", "hotpink", "darkkhaki", "lightcoral",
+    "peru", "hotpink", "darkkhaki", "lightcoral", "darkviolet", "olivedrab", "cadetblue", "firebrick",
+    "tan", "mediumseagreen", "palevioletred", "dodgerblue",
 )  # fmt: skip
 
 
