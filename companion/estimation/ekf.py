@@ -782,7 +782,7 @@ class DeliveryEkf:
         if self.xi:
             return self._update(sensor, z, *model(self.x), R, has_angles)
         saved_x, saved_P = self.x, self.P
-        T = np.eye(N_STATES)
+        T = np.eye(saved_x.shape[0])  # the state's size: a subclass may append states
         T[0:3, 6:9] = -np.eye(3)  # p <- p - b_p
         self.x = T @ saved_x
         TPTt = T @ saved_P @ T.T

@@ -26,7 +26,6 @@ for bit: the moving pad is opt-in).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -36,7 +35,6 @@ from companion.estimation.ekf import (
     _TWO_PI,
     DeliveryEkf,
     EkfSensor,
-    UpdateOutcome,
     propagate,
     propagation_jacobians,
 )
@@ -129,32 +127,6 @@ class MovingPadEkf(DeliveryEkf):
         self.P = (self.P + self.P.T) * 0.5
         self._condition()
         return True
-
-    def _local_update(
-        self,
-        sensor: EkfSensor,
-        z: np.ndarray,
-        model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-        R: np.ndarray,
-        has_angles: bool,
-    ) -> UpdateOutcome:
-        """As the 12-state filter's, with the xi switch's T (p <- p - b_p) over 14 states."""
-        if not self.initialized:
-            return self._count(sensor, UpdateOutcome.REJECTED_UNINITIALIZED)
-        if self.xi:
-            return self._update(sensor, z, *model(self.x), R, has_angles)
-        saved_x, saved_P = self.x, self.P
-        T = np.eye(N_MOVING)
-        T[0:3, 6:9] = -np.eye(3)
-        self.x = T @ saved_x
-        TPTt = T @ saved_P @ T.T
-        self.P = (TPTt + TPTt.T) * 0.5
-        outcome = self._update(sensor, z, *model(self.x), R, has_angles)
-        if outcome is UpdateOutcome.ACCEPTED:
-            self.xi = True
-        else:
-            self.x, self.P = saved_x, saved_P
-        return outcome
 
     def _note_gate_rejection(self, sensor: EkfSensor) -> None:
         """As the 12-state filter's; a pad sensor's reset also forgets the pad's velocity."""
