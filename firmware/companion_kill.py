@@ -132,7 +132,7 @@ class KillOutcome:
 
     kill_height_m: float  # truth height above home at the kill
     kill_from_pad_m: float  # truth horizontal distance from the pad at the kill
-    modes: tuple[tuple[float, str], ...]  # (s after the kill, the autopilot's mode) at each change, from 1 s before
+    modes: tuple[tuple[float, str], ...]  # (s after the kill, mode): the mode at the kill, then each change
     failsafe_after_s: float | None  # first mode change after the kill
     touchdown_after_s: float | None  # truth height within 0.5 m of the ground, settled
     touchdown_speed_m_s: float  # fastest truth descent below 1 m height (how hard it came down)
@@ -146,6 +146,11 @@ class KillOutcome:
     how: str = "kill"  # kill, freeze or hang (fly_and_kill)
     stopped_at_unix_s: float = 0.0  # the wall clock at the stop (the companion's log lines are stamped on it)
 
+    @property
+    def changes_after_stop(self) -> list[str]:
+        """The modes the autopilot changed to after the stop, in order (not the one it was in)."""
+        return [m for t, m in self.modes[1:] if t > 0.0]
+
     def story(self) -> str:
         modes = ", ".join(f"{t:+.1f} s {m}" for t, m in self.modes)
         fmt = lambda x: "-" if x is None else f"{x:.1f} s"  # noqa: E731
@@ -158,6 +163,23 @@ class KillOutcome:
             f"(N {self.landed_north_east_m[0]:.2f} E {self.landed_north_east_m[1]:.2f} m from home), drift "
             f"{self.max_drift_m:.2f} m; release commands sent: {list(self.release_commands) or 'none'}"
         )
+
+
+def mode_changes(
+    beats: list[tuple[float, Any]], t_stop: float, mode_name: Callable[[int], str]
+) -> tuple[list[tuple[float, str]], float | None]:
+    """The autopilot's modes around a stop at ``t_stop`` (monotonic s) from its heartbeats
+    (arrival time, HEARTBEAT): the mode of the last heartbeat at or before the stop, then each
+    change, as (s after the stop, name); and the time of the first change after the stop. With no
+    heartbeat before the stop the mode the companion flew in is unknown, so no change is claimed."""
+    before = [i for i, (t, _) in enumerate(beats) if t <= t_stop]
+    modes: list[tuple[float, str]] = []
+    for t, m in beats[before[-1] if before else 0 :]:
+        name = mode_name(int(m.custom_mode))
+        if not modes or modes[-1][1] != name:
+            modes.append((round(t - t_stop, 2), name))
+    failsafe = next((t for t, _ in modes[1:] if t > 0.0), None) if before else None
+    return modes, failsafe
 
 
 def fly_and_kill(
@@ -228,12 +250,7 @@ def fly_and_kill(
             proc.wait(5.0)
         out.close()
 
-    modes: list[tuple[float, str]] = []
-    for t, m in truth.watched_messages("HEARTBEAT", since=t_kill - 1.0):
-        name = mode_name(int(m.custom_mode))
-        if not modes or modes[-1][1] != name:
-            modes.append((round(t - t_kill, 2), name))
-    failsafe = next((t for t, _ in modes if t > 0.0), None)
+    modes, failsafe = mode_changes(truth.watched_messages("HEARTBEAT", since=t_kill - 3.0), t_kill, mode_name)
     return KillOutcome(
         kill_height_m=kill_h,
         kill_from_pad_m=kill_d,

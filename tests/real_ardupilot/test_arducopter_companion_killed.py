@@ -81,7 +81,7 @@ async def test_arducopter_lands_by_itself_when_the_companion_dies_in_the_descent
     assert grip and all(p != GRIP_RELEASE_PWM for _, p in grip), grip
     # FS_GCS_TIMEOUT = 5 s after the companion's last heartbeat (checked at 3.3 Hz, seen on the 1 Hz
     # heartbeat): LAND (measured 5.0 s)
-    assert [m for t, m in r.modes if t > 0][:1] == ["LAND"], r.story()
+    assert r.modes[0][1] == "GUIDED" and r.changes_after_stop[:1] == ["LAND"], r.story()
     assert r.failsafe_after_s is not None and r.failsafe_after_s <= 7.0, r.story()
     # Until then GUIDED flies the last setpoint for GUID_TIMEOUT = 3 s: from 5 m at WPNAV_SPEED_DN =
     # 1.5 m/s that reaches the ground (measured 3.4 s); from higher it would stop, hold, and LAND
@@ -106,7 +106,7 @@ async def test_arducopter_lands_by_itself_while_the_companion_hangs_or_is_frozen
     if how == "hang":  # said from the watchdog's thread while the loop was still blocked
         assert said is not None and stall_s - 0.05 <= said <= stall_s + 0.5, said
     # FS_GCS_TIMEOUT = 5 s after the last heartbeat (the loop's last tick + loop_stall_s on a hang)
-    assert [m for t, m in r.modes if t > 0][:1] == ["LAND"], r.story()
+    assert r.modes[0][1] == "GUIDED" and r.changes_after_stop[:1] == ["LAND"], r.story()
     assert r.failsafe_after_s is not None and r.failsafe_after_s <= 5.0 + stall_s + 2.0, r.story()
     assert r.touchdown_after_s is not None and r.touchdown_after_s <= 25.0, r.story()
     assert r.touchdown_speed_m_s < 2.0, r.story()

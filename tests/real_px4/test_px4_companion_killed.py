@@ -68,7 +68,7 @@ async def test_px4_lands_by_itself_when_the_companion_dies_in_the_descent(px4_ro
     assert r.commands_after_kill == 0
     assert r.release_commands == (), r.story()
     # COM_OF_LOSS_T = 1 s after our last setpoint, seen on PX4's 1 Hz heartbeat: AUTO.LAND (measured 1.4 s)
-    assert [m for t, m in r.modes if t > 0][:1] == ["AUTO.LAND"], r.story()
+    assert r.modes[0][1] == "OFFBOARD" and r.changes_after_stop[:1] == ["AUTO.LAND"], r.story()
     assert r.failsafe_after_s is not None and r.failsafe_after_s <= 3.0, r.story()
     # 5 m: ~1 s more on the last descent setpoint, then LAND at MPC_LAND_SPEED = 0.7 m/s, slower in
     # its last metre (measured 6.4 and 8.5 s); the land detector and COM_DISARM_LAND = 2 s then
@@ -92,7 +92,7 @@ async def test_px4_lands_by_itself_while_the_companion_hangs_or_is_frozen(px4_ro
     if how == "hang":  # said from the watchdog's thread while the loop was still blocked
         assert said is not None and stall_s - 0.05 <= said <= stall_s + 0.5, said
     # COM_OF_LOSS_T = 1 s after our last setpoint: AUTO.LAND, as when the companion dies
-    assert [m for t, m in r.modes if t > 0][:1] == ["AUTO.LAND"], r.story()
+    assert r.modes[0][1] == "OFFBOARD" and r.changes_after_stop[:1] == ["AUTO.LAND"], r.story()
     assert r.failsafe_after_s is not None and r.failsafe_after_s <= 3.0, r.story()
     assert r.touchdown_after_s is not None and r.touchdown_after_s <= 15.0, r.story()
     assert r.touchdown_speed_m_s < 2.0, r.story()
