@@ -435,6 +435,54 @@ class PayloadConfig(_Section):
     actuator_value: float = _f(1.0, "-", "PX4 actuator value that opens the release (-1..1)", ge=-1.0, le=1.0)
 
 
+class WinchCameraConfig(_Section):
+    """The downward camera judges the parcel down (docs/winch.md): an ArUco tag printed on the
+    parcel's top is found in the frames while the line pays out, and the parcel's bottom is placed
+    above the pad from the tag and the fused pose."""
+
+    enabled: bool = _f(
+        False,
+        "-",
+        "judge the parcel down with the camera: at the line's full length the parcel's bottom must be seen within "
+        "down_tolerance_m of the pad, else no release, reel in, home with the parcel",
+    )
+    tag_dict: str = _f("DICT_4X4_50", "-", "the ArUco dictionary of the tag on the parcel's top")
+    tag_id: int = _f(7, "-", "the tag's id in tag_dict (not one of the pad's own markers)", ge=0, le=999)
+    tag_size_m: float = _f(0.2, "m", "the tag's side (its black border's outer edge)", gt=0.0, le=2.0)
+    parcel_height_m: float = _f(
+        0.25, "m", "the tag's height above the parcel's bottom (the parcel's height)", ge=0.0, le=3.0
+    )
+    down_tolerance_m: float = _f(
+        0.15,
+        "m",
+        "the parcel counts as down when its bottom is seen within this of the pad (the fused height's error and "
+        "the tag's range error at the hover height)",
+        gt=0.0,
+        le=2.0,
+    )
+    confirm_s: float = _f(
+        0.5, "s", "the parcel must be seen down this long, every sighting within down_tolerance_m", ge=0.0, le=10.0
+    )
+    wait_s: float = _f(
+        4.0,
+        "s",
+        "at the line's full length, wait this long for the camera to see the parcel down; then no release (caught, "
+        "hanging short, or not seen), reel in, home with the parcel",
+        gt=0.0,
+        le=60.0,
+    )
+    stale_s: float = _f(0.5, "s", "a sighting older than this does not count", gt=0.0, le=10.0)
+
+    @field_validator("tag_dict")
+    @classmethod
+    def _known_dictionary(cls, v: str) -> str:
+        import cv2
+
+        if not (v.startswith("DICT_") and hasattr(cv2.aruco, v)):
+            raise ValueError(f"{v!r}: not a cv2.aruco dictionary name (e.g. 'DICT_4X4_50')")
+        return v
+
+
 class WinchConfig(_Section):
     """Winch delivery (mission.delivery = "winch"): the autopilot's winch (MAV_CMD_DO_WINCH) lowers
     the parcel from a hover over the locked pad (docs/winch.md)."""
@@ -548,6 +596,8 @@ class WinchConfig(_Section):
         gt=0.0,
         le=10.0,
     )
+
+    camera: WinchCameraConfig = Field(default_factory=WinchCameraConfig)
 
     @model_validator(mode="after")
     def _light_check_past_the_slack(self) -> WinchConfig:
@@ -1646,6 +1696,23 @@ class CompanionConfig(_Section):
         bad = [p for p in (f.problem_at(lat, lon, key) for lat, lon, key in self._fenced_points()) if p]
         if bad:
             raise ValueError("fence: " + "; ".join(bad))
+        return self
+
+    @model_validator(mode="after")
+    def _winch_camera_sees(self) -> CompanionConfig:
+        """The camera's look at the parcel needs a winch delivery and the camera fused."""
+        if not self.winch.camera.enabled:
+            return self
+        if self.mission.delivery != "winch":
+            raise ValueError(
+                f"winch.camera.enabled = true with mission.delivery = {self.mission.delivery!r}: the camera looks "
+                "at a parcel lowered on the winch; set delivery = 'winch' or winch.camera.enabled = false"
+            )
+        if not (self.landing.fusion and self.landing.use_camera):
+            raise ValueError(
+                "winch.camera.enabled = true needs landing.fusion = true and landing.use_camera = true: the "
+                "parcel is placed from the camera's frames and the fused pose"
+            )
         return self
 
     @model_validator(mode="after")

@@ -47,10 +47,12 @@ from companion.uwb.measurements import TwrMeasurement
 from companion_sitl.camera import SimulatedCamera, U8Image
 from companion_sitl.camera_conditions import CameraConditions, FrameFate, pad_velocity_px_s
 from companion_sitl.camera_occluders import OCCLUDER_STREAM, Occluder, draw_occluder
+from companion_sitl.camera_parcel import ParcelLook, ParcelPainter
 from companion_sitl.pad_motion import PadTrack, pad_track
 from companion_sitl.params import SimOccluderConfig, SimulatedConfig
 from companion_sitl.uwb import SimulatedUwb
 from companion_sitl.vehicle import SimVehicle
+from companion_sitl.winch import STOWED_M
 
 if TYPE_CHECKING:
     from companion.vision.pad import PadLayout
@@ -100,6 +102,7 @@ class SimCameraSource:
         occluder: Occluder | None = None,
         occluder_from_height_m: float = 0.0,
         pad_track: PadTrack | None = None,
+        parcel: ParcelPainter | None = None,
     ):
         """``latency_s``: the latency the configuration knows (``landing.camera_latency_s``);
         ``unknown_latency_s``: what the frames take on top of it, which the configuration does not
@@ -110,7 +113,9 @@ class SimCameraSource:
         painted into each frame before the exposure, its clock starting at the first frame read with
         the pad in view and the vehicle below ``occluder_from_height_m`` (0: any height;
         ``[sim.camera.occluder]``, docs/drop-zone.md); ``pad_track``: the pad moves
-        (``[sim.pad_motion]``): each exposure sees it where it is at that instant."""
+        (``[sim.pad_motion]``): each exposure sees it where it is at that instant; ``parcel``: the
+        vehicle's parcel painted where it truly is at each exposure once its line is out
+        (``[sim.winch] draw_parcel``)."""
         if not (math.isfinite(unknown_latency_s) and 0.0 <= unknown_latency_s <= 1.0):
             raise ValueError(f"unknown_latency_s = {unknown_latency_s!r}: expected finite, within [0, 1] s")
         self.vehicle = vehicle
@@ -129,6 +134,8 @@ class SimCameraSource:
         self.occluder = occluder if occluder is not None and occluder.kind != "none" else None
         self._occluder_t0: float | None = None  # the first frame read with the pad in view
         self._occluder_from_height_m = float(occluder_from_height_m)
+        self.parcel = parcel if getattr(vehicle, "parcel", None) is not None else None
+        self._parcel_at: dict[float, tuple[float, float, float]] = {}  # exposure -> the parcel's bottom, NED
         # exposure -> readable (x + 0.0 is x: without an unknown latency, the same floats as before)
         self._delivery_s = latency_s + self.unknown_latency_s
         self._clock = LoopClock()
@@ -202,6 +209,8 @@ class SimCameraSource:
                     if len(self._renders) > _AHEAD_KEPT:  # not read (vision not wanted): the oldest goes
                         self._renders.pop(next(iter(self._renders))).cancel()
             self._poses.append((t, T, T_cp))
+            if self.parcel is not None:
+                self._note_parcel(t)
             late = 0.0
             if self.conditions is not None:
                 late = self._draw_fate(t, T_cp if T_cp is not None else self._camera_pad(T))
@@ -296,8 +305,8 @@ class SimCameraSource:
             return None
         if ahead is None and self._renderer is not None:  # (not polled before this exposure: none)
             ahead = self._renderer.submit(self.camera.render_optics, T_cp, fresh=True)
-        if self.conditions is not None or self.occluder is not None:
-            image = self._with_conditions(t, T_cp, ahead)
+        if self.conditions is not None or self.occluder is not None or self.parcel is not None:
+            image = self._with_conditions(t, T_cp, ahead, T)
         else:  # not started (no renderer): rendered here, as capture() does
             image = (
                 self._expose(ahead.result())
@@ -321,7 +330,18 @@ class SimCameraSource:
             arrival_time_s=t + self._delivery_s + late if self.driver_stamp else None,
         )
 
-    def _with_conditions(self, t: float, T_cp: Transform, ahead: Future[U8Image] | None) -> U8Image:
+    def _note_parcel(self, t: float) -> None:
+        """The parcel's bottom at the exposure ``t``, kept for read() while it is out of its bay."""
+        parcel, winch = self.vehicle.parcel, self.vehicle.winch
+        assert parcel is not None and winch is not None
+        if winch.length_m >= STOWED_M or parcel.on_ground or parcel.caught:
+            self._parcel_at[t] = (parcel.p[0], parcel.p[1], parcel.p[2])
+        while len(self._parcel_at) > 64:
+            self._parcel_at.pop(next(iter(self._parcel_at)))
+
+    def _with_conditions(
+        self, t: float, T_cp: Transform, ahead: Future[U8Image] | None, T_world_body: Transform | None = None
+    ) -> U8Image:
         """The frame as the real camera gives it: motion on the optics, exposure, then the rest."""
         optics = ahead.result() if ahead is not None else self.camera.render_optics(T_cp, fresh=True)
         if self.occluder is not None:
@@ -332,6 +352,10 @@ class SimCameraSource:
                 log.info("simulated camera: the %s's clock starts at t=%.2f s", self.occluder.kind, t)
             if self._occluder_t0 is not None:
                 optics = self.occluder.paint(optics, self.camera.camera, T_cp, t - self._occluder_t0)
+        bottom = self._parcel_at.get(t) if self.parcel is not None else None
+        if bottom is not None and T_world_body is not None:  # hanging above whatever is on the ground
+            assert self.parcel is not None
+            optics = self.parcel.paint(optics, self.camera.camera, self.camera.T_world_camera(T_world_body), bottom)
         if self.conditions is None:
             return self._expose(optics)
         got = self._fates.get(t)
@@ -438,6 +462,23 @@ def sim_occluder(config: SimOccluderConfig, layout: PadLayout, margin_m: float, 
     return occ
 
 
+def sim_parcel_painter(config: SimulatedConfig) -> ParcelPainter | None:
+    """``[sim.winch] draw_parcel``'s parcel, its tag the one ``[winch.camera]`` describes (None: not drawn)."""
+    sw = config.sim.winch
+    if not (sw.fitted and sw.draw_parcel):
+        return None
+    wc = config.winch.camera
+    return ParcelPainter(
+        ParcelLook(
+            sw.parcel_size_m,
+            sw.parcel_height_m,
+            tag_dict=wc.tag_dict,
+            tag_id=wc.tag_id if sw.parcel_tag else -1,
+            tag_size_m=wc.tag_size_m,
+        )
+    )
+
+
 def sim_landing_kit(
     config: SimulatedConfig,
     vehicle: SimVehicle,
@@ -519,6 +560,7 @@ def sim_landing_kit(
             occluder=sim_occluder(config.sim.camera.occluder, layout, lc.drop_zone.margin_m, seed),
             occluder_from_height_m=config.sim.camera.occluder.from_height_m,
             pad_track=track,
+            parcel=sim_parcel_painter(config),
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera

@@ -121,6 +121,17 @@ class SimWinchConfig(_Section):
         ge=0.0,
         le=30.0,
     )
+    draw_parcel: bool = _f(
+        False,
+        "-",
+        "the simulated camera sees the parcel once its line is out: a box with a level top (false: not drawn, the "
+        "frames as before)",
+    )
+    parcel_tag: bool = _f(
+        True, "-", "with draw_parcel: the parcel's top carries the tag [winch.camera] describes (false: a plain box)"
+    )
+    parcel_size_m: float = _f(0.3, "m", "with draw_parcel: the side of the parcel's square top", gt=0.0, le=3.0)
+    parcel_height_m: float = _f(0.25, "m", "with draw_parcel: the parcel's height", ge=0.0, le=3.0)
 
 
 class SimOccluderConfig(_Section):

@@ -125,6 +125,20 @@ class LandingSensing:
             from companion.delivery.drop_zone_watch import DropZoneWatch
 
             self.drop_zone = DropZoneWatch(kit.detector.camera, kit.detector.layout, dz)
+        # [winch.camera]: while the line is out, each frame is also searched for the parcel's tag
+        self.parcel_finder: Any = None  # vision.parcel_tag.ParcelTagFinder
+        self.parcel: Any = None  # vision.parcel_tag.ParcelSighting, the newest
+        self._parcel_tag: tuple[float, float, float] | None = None  # the last searched frame's find
+        wcam = config.winch.camera
+        if config.mission.delivery == "winch" and wcam.enabled and kit is not None and kit.detector is not None:
+            from companion.vision.parcel_tag import ParcelTagFinder, tag_clashes_with_pad
+
+            clash = tag_clashes_with_pad(kit.detector.layout, wcam.tag_dict, wcam.tag_id)
+            if clash:  # before take-off: the pad's own marker would be taken for the parcel
+                from companion.delivery.landing_setup import LandingSetupError
+
+                raise LandingSetupError(f"winch.camera: {clash}; choose another winch.camera.tag_dict or tag_id")
+            self.parcel_finder = ParcelTagFinder(kit.detector.camera, wcam.tag_dict, wcam.tag_id, wcam.tag_size_m)
 
     def apply_opencv_threads(self) -> None:
         """``[runtime] opencv_threads``, process-wide, before the camera starts (with a camera or
@@ -251,12 +265,17 @@ class LandingSensing:
         m = self.owner.mission
         if self.drop_zone is not None and not m.summary.delivered and not m.returning:  # judged with the parcel aboard
             detect = functools.partial(self._detect_and_judge, detect, self._predicted_camera_pad())
+        looking = self.parcel_finder is not None and self._parcel_wanted()
+        if looking:
+            detect = functools.partial(self._detect_and_find_parcel, detect)
         if kit.vision_in_thread:
             obs, cpu_s = await asyncio.get_running_loop().run_in_executor(None, detect, frame.image, exposure_s)
         else:
             obs, cpu_s = detect(frame.image, exposure_s)
         if pacer is not None:
             pacer.done(start_s, cpu_s)
+        if looking and self._parcel_tag is not None:
+            self._place_parcel(exposure_s, self._parcel_tag)
         if obs is None:
             return
         watching = self.watching()
@@ -287,6 +306,39 @@ class LandingSensing:
             _, check_s = cpu_timed(self.drop_zone.judge, image, exposure_s, obs, T_predicted)
             cpu_s += check_s
         return obs, cpu_s
+
+    def _parcel_wanted(self) -> bool:
+        """The parcel is looked for while the line may be out and it is not released."""
+        m = self.owner.mission
+        seq = getattr(m, "winch", None)
+        return m.phase is Phase.WINCH and seq is not None and seq.paid_out and not seq.delivered
+
+    def _detect_and_find_parcel(
+        self, detect: Callable[..., tuple[Any, float]], image: Any, exposure_s: float
+    ) -> tuple[Any, float]:
+        """The detector (and what wraps it), then the parcel's tag in the same frame (on the
+        detector's thread in flight); the CPU time is both's, for the pacer."""
+        obs, cpu_s = detect(image, exposure_s)
+        self._parcel_tag, find_s = cpu_timed(self.parcel_finder.find, image)
+        return obs, cpu_s + find_s
+
+    def _place_parcel(self, exposure_s: float, tag: tuple[float, float, float]) -> None:
+        """The parcel's bottom above the pad from its tag and the fused pose (winch.camera)."""
+        from companion.vision.parcel_tag import ParcelSighting, parcel_bottom_above_pad_m
+
+        m, kit = self.owner.mission, self.kit
+        est = self.fusion.estimate() if self.fusion is not None else None
+        if est is None or m.frame is None or kit is None:
+            return
+        height = parcel_bottom_above_pad_m(
+            tag,
+            est.position_ned,
+            (est.roll_rad, est.pitch_rad, est.yaw_rad),
+            kit.T_body_camera,
+            float(m.frame.pad_ned[2]),
+            self.owner.config.winch.camera.parcel_height_m,
+        )
+        self.parcel = ParcelSighting(exposure_s, tag, height)
 
     def drop_zone_verdict(self, now: float) -> Any:
         """The drop-zone verdict for the mission (None: no check configured)."""

@@ -47,6 +47,8 @@ from companion.flightlog.streams import (
     EVENT_COLUMNS,
     GUIDANCE_COLUMNS,
     META_FILE,
+    PARCEL_COLUMNS,
+    PARCEL_FILE,
     SAMPLE_FILES,
     STREAM_FILES,
     WINCH_COLUMNS_BEFORE_TENSION,
@@ -299,6 +301,10 @@ class _ReplayShell:
         self.drop_zone_by_seq: dict[int, Any] = {}
         if self.config.landing.drop_zone.enabled:
             self._read_drop_zone()
+        # the camera's sighting of the parcel each tick handed the mission (parcel.csv), [winch.camera]
+        self.parcel_by_seq: dict[int, Any] = {}
+        if self.mission.winch_cfg is not None and self.config.winch.camera.enabled:
+            self._read_parcel()
 
     def _read_wind(self) -> None:
         from companion.autopilot.types import Wind
@@ -343,6 +349,19 @@ class _ReplayShell:
                     f"{self.run_dir / DROP_ZONE_FILE} row {k + 2}: verdict {text!r} is not one of {sorted(known)}"
                 )
             self.drop_zone_by_seq[_int(t, k, "seq")] = known[text] if text else None
+
+    def _read_parcel(self) -> None:
+        from companion.vision.parcel_tag import ParcelSighting
+
+        if not (self.run_dir / PARCEL_FILE).exists() and PARCEL_FILE not in (self.meta.get("streams") or {}):
+            self.notes.append(f"{PARCEL_FILE} missing: the flight is replayed without the camera's parcel sightings")
+            return
+        t = open_table(self.run_dir, PARCEL_FILE, PARCEL_COLUMNS)
+        for k in range(len(t)):
+            ts = t.value(k, "sighting_time_s")
+            tag = (t.value(k, "tag_x_m"), t.value(k, "tag_y_m"), t.value(k, "tag_z_m"))
+            seen = ParcelSighting(ts, tag, t.value(k, "bottom_above_pad_m")) if math.isfinite(ts) else None
+            self.parcel_by_seq[_int(t, k, "seq")] = seen
 
     def _start_fusion(self, now: float) -> None:
         from companion.config import MovingPadConfig
@@ -429,6 +448,7 @@ class _ReplayShell:
                 wind=self.wind_by_seq.get(inp.seq),
                 winch=self.winch_by_seq.get(inp.seq),
                 drop_zone=self.drop_zone_by_seq.get(inp.seq),
+                parcel=self.parcel_by_seq.get(inp.seq),
             )
         return None
 
@@ -448,7 +468,13 @@ class _ReplayShell:
         return measure_pad_lock(self.fusion, now)
 
     def tick(
-        self, now: float, link_ok: bool, wind: Any = None, winch: Any = None, drop_zone: Any = None
+        self,
+        now: float,
+        link_ok: bool,
+        wind: Any = None,
+        winch: Any = None,
+        drop_zone: Any = None,
+        parcel: Any = None,
     ) -> tuple[Any, Any, Any, bool]:
         # keep in step with DeliveryShell._guidance_loop (the replay test fails when they diverge)
         from companion.delivery.mission import MissionInputs
@@ -480,6 +506,7 @@ class _ReplayShell:
             winch=winch,
             drop_zone=drop_zone,
             pad_velocity_ne=self.fusion.pad_velocity_ne if self.fusion is not None else None,
+            parcel=parcel,
         )
         out = mission.step(inp)
         setpoint, clamped = None, False

@@ -447,6 +447,7 @@ class DeliveryShell:
                 autopilot_yaw_rad=tc.attitude.yaw_rad if tc.attitude is not None else None,
                 drop_zone=sensing.drop_zone_verdict(now),
                 pad_velocity_ne=fusion.pad_velocity_ne if fusion is not None else None,
+                parcel=sensing.parcel,
             )
             out = step(inp)
             events = out.events

@@ -20,6 +20,11 @@ a parcel hanging short of the ground, and a line that never carried anything a m
 release in each, reel in, home with it. After the release the first light_check_m reeled in must
 stay slack; a line that takes the load again is a parcel still on the hook, flown home.
 
+With winch.camera (a tag on the parcel's top, vision.parcel_tag) the parcel down by the line's
+rule is looked at before the release: the camera must see the parcel's bottom within
+down_tolerance_m of the pad for confirm_s within wait_s, else (caught, hanging short, not seen) no
+release, reel in, home with it.
+
 With winch.reel_check_s the reel-in is watched: a line that does not come in at half the asked
 rate, or a winch reporting itself unhealthy, is a jam, said CRITICAL (``WinchTick.critical``); the
 hover holds (no climb with the line out) while the reel-in is tried reel_retries more times, then
@@ -35,6 +40,7 @@ from dataclasses import dataclass
 from companion.autopilot.types import Wind
 from companion.autopilot.winch import WinchAction, WinchCommand, WinchStatus
 from companion.config import WinchConfig
+from companion.vision.parcel_tag import ParcelSighting
 
 LINE_MOVING_M_S = 0.05  # a winch reporting a faster payout is stopped before the reel-in
 SLACK_CONFIRM_S = 0.5  # tension sensing: the line reads slack this long (a swing slackens it for an instant)
@@ -43,6 +49,7 @@ SLACK_CONFIRM_S = 0.5  # tension sensing: the line reads slack this long (a swin
 class WinchStep(enum.Enum):
     SETTLE = "settle"
     PAYOUT = "payout"
+    LOOK = "look"  # winch.camera: the line says the parcel is down, the camera must see it on the pad
     RELEASE = "release"
     REEL = "reel"
     DONE = "done"
@@ -113,6 +120,8 @@ class WinchSequence:
         self.jammed = False  # ended with the line out and not coming in: land where the vehicle is
         self._critical: list[str] = []
         self._check: tuple[float, float] | None = None  # reel_check_s: (report time, length) of the window
+        self._seen: ParcelSighting | None = None  # winch.camera: the newest fresh sighting while looking
+        self._down_since: float | None = None  # winch.camera: the first of the run of sightings on the pad
 
     @property
     def target_m(self) -> float:
@@ -147,9 +156,17 @@ class WinchSequence:
             self._end(f"the winch refused the reel-in ({error}): flying home with the line as it is")
 
     # ------------------------------------------------------------------ the tick
-    def step(self, now_s: float, ready: bool, status: WinchStatus | None, idle: bool) -> WinchTick:
+    def step(
+        self,
+        now_s: float,
+        ready: bool,
+        status: WinchStatus | None,
+        idle: bool,
+        parcel: ParcelSighting | None = None,
+    ) -> WinchTick:
         """``ready``: the hover is locked on the pad's centre at the height (judged by the mission);
-        ``status``: the winch's newest report (None: none yet); ``idle``: no request in flight."""
+        ``status``: the winch's newest report (None: none yet); ``idle``: no request in flight;
+        ``parcel``: the camera's newest sighting of the parcel (winch.camera; None: none)."""
         st = self.step_now
         command: WinchCommand | None = None
         release = False
@@ -173,15 +190,15 @@ class WinchSequence:
             if tension is not None and math.isfinite(length):
                 self._payout_on_tension(now_s, length, tension, at_length)
             elif at_length:
-                self._say.append(f"parcel down: line {length:.2f} m out after {now_s - self._t0:.1f} s")
-                self.step_now = WinchStep.RELEASE
-                self._begin(now_s)
+                self._down(now_s, f"parcel down: line {length:.2f} m out after {now_s - self._t0:.1f} s")
             if self.step_now is WinchStep.PAYOUT and now_s - self._t0 > self.cfg.payout_timeout_s:
                 seen = f"line {length:.2f} m" if math.isfinite(length) else "no WINCH_STATUS from the winch"
                 self._fail(
                     now_s,
                     f"the line did not pay out: {seen} of {self.target_m:.2f} m after {self.cfg.payout_timeout_s} s",
                 )
+        elif st is WinchStep.LOOK:
+            self._look(now_s, length, parcel)
         elif st is WinchStep.RELEASE:
             if not self._sent and idle:
                 self._sent = True
@@ -294,6 +311,50 @@ class WinchSequence:
         self._fail(now_s, reason)
         return True
 
+    # ------------------------------------------------------------------ the camera's look
+    def _down(self, now_s: float, said: str) -> None:
+        """The line's rule says the parcel is down: release, or first look (winch.camera)."""
+        if not self.cfg.camera.enabled:
+            self._say.append(said)
+            self.step_now = WinchStep.RELEASE
+            self._begin(now_s)
+            return
+        self._say.append(f"{said}; looking for it on the pad with the camera")
+        self.step_now = WinchStep.LOOK
+        self._begin(now_s)
+        self._seen, self._down_since = None, None
+
+    def _look(self, now_s: float, length: float, parcel: ParcelSighting | None) -> None:
+        c = self.cfg.camera
+        fresh = parcel if parcel is not None and now_s - parcel.time_s <= c.stale_s else None
+        if fresh is not None and fresh is not self._seen:
+            self._seen = fresh
+            if abs(fresh.bottom_above_pad_m) <= c.down_tolerance_m:
+                if self._down_since is None:
+                    self._down_since = fresh.time_s
+            else:
+                self._down_since = None  # every sighting of the run on the pad
+        if self._down_since is not None and fresh is not None and fresh.time_s - self._down_since >= c.confirm_s:
+            self._say.append(
+                f"the camera sees the parcel on the pad (its bottom {fresh.bottom_above_pad_m:+.2f} m from it)"
+            )
+            self.step_now = WinchStep.RELEASE
+            self._begin(now_s)
+            return
+        if now_s - self._t0 <= c.wait_s:
+            return
+        line = f"the line out {length:.2f} m" if math.isfinite(length) else "no line length reported"
+        if fresh is not None and fresh.bottom_above_pad_m > c.down_tolerance_m:
+            why = (
+                f"the camera sees the parcel {fresh.bottom_above_pad_m:.2f} m above the pad with {line} "
+                "(caught or hanging short)"
+            )
+        elif fresh is not None:
+            why = f"the camera sees the parcel {-fresh.bottom_above_pad_m:.2f} m below the pad's plane with {line}"
+        else:
+            why = f"the camera did not see the parcel's tag within {c.wait_s} s with {line}"
+        self._fail(now_s, why)
+
     # ------------------------------------------------------------------ the line's tension
     def _tension(self, status: WinchStatus | None) -> float | None:
         """The line's tension (kg) when the configuration reads it and the winch reports it."""
@@ -327,11 +388,9 @@ class WinchSequence:
                 f"{c.hover_height_m - self._slack_at_m:.2f} m above the pad",
             )
         elif self._loaded:
-            self._say.append(
-                f"parcel down: the line went slack at {self._slack_at_m:.2f} m after {now_s - self._t0:.1f} s"
+            self._down(
+                now_s, f"parcel down: the line went slack at {self._slack_at_m:.2f} m after {now_s - self._t0:.1f} s"
             )
-            self.step_now = WinchStep.RELEASE
-            self._begin(now_s)
         elif at_length:
             self._fail(now_s, f"the line never carried the parcel (under {c.slack_tension_kg} kg to {length:.2f} m)")
 

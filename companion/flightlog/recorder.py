@@ -29,6 +29,8 @@ headers), so PlotJuggler opens every file as is:
 ``winch.csv``          the winch's report each tick handed the mission (only for a winch delivery)
 ``drop_zone.csv``      the drop-zone verdict each tick handed the mission (only with
                        ``[landing.drop_zone]`` on)
+``parcel.csv``         the camera's sighting of the parcel each tick handed the mission (only with
+                       ``[winch.camera]`` on a winch delivery)
 ``run.json``           format, configuration, fusion setup, mission frame and path, row counts
 ``flight.mcap``        every stream above, plus the camera frames the pad was detected in (JPEG)
                        with the marker corners, the EKF pose and its 1-sigma, and the planned
@@ -68,6 +70,8 @@ from companion.flightlog.streams import (
     DROP_ZONE_FILE,
     FORMAT,
     META_FILE,
+    PARCEL_COLUMNS,
+    PARCEL_FILE,
     SAMPLE_ENCODERS,
     SAMPLE_FIELDS,
     SAMPLE_FILES,
@@ -218,6 +222,8 @@ class FlightRecorder:
             streams[WIND_FILE] = WIND_COLUMNS
         if winch:  # the mission reads the winch's line length
             streams[WINCH_FILE] = WINCH_COLUMNS
+            if config.winch.camera.enabled:  # and the camera's sightings of the parcel
+                streams[PARCEL_FILE] = PARCEL_COLUMNS
         landing = getattr(config, "landing", None)
         if landing is not None and landing.drop_zone.enabled:  # the mission reads the drop-zone verdict
             streams[DROP_ZONE_FILE] = DROP_ZONE_COLUMNS
@@ -408,6 +414,10 @@ class FlightRecorder:
             self._write(WINCH_FILE, (inp.time_s, seq, *report))
         if DROP_ZONE_FILE in self.logs:
             self._write(DROP_ZONE_FILE, (inp.time_s, seq, inp.drop_zone.value if inp.drop_zone is not None else ""))
+        if PARCEL_FILE in self.logs:
+            ps = inp.parcel
+            seen = (ps.time_s, *ps.tag_in_camera_m, ps.bottom_above_pad_m) if ps is not None else (math.nan,) * 5
+            self._write(PARCEL_FILE, (inp.time_s, seq, *seen))
         for ev in out.events:
             self._write("events.csv", (ev.time_s, ev.kind.value, ev.phase.value, ev.detail))
         if fusion is not None:

@@ -249,6 +249,12 @@ WINCH_COLUMNS_BEFORE_TENSION = WINCH_COLUMNS[:-1]  # a run folder from before th
 DROP_ZONE_FILE = "drop_zone.csv"
 DROP_ZONE_COLUMNS = ("time_s", "seq", "verdict")
 
+# The camera's newest sighting of the parcel each guidance tick handed the mission
+# (MissionInputs.parcel: the exposure's time, the tag in the camera frame, the parcel's bottom above
+# the pad; NaN none), keyed by the tick's seq; written only with [winch.camera] on a winch delivery.
+PARCEL_FILE = "parcel.csv"
+PARCEL_COLUMNS = ("time_s", "seq", "sighting_time_s", "tag_x_m", "tag_y_m", "tag_z_m", "bottom_above_pad_m")
+
 STREAM_FILES: dict[str, tuple[str, ...]] = {
     **{f: sample_columns(cls) for cls, f in SAMPLE_FILES.items()},
     "camera.csv": CAMERA_COLUMNS,

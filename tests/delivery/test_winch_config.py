@@ -48,3 +48,23 @@ def test_the_winch_campaign_variant_flies_winch_deliveries_on_the_embedded_simul
     assert scenario_config(base, draw_scenarios(1, 5)[0], "fusion").mission.delivery == "land"
     with pytest.raises(ValueError, match="embedded simulator's line model"):
         real_config(base, "ardupilot", "winch")
+
+
+def test_the_cameras_look_is_off_by_default_and_needs_a_winch_and_the_camera() -> None:
+    cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
+    assert not cfg.winch.camera.enabled and not cfg.sim.winch.draw_parcel
+    with pytest.raises(ConfigError, match=r"winch\.camera\.enabled = true with mission\.delivery = 'land'"):
+        load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"winch": {"camera": {"enabled": True}}})
+    with pytest.raises(ConfigError, match=r"needs landing\.fusion = true and landing\.use_camera = true"):
+        load_simulated_config(
+            shipped_params_path("sitl_short.toml"),
+            overrides={
+                "mission": {"delivery": "winch"},
+                "winch": {"camera": {"enabled": True}},
+                "landing": {"use_camera": False},
+            },
+        )
+    with pytest.raises(ConfigError, match=r"winch\.camera\.tag_dict.*not a cv2\.aruco dictionary name"):
+        load_simulated_config(
+            shipped_params_path("sitl_short.toml"), overrides={"winch": {"camera": {"tag_dict": "DICT_9X9_1"}}}
+        )

@@ -14,6 +14,7 @@ from companion.estimation.types import StateEstimate
 from companion.events import MissionEvent, Phase
 from companion.guidance.setpoint import VelocitySetpoint
 from companion.vision.drop_zone import DropZoneVerdict
+from companion.vision.parcel_tag import ParcelSighting
 
 
 class RequestKind(enum.Enum):
@@ -99,6 +100,8 @@ class MissionInputs:
     # the pad's estimated velocity (north, east; m/s) with [landing.moving_pad] on and the pad
     # locked (delivery.fusion.LandingFusion.pad_velocity_ne); None: the pad stands
     pad_velocity_ne: tuple[float, float] | None = None
+    # the camera's newest sighting of the parcel on its line ([winch.camera]); None: none
+    parcel: ParcelSighting | None = None
 
 
 @dataclass(frozen=True, slots=True)

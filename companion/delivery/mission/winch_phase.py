@@ -46,7 +46,7 @@ def winch(m: MissionBase, inp: MissionInputs) -> Step:
         and abs(est.down_m - down) < PAD_HEIGHT_TOLERANCE_M
         and math.hypot(est.north_m_s, est.east_m_s) < PAD_HOVER_SPEED_M_S
     )
-    tick = seq.step(inp.time_s, ready, inp.winch, m.idle())
+    tick = seq.step(inp.time_s, ready, inp.winch, m.idle(), inp.parcel)
     for detail in tick.critical:  # first: the GCS hears the jam before anything the vehicle does about it
         m.emit(EventKind.WINCH_JAM, detail)
     for detail in tick.say:
