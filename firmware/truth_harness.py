@@ -251,17 +251,20 @@ async def fly_on_truth(
     recorder: Any | None = None,
     pad_ne: tuple[float, float] | None = None,
     on_shell: Any | None = None,
+    parcel_at: Any | None = None,
 ) -> HarnessResult:
     """One delivery (with the landing sensors rendered from ``truth`` when ``landing.fusion``);
     ``truth`` must be started (and is not stopped here). ``pad_ne``
     gives the true pad in the truth frame directly (a vehicle that does not start at the truth
     origin); otherwise it is the configured pad from ``origin`` plus ``pad_offset_m``. ``on_shell``
-    (a function of the shell) is called with the shell before it runs (a lab script's instruments)."""
+    (a function of the shell) is called with the shell before it runs (a lab script's instruments).
+    ``parcel_at``: where the parcel on the firmware's winch line is, for the camera to draw it
+    (truth_parcel.ParcelOnTruth.bottom_ned, with ``[sim.winch] draw_parcel``)."""
     if pad_ne is None:
         pad_ne = true_pad_ne(config, origin, pad_offset_m)
     kit = None
     if config.landing.fusion:  # a GPS-only flight has no landing sensors: it fuses nothing
-        kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne)
+        kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne, parcel_at=parcel_at)
         kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
     score = _TruthScore(truth, pad_ne)
     shell = DeliveryShell(config, autopilot, on_tick=score, landing=kit, recorder=recorder)

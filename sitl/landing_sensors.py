@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 from collections import deque
@@ -103,6 +104,7 @@ class SimCameraSource:
         occluder_from_height_m: float = 0.0,
         pad_track: PadTrack | None = None,
         parcel: ParcelPainter | None = None,
+        parcel_at: Callable[[], tuple[float, float, float] | None] | None = None,
     ):
         """``latency_s``: the latency the configuration knows (``landing.camera_latency_s``);
         ``unknown_latency_s``: what the frames take on top of it, which the configuration does not
@@ -114,8 +116,8 @@ class SimCameraSource:
         the pad in view and the vehicle below ``occluder_from_height_m`` (0: any height;
         ``[sim.camera.occluder]``, docs/drop-zone.md); ``pad_track``: the pad moves
         (``[sim.pad_motion]``): each exposure sees it where it is at that instant; ``parcel``: the
-        vehicle's parcel painted where it truly is at each exposure once its line is out
-        (``[sim.winch] draw_parcel``)."""
+        parcel painted where ``parcel_at()`` (world NED of its bottom, None: in its bay) has it at
+        each exposure (``[sim.winch] draw_parcel``; by default the sim vehicle's parcel)."""
         if not (math.isfinite(unknown_latency_s) and 0.0 <= unknown_latency_s <= 1.0):
             raise ValueError(f"unknown_latency_s = {unknown_latency_s!r}: expected finite, within [0, 1] s")
         self.vehicle = vehicle
@@ -134,7 +136,10 @@ class SimCameraSource:
         self.occluder = occluder if occluder is not None and occluder.kind != "none" else None
         self._occluder_t0: float | None = None  # the first frame read with the pad in view
         self._occluder_from_height_m = float(occluder_from_height_m)
-        self.parcel = parcel if getattr(vehicle, "parcel", None) is not None else None
+        if parcel is not None and parcel_at is None and getattr(vehicle, "parcel", None) is not None:
+            parcel_at = functools.partial(sim_parcel_bottom, vehicle)
+        self.parcel = parcel if parcel_at is not None else None
+        self._parcel_where = parcel_at
         self._parcel_at: dict[float, tuple[float, float, float]] = {}  # exposure -> the parcel's bottom, NED
         # exposure -> readable (x + 0.0 is x: without an unknown latency, the same floats as before)
         self._delivery_s = latency_s + self.unknown_latency_s
@@ -332,10 +337,10 @@ class SimCameraSource:
 
     def _note_parcel(self, t: float) -> None:
         """The parcel's bottom at the exposure ``t``, kept for read() while it is out of its bay."""
-        parcel, winch = self.vehicle.parcel, self.vehicle.winch
-        assert parcel is not None and winch is not None
-        if winch.length_m >= STOWED_M or parcel.on_ground or parcel.caught:
-            self._parcel_at[t] = (parcel.p[0], parcel.p[1], parcel.p[2])
+        assert self._parcel_where is not None
+        where = self._parcel_where()
+        if where is not None:
+            self._parcel_at[t] = where
         while len(self._parcel_at) > 64:
             self._parcel_at.pop(next(iter(self._parcel_at)))
 
@@ -462,10 +467,20 @@ def sim_occluder(config: SimOccluderConfig, layout: PadLayout, margin_m: float, 
     return occ
 
 
+def sim_parcel_bottom(vehicle: SimVehicle) -> tuple[float, float, float] | None:
+    """The sim vehicle's parcel's bottom (world NED) once it is out of its bay, else None."""
+    parcel, winch = vehicle.parcel, vehicle.winch
+    if parcel is None or winch is None:
+        return None
+    if winch.length_m >= STOWED_M or parcel.on_ground or parcel.caught:
+        return (parcel.p[0], parcel.p[1], parcel.p[2])
+    return None
+
+
 def sim_parcel_painter(config: SimulatedConfig) -> ParcelPainter | None:
     """``[sim.winch] draw_parcel``'s parcel, its tag the one ``[winch.camera]`` describes (None: not drawn)."""
     sw = config.sim.winch
-    if not (sw.fitted and sw.draw_parcel):
+    if not sw.draw_parcel:
         return None
     wc = config.winch.camera
     return ParcelPainter(
@@ -486,6 +501,7 @@ def sim_landing_kit(
     camera_playback: CameraPlayback | None = None,
     record_camera: Path | None = None,
     hooks: SimSensorHooks | None = None,
+    parcel_at: Callable[[], tuple[float, float, float] | None] | None = None,
 ) -> LandingKit:
     """Simulated camera and UWB around the *true* pad, with the real detector and solver; the
     anchors are ``landing.uwb_anchors`` (as on the vehicle).
@@ -493,7 +509,8 @@ def sim_landing_kit(
     ``camera_playback``: the camera is the OpenCV camera plugin playing a recorded file on the
     simulated clock, with the detector on that file's calibration; ``record_camera``: the
     simulated camera's frames are recorded as they are read. ``hooks``: a bench's instruments of
-    the simulated sensors (:class:`SimSensorHooks`)."""
+    the simulated sensors (:class:`SimSensorHooks`). ``parcel_at``: where the drawn parcel's bottom
+    is (``[sim.winch] draw_parcel``; None: the sim vehicle's parcel)."""
     from companion.delivery.landing_setup import LandingSetupError, resolve_params_file
     from companion.geometry.mounts import downward_mount, pad_pose_ned
     from companion.plugin_api import PluginError, create
@@ -561,6 +578,7 @@ def sim_landing_kit(
             occluder_from_height_m=config.sim.camera.occluder.from_height_m,
             pad_track=track,
             parcel=sim_parcel_painter(config),
+            parcel_at=parcel_at,
         )
         if record_camera is not None:
             from companion.flightlog.camera_file import CameraFileError, CameraFileWriter, RecordingCamera

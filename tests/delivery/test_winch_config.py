@@ -54,7 +54,9 @@ def test_the_cameras_look_is_off_by_default_and_needs_a_winch_and_the_camera() -
     cfg = load_simulated_config(shipped_params_path("sitl_short.toml"))
     assert not cfg.winch.camera.enabled and not cfg.sim.winch.draw_parcel
     with pytest.raises(ConfigError, match=r"winch\.camera\.enabled = true with mission\.delivery = 'land'"):
-        load_simulated_config(shipped_params_path("sitl_short.toml"), overrides={"winch": {"camera": {"enabled": True}}})
+        load_simulated_config(
+            shipped_params_path("sitl_short.toml"), overrides={"winch": {"camera": {"enabled": True}}}
+        )
     with pytest.raises(ConfigError, match=r"needs landing\.fusion = true and landing\.use_camera = true"):
         load_simulated_config(
             shipped_params_path("sitl_short.toml"),
