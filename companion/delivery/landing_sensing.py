@@ -29,7 +29,7 @@ from companion.delivery.detection_pacer import DetectionPacer
 from companion.delivery.detector_thread import cpu_timed
 
 # the landing fusion's modules load with the shell, not when the fusion starts at take-off: their
-# import (scipy.spatial among them) would take the loop's CPU from guidance in flight
+# import (SciPy's LAPACK among them) would take the loop's CPU from guidance in flight
 from companion.delivery.fusion import FusionSetup
 from companion.delivery.hooks import ShellHooks
 from companion.delivery.mission import DeliveryMission

@@ -12,9 +12,8 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
-from companion.geometry.rotations import euler_to_rotmat, rotmat_to_euler
+from companion.geometry.rotations import euler_to_rotmat, rotmat_to_euler, rotvec_to_rotmat
 
 
 def pad_tilt_rotvec(R_world_pad: ArrayLike) -> np.ndarray:
@@ -33,7 +32,7 @@ def pad_tilt_rotvec(R_world_pad: ArrayLike) -> np.ndarray:
 
 def tilt_rotation(tilt_rotvec: ArrayLike) -> np.ndarray:
     """E, the rotation matrix of a tilt's rotation vector (:func:`pad_tilt_rotvec`)."""
-    return Rotation.from_rotvec(np.asarray(tilt_rotvec, dtype=float).reshape(3)).as_matrix()
+    return rotvec_to_rotmat(tilt_rotvec)
 
 
 def untilted_euler(

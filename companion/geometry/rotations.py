@@ -36,6 +36,30 @@ def rot_z(a: float) -> FloatArray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def rotvec_to_rotmat(rotvec: ArrayLike) -> FloatArray:
+    """The rotation matrix of a rotation vector (axis times angle, rad), by Rodrigues' formula
+    R = I + sin(a) K + (1 - cos(a)) K^2, K the cross-product matrix of the unit axis."""
+    v = np.asarray(rotvec, dtype=float).reshape(3)
+    angle = float(np.linalg.norm(v))
+    if angle == 0.0:
+        return np.eye(3)
+    x, y, z = (v / angle).tolist()
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def align_to_z(direction: ArrayLike) -> FloatArray:
+    """The smallest rotation taking the unit vector ``direction`` onto the z axis (identity when
+    it is the z axis; a half turn about x when it is minus z)."""
+    d = np.asarray(direction, dtype=float).reshape(3)
+    d = d / float(np.linalg.norm(d))
+    axis = np.array([d[1], -d[0], 0.0])  # d x z
+    s = float(np.hypot(d[0], d[1]))
+    if s == 0.0:
+        return np.eye(3) if d[2] > 0.0 else np.diag([1.0, -1.0, -1.0])
+    return rotvec_to_rotmat(axis / s * math.atan2(s, float(d[2])))
+
+
 def euler_to_rotmat(roll: float, pitch: float, yaw: float) -> FloatArray:
     """R_world_body for ZYX Euler angles: Rz(yaw) Ry(pitch) Rx(roll)."""
     cr, sr = math.cos(roll), math.sin(roll)

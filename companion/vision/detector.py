@@ -43,10 +43,10 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from companion.config import DetectorConfig  # the schema of [landing.detector], declared once there
 from companion.geometry import Transform
+from companion.geometry.rotations import align_to_z
 from companion.vision.camera import CameraModel
 from companion.vision.pad import PadLayout, aruco_dictionary
 
@@ -510,9 +510,7 @@ def level_rotation(ref_cam: Any) -> FloatArray:
     when the camera tilts (the gyro-derotation of optical flow). Identity without one."""
     if ref_cam is None:
         return np.eye(3)
-    ref = np.asarray(ref_cam, dtype=float).reshape(1, 3)
-    rot, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), ref)
-    return np.asarray(rot.as_matrix())
+    return align_to_z(ref_cam)
 
 
 class RoiTrack:
