@@ -310,7 +310,7 @@ class LandingSensing:
     def _parcel_wanted(self) -> bool:
         """The parcel is looked for while the line may be out and it is not released."""
         m = self.owner.mission
-        seq = getattr(m, "winch", None)
+        seq = m.winch
         return m.phase is Phase.WINCH and seq is not None and seq.paid_out and not seq.delivered
 
     def _detect_and_find_parcel(
