@@ -286,30 +286,23 @@ class DropZoneCheck:
             return self._unknown(t, f"{100 * visible:.0f} % of the pad in the frame", visible, ppc)
         dy, dx = self._register(warp, inside)
         A = self._refine(warp, inside, dy, dx)
-        if A is None:
-            warp = np.roll(warp, (-dy, -dx), axis=(0, 1))
-            inside = np.roll(inside, (-dy, -dx), axis=(0, 1))
-            shift_m = (dx * self._cell_m, -dy * self._cell_m)
-        else:
-            # the grid's cell (x, y) is the warp's A (x, y): the maps resampled, then the frame once
-            q = self._grid_h @ A.T.astype(np.float64)
-            qx = (q[:, 0] / q[:, 2]).reshape(n, n).astype(np.float32)
-            qy = (q[:, 1] / q[:, 2]).reshape(n, n).astype(np.float32)
-            ins = cv2.remap(inside.astype(np.float32), qx, qy, cv2.INTER_LINEAR, borderValue=0.0)
-            mx = np.asarray(cv2.remap(mx, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
-            my = np.asarray(cv2.remap(my, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
-            inside = np.asarray(ins, dtype=np.float32) >= 0.999  # every neighbour interpolated was in the frame
-            mx[~inside] = -10.0
-            my[~inside] = -10.0
-            warp = np.asarray(
-                cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0),
-                dtype=np.float32,
-            )
-            c = (n - 1) / 2.0
-            qc = A @ np.array([c, c, 1.0])
-            shift_m = ((qc[0] / qc[2] - c) * self._cell_m, -(qc[1] / qc[2] - c) * self._cell_m)
+        in_frame = inside
+        warp = np.roll(warp, (-dy, -dx), axis=(0, 1))
+        inside = np.roll(inside, (-dy, -dx), axis=(0, 1))
+        shift_m = (dx * self._cell_m, -dy * self._cell_m)
+        differs = self._differing(warp, inside)
+        if A is not None:
+            # the print is unlike the warp only where it is unlike under both registrations: the
+            # homography takes out a misplaced corner's bend, but a shadow's edge across the pad
+            # can pull ECC off where the shift alone was right; an object differs under both
+            bent = self._resample(src, mx, my, in_frame, A)
+            d_bent = self._differing(bent[0], bent[1])
+            if np.count_nonzero(d_bent) <= np.count_nonzero(differs):
+                warp, inside, shift_m = bent
+                differs = d_bent
+        self.last_differing = differs  # the cells judged unlike the print (for inspection)
+        differing = float(np.count_nonzero(differs)) * self._cell_m**2
         hidden = self._hidden(R, tv, found)
-        differing = self._differing_area_m2(warp, inside)
         moving = self._moving_area_m2(t, warp, inside)
         if differing >= cfg.differing_area_m2 or (hidden and differing >= cfg.corroborated_area_m2):
             vote = DropZoneVerdict.OCCUPIED
@@ -341,6 +334,28 @@ class DropZoneCheck:
         res = cv2.matchTemplate(area, self._pad_ref, cv2.TM_CCOEFF_NORMED)
         _, _, _, loc = cv2.minMaxLoc(res)
         return int(loc[1]) - s, int(loc[0]) - s
+
+    def _resample(
+        self, src: NDArray[np.uint8], mx: F32, my: F32, inside: NDArray[np.bool_], A: NDArray[np.float64]
+    ) -> tuple[F32, NDArray[np.bool_], tuple[float, float]]:
+        """The warp with the grid's cell (x, y) at the warp's A (x, y): the maps resampled, then the
+        frame remapped once; with its cells in the frame and the pad's shift (m)."""
+        n = self._n
+        q = self._grid_h @ A.T
+        qx = (q[:, 0] / q[:, 2]).reshape(n, n).astype(np.float32)
+        qy = (q[:, 1] / q[:, 2]).reshape(n, n).astype(np.float32)
+        ins = cv2.remap(inside.astype(np.float32), qx, qy, cv2.INTER_LINEAR, borderValue=0.0)
+        mx = np.asarray(cv2.remap(mx, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
+        my = np.asarray(cv2.remap(my, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
+        ok = np.asarray(ins, dtype=np.float32) >= 0.999  # every neighbour interpolated was in the frame
+        mx[~ok] = -10.0
+        my[~ok] = -10.0
+        warp = np.asarray(
+            cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=np.float32
+        )
+        c = (n - 1) / 2.0
+        qc = A @ np.array([c, c, 1.0])
+        return warp, ok, ((qc[0] / qc[2] - c) * self._cell_m, -(qc[1] / qc[2] - c) * self._cell_m)
 
     def _refine(self, warp: F32, inside: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.float64] | None:
         """The homography (grid cell -> warp cell) that lays the printed pad onto the warp, from the
@@ -391,7 +406,8 @@ class DropZoneCheck:
                 out.append(m)
         return tuple(out)
 
-    def _differing_area_m2(self, warp: F32, inside: NDArray[np.bool_]) -> float:
+    def _differing(self, warp: F32, inside: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """The pad's cells unlike the print (the differing windows' centres, opened)."""
         m = (inside & self._pad_mask).astype(np.float32)
         I = warp * m  # noqa: E741 - the image in the usual ZNCC notation
         Rf = self._ref * m
@@ -417,9 +433,7 @@ class DropZoneCheck:
         differs = judged & (zncc < self.config.zncc_min) & raised
         # an object is a blob; a shadow's edge leaves thin bands along it: opened away
         k = DIFFERING_OPEN_CELLS
-        differs = cv2.morphologyEx(differs.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0
-        self.last_differing = differs  # the cells judged unlike the print (for inspection)
-        return float(np.count_nonzero(differs)) * self._cell_m**2
+        return np.asarray(cv2.morphologyEx(differs.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0)
 
     def _moving_area_m2(self, t: float, warp: F32, inside: NDArray[np.bool_]) -> float:
         cfg = self.config
