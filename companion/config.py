@@ -1292,6 +1292,14 @@ class DropZoneConfig(_Section):
     max_shift_m: float = _f(
         0.16, "m", "registration search around the pose's pad position (a predicted pose's error)", ge=0.0, le=1.0
     )
+    max_bend_m: float = _f(
+        0.24,
+        "m",
+        "the registration's homography (ECC on the print, after the shift) may move a corner of the pad this far: "
+        "a marker corner the detector misplaced bends the warp; 0: the shift alone",
+        ge=0.0,
+        le=1.0,
+    )
     motion_baseline_s: float = _f(
         0.3, "s", "frames this far apart are differenced for motion in the margin", gt=0.0, le=5.0
     )

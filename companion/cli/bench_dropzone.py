@@ -29,8 +29,9 @@ def _s(v: float | None) -> str:
 def format_drop_zone(r: dict[str, Any]) -> str:
     """The bench's result as a table: holds per scenario (false on a clear pad and under the
     shadow, caught for the box and the person) and the time to decide."""
+    which = f"draws {','.join(map(str, r['only']))}" if "only" in r else f"{r['draws']} seeded draws"
     lines = [
-        f"bench dropzone: {r['draws']} seeded draws per scenario (seed {r['seed']}), a rendered hover at 10 m "
+        f"bench dropzone: {which} per scenario (seed {r['seed']}), a rendered hover at 10 m "
         f"then a descent to 1.5 m, the check at {r['fps']:g} frames/s",
         f"  {'scenario':<34} {'held':>9} {'median':>8} {'p90':>8} {'max':>8} {'ms/frame':>9}",
     ]
@@ -58,7 +59,16 @@ def cmd_bench_dropzone(args: argparse.Namespace) -> int:
         )
     if not 1.0 <= args.fps <= 60.0:
         raise StartupError(f"--fps {args.fps}: must be 1-60", exits.BAD_INPUT)
-    r = bench_drop_zone(args.draws, args.seed, args.fps, scenarios)  # type: ignore[arg-type]
+    only = None
+    if args.draw:
+        try:
+            only = [int(d) for d in args.draw.split(",")]
+        except ValueError:
+            raise StartupError(f"--draw {args.draw}: expected comma-separated draw numbers", exits.BAD_INPUT) from None
+        bad_d = [d for d in only if not 0 <= d < args.draws]
+        if bad_d:
+            raise StartupError(f"--draw {args.draw}: {bad_d} not in 0-{args.draws - 1}", exits.BAD_INPUT)
+    r = bench_drop_zone(args.draws, args.seed, args.fps, scenarios, only=only)  # type: ignore[arg-type]
     print(json.dumps(r, indent=2) if args.json else format_drop_zone(r))
     return exits.OK
 
@@ -74,5 +84,9 @@ def register_bench_dropzone(bsub: Any) -> None:
     bd.add_argument("--seed", type=int, default=0, help="seed of the draws")
     bd.add_argument("--fps", type=float, default=10.0, help="frames a second the check judges")
     bd.add_argument("--scenarios", help="comma-separated subset of none,box,person,shadow (default: all)")
+    bd.add_argument(
+        "--draw",
+        help="comma-separated draws of the --draws to run alone, on the same trajectories (e.g. 7,35,65; default: all)",
+    )
     bd.add_argument("--json", action="store_true", help="print the results as JSON")
     bd.set_defaults(func=cmd_bench_dropzone)

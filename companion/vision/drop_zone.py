@@ -14,7 +14,8 @@ fusion when the pad is not detected) and the markers the detector found:
     print's black) is raised above ``raised_black_ratio`` of its gain: a shadow's edge across a
     window lowers the correlation too, but a shadow only scales, and the black stays black. The warp is first
     registered on the printed pad (a search of ``max_shift_m``), which absorbs a predicted pose's
-    error;
+    error, then refined by a homography (ECC on the print, moving the pad's corners at most
+    ``max_bend_m``), which takes out the bend a misplaced marker corner gives the warp;
 (c) **motion in the margin**: the margin's warps ``motion_baseline_s`` apart are differenced (the
     pose compensates the vehicle's own motion; each warp scaled to a mean grey of 128), and a
     moving region of ``motion_area_m2`` is motion.
@@ -61,6 +62,9 @@ MOTION_TOLERANCE_CELLS = 2
 MOTION_MAX_SHIFT_CELLS = 4
 #: the differing cells are opened by a square this many cells wide (thin bands are not objects)
 DIFFERING_OPEN_CELLS = 6
+#: the registration's homography refinement (ECC on the print): iterations, and its blur (cells)
+REFINE_ITERATIONS = 30
+REFINE_BLUR_CELLS = 5
 #: the printed pad is rendered this many pixels per grid cell, then area-averaged
 REFERENCE_SUPERSAMPLE = 8
 
@@ -123,6 +127,8 @@ class DropZoneCheck:
         c = (np.arange(n) + 0.5) * cell
         X, Y = np.meshgrid(c - half, half - c)  # row down = pad y down, as the printed image
         self._plane = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1)
+        gc, gr = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64))
+        self._grid_h = np.stack([gc.ravel(), gr.ravel(), np.ones(n * n)], axis=1)  # (column, row, 1) per cell
         a = np.maximum(np.abs(X), np.abs(Y))
         hp = lay.pad_size_m / 2.0
         self._pad_mask = a <= hp - PAD_EDGE_GUARD_M
@@ -148,6 +154,7 @@ class DropZoneCheck:
         # a window is compared where the printed pad has contrast and lies (mostly) on the pad
         self._textured = self._pad_mask & (cnt >= 0.8 * w * w) & (np.sqrt(np.maximum(var, 0.0)) >= cfg.min_texture)
         self._max_shift = round(cfg.max_shift_m / cell)
+        self._max_bend = cfg.max_bend_m / cell
         w_px, h_px = camera.size
         frame = np.array([[0, 0], [w_px - 1, 0], [0, h_px - 1], [w_px - 1, h_px - 1], [w_px / 2, 0], [0, h_px / 2]])
         corners_n = camera.undistort_normalized(camera.pixels_to_normalized(frame))
@@ -278,11 +285,24 @@ class DropZoneCheck:
         if visible < cfg.min_visible_fraction:
             return self._unknown(t, f"{100 * visible:.0f} % of the pad in the frame", visible, ppc)
         dy, dx = self._register(warp, inside)
+        A = self._refine(warp, inside, dy, dx)
+        in_frame = inside
         warp = np.roll(warp, (-dy, -dx), axis=(0, 1))
         inside = np.roll(inside, (-dy, -dx), axis=(0, 1))
         shift_m = (dx * self._cell_m, -dy * self._cell_m)
+        differs = self._differing(warp, inside)
+        if A is not None:
+            # the print is unlike the warp only where it is unlike under both registrations: the
+            # homography takes out a misplaced corner's bend, but a shadow's edge across the pad
+            # can pull ECC off where the shift alone was right; an object differs under both
+            bent = self._resample(src, mx, my, in_frame, A)
+            d_bent = self._differing(bent[0], bent[1])
+            if np.count_nonzero(d_bent) <= np.count_nonzero(differs):
+                warp, inside, shift_m = bent
+                differs = d_bent
+        self.last_differing = differs  # the cells judged unlike the print (for inspection)
+        differing = float(np.count_nonzero(differs)) * self._cell_m**2
         hidden = self._hidden(R, tv, found)
-        differing = self._differing_area_m2(warp, inside)
         moving = self._moving_area_m2(t, warp, inside)
         if differing >= cfg.differing_area_m2 or (hidden and differing >= cfg.corroborated_area_m2):
             vote = DropZoneVerdict.OCCUPIED
@@ -315,6 +335,63 @@ class DropZoneCheck:
         _, _, _, loc = cv2.minMaxLoc(res)
         return int(loc[1]) - s, int(loc[0]) - s
 
+    def _resample(
+        self, src: NDArray[np.uint8], mx: F32, my: F32, inside: NDArray[np.bool_], A: NDArray[np.float64]
+    ) -> tuple[F32, NDArray[np.bool_], tuple[float, float]]:
+        """The warp with the grid's cell (x, y) at the warp's A (x, y): the maps resampled, then the
+        frame remapped once; with its cells in the frame and the pad's shift (m)."""
+        n = self._n
+        q = self._grid_h @ A.T
+        qx = (q[:, 0] / q[:, 2]).reshape(n, n).astype(np.float32)
+        qy = (q[:, 1] / q[:, 2]).reshape(n, n).astype(np.float32)
+        ins = cv2.remap(inside.astype(np.float32), qx, qy, cv2.INTER_LINEAR, borderValue=0.0)
+        mx = np.asarray(cv2.remap(mx, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
+        my = np.asarray(cv2.remap(my, qx, qy, cv2.INTER_LINEAR), dtype=np.float32)
+        ok = np.asarray(ins, dtype=np.float32) >= 0.999  # every neighbour interpolated was in the frame
+        mx[~ok] = -10.0
+        my[~ok] = -10.0
+        warp = np.asarray(
+            cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=np.float32
+        )
+        c = (n - 1) / 2.0
+        qc = A @ np.array([c, c, 1.0])
+        return warp, ok, ((qc[0] / qc[2] - c) * self._cell_m, -(qc[1] / qc[2] - c) * self._cell_m)
+
+    def _refine(self, warp: F32, inside: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.float64] | None:
+        """The homography (grid cell -> warp cell) that lays the printed pad onto the warp, from the
+        shift ``_register`` found (ECC on the print); None when it does not converge or moves a pad
+        corner more than ``max_bend_m`` from the shift. A marker corner the detector misplaced
+        (a shadow's edge through it pulls it, docs/drop-zone.md) bends the warp through the
+        homography by a few cells near it, and the print there reads as an object; that error is
+        itself a plane-to-plane homography, which this takes out."""
+        if self._max_bend == 0:
+            return None
+        rs, cs = self._pad_slice
+        A0 = np.array([[1.0, 0.0, cs.start + dx], [0.0, 1.0, rs.start + dy], [0.0, 0.0, 1.0]], np.float32)
+        A: Any = A0.copy()
+        try:
+            _, A = cv2.findTransformECC(
+                self._pad_ref,
+                warp,
+                A,
+                cv2.MOTION_HOMOGRAPHY,
+                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, REFINE_ITERATIONS, 1e-4),
+                inside.astype(np.uint8),
+                REFINE_BLUR_CELLS,
+            )
+        except cv2.error:
+            return None
+        A = np.asarray(A, dtype=np.float64)
+        if not np.all(np.isfinite(A)):
+            return None
+        m = self._pad_ref.shape[0] - 1
+        corners = np.array([[0.0, 0.0, 1.0], [m, 0.0, 1.0], [0.0, m, 1.0], [m, m, 1.0]]).T
+        p, p0 = A @ corners, A0.astype(np.float64) @ corners
+        if np.any(p[2] <= 0) or np.max(np.hypot(*(p[:2] / p[2] - p0[:2]))) > self._max_bend:
+            return None
+        to_pad = np.array([[1.0, 0.0, -cs.start], [0.0, 1.0, -rs.start], [0.0, 0.0, 1.0]])
+        return A @ to_pad
+
     def _hidden(self, R: NDArray[np.float64], t: NDArray[np.float64], found: tuple[str, ...]) -> tuple[str, ...]:
         out = []
         for m in MARKERS:
@@ -329,7 +406,8 @@ class DropZoneCheck:
                 out.append(m)
         return tuple(out)
 
-    def _differing_area_m2(self, warp: F32, inside: NDArray[np.bool_]) -> float:
+    def _differing(self, warp: F32, inside: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """The pad's cells unlike the print (the differing windows' centres, opened)."""
         m = (inside & self._pad_mask).astype(np.float32)
         I = warp * m  # noqa: E741 - the image in the usual ZNCC notation
         Rf = self._ref * m
@@ -355,9 +433,7 @@ class DropZoneCheck:
         differs = judged & (zncc < self.config.zncc_min) & raised
         # an object is a blob; a shadow's edge leaves thin bands along it: opened away
         k = DIFFERING_OPEN_CELLS
-        differs = cv2.morphologyEx(differs.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0
-        self.last_differing = differs  # the cells judged unlike the print (for inspection)
-        return float(np.count_nonzero(differs)) * self._cell_m**2
+        return np.asarray(cv2.morphologyEx(differs.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0)
 
     def _moving_area_m2(self, t: float, warp: F32, inside: NDArray[np.bool_]) -> float:
         cfg = self.config

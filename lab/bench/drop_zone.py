@@ -161,24 +161,31 @@ def bench_drop_zone(
     fps: float = 10.0,
     scenarios: Sequence[OccluderKind] = SCENARIOS,
     config: DropZoneConfig | None = None,
+    only: Sequence[int] | None = None,
 ) -> dict[str, Any]:
-    """Every scenario over ``draws`` seeded draws (the same trajectories for each scenario)."""
+    """Every scenario over ``draws`` seeded draws (the same trajectories for each scenario);
+    ``only``: just these draws of the ``draws`` (to look again at the ones that failed)."""
     if draws < 1:
         raise ValueError(f"draws = {draws}: must be >= 1")
+    picked = list(range(draws)) if only is None else sorted(set(only))
+    if not picked or any(not 0 <= d < draws for d in picked):
+        raise ValueError(f"only = {only!r}: draws must be some of 0-{draws - 1}")
     if not (math.isfinite(fps) and 1.0 <= fps <= 60.0):
         raise ValueError(f"fps = {fps!r}: must be 1-60")
     bad = [s for s in scenarios if s not in SCENARIOS]
     if bad:
         raise ValueError(f"scenario(s) {bad}: expected some of {SCENARIOS}")
     cfg = config if config is not None else DropZoneConfig(enabled=True)
-    out: dict[str, Any] = {"draws": draws, "seed": seed, "fps": fps, "scenarios": {}}
+    out: dict[str, Any] = {"draws": len(picked), "seed": seed, "fps": fps, "scenarios": {}}
+    if only is not None:
+        out["only"] = picked
     for kind in scenarios:
-        runs = [run_draw(kind, d, seed, fps, cfg) for d in range(draws)]
+        runs = [run_draw(kind, d, seed, fps, cfg) for d in picked]
         holds = [r for r in runs if r["hold"]]
         ttd = [r["time_to_decide_s"] for r in runs if r["time_to_decide_s"] is not None]
         out["scenarios"][kind] = {
             "holds": len(holds),
-            "hold_rate": len(holds) / draws,
+            "hold_rate": len(holds) / len(picked),
             "early_holds": sum(r["held_before_it_was_there"] for r in runs),
             "median_time_to_decide_s": float(np.median(ttd)) if ttd else None,
             "p90_time_to_decide_s": float(np.percentile(ttd, 90)) if ttd else None,
@@ -187,5 +194,5 @@ def bench_drop_zone(
             "missed_draws": [r["draw"] for r in runs if not r["hold"]] if kind in ("box", "person") else [],
             "held_draws": [r["draw"] for r in runs if r["hold"]] if kind in ("none", "shadow") else [],
         }
-        log.info("bench dropzone %s: %d of %d held", kind, len(holds), draws)
+        log.info("bench dropzone %s: %d of %d held", kind, len(holds), len(picked))
     return out

@@ -8,7 +8,8 @@ import json
 import pytest
 
 from companion.cli.main import main
-from companion_lab.bench.drop_zone import bench_drop_zone
+from companion.config import DropZoneConfig
+from companion_lab.bench.drop_zone import bench_drop_zone, run_draw
 
 
 def test_bench_holds_for_a_box_not_for_a_clear_pad_and_repeats() -> None:
@@ -47,3 +48,17 @@ def test_bench_refuses_bad_arguments() -> None:
         bench_drop_zone(1, fps=100.0)
     with pytest.raises(ValueError, match="scenario"):
         bench_drop_zone(1, scenarios=("tree",))  # type: ignore[arg-type]
+
+
+def test_only_some_draws_fly_those_draws(capsys: pytest.CaptureFixture[str]) -> None:
+    one = bench_drop_zone(3, seed=4, fps=5.0, scenarios=("box",), only=[2])
+    assert one["draws"] == 1 and one["only"] == [2]
+    alone = run_draw("box", 2, 4, 5.0, DropZoneConfig(enabled=True))
+    assert alone["hold"] and one["scenarios"]["box"]["holds"] == 1
+    assert one["scenarios"]["box"]["median_time_to_decide_s"] == alone["time_to_decide_s"]
+    with pytest.raises(ValueError, match="only"):
+        bench_drop_zone(3, only=[3])
+    assert main(["bench", "dropzone", "--draws", "3", "--draw", "x"]) != 0
+    assert "--draw" in capsys.readouterr().err
+    assert main(["bench", "dropzone", "--draws", "3", "--draw", "5"]) != 0
+    assert "not in 0-2" in capsys.readouterr().err

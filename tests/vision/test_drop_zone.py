@@ -187,3 +187,31 @@ def test_property_clear_pad_never_votes_occupied_and_a_box_always_does(
     img, T_cp = _frame(sim, box, T_wb, 0.1)
     ev = check.update(img, 0.1, T_cp).evidence
     assert ev.vote in (DropZoneVerdict.OCCUPIED, DropZoneVerdict.UNKNOWN), ev.reason
+
+
+def _bent_corners(T_cp: Transform, off_px: tuple[float, float]) -> dict[str, np.ndarray]:
+    """The outer marker's true corners, one of them misplaced (as a shadow's edge through it does)."""
+    c = CAM.project(LAYOUT.marker_corners("outer") @ np.asarray(T_cp.R).T + np.asarray(T_cp.t))
+    c[1] += off_px
+    return {"outer": c}
+
+
+@pytest.mark.parametrize("off_px", [(20.0, 0.0), (-22.0, 6.0), (18.0, 18.0)])
+def test_a_misplaced_marker_corner_is_not_an_object_and_a_box_still_is(
+    sim: SimulatedCamera, off_px: tuple[float, float]
+) -> None:
+    # the homography through the bent corners puts the print a few cells off near that corner;
+    # the registration's homography takes it out, and does not take out a box with it
+    for occ, want in ((None, DropZoneVerdict.CLEAR), (SHADOW, DropZoneVerdict.CLEAR), (BOX, DropZoneVerdict.OCCUPIED)):
+        check = DropZoneCheck(CAM, LAYOUT, DropZoneConfig(enabled=True))
+        for k in range(4):
+            img, T_cp = _frame(sim, occ, _pose(0.2, -0.1, 3.5 - 0.2 * k), 0.1 * k)
+            ev = check.update(img, 0.1 * k, T_cp, ("outer",), _bent_corners(T_cp, off_px)).evidence
+            assert ev.vote is want, (occ, k, ev.reason)
+    # the shift alone (max_bend_m = 0) leaves the bend: the clear pad reads as occupied
+    check = DropZoneCheck(CAM, LAYOUT, DropZoneConfig(enabled=True, max_bend_m=0.0))
+    votes = []
+    for k in range(4):
+        img, T_cp = _frame(sim, None, _pose(0.2, -0.1, 3.5 - 0.2 * k), 0.1 * k)
+        votes.append(check.update(img, 0.1 * k, T_cp, ("outer",), _bent_corners(T_cp, off_px)).evidence.vote)
+    assert DropZoneVerdict.OCCUPIED in votes
