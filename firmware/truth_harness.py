@@ -106,6 +106,9 @@ class HarnessResult:
     pad_stop_ne_m: tuple[float, float] = (math.nan, math.nan)
     pad_stop_s: float = math.nan
     touchdown_s: float = math.nan
+    # the true vehicle's distance from the stopped pad's centre at the contact (the touchdown's is
+    # at the autopilot's landed state, seconds later: what the vehicle did on the ground between)
+    contact_error_m: float = math.nan
 
 
 #: a landing_trace row: time s; truth relative to the true pad (north, east m; height above the
@@ -139,6 +142,7 @@ class _TruthScore:
         self.touchdown_t: float | None = None
         self._airborne = False
         self._contact_guess: tuple[float, float] | None = None  # (sample time, extrapolated contact)
+        self.contact_ne: tuple[float, float] | None = None  # the true vehicle when the pad stopped
         self.touchdown: list[tuple[float, float]] = []
         self.touchdown_yaw: list[float] = []
         self.believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
@@ -229,6 +233,7 @@ class _TruthScore:
             t_c = t_sample
         tr.stop_at(t_c)
         n, e = tr.ne(t_c)
+        self.contact_ne = (truth.pn, truth.pe)
         log.info(
             "moving pad: ground contact at %.2f s from the take-off (height %.3f m, %.2f m/s down): the pad stops "
             "at %.2f, %.2f m",
@@ -306,6 +311,11 @@ def _harness_result(config: SimulatedConfig, summary: Any, shell: DeliveryShell,
         drop_zone_events=tuple(e.detail for e in summary.events if e.kind is EventKind.DROP_ZONE),
         pad_stop_ne_m=tr.ne(stop) if tr is not None and math.isfinite(stop) else (math.nan, math.nan),
         pad_stop_s=stop - origin,
+        contact_error_m=(
+            math.hypot(sc.contact_ne[0] - pad_ne[0], sc.contact_ne[1] - pad_ne[1])
+            if sc.contact_ne is not None
+            else math.nan
+        ),
         touchdown_s=(sc.touchdown_t if sc.touchdown_t is not None else math.nan) - origin,
         pad_heading_error_deg=(
             heading_error_deg(sc.touchdown_yaw[0], true_pad_heading_rad(config))

@@ -102,6 +102,7 @@ async def fly_moving_pad(
         "seed": seed,
         "course_deg": config.sim.pad_motion.course_deg,
         "error_m": r.pad_landing_error_m,
+        "contact_error_m": r.contact_error_m,  # at the ground contact (the pad stopped there)
         "on_pad": on_pad,
         "released": r.releases > 0 and r.delivered,
         "failure": r.failure,
@@ -132,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(
             f"| {seed} | {row['course_deg']:.0f} deg | {100 * row['error_m']:.1f} cm | "
+            f"{100 * row['contact_error_m']:.1f} cm | "
             f"{'yes' if row['on_pad'] else 'no'} | {'yes' if row['released'] else 'no'} | "
             f"{row['pad_stop_s']:.1f} s | {row['touchdown_s']:.1f} s | {row['wall_s']:.0f} s | {row['failure']} |",
             flush=True,
