@@ -233,7 +233,8 @@ class _TruthScore:
             t_c = t_sample
         tr.stop_at(t_c)
         n, e = tr.ne(t_c)
-        self.contact_ne = (truth.pn, truth.pe)
+        dt = t_c - t_sample  # the vehicle where it was at the contact (moving on until then)
+        self.contact_ne = (truth.pn + truth.vn * dt, truth.pe + truth.ve * dt)
         log.info(
             "moving pad: ground contact at %.2f s from the take-off (height %.3f m, %.2f m/s down): the pad stops "
             "at %.2f, %.2f m",
