@@ -29,18 +29,15 @@ from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
 
-#: seconds from the take-off to the pad driving off: on sitl_short's path the arc before the
-#: descent (ArduCopter 4.7 SITL: outbound from 6.5 s, the descent arc S5 from 18 s, the landing
-#: from 22.5 s), so the pad is seen standing first and is at speed through the whole descent
+#: seconds from the take-off to the pad driving off: the arc before the descent on sitl_short's
+#: path, so the pad is seen standing first and drives through the whole descent (docs/moving-pad.md)
 MOVING_PAD_START_S = 17.0
 
 #: boot parameters of a moving-pad flight. ArduCopter: GUID_OPTIONS bit 4 (DoNotStabilizePositionXY):
-#: in GUIDED velocity control ArduCopter also holds a position target it integrates from the
-#: setpoints, lagging them (63 % of a step in 0.9 s); when the SITL's ground stops the vehicle dead
-#: at 2 m/s that target runs on ~1 m, its position controller winds up to the 28 deg lean limit and
-#: the land detector (lean request < 15 deg) never fires (measured: no ON_GROUND in 160 s, LAND
-#: included). The companion closes the position loop itself (on the pad-relative EKF), so the
-#: autopilot's position hold on top of its velocity setpoints adds only that lag.
+#: its GUIDED velocity control also holds a position target integrated from the setpoints, which
+#: runs on when the SITL's ground stops the vehicle at the pad's speed, winds the position
+#: controller up to the lean limit and keeps the land detector from firing (docs/moving-pad.md).
+#: The companion closes the position loop itself, on the pad-relative EKF.
 MOVING_PAD_BOOT_PARAMS: dict[str, dict[str, float]] = {"ardupilot": {"GUID_OPTIONS": 16.0}, "px4": {}}
 
 LANDING_TIMEOUT_S = {"px4": 150.0, "ardupilot": 120.0}

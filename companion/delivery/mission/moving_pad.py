@@ -10,9 +10,9 @@ to the pad (phases.precision_descent). A pad faster than ``max_speed_m_s`` is no
 Once the final descent has stopped sinking at the ground (PrecisionDescent.grounded) the deck, not
 the estimate, sets the vehicle's ground velocity: the vehicle's own velocity is fed forward instead
 of the pad's estimate. On a moving deck the two agree (the deck carries the vehicle); on a deck that
-brakes, or on a SITL's ground that cannot carry it, the estimate lags the stop by a second or more,
-and a ground velocity commanded to a vehicle that cannot follow it winds up the autopilot's position
-controller (ArduCopter's target ran off and asked 28 deg of lean: its land detector never fired).
+stops, or on a SITL's ground that cannot carry it, the estimate lags the stop, and a ground velocity
+commanded to a vehicle that cannot follow it winds up the autopilot's position controller
+(docs/moving-pad.md).
 """
 
 from __future__ import annotations
