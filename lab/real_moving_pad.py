@@ -24,7 +24,7 @@ from companion.config import shipped_params_path
 from companion_firmware.real_vehicle import REAL_AUTOPILOTS, real_vehicle
 from companion_firmware.truth_harness import fly_on_truth, true_pad_ne
 from companion_lab.campaign_landing import moving_pad_course_deg
-from companion_lab.real_campaign import firmware_tuning
+from companion_lab.real_campaign import _write_trace, firmware_tuning
 from companion_sitl.params import SimulatedConfig, load_simulated_config
 
 log = logging.getLogger(__name__)
@@ -91,6 +91,8 @@ async def fly_moving_pad(
             )
         finally:
             await ap.close()
+    # the descent tick by tick, truth relative to the pad where it is (LANDING_TRACE_FIELDS)
+    _write_trace(log_dir / "landing_trace.csv", r.landing_trace)
     half = config.mission.pad.size_m / 2.0
     dn = r.touchdown_truth_ne_m[0] - r.true_pad_ne_m[0]
     de = r.touchdown_truth_ne_m[1] - r.true_pad_ne_m[1]
