@@ -141,7 +141,7 @@ class _TruthScore:
         self.pad_touchdown: tuple[float, float] | None = None  # the pad's centre at the touchdown
         self.touchdown_t: float | None = None
         self._airborne = False
-        self._contact_guess: tuple[float, float] | None = None  # (sample time, extrapolated contact)
+        self._contact_guess: tuple[float, float, float] | None = None  # the last tick's (time, height, sink)
         self.contact_ne: tuple[float, float] | None = None  # the true vehicle when the pad stopped
         self.touchdown: list[tuple[float, float]] = []
         self.touchdown_yaw: list[float] = []
@@ -220,21 +220,19 @@ class _TruthScore:
         h, vd, t_sample = self.t_ground - truth.pd, truth.vd, now - truth.age_s
         if h > AIRBORNE_M:
             self._airborne = True
-        if not self._airborne:
+        prev, self._contact_guess = self._contact_guess, (t_sample, h, vd)
+        if not self._airborne or prev is None or h > CONTACT_M:
             return
-        if h > CONTACT_M:  # still flying: where the descent would meet the ground
-            self._contact_guess = (t_sample, t_sample + h / vd) if vd > 0.05 else None
+        t0, h0, vd0 = prev
+        # the descent stopped near the ground (a SITL's ground stops it dead; PX4 SIH's lies a few
+        # cm below the take-off level): the contact between the two samples, where the descent
+        # from the earlier one met this one's height
+        if vd0 < 0.2 or vd > 0.25 * vd0 or t_sample <= t0:
             return
-        if h > 0.0 and vd > 0.05:
-            t_c = t_sample + h / vd
-        elif self._contact_guess is not None:  # on the ground already: between the last two samples
-            t_c = min(max(self._contact_guess[1], self._contact_guess[0]), t_sample)
-        else:
-            t_c = t_sample
+        t_c = min(max(t0 + (h0 - h) / vd0, t0), t_sample)
         tr.stop_at(t_c)
         n, e = tr.ne(t_c)
-        dt = t_c - t_sample  # the vehicle where it was at the contact (moving on until then)
-        self.contact_ne = (truth.pn + truth.vn * dt, truth.pe + truth.ve * dt)
+        self.contact_ne = (truth.pn, truth.pe)  # stopped dead there by the SITL's ground
         log.info(
             "moving pad: ground contact at %.2f s from the take-off (height %.3f m, %.2f m/s down): the pad stops "
             "at %.2f, %.2f m",
