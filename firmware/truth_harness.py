@@ -220,14 +220,19 @@ class _TruthScore:
         h, vd, t_sample = self.t_ground - truth.pd, truth.vd, now - truth.age_s
         if h > AIRBORNE_M:
             self._airborne = True
-        prev, self._contact_guess = self._contact_guess, (t_sample, h, vd)
-        if not self._airborne or prev is None or h > CONTACT_M:
+        ref = self._contact_guess  # the last tick that was sinking at its reported rate
+        sink_h = (ref[1] - h) / (t_sample - ref[0]) if ref is not None and t_sample > ref[0] else math.nan
+        if vd >= 0.2 and (ref is None or h > CONTACT_M or not sink_h < 0.5 * vd):
+            self._contact_guess = (t_sample, h, vd)
+        elif vd < 0.2 and h > CONTACT_M:
+            self._contact_guess = None  # not descending: no reference
+        if not self._airborne or ref is None or h > CONTACT_M or not t_sample > ref[0]:
             return
-        t0, h0, vd0 = prev
-        # the descent stopped near the ground (a SITL's ground stops it dead; PX4 SIH's lies a few
-        # cm below the take-off level): the contact between the two samples, where the descent
-        # from the earlier one met this one's height
-        if vd0 < 0.2 or vd > 0.25 * vd0 or t_sample <= t0:
+        t0, h0, vd0 = ref
+        # the descent stopped near the ground (a SITL's ground stops the vehicle dead; PX4 SIH's lies
+        # a few cm below the take-off level): by the reported sink or by the height (ArduCopter's
+        # SIM_STATE), against the last tick that sank; the instant where that sink met this height
+        if not (vd < 0.25 * vd0 or sink_h < 0.25 * vd0):
             return
         t_c = min(max(t0 + (h0 - h) / vd0, t0), t_sample)
         tr.stop_at(t_c)
