@@ -141,7 +141,8 @@ class _TruthScore:
         self.pad_touchdown: tuple[float, float] | None = None  # the pad's centre at the touchdown
         self.touchdown_t: float | None = None
         self._airborne = False
-        self._contact_guess: tuple[float, float, float] | None = None  # the last tick's (time, height, sink)
+        self._contact_guess: tuple[float, float, float] | None = None  # the last sinking tick's (time, height, sink)
+        self._ref_before: tuple[float, float, float] | None = None  # the sinking tick before it
         self.contact_ne: tuple[float, float] | None = None  # the true vehicle when the pad stopped
         self.touchdown: list[tuple[float, float]] = []
         self.touchdown_yaw: list[float] = []
@@ -223,12 +224,14 @@ class _TruthScore:
         ref = self._contact_guess  # the last tick that was sinking at its reported rate
         sink_h = (ref[1] - h) / (t_sample - ref[0]) if ref is not None and t_sample > ref[0] else math.nan
         if vd >= 0.2 and (ref is None or h > CONTACT_M or not sink_h < 0.5 * vd):
-            self._contact_guess = (t_sample, h, vd)
+            self._contact_guess, self._ref_before = (t_sample, h, vd), ref
         elif vd < 0.2 and h > CONTACT_M:
-            self._contact_guess = None  # not descending: no reference
+            self._contact_guess = self._ref_before = None  # not descending: no reference
         if not self._airborne or ref is None or h > CONTACT_M or not t_sample > ref[0]:
             return
-        t0, h0, vd0 = ref
+        # the instant from the tick before the last that sank: the last may have been on the
+        # ground already (its height already the ground's: it looked like a sink)
+        t0, h0, vd0 = self._ref_before or ref
         # the descent stopped near the ground (a SITL's ground stops the vehicle dead; PX4 SIH's lies
         # a few cm below the take-off level): by the reported sink or by the height (ArduCopter's
         # SIM_STATE), against the last tick that sank; the instant where that sink met this height
