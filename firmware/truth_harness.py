@@ -6,6 +6,12 @@ Ground truth arrives on a second MAVLink link as HIL_STATE_QUATERNION (:class:`M
 the simulated downward camera and UWB render the pad from it, the pad lying ``pad_offset_m`` away
 from its configured position (SIH cannot bias GPS, so the pad moves instead: the EKF's bias state
 must absorb the displacement, as delivery 5.2 describes). The landing error is scored on truth.
+
+A moving pad (``[sim.pad_motion]``, docs/moving-pad.md): its track runs on the host's monotonic
+clock (the event loop's, which the landing sensors render with), ``start_s`` counted from the
+take-off (the SITL's wait for the autopilot to become ready varies). The SITL's ground cannot carry
+the vehicle, so the pad stops dead at the vehicle's first ground contact on truth; the touchdown is
+scored against the pad's true centre at the touchdown's instant.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from companion.events import EventKind, Phase
 from companion.geometry.earth import GeoPoint
 from companion_firmware.truth_feed import MavlinkTruth
 from companion_sitl.landing_sensors import sim_landing_kit
+from companion_sitl.pad_motion import PadTrack, pad_track
 from companion_sitl.params import SimulatedConfig
 from companion_sitl.scoring import PathScorer, heading_error_deg, rms, simulated_pad, true_pad_heading_rad
 from companion_sitl.vehicle import SimVehicle
@@ -38,6 +45,11 @@ log = logging.getLogger(__name__)
 
 #: the path's two arcs (companion.guidance.path.DeliveryPath.sector, delivery eq 1)
 ARC_SECTORS = (2, 4)
+
+#: a moving pad stops when the true vehicle comes within this of the take-off level (its ground),
+#: having flown higher than AIRBORNE_M; the instant is extrapolated to height 0 from the descent rate
+CONTACT_M = 0.03
+AIRBORNE_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -89,6 +101,14 @@ class HarnessResult:
     setpoint_overruns: int = 0
     # per tick of the descent onto the pad, until the first ON_GROUND: LANDING_TRACE_FIELDS
     landing_trace: tuple[tuple[float, ...], ...] = ()
+    # a moving pad: where it was when the vehicle first touched the ground (it stands there from
+    # then on), that instant and the touchdown's in s from the take-off (nan: the pad stands)
+    pad_stop_ne_m: tuple[float, float] = (math.nan, math.nan)
+    pad_stop_s: float = math.nan
+    touchdown_s: float = math.nan
+    # the true vehicle's distance from the stopped pad's centre at the contact (the touchdown's is
+    # at the autopilot's landed state, seconds later: what the vehicle did on the ground between)
+    contact_error_m: float = math.nan
 
 
 #: a landing_trace row: time s; truth relative to the true pad (north, east m; height above the
@@ -114,9 +134,16 @@ class _TruthScore:
     """The shell's ``on_tick``: the true vehicle against the mission's path while it follows it,
     the descent onto the pad, and the touchdown, all scored on ``truth``."""
 
-    def __init__(self, truth: MavlinkTruth, pad_ne: tuple[float, float]) -> None:
+    def __init__(self, truth: MavlinkTruth, pad_ne: tuple[float, float], track: PadTrack | None = None) -> None:
         self.truth = truth
-        self.pad_ne = pad_ne
+        self.pad_ne = pad_ne  # the standing pad (the path is scored against it)
+        self.track = track  # a moving pad: its clock starts at the take-off, it stops at the contact
+        self.pad_touchdown: tuple[float, float] | None = None  # the pad's centre at the touchdown
+        self.touchdown_t: float | None = None
+        self._airborne = False
+        self._contact_guess: tuple[float, float, float] | None = None  # the last sinking tick's (time, height, sink)
+        self._ref_before: tuple[float, float, float] | None = None  # the sinking tick before it
+        self.contact_ne: tuple[float, float] | None = None  # the true vehicle when the pad stopped
         self.touchdown: list[tuple[float, float]] = []
         self.touchdown_yaw: list[float] = []
         self.believed: list[tuple[float, float]] = []  # estimate - configured pad at touchdown, NE m
@@ -138,6 +165,8 @@ class _TruthScore:
         home = shell.autopilot.telemetry.home
         if not self.ref and home is not None and truth.age_s < 1.0:
             self.ref.append(((truth.pn, truth.pe, truth.pd), (home.north_m, home.east_m, home.down_m)))
+        if self.track is not None:
+            self._move_pad(out.phase)
         m = shell.mission
         following = out.phase in (Phase.OUTBOUND, Phase.INBOUND) and m.frame is not None and m.path is not None
         if following and self.ref and truth.age_s < 1.0:
@@ -175,11 +204,59 @@ class _TruthScore:
             self.arcs_in_plane.append(self.scorer.in_plane_distance(m, out.phase, p))
             self.arcs_tracking.append(float(m.path.distance_in_plane(e_i)))
 
+    def pad_at(self, t_s: float) -> tuple[float, float]:
+        """The true pad's centre at clock time ``t_s``."""
+        return self.pad_ne if self.track is None else self.track.ne(t_s)
+
+    def _move_pad(self, phase: Phase) -> None:
+        """The moving pad's clock starts with the take-off; the pad stops at the first contact."""
+        truth, tr = self.truth, self.track
+        assert tr is not None
+        now = time.monotonic()
+        if tr.origin_s is None and phase not in (Phase.PREFLIGHT, Phase.ARMING):
+            tr.start_clock(now)
+            log.info("moving pad: its clock starts at the take-off (start_s = %.1f s from here)", tr.config.start_s)
+        if tr.origin_s is None or tr.stopped_s is not None or truth.age_s >= 1.0:
+            return
+        h, vd, t_sample = self.t_ground - truth.pd, truth.vd, now - truth.age_s
+        if h > AIRBORNE_M:
+            self._airborne = True
+        ref = self._contact_guess  # the last tick that was sinking at its reported rate
+        sink_h = (ref[1] - h) / (t_sample - ref[0]) if ref is not None and t_sample > ref[0] else math.nan
+        if vd >= 0.2 and (ref is None or h > CONTACT_M or not sink_h < 0.5 * vd):
+            self._contact_guess, self._ref_before = (t_sample, h, vd), ref
+        elif vd < 0.2 and h > CONTACT_M:
+            self._contact_guess = self._ref_before = None  # not descending: no reference
+        if not self._airborne or ref is None or h > CONTACT_M or not t_sample > ref[0]:
+            return
+        # the instant from the tick before the last that sank: the last may have been on the
+        # ground already (its height already the ground's: it looked like a sink)
+        t0, h0, vd0 = self._ref_before or ref
+        # the descent stopped near the ground (a SITL's ground stops the vehicle dead; PX4 SIH's lies
+        # a few cm below the take-off level): by the reported sink or by the height (ArduCopter's
+        # SIM_STATE), against the last tick that sank; the instant where that sink met this height
+        if not (vd < 0.25 * vd0 or sink_h < 0.25 * vd0):
+            return
+        t_c = min(max(t0 + (h0 - h) / vd0, t0), t_sample)
+        tr.stop_at(t_c)
+        n, e = tr.ne(t_c)
+        self.contact_ne = (truth.pn, truth.pe)  # stopped dead there by the SITL's ground
+        log.info(
+            "moving pad: ground contact at %.2f s from the take-off (height %.3f m, %.2f m/s down): the pad stops "
+            "at %.2f, %.2f m",
+            t_c - (tr.origin_s or 0.0),
+            h,
+            vd,
+            n,
+            e,
+        )
+
     def _landing(self, shell: DeliveryShell, out: MissionOutput) -> None:
         truth = self.truth
         st = shell.autopilot.telemetry.status
         if not self.touchdown and out.phase is Phase.LANDING_PAD and truth.age_s < 1.0:
-            row = _landing_row(time.monotonic() - self.t_start, shell, out, truth, self.pad_ne, self.t_ground)
+            pad_now = self.pad_at(time.monotonic())
+            row = _landing_row(time.monotonic() - self.t_start, shell, out, truth, pad_now, self.t_ground)
             self.landing_trace.append(row)
         # the autopilot's landed state on the descent, or the mission's own touchdown on the pad
         # (with few status messages, as on a 115200 baud line, it can decide on the tick the
@@ -189,14 +266,20 @@ class _TruthScore:
         if not self.touchdown and (on_ground or decided) and truth.age_s < 1.0:
             self.touchdown.append((truth.pn, truth.pe))
             self.touchdown_yaw.append(truth.yaw)
+            self.touchdown_t = time.monotonic()
+            self.pad_touchdown = self.pad_at(self.touchdown_t)
             est, pad_cfg = shell.estimate, shell.mission.pad_ned
             if est is not None and pad_cfg is not None:
                 self.believed.append((float(est.position_ned[0] - pad_cfg[0]), float(est.position_ned[1] - pad_cfg[1])))
 
 
 def _harness_result(config: SimulatedConfig, summary: Any, shell: DeliveryShell, sc: _TruthScore) -> HarnessResult:
-    pad_ne = sc.pad_ne
+    # the pad's centre at the touchdown's instant (a moving pad stands where it stopped)
+    pad_ne = sc.pad_touchdown if sc.pad_touchdown is not None else sc.pad_at(time.monotonic())
     td = sc.touchdown[0] if sc.touchdown else (math.nan, math.nan)
+    tr = sc.track
+    origin = tr.origin_s if tr is not None and tr.origin_s is not None else math.nan
+    stop = tr.stopped_s if tr is not None and tr.stopped_s is not None else math.nan
     err = math.hypot(td[0] - pad_ne[0], td[1] - pad_ne[1])
     # both offsets from the pad are frame-free (the truth and autopilot frames differ by a shift)
     b = sc.believed[0] if sc.believed else (math.nan, math.nan)
@@ -233,6 +316,14 @@ def _harness_result(config: SimulatedConfig, summary: Any, shell: DeliveryShell,
         releases=sum(e.kind is EventKind.RELEASED for e in summary.events),
         pad_lock_events=tuple(e.detail for e in summary.events if e.kind is EventKind.PAD_LOCK),
         drop_zone_events=tuple(e.detail for e in summary.events if e.kind is EventKind.DROP_ZONE),
+        pad_stop_ne_m=tr.ne(stop) if tr is not None and math.isfinite(stop) else (math.nan, math.nan),
+        pad_stop_s=stop - origin,
+        contact_error_m=(
+            math.hypot(sc.contact_ne[0] - pad_ne[0], sc.contact_ne[1] - pad_ne[1])
+            if sc.contact_ne is not None
+            else math.nan
+        ),
+        touchdown_s=(sc.touchdown_t if sc.touchdown_t is not None else math.nan) - origin,
         pad_heading_error_deg=(
             heading_error_deg(sc.touchdown_yaw[0], true_pad_heading_rad(config))
             if sc.touchdown_yaw and simulated_pad(config).heading_deg is not None
@@ -263,10 +354,13 @@ async def fly_on_truth(
     if pad_ne is None:
         pad_ne = true_pad_ne(config, origin, pad_offset_m)
     kit = None
+    track = pad_track(config.sim.pad_motion, pad_ne[0], pad_ne[1], true_pad_heading_rad(config))
+    if track is not None:
+        track.start_clock(None)  # the pad stands until the take-off (_TruthScore)
     if config.landing.fusion:  # a GPS-only flight has no landing sensors: it fuses nothing
-        kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne, parcel_at=parcel_at)
+        kit = sim_landing_kit(config, cast(SimVehicle, truth), pad_ne, track=track, parcel_at=parcel_at)
         kit = dataclasses.replace(kit, vision_in_thread=True)  # real time: keep the loop free
-    score = _TruthScore(truth, pad_ne)
+    score = _TruthScore(truth, pad_ne, track)
     shell = DeliveryShell(config, autopilot, on_tick=score, landing=kit, recorder=recorder)
     if on_shell is not None:
         on_shell(shell)

@@ -258,9 +258,12 @@ class SimCameraSource:
         self._listener.notify()
 
     def _pad_in_view(self, T_camera_pad: Transform) -> bool:
-        """The pad (within half a metre of its centre) is in the camera's field of view."""
+        """The pad (within half a metre of its centre) is in the camera's field of view, the camera
+        above the pad's plane (a vehicle on a real SITL's ground, the pad beside it: level with it)."""
         p = T_camera_pad.t
         if p[2] <= 0.05:
+            return False
+        if float((-T_camera_pad.R.T @ p)[2]) <= 1e-3:  # the renderer's own bound (it would refuse)
             return False
         margin = 0.5 / p[2]  # half a metre around the pad centre
         return (
@@ -502,9 +505,14 @@ def sim_landing_kit(
     record_camera: Path | None = None,
     hooks: SimSensorHooks | None = None,
     parcel_at: Callable[[], tuple[float, float, float] | None] | None = None,
+    track: PadTrack | None = None,
 ) -> LandingKit:
     """Simulated camera and UWB around the *true* pad, with the real detector and solver; the
     anchors are ``landing.uwb_anchors`` (as on the vehicle).
+
+    ``track``: the moving pad's track the sensors render from (None: ``[sim.pad_motion]``'s from
+    ``true_pad_ne``, on the clock from 0); a real-firmware harness passes its own to set the
+    track's clock origin and stop it at the ground contact.
 
     ``camera_playback``: the camera is the OpenCV camera plugin playing a recorded file on the
     simulated clock, with the detector on that file's calibration; ``record_camera``: the
@@ -528,7 +536,8 @@ def sim_landing_kit(
     lc = config.landing
     seed = config.sim.seed
     T_world_pad_true = pad_pose_ned(true_pad_ne[0], true_pad_ne[1], 0.0, yaw_rad=true_pad_heading_rad(config))
-    track = pad_track(config.sim.pad_motion, true_pad_ne[0], true_pad_ne[1], true_pad_heading_rad(config))
+    if track is None:
+        track = pad_track(config.sim.pad_motion, true_pad_ne[0], true_pad_ne[1], true_pad_heading_rad(config))
     mount = downward_mount(lc.camera_offset_body_m)
     cam_model = load_default_camera()
     layout = PadLayout()

@@ -8,6 +8,12 @@ its course and heading turning at ``turn_rate_deg_s`` (a circle of radius ``spee
 centripetal acceleration is ``speed * rate``). Both pieces are closed form, so the pose at any
 time is exact and costs a few floats: the camera's target, the UWB anchors (fixed on the pad, as
 on a van's roof) and the truth scoring all read :meth:`PadTrack.pose` at their own instants.
+
+Times are on the clock the landing sensors render with (the event loop's). On the embedded
+simulator that clock starts at 0 with the flight, so ``start_s`` counts from there. On real
+firmware it is the host's monotonic clock: the harness sets the track's origin
+(:meth:`PadTrack.start_clock`) and, since the SITL's ground cannot carry the vehicle, stops the pad
+at the vehicle's first ground contact (:meth:`PadTrack.stop_at`; docs/moving-pad.md).
 """
 
 from __future__ import annotations
@@ -33,6 +39,20 @@ class PadTrack:
         self._w = math.radians(config.turn_rate_deg_s)
         self._t_ramp = self._v / config.accel_m_s2  # time to reach speed
         self._s_ramp = 0.5 * config.accel_m_s2 * self._t_ramp**2  # distance covered meanwhile
+        # the clock time of the track's t = 0 (None: not started, the pad stands); and the clock
+        # time from which the pad stands where it was then (None: it never stops)
+        self.origin_s: float | None = 0.0
+        self.stopped_s: float | None = None
+
+    def start_clock(self, origin_s: float | None) -> None:
+        """The track's t = 0 is clock time ``origin_s`` (None: not started, the pad stands)."""
+        self.origin_s = origin_s
+
+    def stop_at(self, t_s: float) -> None:
+        """The pad stops dead at clock time ``t_s`` (earlier or later than now) and stands there
+        from then on; a second call keeps the first stop."""
+        if self.stopped_s is None:
+            self.stopped_s = float(t_s)
 
     @property
     def moving(self) -> bool:
@@ -46,7 +66,16 @@ class PadTrack:
         return max(self.config.accel_m_s2 if self.moving else 0.0, self._v * abs(self._w))
 
     def state(self, t_s: float) -> tuple[float, float, float, float, float]:
-        """(north m, east m, yaw rad, north m/s, east m/s) of the pad at ``t_s``."""
+        """(north m, east m, yaw rad, north m/s, east m/s) of the pad at clock time ``t_s``."""
+        if self.origin_s is None:
+            return self.north0_m, self.east0_m, self.yaw0_rad, 0.0, 0.0
+        if self.stopped_s is not None and t_s >= self.stopped_s:
+            n, e, yaw, _, _ = self._moving_state(self.stopped_s - self.origin_s)
+            return n, e, yaw, 0.0, 0.0
+        return self._moving_state(t_s - self.origin_s)
+
+    def _moving_state(self, t_s: float) -> tuple[float, float, float, float, float]:
+        """:meth:`state` at track time ``t_s`` (from the origin), never stopped."""
         tau = t_s - self.config.start_s
         n0, e0, c0 = self.north0_m, self.east0_m, self._c0
         if not self.moving or tau <= 0.0:

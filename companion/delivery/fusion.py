@@ -121,6 +121,8 @@ class LandingFusion:
         self._rates = np.zeros(3)
         self._euler: np.ndarray | None = None
         self._last_marker_s = -np.inf
+        # a moving pad: its estimated travel (north, east m) since the lock, and when last summed
+        self._pad_travel: tuple[float | None, float, float] = (None, 0.0, 0.0)
         self._last_uwb_s = -np.inf
         self.last_sighting: PadSighting | None = None
         self.last_uwb_fix: object | None = None  # the last accepted uwb.UwbFix
@@ -238,11 +240,25 @@ class LandingFusion:
         """The estimate's time and NED position while pad data keeps coming (the last within
         PAD_DATA_FRESH_S; None otherwise), for the velocity-bias correction against the fused
         position (guidance.velocity_bias.VelocityBiasCorrection): without pad data the fused
-        position is only the autopilot's velocity integrated."""
+        position is only the autopilot's velocity integrated. A moving pad's fused position is
+        pad-relative: it is moved on by the pad's estimated travel, so that its rate is the ground
+        velocity the autopilot reports (else the bias would take the pad's velocity)."""
         est = self.estimate() if self.pad_locked else None
-        if est is None or self.pad_data_age_s(est.time_s) > PAD_DATA_FRESH_S:
+        if est is None:
             return None
-        return (est.time_s, est.position_ned)
+        pos = est.position_ned
+        v = self.pad_velocity_ne
+        if v is not None:
+            t_last, dn, de = self._pad_travel
+            dt = est.time_s - t_last if t_last is not None else 0.0
+            if dt > 0.0:
+                dn, de = dn + v[0] * dt, de + v[1] * dt
+            if dt >= 0.0:
+                self._pad_travel = (est.time_s, dn, de)
+            pos = (pos[0] + dn, pos[1] + de, pos[2])
+        if self.pad_data_age_s(est.time_s) > PAD_DATA_FRESH_S:
+            return None
+        return (est.time_s, pos)
 
     def pad_data_age_s(self, now_s: float) -> float:
         return now_s - max(self._last_marker_s, self._last_uwb_s)

@@ -58,6 +58,11 @@ class PrecisionDescent:
         self.contact = False  # ground contact seen (descent.contact_time_s): only the descent from then on
         self._descending = False
         self._stopped_since: float | None = None
+        # the sinking stopped near the ground after a commanded descent (the rule of _contact,
+        # without its confirmation time and whatever contact_time_s says): a moving pad's feed-forward
+        # switches to the vehicle's own velocity from then on (delivery.mission.moving_pad)
+        self.grounded = False
+        self._ground_descending = False
 
     def command(
         self,
@@ -79,6 +84,8 @@ class PrecisionDescent:
         vz = -self.land_speed_m_s * self._slow(e, height_m, time_s, may_hold)
         if c.contact_time_s > 0.0 and down_m_s is not None and not self.contact:
             self.contact = self._contact(-vz, down_m_s, height_m, time_s)
+        if down_m_s is not None and not self.grounded:
+            self.grounded = self._sinking_stopped(-vz, down_m_s, height_m)
         zeroed = height_m < c.touchdown_height_m or self.contact
         vx, vy = -c.xy_gain_1_s * ex, -c.xy_gain_1_s * ey
         if c.xy_integral_gain_1_s2 > 0.0:
@@ -142,6 +149,17 @@ class PrecisionDescent:
         if self._stopped_since is None:
             self._stopped_since = time_s
         return time_s - self._stopped_since >= self.cfg.contact_time_s
+
+    def _sinking_stopped(self, sink_cmd_m_s: float, sink_m_s: float, height_m: float) -> bool:
+        """Within CONTACT_HEIGHT_M of the ground, under a commanded sink of at least half the land
+        speed, the vehicle sank at CONTACT_DESCENDING of it and now sinks below CONTACT_STOPPED of it."""
+        if height_m > CONTACT_HEIGHT_M or sink_cmd_m_s < 0.5 * self.land_speed_m_s:
+            self._ground_descending = False
+            return False
+        if sink_m_s >= CONTACT_DESCENDING * sink_cmd_m_s:
+            self._ground_descending = True
+            return False
+        return self._ground_descending and sink_m_s < CONTACT_STOPPED * sink_cmd_m_s
 
     def _settle_slow(self, e: float, height: float, time_s: float, may_wait: bool) -> float:
         """The descent's speed factor from descent.settle_s: 1 while the error has stayed within

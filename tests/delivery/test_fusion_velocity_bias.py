@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from companion.autopilot.types import Attitude, PositionNed
+from companion.config import MovingPadConfig
 from companion.delivery.fusion import FusionSetup, LandingFusion
 from companion.geometry.mounts import pad_pose_ned
 from companion.geometry.se3 import Transform
@@ -66,3 +67,28 @@ def test_the_correction_is_held_to_its_limit():
         t = k * 0.02
         f.on_sample(PositionNed(t, TRUE_V[0] * t, TRUE_V[1] * t, -3.0, 0.0, 0.0, 0.0))
     assert math.hypot(*f.process_velocity_ned_m_s[:2]) == pytest.approx(0.1, abs=1e-6)
+
+
+def test_a_moving_pads_locked_position_moves_on_by_the_pads_travel():
+    """With [landing.moving_pad] the fused position is pad-relative: the position the velocity-bias
+    corrections measure against moves on by the pad's estimated travel (its rate a ground velocity)."""
+    setup = FusionSetup(
+        T_world_pad=pad_pose_ned(0.0, 0.0, 0.0),
+        T_body_camera=Transform.identity(),
+        moving_pad=MovingPadConfig(enabled=True),
+    )
+    f = LandingFusion(setup, 0.0)
+    f.on_sample(Attitude(0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    f.on_sample(PositionNed(0.02, 0.0, 0.0, -3.0, 0.0, 0.0, 0.0))
+    f.ekf.xi = 1  # as after the first pad-local datum; the pad at 2 m/s north
+    f.ekf.x[12:14] = (2.0, 0.0)
+    got = []
+    for k in range(2, 12):
+        t = k * 0.02
+        f._last_uwb_s = t  # pad data fresh
+        f.on_sample(PositionNed(t, 0.0, 0.0, -3.0, 0.0, 0.0, 0.0))
+        est, locked = f.estimate(), f.locked_position()
+        assert est is not None and locked is not None
+        got.append((locked[0], locked[1][0] - est.north_m))
+    (t0, d0), (t1, d1) = got[0], got[-1]
+    assert d1 - d0 == pytest.approx(2.0 * (t1 - t0), rel=1e-6)

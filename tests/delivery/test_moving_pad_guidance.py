@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from companion.delivery.mission.moving_pad import TRACKED_PHASES, too_fast, with_pad_velocity
+from companion.delivery.mission.moving_pad import TRACKED_PHASES, pad_feedforward, too_fast, with_pad_velocity
 from companion.events import Phase
 from companion.guidance.setpoint import VelocitySetpoint
 
@@ -33,3 +33,10 @@ def test_a_pad_faster_than_the_limit_is_named_with_its_speed_and_the_key() -> No
     why = too_fast((3.0, 1.0), 3.0)
     assert why is not None and f"{math.hypot(3.0, 1.0):.2f} m/s" in why
     assert "landing.moving_pad.max_speed_m_s = 3 m/s" in why
+
+
+def test_on_the_ground_the_own_velocity_is_fed_forward_not_the_estimate():
+    assert pad_feedforward((2.0, 0.5), False, (1.9, 0.4)) == (2.0, 0.5)  # flying: the estimate
+    assert pad_feedforward((2.0, 0.5), True, (0.0, 0.01)) == (0.0, 0.01)  # grounded: the deck's
+    assert pad_feedforward(None, True, (0.0, 0.0)) is None  # no moving pad estimate: nothing
+    assert pad_feedforward((2.0, 0.5), True, None) == (2.0, 0.5)  # no own velocity: the estimate

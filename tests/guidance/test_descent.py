@@ -84,3 +84,26 @@ def test_contact_is_off_by_default():
     d = PrecisionDescent(DescentConfig(touchdown_height_m=-1.0), land_speed_m_s=0.7)
     _fly(d, [(0.7, 1.0), (0.0, 2.0)])
     assert not d.contact
+
+
+def test_grounded_once_a_commanded_descent_stops_sinking_whatever_contact_time_s_says():
+    """PrecisionDescent.grounded (a moving pad's feed-forward switches on it): sank at land speed,
+    then below a quarter of it near the ground; contact_time_s off (ArduCopter's tuning)."""
+    d = PrecisionDescent(DescentConfig(), land_speed_m_s=0.5)
+    _fly(d, [(0.5, 1.0)])
+    assert not d.grounded  # still sinking
+    _fly(d, [(0.2, 0.2)], t=1.0)
+    assert not d.grounded  # slower, not stopped
+    _fly(d, [(0.05, 0.05)], t=1.2)
+    assert d.grounded and not d.contact  # at once, without contact_time_s's confirmation
+    _fly(d, [(0.5, 0.5)], t=1.25)
+    assert d.grounded  # latched for the phase
+
+
+def test_not_grounded_where_no_descent_was_commanded_or_high_up():
+    high = PrecisionDescent(DescentConfig(), land_speed_m_s=0.5)
+    _fly(high, [(0.5, 1.0), (0.0, 0.5)], height_m=3.0)  # stopped 3 m up (above CONTACT_HEIGHT_M)
+    assert not high.grounded
+    never = PrecisionDescent(DescentConfig(), land_speed_m_s=0.5)
+    _fly(never, [(0.0, 1.0)])  # never sank: a hover is no contact
+    assert not never.grounded

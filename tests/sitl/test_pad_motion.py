@@ -177,3 +177,20 @@ def test_a_vehicle_resting_on_the_deck_rides_along_and_one_beside_it_does_not(pa
         assert (v.vn, v.ve) == pytest.approx((vn, ve), abs=1e-12)
     else:
         assert (v.pn, v.pe) == (0.0, 0.0)
+
+
+def test_the_track_on_a_clock_of_its_own_and_stopped_dead():
+    """A real firmware's harness: the track's t = 0 at the take-off (start_clock; before it the pad
+    stands) and the pad stopped at the ground contact (stop_at), standing there from then on."""
+    cfg = _cfg(speed_m_s=2.0, course_deg=90.0, accel_m_s2=0.5, start_s=10.0)
+    ref, tr = PadTrack(cfg, 5.0, -1.0), PadTrack(cfg, 5.0, -1.0)
+    tr.start_clock(None)
+    assert tr.state(1e6) == (5.0, -1.0, 0.0, 0.0, 0.0)  # not started: stands
+    tr.start_clock(1000.0)
+    for t in (5.0, 12.0, 20.0):
+        assert tr.state(1000.0 + t) == pytest.approx(ref.state(t), abs=1e-9)
+    tr.stop_at(1020.0)
+    tr.stop_at(1030.0)  # the first stop is kept
+    n, e, _, vn, ve = tr.state(1050.0)
+    assert (n, e) == pytest.approx(ref.ne(20.0), abs=1e-9) and (vn, ve) == (0.0, 0.0)
+    assert tr.state(1015.0) == pytest.approx(ref.state(15.0), abs=1e-9)  # before the stop: as ever

@@ -34,12 +34,13 @@ from companion.delivery.mission.base import DELIVERY_LEG_PHASES, FOLLOW_PHASES, 
 from companion.delivery.mission.commands import CommandReply, ground_command
 from companion.delivery.mission.dropzone import DropZonePolicy
 from companion.delivery.mission.linkwatch import LinkCheck
-from companion.delivery.mission.moving_pad import TRACKED_PHASES, too_fast, with_pad_velocity
+from companion.delivery.mission.moving_pad import TRACKED_PHASES, pad_feedforward, too_fast, with_pad_velocity
 from companion.delivery.mission.padpolicy import PadPolicy
 from companion.delivery.mission.phases import HANDLERS
 from companion.delivery.mission.requests import MAX_REQUEST_TRIES
 from companion.delivery.mission.routes import RoutePlanner
 from companion.delivery.mission.states import (
+    LandingState,
     PhaseState,
     ReleaseState,
 )
@@ -186,7 +187,8 @@ class DeliveryMission(MissionBase):
         handler = HANDLERS.get(self.phase)
         step = handler(self, inp) if handler is not None else Step()
         if self.moving_pad is not None:
-            step = dataclasses.replace(step, setpoint=with_pad_velocity(self.phase, step.setpoint, inp.pad_velocity_ne))
+            pad_v = self._pad_feedforward(inp)
+            step = dataclasses.replace(step, setpoint=with_pad_velocity(self.phase, step.setpoint, pad_v))
         setpoint = self.yaw.apply(self.phase, inp, step.setpoint, lambda: self.height_above_ground(inp.estimate))
         request = step.request
         if request is None:
@@ -194,6 +196,19 @@ class DeliveryMission(MissionBase):
             if retry is not None:
                 request = self.make_request(retry.kind, retry.alt_rel_m, tries=retry.tries)
         return self._out(setpoint, request, step.lyapunov)
+
+    def _pad_feedforward(self, inp: MissionInputs) -> tuple[float, float] | None:
+        """The moving pad's velocity to feed forward (moving_pad.pad_feedforward): the estimate's,
+        or the vehicle's own once the final descent onto the pad has stopped sinking at the ground."""
+        st, est = self.state, inp.estimate
+        grounded = (
+            self.phase is Phase.LANDING_PAD
+            and isinstance(st, LandingState)
+            and st.descent is not None
+            and st.descent.grounded
+        )
+        own = (float(est.north_m_s), float(est.east_m_s)) if est is not None else None
+        return pad_feedforward(inp.pad_velocity_ne, grounded, own)
 
     def enter(self, phase: Phase) -> PhaseState:
         """Put the mission in ``phase`` now, as a transition would (tests and tools start a

@@ -6,6 +6,13 @@ setpoint is a ground velocity, though: the pad's estimated velocity is fed forwa
 horizontal setpoint of the phases that fly relative to the pad, so the vehicle moves with it and
 the controllers only correct the offset; the descent's damping term takes the velocity relative
 to the pad (phases.precision_descent). A pad faster than ``max_speed_m_s`` is not landed on.
+
+Once the final descent has stopped sinking at the ground (PrecisionDescent.grounded) the deck, not
+the estimate, sets the vehicle's ground velocity: the vehicle's own velocity is fed forward instead
+of the pad's estimate. On a moving deck the two agree (the deck carries the vehicle); on a deck that
+stops, or on a SITL's ground that cannot carry it, the estimate lags the stop, and a ground velocity
+commanded to a vehicle that cannot follow it winds up the autopilot's position controller
+(docs/moving-pad.md).
 """
 
 from __future__ import annotations
@@ -43,3 +50,15 @@ def too_fast(pad_velocity_ne: tuple[float, float] | None, max_speed_m_s: float) 
         f"the pad moves at {speed:.2f} m/s, faster than landing.moving_pad.max_speed_m_s = {max_speed_m_s:g} m/s "
         "(docs/moving-pad.md)"
     )
+
+
+def pad_feedforward(
+    pad_velocity_ne: tuple[float, float] | None,
+    grounded: bool,
+    own_velocity_ne: tuple[float, float] | None,
+) -> tuple[float, float] | None:
+    """The velocity fed forward: the pad's estimate, or once ``grounded`` (the descent stopped
+    sinking at the ground) the vehicle's own ground velocity (the deck's, carried by it)."""
+    if pad_velocity_ne is None or not grounded or own_velocity_ne is None:
+        return pad_velocity_ne
+    return own_velocity_ne
