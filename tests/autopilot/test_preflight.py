@@ -460,3 +460,18 @@ def test_stream_rates_against_the_guidance_rate() -> None:
 def test_stream_rate_counts_from_the_first_sample() -> None:
     assert stream_rate_hz([]) == 0.0 and stream_rate_hz([1.0]) == 0.0
     assert stream_rate_hz([1.0 + 0.1 * i for i in range(11)]) == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize(
+    "value, status", [(0.0, Status.WRONG), (16.0, Status.OK), (17.0, Status.OK), (8.0, Status.WRONG)]
+)
+def test_ardupilot_moving_pad_needs_guided_without_a_position_target(value: float, status: Status) -> None:
+    moving = dataclasses.replace(AP, moving_pad=True)
+    assert "GUID_OPTIONS" in ardupilot_param_names(moving) and "GUID_OPTIONS" not in ardupilot_param_names(AP)
+    fixed = AP_DEFAULTS | {"GRIP_ENABLE": 1.0, "SERVO9_FUNCTION": 28.0}
+    rows = list(run_checks(moving, fixed | {"GUID_OPTIONS": value}, clock=ClockProbe(offset_s=0.0)).checks)
+    row = _row(rows, "GUID_OPTIONS")
+    assert row.status is status, row
+    if status is Status.WRONG:
+        assert "set bit 4 (DoNotStabilizePositionXY, add 16)" in row.detail
+    assert all(c.name != "GUID_OPTIONS" for c in run_checks(AP, fixed, clock=ClockProbe(offset_s=0.0)).checks)

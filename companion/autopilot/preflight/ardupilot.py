@@ -49,6 +49,7 @@ AP_FS_GCS_LAND = 5
 AP_FS_OPTION_RELEASE_GRIPPER = 32  # FS_OPTIONS bit 5: release the gripper on any failsafe
 AP_GRIPPER_FUNCTION = 28
 AP_SERVO_OUTPUTS = 16
+AP_GUID_OPTION_NO_POSITION_XY = 16  # GUID_OPTIONS bit 4, DoNotStabilizePositionXY
 
 
 def ardupilot_param_names(req: Requirements) -> list[str]:
@@ -60,7 +61,31 @@ def ardupilot_param_names(req: Requirements) -> list[str]:
         names += ["FS_OPTIONS", "GRIP_ENABLE", *(f"SERVO{n}_FUNCTION" for n in range(1, AP_SERVO_OUTPUTS + 1))]
     elif req.release == "servo":
         names.append(f"SERVO{req.servo_channel}_FUNCTION")
+    if req.moving_pad:
+        names.append("GUID_OPTIONS")
     return names + ardupilot_safety_param_names(req) + external_nav_param_names(req)
+
+
+def check_ardupilot_moving_pad(req: Requirements, params: Mapping[str, ParamValue]) -> list[CheckResult]:
+    """A moving pad (docs/moving-pad.md): GUIDED must fly the velocity setpoints without a
+    position target of its own. With one, the target runs on ahead once the ground (or the deck)
+    stops the vehicle, the lean request winds up and the land detector never fires."""
+    if not req.moving_pad:
+        return []
+    v = param_or_unknown(params, "GUID_OPTIONS")
+    if isinstance(v, CheckResult):
+        return [v]
+    if int(v) & AP_GUID_OPTION_NO_POSITION_XY:
+        return [CheckResult("GUID_OPTIONS", Status.OK, fmt(v), "bit 4 set: GUIDED keeps no position target of its own")]
+    return [
+        CheckResult(
+            "GUID_OPTIONS",
+            Status.WRONG,
+            fmt(v),
+            "landing.moving_pad.enabled: set bit 4 (DoNotStabilizePositionXY, add 16): without it GUIDED's position "
+            "target runs on ahead when the vehicle meets the pad, and ArduCopter does not detect the landing",
+        )
+    ]
 
 
 def check_ardupilot_guided_timeout(req: Requirements, params: Mapping[str, ParamValue]) -> CheckResult:
@@ -294,4 +319,5 @@ def check_ardupilot(req: Requirements, params: Mapping[str, ParamValue]) -> list
         *check_ardupilot_failsafe_release(req, params),
         *check_ardupilot_safety(req, params),
         *check_ardupilot_external_nav(req, params),
+        *check_ardupilot_moving_pad(req, params),
     ]

@@ -119,6 +119,8 @@ class Requirements:
     remote_id_required: bool = False
     # [external_nav] enabled: the EKF source set that navigates on the companion's pose (else None)
     external_nav_source_set: int | None = None
+    # [landing.moving_pad] enabled: the vehicle lands on a pad that moves (docs/moving-pad.md)
+    moving_pad: bool = False
 
 
 @dataclass(frozen=True)
@@ -175,4 +177,5 @@ def requirements_from_config(config: Any) -> Requirements:
         battery_reserve_pct=config.go_no_go.battery_reserve_pct,
         remote_id_required=config.go_no_go.remote_id_required,
         external_nav_source_set=config.external_nav.source_set if config.external_nav.enabled else None,
+        moving_pad=lc.moving_pad.enabled,
     )
