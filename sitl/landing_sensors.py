@@ -519,7 +519,7 @@ def sim_landing_kit(
     simulated camera's frames are recorded as they are read. ``hooks``: a bench's instruments of
     the simulated sensors (:class:`SimSensorHooks`). ``parcel_at``: where the drawn parcel's bottom
     is (``[sim.winch] draw_parcel``; None: the sim vehicle's parcel)."""
-    from companion.delivery.landing_setup import LandingSetupError, resolve_params_file
+    from companion.delivery.landing_setup import LandingSetupError, check_parcel_tag, resolve_params_file
     from companion.geometry.mounts import downward_mount, pad_pose_ned
     from companion.plugin_api import PluginError, create
     from companion.scheduling import LoopClock
@@ -599,6 +599,7 @@ def sim_landing_kit(
             camera = RecordingCamera(camera, writer)
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
         detector = PadDetector(cam_model, layout, lc.detector, markers=markers)
+        check_parcel_tag(config, layout)
     anchors = load_anchor_layout(resolve_params_file(lc.uwb_anchors, "uwb_anchors"))
     if lc.use_uwb:
         uwb = SimUwbSource(

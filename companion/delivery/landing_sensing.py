@@ -131,13 +131,9 @@ class LandingSensing:
         self._parcel_tag: tuple[float, float, float] | None = None  # the last searched frame's find
         wcam = config.winch.camera
         if config.mission.delivery == "winch" and wcam.enabled and kit is not None and kit.detector is not None:
-            from companion.vision.parcel_tag import ParcelTagFinder, tag_clashes_with_pad
+            from companion.vision.parcel_tag import ParcelTagFinder
 
-            clash = tag_clashes_with_pad(kit.detector.layout, wcam.tag_dict, wcam.tag_id)
-            if clash:  # before take-off: the pad's own marker would be taken for the parcel
-                from companion.delivery.landing_setup import LandingSetupError
-
-                raise LandingSetupError(f"winch.camera: {clash}; choose another winch.camera.tag_dict or tag_id")
+            # (a tag that is one of the pad's markers is refused where the kit is built: landing_setup)
             self.parcel_finder = ParcelTagFinder(kit.detector.camera, wcam.tag_dict, wcam.tag_id, wcam.tag_size_m)
 
     def apply_opencv_threads(self) -> None:

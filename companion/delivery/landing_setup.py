@@ -42,6 +42,19 @@ def resolve_params_file(name: str, key: str) -> Path:
         raise LandingSetupError(f"landing.{key} = {name!r}: no such file, and {err}") from None
 
 
+def check_parcel_tag(config: CompanionConfig, layout: Any) -> None:
+    """[winch.camera]'s tag must not be one of the pad's own markers (the detector would take the
+    pad for the parcel): refused before take-off."""
+    from companion.vision.parcel_tag import tag_clashes_with_pad
+
+    wc = config.winch.camera
+    if not wc.enabled:
+        return
+    clash = tag_clashes_with_pad(layout, wc.tag_dict, wc.tag_id)
+    if clash:
+        raise LandingSetupError(f"winch.camera: {clash}; choose another winch.camera.tag_dict or tag_id")
+
+
 def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
     """The kit for ``config.landing``, or None when fusion is off (GPS-only)."""
     from companion.geometry.mounts import downward_mount
@@ -69,6 +82,7 @@ def build_landing_kit(config: CompanionConfig) -> LandingKit | None:
             raise LandingSetupError(f"landing.pad_file = {lc.pad_file!r}: {err}") from None
         markers = ("outer", "inner") if lc.markers == "both" else (lc.markers,)
         detector = PadDetector(model, layout, lc.detector, markers=markers)
+        check_parcel_tag(config, layout)
         source: str | int = int(lc.camera_source) if lc.camera_source.isdigit() else lc.camera_source
         try:
             camera = create(
