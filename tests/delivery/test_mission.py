@@ -620,3 +620,15 @@ def test_a_touchdown_is_judged_where_the_sinking_stopped_not_where_the_estimate_
         ground = status(t, armed=False, mode=FlightMode.OFFBOARD)
         m.step(MissionInputs(t, StateEstimate(t, pn + 1.2, pe, 0.0, 0, 0, 0.0, 0, 0, 0), ground, HOME))
         assert (m.phase is Phase.RELEASE) is released, (drift_on_the_ground, m.summary.failure)
+
+
+def test_after_a_stall_past_the_offboard_timeout_control_is_not_regained():
+    """A 15 s freeze: PX4's LAND failsafe brought the vehicle down, then handed OFFBOARD back when
+    the setpoints resumed (CI, 2026-12-04: OFFBOARD again at +15.5 s, the vehicle on the ground since
+    +12.2 s, and the companion released). However long OFFBOARD is seen afterwards, the touchdown is
+    not the companion's: nothing released. A stall shorter than 1 s still regains control."""
+    m, _ = _landing_after(0.5, 15.0, FlightMode.OFFBOARD, regained_ticks=60)
+    assert m.phase is Phase.FAILED and m.summary.failure_kind is FailureKind.AUTOPILOT_LANDED
+    assert not m.summary.delivered
+    m, _ = _landing_after(0.5, 0.9, FlightMode.OFFBOARD, regained_ticks=22)
+    assert m.phase is Phase.RELEASE

@@ -61,6 +61,10 @@ log = logging.getLogger(__name__)
 # after a stall or a link loss: how long the vehicle must be seen flying in OFFBOARD before the
 # companion counts itself in control again (longer than the link's buffered backlog takes to drain)
 CONTROL_REGAINED_S = 1.0
+# a stall of its own longer than this (PX4's COM_OF_LOSS_T default; ArduCopter's GUID_TIMEOUT is
+# longer) gave the autopilot's failsafe time to act: PX4 hands OFFBOARD back when the setpoints
+# resume, even to a vehicle its LAND has already brought down, so control is not regained
+STALL_FORFEITS_CONTROL_S = 1.0
 
 
 class DeliveryMission(MissionBase):
@@ -87,6 +91,7 @@ class DeliveryMission(MissionBase):
         self.stall_s = stall_s
         self._last_step_s: float | None = None
         self._regaining_s: float | None = None  # flying in OFFBOARD since, after a loss of control
+        self._control_forfeit = False  # a long stall: out of control for the rest of the mission
         self.routes = RoutePlanner(self, self.fence_cfg, limits)
         self.pads = PadPolicy(self, self.pad_policy)
         self.drop_zones = DropZonePolicy(self, drop_zone)
@@ -240,6 +245,8 @@ class DeliveryMission(MissionBase):
         last, self._last_step_s = self._last_step_s, time_s
         if last is not None and time_s - last > self.stall_s and not self.phase.terminal:
             self._lose_control(last)
+            if time_s - last > STALL_FORFEITS_CONTROL_S:
+                self._control_forfeit = True
             self.emit(
                 EventKind.WARNING,
                 f"the companion did not step for {time_s - last:.2f} s (limit {self.stall_s} s): "
@@ -266,7 +273,7 @@ class DeliveryMission(MissionBase):
         messages arrive stamped anew, and one of them can still say OFFBOARD in the air. A
         touchdown meanwhile was not the companion's: it stays lost."""
         st = inp.status
-        if self.control_lost_s is None or st is None or st.time_s <= self.control_lost_s:
+        if self.control_lost_s is None or st is None or st.time_s <= self.control_lost_s or self._control_forfeit:
             return
         if st.mode is not FlightMode.OFFBOARD or st.landed is not LandedState.IN_AIR:
             self._regaining_s = None
