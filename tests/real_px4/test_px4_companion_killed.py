@@ -97,14 +97,8 @@ async def test_px4_lands_by_itself_while_the_companion_hangs_or_is_frozen(px4_ro
     assert r.touchdown_speed_m_s < 2.0, r.story()
     assert r.disarmed_after_s is not None and r.disarmed_after_s <= 45.0, r.story()
     assert r.max_drift_m < 2.5 and r.landed_from_pad_m < 3.0, r.story()
-    # PX4 clears its offboard-loss failsafe when our setpoints resume (measured: OFFBOARD again at
-    # the thaw). Landed before that, the landing was the failsafe's: nothing may be released. Still in
-    # the air, PX4 hands the descent back: the companion's own landing, on the pad, may release
-    back = next((t for t, m in r.modes[1:] if t > 0.0 and m == "OFFBOARD"), None)
-    assert r.touchdown_after_s is not None, r.story()
-    if back is None or back >= r.touchdown_after_s:
-        assert r.touchdown_after_s <= 15.0, r.story()
-        assert not r.release_commands, r.story()
-    else:
-        assert back >= STOP_S - 0.5, r.story()  # handed back only once the companion was back
-        assert not r.release_commands or r.landed_from_pad_m < 0.5, r.story()  # released on the pad only
+    # PX4 clears its offboard-loss failsafe when our setpoints resume (OFFBOARD again at the thaw, even
+    # on the ground): a 15 s stall forfeits the companion's control, so nothing is released whatever
+    # PX4 reports afterwards (docs/companion-death.md)
+    assert r.touchdown_after_s is not None and r.touchdown_after_s <= 15.0, r.story()
+    assert not r.release_commands, r.story()
